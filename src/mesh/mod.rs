@@ -1,0 +1,549 @@
+//! The rest-shape triangle mesh: its data, its validation, its file format
+//! (`.mesh.json`, see `docs/mesh-format.md`), its connected pieces and point
+//! location. Building a mesh from a picture or a polygon lives in
+//! [`build`] and [`trace`]; deformers only ever see a validated [`Mesh`].
+//!
+//! Plain synchronous code over data: no I/O beyond the explicit `load`/`save`.
+
+pub mod build;
+pub mod polygon;
+pub mod trace;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::DVec2;
+use serde::{Deserialize, Serialize};
+
+/// An error in a mesh: which file, which field, what is wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        file: String,
+        source: std::io::Error,
+    },
+    #[error("{file}: line {line}, column {column}: {message}")]
+    Syntax {
+        file: String,
+        line: usize,
+        column: usize,
+        message: String,
+    },
+    #[error("{file}: {field}: {problem}")]
+    Invalid {
+        file: String,
+        field: String,
+        problem: String,
+    },
+}
+
+/// A validated rest mesh: counter-clockwise, non-degenerate triangles over
+/// finite vertices, every vertex used, with one rigidity weight per triangle.
+///
+/// Coordinates are y-up (x right); `uv` follows image convention (v down from
+/// the top edge of the source picture).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mesh {
+    vertices: Vec<DVec2>,
+    triangles: Vec<[u32; 3]>,
+    uv: Option<Vec<DVec2>>,
+    weights: Vec<f64>,
+}
+
+/// The on-disk shape of a mesh; see `docs/mesh-format.md`.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MeshFile {
+    vertices: Vec<[f64; 2]>,
+    triangles: Vec<[u32; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    uv: Option<Vec<[f64; 2]>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    weights: Option<Vec<f64>>,
+}
+
+fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> MeshError {
+    MeshError::Invalid {
+        file: file.to_string(),
+        field: field.into(),
+        problem: problem.into(),
+    }
+}
+
+/// Twice the signed area of triangle `abc` (positive when counter-clockwise).
+pub fn cross(a: DVec2, b: DVec2, c: DVec2) -> f64 {
+    (b - a).perp_dot(c - a)
+}
+
+impl Mesh {
+    /// Validates and builds a mesh. `source` names where the data came from,
+    /// for error messages. `weights` defaults to 1 for every triangle.
+    pub fn new(
+        source: &str,
+        vertices: Vec<DVec2>,
+        triangles: Vec<[u32; 3]>,
+        uv: Option<Vec<DVec2>>,
+        weights: Option<Vec<f64>>,
+    ) -> Result<Mesh, MeshError> {
+        let file = source;
+        if vertices.is_empty() {
+            return Err(invalid(file, "vertices", "the mesh has no vertices"));
+        }
+        if triangles.is_empty() {
+            return Err(invalid(file, "triangles", "the mesh has no triangles"));
+        }
+        for (i, v) in vertices.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(invalid(
+                    file,
+                    format!("vertices[{i}]"),
+                    format!("coordinate is not a finite number: [{}, {}]", v.x, v.y),
+                ));
+            }
+        }
+        let n = vertices.len();
+        if n > u32::MAX as usize / 2 {
+            return Err(invalid(file, "vertices", "too many vertices"));
+        }
+        let size = bounding_diagonal(&vertices);
+        let mut used = vec![false; n];
+        for (t, tri) in triangles.iter().enumerate() {
+            for &i in tri {
+                if i as usize >= n {
+                    return Err(invalid(
+                        file,
+                        format!("triangles[{t}]"),
+                        format!("vertex index {i} is out of range (the mesh has {n} vertices)"),
+                    ));
+                }
+                used[i as usize] = true;
+            }
+            if tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2] {
+                return Err(invalid(
+                    file,
+                    format!("triangles[{t}]"),
+                    format!("repeats a vertex: {tri:?}"),
+                ));
+            }
+            let [a, b, c] = tri.map(|i| vertices[i as usize]);
+            let doubled_area = cross(a, b, c);
+            // Relative to the longest edge, so the test does not depend on units.
+            let longest = (b - a)
+                .length_squared()
+                .max((c - b).length_squared())
+                .max((a - c).length_squared());
+            if doubled_area.abs() <= 1e-12 * longest.max(size * size * 1e-12) {
+                return Err(invalid(
+                    file,
+                    format!("triangles[{t}]"),
+                    format!("has zero area: {tri:?}"),
+                ));
+            }
+            if doubled_area < 0.0 {
+                return Err(invalid(
+                    file,
+                    format!("triangles[{t}]"),
+                    format!("is clockwise (inverted); triangles must be counter-clockwise: {tri:?}"),
+                ));
+            }
+        }
+        if let Some(i) = used.iter().position(|u| !u) {
+            return Err(invalid(
+                file,
+                format!("vertices[{i}]"),
+                "is not used by any triangle",
+            ));
+        }
+        check_manifold(file, &triangles, n)?;
+        if let Some(uv) = &uv {
+            if uv.len() != n {
+                return Err(invalid(
+                    file,
+                    "uv",
+                    format!("has {} entries, expected one per vertex ({n})", uv.len()),
+                ));
+            }
+            if let Some(i) = uv.iter().position(|p| !p.is_finite()) {
+                return Err(invalid(file, format!("uv[{i}]"), "is not a finite number"));
+            }
+        }
+        let weights = match weights {
+            None => vec![1.0; triangles.len()],
+            Some(w) => {
+                if w.len() != triangles.len() {
+                    return Err(invalid(
+                        file,
+                        "weights",
+                        format!(
+                            "has {} entries, expected one per triangle ({})",
+                            w.len(),
+                            triangles.len()
+                        ),
+                    ));
+                }
+                if let Some(i) = w.iter().position(|x| !(x.is_finite() && *x > 0.0)) {
+                    return Err(invalid(
+                        file,
+                        format!("weights[{i}]"),
+                        format!("must be a finite number above 0, got {}", w[i]),
+                    ));
+                }
+                w
+            }
+        };
+        Ok(Mesh {
+            vertices,
+            triangles,
+            uv,
+            weights,
+        })
+    }
+
+    /// Parses a `.mesh.json` document; `source` names it in errors.
+    pub fn from_json(source: &str, text: &str) -> Result<Mesh, MeshError> {
+        let file: MeshFile = serde_json::from_str(text).map_err(|e| MeshError::Syntax {
+            file: source.to_string(),
+            line: e.line(),
+            column: e.column(),
+            message: e.to_string(),
+        })?;
+        let to_vec = |p: [f64; 2]| DVec2::new(p[0], p[1]);
+        Mesh::new(
+            source,
+            file.vertices.into_iter().map(to_vec).collect(),
+            file.triangles,
+            file.uv.map(|uv| uv.into_iter().map(to_vec).collect()),
+            file.weights,
+        )
+    }
+
+    /// Reads and validates a `.mesh.json` file.
+    pub fn load(path: &Path) -> Result<Mesh, MeshError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| MeshError::Io {
+            file: name.clone(),
+            source,
+        })?;
+        Mesh::from_json(&name, &text)
+    }
+
+    /// The `.mesh.json` text of this mesh. Weights are written only when some
+    /// differ from the default of 1.
+    pub fn to_json(&self) -> String {
+        let file = MeshFile {
+            vertices: self.vertices.iter().map(|v| [v.x, v.y]).collect(),
+            triangles: self.triangles.clone(),
+            uv: self
+                .uv
+                .as_ref()
+                .map(|uv| uv.iter().map(|v| [v.x, v.y]).collect()),
+            weights: if self.weights.iter().all(|&w| w == 1.0) {
+                None
+            } else {
+                Some(self.weights.clone())
+            },
+        };
+        serde_json::to_string(&file).expect("a validated mesh serialises")
+    }
+
+    pub fn vertices(&self) -> &[DVec2] {
+        &self.vertices
+    }
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+    pub fn uv(&self) -> Option<&[DVec2]> {
+        self.uv.as_deref()
+    }
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// Replaces the per-triangle rigidity weights (e.g. painted stiffness).
+    pub fn set_weights(&mut self, weights: Vec<f64>) -> Result<(), MeshError> {
+        let checked = Mesh::new(
+            "weights",
+            std::mem::take(&mut self.vertices),
+            std::mem::take(&mut self.triangles),
+            self.uv.take(),
+            Some(weights),
+        );
+        match checked {
+            Ok(mesh) => {
+                *self = mesh;
+                Ok(())
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Length of the bounding box diagonal: the mesh's scale for tolerances.
+    pub fn size(&self) -> f64 {
+        bounding_diagonal(&self.vertices)
+    }
+
+    /// The connected pieces: for each, its vertices and its triangles, in
+    /// increasing index order. Pieces are ordered by their lowest vertex.
+    pub fn pieces(&self) -> Vec<Piece> {
+        let n = self.vertices.len();
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        fn find(parent: &mut [u32], mut i: u32) -> u32 {
+            while parent[i as usize] != i {
+                parent[i as usize] = parent[parent[i as usize] as usize];
+                i = parent[i as usize];
+            }
+            i
+        }
+        for tri in &self.triangles {
+            for k in 1..3 {
+                let a = find(&mut parent, tri[0]);
+                let b = find(&mut parent, tri[k]);
+                if a != b {
+                    parent[a.max(b) as usize] = a.min(b);
+                }
+            }
+        }
+        let mut piece_of_root: HashMap<u32, usize> = HashMap::new();
+        let mut pieces: Vec<Piece> = Vec::new();
+        for v in 0..n as u32 {
+            let root = find(&mut parent, v);
+            let p = *piece_of_root.entry(root).or_insert_with(|| {
+                pieces.push(Piece::default());
+                pieces.len() - 1
+            });
+            pieces[p].vertices.push(v);
+        }
+        for (t, tri) in self.triangles.iter().enumerate() {
+            let root = find(&mut parent, tri[0]);
+            pieces[piece_of_root[&root]].triangles.push(t as u32);
+        }
+        pieces
+    }
+
+    /// The rest position of a barycentric point in a triangle.
+    pub fn point_at(&self, triangle: u32, bary: [f64; 3]) -> DVec2 {
+        let tri = self.triangles[triangle as usize];
+        self.vertices[tri[0] as usize] * bary[0]
+            + self.vertices[tri[1] as usize] * bary[1]
+            + self.vertices[tri[2] as usize] * bary[2]
+    }
+}
+
+/// One connected piece of a mesh.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Piece {
+    pub vertices: Vec<u32>,
+    pub triangles: Vec<u32>,
+}
+
+fn bounding_diagonal(vertices: &[DVec2]) -> f64 {
+    let mut lo = DVec2::splat(f64::INFINITY);
+    let mut hi = DVec2::splat(f64::NEG_INFINITY);
+    for &v in vertices {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    (hi - lo).length()
+}
+
+/// Rejects what the deformers cannot treat as a surface: an edge used twice in
+/// the same direction (overlap or mixed orientation), an edge shared by more
+/// than two triangles, and "bowtie" vertices whose triangles touch only at the
+/// vertex (their pieces would rotate freely about it).
+fn check_manifold(file: &str, triangles: &[[u32; 3]], n: usize) -> Result<(), MeshError> {
+    let mut directed: HashMap<(u32, u32), usize> = HashMap::with_capacity(triangles.len() * 3);
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let edge = (tri[k], tri[(k + 1) % 3]);
+            if let Some(other) = directed.insert(edge, t) {
+                return Err(invalid(
+                    file,
+                    format!("triangles[{t}]"),
+                    format!(
+                        "edge {}-{} is also used in the same direction by triangles[{other}]: \
+                         the triangles overlap",
+                        edge.0, edge.1
+                    ),
+                ));
+            }
+        }
+    }
+    // Fan check: around each vertex, triangles must form one chain linked by
+    // shared edges.
+    let mut fans: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (t, tri) in triangles.iter().enumerate() {
+        for &v in tri {
+            fans[v as usize].push(t as u32);
+        }
+    }
+    for (v, fan) in fans.iter().enumerate() {
+        if fan.len() < 2 {
+            continue;
+        }
+        let v = v as u32;
+        // Each triangle in the fan has an outgoing edge v→a and incoming b→v.
+        let mut reached = vec![false; fan.len()];
+        let mut stack = vec![0usize];
+        reached[0] = true;
+        while let Some(i) = stack.pop() {
+            let tri = triangles[fan[i] as usize];
+            let k = tri.iter().position(|&x| x == v).unwrap();
+            let next = tri[(k + 1) % 3];
+            let prev = tri[(k + 2) % 3];
+            for (j, &other) in fan.iter().enumerate() {
+                if reached[j] {
+                    continue;
+                }
+                let o = triangles[other as usize];
+                if o.contains(&next) || o.contains(&prev) {
+                    reached[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        if let Some(j) = reached.iter().position(|r| !r) {
+            return Err(invalid(
+                file,
+                format!("vertices[{v}]"),
+                format!(
+                    "triangles[{}] and triangles[{}] meet only at this vertex (a bowtie); \
+                     give each side its own copy of the vertex",
+                    fan[0], fan[j]
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Finds which triangle holds a point: a uniform grid of triangle bounding
+/// boxes, built once per rest mesh, so a touch resolves in constant time.
+#[derive(Debug, Clone)]
+pub struct Locator {
+    origin: DVec2,
+    cell: f64,
+    columns: usize,
+    rows: usize,
+    cell_start: Vec<u32>,
+    cell_triangles: Vec<u32>,
+}
+
+/// A point inside a mesh, as its triangle and barycentric coordinates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Location {
+    pub triangle: u32,
+    pub bary: [f64; 3],
+}
+
+impl Locator {
+    pub fn new(mesh: &Mesh) -> Locator {
+        let verts = mesh.vertices();
+        let mut lo = DVec2::splat(f64::INFINITY);
+        let mut hi = DVec2::splat(f64::NEG_INFINITY);
+        for &v in verts {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        let extent = (hi - lo).max(DVec2::splat(f64::MIN_POSITIVE));
+        // About one triangle per cell.
+        let target_cells = mesh.triangles().len().max(1) as f64;
+        let cell = ((extent.x * extent.y) / target_cells)
+            .sqrt()
+            .max(extent.max_element() / 4096.0);
+        let columns = ((extent.x / cell).ceil() as usize).max(1);
+        let rows = ((extent.y / cell).ceil() as usize).max(1);
+        let cell_range = |t: &[u32; 3]| {
+            let ps = t.map(|i| verts[i as usize]);
+            let a = ps[0].min(ps[1]).min(ps[2]);
+            let b = ps[0].max(ps[1]).max(ps[2]);
+            let c0 = (((a.x - lo.x) / cell) as usize).min(columns - 1);
+            let c1 = (((b.x - lo.x) / cell) as usize).min(columns - 1);
+            let r0 = (((a.y - lo.y) / cell) as usize).min(rows - 1);
+            let r1 = (((b.y - lo.y) / cell) as usize).min(rows - 1);
+            (c0, c1, r0, r1)
+        };
+        let mut counts = vec![0u32; columns * rows + 1];
+        for t in mesh.triangles() {
+            let (c0, c1, r0, r1) = cell_range(t);
+            for r in r0..=r1 {
+                for c in c0..=c1 {
+                    counts[r * columns + c + 1] += 1;
+                }
+            }
+        }
+        for i in 1..counts.len() {
+            counts[i] += counts[i - 1];
+        }
+        let mut fill = counts.clone();
+        let mut cell_triangles = vec![0u32; *counts.last().unwrap() as usize];
+        for (ti, t) in mesh.triangles().iter().enumerate() {
+            let (c0, c1, r0, r1) = cell_range(t);
+            for r in r0..=r1 {
+                for c in c0..=c1 {
+                    let slot = &mut fill[r * columns + c];
+                    cell_triangles[*slot as usize] = ti as u32;
+                    *slot += 1;
+                }
+            }
+        }
+        Locator {
+            origin: lo,
+            cell,
+            columns,
+            rows,
+            cell_start: counts,
+            cell_triangles,
+        }
+    }
+
+    /// The triangle containing `p` (boundary included, with a tolerance of
+    /// 1e-9 of the triangle's size) and `p`'s barycentric coordinates in it.
+    pub fn locate(&self, mesh: &Mesh, p: DVec2) -> Option<Location> {
+        if !p.is_finite() {
+            return None;
+        }
+        let rel = (p - self.origin) / self.cell;
+        let slack = 1e-9;
+        if rel.x < -slack
+            || rel.y < -slack
+            || rel.x > self.columns as f64 + slack
+            || rel.y > self.rows as f64 + slack
+        {
+            return None;
+        }
+        let c = (rel.x.max(0.0) as usize).min(self.columns - 1);
+        let r = (rel.y.max(0.0) as usize).min(self.rows - 1);
+        let cell = r * self.columns + c;
+        let candidates = &self.cell_triangles
+            [self.cell_start[cell] as usize..self.cell_start[cell + 1] as usize];
+        let mut best: Option<(f64, Location)> = None;
+        for &t in candidates {
+            let bary = barycentric(mesh, t, p);
+            let worst = bary[0].min(bary[1]).min(bary[2]);
+            if worst >= 0.0 {
+                return Some(Location { triangle: t, bary });
+            }
+            if worst > -1e-9 && best.is_none_or(|(w, _)| worst > w) {
+                best = Some((worst, Location { triangle: t, bary }));
+            }
+        }
+        best.map(|(_, mut loc)| {
+            // Project onto the triangle so the weights stay a convex blend.
+            let clamped = loc.bary.map(|b| b.max(0.0));
+            let sum: f64 = clamped.iter().sum();
+            loc.bary = clamped.map(|b| b / sum);
+            loc
+        })
+    }
+}
+
+/// Barycentric coordinates of `p` in a triangle. Exact (1, 0, 0) etc. when
+/// `p` is exactly a corner, so a touch on a vertex is a vertex handle.
+pub fn barycentric(mesh: &Mesh, triangle: u32, p: DVec2) -> [f64; 3] {
+    let [a, b, c] = mesh.triangles()[triangle as usize].map(|i| mesh.vertices()[i as usize]);
+    let d = (b - a).perp_dot(c - a);
+    let l1 = (p - a).perp_dot(c - a) / d;
+    let l2 = (b - a).perp_dot(p - a) / d;
+    [1.0 - l1 - l2, l1, l2]
+}
