@@ -1,1 +1,160 @@
-//! later
+//! `puppetry bench`: timings of the solver phases on meshes of chosen sizes —
+//! registration, compilation, per-frame update (median and p99) and the cost
+//! of a frame in which a finger lands or lifts. Prints a table or JSON lines.
+
+use std::time::{Duration, Instant};
+
+use glam::DVec2;
+use serde::Serialize;
+
+use crate::deform::{Anchor, Arap, ArapError, Steps};
+use crate::mesh::Mesh;
+
+/// One measured case, as printed by `puppetry bench --json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct CaseResult {
+    pub mesh: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub handles: usize,
+    pub register_ms: f64,
+    pub compile_us: f64,
+    pub update_us_median: f64,
+    pub update_us_p99: f64,
+    pub handle_change_frame_us: f64,
+    pub handle_change_frame_us_p99: f64,
+    pub frames: usize,
+}
+
+/// Deterministic pseudo-random numbers, so every run benches the same handles.
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// `count` point handles spread over the mesh: random triangles, random
+/// interior points, the first few as far apart as possible.
+pub fn spread_anchors(mesh: &Mesh, count: usize, seed: u64) -> Vec<Anchor> {
+    let mut rng = Lcg(seed);
+    let tris = mesh.triangles().len();
+    (0..count)
+        .map(|_| {
+            let t = ((rng.next() * tris as f64) as usize).min(tris - 1) as u32;
+            let (a, b) = (rng.next(), rng.next());
+            let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+            Anchor::Point {
+                triangle: t,
+                bary: [1.0 - a - b, a, b],
+            }
+        })
+        .collect()
+}
+
+fn rest_point(mesh: &Mesh, anchor: &Anchor) -> DVec2 {
+    match *anchor {
+        Anchor::Vertex(v) => mesh.vertices()[v as usize],
+        Anchor::Point { triangle, bary } => mesh.point_at(triangle, bary),
+    }
+}
+
+/// Handle targets for frame `f`: each handle wanders on its own small circle,
+/// so the mesh bends and stretches a little every frame.
+fn animate(rest: &[DVec2], size: f64, frame: usize, out: &mut [DVec2]) {
+    let t = frame as f64 * 0.05;
+    for (h, (o, r)) in out.iter_mut().zip(rest).enumerate() {
+        let phase = t + h as f64 * 1.3;
+        *o = *r + DVec2::new(phase.cos(), phase.sin()) * (0.03 * size);
+    }
+}
+
+fn micros(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e6
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i]
+}
+
+/// Measures one mesh with `handles` handles over `frames` update frames.
+pub fn run_case(name: &str, mesh: &Mesh, handles: usize, frames: usize) -> Result<CaseResult, ArapError> {
+    let registrations = if mesh.vertices().len() > 50_000 { 1 } else { 3 };
+    let mut register_times = Vec::new();
+    let mut arap = None;
+    for _ in 0..registrations {
+        let start = Instant::now();
+        let a = Arap::register(mesh)?;
+        register_times.push(start.elapsed().as_secs_f64() * 1e3);
+        arap = Some(a);
+    }
+    register_times.sort_by(f64::total_cmp);
+    let mut arap = arap.expect("registered at least once");
+    // One spare handle for the add/remove frames.
+    let anchors = spread_anchors(mesh, handles + 1, 0x5eed + handles as u64);
+    let rest: Vec<DVec2> = anchors.iter().map(|a| rest_point(mesh, a)).collect();
+    let size = mesh.size();
+    let mut targets = vec![DVec2::ZERO; handles + 1];
+
+    let start = Instant::now();
+    arap.compile(&anchors[..handles])?;
+    let compile_us = micros(start.elapsed());
+
+    let mut update = Vec::with_capacity(frames);
+    for f in 0..frames {
+        animate(&rest[..handles], size, f, &mut targets[..handles]);
+        let start = Instant::now();
+        arap.update(&targets[..handles], Steps::Both)?;
+        update.push(micros(start.elapsed()));
+    }
+    update.sort_by(f64::total_cmp);
+
+    // A finger lands (handles+1), then lifts (handles): compile + update.
+    let change_frames = (frames / 2).max(10);
+    let mut change = Vec::with_capacity(change_frames);
+    for f in 0..change_frames {
+        let count = if f % 2 == 0 { handles + 1 } else { handles };
+        animate(&rest[..count], size, frames + f, &mut targets[..count]);
+        let start = Instant::now();
+        arap.compile(&anchors[..count])?;
+        arap.update(&targets[..count], Steps::Both)?;
+        change.push(micros(start.elapsed()));
+    }
+    change.sort_by(f64::total_cmp);
+
+    Ok(CaseResult {
+        mesh: name.to_string(),
+        vertices: mesh.vertices().len(),
+        triangles: mesh.triangles().len(),
+        handles,
+        register_ms: percentile(&register_times, 0.5),
+        compile_us,
+        update_us_median: percentile(&update, 0.5),
+        update_us_p99: percentile(&update, 0.99),
+        handle_change_frame_us: percentile(&change, 0.5),
+        handle_change_frame_us_p99: percentile(&change, 0.99),
+        frames,
+    })
+}
+
+/// Frames to time for a mesh of `vertices`, so each case takes about a second.
+pub fn frames_for(vertices: usize) -> usize {
+    (2_000_000 / vertices.max(1)).clamp(20, 2000)
+}
+
+/// The header and one row of the human-readable table.
+pub fn table_header() -> String {
+    format!(
+        "{:<22} {:>8} {:>7} {:>11} {:>11} {:>12} {:>12} {:>15}",
+        "mesh", "vertices", "handles", "register ms", "compile µs", "update µs p50", "update µs p99", "add/remove µs"
+    )
+}
+
+pub fn table_row(r: &CaseResult) -> String {
+    format!(
+        "{:<22} {:>8} {:>7} {:>11.2} {:>11.1} {:>12.1} {:>12.1} {:>15.1}",
+        r.mesh, r.vertices, r.handles, r.register_ms, r.compile_us, r.update_us_median, r.update_us_p99, r.handle_change_frame_us
+    )
+}

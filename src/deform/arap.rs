@@ -17,14 +17,20 @@
 //! costs one sparse solve per column of `W` it adds and removing one costs
 //! nothing; the sparse factors never change.
 //!
+//! Step 1 is solved in complex numbers (a point is `x + iy`): its energy is
+//! invariant under rotation and scale, so `G` is a complex-linear Hermitian
+//! operator and a single complex solve gives both the x- and the y-row
+//! columns of a handle. Each piece numbers its vertices in the factors'
+//! fill-reducing order, so no solve permutes.
+//!
 //! Pieces with fewer than two handles cannot be solved (rotation and scale are
 //! free); they are placed rigidly as `algorithms.md` prescribes.
 
-use faer::Mat;
+use faer::{Mat, c64};
 use faer::linalg::solvers::DenseSolveCore;
 use glam::DVec2;
 
-use super::sparse::{FactorError, SpdFactor};
+use super::sparse::{ComplexCholesky, FactorError, RealCholesky, fill_reducing_order};
 use crate::mesh::Mesh;
 
 /// Where a handle holds the mesh, in rest terms.
@@ -74,9 +80,10 @@ pub enum ArapError {
 #[derive(Debug, Clone)]
 struct LocalTriangle {
     corners: [u32; 3],
-    weight: f64,
-    /// Rest corners relative to the rest centroid: the step-2a fit target.
-    centred: [DVec2; 3],
+    /// Rest corners relative to the rest centroid, times `3·w`: the step-2a
+    /// fit target, scaled so the fitted corners are the right-hand side terms
+    /// directly (see `PieceSolver::update`).
+    scaled_centred: [DVec2; 3],
 }
 
 /// A handle's constraint row over a piece's local vertices.
@@ -87,20 +94,15 @@ struct Row {
 }
 
 impl Row {
-    /// `Σ wᵢ x[corner]` over a vector of one value per vertex.
+    /// `Σ wᵢ x[corner]` over one value (real, pair or complex) per vertex.
     #[inline]
-    fn dot_scalar(&self, x: &[f64]) -> f64 {
-        self.weights[0] * x[self.corners[0] as usize]
-            + self.weights[1] * x[self.corners[1] as usize]
-            + self.weights[2] * x[self.corners[2] as usize]
-    }
-    /// The same over one coordinate (`axis` 0 = x, 1 = y) of an interleaved
-    /// x,y vector.
-    #[inline]
-    fn dot_axis(&self, x: &[f64], axis: usize) -> f64 {
-        self.weights[0] * x[2 * self.corners[0] as usize + axis]
-            + self.weights[1] * x[2 * self.corners[1] as usize + axis]
-            + self.weights[2] * x[2 * self.corners[2] as usize + axis]
+    fn dot<T>(&self, x: &[T]) -> T
+    where
+        T: Copy + std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
+    {
+        x[self.corners[0] as usize] * self.weights[0]
+            + x[self.corners[1] as usize] * self.weights[1]
+            + x[self.corners[2] as usize] * self.weights[2]
     }
 }
 
@@ -112,9 +114,9 @@ struct PieceHandle {
     rest_point: DVec2,
     /// Index into the caller's targets.
     target: usize,
-    /// `K₁⁻¹` applied to the handle's x-row and y-row (2 columns of 2n).
-    step1_columns: Vec<f64>,
-    /// `K₂⁻¹` applied to the handle's row (n).
+    /// `K₁⁻¹ Bₕᵀ` (complex, n).
+    step1_column: SplitComplex,
+    /// `K₂⁻¹ Bₕᵀ` (real, n).
     step2_column: Vec<f64>,
 }
 
@@ -126,41 +128,82 @@ enum Placement {
     /// One handle: the rest shape rotated by `rotation` (cos, sin) and carried
     /// by the handle.
     Carried { rotation: DVec2 },
-    /// Two or more handles: solved; the inverses of the small systems.
+    /// Two or more handles: solved; the inverses of the small systems
+    /// (column-major; step 1 complex).
     Solved {
-        step1_inverse: Vec<f64>,
+        step1_inverse: Vec<DVec2>,
         step2_inverse: Vec<f64>,
     },
 }
 
-const STEP1_ANCHORS: usize = 4;
+/// A complex vector as separate real and imaginary parts, so the per-frame
+/// sums over columns run as plain, vectorisable f64 loops.
+#[derive(Debug, Clone, Default)]
+struct SplitComplex {
+    re: Vec<f64>,
+    im: Vec<f64>,
+}
+
+impl SplitComplex {
+    fn from_pairs(pairs: &[DVec2]) -> SplitComplex {
+        SplitComplex {
+            re: pairs.iter().map(|z| z.x).collect(),
+            im: pairs.iter().map(|z| z.y).collect(),
+        }
+    }
+    fn zeros(n: usize) -> SplitComplex {
+        SplitComplex {
+            re: vec![0.0; n],
+            im: vec![0.0; n],
+        }
+    }
+    #[inline]
+    fn get(&self, i: usize) -> DVec2 {
+        DVec2::new(self.re[i], self.im[i])
+    }
+    /// `self += z · column`.
+    #[inline]
+    fn add_scaled(&mut self, z: DVec2, column: &SplitComplex) {
+        let (a, b) = (z.x, z.y);
+        let n = self.re.len();
+        let (re, im) = (&mut self.re[..n], &mut self.im[..n]);
+        let (cr, ci) = (&column.re[..n], &column.im[..n]);
+        for i in 0..n {
+            re[i] += a * cr[i] - b * ci[i];
+            im[i] += a * ci[i] + b * cr[i];
+        }
+    }
+}
 
 /// Everything about one connected piece.
 #[derive(Debug)]
 struct PieceSolver {
+    /// Global vertex ids, in the factors' order (local index = position).
     vertices: Vec<u32>,
     rest: Vec<DVec2>,
     triangles: Vec<LocalTriangle>,
-    step1: SpdFactor,
-    step2: SpdFactor,
-    /// Anchored coordinates of `K₁` (indices into the interleaved 2n vector)
-    /// and the anchored vertex of `K₂`.
-    step1_anchors: [usize; STEP1_ANCHORS],
+    step1: ComplexCholesky,
+    step2: RealCholesky,
+    /// Step 1 anchors two vertices (pins similarity), step 2 one (pins
+    /// translation).
+    step1_anchors: [usize; 2],
     step2_anchor: usize,
     step1_delta: f64,
     step2_delta: f64,
-    /// `K₁⁻¹ E₁` (4 columns of 2n) and `K₂⁻¹ E₂` (n).
-    step1_anchor_columns: Vec<f64>,
+    /// `K₁⁻¹ E₁` (two complex columns) and `K₂⁻¹ E₂`.
+    step1_anchor_columns: [SplitComplex; 2],
     step2_anchor_column: Vec<f64>,
     handles: Vec<PieceHandle>,
     placement: Placement,
     // Frame scratch, sized at compile time.
-    step1_rhs: Vec<f64>,
-    step1_xi: Vec<f64>,
-    step1_pose: Vec<f64>,
-    step2_rhs: Vec<f64>,
-    step2_xi: Vec<f64>,
-    step2_pose: Vec<f64>,
+    step1_rhs: Vec<DVec2>,
+    step1_xi: Vec<DVec2>,
+    step1_pose: SplitComplex,
+    step2_rhs: Vec<DVec2>,
+    step2_xi: Vec<DVec2>,
+    step2_pose: Vec<DVec2>,
+    /// Per-triangle step-2a fit sums, then unit rotations.
+    fits: Vec<DVec2>,
 }
 
 /// The registered solver for one rest mesh. See the module docs for the
@@ -180,10 +223,10 @@ pub struct Arap {
 
 /// Best rotation (as cos, sin) taking `rest` onto `pose` about their
 /// centroids, and the two centroids; identity when undetermined.
-fn fit_rotation(rest: impl Iterator<Item = (DVec2, DVec2)> + Clone) -> (DVec2, DVec2, DVec2) {
+fn fit_rotation(pairs: impl Iterator<Item = (DVec2, DVec2)> + Clone) -> (DVec2, DVec2, DVec2) {
     let mut count = 0.0;
     let (mut rest_mean, mut pose_mean) = (DVec2::ZERO, DVec2::ZERO);
-    for (r, p) in rest.clone() {
+    for (r, p) in pairs.clone() {
         rest_mean += r;
         pose_mean += p;
         count += 1.0;
@@ -191,7 +234,7 @@ fn fit_rotation(rest: impl Iterator<Item = (DVec2, DVec2)> + Clone) -> (DVec2, D
     rest_mean /= count;
     pose_mean /= count;
     let (mut dot, mut crs) = (0.0, 0.0);
-    for (r, p) in rest {
+    for (r, p) in pairs {
         let (r, p) = (r - rest_mean, p - pose_mean);
         dot += r.dot(p);
         crs += r.perp_dot(p);
@@ -201,12 +244,18 @@ fn fit_rotation(rest: impl Iterator<Item = (DVec2, DVec2)> + Clone) -> (DVec2, D
 
 #[inline]
 fn unit_rotation(dot: f64, crs: f64) -> DVec2 {
-    let norm = dot.hypot(crs);
-    if norm > 0.0 && norm.is_finite() {
-        DVec2::new(dot / norm, crs / norm)
+    let norm2 = dot * dot + crs * crs;
+    if norm2 > 0.0 && norm2.is_finite() {
+        DVec2::new(dot, crs) / norm2.sqrt()
     } else {
         DVec2::X
     }
+}
+
+/// Complex division `a / b` on (re, im) pairs.
+#[inline]
+fn complex_div(a: DVec2, b: DVec2) -> DVec2 {
+    a.rotate(DVec2::new(b.x, -b.y)) / b.length_squared()
 }
 
 impl Arap {
@@ -218,28 +267,9 @@ impl Arap {
         let mut vertex_home = vec![(0u32, 0u32); rest.len()];
         let mut pieces = Vec::new();
         for (p, piece) in mesh.pieces().into_iter().enumerate() {
-            for (local, &v) in piece.vertices.iter().enumerate() {
-                vertex_home[v as usize] = (p as u32, local as u32);
-            }
-            let local_triangles = piece
-                .triangles
-                .iter()
-                .map(|&t| {
-                    let tri = triangles[t as usize];
-                    let pts = tri.map(|v| rest[v as usize]);
-                    let centroid = (pts[0] + pts[1] + pts[2]) / 3.0;
-                    LocalTriangle {
-                        corners: tri.map(|v| vertex_home[v as usize].1),
-                        weight: mesh.weights()[t as usize],
-                        centred: pts.map(|q| q - centroid),
-                    }
-                })
-                .collect();
-            let local_rest = piece.vertices.iter().map(|&v| rest[v as usize]).collect();
-            pieces.push(
-                PieceSolver::register(piece.vertices, local_rest, local_triangles)
-                    .map_err(|source| ArapError::Factor { piece: p, source })?,
-            );
+            let solver = PieceSolver::register(mesh, &piece.vertices, &piece.triangles, &mut vertex_home, p as u32)
+                .map_err(|source| ArapError::Factor { piece: p, source })?;
+            pieces.push(solver);
         }
         Ok(Arap {
             pose: rest.clone(),
@@ -253,16 +283,15 @@ impl Arap {
     }
 
     /// Compilation: sets the handle set. Handles present in the previous set
-    /// keep their precomputed columns; each new one costs a few sparse solves
-    /// in its own piece. Two handles on the same rest point: the later wins.
-    /// Pieces left with fewer than two handles are fixed rigidly in their
-    /// current pose.
+    /// keep their precomputed columns; each new one costs one complex and one
+    /// real sparse solve in its own piece. Two handles on the same rest point:
+    /// the later wins. Pieces left with fewer than two handles are fixed
+    /// rigidly in their current pose.
     pub fn compile(&mut self, anchors: &[Anchor]) -> Result<(), ArapError> {
         let mut rows = Vec::with_capacity(anchors.len());
         for (h, anchor) in anchors.iter().enumerate() {
             rows.push(self.resolve(h, anchor)?);
         }
-        // Later handles shadow earlier ones on the same point.
         let mut live = vec![true; anchors.len()];
         for later in (0..anchors.len()).rev() {
             if !live[later] {
@@ -331,11 +360,7 @@ impl Arap {
             corners: vertices.map(|v| self.vertex_home[v as usize].1),
             weights,
         };
-        let point = vertices
-            .iter()
-            .zip(weights)
-            .map(|(&v, w)| self.rest[v as usize] * w)
-            .sum();
+        let point = vertices.iter().zip(weights).map(|(&v, w)| self.rest[v as usize] * w).sum();
         Ok((piece as usize, row, point))
     }
 
@@ -374,90 +399,102 @@ impl Arap {
 }
 
 impl PieceSolver {
+    /// Registers one piece: orders its vertices, assembles `K₁` and `K₂`,
+    /// factors them and solves the anchor columns. Fills `vertex_home`.
     fn register(
-        vertices: Vec<u32>,
-        rest: Vec<DVec2>,
-        triangles: Vec<LocalTriangle>,
+        mesh: &Mesh,
+        piece_vertices: &[u32],
+        piece_triangles: &[u32],
+        vertex_home: &mut [(u32, u32)],
+        piece: u32,
     ) -> Result<PieceSolver, FactorError> {
-        let n = rest.len();
-        let mut g = Vec::with_capacity(triangles.len() * 3 * 21);
-        let mut h = Vec::with_capacity(triangles.len() * 6);
-        for tri in &triangles {
-            let w = tri.weight;
+        let n = piece_vertices.len();
+        for (local, &v) in piece_vertices.iter().enumerate() {
+            vertex_home[v as usize] = (piece, local as u32);
+        }
+        let local = |v: u32, home: &[(u32, u32)]| home[v as usize].1;
+        let mut edges = Vec::with_capacity(piece_triangles.len() * 3);
+        for &t in piece_triangles {
+            let tri = mesh.triangles()[t as usize];
             for k in 0..3 {
-                // Corner c expressed in the frame of the opposite edge a→b.
-                let (a, b, c) = (tri.corners[(k + 1) % 3], tri.corners[(k + 2) % 3], tri.corners[k]);
-                let (pa, pb, pc) = (rest[a as usize], rest[b as usize], rest[c as usize]);
-                let edge = pb - pa;
-                let rot_edge = DVec2::new(edge.y, -edge.x); // R·edge, R = [[0,1],[-1,0]]
-                let len2 = edge.length_squared();
-                let x = (pc - pa).dot(edge) / len2;
-                let y = (pc - pa).dot(rot_edge) / len2;
-                // e = v_c − v_a − x(v_b − v_a) − yR(v_b − v_a) = J [v_a; v_b; v_c].
-                // M_a = −(1−x)I + yR, M_b = −xI − yR, M_c = I.
-                let j: [[f64; 6]; 2] = [
-                    [-(1.0 - x), y, -x, -y, 1.0, 0.0],
-                    [-y, -(1.0 - x), y, -x, 0.0, 1.0],
-                ];
-                let index = |q: usize| 2 * [a, b, c][q / 2] as usize + q % 2;
-                for r in 0..6 {
-                    for s in 0..6 {
-                        let (ir, is) = (index(r), index(s));
-                        if ir <= is {
-                            let value = w * (j[0][r] * j[0][s] + j[1][r] * j[1][s]);
-                            if value != 0.0 {
-                                g.push((ir, is, value));
-                            }
+                edges.push((local(tri[k], vertex_home), local(tri[(k + 1) % 3], vertex_home)));
+            }
+        }
+        let order = fill_reducing_order(n, &edges)?;
+        let vertices: Vec<u32> = order.iter().map(|&o| piece_vertices[o as usize]).collect();
+        for (new, &v) in vertices.iter().enumerate() {
+            vertex_home[v as usize] = (piece, new as u32);
+        }
+        let rest: Vec<DVec2> = vertices.iter().map(|&v| mesh.vertices()[v as usize]).collect();
+
+        let mut triangles = Vec::with_capacity(piece_triangles.len());
+        let mut g: Vec<(usize, usize, DVec2)> = Vec::with_capacity(piece_triangles.len() * 18);
+        let mut h: Vec<(usize, usize, f64)> = Vec::with_capacity(piece_triangles.len() * 9);
+        for &t in piece_triangles {
+            let w = mesh.weights()[t as usize];
+            let corners = mesh.triangles()[t as usize].map(|v| local(v, vertex_home));
+            let pts = corners.map(|c| rest[c as usize]);
+            let centroid = (pts[0] + pts[1] + pts[2]) / 3.0;
+            triangles.push(LocalTriangle {
+                corners,
+                scaled_centred: pts.map(|q| (q - centroid) * (3.0 * w)),
+            });
+            for k in 0..3 {
+                // Corner c in the frame of the opposite edge a→b, as the
+                // complex ratio z = (c − a)/(b − a); the error
+                // e = v_c − v_a − z (v_b − v_a) has coefficients γ over (a, b, c).
+                let idx = [corners[(k + 1) % 3], corners[(k + 2) % 3], corners[k]].map(|c| c as usize);
+                let [pa, pb, pc] = idx.map(|i| rest[i]);
+                let z = complex_div(pc - pa, pb - pa);
+                let gamma = [z - DVec2::X, -z, DVec2::X];
+                for r in 0..3 {
+                    for s in 0..3 {
+                        if idx[r] <= idx[s] {
+                            // A_rs += w conj(γ_r) γ_s
+                            let value = DVec2::new(gamma[r].x, -gamma[r].y).rotate(gamma[s]) * w;
+                            g.push((idx[r], idx[s], value));
                         }
                     }
                 }
-                let (i, jj) = (a.min(b) as usize, a.max(b) as usize);
+                let (i, j) = (idx[0].min(idx[1]), idx[0].max(idx[1]));
                 h.push((i, i, w));
-                h.push((jj, jj, w));
-                h.push((i, jj, -w));
+                h.push((j, j, w));
+                h.push((i, j, -w));
             }
         }
-        let mean_diagonal = |m: &[(usize, usize, f64)], dim: usize| {
-            m.iter().filter(|e| e.0 == e.1).map(|e| e.2).sum::<f64>() / dim as f64
-        };
-        let step1_delta = mean_diagonal(&g, 2 * n);
-        let step2_delta = mean_diagonal(&h, n);
-        // Anchor two far-apart vertices for step 1 (pins similarity), one for
-        // step 2 (pins translation).
-        let first = (0..n)
-            .min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x))
-            .unwrap();
+        // Cache-friendly sweep order for the per-frame fit.
+        triangles.sort_by_key(|t| *t.corners.iter().min().unwrap());
+
+        let mean_diagonal = |diag: f64, dim: usize| diag / dim as f64;
+        let step1_delta = mean_diagonal(g.iter().filter(|e| e.0 == e.1).map(|e| e.2.x).sum(), n);
+        let step2_delta = mean_diagonal(h.iter().filter(|e| e.0 == e.1).map(|e| e.2).sum(), n);
+        // Two far-apart anchors condition the similarity modes well.
+        let first = (0..n).min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x)).unwrap();
         let second = (0..n)
-            .max_by(|&i, &j| {
-                rest[i]
-                    .distance_squared(rest[first])
-                    .total_cmp(&rest[j].distance_squared(rest[first]))
-            })
+            .max_by(|&i, &j| rest[i].distance_squared(rest[first]).total_cmp(&rest[j].distance_squared(rest[first])))
             .unwrap();
-        let step1_anchors = [2 * first, 2 * first + 1, 2 * second, 2 * second + 1];
-        for &a in &step1_anchors {
-            g.push((a, a, step1_delta));
+        for a in [first, second] {
+            g.push((a, a, DVec2::new(step1_delta, 0.0)));
         }
         h.push((first, first, step2_delta));
-        let mut step1 = SpdFactor::new(2 * n, &g, 2)?;
-        let mut step2 = SpdFactor::new(n, &h, 2)?;
-        let mut step1_anchor_columns = vec![0.0; 2 * n * STEP1_ANCHORS];
-        for (c, &a) in step1_anchors.iter().enumerate() {
-            step1_anchor_columns[c * 2 * n + a] = 1.0;
-        }
-        for chunk in step1_anchor_columns.chunks_mut(4 * n) {
-            step1.solve_in_place(chunk);
-        }
+        let step1 = ComplexCholesky::new(n, &g)?;
+        let step2 = RealCholesky::new(n, &h)?;
+        let step1_anchor_columns = [first, second].map(|a| {
+            let mut column = vec![DVec2::ZERO; n];
+            column[a] = DVec2::X;
+            step1.solve(&mut column);
+            SplitComplex::from_pairs(&column)
+        });
         let mut step2_anchor_column = vec![0.0; n];
         step2_anchor_column[first] = 1.0;
-        step2.solve_in_place(&mut step2_anchor_column);
+        step2.solve(&mut step2_anchor_column);
         Ok(PieceSolver {
             vertices,
             rest,
             triangles,
             step1,
             step2,
-            step1_anchors,
+            step1_anchors: [first, second],
             step2_anchor: first,
             step1_delta,
             step2_delta,
@@ -467,10 +504,11 @@ impl PieceSolver {
             placement: Placement::Fixed,
             step1_rhs: Vec::new(),
             step1_xi: Vec::new(),
-            step1_pose: vec![0.0; 2 * n],
+            step1_pose: SplitComplex::zeros(n),
             step2_rhs: Vec::new(),
             step2_xi: Vec::new(),
-            step2_pose: vec![0.0; 2 * n],
+            step2_pose: vec![DVec2::ZERO; n],
+            fits: vec![DVec2::ZERO; piece_triangles.len()],
         })
     }
 
@@ -489,37 +527,34 @@ impl PieceSolver {
                     h
                 }
                 None => {
-                    let mut step1_columns = vec![0.0; 4 * n];
+                    let mut step1_column = vec![DVec2::ZERO; n];
                     let mut step2_column = vec![0.0; n];
                     for c in 0..3 {
                         let v = row.corners[c] as usize;
-                        step1_columns[2 * v] += row.weights[c];
-                        step1_columns[2 * n + 2 * v + 1] += row.weights[c];
+                        step1_column[v].x += row.weights[c];
                         step2_column[v] += row.weights[c];
                     }
-                    self.step1.solve_in_place(&mut step1_columns);
-                    self.step2.solve_in_place(&mut step2_column);
+                    self.step1.solve(&mut step1_column);
+                    let step1_column = SplitComplex::from_pairs(&step1_column);
+                    self.step2.solve(&mut step2_column);
                     PieceHandle {
                         anchor,
                         row,
                         rest_point,
                         target,
-                        step1_columns,
+                        step1_column,
                         step2_column,
                     }
                 }
             };
             self.handles.push(handle);
         }
-        let current = |pose: &[DVec2], vertices: &[u32]| -> Vec<DVec2> {
-            vertices.iter().map(|&v| pose[v as usize]).collect()
-        };
+        let current = |pose: &[DVec2], vertices: &[u32]| -> Vec<DVec2> { vertices.iter().map(|&v| pose[v as usize]).collect() };
         self.placement = match self.handles.len() {
             0 => {
                 // Keep the best rigid placement of the current pose.
                 let now = current(pose, &self.vertices);
-                let (rotation, rest_mean, pose_mean) =
-                    fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
+                let (rotation, rest_mean, pose_mean) = fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
                 for (local, &v) in self.vertices.iter().enumerate() {
                     pose[v as usize] = pose_mean + rotation.rotate(self.rest[local] - rest_mean);
                 }
@@ -530,14 +565,12 @@ impl PieceSolver {
                 let (rotation, _, _) = fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
                 Placement::Carried { rotation }
             }
-            _ => {
+            k => {
                 let (step1_inverse, step2_inverse) = self.small_inverses();
-                let m1 = 2 * self.handles.len() + STEP1_ANCHORS;
-                let m2 = self.handles.len() + 1;
-                self.step1_rhs = vec![0.0; m1];
-                self.step1_xi = vec![0.0; m1];
-                self.step2_rhs = vec![0.0; 2 * m2];
-                self.step2_xi = vec![0.0; 2 * m2];
+                self.step1_rhs = vec![DVec2::ZERO; k + 2];
+                self.step1_xi = vec![DVec2::ZERO; k + 2];
+                self.step2_rhs = vec![DVec2::ZERO; k + 1];
+                self.step2_xi = vec![DVec2::ZERO; k + 1];
                 Placement::Solved {
                     step1_inverse,
                     step2_inverse,
@@ -547,49 +580,30 @@ impl PieceSolver {
     }
 
     /// Inverses of `B̃ W − diag(0, I/δ)` for both steps (column-major).
-    fn small_inverses(&self) -> (Vec<f64>, Vec<f64>) {
-        let n = self.n();
+    fn small_inverses(&self) -> (Vec<DVec2>, Vec<f64>) {
         let k = self.handles.len();
-        // Step 1: rows/columns 2h (x) and 2h+1 (y) per handle, then anchors.
-        let m1 = 2 * k + STEP1_ANCHORS;
-        let column1 = |j: usize| -> &[f64] {
-            if j < 2 * k {
-                let h = &self.handles[j / 2];
-                &h.step1_columns[(j % 2) * 2 * n..(j % 2 + 1) * 2 * n]
-            } else {
-                let a = j - 2 * k;
-                &self.step1_anchor_columns[a * 2 * n..(a + 1) * 2 * n]
-            }
+        let column1 = |j: usize| -> &SplitComplex {
+            if j < k { &self.handles[j].step1_column } else { &self.step1_anchor_columns[j - k] }
         };
-        let row1 = |i: usize, col: &[f64]| -> f64 {
-            if i < 2 * k {
-                self.handles[i / 2].row.dot_axis(col, i % 2)
-            } else {
-                col[self.step1_anchors[i - 2 * k]]
-            }
-        };
-        let s1 = Mat::<f64>::from_fn(m1, m1, |i, j| {
-            let mut value = row1(i, column1(j));
-            if i == j && i >= 2 * k {
-                value -= 1.0 / self.step1_delta;
-            }
-            value
-        });
-        let m2 = k + 1;
-        let column2 = |j: usize| -> &[f64] {
-            if j < k {
-                &self.handles[j].step2_column
-            } else {
-                &self.step2_anchor_column
-            }
-        };
-        let row2 = |i: usize, col: &[f64]| -> f64 {
+        let row1 = |i: usize, col: &SplitComplex| -> DVec2 {
             if i < k {
-                self.handles[i].row.dot_scalar(col)
+                let row = &self.handles[i].row;
+                DVec2::new(row.dot(&col.re), row.dot(&col.im))
             } else {
-                col[self.step2_anchor]
+                col.get(self.step1_anchors[i - k])
             }
         };
+        let m1 = k + 2;
+        let s1 = Mat::<c64>::from_fn(m1, m1, |i, j| {
+            let mut value = row1(i, column1(j));
+            if i == j && i >= k {
+                value.x -= 1.0 / self.step1_delta;
+            }
+            c64::new(value.x, value.y)
+        });
+        let column2 = |j: usize| -> &[f64] { if j < k { &self.handles[j].step2_column } else { &self.step2_anchor_column } };
+        let row2 = |i: usize, col: &[f64]| -> f64 { if i < k { self.handles[i].row.dot(col) } else { col[self.step2_anchor] } };
+        let m2 = k + 1;
         let s2 = Mat::<f64>::from_fn(m2, m2, |i, j| {
             let mut value = row2(i, column2(j));
             if i == k && j == k {
@@ -597,23 +611,25 @@ impl PieceSolver {
             }
             value
         });
-        let to_vec = |m: Mat<f64>| {
-            let mut out = Vec::with_capacity(m.nrows() * m.ncols());
-            for j in 0..m.ncols() {
-                for i in 0..m.nrows() {
-                    out.push(m[(i, j)]);
-                }
+        let inverse1 = s1.full_piv_lu().inverse();
+        let inverse2 = s2.full_piv_lu().inverse();
+        let mut out1 = Vec::with_capacity(m1 * m1);
+        for j in 0..m1 {
+            for i in 0..m1 {
+                let z = inverse1[(i, j)];
+                out1.push(DVec2::new(z.re, z.im));
             }
-            out
-        };
-        (
-            to_vec(s1.full_piv_lu().inverse()),
-            to_vec(s2.full_piv_lu().inverse()),
-        )
+        }
+        let mut out2 = Vec::with_capacity(m2 * m2);
+        for j in 0..m2 {
+            for i in 0..m2 {
+                out2.push(inverse2[(i, j)]);
+            }
+        }
+        (out1, out2)
     }
 
     fn update(&mut self, targets: &[DVec2], steps: Steps, pose: &mut [DVec2]) {
-        let n = self.n();
         match &self.placement {
             Placement::Fixed => {}
             Placement::Carried { rotation } => {
@@ -628,111 +644,97 @@ impl PieceSolver {
                 step2_inverse,
             } => {
                 let k = self.handles.len();
-                // Step 1: v₁ = W₁ ξ₁, ξ₁ = S₁⁻¹ [q; 0].
-                let m1 = 2 * k + STEP1_ANCHORS;
+                // Step 1: v₁ = W₁ ξ₁ with ξ₁ = S₁⁻¹ [q; 0], all complex.
                 for (h, handle) in self.handles.iter().enumerate() {
-                    let q = targets[handle.target];
-                    self.step1_rhs[2 * h] = q.x;
-                    self.step1_rhs[2 * h + 1] = q.y;
+                    self.step1_rhs[h] = targets[handle.target];
                 }
-                self.step1_rhs[2 * k..].fill(0.0);
-                small_multiply(step1_inverse, &self.step1_rhs, &mut self.step1_xi, m1);
+                self.step1_rhs[k..].fill(DVec2::ZERO);
+                for (i, out) in self.step1_xi.iter_mut().enumerate() {
+                    *out = DVec2::ZERO;
+                    for (j, r) in self.step1_rhs.iter().enumerate() {
+                        *out += step1_inverse[j * (k + 2) + i].rotate(*r);
+                    }
+                }
                 let v1 = &mut self.step1_pose;
-                v1.fill(0.0);
-                for (h, handle) in self.handles.iter().enumerate() {
-                    let (x, y) = handle.step1_columns.split_at(2 * n);
-                    axpy2(v1, self.step1_xi[2 * h], x, self.step1_xi[2 * h + 1], y);
+                v1.re.fill(0.0);
+                v1.im.fill(0.0);
+                let columns = self.handles.iter().map(|h| &h.step1_column).chain(self.step1_anchor_columns.iter());
+                for (xi, column) in self.step1_xi.iter().zip(columns) {
+                    v1.add_scaled(*xi, column);
                 }
-                let (a01, a23) = self.step1_anchor_columns.split_at(4 * n);
-                let xi = &self.step1_xi[2 * k..];
-                axpy2(v1, xi[0], &a01[..2 * n], xi[1], &a01[2 * n..]);
-                axpy2(v1, xi[2], &a23[..2 * n], xi[3], &a23[2 * n..]);
                 if steps == Steps::ScaleFree {
                     for (local, &v) in self.vertices.iter().enumerate() {
-                        pose[v as usize] = DVec2::new(v1[2 * local], v1[2 * local + 1]);
+                        pose[v as usize] = v1.get(local);
                     }
                     return;
                 }
-                // Step 2a + the right-hand side of 2b: b = Σ_t w_t Σ_edges ±R_t ē.
-                let b = &mut self.step2_pose; // n×2, column-major: x then y
-                b.fill(0.0);
-                for tri in &self.triangles {
+                // Step 2a and the right-hand side of 2b. Per triangle the edge
+                // terms telescope to b_i += w(2f_i − f_j − f_l) = 3w·f_i
+                // (the fitted corners f sum to zero about the centroid), so
+                // with r̃ = 3w·r̄ precomputed, b_i += unit_rotation · r̃_i.
+                // Three sweeps: gather the fit sums, normalise them (a plain
+                // loop the compiler vectorises, hiding sqrt/div latency),
+                // scatter the rotated corners.
+                for (tri, fit) in self.triangles.iter().zip(self.fits.iter_mut()) {
                     let [i, j, l] = tri.corners.map(|c| c as usize);
-                    let p = [
-                        DVec2::new(v1[2 * i], v1[2 * i + 1]),
-                        DVec2::new(v1[2 * j], v1[2 * j + 1]),
-                        DVec2::new(v1[2 * l], v1[2 * l + 1]),
-                    ];
-                    // Σ r̄ = 0, so the pose need not be centred.
-                    let r = &tri.centred;
-                    let dot = r[0].dot(p[0]) + r[1].dot(p[1]) + r[2].dot(p[2]);
-                    let crs = r[0].perp_dot(p[0]) + r[1].perp_dot(p[1]) + r[2].perp_dot(p[2]);
-                    let rotation = unit_rotation(dot, crs) * tri.weight;
-                    // Weighted fitted corners: the edge terms telescope to
-                    // b_i += w(2 f_i − f_j − f_l) with f the fitted corners.
-                    let f = [rotation.rotate(r[0]), rotation.rotate(r[1]), rotation.rotate(r[2])];
-                    let g = [
-                        2.0 * f[0] - f[1] - f[2],
-                        2.0 * f[1] - f[2] - f[0],
-                        2.0 * f[2] - f[0] - f[1],
-                    ];
-                    for (c, gi) in [i, j, l].into_iter().zip(g) {
-                        b[c] += gi.x;
-                        b[n + c] += gi.y;
+                    let (p0, p1, p2) = (v1.get(i), v1.get(j), v1.get(l));
+                    let r = &tri.scaled_centred;
+                    let dot = r[0].dot(p0) + r[1].dot(p1) + r[2].dot(p2);
+                    let crs = r[0].perp_dot(p0) + r[1].perp_dot(p1) + r[2].perp_dot(p2);
+                    *fit = DVec2::new(dot, crs);
+                }
+                for fit in self.fits.iter_mut() {
+                    let norm2 = fit.length_squared();
+                    let scale = 1.0 / norm2.sqrt();
+                    // A collapsed step-1 triangle fits no rotation: keep rest.
+                    *fit = if norm2 > f64::MIN_POSITIVE && scale > 0.0 { *fit * scale } else { DVec2::X };
+                }
+                let b = &mut self.step2_pose;
+                b.fill(DVec2::ZERO);
+                for (tri, rotation) in self.triangles.iter().zip(&self.fits) {
+                    let [i, j, l] = tri.corners.map(|c| c as usize);
+                    let r = &tri.scaled_centred;
+                    b[i] += rotation.rotate(r[0]);
+                    b[j] += rotation.rotate(r[1]);
+                    b[l] += rotation.rotate(r[2]);
+                }
+                self.step2.solve_pairs(b);
+                // Step 2b: v = y + W₂ ξ₂, ξ₂ = S₂⁻¹ ([q; 0] − B̃ y), x and y as a pair.
+                for (h, handle) in self.handles.iter().enumerate() {
+                    self.step2_rhs[h] = targets[handle.target] - handle.row.dot(b);
+                }
+                self.step2_rhs[k] = -b[self.step2_anchor];
+                for (i, out) in self.step2_xi.iter_mut().enumerate() {
+                    *out = DVec2::ZERO;
+                    for (j, r) in self.step2_rhs.iter().enumerate() {
+                        *out += *r * step2_inverse[j * (k + 1) + i];
                     }
                 }
-                self.step2.solve_in_place(b);
-                // Step 2b: v = y + W₂ ξ₂, ξ₂ = S₂⁻¹ ([q; 0] − B̃ y), per axis.
-                let m2 = k + 1;
-                let (bx, by) = b.split_at(n);
-                for (h, handle) in self.handles.iter().enumerate() {
-                    let q = targets[handle.target];
-                    self.step2_rhs[h] = q.x - handle.row.dot_scalar(bx);
-                    self.step2_rhs[m2 + h] = q.y - handle.row.dot_scalar(by);
+                let columns = self
+                    .handles
+                    .iter()
+                    .map(|h| h.step2_column.as_slice())
+                    .chain(std::iter::once(self.step2_anchor_column.as_slice()));
+                let mut pending: Option<(DVec2, &[f64])> = None;
+                for (xi, column) in self.step2_xi.iter().zip(columns) {
+                    match pending.take() {
+                        None => pending = Some((*xi, column)),
+                        Some((xa, ca)) => {
+                            for ((v, a), c) in b.iter_mut().zip(ca).zip(column) {
+                                *v += xa * *a + *xi * *c;
+                            }
+                        }
+                    }
                 }
-                self.step2_rhs[k] = -bx[self.step2_anchor];
-                self.step2_rhs[m2 + k] = -by[self.step2_anchor];
-                let (rx, ry) = self.step2_rhs.split_at(m2);
-                let (xx, xy) = self.step2_xi.split_at_mut(m2);
-                small_multiply(step2_inverse, rx, xx, m2);
-                small_multiply(step2_inverse, ry, xy, m2);
-                let (px, py) = b.split_at_mut(n);
-                for (h, handle) in self.handles.iter().enumerate() {
-                    axpy(px, xx[h], &handle.step2_column);
-                    axpy(py, xy[h], &handle.step2_column);
+                if let Some((xa, ca)) = pending {
+                    for (v, a) in b.iter_mut().zip(ca) {
+                        *v += xa * *a;
+                    }
                 }
-                axpy(px, xx[k], &self.step2_anchor_column);
-                axpy(py, xy[k], &self.step2_anchor_column);
-                for (local, &v) in self.vertices.iter().enumerate() {
-                    pose[v as usize] = DVec2::new(px[local], py[local]);
+                for (&v, p) in self.vertices.iter().zip(b.iter()) {
+                    pose[v as usize] = *p;
                 }
             }
         }
-    }
-}
-
-/// `out = M x` for a column-major `m`×`m` matrix.
-#[inline]
-fn small_multiply(matrix: &[f64], x: &[f64], out: &mut [f64], m: usize) {
-    out[..m].fill(0.0);
-    for (j, &xj) in x[..m].iter().enumerate() {
-        for (o, &a) in out[..m].iter_mut().zip(&matrix[j * m..(j + 1) * m]) {
-            *o += a * xj;
-        }
-    }
-}
-
-#[inline]
-fn axpy(y: &mut [f64], a: f64, x: &[f64]) {
-    for (yi, &xi) in y.iter_mut().zip(x) {
-        *yi += a * xi;
-    }
-}
-
-/// `y += a·x + b·z`, fused so `y` is read and written once.
-#[inline]
-fn axpy2(y: &mut [f64], a: f64, x: &[f64], b: f64, z: &[f64]) {
-    for ((yi, &xi), &zi) in y.iter_mut().zip(x).zip(z) {
-        *yi += a * xi + b * zi;
     }
 }

@@ -1,13 +1,18 @@
-//! Sparse symmetric positive-definite factorisations for the deformers: a thin
-//! owner of faer's fill-reducing Cholesky factor with the scratch memory its
-//! solves need, so that solving on the frame path never allocates.
+//! Sparse Cholesky factors for the deformers. faer computes the fill-reducing
+//! order and the numeric factor once; the solves are ours, so the frame path
+//! never allocates, never permutes (callers number their unknowns in the
+//! factor's order), and moves an x,y pair — or one complex number — per
+//! entry of `L`, reading the factor once per pass instead of once per axis.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::SupernodalThreshold;
+use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
-    CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering, factorize_symbolic_cholesky,
+    CholeskySymbolicParams, SymbolicCholeskyRaw, SymmetricOrdering, factorize_symbolic_cholesky,
 };
-use faer::sparse::{SparseColMat, Triplet};
-use faer::{Conj, MatMut, Par, Side};
+use faer::sparse::{SparseColMat, SymbolicSparseColMat, Triplet};
+use faer::{Par, Side, c64};
+use glam::DVec2;
 
 /// The factorisation failed: the matrix was not positive definite (a piece
 /// the caller believed pinned was not) or memory ran out.
@@ -15,84 +20,259 @@ use faer::{Conj, MatMut, Par, Side};
 #[error("sparse Cholesky factorisation failed: {0}")]
 pub struct FactorError(String);
 
-/// `L Lᵀ` of a sparse SPD matrix, with room to solve `columns` right-hand
-/// sides at once without allocating.
-pub struct SpdFactor {
-    symbolic: SymbolicCholesky<usize>,
-    values: Vec<f64>,
-    scratch: MemBuffer,
-    columns: usize,
+fn failed(e: impl std::fmt::Debug) -> FactorError {
+    FactorError(format!("{e:?}"))
 }
 
-impl std::fmt::Debug for SpdFactor {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SpdFactor")
-            .field("n", &self.symbolic.nrows())
-            .field("factor_entries", &self.values.len())
-            .finish()
+/// A fill-reducing order (approximate minimum degree) of the symmetric
+/// pattern given by `edges` over `n` unknowns: `order[new] = old`.
+pub fn fill_reducing_order(n: usize, edges: &[(u32, u32)]) -> Result<Vec<u32>, FactorError> {
+    let mut pairs: Vec<faer::sparse::Pair<usize, usize>> = Vec::with_capacity(edges.len() * 2 + n);
+    for i in 0..n {
+        pairs.push(faer::sparse::Pair::new(i, i));
+    }
+    for &(a, b) in edges {
+        pairs.push(faer::sparse::Pair::new(a as usize, b as usize));
+        pairs.push(faer::sparse::Pair::new(b as usize, a as usize));
+    }
+    let (pattern, _) = SymbolicSparseColMat::try_new_from_indices(n, n, &pairs).map_err(failed)?;
+    let mut forward = vec![0usize; n];
+    let mut inverse = vec![0usize; n];
+    let mut work = MemBuffer::try_new(amd::order_scratch::<usize>(n, pattern.compute_nnz())).map_err(failed)?;
+    amd::order(
+        &mut forward,
+        &mut inverse,
+        pattern.as_ref(),
+        amd::Control::default(),
+        MemStack::new(&mut work),
+    )
+    .map_err(failed)?;
+    Ok(forward.into_iter().map(|i| i as u32).collect())
+}
+
+/// The structure of a lower-triangular factor without its diagonal:
+/// column `j` holds rows `rows[start[j]..start[j + 1]]`, all below `j`.
+#[derive(Debug, Clone)]
+struct Structure {
+    start: Vec<u32>,
+    rows: Vec<u32>,
+}
+
+impl Structure {
+    /// The invariant the unchecked solves rely on.
+    fn check(&self, n: usize) -> Result<(), FactorError> {
+        let monotone = self.start.len() == n + 1
+            && self.start.windows(2).all(|w| w[0] <= w[1])
+            && *self.start.last().unwrap() as usize == self.rows.len();
+        if monotone && self.rows.iter().all(|&r| (r as usize) < n) {
+            Ok(())
+        } else {
+            Err(FactorError("inconsistent factor structure".into()))
+        }
     }
 }
 
-impl SpdFactor {
-    /// Factors the `n`×`n` matrix whose upper-triangle entries are given as
-    /// `(row, col, value)` with `row <= col`; repeated positions are summed.
-    pub fn new(n: usize, upper: &[(usize, usize, f64)], columns: usize) -> Result<Self, FactorError> {
-        let triplets: Vec<Triplet<usize, usize, f64>> =
-            upper.iter().map(|&(r, c, v)| Triplet::new(r, c, v)).collect();
-        let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, &triplets)
-            .map_err(|e| FactorError(format!("{e:?}")))?;
-        let symbolic = factorize_symbolic_cholesky(
-            matrix.symbolic(),
+/// Factors with faer in the given (identity) order, simplicial, and returns
+/// the off-diagonal structure, the off-diagonal values and the diagonal.
+fn factor<T: faer::traits::ComplexField + Copy>(
+    n: usize,
+    upper: &[(usize, usize, T)],
+) -> Result<(Structure, Vec<T>, Vec<T>), FactorError> {
+    let triplets: Vec<Triplet<usize, usize, T>> = upper.iter().map(|&(r, c, v)| Triplet::new(r, c, v)).collect();
+    let matrix = SparseColMat::<usize, T>::try_new_from_triplets(n, n, &triplets).map_err(failed)?;
+    let params = CholeskySymbolicParams {
+        supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SIMPLICIAL,
+        ..Default::default()
+    };
+    let symbolic =
+        factorize_symbolic_cholesky(matrix.symbolic(), Side::Upper, SymmetricOrdering::Identity, params).map_err(failed)?;
+    let mut values = vec![T::zero_impl(); symbolic.len_val()];
+    let mut work =
+        MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<T>(Par::Seq, Default::default())).map_err(failed)?;
+    symbolic
+        .factorize_numeric_llt(
+            &mut values,
+            matrix.as_ref(),
             Side::Upper,
-            SymmetricOrdering::Amd,
-            CholeskySymbolicParams::default(),
+            Default::default(),
+            Par::Seq,
+            MemStack::new(&mut work),
+            Default::default(),
         )
-        .map_err(|e| FactorError(format!("{e:?}")))?;
-        let mut values = vec![0.0; symbolic.len_val()];
-        let mut work = MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()))
-            .map_err(|_| FactorError("out of memory".into()))?;
-        symbolic
-            .factorize_numeric_llt(
-                &mut values,
-                matrix.as_ref(),
-                Side::Upper,
-                Default::default(),
-                Par::Seq,
-                MemStack::new(&mut work),
-                Default::default(),
-            )
-            .map_err(|e| FactorError(format!("{e:?}")))?;
-        let scratch = MemBuffer::try_new(symbolic.solve_in_place_scratch::<f64>(columns, Par::Seq))
-            .map_err(|_| FactorError("out of memory".into()))?;
-        Ok(SpdFactor {
-            symbolic,
+        .map_err(failed)?;
+    let SymbolicCholeskyRaw::Simplicial(simplicial) = symbolic.raw() else {
+        return Err(FactorError("expected a simplicial factor".into()));
+    };
+    let col_ptr = simplicial.col_ptr();
+    let row_idx = simplicial.row_idx();
+    let mut start = Vec::with_capacity(n + 1);
+    let mut rows = Vec::with_capacity(values.len() - n);
+    let mut off = Vec::with_capacity(values.len() - n);
+    let mut diagonal = Vec::with_capacity(n);
+    start.push(0u32);
+    for j in 0..n {
+        let (a, b) = (col_ptr[j], col_ptr[j + 1]);
+        // faer stores the diagonal first in each column.
+        debug_assert_eq!(row_idx[a], j);
+        diagonal.push(values[a]);
+        for p in a + 1..b {
+            rows.push(row_idx[p] as u32);
+            off.push(values[p]);
+        }
+        start.push(rows.len() as u32);
+    }
+    let structure = Structure { start, rows };
+    structure.check(n)?;
+    Ok((structure, off, diagonal))
+}
+
+/// `L Lᵀ` of a real sparse SPD matrix.
+#[derive(Debug, Clone)]
+pub struct RealCholesky {
+    structure: Structure,
+    values: Vec<f64>,
+    inverse_diagonal: Vec<f64>,
+}
+
+impl RealCholesky {
+    /// Factors the `n`×`n` matrix whose upper-triangle entries are
+    /// `(row, col, value)` with `row <= col`; repeats are summed.
+    pub fn new(n: usize, upper: &[(usize, usize, f64)]) -> Result<Self, FactorError> {
+        let (structure, values, diagonal) = factor(n, upper)?;
+        Ok(RealCholesky {
+            structure,
             values,
-            scratch,
-            columns,
+            inverse_diagonal: diagonal.iter().map(|d| 1.0 / d).collect(),
         })
     }
 
     pub fn dim(&self) -> usize {
-        self.symbolic.nrows()
+        self.inverse_diagonal.len()
     }
 
-    /// Number of stored entries of `L`, a proxy for the cost of a solve.
     pub fn factor_entries(&self) -> usize {
-        self.values.len()
+        self.values.len() + self.dim()
     }
 
-    /// Overwrites `rhs` (column-major, `dim()` rows, up to `columns` columns)
-    /// with the solution of `A x = rhs`.
-    pub fn solve_in_place(&mut self, rhs: &mut [f64]) {
-        let n = self.dim();
-        let k = rhs.len() / n;
-        assert!(k * n == rhs.len() && k <= self.columns, "right-hand side shape");
-        let rhs = MatMut::from_column_major_slice_mut(rhs, n, k);
-        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
-            Conj::No,
-            rhs,
-            Par::Seq,
-            MemStack::new(&mut self.scratch),
+    /// Solves `A X = B` for two right-hand sides stored as pairs, in place.
+    pub fn solve_pairs(&self, x: &mut [DVec2]) {
+        assert_eq!(x.len(), self.dim(), "right-hand side length");
+        triangular_solves(&self.structure, &self.values, &self.inverse_diagonal, x, |l, v| v * l, |l, v| v * l);
+    }
+
+    /// Solves `A x = b` for one right-hand side, in place.
+    pub fn solve(&self, x: &mut [f64]) {
+        assert_eq!(x.len(), self.dim(), "right-hand side length");
+        triangular_solves(&self.structure, &self.values, &self.inverse_diagonal, x, |l, v| v * l, |l, v| v * l);
+    }
+}
+
+/// `L y = b` then `Lᴴ x = y`, in place, for any value type the factor's
+/// entries act on: `lower(l, v)` applies an entry of `L`, `upper(l, v)` the
+/// matching entry of `Lᴴ`. The backward pass keeps four partial sums so the
+/// dependent additions overlap.
+#[inline(always)]
+fn triangular_solves<L: Copy, V>(
+    structure: &Structure,
+    values: &[L],
+    inverse_diagonal: &[f64],
+    x: &mut [V],
+    lower: impl Fn(L, V) -> V,
+    upper: impl Fn(L, V) -> V,
+) where
+    V: Copy + Default + std::ops::Sub<Output = V> + std::ops::Add<Output = V> + std::ops::Mul<f64, Output = V>,
+{
+    let Structure { start, rows } = structure;
+    let n = inverse_diagonal.len();
+    assert!(x.len() == n && start.len() == n + 1 && rows.len() == values.len());
+    for j in 0..n {
+        let xj = x[j] * inverse_diagonal[j];
+        x[j] = xj;
+        let (a, b) = (start[j] as usize, start[j + 1] as usize);
+        for p in a..b {
+            // SAFETY: `Structure::checked` guarantees start is non-decreasing
+            // up to rows.len() and every row index is below n.
+            unsafe {
+                let i = *rows.get_unchecked(p) as usize;
+                let l = *values.get_unchecked(p);
+                let xi = x.get_unchecked_mut(i);
+                *xi = *xi - lower(l, xj);
+            }
+        }
+    }
+    for j in (0..n).rev() {
+        let (a, b) = (start[j] as usize, start[j + 1] as usize);
+        let mut sums = [V::default(); 4];
+        let mut p = a;
+        while p + 4 <= b {
+            for (lane, sum) in sums.iter_mut().enumerate() {
+                // SAFETY: as above.
+                unsafe {
+                    let i = *rows.get_unchecked(p + lane) as usize;
+                    *sum = *sum + upper(*values.get_unchecked(p + lane), *x.get_unchecked(i));
+                }
+            }
+            p += 4;
+        }
+        while p < b {
+            // SAFETY: as above.
+            unsafe {
+                let i = *rows.get_unchecked(p) as usize;
+                sums[0] = sums[0] + upper(*values.get_unchecked(p), *x.get_unchecked(i));
+            }
+            p += 1;
+        }
+        let total = (sums[0] + sums[1]) + (sums[2] + sums[3]);
+        x[j] = (x[j] - total) * inverse_diagonal[j];
+    }
+}
+
+/// Complex numbers as `DVec2` (re, im): `a.rotate(b)` is the product.
+#[inline]
+fn conj(z: DVec2) -> DVec2 {
+    DVec2::new(z.x, -z.y)
+}
+
+/// `L Lᴴ` of a complex Hermitian positive-definite sparse matrix; complex
+/// numbers are `DVec2` (re, im).
+#[derive(Debug, Clone)]
+pub struct ComplexCholesky {
+    structure: Structure,
+    values: Vec<DVec2>,
+    inverse_diagonal: Vec<f64>,
+}
+
+impl ComplexCholesky {
+    /// Factors the Hermitian matrix whose upper-triangle entries are
+    /// `(row, col, value)` with `row <= col`; repeats are summed.
+    pub fn new(n: usize, upper: &[(usize, usize, DVec2)]) -> Result<Self, FactorError> {
+        let upper: Vec<(usize, usize, c64)> = upper.iter().map(|&(r, c, v)| (r, c, c64::new(v.x, v.y))).collect();
+        let (structure, values, diagonal) = factor(n, &upper)?;
+        Ok(ComplexCholesky {
+            structure,
+            values: values.iter().map(|z| DVec2::new(z.re, z.im)).collect(),
+            inverse_diagonal: diagonal.iter().map(|d| 1.0 / d.re).collect(),
+        })
+    }
+
+    pub fn dim(&self) -> usize {
+        self.inverse_diagonal.len()
+    }
+
+    pub fn factor_entries(&self) -> usize {
+        self.values.len() + self.dim()
+    }
+
+    /// Solves `A x = b` in place.
+    pub fn solve(&self, x: &mut [DVec2]) {
+        assert_eq!(x.len(), self.dim(), "right-hand side length");
+        triangular_solves(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            |l: DVec2, v: DVec2| l.rotate(v),
+            |l: DVec2, v: DVec2| conj(l).rotate(v),
         );
     }
 }
