@@ -1,1 +1,232 @@
-//! later
+//! The scriptable commands behind `puppetry mesh`, `solve` and `bench`: file
+//! formats in and out, and errors that name the file and field at fault.
+//! `main.rs` only parses arguments and reports.
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec2;
+use serde::Deserialize;
+
+use crate::bench;
+use crate::deform::{Anchor, Arap, ArapError, Steps};
+use crate::mesh::build::{MeshOptions, mesh_png, triangulate};
+use crate::mesh::polygon::Shape;
+use crate::mesh::{Locator, Mesh, MeshError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum CliError {
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error("{file}: {0}", file = .1)]
+    Solve(ArapError, String),
+    #[error("{file}: cannot read: {source}")]
+    Read { file: String, source: std::io::Error },
+    #[error("{file}: cannot write: {source}")]
+    Write { file: String, source: std::io::Error },
+    #[error("{file}: line {line}, column {column}: {message}")]
+    Syntax {
+        file: String,
+        line: usize,
+        column: usize,
+        message: String,
+    },
+    #[error("{file}: {field}: {problem}")]
+    Invalid { file: String, field: String, problem: String },
+}
+
+/// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
+/// a `.mesh.json`. Returns the mesh text.
+pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Mesh, CliError> {
+    let options = MeshOptions {
+        target_vertices: vertices,
+    };
+    let is_png = input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if is_png {
+        return Ok(mesh_png(input, &options)?);
+    }
+    let name = input.display().to_string();
+    let text = read(input)?;
+    let shape = Shape::from_json(&name, &text)?;
+    Ok(triangulate(&name, &shape, &options)?)
+}
+
+fn read(path: &Path) -> Result<String, CliError> {
+    std::fs::read_to_string(path).map_err(|source| CliError::Read {
+        file: path.display().to_string(),
+        source,
+    })
+}
+
+pub fn write(path: &Path, text: &str) -> Result<(), CliError> {
+    std::fs::write(path, text).map_err(|source| CliError::Write {
+        file: path.display().to_string(),
+        source,
+    })
+}
+
+/// The `--handles` file of `puppetry solve`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HandlesFile {
+    handles: Vec<HandleEntry>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HandleEntry {
+    vertex: Option<i64>,
+    point: Option<[f64; 2]>,
+    to: [f64; 2],
+}
+
+/// Parses a handles file against `mesh`: anchors and targets, in order.
+pub fn parse_handles(
+    file: &str,
+    text: &str,
+    mesh: &Mesh,
+) -> Result<(Vec<Anchor>, Vec<DVec2>), CliError> {
+    let parsed: HandlesFile = serde_json::from_str(text).map_err(|e| CliError::Syntax {
+        file: file.to_string(),
+        line: e.line(),
+        column: e.column(),
+        message: e.to_string(),
+    })?;
+    let invalid = |field: String, problem: String| CliError::Invalid {
+        file: file.to_string(),
+        field,
+        problem,
+    };
+    let locator = Locator::new(mesh);
+    let mut anchors = Vec::with_capacity(parsed.handles.len());
+    let mut targets = Vec::with_capacity(parsed.handles.len());
+    for (h, entry) in parsed.handles.iter().enumerate() {
+        let to = DVec2::from(entry.to);
+        if !to.is_finite() {
+            return Err(invalid(
+                format!("handles[{h}].to"),
+                "is not a finite point".into(),
+            ));
+        }
+        let anchor = match (entry.vertex, entry.point) {
+            (Some(v), None) => {
+                if v < 0 || v as usize >= mesh.vertices().len() {
+                    return Err(invalid(
+                        format!("handles[{h}].vertex"),
+                        format!(
+                            "{v} is out of range (the mesh has {} vertices)",
+                            mesh.vertices().len()
+                        ),
+                    ));
+                }
+                Anchor::Vertex(v as u32)
+            }
+            (None, Some(p)) => {
+                let p = DVec2::from(p);
+                let Some(location) = locator.locate(mesh, p) else {
+                    return Err(invalid(
+                        format!("handles[{h}].point"),
+                        format!("[{}, {}] is outside the mesh", p.x, p.y),
+                    ));
+                };
+                Anchor::Point {
+                    triangle: location.triangle,
+                    bary: location.bary,
+                }
+            }
+            (Some(_), Some(_)) => {
+                return Err(invalid(
+                    format!("handles[{h}]"),
+                    "give either \"vertex\" or \"point\", not both".into(),
+                ));
+            }
+            (None, None) => {
+                return Err(invalid(
+                    format!("handles[{h}]"),
+                    "needs a \"vertex\" index or a \"point\" [x, y]".into(),
+                ));
+            }
+        };
+        anchors.push(anchor);
+        targets.push(to);
+    }
+    Ok((anchors, targets))
+}
+
+/// `puppetry solve`: the deformed vertices as `{"vertices": [[x, y], …]}`.
+pub fn solve_command(
+    mesh_path: &Path,
+    handles_path: &Path,
+    step1_only: bool,
+) -> Result<String, CliError> {
+    let mesh = Mesh::load(mesh_path)?;
+    let handles_name = handles_path.display().to_string();
+    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path)?, &mesh)?;
+    let mesh_name = mesh_path.display().to_string();
+    let mut arap = Arap::register(&mesh).map_err(|e| CliError::Solve(e, mesh_name))?;
+    arap.compile(&anchors)
+        .map_err(|e| CliError::Solve(e, handles_name.clone()))?;
+    let steps = if step1_only {
+        Steps::ScaleFree
+    } else {
+        Steps::Both
+    };
+    let pose = arap
+        .update(&targets, steps)
+        .map_err(|e| CliError::Solve(e, handles_name))?;
+    let vertices: Vec<[f64; 2]> = pose.iter().map(|p| [p.x, p.y]).collect();
+    Ok(serde_json::json!({ "vertices": vertices }).to_string())
+}
+
+/// Where the bundled demo puppet lives, relative to the crate root.
+pub fn demo_image() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/gingerbread/gingerbread.png")
+}
+
+/// `puppetry bench`: the meshes to run, as (name, mesh).
+pub fn bench_meshes(
+    mesh: Option<&Path>,
+    sizes: &[usize],
+) -> Result<Vec<(String, Mesh)>, CliError> {
+    if let Some(path) = mesh {
+        return Ok(vec![(path.display().to_string(), Mesh::load(path)?)]);
+    }
+    let image = demo_image();
+    sizes
+        .iter()
+        .map(|&n| {
+            let options = MeshOptions {
+                target_vertices: Some(n),
+            };
+            Ok((format!("gingerbread@{n}"), mesh_png(&image, &options)?))
+        })
+        .collect()
+}
+
+/// Runs the bench cases, printing each as it completes.
+pub fn bench_command(
+    meshes: &[(String, Mesh)],
+    handle_counts: &[usize],
+    json: bool,
+    mut print: impl FnMut(&str),
+) -> Result<Vec<bench::CaseResult>, CliError> {
+    if !json {
+        print(&bench::table_header());
+    }
+    let mut results = Vec::new();
+    for (name, mesh) in meshes {
+        for &handles in handle_counts {
+            let frames = bench::frames_for(mesh.vertices().len());
+            let result = bench::run_case(name, mesh, handles, frames)
+                .map_err(|e| CliError::Solve(e, name.clone()))?;
+            if json {
+                print(&serde_json::to_string(&result).expect("plain numbers serialise"));
+            } else {
+                print(&bench::table_row(&result));
+            }
+            results.push(result);
+        }
+    }
+    Ok(results)
+}

@@ -27,7 +27,10 @@
 //! free); they are placed rigidly as `algorithms.md` prescribes.
 
 use faer::{Mat, c64};
-use faer::linalg::solvers::DenseSolveCore;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::lu::partial_pivoting::{factor::lu_in_place, factor::lu_in_place_scratch, inverse};
+use faer::traits::ComplexField;
+use faer::Par;
 use glam::DVec2;
 
 use super::sparse::{ComplexCholesky, FactorError, RealCholesky, fill_reducing_order};
@@ -250,6 +253,42 @@ fn unit_rotation(dot: f64, crs: f64) -> DVec2 {
     } else {
         DVec2::X
     }
+}
+
+/// The inverse of a small dense matrix by LU with partial pivoting, on this
+/// thread: faer's convenience API would fan out to its thread pool, whose
+/// wake-ups cost more than the arithmetic at these sizes.
+fn inverse_sequential<T: ComplexField>(mut lu: Mat<T>) -> Mat<T> {
+    let n = lu.nrows();
+    let mut forward = vec![0usize; n];
+    let mut backward = vec![0usize; n];
+    let scratch = lu_in_place_scratch::<usize, T>(n, n, Par::Seq, Default::default())
+        .or(inverse::inverse_scratch::<usize, T>(n, Par::Seq));
+    let mut memory = MemBuffer::new(scratch);
+    let (_, permutation) = lu_in_place(
+        lu.as_mut(),
+        &mut forward,
+        &mut backward,
+        Par::Seq,
+        MemStack::new(&mut memory),
+        Default::default(),
+    );
+    let lower = Mat::<T>::from_fn(n, n, |i, j| match i.cmp(&j) {
+        std::cmp::Ordering::Greater => lu[(i, j)].clone(),
+        std::cmp::Ordering::Equal => T::one_impl(),
+        std::cmp::Ordering::Less => T::zero_impl(),
+    });
+    let upper = Mat::<T>::from_fn(n, n, |i, j| if i <= j { lu[(i, j)].clone() } else { T::zero_impl() });
+    let mut out = Mat::<T>::zeros(n, n);
+    inverse::inverse(
+        out.as_mut(),
+        lower.as_ref(),
+        upper.as_ref(),
+        permutation,
+        Par::Seq,
+        MemStack::new(&mut memory),
+    );
+    out
 }
 
 /// Complex division `a / b` on (re, im) pairs.
@@ -611,8 +650,8 @@ impl PieceSolver {
             }
             value
         });
-        let inverse1 = s1.full_piv_lu().inverse();
-        let inverse2 = s2.full_piv_lu().inverse();
+        let inverse1 = inverse_sequential(s1);
+        let inverse2 = inverse_sequential(s2);
         let mut out1 = Vec::with_capacity(m1 * m1);
         for j in 0..m1 {
             for i in 0..m1 {
