@@ -33,7 +33,7 @@ use faer::traits::ComplexField;
 use faer::Par;
 use glam::DVec2;
 
-use super::sparse::{ComplexCholesky, FactorError, RealCholesky, fill_reducing_order};
+use super::sparse::{ComplexCholesky, FactorError, RealCholesky, UpperPattern, fill_reducing_order};
 use crate::mesh::Mesh;
 
 /// Where a handle holds the mesh, in rest terms.
@@ -466,9 +466,14 @@ impl PieceSolver {
         }
         let rest: Vec<DVec2> = vertices.iter().map(|&v| mesh.vertices()[v as usize]).collect();
 
+        let local_edges: Vec<(u32, u32)> = edges
+            .iter()
+            .map(|&(a, b)| (local(piece_vertices[a as usize], vertex_home), local(piece_vertices[b as usize], vertex_home)))
+            .collect();
+        let pattern = UpperPattern::new(n, &local_edges);
         let mut triangles = Vec::with_capacity(piece_triangles.len());
-        let mut g: Vec<(usize, usize, DVec2)> = Vec::with_capacity(piece_triangles.len() * 18);
-        let mut h: Vec<(usize, usize, f64)> = Vec::with_capacity(piece_triangles.len() * 9);
+        let mut g = vec![DVec2::ZERO; pattern.len()];
+        let mut h = vec![0.0; pattern.len()];
         for &t in piece_triangles {
             let w = mesh.weights()[t as usize];
             let corners = mesh.triangles()[t as usize].map(|v| local(v, vertex_home));
@@ -489,35 +494,35 @@ impl PieceSolver {
                 for r in 0..3 {
                     for s in 0..3 {
                         if idx[r] <= idx[s] {
-                            // A_rs += w conj(γ_r) γ_s
+                            // A_rs += w conj(γ_r) γ_s (upper triangle only).
                             let value = DVec2::new(gamma[r].x, -gamma[r].y).rotate(gamma[s]) * w;
-                            g.push((idx[r], idx[s], value));
+                            g[pattern.position(idx[r], idx[s])] += value;
                         }
                     }
                 }
-                let (i, j) = (idx[0].min(idx[1]), idx[0].max(idx[1]));
-                h.push((i, i, w));
-                h.push((j, j, w));
-                h.push((i, j, -w));
+                let (i, j) = (idx[0], idx[1]);
+                h[pattern.position(i, i)] += w;
+                h[pattern.position(j, j)] += w;
+                h[pattern.position(i, j)] -= w;
             }
         }
         // Cache-friendly sweep order for the per-frame fit.
         triangles.sort_by_key(|t| *t.corners.iter().min().unwrap());
 
-        let mean_diagonal = |diag: f64, dim: usize| diag / dim as f64;
-        let step1_delta = mean_diagonal(g.iter().filter(|e| e.0 == e.1).map(|e| e.2.x).sum(), n);
-        let step2_delta = mean_diagonal(h.iter().filter(|e| e.0 == e.1).map(|e| e.2).sum(), n);
+        let diagonal = |i: usize| pattern.position(i, i);
+        let step1_delta = (0..n).map(|i| g[diagonal(i)].x).sum::<f64>() / n as f64;
+        let step2_delta = (0..n).map(|i| h[diagonal(i)]).sum::<f64>() / n as f64;
         // Two far-apart anchors condition the similarity modes well.
         let first = (0..n).min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x)).unwrap();
         let second = (0..n)
             .max_by(|&i, &j| rest[i].distance_squared(rest[first]).total_cmp(&rest[j].distance_squared(rest[first])))
             .unwrap();
         for a in [first, second] {
-            g.push((a, a, DVec2::new(step1_delta, 0.0)));
+            g[diagonal(a)].x += step1_delta;
         }
-        h.push((first, first, step2_delta));
-        let step1 = ComplexCholesky::new(n, &g)?;
-        let step2 = RealCholesky::new(n, &h)?;
+        h[diagonal(first)] += step2_delta;
+        let step1 = ComplexCholesky::new(&pattern, &g)?;
+        let step2 = RealCholesky::new(&pattern, &h)?;
         let step1_anchor_columns = [first, second].map(|a| {
             let mut column = vec![DVec2::ZERO; n];
             column[a] = DVec2::X;

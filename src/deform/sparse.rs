@@ -10,7 +10,7 @@ use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, SymbolicCholeskyRaw, SymmetricOrdering, factorize_symbolic_cholesky,
 };
-use faer::sparse::{SparseColMat, SymbolicSparseColMat, Triplet};
+use faer::sparse::SymbolicSparseColMat;
 use faer::{Par, Side, c64};
 use glam::DVec2;
 
@@ -72,27 +72,78 @@ impl Structure {
     }
 }
 
+/// The upper triangle (diagonal included) of a symmetric sparse pattern in
+/// compressed columns, rows sorted: the shape of the deformers' matrices,
+/// built once so values can be summed straight into place.
+#[derive(Debug, Clone)]
+pub struct UpperPattern {
+    col_ptr: Vec<usize>,
+    rows: Vec<usize>,
+}
+
+impl UpperPattern {
+    /// The pattern of the graph `edges` over `n` nodes, plus the diagonal.
+    pub fn new(n: usize, edges: &[(u32, u32)]) -> UpperPattern {
+        let mut entries: Vec<(u32, u32)> = Vec::with_capacity(edges.len() + n);
+        entries.extend((0..n as u32).map(|i| (i, i)));
+        entries.extend(edges.iter().map(|&(a, b)| (a.max(b), a.min(b))));
+        entries.sort_unstable();
+        entries.dedup();
+        let mut col_ptr = vec![0usize; n + 1];
+        for &(col, _) in &entries {
+            col_ptr[col as usize + 1] += 1;
+        }
+        for j in 0..n {
+            col_ptr[j + 1] += col_ptr[j];
+        }
+        let rows = entries.into_iter().map(|(_, row)| row as usize).collect();
+        UpperPattern { col_ptr, rows }
+    }
+
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    pub fn dim(&self) -> usize {
+        self.col_ptr.len() - 1
+    }
+
+    /// Where entry (`a`, `b`) or (`b`, `a`) lives in a value array.
+    /// Panics if it is not in the pattern (a caller bug, not bad input).
+    #[inline]
+    pub fn position(&self, a: usize, b: usize) -> usize {
+        let (row, col) = (a.min(b), a.max(b));
+        let column = &self.rows[self.col_ptr[col]..self.col_ptr[col + 1]];
+        self.col_ptr[col] + column.binary_search(&row).expect("entry in the pattern")
+    }
+}
+
 /// Factors with faer in the given (identity) order, simplicial, and returns
 /// the off-diagonal structure, the off-diagonal values and the diagonal.
 fn factor<T: faer::traits::ComplexField + Copy>(
-    n: usize,
-    upper: &[(usize, usize, T)],
+    pattern: &UpperPattern,
+    values: &[T],
 ) -> Result<(Structure, Vec<T>, Vec<T>), FactorError> {
-    let triplets: Vec<Triplet<usize, usize, T>> = upper.iter().map(|&(r, c, v)| Triplet::new(r, c, v)).collect();
-    let matrix = SparseColMat::<usize, T>::try_new_from_triplets(n, n, &triplets).map_err(failed)?;
+    let n = pattern.dim();
+    let symbolic_matrix = faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &pattern.col_ptr, None, &pattern.rows);
+    let matrix = faer::sparse::SparseColMatRef::new(symbolic_matrix, values);
     let params = CholeskySymbolicParams {
         supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SIMPLICIAL,
         ..Default::default()
     };
     let symbolic =
-        factorize_symbolic_cholesky(matrix.symbolic(), Side::Upper, SymmetricOrdering::Identity, params).map_err(failed)?;
+        factorize_symbolic_cholesky(symbolic_matrix, Side::Upper, SymmetricOrdering::Identity, params).map_err(failed)?;
     let mut values = vec![T::zero_impl(); symbolic.len_val()];
     let mut work =
         MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<T>(Par::Seq, Default::default())).map_err(failed)?;
     symbolic
         .factorize_numeric_llt(
             &mut values,
-            matrix.as_ref(),
+            matrix,
             Side::Upper,
             Default::default(),
             Par::Seq,
@@ -135,10 +186,9 @@ pub struct RealCholesky {
 }
 
 impl RealCholesky {
-    /// Factors the `n`×`n` matrix whose upper-triangle entries are
-    /// `(row, col, value)` with `row <= col`; repeats are summed.
-    pub fn new(n: usize, upper: &[(usize, usize, f64)]) -> Result<Self, FactorError> {
-        let (structure, values, diagonal) = factor(n, upper)?;
+    /// Factors the matrix with `values` over `pattern`.
+    pub fn new(pattern: &UpperPattern, values: &[f64]) -> Result<Self, FactorError> {
+        let (structure, values, diagonal) = factor(pattern, values)?;
         Ok(RealCholesky {
             structure,
             values,
@@ -243,11 +293,11 @@ pub struct ComplexCholesky {
 }
 
 impl ComplexCholesky {
-    /// Factors the Hermitian matrix whose upper-triangle entries are
-    /// `(row, col, value)` with `row <= col`; repeats are summed.
-    pub fn new(n: usize, upper: &[(usize, usize, DVec2)]) -> Result<Self, FactorError> {
-        let upper: Vec<(usize, usize, c64)> = upper.iter().map(|&(r, c, v)| (r, c, c64::new(v.x, v.y))).collect();
-        let (structure, values, diagonal) = factor(n, &upper)?;
+    /// Factors the Hermitian matrix whose upper triangle has `values`
+    /// (complex as re, im) over `pattern`.
+    pub fn new(pattern: &UpperPattern, values: &[DVec2]) -> Result<Self, FactorError> {
+        let values: Vec<c64> = values.iter().map(|v| c64::new(v.x, v.y)).collect();
+        let (structure, values, diagonal) = factor(pattern, &values)?;
         Ok(ComplexCholesky {
             structure,
             values: values.iter().map(|z| DVec2::new(z.re, z.im)).collect(),
