@@ -30,7 +30,10 @@ pub struct CaseResult {
 struct Lcg(u64);
 impl Lcg {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
 }
@@ -44,7 +47,11 @@ pub fn spread_anchors(mesh: &Mesh, count: usize, seed: u64) -> Vec<Anchor> {
         .map(|_| {
             let t = ((rng.next() * tris as f64) as usize).min(tris - 1) as u32;
             let (a, b) = (rng.next(), rng.next());
-            let (a, b) = if a + b > 1.0 { (1.0 - a, 1.0 - b) } else { (a, b) };
+            let (a, b) = if a + b > 1.0 {
+                (1.0 - a, 1.0 - b)
+            } else {
+                (a, b)
+            };
             Anchor::Point {
                 triangle: t,
                 bary: [1.0 - a - b, a, b],
@@ -80,7 +87,12 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
 }
 
 /// Measures one mesh with `handles` handles over `frames` update frames.
-pub fn run_case(name: &str, mesh: &Mesh, handles: usize, frames: usize) -> Result<CaseResult, ArapError> {
+pub fn run_case(
+    name: &str,
+    mesh: &Mesh,
+    handles: usize,
+    frames: usize,
+) -> Result<CaseResult, ArapError> {
     let registrations = if mesh.vertices().len() > 50_000 { 1 } else { 3 };
     let mut register_times = Vec::new();
     let mut arap = None;
@@ -148,13 +160,27 @@ pub fn frames_for(vertices: usize) -> usize {
 pub fn table_header() -> String {
     format!(
         "{:<22} {:>8} {:>7} {:>11} {:>11} {:>12} {:>12} {:>15}",
-        "mesh", "vertices", "handles", "register ms", "compile µs", "update µs p50", "update µs p99", "add/remove µs"
+        "mesh",
+        "vertices",
+        "handles",
+        "register ms",
+        "compile µs",
+        "update µs p50",
+        "update µs p99",
+        "add/remove µs"
     )
 }
 
 pub fn table_row(r: &CaseResult) -> String {
     format!(
         "{:<22} {:>8} {:>7} {:>11.2} {:>11.1} {:>12.1} {:>12.1} {:>15.1}",
-        r.mesh, r.vertices, r.handles, r.register_ms, r.compile_us, r.update_us_median, r.update_us_p99, r.handle_change_frame_us
+        r.mesh,
+        r.vertices,
+        r.handles,
+        r.register_ms,
+        r.compile_us,
+        r.update_us_median,
+        r.update_us_p99,
+        r.handle_change_frame_us
     )
 }

@@ -20,9 +20,15 @@ pub enum CliError {
     #[error("{file}: {0}", file = .1)]
     Solve(ArapError, String),
     #[error("{file}: cannot read: {source}")]
-    Read { file: String, source: std::io::Error },
+    Read {
+        file: String,
+        source: std::io::Error,
+    },
     #[error("{file}: cannot write: {source}")]
-    Write { file: String, source: std::io::Error },
+    Write {
+        file: String,
+        source: std::io::Error,
+    },
     #[error("{file}: line {line}, column {column}: {message}")]
     Syntax {
         file: String,
@@ -31,7 +37,11 @@ pub enum CliError {
         message: String,
     },
     #[error("{file}: {field}: {problem}")]
-    Invalid { file: String, field: String, problem: String },
+    Invalid {
+        file: String,
+        field: String,
+        problem: String,
+    },
 }
 
 /// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
@@ -154,11 +164,59 @@ pub fn parse_handles(
     Ok((anchors, targets))
 }
 
-/// `puppetry solve`: the deformed vertices as `{"vertices": [[x, y], …]}`.
+/// An SVG picture of the rest mesh (grey) under the deformed mesh (orange)
+/// and the handle targets, so a person can see what `solve` did.
+pub fn svg_of(mesh: &Mesh, pose: &[DVec2], targets: &[DVec2]) -> String {
+    let all = mesh.vertices().iter().chain(pose).chain(targets);
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for p in all {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let margin = 0.05 * (hi - lo).max_element().max(1e-9);
+    let (lo, hi) = (lo - DVec2::splat(margin), hi + DVec2::splat(margin));
+    let size = hi - lo;
+    // SVG is y-down; meshes are y-up.
+    let at = |p: DVec2| format!("{:.3},{:.3}", p.x - lo.x, hi.y - p.y);
+    let wire = |points: &[DVec2], colour: &str| {
+        let mut path = String::new();
+        for t in mesh.triangles() {
+            let [a, b, c] = t.map(|i| at(points[i as usize]));
+            path.push_str(&format!("M{a}L{b}L{c}Z"));
+        }
+        format!(
+            r#"<path d="{path}" fill="none" stroke="{colour}" stroke-width="{:.3}" stroke-linejoin="round"/>"#,
+            size.max_element() / 800.0
+        )
+    };
+    let dots: String = targets
+        .iter()
+        .map(|t| {
+            format!(
+                r##"<circle cx="{}" cy="{}" r="{:.3}" fill="#1565c0"/>"##,
+                t.x - lo.x,
+                hi.y - t.y,
+                size.max_element() / 100.0
+            )
+        })
+        .collect();
+    format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {:.3} {:.3}" width="800">{}{}{}</svg>"#,
+        size.x,
+        size.y,
+        wire(mesh.vertices(), "#bbbbbb"),
+        wire(pose, "#e65100"),
+        dots
+    )
+}
+
+/// `puppetry solve`: the deformed vertices as `{"vertices": [[x, y], …]}`,
+/// and optionally an SVG picture of the result.
 pub fn solve_command(
     mesh_path: &Path,
     handles_path: &Path,
     step1_only: bool,
+    svg: Option<&Path>,
 ) -> Result<String, CliError> {
     let mesh = Mesh::load(mesh_path)?;
     let handles_name = handles_path.display().to_string();
@@ -175,6 +233,9 @@ pub fn solve_command(
     let pose = arap
         .update(&targets, steps)
         .map_err(|e| CliError::Solve(e, handles_name))?;
+    if let Some(svg) = svg {
+        write(svg, &svg_of(&mesh, pose, &targets))?;
+    }
     let vertices: Vec<[f64; 2]> = pose.iter().map(|p| [p.x, p.y]).collect();
     Ok(serde_json::json!({ "vertices": vertices }).to_string())
 }
@@ -185,10 +246,7 @@ pub fn demo_image() -> PathBuf {
 }
 
 /// `puppetry bench`: the meshes to run, as (name, mesh).
-pub fn bench_meshes(
-    mesh: Option<&Path>,
-    sizes: &[usize],
-) -> Result<Vec<(String, Mesh)>, CliError> {
+pub fn bench_meshes(mesh: Option<&Path>, sizes: &[usize]) -> Result<Vec<(String, Mesh)>, CliError> {
     if let Some(path) = mesh {
         return Ok(vec![(path.display().to_string(), Mesh::load(path)?)]);
     }

@@ -10,7 +10,11 @@ use clap::{Parser, Subcommand};
 use puppetry::cli;
 
 #[derive(Parser)]
-#[command(name = "puppetry", version, about = "Realtime 2D puppetry: meshing, as-rigid-as-possible deformation")]
+#[command(
+    name = "puppetry",
+    version,
+    about = "Realtime 2D puppetry: meshing, as-rigid-as-possible deformation"
+)]
 struct Args {
     #[command(subcommand)]
     command: Command,
@@ -40,6 +44,9 @@ enum Command {
         /// Print the scale-free intermediate result of step 1.
         #[arg(long)]
         step1_only: bool,
+        /// Also draw the rest and deformed meshes to this SVG file.
+        #[arg(long)]
+        svg: Option<PathBuf>,
     },
     /// Time registration, compilation, updates and handle changes.
     Bench {
@@ -106,8 +113,9 @@ fn run(args: Args) -> anyhow::Result<()> {
             mesh,
             handles,
             step1_only,
+            svg,
         } => {
-            let out = cli::solve_command(&mesh, &handles, step1_only)?;
+            let out = cli::solve_command(&mesh, &handles, step1_only, svg.as_deref())?;
             println!("{out}");
         }
         Command::Bench {
@@ -116,7 +124,8 @@ fn run(args: Args) -> anyhow::Result<()> {
             sizes,
             handles,
         } => {
-            let meshes = cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+            let meshes =
+                cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
             let stdout = std::io::stdout();
             cli::bench_command(&meshes, &handles, json, |line| {
                 let mut out = stdout.lock();

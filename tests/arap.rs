@@ -16,7 +16,9 @@ fn solve(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2], steps: Steps) -> Ve
 }
 
 fn point_anchor(mesh: &Mesh, p: DVec2) -> Anchor {
-    let loc = Locator::new(mesh).locate(mesh, p).expect("point inside the mesh");
+    let loc = Locator::new(mesh)
+        .locate(mesh, p)
+        .expect("point inside the mesh");
     Anchor::Point {
         triangle: loc.triangle,
         bary: loc.bary,
@@ -26,7 +28,12 @@ fn point_anchor(mesh: &Mesh, p: DVec2) -> Anchor {
 #[test]
 fn vertex_handles_agree_with_dense_reference() {
     let mesh = jittered(9, 5);
-    let anchors = [Anchor::Vertex(0), Anchor::Vertex(9), Anchor::Vertex(54), Anchor::Vertex(30)];
+    let anchors = [
+        Anchor::Vertex(0),
+        Anchor::Vertex(9),
+        Anchor::Vertex(54),
+        Anchor::Vertex(30),
+    ];
     let targets = [
         DVec2::new(-1.0, 0.5),
         DVec2::new(11.0, -2.0),
@@ -37,8 +44,16 @@ fn vertex_handles_agree_with_dense_reference() {
     let tol = 1e-9 * mesh.size();
     let step1 = solve(&mesh, &anchors, &targets, Steps::ScaleFree);
     let both = solve(&mesh, &anchors, &targets, Steps::Both);
-    assert!(max_distance(&step1, &ref1) < tol, "step 1 off by {}", max_distance(&step1, &ref1));
-    assert!(max_distance(&both, &ref2) < tol, "step 2 off by {}", max_distance(&both, &ref2));
+    assert!(
+        max_distance(&step1, &ref1) < tol,
+        "step 1 off by {}",
+        max_distance(&step1, &ref1)
+    );
+    assert!(
+        max_distance(&both, &ref2) < tol,
+        "step 2 off by {}",
+        max_distance(&both, &ref2)
+    );
     // The reference itself must have moved the mesh, or the test proves nothing.
     assert!(max_distance(&ref2, mesh.vertices()) > 1.0);
 }
@@ -51,7 +66,11 @@ fn point_handles_agree_with_dense_reference() {
         point_anchor(&mesh, DVec2::new(7.6, 5.3)),
         point_anchor(&mesh, DVec2::new(4.25, 2.9)),
     ];
-    let targets = [DVec2::new(-2.0, 1.0), DVec2::new(9.0, 3.0), DVec2::new(5.0, 5.5)];
+    let targets = [
+        DVec2::new(-2.0, 1.0),
+        DVec2::new(9.0, 3.0),
+        DVec2::new(5.0, 5.5),
+    ];
     let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
     let tol = 1e-9 * mesh.size();
     assert!(max_distance(&solve(&mesh, &anchors, &targets, Steps::ScaleFree), &ref1) < tol);
@@ -61,10 +80,33 @@ fn point_handles_agree_with_dense_reference() {
 #[test]
 fn weighted_mesh_agrees_with_dense_reference() {
     let base = jittered(8, 4);
-    let weights: Vec<f64> = (0..base.triangles().len()).map(|t| if t % 3 == 0 { 10000.0 } else { 1.0 + t as f64 * 0.1 }).collect();
-    let mesh = Mesh::new("w", base.vertices().to_vec(), base.triangles().to_vec(), None, Some(weights)).unwrap();
-    let anchors = [Anchor::Vertex(0), Anchor::Vertex(44), point_anchor(&mesh, DVec2::new(4.1, 2.2))];
-    let targets = [DVec2::new(0.0, 0.0), DVec2::new(6.0, 7.0), DVec2::new(2.0, 4.0)];
+    let weights: Vec<f64> = (0..base.triangles().len())
+        .map(|t| {
+            if t % 3 == 0 {
+                10000.0
+            } else {
+                1.0 + t as f64 * 0.1
+            }
+        })
+        .collect();
+    let mesh = Mesh::new(
+        "w",
+        base.vertices().to_vec(),
+        base.triangles().to_vec(),
+        None,
+        Some(weights),
+    )
+    .unwrap();
+    let anchors = [
+        Anchor::Vertex(0),
+        Anchor::Vertex(44),
+        point_anchor(&mesh, DVec2::new(4.1, 2.2)),
+    ];
+    let targets = [
+        DVec2::new(0.0, 0.0),
+        DVec2::new(6.0, 7.0),
+        DVec2::new(2.0, 4.0),
+    ];
     let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
     let tol = 1e-9 * mesh.size();
     assert!(max_distance(&solve(&mesh, &anchors, &targets, Steps::ScaleFree), &ref1) < tol);
@@ -97,7 +139,11 @@ fn rigid_motion_of_handles_moves_the_mesh_rigidly() {
     let tol = 1e-9 * mesh.size();
     for steps in [Steps::ScaleFree, Steps::Both] {
         let pose = solve(&mesh, &anchors, &targets, steps);
-        assert!(max_distance(&pose, &expected) < tol, "{steps:?}: off by {}", max_distance(&pose, &expected));
+        assert!(
+            max_distance(&pose, &expected) < tol,
+            "{steps:?}: off by {}",
+            max_distance(&pose, &expected)
+        );
     }
 }
 
@@ -111,7 +157,10 @@ fn thickness(pose: &[DVec2], cols: usize, rows: usize) -> f64 {
 fn stretching_keeps_thickness_after_step_two_only() {
     let (cols, rows) = (30, 3);
     let mesh = bar(cols, rows, 30.0, 3.0);
-    let anchors = [point_anchor(&mesh, DVec2::new(0.0, 1.5)), point_anchor(&mesh, DVec2::new(30.0, 1.5))];
+    let anchors = [
+        point_anchor(&mesh, DVec2::new(0.0, 1.5)),
+        point_anchor(&mesh, DVec2::new(30.0, 1.5)),
+    ];
     let targets = [DVec2::new(-7.5, 1.5), DVec2::new(37.5, 1.5)]; // 1.5× longer
     let step1 = solve(&mesh, &anchors, &targets, Steps::ScaleFree);
     let both = solve(&mesh, &anchors, &targets, Steps::Both);
@@ -119,16 +168,24 @@ fn stretching_keeps_thickness_after_step_two_only() {
     let t1 = thickness(&step1, cols, rows);
     let t2 = thickness(&both, cols, rows);
     assert!(t1 > 1.3 * rest, "step 1 should inflate: {t1} vs {rest}");
-    assert!((t2 - rest).abs() < 0.05 * rest, "step 2 should keep thickness: {t2} vs {rest}");
+    assert!(
+        (t2 - rest).abs() < 0.05 * rest,
+        "step 2 should keep thickness: {t2} vs {rest}"
+    );
     // And the handles are where they were asked to be.
-    let ends = [both[rows / 2 * (cols + 1)], both[rows / 2 * (cols + 1) + cols]];
+    let ends = [
+        both[rows / 2 * (cols + 1)],
+        both[rows / 2 * (cols + 1) + cols],
+    ];
     assert!(ends[1].x - ends[0].x > 40.0);
 }
 
 /// How far the left half of a bent bar is from a rigid copy of its rest shape.
 fn left_half_distortion(mesh: &Mesh, pose: &[DVec2], cols: usize) -> f64 {
     let rest = mesh.vertices();
-    let left: Vec<usize> = (0..rest.len()).filter(|&i| i % (cols + 1) <= cols / 2).collect();
+    let left: Vec<usize> = (0..rest.len())
+        .filter(|&i| i % (cols + 1) <= cols / 2)
+        .collect();
     let mut total = 0.0;
     for (k, &i) in left.iter().enumerate() {
         for &j in &left[k + 1..] {
@@ -146,20 +203,42 @@ fn weights_stiffen_what_they_cover() {
         .triangles()
         .iter()
         .map(|t| {
-            let c = t.iter().map(|&v| plain.vertices()[v as usize].x).sum::<f64>() / 3.0;
+            let c = t
+                .iter()
+                .map(|&v| plain.vertices()[v as usize].x)
+                .sum::<f64>()
+                / 3.0;
             if c < 10.0 { 10000.0 } else { 1.0 }
         })
         .collect();
-    let stiff = Mesh::new("stiff", plain.vertices().to_vec(), plain.triangles().to_vec(), None, Some(stiff_weights)).unwrap();
-    let anchors = [point_anchor(&plain, DVec2::new(0.0, 1.0)), point_anchor(&plain, DVec2::new(20.0, 1.0)), point_anchor(&plain, DVec2::new(14.0, 1.0))];
+    let stiff = Mesh::new(
+        "stiff",
+        plain.vertices().to_vec(),
+        plain.triangles().to_vec(),
+        None,
+        Some(stiff_weights),
+    )
+    .unwrap();
+    let anchors = [
+        point_anchor(&plain, DVec2::new(0.0, 1.0)),
+        point_anchor(&plain, DVec2::new(20.0, 1.0)),
+        point_anchor(&plain, DVec2::new(14.0, 1.0)),
+    ];
     // Bend the soft right half; the left half holds only one handle, so it
     // can stay rigid if its triangles insist.
-    let targets = [DVec2::new(0.0, 1.0), DVec2::new(20.0, 1.0), DVec2::new(14.0, 5.0)];
+    let targets = [
+        DVec2::new(0.0, 1.0),
+        DVec2::new(20.0, 1.0),
+        DVec2::new(14.0, 5.0),
+    ];
     let soft_pose = solve(&plain, &anchors, &targets, Steps::Both);
     let stiff_pose = solve(&stiff, &anchors, &targets, Steps::Both);
     let soft = left_half_distortion(&plain, &soft_pose, cols);
     let hard = left_half_distortion(&stiff, &stiff_pose, cols);
-    assert!(hard < 0.5 * soft, "stiff half distorted {hard}, soft {soft}");
+    assert!(
+        hard < 0.5 * soft,
+        "stiff half distorted {hard}, soft {soft}"
+    );
 }
 
 #[test]
@@ -183,7 +262,11 @@ fn pieces_with_zero_or_one_handle_stay_rigid() {
     // Piece 0: two handles, stretched. Piece 1: one handle. Piece 2: none.
     let p0 = &pieces[0].vertices;
     let p1 = &pieces[1].vertices;
-    let anchors = [Anchor::Vertex(p0[0]), Anchor::Vertex(*p0.last().unwrap()), Anchor::Vertex(p1[3])];
+    let anchors = [
+        Anchor::Vertex(p0[0]),
+        Anchor::Vertex(*p0.last().unwrap()),
+        Anchor::Vertex(p1[3]),
+    ];
     let shift = DVec2::new(5.0, -2.0);
     let targets = [
         mesh.vertices()[p0[0] as usize] + DVec2::new(0.0, 3.0),
@@ -195,10 +278,17 @@ fn pieces_with_zero_or_one_handle_stay_rigid() {
     assert!(pose.iter().all(|p| p.is_finite()));
     for &v in p1 {
         let expected = mesh.vertices()[v as usize] + shift;
-        assert!(pose[v as usize].distance(expected) < 1e-12, "one-handle piece translates rigidly");
+        assert!(
+            pose[v as usize].distance(expected) < 1e-12,
+            "one-handle piece translates rigidly"
+        );
     }
     for &v in &pieces[2].vertices {
-        assert_eq!(pose[v as usize], mesh.vertices()[v as usize], "free piece stays at rest");
+        assert_eq!(
+            pose[v as usize],
+            mesh.vertices()[v as usize],
+            "free piece stays at rest"
+        );
     }
     // Lift one handle of piece 0: it becomes a rigid copy of its rest shape
     // in the best-fit rotation of its last pose, carried by the other handle.
@@ -215,12 +305,18 @@ fn pieces_with_zero_or_one_handle_stay_rigid() {
         }
     }
     let handle_vertex = *p0.last().unwrap() as usize;
-    assert!(pose[handle_vertex].distance(moved[0]) < 1e-12, "carried by its handle");
+    assert!(
+        pose[handle_vertex].distance(moved[0]) < 1e-12,
+        "carried by its handle"
+    );
     // Orientation follows the best fit of the deformed pose (it was tilted).
     let now: Vec<DVec2> = p0.iter().map(|&v| pose[v as usize]).collect();
     let tilt = |ps: &[DVec2]| (ps[p0.len() - 1] - ps[0]).to_angle();
     assert!((tilt(&now) - tilt(&before)).abs() < 0.2);
-    assert!(tilt(&now).abs() > 0.05, "rotation kept from the last pose, not reset to rest");
+    assert!(
+        tilt(&now).abs() > 0.05,
+        "rotation kept from the last pose, not reset to rest"
+    );
     // No handles at all: everything stays where it was put.
     arap.compile(&[]).unwrap();
     let still = arap.update(&[], Steps::Both).unwrap().to_vec();
@@ -231,7 +327,11 @@ fn pieces_with_zero_or_one_handle_stay_rigid() {
 fn repeated_handle_on_one_point_last_wins() {
     let mesh = jittered(5, 5);
     let anchors = [Anchor::Vertex(7), Anchor::Vertex(30), Anchor::Vertex(7)];
-    let targets = [DVec2::new(100.0, 100.0), DVec2::new(5.0, 5.0), DVec2::new(1.0, -1.0)];
+    let targets = [
+        DVec2::new(100.0, 100.0),
+        DVec2::new(5.0, 5.0),
+        DVec2::new(1.0, -1.0),
+    ];
     let pose = solve(&mesh, &anchors, &targets, Steps::Both);
     assert!(pose.iter().all(|p| p.is_finite()));
     assert!(pose[7].distance(targets[2]) < 1e-9);
@@ -244,10 +344,15 @@ fn recompiling_reuses_handles_and_matches_a_fresh_solver() {
     let mesh = jittered(7, 5);
     let a = [Anchor::Vertex(2), point_anchor(&mesh, DVec2::new(6.2, 4.4))];
     let b = [a[1], point_anchor(&mesh, DVec2::new(3.3, 2.2)), a[0]];
-    let targets_b = [DVec2::new(8.0, 8.0), DVec2::new(3.0, 0.0), DVec2::new(-1.0, 0.0)];
+    let targets_b = [
+        DVec2::new(8.0, 8.0),
+        DVec2::new(3.0, 0.0),
+        DVec2::new(-1.0, 0.0),
+    ];
     let mut live = Arap::register(&mesh).unwrap();
     live.compile(&a).unwrap();
-    live.update(&[DVec2::new(2.0, 0.0), DVec2::new(6.0, 5.0)], Steps::Both).unwrap();
+    live.update(&[DVec2::new(2.0, 0.0), DVec2::new(6.0, 5.0)], Steps::Both)
+        .unwrap();
     live.compile(&b).unwrap();
     let incremental = live.update(&targets_b, Steps::Both).unwrap().to_vec();
     let fresh = solve(&mesh, &b, &targets_b, Steps::Both);
@@ -259,17 +364,47 @@ fn bad_handles_are_reported() {
     let mesh = jittered(3, 3);
     let mut arap = Arap::register(&mesh).unwrap();
     let n = mesh.vertices().len() as u32;
-    assert!(matches!(arap.compile(&[Anchor::Vertex(n)]), Err(ArapError::VertexOutOfRange { handle: 0, .. })));
+    assert!(matches!(
+        arap.compile(&[Anchor::Vertex(n)]),
+        Err(ArapError::VertexOutOfRange { handle: 0, .. })
+    ));
     let t = mesh.triangles().len() as u32;
-    let bad_triangle = Anchor::Point { triangle: t, bary: [1.0, 0.0, 0.0] };
-    assert!(matches!(arap.compile(&[Anchor::Vertex(0), bad_triangle]), Err(ArapError::TriangleOutOfRange { handle: 1, .. })));
-    let bad_bary = Anchor::Point { triangle: 0, bary: [0.5, 0.5, 0.5] };
-    assert!(matches!(arap.compile(&[bad_bary]), Err(ArapError::BadBarycentric { .. })));
-    let nan_bary = Anchor::Point { triangle: 0, bary: [f64::NAN, 0.5, 0.5] };
-    assert!(matches!(arap.compile(&[nan_bary]), Err(ArapError::BadBarycentric { .. })));
-    arap.compile(&[Anchor::Vertex(0), Anchor::Vertex(5)]).unwrap();
-    assert!(matches!(arap.update(&[DVec2::ZERO], Steps::Both), Err(ArapError::TargetCount { expected: 2, got: 1 })));
-    let err = arap.update(&[DVec2::ZERO, DVec2::new(f64::INFINITY, 0.0)], Steps::Both).unwrap_err();
+    let bad_triangle = Anchor::Point {
+        triangle: t,
+        bary: [1.0, 0.0, 0.0],
+    };
+    assert!(matches!(
+        arap.compile(&[Anchor::Vertex(0), bad_triangle]),
+        Err(ArapError::TriangleOutOfRange { handle: 1, .. })
+    ));
+    let bad_bary = Anchor::Point {
+        triangle: 0,
+        bary: [0.5, 0.5, 0.5],
+    };
+    assert!(matches!(
+        arap.compile(&[bad_bary]),
+        Err(ArapError::BadBarycentric { .. })
+    ));
+    let nan_bary = Anchor::Point {
+        triangle: 0,
+        bary: [f64::NAN, 0.5, 0.5],
+    };
+    assert!(matches!(
+        arap.compile(&[nan_bary]),
+        Err(ArapError::BadBarycentric { .. })
+    ));
+    arap.compile(&[Anchor::Vertex(0), Anchor::Vertex(5)])
+        .unwrap();
+    assert!(matches!(
+        arap.update(&[DVec2::ZERO], Steps::Both),
+        Err(ArapError::TargetCount {
+            expected: 2,
+            got: 1
+        })
+    ));
+    let err = arap
+        .update(&[DVec2::ZERO, DVec2::new(f64::INFINITY, 0.0)], Steps::Both)
+        .unwrap_err();
     assert!(matches!(err, ArapError::TargetNotFinite { handle: 1 }));
     assert!(err.to_string().contains("handle 1"));
 }
@@ -279,11 +414,25 @@ fn coincident_distinct_anchors_on_one_point_never_give_nan() {
     // The same rest point reached as a vertex and as a point handle.
     let mesh = jittered(4, 4);
     let p = mesh.vertices()[6];
-    let tri = mesh.triangles().iter().position(|t| t.contains(&6)).unwrap() as u32;
-    let corner = mesh.triangles()[tri as usize].iter().position(|&v| v == 6).unwrap();
+    let tri = mesh
+        .triangles()
+        .iter()
+        .position(|t| t.contains(&6))
+        .unwrap() as u32;
+    let corner = mesh.triangles()[tri as usize]
+        .iter()
+        .position(|&v| v == 6)
+        .unwrap();
     let mut bary = [0.0; 3];
     bary[corner] = 1.0;
-    let anchors = [Anchor::Point { triangle: tri, bary }, Anchor::Vertex(6), Anchor::Vertex(0)];
+    let anchors = [
+        Anchor::Point {
+            triangle: tri,
+            bary,
+        },
+        Anchor::Vertex(6),
+        Anchor::Vertex(0),
+    ];
     let targets = [p, p + DVec2::new(1.0, 0.0), DVec2::ZERO];
     let pose = solve(&mesh, &anchors, &targets, Steps::Both);
     assert!(pose.iter().all(|q| q.is_finite()));

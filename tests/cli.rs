@@ -6,6 +6,7 @@ mod common;
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::DVec2;
 use puppetry::deform::Anchor;
@@ -18,9 +19,12 @@ fn puppetry(args: &[&str]) -> Output {
         .expect("run puppetry")
 }
 
-/// A scratch file with these contents, unique to the test.
+/// A scratch file with these contents, in a directory of its own: tests run
+/// in parallel and reuse names.
 fn scratch(name: &str, contents: &[u8]) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("puppetry-cli-{}", std::process::id()));
+    static NEXT: AtomicUsize = AtomicUsize::new(0);
+    let unique = NEXT.fetch_add(1, Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("puppetry-cli-{}-{unique}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join(name);
     std::fs::write(&path, contents).unwrap();
@@ -47,7 +51,9 @@ fn solve_prints_the_dense_least_squares_answer() {
         point.x, point.y
     );
     let handles_path = scratch("solve.handles.json", handles.as_bytes());
-    let loc = puppetry::mesh::Locator::new(&mesh).locate(&mesh, point).unwrap();
+    let loc = puppetry::mesh::Locator::new(&mesh)
+        .locate(&mesh, point)
+        .unwrap();
     let anchors = [
         Anchor::Vertex(0),
         Anchor::Point {
@@ -61,7 +67,11 @@ fn solve_prints_the_dense_least_squares_answer() {
     let m = mesh_path.to_str().unwrap();
     let h = handles_path.to_str().unwrap();
     let out = puppetry(&["solve", "--mesh", m, "--handles", h]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(common::max_distance(&parse_vertices(&out.stdout), &both) < tol);
     let out = puppetry(&["solve", "--mesh", m, "--handles", h, "--step1-only"]);
     assert!(out.status.success());
@@ -80,11 +90,21 @@ fn mesh_builds_the_demo_puppet_and_solve_runs_it() {
         "-o",
         out_path.to_str().unwrap(),
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let mesh = Mesh::load(&out_path).unwrap();
     let n = mesh.vertices().len();
-    assert!((1275..=1725).contains(&n), "{n} vertices for a target of 1500");
-    assert!(mesh.uv().is_some(), "a mesh from a picture carries texture coordinates");
+    assert!(
+        (1275..=1725).contains(&n),
+        "{n} vertices for a target of 1500"
+    );
+    assert!(
+        mesh.uv().is_some(),
+        "a mesh from a picture carries texture coordinates"
+    );
     // The bundled mesh and handles (the README's demo) solve, and the dragged
     // hand moves while the pinned feet stay.
     let out = puppetry(&[
@@ -94,7 +114,11 @@ fn mesh_builds_the_demo_puppet_and_solve_runs_it() {
         "--handles",
         demo.join("handles.json").to_str().unwrap(),
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let bundled = Mesh::load(&demo.join("gingerbread.mesh.json")).unwrap();
     let pose = parse_vertices(&out.stdout);
     assert_eq!(pose.len(), bundled.vertices().len());
@@ -118,7 +142,13 @@ fn failure(args: &[&str]) -> String {
 fn solve_failure(mesh_json: &str, handles_json: &str) -> String {
     let m = scratch("bad.mesh.json", mesh_json.as_bytes());
     let h = scratch("bad.handles.json", handles_json.as_bytes());
-    failure(&["solve", "--mesh", m.to_str().unwrap(), "--handles", h.to_str().unwrap()])
+    failure(&[
+        "solve",
+        "--mesh",
+        m.to_str().unwrap(),
+        "--handles",
+        h.to_str().unwrap(),
+    ])
 }
 
 const SQUARE: &str = r#"{"vertices": [[0,0],[1,0],[1,1],[0,1]], "triangles": [[0,1,2],[0,2,3]]}"#;
@@ -127,7 +157,10 @@ const NO_HANDLES: &str = r#"{"handles": []}"#;
 #[test]
 fn bad_meshes_are_named_and_explained() {
     let cases: &[(&str, &[&str])] = &[
-        ("{\"vertices\": [[0,0],[1,0]\n,[1,1]], \"triangles\": [[0,1,2]]", &["bad.mesh.json", "line 2"]),
+        (
+            "{\"vertices\": [[0,0],[1,0]\n,[1,1]], \"triangles\": [[0,1,2]]",
+            &["bad.mesh.json", "line 2"],
+        ),
         (
             r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,7]]}"#,
             &["triangles[0]", "out of range"],
@@ -168,7 +201,10 @@ fn bad_meshes_are_named_and_explained() {
     for (mesh, expected) in cases {
         let message = solve_failure(mesh, NO_HANDLES);
         for e in *expected {
-            assert!(message.contains(e), "for {mesh}: expected {e:?} in {message:?}");
+            assert!(
+                message.contains(e),
+                "for {mesh}: expected {e:?} in {message:?}"
+            );
         }
     }
 }
@@ -176,26 +212,50 @@ fn bad_meshes_are_named_and_explained() {
 #[test]
 fn bad_handles_are_named_and_explained() {
     let cases: &[(&str, &[&str])] = &[
-        (r#"{"handles": [{"point": [5, 5], "to": [0, 0]}]}"#, &["handles[0].point", "outside the mesh"]),
-        (r#"{"handles": [{"vertex": 0, "to": [0, 0]}, {"vertex": 9, "to": [0, 0]}]}"#, &["handles[1].vertex", "out of range"]),
-        (r#"{"handles": [{"vertex": 0, "point": [0.5, 0.5], "to": [0, 0]}]}"#, &["handles[0]", "not both"]),
+        (
+            r#"{"handles": [{"point": [5, 5], "to": [0, 0]}]}"#,
+            &["handles[0].point", "outside the mesh"],
+        ),
+        (
+            r#"{"handles": [{"vertex": 0, "to": [0, 0]}, {"vertex": 9, "to": [0, 0]}]}"#,
+            &["handles[1].vertex", "out of range"],
+        ),
+        (
+            r#"{"handles": [{"vertex": 0, "point": [0.5, 0.5], "to": [0, 0]}]}"#,
+            &["handles[0]", "not both"],
+        ),
         (r#"{"handles": [{"to": [0, 0]}]}"#, &["handles[0]", "needs"]),
-        (r#"{"handles": [{"vertex": 0}]}"#, &["bad.handles.json", "to"]),
-        ("{\"handles\": [\n{\"vertex\": 0, \"to\": [0, 0]},\n]}", &["bad.handles.json", "line 3"]),
+        (
+            r#"{"handles": [{"vertex": 0}]}"#,
+            &["bad.handles.json", "to"],
+        ),
+        (
+            "{\"handles\": [\n{\"vertex\": 0, \"to\": [0, 0]},\n]}",
+            &["bad.handles.json", "line 3"],
+        ),
     ];
     for (handles, expected) in cases {
         let message = solve_failure(SQUARE, handles);
         for e in *expected {
-            assert!(message.contains(e), "for {handles}: expected {e:?} in {message:?}");
+            assert!(
+                message.contains(e),
+                "for {handles}: expected {e:?} in {message:?}"
+            );
         }
     }
 }
 
 #[test]
 fn bad_mesh_inputs_are_named_and_explained() {
-    let crossing = scratch("bowtie.json", br#"{"outer": [[0,0],[10,10],[10,0],[0,10]]}"#);
+    let crossing = scratch(
+        "bowtie.json",
+        br#"{"outer": [[0,0],[10,10],[10,0],[0,10]]}"#,
+    );
     let message = failure(&["mesh", crossing.to_str().unwrap()]);
-    assert!(message.contains("bowtie.json") && message.contains("outer"), "{message}");
+    assert!(
+        message.contains("bowtie.json") && message.contains("outer"),
+        "{message}"
+    );
     assert!(message.contains("cross"), "{message}");
 
     // A valid PNG whose pixels are all transparent.
@@ -209,7 +269,10 @@ fn bad_mesh_inputs_are_named_and_explained() {
     }
     let clear = scratch("clear.png", &png_bytes);
     let message = failure(&["mesh", clear.to_str().unwrap()]);
-    assert!(message.contains("clear.png") && message.contains("opaque"), "{message}");
+    assert!(
+        message.contains("clear.png") && message.contains("opaque"),
+        "{message}"
+    );
 
     let not_png = scratch("fake.png", b"GIF89a not a png at all");
     let message = failure(&["mesh", not_png.to_str().unwrap()]);

@@ -53,9 +53,16 @@ fn updates_do_not_allocate() {
     COUNTING.store(true, Ordering::SeqCst);
     for frame in 0..50 {
         for (h, t) in targets.iter_mut().enumerate() {
-            *t = DVec2::new(frame as f64 * 0.1 + h as f64 * 4.0, (frame as f64 * 0.2).sin());
+            *t = DVec2::new(
+                frame as f64 * 0.1 + h as f64 * 4.0,
+                (frame as f64 * 0.2).sin(),
+            );
         }
-        let steps = if frame % 2 == 0 { Steps::Both } else { Steps::ScaleFree };
+        let steps = if frame % 2 == 0 {
+            Steps::Both
+        } else {
+            Steps::ScaleFree
+        };
         arap.update(&targets, steps).unwrap();
     }
     COUNTING.store(false, Ordering::SeqCst);

@@ -26,14 +26,18 @@
 //! Pieces with fewer than two handles cannot be solved (rotation and scale are
 //! free); they are placed rigidly as `algorithms.md` prescribes.
 
-use faer::{Mat, c64};
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::lu::partial_pivoting::{factor::lu_in_place, factor::lu_in_place_scratch, inverse};
-use faer::traits::ComplexField;
 use faer::Par;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::lu::partial_pivoting::{
+    factor::lu_in_place, factor::lu_in_place_scratch, inverse,
+};
+use faer::traits::ComplexField;
+use faer::{Mat, c64};
 use glam::DVec2;
 
-use super::sparse::{ComplexCholesky, FactorError, RealCholesky, UpperPattern, fill_reducing_order};
+use super::sparse::{
+    ComplexCholesky, FactorError, RealCholesky, UpperPattern, fill_reducing_order,
+};
 use crate::mesh::Mesh;
 
 /// Where a handle holds the mesh, in rest terms.
@@ -63,13 +67,17 @@ pub enum ArapError {
         vertex: u32,
         count: usize,
     },
-    #[error("handle {handle}: triangle {triangle} is out of range (the mesh has {count} triangles)")]
+    #[error(
+        "handle {handle}: triangle {triangle} is out of range (the mesh has {count} triangles)"
+    )]
     TriangleOutOfRange {
         handle: usize,
         triangle: u32,
         count: usize,
     },
-    #[error("handle {handle}: barycentric weights {bary:?} must be finite, non-negative and sum to 1")]
+    #[error(
+        "handle {handle}: barycentric weights {bary:?} must be finite, non-negative and sum to 1"
+    )]
     BadBarycentric { handle: usize, bary: [f64; 3] },
     #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
     TargetCount { expected: usize, got: usize },
@@ -278,7 +286,13 @@ fn inverse_sequential<T: ComplexField>(mut lu: Mat<T>) -> Mat<T> {
         std::cmp::Ordering::Equal => T::one_impl(),
         std::cmp::Ordering::Less => T::zero_impl(),
     });
-    let upper = Mat::<T>::from_fn(n, n, |i, j| if i <= j { lu[(i, j)].clone() } else { T::zero_impl() });
+    let upper = Mat::<T>::from_fn(n, n, |i, j| {
+        if i <= j {
+            lu[(i, j)].clone()
+        } else {
+            T::zero_impl()
+        }
+    });
     let mut out = Mat::<T>::zeros(n, n);
     inverse::inverse(
         out.as_mut(),
@@ -306,8 +320,14 @@ impl Arap {
         let mut vertex_home = vec![(0u32, 0u32); rest.len()];
         let mut pieces = Vec::new();
         for (p, piece) in mesh.pieces().into_iter().enumerate() {
-            let solver = PieceSolver::register(mesh, &piece.vertices, &piece.triangles, &mut vertex_home, p as u32)
-                .map_err(|source| ArapError::Factor { piece: p, source })?;
+            let solver = PieceSolver::register(
+                mesh,
+                &piece.vertices,
+                &piece.triangles,
+                &mut vertex_home,
+                p as u32,
+            )
+            .map_err(|source| ArapError::Factor { piece: p, source })?;
             pieces.push(solver);
         }
         Ok(Arap {
@@ -345,7 +365,8 @@ impl Arap {
                 }
             }
         }
-        let mut per_piece: Vec<Vec<(usize, Anchor, Row, DVec2)>> = vec![Vec::new(); self.pieces.len()];
+        let mut per_piece: Vec<Vec<(usize, Anchor, Row, DVec2)>> =
+            vec![Vec::new(); self.pieces.len()];
         for (h, (piece, row, point)) in rows.into_iter().enumerate() {
             if live[h] {
                 per_piece[piece].push((h, anchors[h], row, point));
@@ -354,7 +375,11 @@ impl Arap {
         for (p, wanted) in per_piece.into_iter().enumerate() {
             let piece = &mut self.pieces[p];
             let unchanged = piece.handles.len() == wanted.len()
-                && piece.handles.iter().zip(&wanted).all(|(old, new)| old.anchor == new.1);
+                && piece
+                    .handles
+                    .iter()
+                    .zip(&wanted)
+                    .all(|(old, new)| old.anchor == new.1);
             if unchanged {
                 for (old, new) in piece.handles.iter_mut().zip(&wanted) {
                     old.target = new.0;
@@ -399,7 +424,11 @@ impl Arap {
             corners: vertices.map(|v| self.vertex_home[v as usize].1),
             weights,
         };
-        let point = vertices.iter().zip(weights).map(|(&v, w)| self.rest[v as usize] * w).sum();
+        let point = vertices
+            .iter()
+            .zip(weights)
+            .map(|(&v, w)| self.rest[v as usize] * w)
+            .sum();
         Ok((piece as usize, row, point))
     }
 
@@ -456,7 +485,10 @@ impl PieceSolver {
         for &t in piece_triangles {
             let tri = mesh.triangles()[t as usize];
             for k in 0..3 {
-                edges.push((local(tri[k], vertex_home), local(tri[(k + 1) % 3], vertex_home)));
+                edges.push((
+                    local(tri[k], vertex_home),
+                    local(tri[(k + 1) % 3], vertex_home),
+                ));
             }
         }
         let order = fill_reducing_order(n, &edges)?;
@@ -464,11 +496,19 @@ impl PieceSolver {
         for (new, &v) in vertices.iter().enumerate() {
             vertex_home[v as usize] = (piece, new as u32);
         }
-        let rest: Vec<DVec2> = vertices.iter().map(|&v| mesh.vertices()[v as usize]).collect();
+        let rest: Vec<DVec2> = vertices
+            .iter()
+            .map(|&v| mesh.vertices()[v as usize])
+            .collect();
 
         let local_edges: Vec<(u32, u32)> = edges
             .iter()
-            .map(|&(a, b)| (local(piece_vertices[a as usize], vertex_home), local(piece_vertices[b as usize], vertex_home)))
+            .map(|&(a, b)| {
+                (
+                    local(piece_vertices[a as usize], vertex_home),
+                    local(piece_vertices[b as usize], vertex_home),
+                )
+            })
             .collect();
         let pattern = UpperPattern::new(n, &local_edges);
         let mut triangles = Vec::with_capacity(piece_triangles.len());
@@ -487,7 +527,8 @@ impl PieceSolver {
                 // Corner c in the frame of the opposite edge a→b, as the
                 // complex ratio z = (c − a)/(b − a); the error
                 // e = v_c − v_a − z (v_b − v_a) has coefficients γ over (a, b, c).
-                let idx = [corners[(k + 1) % 3], corners[(k + 2) % 3], corners[k]].map(|c| c as usize);
+                let idx =
+                    [corners[(k + 1) % 3], corners[(k + 2) % 3], corners[k]].map(|c| c as usize);
                 let [pa, pb, pc] = idx.map(|i| rest[i]);
                 let z = complex_div(pc - pa, pb - pa);
                 let gamma = [z - DVec2::X, -z, DVec2::X];
@@ -513,9 +554,15 @@ impl PieceSolver {
         let step1_delta = (0..n).map(|i| g[diagonal(i)].x).sum::<f64>() / n as f64;
         let step2_delta = (0..n).map(|i| h[diagonal(i)]).sum::<f64>() / n as f64;
         // Two far-apart anchors condition the similarity modes well.
-        let first = (0..n).min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x)).unwrap();
+        let first = (0..n)
+            .min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x))
+            .unwrap();
         let second = (0..n)
-            .max_by(|&i, &j| rest[i].distance_squared(rest[first]).total_cmp(&rest[j].distance_squared(rest[first])))
+            .max_by(|&i, &j| {
+                rest[i]
+                    .distance_squared(rest[first])
+                    .total_cmp(&rest[j].distance_squared(rest[first]))
+            })
             .unwrap();
         for a in [first, second] {
             g[diagonal(a)].x += step1_delta;
@@ -564,7 +611,10 @@ impl PieceSolver {
         let n = self.n();
         let mut old = std::mem::take(&mut self.handles);
         for (target, anchor, row, rest_point) in wanted {
-            let reused = old.iter().position(|h| h.anchor == anchor).map(|i| old.swap_remove(i));
+            let reused = old
+                .iter()
+                .position(|h| h.anchor == anchor)
+                .map(|i| old.swap_remove(i));
             let handle = match reused {
                 Some(mut h) => {
                     h.target = target;
@@ -593,12 +643,15 @@ impl PieceSolver {
             };
             self.handles.push(handle);
         }
-        let current = |pose: &[DVec2], vertices: &[u32]| -> Vec<DVec2> { vertices.iter().map(|&v| pose[v as usize]).collect() };
+        let current = |pose: &[DVec2], vertices: &[u32]| -> Vec<DVec2> {
+            vertices.iter().map(|&v| pose[v as usize]).collect()
+        };
         self.placement = match self.handles.len() {
             0 => {
                 // Keep the best rigid placement of the current pose.
                 let now = current(pose, &self.vertices);
-                let (rotation, rest_mean, pose_mean) = fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
+                let (rotation, rest_mean, pose_mean) =
+                    fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
                 for (local, &v) in self.vertices.iter().enumerate() {
                     pose[v as usize] = pose_mean + rotation.rotate(self.rest[local] - rest_mean);
                 }
@@ -606,7 +659,8 @@ impl PieceSolver {
             }
             1 => {
                 let now = current(pose, &self.vertices);
-                let (rotation, _, _) = fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
+                let (rotation, _, _) =
+                    fit_rotation(self.rest.iter().copied().zip(now.iter().copied()));
                 Placement::Carried { rotation }
             }
             k => {
@@ -627,7 +681,11 @@ impl PieceSolver {
     fn small_inverses(&self) -> (Vec<DVec2>, Vec<f64>) {
         let k = self.handles.len();
         let column1 = |j: usize| -> &SplitComplex {
-            if j < k { &self.handles[j].step1_column } else { &self.step1_anchor_columns[j - k] }
+            if j < k {
+                &self.handles[j].step1_column
+            } else {
+                &self.step1_anchor_columns[j - k]
+            }
         };
         let row1 = |i: usize, col: &SplitComplex| -> DVec2 {
             if i < k {
@@ -645,8 +703,20 @@ impl PieceSolver {
             }
             c64::new(value.x, value.y)
         });
-        let column2 = |j: usize| -> &[f64] { if j < k { &self.handles[j].step2_column } else { &self.step2_anchor_column } };
-        let row2 = |i: usize, col: &[f64]| -> f64 { if i < k { self.handles[i].row.dot(col) } else { col[self.step2_anchor] } };
+        let column2 = |j: usize| -> &[f64] {
+            if j < k {
+                &self.handles[j].step2_column
+            } else {
+                &self.step2_anchor_column
+            }
+        };
+        let row2 = |i: usize, col: &[f64]| -> f64 {
+            if i < k {
+                self.handles[i].row.dot(col)
+            } else {
+                col[self.step2_anchor]
+            }
+        };
         let m2 = k + 1;
         let s2 = Mat::<f64>::from_fn(m2, m2, |i, j| {
             let mut value = row2(i, column2(j));
@@ -702,7 +772,11 @@ impl PieceSolver {
                 let v1 = &mut self.step1_pose;
                 v1.re.fill(0.0);
                 v1.im.fill(0.0);
-                let columns = self.handles.iter().map(|h| &h.step1_column).chain(self.step1_anchor_columns.iter());
+                let columns = self
+                    .handles
+                    .iter()
+                    .map(|h| &h.step1_column)
+                    .chain(self.step1_anchor_columns.iter());
                 for (xi, column) in self.step1_xi.iter().zip(columns) {
                     v1.add_scaled(*xi, column);
                 }
@@ -731,7 +805,11 @@ impl PieceSolver {
                     let norm2 = fit.length_squared();
                     let scale = 1.0 / norm2.sqrt();
                     // A collapsed step-1 triangle fits no rotation: keep rest.
-                    *fit = if norm2 > f64::MIN_POSITIVE && scale > 0.0 { *fit * scale } else { DVec2::X };
+                    *fit = if norm2 > f64::MIN_POSITIVE && scale > 0.0 {
+                        *fit * scale
+                    } else {
+                        DVec2::X
+                    };
                 }
                 let b = &mut self.step2_pose;
                 b.fill(DVec2::ZERO);

@@ -5,12 +5,12 @@
 //! entry of `L`, reading the factor once per pass instead of once per axis.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::SymbolicSparseColMat;
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::linalg::amd;
 use faer::sparse::linalg::cholesky::{
     CholeskySymbolicParams, SymbolicCholeskyRaw, SymmetricOrdering, factorize_symbolic_cholesky,
 };
-use faer::sparse::SymbolicSparseColMat;
 use faer::{Par, Side, c64};
 use glam::DVec2;
 
@@ -38,7 +38,8 @@ pub fn fill_reducing_order(n: usize, edges: &[(u32, u32)]) -> Result<Vec<u32>, F
     let (pattern, _) = SymbolicSparseColMat::try_new_from_indices(n, n, &pairs).map_err(failed)?;
     let mut forward = vec![0usize; n];
     let mut inverse = vec![0usize; n];
-    let mut work = MemBuffer::try_new(amd::order_scratch::<usize>(n, pattern.compute_nnz())).map_err(failed)?;
+    let mut work = MemBuffer::try_new(amd::order_scratch::<usize>(n, pattern.compute_nnz()))
+        .map_err(failed)?;
     amd::order(
         &mut forward,
         &mut inverse,
@@ -129,17 +130,30 @@ fn factor<T: faer::traits::ComplexField + Copy>(
     values: &[T],
 ) -> Result<(Structure, Vec<T>, Vec<T>), FactorError> {
     let n = pattern.dim();
-    let symbolic_matrix = faer::sparse::SymbolicSparseColMatRef::new_checked(n, n, &pattern.col_ptr, None, &pattern.rows);
+    let symbolic_matrix = faer::sparse::SymbolicSparseColMatRef::new_checked(
+        n,
+        n,
+        &pattern.col_ptr,
+        None,
+        &pattern.rows,
+    );
     let matrix = faer::sparse::SparseColMatRef::new(symbolic_matrix, values);
     let params = CholeskySymbolicParams {
         supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SIMPLICIAL,
         ..Default::default()
     };
-    let symbolic =
-        factorize_symbolic_cholesky(symbolic_matrix, Side::Upper, SymmetricOrdering::Identity, params).map_err(failed)?;
+    let symbolic = factorize_symbolic_cholesky(
+        symbolic_matrix,
+        Side::Upper,
+        SymmetricOrdering::Identity,
+        params,
+    )
+    .map_err(failed)?;
     let mut values = vec![T::zero_impl(); symbolic.len_val()];
-    let mut work =
-        MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<T>(Par::Seq, Default::default())).map_err(failed)?;
+    let mut work = MemBuffer::try_new(
+        symbolic.factorize_numeric_llt_scratch::<T>(Par::Seq, Default::default()),
+    )
+    .map_err(failed)?;
     symbolic
         .factorize_numeric_llt(
             &mut values,
@@ -207,13 +221,27 @@ impl RealCholesky {
     /// Solves `A X = B` for two right-hand sides stored as pairs, in place.
     pub fn solve_pairs(&self, x: &mut [DVec2]) {
         assert_eq!(x.len(), self.dim(), "right-hand side length");
-        triangular_solves(&self.structure, &self.values, &self.inverse_diagonal, x, |l, v| v * l, |l, v| v * l);
+        triangular_solves(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            |l, v| v * l,
+            |l, v| v * l,
+        );
     }
 
     /// Solves `A x = b` for one right-hand side, in place.
     pub fn solve(&self, x: &mut [f64]) {
         assert_eq!(x.len(), self.dim(), "right-hand side length");
-        triangular_solves(&self.structure, &self.values, &self.inverse_diagonal, x, |l, v| v * l, |l, v| v * l);
+        triangular_solves(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            |l, v| v * l,
+            |l, v| v * l,
+        );
     }
 }
 
@@ -230,7 +258,11 @@ fn triangular_solves<L: Copy, V>(
     lower: impl Fn(L, V) -> V,
     upper: impl Fn(L, V) -> V,
 ) where
-    V: Copy + Default + std::ops::Sub<Output = V> + std::ops::Add<Output = V> + std::ops::Mul<f64, Output = V>,
+    V: Copy
+        + Default
+        + std::ops::Sub<Output = V>
+        + std::ops::Add<Output = V>
+        + std::ops::Mul<f64, Output = V>,
 {
     let Structure { start, rows } = structure;
     let n = inverse_diagonal.len();

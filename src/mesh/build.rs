@@ -2,8 +2,8 @@
 //! [`Mesh`] of near-equilateral triangles of similar size, at a requested
 //! vertex count.
 //!
-//! The recipe: resample every ring at the target edge length (keeping
-//! corners), seed the interior with a hexagonal lattice at that spacing, take
+//! The recipe: resample every ring at the target edge length (keeping the
+//! points the outline needs to stay within a tenth of an edge), seed the interior with a hexagonal lattice at that spacing, take
 //! spade's constrained Delaunay triangulation with the rings as constraints,
 //! let spade's Delaunay refinement fix whatever the lattice left poorly shaped
 //! near the boundary, then relax interior vertices (boundary fixed) and
@@ -18,9 +18,7 @@ use spade::{
     AngleLimit, ConstrainedDelaunayTriangulation, Point2, RefinementParameters, Triangulation,
 };
 
-use super::polygon::{
-    Shape, bounds, find_crossing, segment_distance, signed_area, simplify_keep,
-};
+use super::polygon::{Shape, bounds, find_crossing, segment_distance, signed_area, simplify_keep};
 use super::trace::trace_png;
 use super::{Mesh, MeshError, cross};
 
@@ -187,7 +185,9 @@ fn default_target(area: f64, perimeter: f64) -> usize {
 struct Draft {
     points: Vec<DVec2>,
     constraints: Vec<[usize; 2]>,
-    cdt: Cdt,
+    triangles: Vec<[u32; 3]>,
+    /// Points some inside triangle uses: the vertex count the mesh will have.
+    used: usize,
 }
 
 fn build(
@@ -233,7 +233,7 @@ fn build(
     let mut best: Option<(f64, Draft)> = None;
     for _ in 0..8 {
         let draft = draft(source, &shape, h)?;
-        let n = draft.points.len();
+        let n = draft.used;
         let miss = (n as f64 / target as f64).ln().abs();
         tried.push((h.ln(), (n as f64).ln()));
         if best.as_ref().is_none_or(|(m, _)| miss < *m) {
@@ -313,10 +313,18 @@ fn draft(source: &str, shape: &Shape, h: f64) -> Result<Draft, MeshError> {
         .filter(|e| e.is_constraint_edge())
         .map(|e| e.vertices().map(|v| v.fix().index()))
         .collect();
+    let triangles = inside_triangles(&cdt);
+    let mut referenced = vec![false; points.len()];
+    for t in &triangles {
+        for &i in t {
+            referenced[i as usize] = true;
+        }
+    }
     Ok(Draft {
+        used: referenced.iter().filter(|&&r| r).count(),
         points,
         constraints,
-        cdt,
+        triangles,
     })
 }
 
@@ -326,22 +334,19 @@ fn finish(source: &str, draft: Draft) -> Result<(Vec<DVec2>, Vec<[u32; 3]>), Mes
     let Draft {
         mut points,
         constraints,
-        mut cdt,
+        mut triangles,
+        ..
     } = draft;
     let mut fixed = vec![false; points.len()];
     for &[a, b] in &constraints {
         fixed[a] = true;
         fixed[b] = true;
     }
-    let mut triangles = inside_triangles(&cdt);
     for _ in 0..SMOOTHING_ROUNDS {
         let before = points.clone();
         relax(&mut points, &fixed, &triangles, 2);
         match triangulation(source, &points, &constraints) {
-            Ok(next) => {
-                cdt = next;
-                triangles = inside_triangles(&cdt);
-            }
+            Ok(cdt) => triangles = inside_triangles(&cdt),
             Err(_) => {
                 // Rounding made the moved points unusable; keep the last good
                 // triangulation.
@@ -351,16 +356,24 @@ fn finish(source: &str, draft: Draft) -> Result<(Vec<DVec2>, Vec<[u32; 3]>), Mes
         }
     }
 
+    // Renumber in the original order (boundary rings, then lattice rows), so
+    // neighbouring vertices keep nearby indices.
     let mut remap = vec![u32::MAX; points.len()];
+    for t in &triangles {
+        for &i in t {
+            remap[i as usize] = 0;
+        }
+    }
     let mut vertices = Vec::with_capacity(points.len());
+    for (k, slot) in remap.iter_mut().enumerate() {
+        if *slot == 0 {
+            *slot = vertices.len() as u32;
+            vertices.push(points[k]);
+        }
+    }
     for t in &mut triangles {
         for i in t.iter_mut() {
-            let k = *i as usize;
-            if remap[k] == u32::MAX {
-                remap[k] = vertices.len() as u32;
-                vertices.push(points[k]);
-            }
-            *i = remap[k];
+            *i = remap[*i as usize];
         }
     }
     if triangles.is_empty() {
@@ -695,7 +708,10 @@ fn resample_ring(ring: &[DVec2], spacing: f64) -> Vec<DVec2> {
         let length = span(j);
         out.push(ring[corners[j]]);
         for q in 1..pieces[j] {
-            out.push(point_at(offset + length * q as f64 / pieces[j] as f64, &mut seg));
+            out.push(point_at(
+                offset + length * q as f64 / pieces[j] as f64,
+                &mut seg,
+            ));
         }
         offset += length;
     }

@@ -144,7 +144,9 @@ impl Mesh {
                 return Err(invalid(
                     file,
                     format!("triangles[{t}]"),
-                    format!("is clockwise (inverted); triangles must be counter-clockwise: {tri:?}"),
+                    format!(
+                        "is clockwise (inverted); triangles must be counter-clockwise: {tri:?}"
+                    ),
                 ));
             }
         }

@@ -13,6 +13,10 @@ use serde::Deserialize;
 
 use super::{MeshError, cross};
 
+/// Largest coordinate magnitude accepted: far beyond any picture, yet small
+/// enough that areas and tolerances stay finite and meaningful.
+pub const MAX_COORDINATE: f64 = 1e9;
+
 /// One island: an outer ring and the holes cut out of it. Rings are closed
 /// implicitly (the last point connects back to the first).
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -97,7 +101,11 @@ impl Shape {
             (Some(outer), holes, None) => Shape {
                 polygons: vec![Polygon {
                     outer: to_points(outer),
-                    holes: holes.unwrap_or_default().into_iter().map(to_points).collect(),
+                    holes: holes
+                        .unwrap_or_default()
+                        .into_iter()
+                        .map(to_points)
+                        .collect(),
                 }],
             },
             (None, None, Some(polygons)) => Shape {
@@ -155,6 +163,20 @@ impl Shape {
                     id.name(islands),
                     format!(
                         "point {i} is not a finite number: [{}, {}]",
+                        ring[i].x, ring[i].y
+                    ),
+                ));
+            }
+            if let Some(i) = ring
+                .iter()
+                .position(|p| p.abs().max_element() > MAX_COORDINATE)
+            {
+                return Err(invalid(
+                    source,
+                    id.name(islands),
+                    format!(
+                        "point {i} ([{}, {}]) is too far out: coordinates are pixels and \
+                         must stay within ±{MAX_COORDINATE:e}",
                         ring[i].x, ring[i].y
                     ),
                 ));
@@ -609,7 +631,12 @@ pub(crate) fn find_crossing(rings: &[&[DVec2]]) -> Option<Crossing> {
 
 /// Whether two distinct segments conflict: `Some(true)` when neighbours in a
 /// ring double back over each other, `Some(false)` for any other contact.
-fn conflict(rings: &[&[DVec2]], (ra, sa): (u32, u32), (rb, sb): (u32, u32), tol: f64) -> Option<bool> {
+fn conflict(
+    rings: &[&[DVec2]],
+    (ra, sa): (u32, u32),
+    (rb, sb): (u32, u32),
+    tol: f64,
+) -> Option<bool> {
     let ring_a = rings[ra as usize];
     let ring_b = rings[rb as usize];
     let (a, b) = (

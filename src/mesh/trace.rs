@@ -134,10 +134,7 @@ fn read_alpha(path: &Path, name: &str) -> Result<(u32, u32, Vec<u16>), MeshError
             ));
         }
     };
-    let has_alpha = matches!(
-        color,
-        png::ColorType::GrayscaleAlpha | png::ColorType::Rgba
-    );
+    let has_alpha = matches!(color, png::ColorType::GrayscaleAlpha | png::ColorType::Rgba);
     let line = frame.line_size;
     let mut alpha = Vec::with_capacity(width as usize * height as usize);
     for row in buf.chunks_exact(line).take(height as usize) {

@@ -10,11 +10,23 @@ use puppetry::mesh::Mesh;
 
 /// A `cols`×`rows` grid of squares over [0, width]×[0, height], each square
 /// split into two counter-clockwise triangles, offset by `origin`.
-pub fn grid(cols: usize, rows: usize, width: f64, height: f64, origin: DVec2) -> (Vec<DVec2>, Vec<[u32; 3]>) {
+pub fn grid(
+    cols: usize,
+    rows: usize,
+    width: f64,
+    height: f64,
+    origin: DVec2,
+) -> (Vec<DVec2>, Vec<[u32; 3]>) {
     let mut vertices = Vec::new();
     for r in 0..=rows {
         for c in 0..=cols {
-            vertices.push(origin + DVec2::new(width * c as f64 / cols as f64, height * r as f64 / rows as f64));
+            vertices.push(
+                origin
+                    + DVec2::new(
+                        width * c as f64 / cols as f64,
+                        height * r as f64 / rows as f64,
+                    ),
+            );
         }
     }
     let at = |c: usize, r: usize| (r * (cols + 1) + c) as u32;
@@ -84,10 +96,17 @@ fn anchor_rows(mesh: &Mesh, anchors: &[Anchor]) -> Vec<Vec<(usize, f64)>> {
 /// Minimises `‖A x − b‖²` subject to `C x = d` densely, through the KKT
 /// system, or by eliminating fixed unknowns when every constraint is a single
 /// unknown (the paper's own formulation for vertex handles).
-fn constrained_least_squares(a: &Mat<f64>, b: &[f64], c: &[Vec<(usize, f64)>], d: &[f64]) -> Vec<f64> {
+fn constrained_least_squares(
+    a: &Mat<f64>,
+    b: &[f64],
+    c: &[Vec<(usize, f64)>],
+    d: &[f64],
+) -> Vec<f64> {
     let n = a.ncols();
     let ata = a.transpose() * a;
-    let atb: Vec<f64> = (0..n).map(|j| (0..a.nrows()).map(|i| a[(i, j)] * b[i]).sum()).collect();
+    let atb: Vec<f64> = (0..n)
+        .map(|j| (0..a.nrows()).map(|i| a[(i, j)] * b[i]).sum())
+        .collect();
     if c.iter().all(|row| row.len() == 1 && row[0].1 == 1.0) {
         let mut fixed = vec![None; n];
         for (row, &value) in c.iter().zip(d) {
@@ -131,7 +150,11 @@ fn constrained_least_squares(a: &Mat<f64>, b: &[f64], c: &[Vec<(usize, f64)>], d
 /// The dense reference: step 1 over all 2n coordinates, then the paper's
 /// own step 2a (similarity fit of each triangle, rescaled), then step 2b.
 /// Returns (step-1 pose, final pose).
-pub fn dense_reference(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2]) -> (Vec<DVec2>, Vec<DVec2>) {
+pub fn dense_reference(
+    mesh: &Mesh,
+    anchors: &[Anchor],
+    targets: &[DVec2],
+) -> (Vec<DVec2>, Vec<DVec2>) {
     let n = mesh.vertices().len();
     let rest = mesh.vertices();
     let rot = |d: DVec2| DVec2::new(d.y, -d.x);
@@ -141,7 +164,11 @@ pub fn dense_reference(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2]) -> (V
     for (t, tri) in mesh.triangles().iter().enumerate() {
         let sw = mesh.weights()[t].sqrt();
         for k in 0..3 {
-            let (a, b, c) = (tri[(k + 1) % 3] as usize, tri[(k + 2) % 3] as usize, tri[k] as usize);
+            let (a, b, c) = (
+                tri[(k + 1) % 3] as usize,
+                tri[(k + 2) % 3] as usize,
+                tri[k] as usize,
+            );
             let d = rest[b] - rest[a];
             let x = (rest[c] - rest[a]).dot(d) / d.length_squared();
             let y = (rest[c] - rest[a]).dot(rot(d)) / d.length_squared();
@@ -171,7 +198,9 @@ pub fn dense_reference(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2]) -> (V
     }
     let zero = vec![0.0; a1.nrows()];
     let v1 = constrained_least_squares(&a1, &zero, &c1, &d1);
-    let step1: Vec<DVec2> = (0..n).map(|i| DVec2::new(v1[2 * i], v1[2 * i + 1])).collect();
+    let step1: Vec<DVec2> = (0..n)
+        .map(|i| DVec2::new(v1[2 * i], v1[2 * i + 1]))
+        .collect();
 
     // Step 2a as in the paper: fit w0, w1 (w2 follows from the rest local
     // coordinates of corner 2) to the step-1 triangle, then rescale.
@@ -235,5 +264,8 @@ pub fn dense_reference(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2]) -> (V
 
 pub fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(p, q)| p.distance(*q)).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| p.distance(*q))
+        .fold(0.0, f64::max)
 }
