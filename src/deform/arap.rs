@@ -36,7 +36,7 @@ use faer::{Mat, c64};
 use glam::DVec2;
 
 use super::sparse::{
-    ComplexCholesky, FactorError, RealCholesky, UpperPattern, fill_reducing_order,
+    ComplexCholesky, FactorError, RealCholesky, SparseVector, UpperPattern, fill_reducing_order,
 };
 use crate::mesh::Mesh;
 
@@ -127,8 +127,9 @@ struct PieceHandle {
     target: usize,
     /// `K₁⁻¹ Bₕᵀ` (complex, n).
     step1_column: SplitComplex,
-    /// `K₂⁻¹ Bₕᵀ` (real, n).
-    step2_column: Vec<f64>,
+    /// `L₂⁻¹ Bₕᵀ` with `K₂ = L₂L₂ᵀ`: sparse, since the row has at most
+    /// three non-zeros.
+    step2_forward: SparseVector<f64>,
 }
 
 /// How a piece is placed for its current handle count.
@@ -198,12 +199,11 @@ struct PieceSolver {
     /// Step 1 anchors two vertices (pins similarity), step 2 one (pins
     /// translation).
     step1_anchors: [usize; 2],
-    step2_anchor: usize,
     step1_delta: f64,
     step2_delta: f64,
-    /// `K₁⁻¹ E₁` (two complex columns) and `K₂⁻¹ E₂`.
+    /// `K₁⁻¹ E₁` (two complex columns) and `L₂⁻¹ E₂`.
     step1_anchor_columns: [SplitComplex; 2],
-    step2_anchor_column: Vec<f64>,
+    step2_anchor_forward: SparseVector<f64>,
     handles: Vec<PieceHandle>,
     placement: Placement,
     // Frame scratch, sized at compile time.
@@ -576,9 +576,7 @@ impl PieceSolver {
             step1.solve(&mut column);
             SplitComplex::from_pairs(&column)
         });
-        let mut step2_anchor_column = vec![0.0; n];
-        step2_anchor_column[first] = 1.0;
-        step2.solve(&mut step2_anchor_column);
+        let step2_anchor_forward = step2.forward_sparse(&[(first, 1.0)]);
         Ok(PieceSolver {
             vertices,
             rest,
@@ -586,11 +584,10 @@ impl PieceSolver {
             step1,
             step2,
             step1_anchors: [first, second],
-            step2_anchor: first,
             step1_delta,
             step2_delta,
             step1_anchor_columns,
-            step2_anchor_column,
+            step2_anchor_forward,
             handles: Vec::new(),
             placement: Placement::Fixed,
             step1_rhs: Vec::new(),
@@ -622,22 +619,23 @@ impl PieceSolver {
                 }
                 None => {
                     let mut step1_column = vec![DVec2::ZERO; n];
-                    let mut step2_column = vec![0.0; n];
+                    let mut entries = [(0usize, 0.0); 3];
                     for c in 0..3 {
                         let v = row.corners[c] as usize;
                         step1_column[v].x += row.weights[c];
-                        step2_column[v] += row.weights[c];
+                        entries[c] = (v, row.weights[c]);
                     }
-                    self.step1.solve(&mut step1_column);
+                    self.step1
+                        .solve_sparse(&mut step1_column, &entries.map(|e| e.0));
                     let step1_column = SplitComplex::from_pairs(&step1_column);
-                    self.step2.solve(&mut step2_column);
+                    let step2_forward = self.step2.forward_sparse(&entries);
                     PieceHandle {
                         anchor,
                         row,
                         rest_point,
                         target,
                         step1_column,
-                        step2_column,
+                        step2_forward,
                     }
                 }
             };
@@ -703,28 +701,30 @@ impl PieceSolver {
             }
             c64::new(value.x, value.y)
         });
-        let column2 = |j: usize| -> &[f64] {
+        // S₂ = YᵀY − diag(0, 1/δ) with Y = L₂⁻¹ B̃ᵀ: B̃ K₂⁻¹ B̃ᵀ = YᵀY.
+        let forward2 = |j: usize| -> &SparseVector<f64> {
             if j < k {
-                &self.handles[j].step2_column
+                &self.handles[j].step2_forward
             } else {
-                &self.step2_anchor_column
-            }
-        };
-        let row2 = |i: usize, col: &[f64]| -> f64 {
-            if i < k {
-                self.handles[i].row.dot(col)
-            } else {
-                col[self.step2_anchor]
+                &self.step2_anchor_forward
             }
         };
         let m2 = k + 1;
-        let s2 = Mat::<f64>::from_fn(m2, m2, |i, j| {
-            let mut value = row2(i, column2(j));
-            if i == k && j == k {
-                value -= 1.0 / self.step2_delta;
+        let mut dense = vec![0.0; self.n()];
+        let mut s2 = Mat::<f64>::zeros(m2, m2);
+        for j in 0..m2 {
+            let y = forward2(j);
+            for (&i, &v) in y.indices.iter().zip(&y.values) {
+                dense[i as usize] = v;
             }
-            value
-        });
+            for i in 0..m2 {
+                s2[(i, j)] = forward2(i).dot(&dense, 0.0, |a, b| a * b);
+            }
+            for &i in &y.indices {
+                dense[i as usize] = 0.0;
+            }
+        }
+        s2[(k, k)] -= 1.0 / self.step2_delta;
         let inverse1 = inverse_sequential(s1);
         let inverse2 = inverse_sequential(s2);
         let mut out1 = Vec::with_capacity(m1 * m1);
@@ -820,39 +820,32 @@ impl PieceSolver {
                     b[j] += rotation.rotate(r[1]);
                     b[l] += rotation.rotate(r[2]);
                 }
-                self.step2.solve_pairs(b);
-                // Step 2b: v = y + W₂ ξ₂, ξ₂ = S₂⁻¹ ([q; 0] − B̃ y), x and y as a pair.
+                // Step 2b: v = K₂⁻¹(b + B̃ᵀξ₂) = L₂⁻ᵀ(z + Y ξ₂) with z = L₂⁻¹b and
+                // ξ₂ = S₂⁻¹([q; 0] − Yᵀz); x and y travel together as a pair.
+                self.step2.forward_pairs(b);
+                let pair = |v: f64, x: DVec2| x * v;
                 for (h, handle) in self.handles.iter().enumerate() {
-                    self.step2_rhs[h] = targets[handle.target] - handle.row.dot(b);
+                    self.step2_rhs[h] =
+                        targets[handle.target] - handle.step2_forward.dot(b, DVec2::ZERO, pair);
                 }
-                self.step2_rhs[k] = -b[self.step2_anchor];
+                self.step2_rhs[k] = -self.step2_anchor_forward.dot(b, DVec2::ZERO, pair);
                 for (i, out) in self.step2_xi.iter_mut().enumerate() {
                     *out = DVec2::ZERO;
                     for (j, r) in self.step2_rhs.iter().enumerate() {
                         *out += *r * step2_inverse[j * (k + 1) + i];
                     }
                 }
-                let columns = self
+                let forwards = self
                     .handles
                     .iter()
-                    .map(|h| h.step2_column.as_slice())
-                    .chain(std::iter::once(self.step2_anchor_column.as_slice()));
-                let mut pending: Option<(DVec2, &[f64])> = None;
-                for (xi, column) in self.step2_xi.iter().zip(columns) {
-                    match pending.take() {
-                        None => pending = Some((*xi, column)),
-                        Some((xa, ca)) => {
-                            for ((v, a), c) in b.iter_mut().zip(ca).zip(column) {
-                                *v += xa * *a + *xi * *c;
-                            }
-                        }
+                    .map(|h| &h.step2_forward)
+                    .chain(std::iter::once(&self.step2_anchor_forward));
+                for (xi, y) in self.step2_xi.iter().zip(forwards) {
+                    for (&i, &v) in y.indices.iter().zip(&y.values) {
+                        b[i as usize] += *xi * v;
                     }
                 }
-                if let Some((xa, ca)) = pending {
-                    for (v, a) in b.iter_mut().zip(ca) {
-                        *v += xa * *a;
-                    }
-                }
+                self.step2.backward_pairs(b);
                 for (&v, p) in self.vertices.iter().zip(b.iter()) {
                     pose[v as usize] = *p;
                 }

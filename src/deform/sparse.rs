@@ -57,9 +57,45 @@ pub fn fill_reducing_order(n: usize, edges: &[(u32, u32)]) -> Result<Vec<u32>, F
 struct Structure {
     start: Vec<u32>,
     rows: Vec<u32>,
+    /// Elimination tree: the parent of column `j` is its first off-diagonal
+    /// row, `u32::MAX` for a root.
+    parent: Vec<u32>,
 }
 
 impl Structure {
+    fn new(start: Vec<u32>, rows: Vec<u32>) -> Structure {
+        let parent = start
+            .windows(2)
+            .map(|w| {
+                rows[w[0] as usize..w[1] as usize]
+                    .iter()
+                    .copied()
+                    .min()
+                    .unwrap_or(u32::MAX)
+            })
+            .collect();
+        Structure {
+            start,
+            rows,
+            parent,
+        }
+    }
+
+    /// The columns a forward solve touches when the right-hand side is
+    /// non-zero only at `nonzeros`: their paths to the root of the
+    /// elimination tree, in increasing order.
+    fn reach(&self, nonzeros: impl Iterator<Item = usize>) -> Vec<u32> {
+        let mut columns = Vec::new();
+        for mut j in nonzeros.map(|j| j as u32) {
+            while j != u32::MAX && !columns.contains(&j) {
+                columns.push(j);
+                j = self.parent[j as usize];
+            }
+        }
+        columns.sort_unstable();
+        columns
+    }
+
     /// The invariant the unchecked solves rely on.
     fn check(&self, n: usize) -> Result<(), FactorError> {
         let monotone = self.start.len() == n + 1
@@ -186,7 +222,7 @@ fn factor<T: faer::traits::ComplexField + Copy>(
         }
         start.push(rows.len() as u32);
     }
-    let structure = Structure { start, rows };
+    let structure = Structure::new(start, rows);
     structure.check(n)?;
     Ok((structure, off, diagonal))
 }
@@ -220,60 +256,103 @@ impl RealCholesky {
 
     /// Solves `A X = B` for two right-hand sides stored as pairs, in place.
     pub fn solve_pairs(&self, x: &mut [DVec2]) {
+        self.forward_pairs(x);
+        self.backward_pairs(x);
+    }
+
+    /// The forward half of [`RealCholesky::solve_pairs`]: `x ← L⁻¹ x`.
+    pub fn forward_pairs(&self, x: &mut [DVec2]) {
         assert_eq!(x.len(), self.dim(), "right-hand side length");
-        triangular_solves(
+        let columns = 0..self.dim() as u32;
+        forward_solve(
             &self.structure,
             &self.values,
             &self.inverse_diagonal,
             x,
-            |l, v| v * l,
-            |l, v| v * l,
+            &|l, v| v * l,
+            columns,
+        );
+    }
+
+    /// The backward half of [`RealCholesky::solve_pairs`]: `x ← L⁻ᵀ x`.
+    pub fn backward_pairs(&self, x: &mut [DVec2]) {
+        backward_solve(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            &|l, v| v * l,
         );
     }
 
     /// Solves `A x = b` for one right-hand side, in place.
     pub fn solve(&self, x: &mut [f64]) {
         assert_eq!(x.len(), self.dim(), "right-hand side length");
-        triangular_solves(
+        let columns = 0..self.dim() as u32;
+        forward_solve(
             &self.structure,
             &self.values,
             &self.inverse_diagonal,
             x,
-            |l, v| v * l,
-            |l, v| v * l,
+            &|l, v| v * l,
+            columns,
         );
+        backward_solve(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            &|l, v| v * l,
+        );
+    }
+
+    /// `L⁻¹ b` for a right-hand side with a few non-zero `entries`
+    /// (index, value): only the elimination-tree paths above them are
+    /// touched, so this is far cheaper than a solve.
+    pub fn forward_sparse(&self, entries: &[(usize, f64)]) -> SparseVector<f64> {
+        let reach = self.structure.reach(entries.iter().map(|e| e.0));
+        let mut dense = vec![0.0; self.dim()];
+        for &(i, v) in entries {
+            dense[i] += v;
+        }
+        forward_solve(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            &mut dense,
+            &|l, v| v * l,
+            reach.iter().copied(),
+        );
+        let values = reach.iter().map(|&i| dense[i as usize]).collect();
+        SparseVector {
+            indices: reach,
+            values,
+        }
     }
 }
 
-/// `L y = b` then `Lᴴ x = y`, in place, for any value type the factor's
-/// entries act on: `lower(l, v)` applies an entry of `L`, `upper(l, v)` the
-/// matching entry of `Lᴴ`. The backward pass keeps four partial sums so the
-/// dependent additions overlap.
+/// The forward pass `L y = b` over `columns` (increasing), generic over the
+/// column iterator so the full sweep compiles to a plain counted loop.
 #[inline(always)]
-fn triangular_solves<L: Copy, V>(
+fn forward_solve<L: Copy, V>(
     structure: &Structure,
     values: &[L],
     inverse_diagonal: &[f64],
     x: &mut [V],
-    lower: impl Fn(L, V) -> V,
-    upper: impl Fn(L, V) -> V,
+    lower: &impl Fn(L, V) -> V,
+    columns: impl Iterator<Item = u32>,
 ) where
-    V: Copy
-        + Default
-        + std::ops::Sub<Output = V>
-        + std::ops::Add<Output = V>
-        + std::ops::Mul<f64, Output = V>,
+    V: Copy + std::ops::Sub<Output = V> + std::ops::Mul<f64, Output = V>,
 {
-    let Structure { start, rows } = structure;
-    let n = inverse_diagonal.len();
-    assert!(x.len() == n && start.len() == n + 1 && rows.len() == values.len());
-    for j in 0..n {
+    let Structure { start, rows, .. } = structure;
+    for j in columns {
+        let j = j as usize;
         let xj = x[j] * inverse_diagonal[j];
         x[j] = xj;
         let (a, b) = (start[j] as usize, start[j + 1] as usize);
         for p in a..b {
-            // SAFETY: `Structure::checked` guarantees start is non-decreasing
-            // up to rows.len() and every row index is below n.
+            // SAFETY: `Structure::check` guarantees start is non-decreasing
+            // up to rows.len() and every row index is below n = x.len().
             unsafe {
                 let i = *rows.get_unchecked(p) as usize;
                 let l = *values.get_unchecked(p);
@@ -282,13 +361,36 @@ fn triangular_solves<L: Copy, V>(
             }
         }
     }
+}
+
+/// The backward pass `Lᴴ x = y`, in place: `upper(l, v)` applies the
+/// entry of `Lᴴ` matching `l`. Four partial sums let the dependent
+/// additions overlap.
+#[inline(always)]
+fn backward_solve<L: Copy, V>(
+    structure: &Structure,
+    values: &[L],
+    inverse_diagonal: &[f64],
+    x: &mut [V],
+    upper: &impl Fn(L, V) -> V,
+) where
+    V: Copy
+        + Default
+        + std::ops::Sub<Output = V>
+        + std::ops::Add<Output = V>
+        + std::ops::Mul<f64, Output = V>,
+{
+    let Structure { start, rows, .. } = structure;
+    let n = inverse_diagonal.len();
+    assert!(x.len() == n && start.len() == n + 1 && rows.len() == values.len());
     for j in (0..n).rev() {
         let (a, b) = (start[j] as usize, start[j + 1] as usize);
         let mut sums = [V::default(); 4];
         let mut p = a;
         while p + 4 <= b {
             for (lane, sum) in sums.iter_mut().enumerate() {
-                // SAFETY: as above.
+                // SAFETY: `Structure::check` guarantees start is
+                // non-decreasing up to rows.len() and every row is below n.
                 unsafe {
                     let i = *rows.get_unchecked(p + lane) as usize;
                     *sum = *sum + upper(*values.get_unchecked(p + lane), *x.get_unchecked(i));
@@ -309,10 +411,40 @@ fn triangular_solves<L: Copy, V>(
     }
 }
 
+/// A sparse vector: the forward-solved image `L⁻¹ b` of a right-hand side
+/// `b` with few non-zeros, which is non-zero only on their reach.
+#[derive(Debug, Clone, Default)]
+pub struct SparseVector<T> {
+    pub indices: Vec<u32>,
+    pub values: Vec<T>,
+}
+
+impl<T: Copy> SparseVector<T> {
+    /// `Σ values[k] · x[indices[k]]` with `mul(value, x)`.
+    #[inline]
+    pub fn dot<V: Copy + std::ops::Add<Output = V>>(
+        &self,
+        x: &[V],
+        zero: V,
+        mul: impl Fn(T, V) -> V,
+    ) -> V {
+        self.indices
+            .iter()
+            .zip(&self.values)
+            .fold(zero, |acc, (&i, &v)| acc + mul(v, x[i as usize]))
+    }
+}
+
 /// Complex numbers as `DVec2` (re, im): `a.rotate(b)` is the product.
-#[inline]
-fn conj(z: DVec2) -> DVec2 {
-    DVec2::new(z.x, -z.y)
+#[inline(always)]
+fn complex_lower(l: DVec2, v: DVec2) -> DVec2 {
+    l.rotate(v)
+}
+
+/// `conj(l) · v`.
+#[inline(always)]
+fn complex_upper(l: DVec2, v: DVec2) -> DVec2 {
+    DVec2::new(l.x * v.x + l.y * v.y, l.x * v.y - l.y * v.x)
 }
 
 /// `L Lᴴ` of a complex Hermitian positive-definite sparse matrix; complex
@@ -348,13 +480,43 @@ impl ComplexCholesky {
     /// Solves `A x = b` in place.
     pub fn solve(&self, x: &mut [DVec2]) {
         assert_eq!(x.len(), self.dim(), "right-hand side length");
-        triangular_solves(
+        let columns = 0..self.dim() as u32;
+        forward_solve(
             &self.structure,
             &self.values,
             &self.inverse_diagonal,
             x,
-            |l: DVec2, v: DVec2| l.rotate(v),
-            |l: DVec2, v: DVec2| conj(l).rotate(v),
+            &complex_lower,
+            columns,
+        );
+        backward_solve(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            &complex_upper,
+        );
+    }
+
+    /// Solves `A x = b` where `b` (in `x`) is zero outside `nonzeros`;
+    /// the forward pass touches only the elimination-tree paths above them.
+    pub fn solve_sparse(&self, x: &mut [DVec2], nonzeros: &[usize]) {
+        assert_eq!(x.len(), self.dim(), "right-hand side length");
+        let reach = self.structure.reach(nonzeros.iter().copied());
+        forward_solve(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            &complex_lower,
+            reach.iter().copied(),
+        );
+        backward_solve(
+            &self.structure,
+            &self.values,
+            &self.inverse_diagonal,
+            x,
+            &complex_upper,
         );
     }
 }
