@@ -619,16 +619,16 @@ impl PieceSolver {
                 }
                 None => {
                     let mut step1_column = vec![DVec2::ZERO; n];
-                    let mut entries = [(0usize, 0.0); 3];
-                    for c in 0..3 {
-                        let v = row.corners[c] as usize;
-                        step1_column[v].x += row.weights[c];
-                        entries[c] = (v, row.weights[c]);
+                    let entries: [(usize, f64); 3] =
+                        std::array::from_fn(|c| (row.corners[c] as usize, row.weights[c]));
+                    for &(v, weight) in &entries {
+                        step1_column[v].x += weight;
                     }
                     self.step1
                         .solve_sparse(&mut step1_column, &entries.map(|e| e.0));
                     let step1_column = SplitComplex::from_pairs(&step1_column);
                     let step2_forward = self.step2.forward_sparse(&entries);
+
                     PieceHandle {
                         anchor,
                         row,

@@ -85,9 +85,12 @@ impl Structure {
     /// non-zero only at `nonzeros`: their paths to the root of the
     /// elimination tree, in increasing order.
     fn reach(&self, nonzeros: impl Iterator<Item = usize>) -> Vec<u32> {
+        let mut seen = vec![false; self.parent.len()];
         let mut columns = Vec::new();
         for mut j in nonzeros.map(|j| j as u32) {
-            while j != u32::MAX && !columns.contains(&j) {
+            // Paths merge: stop at the first column already on one.
+            while j != u32::MAX && !seen[j as usize] {
+                seen[j as usize] = true;
                 columns.push(j);
                 j = self.parent[j as usize];
             }
@@ -363,6 +366,28 @@ fn forward_solve<L: Copy, V>(
     }
 }
 
+/// Asks for the factor entries well before `position` — the backward pass
+/// walks the factor from its end, a direction hardware prefetchers follow
+/// poorly — so they arrive from memory before they are needed.
+#[inline(always)]
+fn prefetch_behind<L>(values: &[L], rows: &[u32], position: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        const AHEAD_BYTES: usize = 2048;
+        let value_lead = AHEAD_BYTES / std::mem::size_of::<L>().max(1);
+        if position >= value_lead {
+            // SAFETY: prefetching is a hint; the addresses are in bounds.
+            unsafe {
+                use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+                _mm_prefetch::<_MM_HINT_T0>(values.as_ptr().add(position - value_lead) as *const i8);
+                _mm_prefetch::<_MM_HINT_T0>(rows.as_ptr().add(position - value_lead) as *const i8);
+            }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (values, rows, position);
+}
+
 /// The backward pass `Lᴴ x = y`, in place: `upper(l, v)` applies the
 /// entry of `Lᴴ` matching `l`. Four partial sums let the dependent
 /// additions overlap.
@@ -385,6 +410,7 @@ fn backward_solve<L: Copy, V>(
     assert!(x.len() == n && start.len() == n + 1 && rows.len() == values.len());
     for j in (0..n).rev() {
         let (a, b) = (start[j] as usize, start[j + 1] as usize);
+        prefetch_behind(values, rows, a);
         let mut sums = [V::default(); 4];
         let mut p = a;
         while p + 4 <= b {
