@@ -822,7 +822,7 @@ impl PieceSolver {
                 }
                 // Step 2b: v = K₂⁻¹(b + B̃ᵀξ₂) = L₂⁻ᵀ(z + Y ξ₂) with z = L₂⁻¹b and
                 // ξ₂ = S₂⁻¹([q; 0] − Yᵀz); x and y travel together as a pair.
-                self.step2.forward_pairs(b);
+                self.step2.forward(b);
                 let pair = |v: f64, x: DVec2| x * v;
                 for (h, handle) in self.handles.iter().enumerate() {
                     self.step2_rhs[h] =
@@ -845,7 +845,7 @@ impl PieceSolver {
                         b[i as usize] += *xi * v;
                     }
                 }
-                self.step2.backward_pairs(b);
+                self.step2.backward(b);
                 for (&v, p) in self.vertices.iter().zip(b.iter()) {
                     pose[v as usize] = *p;
                 }

@@ -257,56 +257,25 @@ impl RealCholesky {
         self.values.len() + self.dim()
     }
 
-    /// Solves `A X = B` for two right-hand sides stored as pairs, in place.
-    pub fn solve_pairs(&self, x: &mut [DVec2]) {
-        self.forward_pairs(x);
-        self.backward_pairs(x);
+    /// Solves `A x = b` in place, for one right-hand side (`f64`) or two
+    /// stored as pairs (`DVec2`: x and y share the factor's pass).
+    pub fn solve<V: Value>(&self, x: &mut [V]) {
+        self.forward(x);
+        self.backward(x);
     }
 
-    /// The forward half of [`RealCholesky::solve_pairs`]: `x ← L⁻¹ x`.
-    pub fn forward_pairs(&self, x: &mut [DVec2]) {
+    /// The forward half of [`RealCholesky::solve`]: `x ← L⁻¹ x`.
+    pub fn forward<V: Value>(&self, x: &mut [V]) {
         assert_eq!(x.len(), self.dim(), "right-hand side length");
         let columns = 0..self.dim() as u32;
-        forward_solve(
-            &self.structure,
-            &self.values,
-            &self.inverse_diagonal,
-            x,
-            &|l, v| v * l,
-            columns,
-        );
+        let (values, inverse) = (&self.values, &self.inverse_diagonal);
+        forward_solve(&self.structure, values, inverse, x, &|l, v| v * l, columns);
     }
 
-    /// The backward half of [`RealCholesky::solve_pairs`]: `x ← L⁻ᵀ x`.
-    pub fn backward_pairs(&self, x: &mut [DVec2]) {
-        backward_solve(
-            &self.structure,
-            &self.values,
-            &self.inverse_diagonal,
-            x,
-            &|l, v| v * l,
-        );
-    }
-
-    /// Solves `A x = b` for one right-hand side, in place.
-    pub fn solve(&self, x: &mut [f64]) {
-        assert_eq!(x.len(), self.dim(), "right-hand side length");
-        let columns = 0..self.dim() as u32;
-        forward_solve(
-            &self.structure,
-            &self.values,
-            &self.inverse_diagonal,
-            x,
-            &|l, v| v * l,
-            columns,
-        );
-        backward_solve(
-            &self.structure,
-            &self.values,
-            &self.inverse_diagonal,
-            x,
-            &|l, v| v * l,
-        );
+    /// The backward half of [`RealCholesky::solve`]: `x ← L⁻ᵀ x`.
+    pub fn backward<V: Value>(&self, x: &mut [V]) {
+        let (values, inverse) = (&self.values, &self.inverse_diagonal);
+        backward_solve(&self.structure, values, inverse, x, &|l, v| v * l);
     }
 
     /// `L⁻¹ b` for a right-hand side with a few non-zero `entries`
@@ -345,7 +314,7 @@ fn forward_solve<L: Copy, V>(
     lower: &impl Fn(L, V) -> V,
     columns: impl Iterator<Item = u32>,
 ) where
-    V: Copy + std::ops::Sub<Output = V> + std::ops::Mul<f64, Output = V>,
+    V: Value,
 {
     let Structure { start, rows, .. } = structure;
     for j in columns {
@@ -365,6 +334,19 @@ fn forward_solve<L: Copy, V>(
         }
     }
 }
+
+/// What the solves move through the factor: a number, an x,y pair, or a
+/// complex number as (re, im).
+pub trait Value:
+    Copy
+    + Default
+    + std::ops::Sub<Output = Self>
+    + std::ops::Add<Output = Self>
+    + std::ops::Mul<f64, Output = Self>
+{
+}
+impl Value for f64 {}
+impl Value for DVec2 {}
 
 /// Asks for the factor entries well before `position` — the backward pass
 /// walks the factor from its end, a direction hardware prefetchers follow
@@ -399,11 +381,7 @@ fn backward_solve<L: Copy, V>(
     x: &mut [V],
     upper: &impl Fn(L, V) -> V,
 ) where
-    V: Copy
-        + Default
-        + std::ops::Sub<Output = V>
-        + std::ops::Add<Output = V>
-        + std::ops::Mul<f64, Output = V>,
+    V: Value,
 {
     let Structure { start, rows, .. } = structure;
     let n = inverse_diagonal.len();

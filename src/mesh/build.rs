@@ -18,6 +18,7 @@ use spade::{
     AngleLimit, ConstrainedDelaunayTriangulation, Point2, RefinementParameters, Triangulation,
 };
 
+use super::grid::BucketGrid;
 use super::polygon::{Shape, bounds, find_crossing, segment_distance, signed_area, simplify_keep};
 use super::trace::trace_png;
 use super::{Mesh, MeshError, cross};
@@ -731,7 +732,16 @@ fn lattice(rings: &[&[DVec2]], h: f64, clearance: f64) -> Vec<DVec2> {
         let n = ring.len();
         segments.extend((0..n).map(|i| (ring[i], ring[(i + 1) % n])));
     }
-    let grid = SegmentGrid::new(&segments, lo, hi, clearance.max(h));
+    let grid = BucketGrid::new(
+        lo,
+        hi,
+        clearance.max(h),
+        segments.len(),
+        |shape, i, visit| {
+            let (a, b) = segments[i];
+            shape.visit_box(a.min(b), a.max(b), visit);
+        },
+    );
     let dy = h * 3f64.sqrt() / 2.0;
     let rows = ((hi.y - lo.y) / dy).floor() as usize;
     let y0 = lo.y + ((hi.y - lo.y) - rows as f64 * dy) / 2.0;
@@ -754,7 +764,7 @@ fn lattice(rings: &[&[DVec2]], h: f64, clearance: f64) -> Vec<DVec2> {
             let last = ((pair[1] - x0 - shift) / h).floor() as i64;
             for c in first..=last {
                 let p = DVec2::new(x0 + shift + c as f64 * h, y);
-                if grid.clear_of(&segments, p, clearance) {
+                if clear_of(&grid, &segments, p, clearance) {
                     out.push(p);
                 }
             }
@@ -763,82 +773,26 @@ fn lattice(rings: &[&[DVec2]], h: f64, clearance: f64) -> Vec<DVec2> {
     out
 }
 
-/// Ring segments bucketed by the grid cells their bounding boxes touch, for
-/// "is anything within r of p" queries with r at most one cell.
-struct SegmentGrid {
-    lo: DVec2,
-    cell: f64,
-    columns: usize,
-    rows: usize,
-    start: Vec<u32>,
-    members: Vec<u32>,
-}
-
-impl SegmentGrid {
-    fn new(segments: &[(DVec2, DVec2)], lo: DVec2, hi: DVec2, cell: f64) -> SegmentGrid {
-        let columns = ((hi.x - lo.x) / cell).floor() as usize + 1;
-        let rows = ((hi.y - lo.y) / cell).floor() as usize + 1;
-        let range = |&(a, b): &(DVec2, DVec2)| {
-            let col = |x: f64| (((x - lo.x) / cell).floor().max(0.0) as usize).min(columns - 1);
-            let row = |y: f64| (((y - lo.y) / cell).floor().max(0.0) as usize).min(rows - 1);
-            (
-                col(a.x.min(b.x)),
-                col(a.x.max(b.x)),
-                row(a.y.min(b.y)),
-                row(a.y.max(b.y)),
-            )
-        };
-        let mut start = vec![0u32; columns * rows + 1];
-        for s in segments {
-            let (c0, c1, r0, r1) = range(s);
-            for r in r0..=r1 {
-                for c in c0..=c1 {
-                    start[r * columns + c + 1] += 1;
+/// Whether no segment comes within `radius` of `p`; `grid` buckets the
+/// segments by bounding box in cells at least `radius` wide, so only the
+/// 3×3 cells around `p` need looking at.
+fn clear_of(grid: &BucketGrid, segments: &[(DVec2, DVec2)], p: DVec2, radius: f64) -> bool {
+    let shape = grid.shape();
+    let mut clear = true;
+    shape.visit_box(
+        p - DVec2::splat(shape.cell),
+        p + DVec2::splat(shape.cell),
+        &mut |k| {
+            for &s in grid.members(k) {
+                let (a, b) = segments[s as usize];
+                let ab = b - a;
+                let t =
+                    ((p - a).dot(ab) / ab.length_squared().max(f64::MIN_POSITIVE)).clamp(0.0, 1.0);
+                if p.distance_squared(a + ab * t) < radius * radius {
+                    clear = false;
                 }
             }
-        }
-        for k in 1..start.len() {
-            start[k] += start[k - 1];
-        }
-        let mut fill = start.clone();
-        let mut members = vec![0u32; start[columns * rows] as usize];
-        for (i, s) in segments.iter().enumerate() {
-            let (c0, c1, r0, r1) = range(s);
-            for r in r0..=r1 {
-                for c in c0..=c1 {
-                    let slot = &mut fill[r * columns + c];
-                    members[*slot as usize] = i as u32;
-                    *slot += 1;
-                }
-            }
-        }
-        SegmentGrid {
-            lo,
-            cell,
-            columns,
-            rows,
-            start,
-            members,
-        }
-    }
-
-    fn clear_of(&self, segments: &[(DVec2, DVec2)], p: DVec2, radius: f64) -> bool {
-        let c = ((p.x - self.lo.x) / self.cell).floor() as i64;
-        let r = ((p.y - self.lo.y) / self.cell).floor() as i64;
-        for rr in (r - 1).max(0)..=(r + 1).min(self.rows as i64 - 1) {
-            for cc in (c - 1).max(0)..=(c + 1).min(self.columns as i64 - 1) {
-                let k = rr as usize * self.columns + cc as usize;
-                for &s in &self.members[self.start[k] as usize..self.start[k + 1] as usize] {
-                    let (a, b) = segments[s as usize];
-                    let ab = b - a;
-                    let t = ((p - a).dot(ab) / ab.length_squared().max(f64::MIN_POSITIVE))
-                        .clamp(0.0, 1.0);
-                    if p.distance_squared(a + ab * t) < radius * radius {
-                        return false;
-                    }
-                }
-            }
-        }
-        true
-    }
+        },
+    );
+    clear
 }

@@ -6,6 +6,7 @@
 //! Plain synchronous code over data: no I/O beyond the explicit `load`/`save`.
 
 pub mod build;
+pub mod grid;
 pub mod polygon;
 pub mod trace;
 
@@ -13,6 +14,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use glam::DVec2;
+use grid::BucketGrid;
 use serde::{Deserialize, Serialize};
 
 /// An error in a mesh: which file, which field, what is wrong.
@@ -423,12 +425,7 @@ fn check_manifold(file: &str, triangles: &[[u32; 3]], n: usize) -> Result<(), Me
 /// boxes, built once per rest mesh, so a touch resolves in constant time.
 #[derive(Debug, Clone)]
 pub struct Locator {
-    origin: DVec2,
-    cell: f64,
-    columns: usize,
-    rows: usize,
-    cell_start: Vec<u32>,
-    cell_triangles: Vec<u32>,
+    grid: BucketGrid,
 }
 
 /// A point inside a mesh, as its triangle and barycentric coordinates.
@@ -453,50 +450,15 @@ impl Locator {
         let cell = ((extent.x * extent.y) / target_cells)
             .sqrt()
             .max(extent.max_element() / 4096.0);
-        let columns = ((extent.x / cell).ceil() as usize).max(1);
-        let rows = ((extent.y / cell).ceil() as usize).max(1);
-        let cell_range = |t: &[u32; 3]| {
-            let ps = t.map(|i| verts[i as usize]);
-            let a = ps[0].min(ps[1]).min(ps[2]);
-            let b = ps[0].max(ps[1]).max(ps[2]);
-            let c0 = (((a.x - lo.x) / cell) as usize).min(columns - 1);
-            let c1 = (((b.x - lo.x) / cell) as usize).min(columns - 1);
-            let r0 = (((a.y - lo.y) / cell) as usize).min(rows - 1);
-            let r1 = (((b.y - lo.y) / cell) as usize).min(rows - 1);
-            (c0, c1, r0, r1)
-        };
-        let mut counts = vec![0u32; columns * rows + 1];
-        for t in mesh.triangles() {
-            let (c0, c1, r0, r1) = cell_range(t);
-            for r in r0..=r1 {
-                for c in c0..=c1 {
-                    counts[r * columns + c + 1] += 1;
-                }
-            }
-        }
-        for i in 1..counts.len() {
-            counts[i] += counts[i - 1];
-        }
-        let mut fill = counts.clone();
-        let mut cell_triangles = vec![0u32; *counts.last().unwrap() as usize];
-        for (ti, t) in mesh.triangles().iter().enumerate() {
-            let (c0, c1, r0, r1) = cell_range(t);
-            for r in r0..=r1 {
-                for c in c0..=c1 {
-                    let slot = &mut fill[r * columns + c];
-                    cell_triangles[*slot as usize] = ti as u32;
-                    *slot += 1;
-                }
-            }
-        }
-        Locator {
-            origin: lo,
-            cell,
-            columns,
-            rows,
-            cell_start: counts,
-            cell_triangles,
-        }
+        let grid = BucketGrid::new(lo, hi, cell, mesh.triangles().len(), |shape, t, visit| {
+            let ps = mesh.triangles()[t].map(|i| verts[i as usize]);
+            shape.visit_box(
+                ps[0].min(ps[1]).min(ps[2]),
+                ps[0].max(ps[1]).max(ps[2]),
+                visit,
+            );
+        });
+        Locator { grid }
     }
 
     /// The triangle containing `p` (boundary included, with a tolerance of
@@ -505,22 +467,19 @@ impl Locator {
         if !p.is_finite() {
             return None;
         }
-        let rel = (p - self.origin) / self.cell;
+        let shape = self.grid.shape();
+        let rel = (p - shape.lo) / shape.cell;
         let slack = 1e-9;
         if rel.x < -slack
             || rel.y < -slack
-            || rel.x > self.columns as f64 + slack
-            || rel.y > self.rows as f64 + slack
+            || rel.x > shape.columns as f64 + slack
+            || rel.y > shape.rows as f64 + slack
         {
             return None;
         }
-        let c = (rel.x.max(0.0) as usize).min(self.columns - 1);
-        let r = (rel.y.max(0.0) as usize).min(self.rows - 1);
-        let cell = r * self.columns + c;
-        let candidates = &self.cell_triangles
-            [self.cell_start[cell] as usize..self.cell_start[cell + 1] as usize];
+        let cell = shape.row(p.y) * shape.columns + shape.column(p.x);
         let mut best: Option<(f64, Location)> = None;
-        for &t in candidates {
+        for &t in self.grid.members(cell) {
             let bary = barycentric(mesh, t, p);
             let worst = bary[0].min(bary[1]).min(bary[2]);
             if worst >= 0.0 {

@@ -11,6 +11,7 @@
 use glam::DVec2;
 use serde::Deserialize;
 
+use super::grid::BucketGrid;
 use super::{MeshError, cross};
 
 /// Largest coordinate magnitude accepted: far beyond any picture, yet small
@@ -548,7 +549,6 @@ pub(crate) fn find_crossing(rings: &[&[DVec2]]) -> Option<Crossing> {
     } {
         cell *= 1.5;
     }
-    let (cols, rows) = dims(cell);
     let endpoints = |(r, s): (u32, u32)| {
         let ring = rings[r as usize];
         let s = s as usize;
@@ -556,14 +556,10 @@ pub(crate) fn find_crossing(rings: &[&[DVec2]]) -> Option<Crossing> {
     };
     // Cells a segment passes through, column strip by column strip, padded
     // by the touching tolerance.
-    let visit = |seg: (u32, u32), f: &mut dyn FnMut(usize)| {
-        let (a, b) = endpoints(seg);
+    let grid = BucketGrid::new(lo, hi, cell, segs.len(), |shape, i, visit| {
+        let (a, b) = endpoints(segs[i]);
         let (a, b) = if a.x <= b.x { (a, b) } else { (b, a) };
-        let col = |x: f64| (((x - lo.x) / cell).floor().max(0.0) as usize).min(cols - 1);
-        let row = |y: f64| (((y - lo.y) / cell).floor().max(0.0) as usize).min(rows - 1);
-        let c0 = col(a.x - tol);
-        let c1 = col(b.x + tol);
-        for c in c0..=c1 {
+        for c in shape.column(a.x - tol)..=shape.column(b.x + tol) {
             let x0 = (lo.x + c as f64 * cell).max(a.x);
             let x1 = (lo.x + (c + 1) as f64 * cell).min(b.x);
             let y_at = |x: f64| {
@@ -573,38 +569,21 @@ pub(crate) fn find_crossing(rings: &[&[DVec2]]) -> Option<Crossing> {
                     a.y + (b.y - a.y) * ((x - a.x) / (b.x - a.x)).clamp(0.0, 1.0)
                 }
             };
-            let (mut y0, mut y1) = if b.x - a.x <= 0.0 {
+            let (y0, y1) = if b.x - a.x <= 0.0 {
                 (a.y.min(b.y), a.y.max(b.y))
             } else {
                 let (p, q) = (y_at(x0.min(x1)), y_at(x1.max(x0)));
                 (p.min(q), p.max(q))
             };
-            y0 -= tol;
-            y1 += tol;
-            for r in row(y0)..=row(y1) {
-                f(r * cols + c);
+            for r in shape.row(y0 - tol)..=shape.row(y1 + tol) {
+                visit(r * shape.columns + c);
             }
         }
-    };
-    let mut start = vec![0u32; cols * rows + 1];
-    for &seg in &segs {
-        visit(seg, &mut |k| start[k + 1] += 1);
-    }
-    for k in 1..start.len() {
-        start[k] += start[k - 1];
-    }
-    let mut fill = start.clone();
-    let mut members = vec![0u32; start[cols * rows] as usize];
-    for (i, &seg) in segs.iter().enumerate() {
-        visit(seg, &mut |k| {
-            members[fill[k] as usize] = i as u32;
-            fill[k] += 1;
-        });
-    }
+    });
 
     let mut best: Option<Crossing> = None;
-    for k in 0..cols * rows {
-        let bucket = &members[start[k] as usize..start[k + 1] as usize];
+    for k in 0..grid.cell_count() {
+        let bucket = grid.members(k);
         for (x, &i) in bucket.iter().enumerate() {
             for &j in &bucket[x + 1..] {
                 let (si, sj) = (segs[i as usize], segs[j as usize]);
