@@ -9,13 +9,20 @@
 //!
 //! How handle-set changes stay cheap: each connected piece's `G` and `H` are
 //! made positive definite once, at registration, by adding `δ` on a few
-//! "anchor" coordinates (`K = A + δ E Eᵀ`), and factored once. The constrained
-//! minimum is then `v = K⁻¹b + W ξ` with `W = K⁻¹ [Bᵀ E]` and `ξ` from a small
-//! dense system `(B̃ W − diag(0, I/δ)) ξ = [q; 0] − B̃ K⁻¹ b` (`B̃ = [B; Eᵀ]`).
-//! This is exactly the KKT solution of the original singular problem — the
-//! anchors carry no stiffness, their values are unknowns — so adding a handle
-//! costs one sparse solve per column of `W` it adds and removing one costs
-//! nothing; the sparse factors never change.
+//! "anchor" coordinates (`K = A + δ E Eᵀ`), and factored once (`K = L Lᴴ`).
+//! The constrained minimum is then `v = K⁻¹(b + B̃ᵀ ξ)` (`B̃ = [B; Eᵀ]`) with
+//! `ξ` from a small dense system `(B̃ K⁻¹ B̃ᵀ − diag(0, I/δ)) ξ = [q; 0] −
+//! B̃ K⁻¹ b`. This is exactly the KKT solution of the original singular
+//! problem — the anchors carry no stiffness, their values are unknowns — so
+//! the sparse factors never change with the handles:
+//!
+//! - step 1 (`b = 0`) keeps per handle the dense column `K₁⁻¹ B̃ₕᵀ`, so a frame
+//!   is a sum of columns; a new handle costs one sparse solve;
+//! - step 2 keeps per handle only `L₂⁻¹ B̃ₕᵀ`, non-zero along one path of the
+//!   elimination tree, so a new handle costs a partial forward solve and a
+//!   frame's solve takes a sparse correction between its two passes.
+//!
+//! Removing a handle costs no sparse work at all.
 //!
 //! Step 1 is solved in complex numbers (a point is `x + iy`): its energy is
 //! invariant under rotation and scale, so `G` is a complex-linear Hermitian
