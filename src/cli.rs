@@ -11,7 +11,7 @@ use crate::bench;
 use crate::deform::{Anchor, Arap, ArapError, Steps};
 use crate::mesh::build::{MeshOptions, mesh_png, triangulate};
 use crate::mesh::polygon::Shape;
-use crate::mesh::{Locator, Mesh, MeshError};
+use crate::mesh::{Locator, Mesh, MeshError, json};
 
 #[derive(Debug, thiserror::Error)]
 pub enum CliError {
@@ -28,19 +28,6 @@ pub enum CliError {
     Write {
         file: String,
         source: std::io::Error,
-    },
-    #[error("{file}: line {line}, column {column}: {message}")]
-    Syntax {
-        file: String,
-        line: usize,
-        column: usize,
-        message: String,
-    },
-    #[error("{file}: {field}: {problem}")]
-    Invalid {
-        file: String,
-        field: String,
-        problem: String,
     },
 }
 
@@ -63,9 +50,19 @@ pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Mesh, CliEr
 }
 
 fn read(path: &Path) -> Result<String, CliError> {
-    std::fs::read_to_string(path).map_err(|source| CliError::Read {
-        file: path.display().to_string(),
-        source,
+    std::fs::read_to_string(path).map_err(|source| {
+        let source = if source.kind() == std::io::ErrorKind::InvalidData {
+            std::io::Error::new(
+                source.kind(),
+                "not UTF-8 text: expected a JSON file (pictures must end in .png)",
+            )
+        } else {
+            source
+        };
+        CliError::Read {
+            file: path.display().to_string(),
+            source,
+        }
     })
 }
 
@@ -78,7 +75,10 @@ pub fn write(path: &Path, text: &str) -> Result<(), CliError> {
 
 /// The `--handles` file of `puppetry solve`.
 #[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = "a handles object {\"handles\": [{\"vertex\": i, \"to\": [x, y]} | {\"point\": [x, y], \"to\": [x, y]}, …]}"
+)]
 struct HandlesFile {
     handles: Vec<HandleEntry>,
 }
@@ -87,8 +87,8 @@ struct HandlesFile {
 #[serde(deny_unknown_fields)]
 struct HandleEntry {
     vertex: Option<i64>,
-    point: Option<[f64; 2]>,
-    to: [f64; 2],
+    point: Option<json::Point>,
+    to: json::Point,
 }
 
 /// Parses a handles file against `mesh`: anchors and targets, in order.
@@ -97,26 +97,27 @@ pub fn parse_handles(
     text: &str,
     mesh: &Mesh,
 ) -> Result<(Vec<Anchor>, Vec<DVec2>), CliError> {
-    let parsed: HandlesFile = serde_json::from_str(text).map_err(|e| CliError::Syntax {
-        file: file.to_string(),
-        line: e.line(),
-        column: e.column(),
-        message: e.to_string(),
-    })?;
-    let invalid = |field: String, problem: String| CliError::Invalid {
-        file: file.to_string(),
-        field,
-        problem,
+    let parsed: HandlesFile = json::parse(file, text)?;
+    let invalid = |field: String, problem: String| {
+        CliError::Mesh(MeshError::Invalid {
+            file: file.to_string(),
+            field,
+            problem,
+        })
     };
     let locator = Locator::new(mesh);
     let mut anchors = Vec::with_capacity(parsed.handles.len());
     let mut targets = Vec::with_capacity(parsed.handles.len());
     for (h, entry) in parsed.handles.iter().enumerate() {
-        let to = DVec2::from(entry.to);
-        if !to.is_finite() {
+        let to = DVec2::from(entry.to.0);
+        if !(to.is_finite() && to.abs().max_element() <= json::MAX_COORDINATE) {
             return Err(invalid(
                 format!("handles[{h}].to"),
-                "is not a finite point".into(),
+                format!(
+                    "{} is too far out: coordinates must stay within ±{:e}",
+                    json::show_point(to),
+                    json::MAX_COORDINATE
+                ),
             ));
         }
         let anchor = match (entry.vertex, entry.point) {
@@ -133,11 +134,11 @@ pub fn parse_handles(
                 Anchor::Vertex(v as u32)
             }
             (None, Some(p)) => {
-                let p = DVec2::from(p);
+                let p = DVec2::from(p.0);
                 let Some(location) = locator.locate(mesh, p) else {
                     return Err(invalid(
                         format!("handles[{h}].point"),
-                        format!("[{}, {}] is outside the mesh", p.x, p.y),
+                        format!("{} is outside the mesh", json::show_point(p)),
                     ));
                 };
                 Anchor::Point {

@@ -27,15 +27,18 @@ enum Command {
     Mesh {
         /// A .png picture or a .json polygon.
         input: PathBuf,
-        /// Target vertex count (the result lands within ±15%).
-        #[arg(long)]
-        vertices: Option<usize>,
+        /// Target vertex count; the result lands within ±15% unless the outline
+        /// itself needs more (many islands, thin parts) or fewer. Default: about
+        /// 1000, fewer for tiny shapes.
+        #[arg(long, value_parser = clap::value_parser!(u32).range(3..=2_000_000))]
+        vertices: Option<u32>,
         /// Output file; standard output when absent.
         #[arg(short, long)]
         output: Option<PathBuf>,
     },
     /// Deform a mesh by handles and print {"vertices": [[x, y], …]}.
     Solve {
+        /// The rest mesh (.mesh.json, see docs/mesh-format.md).
         #[arg(long)]
         mesh: PathBuf,
         /// {"handles": [{"vertex": i, "to": [x, y]} | {"point": [x, y], "to": [x, y]}, …]}
@@ -59,9 +62,11 @@ enum Command {
         /// Vertex counts to mesh the demo puppet at.
         #[arg(long, value_delimiter = ',', default_value = "1000,10000,100000")]
         sizes: Vec<usize>,
-        /// Handle counts to bench.
-        #[arg(long, value_delimiter = ',', default_value = "2,10,40")]
-        handles: Vec<usize>,
+        /// Handle counts to bench (at most 200: each handle change inverts a
+        /// dense system of about that size).
+        #[arg(long, value_delimiter = ',', default_value = "2,10,40",
+              value_parser = clap::value_parser!(u32).range(1..=200))]
+        handles: Vec<u32>,
     },
 }
 
@@ -94,7 +99,19 @@ fn run(args: Args) -> anyhow::Result<()> {
             vertices,
             output,
         } => {
+            let vertices = vertices.map(|n| n as usize);
             let mesh = cli::mesh_command(&input, vertices)?;
+            let got = mesh.vertices().len();
+            if let Some(n) = vertices.filter(|&n| got * 100 < n * 85 || got * 100 > n * 115) {
+                eprintln!(
+                    "note: asked for {n} vertices, got {got}: the outline needs {}",
+                    if got > n {
+                        "more (many islands or thin parts)"
+                    } else {
+                        "fewer (the shape is small)"
+                    }
+                );
+            }
             let pieces = mesh.pieces().len();
             let text = mesh.to_json();
             match output {
@@ -127,6 +144,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             let meshes =
                 cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
             let stdout = std::io::stdout();
+            let handles: Vec<usize> = handles.into_iter().map(|h| h as usize).collect();
             cli::bench_command(&meshes, &handles, json, |line| {
                 let mut out = stdout.lock();
                 let _ = writeln!(out, "{line}");

@@ -8,6 +8,7 @@ use common::*;
 use glam::DVec2;
 use puppetry::deform::{Anchor, Arap, ArapError, Steps};
 use puppetry::mesh::{Locator, Mesh};
+use puppetry::mesh::{MAX_WEIGHT, MIN_THICKNESS, MIN_WEIGHT};
 
 fn solve(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2], steps: Steps) -> Vec<DVec2> {
     let mut arap = Arap::register(mesh).unwrap();
@@ -437,4 +438,92 @@ fn coincident_distinct_anchors_on_one_point_never_give_nan() {
     let pose = solve(&mesh, &anchors, &targets, Steps::Both);
     assert!(pose.iter().all(|q| q.is_finite()));
     assert!(pose[6].distance(targets[1]) < 1e-9);
+}
+
+#[test]
+fn thin_triangles_at_the_limit_still_solve_accurately() {
+    // A bar whose bottom row of cells is squashed to the thinnest triangles
+    // a mesh may hold, with the paper's stiff weight on every other one.
+    let (cols, rows) = (12, 2);
+    let (mut v, t) = grid(cols, rows, 12.0, 2.0, DVec2::ZERO);
+    for vertex in v.iter_mut().take(cols + 1) {
+        vertex.y = 1.0 - 1.2 * MIN_THICKNESS;
+    }
+    let weights: Vec<f64> = (0..t.len())
+        .map(|i| if i % 2 == 0 { 1e4 } else { 1.0 })
+        .collect();
+    let mesh = Mesh::new("thin", v.clone(), t.clone(), None, Some(weights)).unwrap();
+    let anchors = [
+        Anchor::Vertex(0),
+        Anchor::Vertex((rows * (cols + 1) + cols) as u32),
+    ];
+    let targets = [DVec2::new(-1.0, 0.0), DVec2::new(14.0, 5.0)];
+    let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
+    // Cholesky of the energies' matrices loses digits with the square of a
+    // triangle's thinness and with the weights' contrast: 1e-8 here, 1e-9 on
+    // ordinary meshes.
+    let tol = 1e-8 * mesh.size();
+    let step1 = solve(&mesh, &anchors, &targets, Steps::ScaleFree);
+    let both = solve(&mesh, &anchors, &targets, Steps::Both);
+    assert!(
+        max_distance(&step1, &ref1) < tol,
+        "step 1 off by {}",
+        max_distance(&step1, &ref1)
+    );
+    assert!(
+        max_distance(&both, &ref2) < tol,
+        "step 2 off by {}",
+        max_distance(&both, &ref2)
+    );
+    // Thinner than the limit is refused, naming the triangle.
+    let mut thinner = v;
+    for vertex in thinner.iter_mut().take(cols + 1) {
+        vertex.y = 1.0 - 0.5 * MIN_THICKNESS;
+    }
+    let err = Mesh::new("thinner", thinner, t, None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("triangles[0]") && err.contains("too thin"),
+        "{err}"
+    );
+}
+
+#[test]
+fn extreme_weights_within_limits_still_solve() {
+    let base = jittered(8, 4);
+    let count = base.triangles().len();
+    let weights: Vec<f64> = (0..count)
+        .map(|i| if i % 2 == 0 { MAX_WEIGHT } else { MIN_WEIGHT })
+        .collect();
+    let mesh = Mesh::new(
+        "w",
+        base.vertices().to_vec(),
+        base.triangles().to_vec(),
+        None,
+        Some(weights),
+    )
+    .unwrap();
+    let anchors = [Anchor::Vertex(0), Anchor::Vertex(44)];
+    let targets = [DVec2::new(-1.0, 0.0), DVec2::new(10.0, 6.0)];
+    let (_, ref2) = dense_reference(&mesh, &anchors, &targets);
+    let both = solve(&mesh, &anchors, &targets, Steps::Both);
+    // Precision falls with the weights' contrast (1e7 here): 1e-7, not 1e-9.
+    let off = max_distance(&both, &ref2);
+    assert!(off < 1e-7 * mesh.size(), "off by {off}");
+    let outside = |w: f64| {
+        let mut ws = vec![1.0; count];
+        ws[3] = w;
+        Mesh::new(
+            "w",
+            base.vertices().to_vec(),
+            base.triangles().to_vec(),
+            None,
+            Some(ws),
+        )
+        .unwrap_err()
+        .to_string()
+    };
+    assert!(outside(MIN_WEIGHT / 10.0).contains("weights[3]"));
+    assert!(outside(MAX_WEIGHT * 10.0).contains("weights[3]"));
 }

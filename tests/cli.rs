@@ -197,6 +197,27 @@ fn bad_meshes_are_named_and_explained() {
             r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2]], "colour": 1}"#,
             &["unknown field"],
         ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1,0]], "triangles": [[0,1,2]]}"#,
+            &["line 1", "expected a point [x, y], got 3"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2,0]]}"#,
+            &["expected a triangle [i, j, k]"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1e300]], "triangles": [[0,1,2]]}"#,
+            &["vertices[2]", "[1, 1e300]", "too far out"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1000,0],[500,0.1]], "triangles": [[0,1,2]]}"#,
+            &["triangles[0]", "too thin"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2]], "weights": [1e-300]}"#,
+            &["weights[0]", "between"],
+        ),
+        ("\"my puppet\"", &["a mesh object"]),
     ];
     for (mesh, expected) in cases {
         let message = solve_failure(mesh, NO_HANDLES);
@@ -280,4 +301,23 @@ fn bad_mesh_inputs_are_named_and_explained() {
 
     let missing = failure(&["mesh", "/nonexistent/puppet.png"]);
     assert!(missing.contains("/nonexistent/puppet.png"), "{missing}");
+
+    let picture_as_json = scratch("picture.json", &png_bytes);
+    let message = failure(&["mesh", picture_as_json.to_str().unwrap()]);
+    assert!(message.contains("picture.json") && message.contains("not UTF-8"), "{message}");
+
+    let sliver = scratch("sliver.json", br#"{"outer": [[0,0],[1000,0],[500,0.001]]}"#);
+    let message = failure(&["mesh", sliver.to_str().unwrap()]);
+    assert!(message.contains("sliver.json") && message.contains("too thin"), "{message}");
+
+    let message = failure(&["mesh", crossing.to_str().unwrap(), "--vertices", "0"]);
+    assert!(message.contains("--vertices"), "{message}");
+}
+
+#[test]
+fn a_byte_order_mark_is_accepted() {
+    let mesh = scratch("bom.mesh.json", format!("\u{feff}{SQUARE}").as_bytes());
+    let handles = scratch("bom.handles.json", format!("\u{feff}{NO_HANDLES}").as_bytes());
+    let out = puppetry(&["solve", "--mesh", mesh.to_str().unwrap(), "--handles", handles.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }

@@ -46,6 +46,7 @@ use super::sparse::{
     ComplexCholesky, FactorError, RealCholesky, SparseVector, UpperPattern, fill_reducing_order,
 };
 use crate::mesh::Mesh;
+use crate::mesh::json::MAX_COORDINATE;
 
 /// Where a handle holds the mesh, in rest terms.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,7 +89,7 @@ pub enum ArapError {
     BadBarycentric { handle: usize, bary: [f64; 3] },
     #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
     TargetCount { expected: usize, got: usize },
-    #[error("handle {handle}: target is not a finite point")]
+    #[error("handle {handle}: target is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
     TargetNotFinite { handle: usize },
     #[error("piece {piece}: {source}")]
     Factor { piece: usize, source: FactorError },
@@ -449,7 +450,10 @@ impl Arap {
                 got: targets.len(),
             });
         }
-        if let Some(h) = targets.iter().position(|t| !t.is_finite()) {
+        if let Some(h) = targets
+            .iter()
+            .position(|t| !(t.is_finite() && t.abs().max_element() <= MAX_COORDINATE))
+        {
             return Err(ArapError::TargetNotFinite { handle: h });
         }
         for piece in &mut self.pieces {

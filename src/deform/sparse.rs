@@ -14,10 +14,11 @@ use faer::sparse::linalg::cholesky::{
 use faer::{Par, Side, c64};
 use glam::DVec2;
 
-/// The factorisation failed: the matrix was not positive definite (a piece
-/// the caller believed pinned was not) or memory ran out.
+/// The factorisation failed: numerically the matrix was not positive
+/// definite (nearly degenerate triangles or extreme weights), or memory ran
+/// out.
 #[derive(Debug, thiserror::Error)]
-#[error("sparse Cholesky factorisation failed: {0}")]
+#[error("cannot factor the mesh's matrices ({0}); it is too ill-conditioned to deform")]
 pub struct FactorError(String);
 
 fn failed(e: impl std::fmt::Debug) -> FactorError {

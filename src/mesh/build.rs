@@ -21,7 +21,7 @@ use spade::{
 use super::grid::BucketGrid;
 use super::polygon::{Shape, bounds, find_crossing, segment_distance, signed_area, simplify_keep};
 use super::trace::trace_png;
-use super::{Mesh, MeshError, cross};
+use super::{MIN_THICKNESS, Mesh, MeshError, cross, thickness};
 
 type Cdt = ConstrainedDelaunayTriangulation<Point2<f64>>;
 
@@ -383,6 +383,21 @@ fn finish(source: &str, draft: Draft) -> Result<(Vec<DVec2>, Vec<[u32; 3]>), Mes
             "polygons",
             "the shape is too thin to hold a single triangle",
         ));
+    }
+    for t in &triangles {
+        let [a, b, c] = t.map(|i| vertices[i as usize]);
+        if thickness(a, b, c) < MIN_THICKNESS {
+            let at = (a + b + c) / 3.0;
+            return Err(invalid(
+                source,
+                "polygons",
+                format!(
+                    "the shape is too thin to mesh near [{:.3}, {:.3}]: a triangle there is \
+                     under {MIN_THICKNESS:e} of its length thick; widen that part",
+                    at.x, at.y
+                ),
+            ));
+        }
     }
     Ok((vertices, triangles))
 }

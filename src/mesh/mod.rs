@@ -7,6 +7,7 @@
 
 pub mod build;
 pub mod grid;
+pub mod json;
 pub mod polygon;
 pub mod trace;
 
@@ -55,12 +56,15 @@ pub struct Mesh {
 
 /// The on-disk shape of a mesh; see `docs/mesh-format.md`.
 #[derive(Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = "a mesh object {\"vertices\": [[x, y], …], \"triangles\": [[i, j, k], …]}"
+)]
 struct MeshFile {
-    vertices: Vec<[f64; 2]>,
-    triangles: Vec<[u32; 3]>,
+    vertices: Vec<json::Point>,
+    triangles: Vec<json::Triangle>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    uv: Option<Vec<[f64; 2]>>,
+    uv: Option<Vec<json::Point>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     weights: Option<Vec<f64>>,
 }
@@ -70,6 +74,29 @@ fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> 
         file: file.to_string(),
         field: field.into(),
         problem: problem.into(),
+    }
+}
+
+/// The range of per-triangle rigidity weights: wide enough for the paper's
+/// 10000 for stiff parts and for soft ones, narrow enough that the solver
+/// keeps its precision.
+pub const MIN_WEIGHT: f64 = 1e-2;
+pub const MAX_WEIGHT: f64 = 1e5;
+
+/// The thinnest triangle a mesh may hold, as height over longest edge: the
+/// step-1 matrix's entries grow like its inverse, and far below this the
+/// factorisation loses all precision.
+pub const MIN_THICKNESS: f64 = 1e-3;
+
+/// A triangle's height over its longest edge (2·area / longest², signed:
+/// negative when clockwise), computed on edges scaled to the longest so it
+/// holds at any scale. An equilateral triangle has √3/2.
+pub fn thickness(a: DVec2, b: DVec2, c: DVec2) -> f64 {
+    let longest = (b - a).length().max((c - b).length()).max((a - c).length());
+    if longest > 0.0 {
+        ((b - a) / longest).perp_dot((c - a) / longest)
+    } else {
+        0.0
     }
 }
 
@@ -100,7 +127,21 @@ impl Mesh {
                 return Err(invalid(
                     file,
                     format!("vertices[{i}]"),
-                    format!("coordinate is not a finite number: [{}, {}]", v.x, v.y),
+                    format!(
+                        "coordinate is not a finite number: {}",
+                        json::show_point(*v)
+                    ),
+                ));
+            }
+            if v.abs().max_element() > json::MAX_COORDINATE {
+                return Err(invalid(
+                    file,
+                    format!("vertices[{i}]"),
+                    format!(
+                        "{} is too far out: coordinates must stay within ±{:e}",
+                        json::show_point(*v),
+                        json::MAX_COORDINATE
+                    ),
                 ));
             }
         }
@@ -108,7 +149,6 @@ impl Mesh {
         if n > u32::MAX as usize / 2 {
             return Err(invalid(file, "vertices", "too many vertices"));
         }
-        let size = bounding_diagonal(&vertices);
         let mut used = vec![false; n];
         for (t, tri) in triangles.iter().enumerate() {
             for &i in tri {
@@ -129,25 +169,30 @@ impl Mesh {
                 ));
             }
             let [a, b, c] = tri.map(|i| vertices[i as usize]);
-            let doubled_area = cross(a, b, c);
-            // Relative to the longest edge, so the test does not depend on units.
-            let longest = (b - a)
-                .length_squared()
-                .max((c - b).length_squared())
-                .max((a - c).length_squared());
-            if doubled_area.abs() <= 1e-12 * longest.max(size * size * 1e-12) {
+            let thickness = thickness(a, b, c);
+            if thickness.abs() <= 1e-12 {
                 return Err(invalid(
                     file,
                     format!("triangles[{t}]"),
                     format!("has zero area: {tri:?}"),
                 ));
             }
-            if doubled_area < 0.0 {
+            if thickness < 0.0 {
                 return Err(invalid(
                     file,
                     format!("triangles[{t}]"),
                     format!(
                         "is clockwise (inverted); triangles must be counter-clockwise: {tri:?}"
+                    ),
+                ));
+            }
+            if thickness < MIN_THICKNESS {
+                return Err(invalid(
+                    file,
+                    format!("triangles[{t}]"),
+                    format!(
+                        "is too thin to deform stably: its height is {thickness:.1e} of its \
+                         longest edge, below {MIN_THICKNESS:e} {tri:?}"
                     ),
                 ));
             }
@@ -186,11 +231,17 @@ impl Mesh {
                         ),
                     ));
                 }
-                if let Some(i) = w.iter().position(|x| !(x.is_finite() && *x > 0.0)) {
+                if let Some(i) = w
+                    .iter()
+                    .position(|x| !(MIN_WEIGHT..=MAX_WEIGHT).contains(x))
+                {
                     return Err(invalid(
                         file,
                         format!("weights[{i}]"),
-                        format!("must be a finite number above 0, got {}", w[i]),
+                        format!(
+                            "must be between {MIN_WEIGHT:e} and {MAX_WEIGHT:e}, got {}",
+                            json::show(w[i])
+                        ),
                     ));
                 }
                 w
@@ -206,17 +257,12 @@ impl Mesh {
 
     /// Parses a `.mesh.json` document; `source` names it in errors.
     pub fn from_json(source: &str, text: &str) -> Result<Mesh, MeshError> {
-        let file: MeshFile = serde_json::from_str(text).map_err(|e| MeshError::Syntax {
-            file: source.to_string(),
-            line: e.line(),
-            column: e.column(),
-            message: e.to_string(),
-        })?;
-        let to_vec = |p: [f64; 2]| DVec2::new(p[0], p[1]);
+        let file: MeshFile = json::parse(source, text)?;
+        let to_vec = |p: json::Point| DVec2::from(p.0);
         Mesh::new(
             source,
             file.vertices.into_iter().map(to_vec).collect(),
-            file.triangles,
+            file.triangles.into_iter().map(|t| t.0).collect(),
             file.uv.map(|uv| uv.into_iter().map(to_vec).collect()),
             file.weights,
         )
@@ -236,12 +282,16 @@ impl Mesh {
     /// differ from the default of 1.
     pub fn to_json(&self) -> String {
         let file = MeshFile {
-            vertices: self.vertices.iter().map(|v| [v.x, v.y]).collect(),
-            triangles: self.triangles.clone(),
+            vertices: self
+                .vertices
+                .iter()
+                .map(|v| json::Point(v.to_array()))
+                .collect(),
+            triangles: self.triangles.iter().map(|&t| json::Triangle(t)).collect(),
             uv: self
                 .uv
                 .as_ref()
-                .map(|uv| uv.iter().map(|v| [v.x, v.y]).collect()),
+                .map(|uv| uv.iter().map(|v| json::Point(v.to_array())).collect()),
             weights: if self.weights.iter().all(|&w| w == 1.0) {
                 None
             } else {

@@ -12,11 +12,12 @@ use glam::DVec2;
 use serde::Deserialize;
 
 use super::grid::BucketGrid;
+use super::json::{self, Point};
 use super::{MeshError, cross};
 
 /// Largest coordinate magnitude accepted: far beyond any picture, yet small
 /// enough that areas and tolerances stay finite and meaningful.
-pub const MAX_COORDINATE: f64 = 1e9;
+pub use super::json::MAX_COORDINATE;
 
 /// One island: an outer ring and the holes cut out of it. Rings are closed
 /// implicitly (the last point connects back to the first).
@@ -37,19 +38,22 @@ pub struct Shape {
 /// list of them (`polygons`). One struct with optional fields rather than an
 /// untagged enum, so serde keeps precise line/column positions in errors.
 #[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    expecting = "a polygon object {\"outer\": [[x, y], …], \"holes\": […]} or {\"polygons\": […]}"
+)]
 struct ShapeFile {
-    outer: Option<Vec<[f64; 2]>>,
-    holes: Option<Vec<Vec<[f64; 2]>>>,
+    outer: Option<Vec<Point>>,
+    holes: Option<Vec<Vec<Point>>>,
     polygons: Option<Vec<PolygonFile>>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct PolygonFile {
-    outer: Vec<[f64; 2]>,
+    outer: Vec<Point>,
     #[serde(default)]
-    holes: Vec<Vec<[f64; 2]>>,
+    holes: Vec<Vec<Point>>,
 }
 
 fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> MeshError {
@@ -60,8 +64,8 @@ fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> 
     }
 }
 
-fn to_points(ring: Vec<[f64; 2]>) -> Vec<DVec2> {
-    ring.into_iter().map(|p| DVec2::new(p[0], p[1])).collect()
+fn to_points(ring: Vec<Point>) -> Vec<DVec2> {
+    ring.into_iter().map(|p| DVec2::from(p.0)).collect()
 }
 
 /// Which ring of a shape: the island and, for a hole, its index.
@@ -92,12 +96,7 @@ impl Shape {
     /// result has repeated consecutive points dropped, outer rings
     /// counter-clockwise and holes clockwise.
     pub fn from_json(source: &str, text: &str) -> Result<Shape, MeshError> {
-        let file: ShapeFile = serde_json::from_str(text).map_err(|e| MeshError::Syntax {
-            file: source.to_string(),
-            line: e.line(),
-            column: e.column(),
-            message: e.to_string(),
-        })?;
+        let file: ShapeFile = json::parse(source, text)?;
         let shape = match (file.outer, file.holes, file.polygons) {
             (Some(outer), holes, None) => Shape {
                 polygons: vec![Polygon {
@@ -163,8 +162,8 @@ impl Shape {
                     source,
                     id.name(islands),
                     format!(
-                        "point {i} is not a finite number: [{}, {}]",
-                        ring[i].x, ring[i].y
+                        "point {i} is not a finite number: {}",
+                        json::show_point(ring[i])
                     ),
                 ));
             }
@@ -176,9 +175,9 @@ impl Shape {
                     source,
                     id.name(islands),
                     format!(
-                        "point {i} ([{}, {}]) is too far out: coordinates are pixels and \
+                        "point {i} ({}) is too far out: coordinates are pixels and \
                          must stay within ±{MAX_COORDINATE:e}",
-                        ring[i].x, ring[i].y
+                        json::show_point(ring[i])
                     ),
                 ));
             }
@@ -203,8 +202,10 @@ impl Shape {
                 let a = points[s];
                 let b = points[(s + 1) % points.len()];
                 format!(
-                    "segment {} ([{}, {}]-[{}, {}])",
-                    index[s], a.x, a.y, b.x, b.y
+                    "segment {} ({}-{})",
+                    index[s],
+                    json::show_point(a),
+                    json::show_point(b)
                 )
             };
             let first = segment(c.ring_a, c.seg_a);
@@ -269,7 +270,7 @@ impl Shape {
                         source,
                         id.name(islands),
                         format!(
-                            "lies outside its outer ring {}",
+                            "lies outside its polygon's outer ring ({})",
                             RingId {
                                 polygon: p,
                                 hole: None

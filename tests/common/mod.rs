@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use faer::Mat;
-use faer::linalg::solvers::Solve;
+use faer::linalg::solvers::{Solve, SolveLstsq};
 use glam::DVec2;
 use puppetry::deform::Anchor;
 use puppetry::mesh::Mesh;
@@ -108,22 +108,25 @@ fn constrained_least_squares(
         .map(|j| (0..a.nrows()).map(|i| a[(i, j)] * b[i]).sum())
         .collect();
     if c.iter().all(|row| row.len() == 1 && row[0].1 == 1.0) {
+        // Vertex handles: eliminate the fixed unknowns and solve the
+        // remaining least-squares problem by QR (not the normal equations,
+        // which square the condition number of thin triangles).
         let mut fixed = vec![None; n];
         for (row, &value) in c.iter().zip(d) {
             fixed[row[0].0] = Some(value);
         }
         let free: Vec<usize> = (0..n).filter(|&i| fixed[i].is_none()).collect();
-        let guu = Mat::<f64>::from_fn(free.len(), free.len(), |i, j| ata[(free[i], free[j])]);
-        let rhs = Mat::<f64>::from_fn(free.len(), 1, |i, _| {
-            let mut r = atb[free[i]];
+        let a_free = Mat::<f64>::from_fn(a.nrows(), free.len(), |i, j| a[(i, free[j])]);
+        let rhs = Mat::<f64>::from_fn(a.nrows(), 1, |i, _| {
+            let mut r = b[i];
             for (j, f) in fixed.iter().enumerate() {
                 if let Some(value) = f {
-                    r -= ata[(free[i], j)] * value;
+                    r -= a[(i, j)] * value;
                 }
             }
             r
         });
-        let u = guu.full_piv_lu().solve(&rhs);
+        let u = a_free.col_piv_qr().solve_lstsq(&rhs);
         let mut x: Vec<f64> = fixed.iter().map(|f| f.unwrap_or(0.0)).collect();
         for (i, &f) in free.iter().enumerate() {
             x[f] = u[(i, 0)];
