@@ -304,11 +304,17 @@ fn bad_mesh_inputs_are_named_and_explained() {
 
     let picture_as_json = scratch("picture.json", &png_bytes);
     let message = failure(&["mesh", picture_as_json.to_str().unwrap()]);
-    assert!(message.contains("picture.json") && message.contains("not UTF-8"), "{message}");
+    assert!(
+        message.contains("picture.json") && message.contains("not UTF-8"),
+        "{message}"
+    );
 
     let sliver = scratch("sliver.json", br#"{"outer": [[0,0],[1000,0],[500,0.001]]}"#);
     let message = failure(&["mesh", sliver.to_str().unwrap()]);
-    assert!(message.contains("sliver.json") && message.contains("too thin"), "{message}");
+    assert!(
+        message.contains("sliver.json") && message.contains("too thin"),
+        "{message}"
+    );
 
     let message = failure(&["mesh", crossing.to_str().unwrap(), "--vertices", "0"]);
     assert!(message.contains("--vertices"), "{message}");
@@ -317,7 +323,20 @@ fn bad_mesh_inputs_are_named_and_explained() {
 #[test]
 fn a_byte_order_mark_is_accepted() {
     let mesh = scratch("bom.mesh.json", format!("\u{feff}{SQUARE}").as_bytes());
-    let handles = scratch("bom.handles.json", format!("\u{feff}{NO_HANDLES}").as_bytes());
-    let out = puppetry(&["solve", "--mesh", mesh.to_str().unwrap(), "--handles", handles.to_str().unwrap()]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let handles = scratch(
+        "bom.handles.json",
+        format!("\u{feff}{NO_HANDLES}").as_bytes(),
+    );
+    let out = puppetry(&[
+        "solve",
+        "--mesh",
+        mesh.to_str().unwrap(),
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

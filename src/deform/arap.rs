@@ -195,6 +195,15 @@ impl SplitComplex {
     }
 }
 
+/// The small systems of a solved piece before inversion, kept so the next
+/// handle change can reuse the entries of handles that stay.
+#[derive(Debug, Clone)]
+struct Gram {
+    handles: usize,
+    step1: Mat<c64>,
+    step2: Mat<f64>,
+}
+
 /// Everything about one connected piece.
 #[derive(Debug)]
 struct PieceSolver {
@@ -214,6 +223,7 @@ struct PieceSolver {
     step2_anchor_forward: SparseVector<f64>,
     handles: Vec<PieceHandle>,
     placement: Placement,
+    gram: Option<Gram>,
     // Frame scratch, sized at compile time.
     step1_rhs: Vec<DVec2>,
     step1_xi: Vec<DVec2>,
@@ -601,6 +611,7 @@ impl PieceSolver {
             step2_anchor_forward,
             handles: Vec::new(),
             placement: Placement::Fixed,
+            gram: None,
             step1_rhs: Vec::new(),
             step1_xi: Vec::new(),
             step1_pose: SplitComplex::zeros(n),
@@ -617,13 +628,19 @@ impl PieceSolver {
 
     fn compile(&mut self, wanted: Vec<(usize, Anchor, Row, DVec2)>, pose: &mut [DVec2]) {
         let n = self.n();
-        let mut old = std::mem::take(&mut self.handles);
+        let mut old: Vec<Option<PieceHandle>> = std::mem::take(&mut self.handles)
+            .into_iter()
+            .map(Some)
+            .collect();
+        // Where each handle sat in the previous set, to reuse its entries of
+        // the small systems.
+        let mut previous_index = Vec::with_capacity(wanted.len());
         for (target, anchor, row, rest_point) in wanted {
-            let reused = old
+            let found = old
                 .iter()
-                .position(|h| h.anchor == anchor)
-                .map(|i| old.swap_remove(i));
-            let handle = match reused {
+                .position(|h| h.as_ref().is_some_and(|h| h.anchor == anchor));
+            previous_index.push(found);
+            let handle = match found.and_then(|i| old[i].take()) {
                 Some(mut h) => {
                     h.target = target;
                     h
@@ -655,6 +672,10 @@ impl PieceSolver {
         let current = |pose: &[DVec2], vertices: &[u32]| -> Vec<DVec2> {
             vertices.iter().map(|&v| pose[v as usize]).collect()
         };
+        if self.handles.len() < 2 {
+            // The kept systems describe a handle set that is gone.
+            self.gram = None;
+        }
         self.placement = match self.handles.len() {
             0 => {
                 // Keep the best rigid placement of the current pose.
@@ -673,7 +694,8 @@ impl PieceSolver {
                 Placement::Carried { rotation }
             }
             k => {
-                let (step1_inverse, step2_inverse) = self.small_inverses();
+                let previous = self.gram.take().map(|gram| (gram, previous_index));
+                let (step1_inverse, step2_inverse) = self.small_inverses(previous);
                 self.step1_rhs = vec![DVec2::ZERO; k + 2];
                 self.step1_xi = vec![DVec2::ZERO; k + 2];
                 self.step2_rhs = vec![DVec2::ZERO; k + 1];
@@ -686,9 +708,21 @@ impl PieceSolver {
         };
     }
 
-    /// Inverses of `B̃ W − diag(0, I/δ)` for both steps (column-major).
-    fn small_inverses(&self) -> (Vec<DVec2>, Vec<f64>) {
+    /// Inverses of `B̃ K⁻¹ B̃ᵀ − diag(0, I/δ)` for both steps (column-major).
+    /// Entries between handles that were already in the `previous` set (with
+    /// each new handle's index there) are copied, not recomputed: a finger
+    /// landing costs one new row and column.
+    fn small_inverses(
+        &mut self,
+        previous: Option<(Gram, Vec<Option<usize>>)>,
+    ) -> (Vec<DVec2>, Vec<f64>) {
         let k = self.handles.len();
+        // Index of row/column i in the previous systems, anchors included.
+        let old_index = |i: usize| -> Option<usize> {
+            let (gram, map) = previous.as_ref()?;
+            let old_k = gram.handles;
+            if i < k { map[i] } else { Some(old_k + (i - k)) }
+        };
         let column1 = |j: usize| -> &SplitComplex {
             if j < k {
                 &self.handles[j].step1_column
@@ -706,6 +740,11 @@ impl PieceSolver {
         };
         let m1 = k + 2;
         let s1 = Mat::<c64>::from_fn(m1, m1, |i, j| {
+            if let (Some(oi), Some(oj), Some((gram, _))) =
+                (old_index(i), old_index(j), previous.as_ref())
+            {
+                return gram.step1[(oi, oj)];
+            }
             let mut value = row1(i, column1(j));
             if i == j && i >= k {
                 value.x -= 1.0 / self.step1_delta;
@@ -725,17 +764,36 @@ impl PieceSolver {
         let mut s2 = Mat::<f64>::zeros(m2, m2);
         for j in 0..m2 {
             let y = forward2(j);
-            for (&i, &v) in y.indices.iter().zip(&y.values) {
-                dense[i as usize] = v;
-            }
+            let mut scattered = false;
             for i in 0..m2 {
+                if let (Some(oi), Some(oj), Some((gram, _))) =
+                    (old_index(i), old_index(j), previous.as_ref())
+                {
+                    s2[(i, j)] = gram.step2[(oi, oj)];
+                    continue;
+                }
+                if !scattered {
+                    for (&r, &v) in y.indices.iter().zip(&y.values) {
+                        dense[r as usize] = v;
+                    }
+                    scattered = true;
+                }
                 s2[(i, j)] = forward2(i).dot(&dense, 0.0, |a, b| a * b);
+                if i == k && j == k {
+                    s2[(i, j)] -= 1.0 / self.step2_delta;
+                }
             }
-            for &i in &y.indices {
-                dense[i as usize] = 0.0;
+            if scattered {
+                for &r in &y.indices {
+                    dense[r as usize] = 0.0;
+                }
             }
         }
-        s2[(k, k)] -= 1.0 / self.step2_delta;
+        self.gram = Some(Gram {
+            handles: k,
+            step1: s1.clone(),
+            step2: s2.clone(),
+        });
         let inverse1 = inverse_sequential(s1);
         let inverse2 = inverse_sequential(s2);
         let mut out1 = Vec::with_capacity(m1 * m1);
