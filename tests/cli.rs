@@ -6,11 +6,11 @@ mod common;
 
 use std::path::PathBuf;
 use std::process::{Command, Output};
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::DVec2;
 use puppetry::deform::Anchor;
 use puppetry::mesh::Mesh;
+use tempfile::TempDir;
 
 fn puppetry(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_puppetry"))
@@ -19,14 +19,10 @@ fn puppetry(args: &[&str]) -> Output {
         .expect("run puppetry")
 }
 
-/// A scratch file with these contents, in a directory of its own: tests run
-/// in parallel and reuse names.
-fn scratch(name: &str, contents: &[u8]) -> PathBuf {
-    static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let unique = NEXT.fetch_add(1, Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("puppetry-cli-{}-{unique}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join(name);
+/// A scratch file with these contents in the test's own temporary
+/// directory (removed when the test ends).
+fn scratch(dir: &TempDir, name: &str, contents: &[u8]) -> PathBuf {
+    let path = dir.path().join(name);
     std::fs::write(&path, contents).unwrap();
     path
 }
@@ -43,14 +39,15 @@ fn parse_vertices(stdout: &[u8]) -> Vec<DVec2> {
 
 #[test]
 fn solve_prints_the_dense_least_squares_answer() {
+    let dir = tempfile::tempdir().unwrap();
     let mesh = common::jittered(7, 4);
-    let mesh_path = scratch("solve.mesh.json", mesh.to_json().as_bytes());
+    let mesh_path = scratch(&dir, "solve.mesh.json", mesh.to_json().as_bytes());
     let point = DVec2::new(6.3, 3.6);
     let handles = format!(
         r#"{{"handles": [{{"vertex": 0, "to": [-1, 0]}}, {{"point": [{}, {}], "to": [9, 6]}}]}}"#,
         point.x, point.y
     );
-    let handles_path = scratch("solve.handles.json", handles.as_bytes());
+    let handles_path = scratch(&dir, "solve.handles.json", handles.as_bytes());
     let loc = puppetry::mesh::Locator::new(&mesh)
         .locate(&mesh, point)
         .unwrap();
@@ -80,8 +77,9 @@ fn solve_prints_the_dense_least_squares_answer() {
 
 #[test]
 fn mesh_builds_the_demo_puppet_and_solve_runs_it() {
+    let dir = tempfile::tempdir().unwrap();
     let demo = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/gingerbread");
-    let out_path = scratch("demo.mesh.json", b"");
+    let out_path = scratch(&dir, "demo.mesh.json", b"");
     let out = puppetry(&[
         "mesh",
         demo.join("gingerbread.png").to_str().unwrap(),
@@ -139,9 +137,9 @@ fn failure(args: &[&str]) -> String {
     message
 }
 
-fn solve_failure(mesh_json: &str, handles_json: &str) -> String {
-    let m = scratch("bad.mesh.json", mesh_json.as_bytes());
-    let h = scratch("bad.handles.json", handles_json.as_bytes());
+fn solve_failure(dir: &TempDir, mesh_json: &str, handles_json: &str) -> String {
+    let m = scratch(dir, "bad.mesh.json", mesh_json.as_bytes());
+    let h = scratch(dir, "bad.handles.json", handles_json.as_bytes());
     failure(&[
         "solve",
         "--mesh",
@@ -156,6 +154,7 @@ const NO_HANDLES: &str = r#"{"handles": []}"#;
 
 #[test]
 fn bad_meshes_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
     let cases: &[(&str, &[&str])] = &[
         (
             "{\"vertices\": [[0,0],[1,0]\n,[1,1]], \"triangles\": [[0,1,2]]",
@@ -220,7 +219,7 @@ fn bad_meshes_are_named_and_explained() {
         ("\"my puppet\"", &["a mesh object"]),
     ];
     for (mesh, expected) in cases {
-        let message = solve_failure(mesh, NO_HANDLES);
+        let message = solve_failure(&dir, mesh, NO_HANDLES);
         for e in *expected {
             assert!(
                 message.contains(e),
@@ -232,6 +231,7 @@ fn bad_meshes_are_named_and_explained() {
 
 #[test]
 fn bad_handles_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
     let cases: &[(&str, &[&str])] = &[
         (
             r#"{"handles": [{"point": [5, 5], "to": [0, 0]}]}"#,
@@ -256,7 +256,7 @@ fn bad_handles_are_named_and_explained() {
         ),
     ];
     for (handles, expected) in cases {
-        let message = solve_failure(SQUARE, handles);
+        let message = solve_failure(&dir, SQUARE, handles);
         for e in *expected {
             assert!(
                 message.contains(e),
@@ -268,7 +268,9 @@ fn bad_handles_are_named_and_explained() {
 
 #[test]
 fn bad_mesh_inputs_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
     let crossing = scratch(
+        &dir,
         "bowtie.json",
         br#"{"outer": [[0,0],[10,10],[10,0],[0,10]]}"#,
     );
@@ -288,28 +290,32 @@ fn bad_mesh_inputs_are_named_and_explained() {
         let mut writer = encoder.write_header().unwrap();
         writer.write_image_data(&[0u8; 8 * 8 * 4]).unwrap();
     }
-    let clear = scratch("clear.png", &png_bytes);
+    let clear = scratch(&dir, "clear.png", &png_bytes);
     let message = failure(&["mesh", clear.to_str().unwrap()]);
     assert!(
         message.contains("clear.png") && message.contains("opaque"),
         "{message}"
     );
 
-    let not_png = scratch("fake.png", b"GIF89a not a png at all");
+    let not_png = scratch(&dir, "fake.png", b"GIF89a not a png at all");
     let message = failure(&["mesh", not_png.to_str().unwrap()]);
     assert!(message.contains("fake.png"), "{message}");
 
     let missing = failure(&["mesh", "/nonexistent/puppet.png"]);
     assert!(missing.contains("/nonexistent/puppet.png"), "{missing}");
 
-    let picture_as_json = scratch("picture.json", &png_bytes);
+    let picture_as_json = scratch(&dir, "picture.json", &png_bytes);
     let message = failure(&["mesh", picture_as_json.to_str().unwrap()]);
     assert!(
         message.contains("picture.json") && message.contains("not UTF-8"),
         "{message}"
     );
 
-    let sliver = scratch("sliver.json", br#"{"outer": [[0,0],[1000,0],[500,0.001]]}"#);
+    let sliver = scratch(
+        &dir,
+        "sliver.json",
+        br#"{"outer": [[0,0],[1000,0],[500,0.001]]}"#,
+    );
     let message = failure(&["mesh", sliver.to_str().unwrap()]);
     assert!(
         message.contains("sliver.json") && message.contains("too thin"),
@@ -322,8 +328,14 @@ fn bad_mesh_inputs_are_named_and_explained() {
 
 #[test]
 fn a_byte_order_mark_is_accepted() {
-    let mesh = scratch("bom.mesh.json", format!("\u{feff}{SQUARE}").as_bytes());
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = scratch(
+        &dir,
+        "bom.mesh.json",
+        format!("\u{feff}{SQUARE}").as_bytes(),
+    );
     let handles = scratch(
+        &dir,
         "bom.handles.json",
         format!("\u{feff}{NO_HANDLES}").as_bytes(),
     );
