@@ -23,4 +23,8 @@
 pub mod bench;
 pub mod cli;
 pub mod deform;
+pub mod input;
 pub mod mesh;
+pub mod serve;
+pub mod stage;
+pub mod stream;

@@ -22,6 +22,23 @@ struct Args {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the daemon: inputs to handles, the solver at the input rate, and
+    /// the web renderer and WebSocket stream on one port. Without --config,
+    /// serves the bundled demo stage.
+    Serve {
+        /// Stage file (TOML, see config/).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Also play this recording (.jsonl) or evemu capture (.event).
+        #[arg(long)]
+        replay: Option<PathBuf>,
+        /// Play --replay as fast as possible instead of in real time.
+        #[arg(long)]
+        fast: bool,
+        /// Listen here instead of the stage file's address.
+        #[arg(long)]
+        listen: Option<std::net::SocketAddr>,
+    },
     /// Build a triangle mesh from a PNG (traced from its alpha channel) or a
     /// polygon JSON file; writes `.mesh.json` (see docs/mesh-format.md).
     Mesh {
@@ -94,6 +111,49 @@ fn main() -> ExitCode {
 
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
+        Command::Serve {
+            config,
+            replay,
+            fast,
+            listen,
+        } => {
+            tracing_subscriber::fmt()
+                .with_env_filter(
+                    tracing_subscriber::EnvFilter::try_from_default_env()
+                        .unwrap_or_else(|_| "info".into()),
+                )
+                .with_writer(std::io::stderr)
+                .init();
+            let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+            let path = config.unwrap_or_else(|| root.join("config/demo.toml"));
+            let mut stage = puppetry::stage::config::StageConfig::load(&path)?;
+            if let Some(listen) = listen {
+                stage.stage.listen = listen;
+            }
+            let pacing = if fast {
+                puppetry::input::replay::Pacing::AsFastAsPossible
+            } else {
+                puppetry::input::replay::Pacing::RealTime
+            };
+            let runtime = tokio::runtime::Runtime::new()?;
+            runtime.block_on(async {
+                let running = puppetry::serve::start(
+                    &stage,
+                    root.join("clients/web"),
+                    replay.map(|file| (file, pacing)),
+                )
+                .await?;
+                let address = running.address;
+                println!("puppetry: serving {} at http://{address}/", path.display());
+                if let Some(token) = stage.access.performer_tokens.first() {
+                    println!("  perform: http://{address}/?role=performer&token={token}");
+                }
+                println!("  stop with Ctrl-C");
+                tokio::signal::ctrl_c().await?;
+                running.shutdown().await;
+                anyhow::Ok(())
+            })?;
+        }
         Command::Mesh {
             input,
             vertices,

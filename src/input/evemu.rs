@@ -1,0 +1,316 @@
+//! Reading evemu-record captures: the device description (`N:` name, `I:`
+//! ids, `P:` property bits, `B:` event-type bits, `A:` axes) and the events
+//! (`E: <sec>.<usec> <type> <code> <value>`, type and code in hex). A capture
+//! stands in for a real device: its axes size the [`TouchDecoder`] and the
+//! default calibration, its events replay through it. Every complaint names
+//! the file, the line and the field.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use glam::DVec2;
+
+use super::evdev::{
+    ABS_MAX, AbsAxes, AbsInfo, EV_MAX, EvdevError, InputEvent, KEY_MAX, TouchDecoder,
+    fit_calibration,
+};
+use super::{Calibration, SourceId};
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvemuError {
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        file: String,
+        source: std::io::Error,
+    },
+    #[error("{file}:{line}: {field}: {problem}")]
+    Line {
+        file: String,
+        line: usize,
+        field: &'static str,
+        problem: String,
+    },
+    #[error("{file}: {source}")]
+    Device { file: String, source: EvdevError },
+}
+
+/// The `I:` line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct InputId {
+    pub bus: u16,
+    pub vendor: u16,
+    pub product: u16,
+    pub version: u16,
+}
+
+/// What the header says about the device.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EvemuDevice {
+    pub name: String,
+    pub id: InputId,
+    /// `INPUT_PROP_*` bits, bytes in file order.
+    pub properties: Vec<u8>,
+    /// Supported codes per event type, bytes in file order.
+    pub event_bits: BTreeMap<u16, Vec<u8>>,
+    pub axes: AbsAxes,
+}
+
+/// A whole capture, parsed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvemuFile {
+    /// How errors name the file.
+    pub file: String,
+    pub device: EvemuDevice,
+    pub events: Vec<InputEvent>,
+}
+
+impl EvemuFile {
+    pub fn read(path: &Path) -> Result<EvemuFile, EvemuError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| EvemuError::Read {
+            file: file.clone(),
+            source,
+        })?;
+        EvemuFile::parse(&file, &text)
+    }
+
+    /// Parses `text`, named `file` in errors.
+    pub fn parse(file: &str, text: &str) -> Result<EvemuFile, EvemuError> {
+        let mut parser = Parser {
+            file,
+            line: 0,
+            device: EvemuDevice::default(),
+            events: Vec::new(),
+        };
+        for (index, line) in text.lines().enumerate() {
+            parser.line = index + 1;
+            parser.parse_line(line)?;
+        }
+        Ok(EvemuFile {
+            file: file.to_string(),
+            device: parser.device,
+            events: parser.events,
+        })
+    }
+
+    /// The device's position ranges stretched over a `stage_size` stage.
+    pub fn fit_calibration(&self, stage_size: DVec2) -> Result<Calibration, EvemuError> {
+        fit_calibration(&self.device.axes, stage_size).map_err(|source| self.device_error(source))
+    }
+
+    /// A fresh decoder for this capture's device.
+    pub fn decoder(
+        &self,
+        source: SourceId,
+        calibration: Calibration,
+    ) -> Result<TouchDecoder, EvemuError> {
+        TouchDecoder::new(source, &self.device.axes, calibration)
+            .map_err(|source| self.device_error(source))
+    }
+
+    fn device_error(&self, source: EvdevError) -> EvemuError {
+        EvemuError::Device {
+            file: self.file.clone(),
+            source,
+        }
+    }
+}
+
+struct Parser<'a> {
+    file: &'a str,
+    line: usize,
+    device: EvemuDevice,
+    events: Vec<InputEvent>,
+}
+
+impl Parser<'_> {
+    fn error(&self, field: &'static str, problem: impl Into<String>) -> EvemuError {
+        EvemuError::Line {
+            file: self.file.to_string(),
+            line: self.line,
+            field,
+            problem: problem.into(),
+        }
+    }
+
+    fn parse_line(&mut self, line: &str) -> Result<(), EvemuError> {
+        let line = line.trim_start_matches('\u{feff}');
+        let trimmed = line.trim();
+        if trimmed.is_empty() || trimmed.starts_with('#') {
+            return Ok(());
+        }
+        let Some((kind, rest)) = trimmed.split_once(':') else {
+            return Err(self.error("line", format!("expected `X: …`, got `{}`", clip(trimmed))));
+        };
+        if kind == "N" {
+            // Names may contain '#', so no comment stripping here.
+            self.device.name = rest.trim().to_string();
+            return Ok(());
+        }
+        let rest = rest.split('#').next().unwrap_or("");
+        let mut fields = rest.split_whitespace();
+        match kind {
+            "I" => {
+                let mut next = |field| self.hex::<u16>(fields.next(), field);
+                self.device.id = InputId {
+                    bus: next("bus")?,
+                    vendor: next("vendor")?,
+                    product: next("product")?,
+                    version: next("version")?,
+                };
+            }
+            "P" => {
+                for byte in fields {
+                    let byte = self.hex::<u8>(Some(byte), "property bits")?;
+                    self.device.properties.push(byte);
+                }
+                return Ok(());
+            }
+            "B" => {
+                let ev_type = self.hex::<u16>(fields.next(), "event type")?;
+                if ev_type > EV_MAX {
+                    return Err(self.error("event type", format!("{ev_type:#x} is above EV_MAX")));
+                }
+                let mut bytes = Vec::new();
+                for byte in fields {
+                    bytes.push(self.hex::<u8>(Some(byte), "event bits")?);
+                }
+                self.device
+                    .event_bits
+                    .entry(ev_type)
+                    .or_default()
+                    .extend(bytes);
+                return Ok(());
+            }
+            "A" => {
+                let code = self.hex::<u16>(fields.next(), "axis code")?;
+                if code > ABS_MAX {
+                    return Err(self.error("axis code", format!("{code:#x} is above ABS_MAX")));
+                }
+                let min = self.decimal(fields.next(), "min")?;
+                let max = self.decimal(fields.next(), "max")?;
+                let fuzz = self.decimal(fields.next(), "fuzz")?;
+                let flat = self.decimal(fields.next(), "flat")?;
+                let resolution = match fields.next() {
+                    Some(text) => self.decimal(Some(text), "resolution")?,
+                    None => 0,
+                };
+                if min > max {
+                    return Err(self.error("max", format!("{max} is below min {min}")));
+                }
+                let info = AbsInfo {
+                    min,
+                    max,
+                    fuzz,
+                    flat,
+                    resolution,
+                };
+                if self.device.axes.insert(code, info).is_some() {
+                    return Err(
+                        self.error("axis code", format!("axis {code:#04x} is described twice"))
+                    );
+                }
+            }
+            "E" => {
+                let time = self.time(fields.next())?;
+                let ev_type = self.hex::<u16>(fields.next(), "event type")?;
+                let code = self.hex::<u16>(fields.next(), "event code")?;
+                let value = self.decimal(fields.next(), "value")?;
+                if ev_type > EV_MAX {
+                    return Err(self.error("event type", format!("{ev_type:#x} is above EV_MAX")));
+                }
+                if code > KEY_MAX {
+                    return Err(self.error("event code", format!("{code:#x} is above KEY_MAX")));
+                }
+                if let Some(previous) = self.events.last()
+                    && time < previous.time
+                {
+                    return Err(self.error(
+                        "time",
+                        format!(
+                            "{time} is earlier than the previous event's {}",
+                            previous.time
+                        ),
+                    ));
+                }
+                self.events
+                    .push(InputEvent::new(time, ev_type, code, value));
+            }
+            // LED and switch states: nothing a touch surface needs.
+            "L" | "S" => return Ok(()),
+            other => {
+                return Err(self.error(
+                    "line",
+                    format!(
+                        "unknown line kind `{}:`; expected N, I, P, B, A, L, S or E",
+                        clip(other)
+                    ),
+                ));
+            }
+        }
+        match fields.next() {
+            Some(extra) => {
+                Err(self.error("line", format!("unexpected `{}` at the end", clip(extra))))
+            }
+            None => Ok(()),
+        }
+    }
+
+    fn hex<T: TryFrom<u64>>(
+        &self,
+        text: Option<&str>,
+        field: &'static str,
+    ) -> Result<T, EvemuError> {
+        let text = text.ok_or_else(|| self.error(field, "missing"))?;
+        let digits = text
+            .strip_prefix("0x")
+            .or_else(|| text.strip_prefix("0X"))
+            .unwrap_or(text);
+        u64::from_str_radix(digits, 16)
+            .ok()
+            .and_then(|v| T::try_from(v).ok())
+            .ok_or_else(|| {
+                self.error(
+                    field,
+                    format!("`{}` is not a hexadecimal number in range", clip(text)),
+                )
+            })
+    }
+
+    fn decimal(&self, text: Option<&str>, field: &'static str) -> Result<i32, EvemuError> {
+        let text = text.ok_or_else(|| self.error(field, "missing"))?;
+        text.parse::<i32>().map_err(|_| {
+            self.error(
+                field,
+                format!("`{}` is not a whole number in the 32-bit range", clip(text)),
+            )
+        })
+    }
+
+    /// `seconds.microseconds`, both plain digits. Parsed whole, so the
+    /// value is the decimal correctly rounded, same as a literal in a test.
+    fn time(&self, text: Option<&str>) -> Result<f64, EvemuError> {
+        let text = text.ok_or_else(|| self.error("time", "missing"))?;
+        let bad = || {
+            self.error(
+                "time",
+                format!("`{}` is not `seconds.microseconds`", clip(text)),
+            )
+        };
+        let (seconds, micros) = text.split_once('.').ok_or_else(bad)?;
+        let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+        if !digits(seconds) || !digits(micros) || seconds.len() > 15 || micros.len() > 9 {
+            return Err(bad());
+        }
+        text.parse().map_err(|_| bad())
+    }
+}
+
+/// Keeps quoted input short in messages.
+fn clip(text: &str) -> String {
+    const MAX: usize = 40;
+    match text.char_indices().nth(MAX) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text.to_string(),
+    }
+}

@@ -1,0 +1,192 @@
+//! The stage file (TOML, in `config/`): the stage's size and listen address,
+//! access tokens, the puppets on it and the input sources. Parsed with
+//! `deny_unknown_fields` so a misspelt key is an error naming it; relative
+//! paths are resolved against the file's own folder.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        file: String,
+        source: std::io::Error,
+    },
+    #[error("{file}: {message}")]
+    Syntax { file: String, message: String },
+    #[error("{file}: {field}: {problem}")]
+    Invalid {
+        file: String,
+        field: String,
+        problem: String,
+    },
+}
+
+/// A whole stage file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageConfig {
+    pub stage: StageSection,
+    #[serde(default)]
+    pub access: Access,
+    #[serde(default, rename = "puppet")]
+    pub puppets: Vec<PuppetConfig>,
+    #[serde(default, rename = "input")]
+    pub inputs: Vec<InputConfig>,
+    /// Where the file was read from; relative paths are resolved against it.
+    #[serde(skip)]
+    pub folder: PathBuf,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageSection {
+    /// Stage size in stage units (y-up, origin bottom-left).
+    pub width: f64,
+    pub height: f64,
+    /// HTTP and WebSocket address; port 0 picks a free port.
+    #[serde(default = "default_listen")]
+    pub listen: SocketAddr,
+    /// Clients that stop reading are dropped after this many seconds.
+    #[serde(default = "default_client_timeout")]
+    pub client_timeout_s: f64,
+}
+
+fn default_listen() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], 8080))
+}
+
+fn default_client_timeout() -> f64 {
+    10.0
+}
+
+/// Who may perform: a WebSocket client that says `role: performer` must
+/// give one of these tokens.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Access {
+    #[serde(default)]
+    pub performer_tokens: Vec<String>,
+}
+
+/// One puppet: its picture and rest mesh, and where it stands on the stage.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PuppetConfig {
+    pub name: String,
+    pub image: PathBuf,
+    pub mesh: PathBuf,
+    /// Stage position of the centre of the mesh's bounding box.
+    pub at: [f64; 2],
+    /// Stage units per mesh unit.
+    #[serde(default = "one")]
+    pub scale: f64,
+    /// Pins that hold from the start, in the mesh's own coordinates.
+    #[serde(default)]
+    pub pins: Vec<[f64; 2]>,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// An input source. Replay files stand in for devices.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
+pub enum InputConfig {
+    /// A recording (`.jsonl`, stage coordinates) or an evemu capture
+    /// (`.event`, device coordinates fitted to the stage).
+    Replay {
+        file: PathBuf,
+        #[serde(default)]
+        pacing: PacingConfig,
+        /// Play again from the start when the file ends.
+        #[serde(default)]
+        repeat: bool,
+    },
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PacingConfig {
+    #[default]
+    RealTime,
+    AsFastAsPossible,
+}
+
+impl StageConfig {
+    /// Reads and checks a stage file.
+    pub fn load(path: &Path) -> Result<StageConfig, ConfigError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            file: file.clone(),
+            source,
+        })?;
+        let folder = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+        StageConfig::parse(&file, &text, &folder)
+    }
+
+    /// Parses stage TOML; `file` names it in errors, `folder` anchors its
+    /// relative paths.
+    pub fn parse(file: &str, text: &str, folder: &Path) -> Result<StageConfig, ConfigError> {
+        let mut config: StageConfig = toml::from_str(text).map_err(|e| ConfigError::Syntax {
+            file: file.to_string(),
+            message: e.to_string().trim_end().replace('\n', " "),
+        })?;
+        config.folder = folder.to_path_buf();
+        let invalid = |field: String, problem: &str| ConfigError::Invalid {
+            file: file.to_string(),
+            field,
+            problem: problem.to_string(),
+        };
+        let s = &config.stage;
+        if !(s.width.is_finite() && s.height.is_finite() && s.width > 0.0 && s.height > 0.0) {
+            return Err(invalid(
+                "stage".into(),
+                "width and height must be positive numbers",
+            ));
+        }
+        if !(s.client_timeout_s.is_finite() && s.client_timeout_s > 0.0) {
+            return Err(invalid(
+                "stage.client_timeout_s".into(),
+                "must be a positive number of seconds",
+            ));
+        }
+        for (i, p) in config.puppets.iter().enumerate() {
+            if !(p.scale.is_finite() && p.scale > 0.0) {
+                return Err(invalid(
+                    format!("puppet[{i}].scale"),
+                    "must be a positive number",
+                ));
+            }
+            if !p.at.iter().all(|v| v.is_finite()) {
+                return Err(invalid(format!("puppet[{i}].at"), "must be finite"));
+            }
+            if config.puppets[..i].iter().any(|q| q.name == p.name) {
+                return Err(invalid(
+                    format!("puppet[{i}].name"),
+                    "is used by another puppet",
+                ));
+            }
+        }
+        if config.access.performer_tokens.iter().any(|t| t.is_empty()) {
+            return Err(invalid(
+                "access.performer_tokens".into(),
+                "a token must not be empty",
+            ));
+        }
+        Ok(config)
+    }
+
+    /// A path from the file, resolved against the file's folder.
+    pub fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.folder.join(path)
+        }
+    }
+}

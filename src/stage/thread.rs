@@ -1,0 +1,194 @@
+//! The stage thread: owns the [`Stage`] and its solvers, takes commands
+//! (input frames, pins) from a bounded channel and publishes each solve as a
+//! binary frame encoded once. Solving never runs in an async task. When input
+//! arrives faster than it solves, every pending command is applied — so no
+//! contact down or up is lost — and only the newest state is solved.
+
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use bytes::{BufMut, Bytes, BytesMut};
+use glam::DVec2;
+use serde::Serialize;
+use tokio::sync::{mpsc, watch};
+
+use super::{HandleKind, Owner, Stage};
+use crate::input::ContactFrame;
+
+/// What the stage thread is asked to do.
+#[derive(Debug)]
+pub enum Command {
+    /// An input frame, with the time it reached the daemon (seconds since
+    /// the daemon started).
+    Frame {
+        frame: ContactFrame,
+        received: f64,
+    },
+    Pin {
+        owner: String,
+        at: DVec2,
+    },
+    Unpin {
+        puppet: u32,
+        handle: u64,
+    },
+    /// A source went away: lift all its contacts.
+    ReleaseSource(String),
+    /// End the thread (the daemon is shutting down).
+    Stop,
+}
+
+/// The size of a binary frame's header (see `docs/protocol.md`).
+pub const FRAME_HEADER: usize = 32;
+/// `kind` of a vertex frame.
+pub const FRAME_KIND_VERTICES: u32 = 1;
+
+/// Encodes a vertex frame: 32-byte little-endian header, then f32 x,y pairs.
+pub fn encode_frame(puppet: u32, sequence: u64, input_time: f64, pose: &[DVec2]) -> Bytes {
+    let mut out = BytesMut::with_capacity(FRAME_HEADER + pose.len() * 8);
+    out.put_u32_le(FRAME_KIND_VERTICES);
+    out.put_u32_le(puppet);
+    out.put_u64_le(sequence);
+    out.put_f64_le(input_time);
+    out.put_u32_le(pose.len() as u32);
+    out.put_u32_le(0);
+    for p in pose {
+        out.put_f32_le(p.x as f32);
+        out.put_f32_le(p.y as f32);
+    }
+    out.freeze()
+}
+
+/// One handle as clients see it.
+#[derive(Debug, Clone, Serialize)]
+pub struct HandleView {
+    pub id: u64,
+    pub owner: String,
+    pub kind: &'static str,
+    pub at: [f64; 2],
+}
+
+/// The "handles" message of a puppet.
+pub fn handles_message(stage: &Stage, puppet: u32) -> String {
+    let p = &stage.puppets()[puppet as usize];
+    let handles: Vec<HandleView> = p
+        .handles()
+        .iter()
+        .map(|h| HandleView {
+            id: h.id,
+            owner: h.owner.to_string(),
+            kind: match h.kind {
+                HandleKind::Contact => "contact",
+                HandleKind::Pin => "pin",
+            },
+            at: [h.target.x, h.target.y],
+        })
+        .collect();
+    serde_json::json!({"type": "handles", "puppet": puppet, "handles": handles}).to_string()
+}
+
+/// The newest output of one puppet.
+#[derive(Debug, Clone)]
+pub struct PuppetOutput {
+    /// The newest encoded vertex frame (none before the first solve).
+    pub frame: watch::Receiver<Option<Bytes>>,
+    /// The newest "handles" message.
+    pub handles: watch::Receiver<Arc<str>>,
+}
+
+/// The stage thread's publishing ends: per puppet its newest frame and
+/// handles, and a counter bumped after each publish so clients wait on one
+/// signal.
+struct Publisher {
+    frames: Vec<watch::Sender<Option<Bytes>>>,
+    handles: Vec<watch::Sender<Arc<str>>>,
+    sequences: Vec<u64>,
+    changes: watch::Sender<u64>,
+}
+
+impl Publisher {
+    fn publish(&mut self, stage: &Stage, solved: &[(u32, bool)], input_time: f64) {
+        for &(puppet, handles_changed) in solved {
+            let i = puppet as usize;
+            self.sequences[i] += 1;
+            let pose = stage.puppets()[i].pose();
+            self.frames[i].send_replace(Some(encode_frame(
+                puppet,
+                self.sequences[i],
+                input_time,
+                pose,
+            )));
+            if handles_changed {
+                self.handles[i].send_replace(Arc::from(handles_message(stage, puppet)));
+            }
+        }
+        if !solved.is_empty() {
+            self.changes.send_modify(|c| *c += 1);
+        }
+    }
+}
+
+/// Starts the stage thread; returns each puppet's outputs and the change
+/// counter. The thread stops when every command sender is dropped.
+pub fn spawn(
+    mut stage: Stage,
+    mut commands: mpsc::Receiver<Command>,
+) -> (Vec<PuppetOutput>, watch::Receiver<u64>, JoinHandle<()>) {
+    let (changes, changes_rx) = watch::channel(0u64);
+    let mut publisher = Publisher {
+        frames: Vec::new(),
+        handles: Vec::new(),
+        sequences: vec![0; stage.puppets().len()],
+        changes,
+    };
+    let mut outputs = Vec::new();
+    for p in stage.puppets() {
+        let (frame_tx, frame_rx) = watch::channel(None);
+        let (handles_tx, handles_rx) =
+            watch::channel(Arc::<str>::from(handles_message(&stage, p.id)));
+        publisher.frames.push(frame_tx);
+        publisher.handles.push(handles_tx);
+        outputs.push(PuppetOutput {
+            frame: frame_rx,
+            handles: handles_rx,
+        });
+    }
+    // Pins from the stage file are handles before any input: solve once.
+    let solved = stage.solve();
+    publisher.publish(&stage, &solved, 0.0);
+    let thread = std::thread::Builder::new()
+        .name("stage".into())
+        .spawn(move || {
+            while let Some(first) = commands.blocking_recv() {
+                let mut newest = 0.0;
+                let mut stop = false;
+                let mut apply = |stage: &mut Stage, command: Command| match command {
+                    Command::Stop => stop = true,
+                    Command::Frame { frame, received } => {
+                        newest = received;
+                        stage.apply(&frame);
+                    }
+                    Command::Pin { owner, at } => {
+                        stage.pin(Owner::Source(owner), at);
+                    }
+                    Command::Unpin { puppet, handle } => {
+                        stage.unpin(puppet, handle);
+                    }
+                    Command::ReleaseSource(source) => stage.release_source(&source),
+                };
+                apply(&mut stage, first);
+                // Catch up: apply everything already waiting, solve once.
+                while let Ok(next) = commands.try_recv() {
+                    apply(&mut stage, next);
+                }
+                if stop {
+                    // Dropping the publisher tells every client to close.
+                    return;
+                }
+                let solved = stage.solve();
+                publisher.publish(&stage, &solved, newest);
+            }
+        })
+        .expect("spawn the stage thread");
+    (outputs, changes_rx, thread)
+}

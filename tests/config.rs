@@ -1,0 +1,63 @@
+//! Every stage file in `config/` parses and loads, and bad stage files are
+//! refused with errors naming the file and the key.
+
+use std::path::{Path, PathBuf};
+
+use puppetry::stage::Stage;
+use puppetry::stage::config::StageConfig;
+
+fn config_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config")
+}
+
+#[test]
+fn every_stage_file_in_config_parses_and_loads() {
+    let mut seen = 0;
+    for entry in std::fs::read_dir(config_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let config = StageConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            let stage =
+                Stage::from_config(&config).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert_eq!(stage.puppets().len(), config.puppets.len());
+            seen += 1;
+        }
+    }
+    assert!(seen >= 1, "config/ holds the demo stage");
+}
+
+#[test]
+fn the_demo_stage_pins_the_feet() {
+    let config = StageConfig::load(&config_dir().join("demo.toml")).unwrap();
+    let stage = Stage::from_config(&config).unwrap();
+    assert_eq!(stage.puppets()[0].handles().len(), 2);
+}
+
+fn parse_error(text: &str) -> String {
+    StageConfig::parse("bad.toml", text, Path::new("/"))
+        .unwrap_err()
+        .to_string()
+}
+
+#[test]
+fn bad_stage_files_are_named_and_explained() {
+    let base = "[stage]\nwidth = 100\nheight = 100\n";
+    let message = parse_error(&format!("{base}colour = 3\n"));
+    assert!(
+        message.contains("bad.toml") && message.contains("colour"),
+        "{message}"
+    );
+    let message = parse_error("[stage]\nwidth = -1\nheight = 100\n");
+    assert!(
+        message.contains("stage") && message.contains("positive"),
+        "{message}"
+    );
+    let message = parse_error(&format!(
+        "{base}[[puppet]]\nname = \"a\"\nimage = \"a.png\"\nmesh = \"a.json\"\nat = [0, 0]\nscale = 0\n"
+    ));
+    assert!(message.contains("puppet[0].scale"), "{message}");
+    let message = parse_error(&format!("{base}[[input]]\nkind = \"teleport\"\n"));
+    assert!(message.contains("teleport"), "{message}");
+    let message = parse_error("[stage]\nwidth = 100\n");
+    assert!(message.contains("height"), "{message}");
+}

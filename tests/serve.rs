@@ -1,0 +1,482 @@
+//! The daemon end to end on 127.0.0.1:0: performers drag the puppet over
+//! WebSocket and every client sees the same frames as a direct solve; two
+//! performers stay apart; bad clients are refused without harm; a stalled
+//! client slows nobody; replays drive it; shutdown is clean.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use glam::DVec2;
+use puppetry::deform::{Anchor, Arap, Steps};
+use puppetry::mesh::{Locator, Mesh};
+use puppetry::serve::{Running, start};
+use puppetry::stage::config::StageConfig;
+use serde_json::{Value, json};
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+
+type Client = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+const WAIT: Duration = Duration::from_secs(20);
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A stage with the demo puppet, its feet pinned, on a free port.
+fn stage_config(extra: &str) -> StageConfig {
+    let assets = root().join("assets/gingerbread");
+    let text = format!(
+        r#"
+[stage]
+width = 1280
+height = 720
+listen = "127.0.0.1:0"
+client_timeout_s = 2
+
+[access]
+performer_tokens = ["secret"]
+
+[[puppet]]
+name = "gingerbread"
+image = "{image}"
+mesh = "{mesh}"
+at = [640, 360]
+pins = [[168, 58], [344, 58]]
+{extra}
+"#,
+        image = assets.join("gingerbread.png").display(),
+        mesh = assets.join("gingerbread.mesh.json").display(),
+    );
+    StageConfig::parse("test.toml", &text, Path::new("/")).unwrap()
+}
+
+async fn daemon(extra: &str) -> Running {
+    start(&stage_config(extra), root().join("clients/web"), None)
+        .await
+        .unwrap()
+}
+
+async fn connect(running: &Running, hello: Value) -> (Client, Value) {
+    let url = format!("ws://{}/ws", running.address);
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    ws.send(Message::text(hello.to_string())).await.unwrap();
+    let stage = next_text(&mut ws).await;
+    (ws, stage)
+}
+
+async fn next_message(ws: &mut Client) -> Message {
+    tokio::time::timeout(WAIT, ws.next())
+        .await
+        .expect("a message in time")
+        .expect("connection open")
+        .expect("no error")
+}
+
+async fn next_text(ws: &mut Client) -> Value {
+    loop {
+        if let Message::Text(text) = next_message(ws).await {
+            return serde_json::from_str(&text).unwrap();
+        }
+    }
+}
+
+/// A decoded vertex frame.
+struct Frame {
+    puppet: u32,
+    sequence: u64,
+    vertices: Vec<DVec2>,
+}
+
+fn decode(bytes: &[u8]) -> Frame {
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    assert_eq!(u32_at(0), 1, "vertex frame kind");
+    let n = u32_at(24) as usize;
+    assert_eq!(bytes.len(), 32 + 8 * n);
+    let f = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()) as f64;
+    Frame {
+        puppet: u32_at(4),
+        sequence: u64::from_le_bytes(bytes[8..16].try_into().unwrap()),
+        vertices: (0..n)
+            .map(|i| DVec2::new(f(32 + 8 * i), f(36 + 8 * i)))
+            .collect(),
+    }
+}
+
+/// Reads until a frame satisfies `done`; returns it.
+async fn frame_until(ws: &mut Client, mut done: impl FnMut(&Frame) -> bool) -> Frame {
+    loop {
+        if let Message::Binary(bytes) = next_message(ws).await {
+            let frame = decode(&bytes);
+            if done(&frame) {
+                return frame;
+            }
+        }
+    }
+}
+
+/// The puppet's rest mesh as placed on the stage, from the stage message.
+fn placed_mesh(stage: &Value) -> Mesh {
+    let p = &stage["puppets"][0];
+    let rest: Vec<f64> = serde_json::from_value(p["rest"].clone()).unwrap();
+    let triangles: Vec<u32> = serde_json::from_value(p["triangles"].clone()).unwrap();
+    let vertices = rest.chunks(2).map(|c| DVec2::new(c[0], c[1])).collect();
+    let triangles = triangles.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Mesh::new("stage", vertices, triangles, None, None).unwrap()
+}
+
+/// What `puppetry solve` gives for these rest points held at these targets.
+fn direct_solve(mesh: &Mesh, holds: &[(DVec2, DVec2)]) -> Vec<DVec2> {
+    let locator = Locator::new(mesh);
+    let anchors: Vec<Anchor> = holds
+        .iter()
+        .map(|(p, _)| {
+            let l = locator.locate(mesh, *p).expect("on the puppet");
+            Anchor::Point {
+                triangle: l.triangle,
+                bary: l.bary,
+            }
+        })
+        .collect();
+    let targets: Vec<DVec2> = holds.iter().map(|h| h.1).collect();
+    let mut arap = Arap::register(mesh).unwrap();
+    arap.compile(&anchors).unwrap();
+    arap.update(&targets, Steps::Both).unwrap().to_vec()
+}
+
+fn pins_on_stage(stage: &Value) -> Vec<DVec2> {
+    stage["puppets"][0]["handles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|h| DVec2::new(h["at"][0].as_f64().unwrap(), h["at"][1].as_f64().unwrap()))
+        .collect()
+}
+
+fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| p.distance(*q))
+        .fold(0.0, f64::max)
+}
+
+fn contacts(list: Value) -> Message {
+    Message::text(json!({"type": "contacts", "contacts": list}).to_string())
+}
+
+/// A point on the puppet's raised hand, in stage coordinates.
+fn hand(mesh: &Mesh) -> DVec2 {
+    // The right-most vertex is on the right hand; step inwards a little.
+    let v = mesh
+        .vertices()
+        .iter()
+        .copied()
+        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+            if b.x > a.x { b } else { a }
+        });
+    v - DVec2::new(15.0, 0.0)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_performer_drag_equals_the_direct_solve() {
+    let running = daemon("").await;
+    let (mut performer, stage) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": "secret"}),
+    )
+    .await;
+    assert_eq!(stage["type"], "stage");
+    assert_eq!(stage["role"], "performer");
+    let mesh = placed_mesh(&stage);
+    let pins = pins_on_stage(&stage);
+    assert_eq!(pins.len(), 2, "the two feet are pinned from the start");
+    let grab = hand(&mesh);
+    let to = grab + DVec2::new(-20.0, 90.0);
+    performer
+        .send(contacts(
+            json!([{"id": 7, "phase": "down", "x": grab.x, "y": grab.y}]),
+        ))
+        .await
+        .unwrap();
+    for k in 1..=10 {
+        let p = grab + (to - grab) * (k as f64 / 10.0);
+        performer
+            .send(contacts(
+                json!([{"id": 7, "phase": "move", "x": p.x, "y": p.y}]),
+            ))
+            .await
+            .unwrap();
+    }
+    let expected = direct_solve(&mesh, &[(pins[0], pins[0]), (pins[1], pins[1]), (grab, to)]);
+    let frame = frame_until(&mut performer, |f| {
+        max_distance(&f.vertices, &expected) < 1e-2
+    })
+    .await;
+    assert_eq!(frame.puppet, 0);
+    assert!(
+        max_distance(&frame.vertices, mesh.vertices()) > 50.0,
+        "the hand moved"
+    );
+    // A viewer connecting now gets the same newest frame.
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let seen = frame_until(&mut viewer, |_| true).await;
+    assert!(max_distance(&seen.vertices, &expected) < 1e-2);
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_performers_hold_two_handles_apart() {
+    let running = daemon("").await;
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut a, stage) = connect(&running, hello.clone()).await;
+    let (mut b, _) = connect(&running, hello).await;
+    let mesh = placed_mesh(&stage);
+    let pins = pins_on_stage(&stage);
+    let grab_a = hand(&mesh);
+    let head = mesh
+        .vertices()
+        .iter()
+        .copied()
+        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+            if b.y > a.y { b } else { a }
+        });
+    let grab_b = head - DVec2::new(0.0, 15.0);
+    // Both use contact id 1: the daemon must keep them apart.
+    a.send(contacts(
+        json!([{"id": 1, "phase": "down", "x": grab_a.x, "y": grab_a.y}]),
+    ))
+    .await
+    .unwrap();
+    b.send(contacts(
+        json!([{"id": 1, "phase": "down", "x": grab_b.x, "y": grab_b.y}]),
+    ))
+    .await
+    .unwrap();
+    let to_a = grab_a + DVec2::new(0.0, 60.0);
+    let to_b = grab_b + DVec2::new(-40.0, 0.0);
+    a.send(contacts(
+        json!([{"id": 1, "phase": "move", "x": to_a.x, "y": to_a.y}]),
+    ))
+    .await
+    .unwrap();
+    b.send(contacts(
+        json!([{"id": 1, "phase": "move", "x": to_b.x, "y": to_b.y}]),
+    ))
+    .await
+    .unwrap();
+    let expected = direct_solve(
+        &mesh,
+        &[
+            (pins[0], pins[0]),
+            (pins[1], pins[1]),
+            (grab_a, to_a),
+            (grab_b, to_b),
+        ],
+    );
+    frame_until(&mut a, |f| max_distance(&f.vertices, &expected) < 1e-2).await;
+    // The handles message names two different owners for the contacts.
+    let owners = loop {
+        let m = next_text(&mut b).await;
+        if m["type"] == "handles" {
+            let owners: Vec<String> = m["handles"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|h| h["kind"] == "contact")
+                .map(|h| h["owner"].as_str().unwrap().to_string())
+                .collect();
+            if owners.len() == 2 {
+                break owners;
+            }
+        }
+    };
+    assert_ne!(owners[0], owners[1]);
+    // When one performer leaves, its contact is let go; the other stays.
+    drop(a);
+    let expected = direct_solve(
+        &mesh,
+        &[(pins[0], pins[0]), (pins[1], pins[1]), (grab_b, to_b)],
+    );
+    frame_until(&mut b, |f| max_distance(&f.vertices, &expected) < 1e-2).await;
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_clients_are_refused_and_the_server_keeps_running() {
+    let running = daemon("").await;
+    // Wrong token: an error, then the connection closes.
+    let (_, refused) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": "nope"}),
+    )
+    .await;
+    assert_eq!(refused["type"], "error");
+    // No hello first: refused too.
+    let (_, refused) = connect(&running, json!({"type": "contacts", "contacts": []})).await;
+    assert_eq!(refused["type"], "error");
+    // A viewer may not send input.
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    viewer
+        .send(contacts(
+            json!([{"id": 1, "phase": "down", "x": 640, "y": 360}]),
+        ))
+        .await
+        .unwrap();
+    let reply = loop {
+        let m = next_text(&mut viewer).await;
+        if m["type"] == "error" {
+            break m;
+        }
+    };
+    assert!(reply["message"].as_str().unwrap().contains("viewer"));
+    // Malformed messages get errors; after enough of them, a close.
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut abuser, _) = connect(&running, hello.clone()).await;
+    let mut errors = 0;
+    for _ in 0..puppetry::stream::MAX_BAD_MESSAGES {
+        abuser.send(Message::text("{not json")).await.unwrap();
+    }
+    let closed = loop {
+        match tokio::time::timeout(WAIT, abuser.next())
+            .await
+            .expect("in time")
+        {
+            Some(Ok(Message::Text(t))) if t.contains("error") => errors += 1,
+            Some(Ok(Message::Close(_))) | None | Some(Err(_)) => break true,
+            Some(Ok(_)) => {}
+        }
+    };
+    assert!(closed && errors >= 1);
+    // An oversized message ends that connection only.
+    let (mut big, _) = connect(&running, hello.clone()).await;
+    let _ = big
+        .send(Message::text(
+            "x".repeat(puppetry::stream::MAX_CLIENT_MESSAGE + 10),
+        ))
+        .await;
+    // The server still serves a good client.
+    let (mut good, stage) = connect(&running, hello).await;
+    assert_eq!(stage["type"], "stage");
+    let mesh = placed_mesh(&stage);
+    let grab = hand(&mesh);
+    good.send(contacts(
+        json!([{"id": 3, "phase": "down", "x": grab.x, "y": grab.y}]),
+    ))
+    .await
+    .unwrap();
+    good.send(contacts(
+        json!([{"id": 3, "phase": "move", "x": grab.x, "y": grab.y + 30.0}]),
+    ))
+    .await
+    .unwrap();
+    frame_until(&mut good, |f| f.sequence >= 2).await;
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_client_slows_no_one() {
+    let running = daemon("").await;
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    // This client says hello and then never reads again.
+    let url = format!("ws://{}/ws", running.address);
+    let (mut stalled, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    stalled
+        .send(Message::text(
+            json!({"type": "hello", "role": "viewer"}).to_string(),
+        ))
+        .await
+        .unwrap();
+    let (mut performer, stage) = connect(&running, hello).await;
+    let mesh = placed_mesh(&stage);
+    let grab = hand(&mesh);
+    performer
+        .send(contacts(
+            json!([{"id": 1, "phase": "down", "x": grab.x, "y": grab.y}]),
+        ))
+        .await
+        .unwrap();
+    // Far more frame bytes than the stalled socket can buffer.
+    let moves = 400;
+    let mut last = grab;
+    for k in 0..moves {
+        last = grab + DVec2::new((k as f64 * 0.1).sin() * 30.0, (k % 50) as f64);
+        performer
+            .send(contacts(
+                json!([{"id": 1, "phase": "move", "x": last.x, "y": last.y}]),
+            ))
+            .await
+            .unwrap();
+        // Keep reading, as a live renderer does.
+        while let Ok(Some(_)) =
+            tokio::time::timeout(Duration::from_millis(1), performer.next()).await
+        {}
+    }
+    // One last move, whose frame the fast client must still get.
+    last += DVec2::new(0.0, 7.0);
+    performer
+        .send(contacts(
+            json!([{"id": 1, "phase": "move", "x": last.x, "y": last.y}]),
+        ))
+        .await
+        .unwrap();
+    let pins = pins_on_stage(&stage);
+    let expected = direct_solve(
+        &mesh,
+        &[(pins[0], pins[0]), (pins[1], pins[1]), (grab, last)],
+    );
+    frame_until(&mut performer, |f| {
+        max_distance(&f.vertices, &expected) < 1e-2
+    })
+    .await;
+    drop(stalled);
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_is_clean_and_frees_the_port() {
+    let running = daemon("").await;
+    let address = running.address;
+    let (_viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    tokio::time::timeout(WAIT, running.shutdown())
+        .await
+        .expect("shutdown in time");
+    assert!(
+        TcpStream::connect(address).await.is_err(),
+        "nothing listens after shutdown"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn http_serves_the_page_and_the_picture() {
+    let running = daemon("").await;
+    let get = |path: &'static str| {
+        let address = running.address;
+        async move {
+            use tokio::io::{AsyncReadExt, AsyncWriteExt};
+            let mut s = TcpStream::connect(address).await.unwrap();
+            s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes())
+                .await
+                .unwrap();
+            let mut out = Vec::new();
+            s.read_to_end(&mut out).await.unwrap();
+            out
+        }
+    };
+    let page = get("/").await;
+    assert!(
+        page.starts_with(b"HTTP/1.1 200"),
+        "{}",
+        String::from_utf8_lossy(&page[..40.min(page.len())])
+    );
+    let picture = get("/puppets/0/texture.png").await;
+    assert!(picture.starts_with(b"HTTP/1.1 200") && picture.windows(4).any(|w| w == b"\x89PNG"));
+    assert!(get("/../Cargo.toml").await.starts_with(b"HTTP/1.1 404"));
+    assert!(
+        get("/puppets/9/texture.png")
+            .await
+            .starts_with(b"HTTP/1.1 404")
+    );
+    running.shutdown().await;
+}
