@@ -5,17 +5,20 @@
 //! possible; the deformed vertices stream to renderer clients.
 //!
 //! ```text
-//!   input ──► stage ──► deform ──► stream
-//!  (devices,  (contacts   (ARAP      (WebSocket
-//!   replays)   → handles)  solver)    frames)
-//!                  ▲
-//!                 mesh  (rest shapes: PNG/polygon → triangle mesh)
+//!   input ───────► stage ─────────► deform ──────► stream
+//!  (replays,       (contacts →       (ARAP solver,   (HTTP + WebSocket,
+//!   evdev state,    handles, pins;    on the stage    newest frame per
+//!   evemu, jsonl)   stage thread)     thread)         client; web page)
+//!                      ▲
+//!                     mesh (rest shapes: PNG/polygon → triangle mesh)
 //! ```
 //!
-//! Built so far: [`mesh`] (rest meshes, meshing from pictures and polygons)
-//! and [`deform`] (the two-step as-rigid-as-possible solver), with the
-//! `puppetry mesh`, `solve` and `bench` commands in [`cli`] and [`bench`].
-//! `input`, `stage`, `stream` and recording arrive with the daemon.
+//! [`input`] turns devices and replay files into contact frames in stage
+//! coordinates; [`stage`] maps contacts to handles on puppets and runs, on a
+//! thread of its own, the [`deform`] solver at the input rate; [`stream`]
+//! serves the web renderer and sends every client the newest frames;
+//! [`serve`] assembles the daemon. [`mesh`] builds and validates rest meshes;
+//! [`cli`] and [`bench`] are the scriptable commands.
 //!
 //! `mesh` and `deform` are plain synchronous code over data: no async, no I/O
 //! on the solving path.

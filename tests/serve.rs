@@ -480,3 +480,35 @@ async fn http_serves_the_page_and_the_picture() {
     );
     running.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replay_drives_the_puppet_to_the_direct_solve() {
+    // Learn where the puppet is, then record a drag on it.
+    let probe = daemon("").await;
+    let (_, stage) = connect(&probe, json!({"type": "hello", "role": "viewer"})).await;
+    probe.shutdown().await;
+    let mesh = placed_mesh(&stage);
+    let pins = pins_on_stage(&stage);
+    let grab = hand(&mesh);
+    let to = grab + DVec2::new(10.0, 80.0);
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("drag.jsonl");
+    let mut lines = vec![
+        json!({"t": 0.0, "source": "table", "contacts": [{"id": 4, "phase": "down", "x": grab.x, "y": grab.y}]}),
+    ];
+    for k in 1..=30 {
+        let p = grab + (to - grab) * (k as f64 / 30.0);
+        lines.push(json!({"t": k as f64 * 0.001, "source": "table", "contacts": [{"id": 4, "phase": "move", "x": p.x, "y": p.y}]}));
+    }
+    let text: String = lines.iter().map(|l| format!("{l}\n")).collect();
+    std::fs::write(&recording, text).unwrap();
+    let extra = format!(
+        "[[input]]\nkind = \"replay\"\nfile = \"{}\"\npacing = \"as_fast_as_possible\"\n",
+        recording.display()
+    );
+    let running = daemon(&extra).await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let expected = direct_solve(&mesh, &[(pins[0], pins[0]), (pins[1], pins[1]), (grab, to)]);
+    frame_until(&mut viewer, |f| max_distance(&f.vertices, &expected) < 1e-2).await;
+    running.shutdown().await;
+}
