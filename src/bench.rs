@@ -210,3 +210,138 @@ pub fn table_row(r: &CaseResult) -> String {
         r.handle_remove_frame_us
     )
 }
+
+/// One end-to-end case, as printed by `puppetry bench --e2e --json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct EndToEndResult {
+    pub mesh: String,
+    pub vertices: usize,
+    pub clients: usize,
+    /// "real_time" (1 kHz input) or "as_fast_as_possible".
+    pub pacing: &'static str,
+    /// Input frames replayed (a contact dragged at 1 kHz of input time,
+    /// played as fast as possible).
+    pub input_frames: usize,
+    /// Solves the stage thread published (it solves the newest state when
+    /// inputs arrive faster than it solves).
+    pub solves: u64,
+    pub solves_per_s: f64,
+    /// From an input frame reaching the daemon to a client holding the
+    /// frame it caused, over every frame every client received.
+    pub latency_us_p50: f64,
+    pub latency_us_p99: f64,
+}
+
+/// Runs the daemon on `config` (its first puppet under `point`), connects
+/// `clients` viewers on loopback and replays a drag of `input_frames` frames
+/// (1 ms apart) into it with `pacing`.
+pub async fn end_to_end(
+    name: &str,
+    config: &crate::stage::config::StageConfig,
+    web_root: std::path::PathBuf,
+    point: DVec2,
+    clients: usize,
+    input_frames: usize,
+    pacing: crate::input::replay::Pacing,
+) -> Result<EndToEndResult, String> {
+    use futures_util::{SinkExt, StreamExt};
+    use tokio_tungstenite::tungstenite::Message;
+
+    use crate::input::replay::{Pacing, ReplaySource};
+    let pacing_name = match pacing {
+        Pacing::RealTime => "real_time",
+        Pacing::AsFastAsPossible => "as_fast_as_possible",
+    };
+    use crate::input::{Contact, ContactFrame, Phase, SourceId};
+
+    let running = crate::serve::start(config, web_root, None)
+        .await
+        .map_err(|e| e.to_string())?;
+    let started = running.started;
+    let url = format!("ws://{}/ws", running.address);
+    let mut readers = Vec::new();
+    let mut vertices = 0;
+    for _ in 0..clients {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .map_err(|e| e.to_string())?;
+        ws.send(Message::text(r#"{"type":"hello","role":"viewer"}"#))
+            .await
+            .map_err(|e| e.to_string())?;
+        // The stage message, then the frames this client sees.
+        let Some(Ok(Message::Text(stage))) = ws.next().await else {
+            return Err("no stage message".into());
+        };
+        let stage: serde_json::Value = serde_json::from_str(&stage).map_err(|e| e.to_string())?;
+        vertices = stage["puppets"][0]["rest"]
+            .as_array()
+            .map_or(0, |r| r.len() / 2);
+        readers.push(tokio::spawn(async move {
+            let mut latencies = Vec::new();
+            let mut sequences = Vec::new();
+            // Stop after a quiet spell: the replay is over and drained.
+            while let Ok(Some(Ok(message))) =
+                tokio::time::timeout(Duration::from_millis(500), ws.next()).await
+            {
+                if let Message::Binary(bytes) = message {
+                    let now = started.elapsed().as_secs_f64();
+                    let input = f64::from_le_bytes(bytes[16..24].try_into().unwrap());
+                    let sequence = u64::from_le_bytes(bytes[8..16].try_into().unwrap());
+                    if input > 0.0 {
+                        latencies.push((now - input) * 1e6);
+                        sequences.push((sequence, now));
+                    }
+                }
+            }
+            (latencies, sequences)
+        }));
+    }
+    let source = SourceId::from("bench");
+    let frames: Vec<ContactFrame> = (0..input_frames)
+        .map(|k| {
+            let phase = if k == 0 { Phase::Down } else { Phase::Move };
+            let angle = k as f64 * 0.02;
+            let at = point + DVec2::new(angle.cos() - 1.0, angle.sin()) * 40.0;
+            ContactFrame {
+                source: source.clone(),
+                time: k as f64 * 1e-3,
+                contacts: vec![Contact::new(1, phase, at)],
+            }
+        })
+        .collect();
+    running
+        .play(ReplaySource::from_frames(frames), pacing)
+        .await;
+    let mut latencies = Vec::new();
+    let mut first_reader = None;
+    for reader in readers {
+        let (l, s) = reader.await.map_err(|e| e.to_string())?;
+        latencies.extend(l);
+        first_reader.get_or_insert(s);
+    }
+    running.shutdown().await;
+    let sequences = first_reader.unwrap_or_default();
+    let (solves, span) = match (sequences.first(), sequences.last()) {
+        (Some(a), Some(b)) if b.1 > a.1 => (b.0 - a.0, b.1 - a.1),
+        _ => (0, 0.0),
+    };
+    latencies.sort_by(f64::total_cmp);
+    if latencies.is_empty() {
+        return Err("no frames reached the clients".into());
+    }
+    Ok(EndToEndResult {
+        mesh: name.to_string(),
+        vertices,
+        clients,
+        pacing: pacing_name,
+        input_frames,
+        solves,
+        solves_per_s: if span > 0.0 {
+            solves as f64 / span
+        } else {
+            0.0
+        },
+        latency_us_p50: percentile(&latencies, 0.5),
+        latency_us_p99: percentile(&latencies, 0.99),
+    })
+}

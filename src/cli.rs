@@ -289,3 +289,38 @@ pub fn bench_command(
     }
     Ok(results)
 }
+
+/// The stages `puppetry bench --e2e` runs: the demo stage, and the same
+/// puppet meshed at about 10k vertices (written to a temporary file).
+/// All listen on a free loopback port.
+pub fn end_to_end_stages() -> Result<Vec<(String, crate::stage::config::StageConfig)>, CliError> {
+    use crate::stage::config::{ConfigError, StageConfig};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let load = |path: &Path| {
+        StageConfig::load(path).map_err(|e| match e {
+            ConfigError::Read { file, source } => CliError::Read { file, source },
+            other => CliError::Mesh(MeshError::Invalid {
+                file: path.display().to_string(),
+                field: "stage".into(),
+                problem: other.to_string(),
+            }),
+        })
+    };
+    let mut demo = load(&root.join("config/demo.toml"))?;
+    demo.stage.listen = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
+    let mut large = demo.clone();
+    let mesh = mesh_png(
+        &demo_image(),
+        &MeshOptions {
+            target_vertices: Some(10_000),
+        },
+    )?;
+    let file =
+        std::env::temp_dir().join(format!("puppetry-bench-{}.mesh.json", std::process::id()));
+    write(&file, &mesh.to_json())?;
+    large.puppets[0].mesh = file;
+    Ok(vec![
+        ("demo stage".into(), demo),
+        ("gingerbread@10000".into(), large),
+    ])
+}

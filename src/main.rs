@@ -79,6 +79,10 @@ enum Command {
         /// Vertex counts to mesh the demo puppet at.
         #[arg(long, value_delimiter = ',', default_value = "1000,10000,100000")]
         sizes: Vec<usize>,
+        /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
+        /// as possible into it, with 1 and 16 WebSocket clients on loopback.
+        #[arg(long)]
+        e2e: bool,
         /// Handle counts to bench (at most 200: each handle change inverts a
         /// dense system of about that size).
         #[arg(long, value_delimiter = ',', default_value = "2,10,40",
@@ -196,10 +200,80 @@ fn run(args: Args) -> anyhow::Result<()> {
             println!("{out}");
         }
         Command::Bench {
+            json, e2e: true, ..
+        } => {
+            let stages = cli::end_to_end_stages()?;
+            let runtime = tokio::runtime::Runtime::new()?;
+            if !json {
+                println!(
+                    "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10} {:>14} {:>14}",
+                    "stage",
+                    "vertices",
+                    "clients",
+                    "input",
+                    "input frames",
+                    "solves",
+                    "solves/s",
+                    "latency µs p50",
+                    "latency µs p99"
+                );
+            }
+            let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+            for (name, stage) in &stages {
+                let point = glam::DVec2::from(stage.puppets[0].at);
+                use puppetry::input::replay::Pacing;
+                for (clients, pacing) in [
+                    (1, Pacing::RealTime),
+                    (16, Pacing::RealTime),
+                    (1, Pacing::AsFastAsPossible),
+                    (16, Pacing::AsFastAsPossible),
+                ] {
+                    let frames = if pacing == Pacing::RealTime {
+                        2000
+                    } else {
+                        20000
+                    };
+                    let r = runtime
+                        .block_on(puppetry::bench::end_to_end(
+                            name,
+                            stage,
+                            root.join("clients/web"),
+                            point,
+                            clients,
+                            frames,
+                            pacing,
+                        ))
+                        .map_err(anyhow::Error::msg)?;
+                    if json {
+                        println!("{}", serde_json::to_string(&r)?);
+                    } else {
+                        let input = if r.pacing == "real_time" {
+                            "1 kHz real time"
+                        } else {
+                            "as fast as possible"
+                        };
+                        println!(
+                            "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10.0} {:>14.0} {:>14.0}",
+                            r.mesh,
+                            r.vertices,
+                            r.clients,
+                            input,
+                            r.input_frames,
+                            r.solves,
+                            r.solves_per_s,
+                            r.latency_us_p50,
+                            r.latency_us_p99
+                        );
+                    }
+                }
+            }
+        }
+        Command::Bench {
             json,
             mesh,
             sizes,
             handles,
+            e2e: false,
         } => {
             let meshes =
                 cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;

@@ -33,6 +33,8 @@ const COMMAND_QUEUE: usize = 1024;
 /// A running daemon.
 pub struct Running {
     pub address: SocketAddr,
+    /// The daemon's clock: frame timestamps are seconds since this.
+    pub started: Instant,
     commands: mpsc::Sender<Command>,
     shutdown: oneshot::Sender<()>,
     server: JoinHandle<()>,
@@ -41,6 +43,12 @@ pub struct Running {
 }
 
 impl Running {
+    /// Plays `source` into the stage now, through the same path as a
+    /// configured replay; finishes when the source is played.
+    pub async fn play(&self, source: ReplaySource, pacing: Pacing) {
+        play_into(source, pacing, &self.commands, self.started).await;
+    }
+
     /// Stops accepting, ends the inputs and the stage thread, and waits.
     pub async fn shutdown(self) {
         let _ = self.shutdown.send(());
@@ -125,12 +133,39 @@ pub async fn start(
     }));
     Ok(Running {
         address,
+        started,
         commands,
         shutdown,
         server,
         inputs,
         stage_thread,
     })
+}
+
+/// Plays one source into the stage thread's commands, stamping each frame
+/// with its arrival on the daemon's clock; returns the frames played.
+async fn play_into(
+    source: ReplaySource,
+    pacing: Pacing,
+    commands: &mpsc::Sender<Command>,
+    started: Instant,
+) -> usize {
+    let (frames, mut frames_rx) = mpsc::channel::<ContactFrame>(64);
+    let player = tokio::spawn(replay(source, pacing, frames));
+    let mut played = 0;
+    while let Some(frame) = frames_rx.recv().await {
+        let received = started.elapsed().as_secs_f64();
+        if commands
+            .send(Command::Frame { frame, received })
+            .await
+            .is_err()
+        {
+            break;
+        }
+        played += 1;
+    }
+    player.abort();
+    played
 }
 
 /// Plays a replay file into the stage; errors are logged, never fatal.
