@@ -12,12 +12,13 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 
-use crate::input::ContactFrame;
 use crate::input::replay::{Pacing, ReplaySource, replay};
+use crate::input::{Calibration, ContactFrame, SourceId};
 use crate::stage::config::{InputConfig, PacingConfig, StageConfig};
 use crate::stage::thread::{self, Command};
 use crate::stage::{Stage, StageError};
 use crate::stream::{self, Shared, StageDescription, StreamError};
+use glam::DVec2;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
@@ -25,6 +26,8 @@ pub enum ServeError {
     Stage(#[from] StageError),
     #[error(transparent)]
     Stream(#[from] StreamError),
+    #[error("{0}")]
+    Input(String),
 }
 
 /// Commands waiting for the stage thread before sources must wait.
@@ -82,29 +85,37 @@ pub async fn start(
             address: config.stage.listen,
             source,
         })?;
-    let mut replays: Vec<(PathBuf, Pacing, bool)> = config
-        .inputs
-        .iter()
-        .map(|input| match input {
-            InputConfig::Replay {
-                file,
-                pacing,
-                repeat,
-            } => (
-                config.resolve(file),
-                match pacing {
-                    PacingConfig::RealTime => Pacing::RealTime,
-                    PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
-                },
-                *repeat,
-            ),
-        })
-        .collect();
+    // Inputs are read now, so a bad file stops the start with its error.
+    let size = DVec2::new(stage.width, stage.height);
+    let mut replays = Vec::new();
+    for (index, input) in config.inputs.iter().enumerate() {
+        let InputConfig::Replay {
+            file,
+            name,
+            calibration,
+            pacing,
+            repeat,
+        } = input;
+        let calibration = calibration
+            .clone()
+            .map(Calibration::new)
+            .transpose()
+            .map_err(|e| ServeError::Input(format!("input[{index}].calibration: {e}")))?;
+        let source_id = SourceId::from(name.clone().unwrap_or_else(|| format!("replay:{index}")));
+        let source = ReplaySource::open_with(&config.resolve(file), source_id, size, calibration)
+            .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?;
+        let pacing = match pacing {
+            PacingConfig::RealTime => Pacing::RealTime,
+            PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
+        };
+        replays.push((source, pacing, *repeat));
+    }
     if let Some((file, pacing)) = extra_replay {
-        replays.push((file, pacing, false));
+        let source =
+            ReplaySource::open(&file, size).map_err(|e| ServeError::Input(e.to_string()))?;
+        replays.push((source, pacing, false));
     }
     let description = StageDescription::of(&stage);
-    let stage_size = (stage.width, stage.height);
     let (outputs, changes, stage_thread) = thread::spawn(stage, commands_rx);
     let shared = Arc::new(Shared {
         stage: description,
@@ -120,10 +131,16 @@ pub async fn start(
 
     let inputs = replays
         .into_iter()
-        .map(|(file, pacing, repeat)| {
+        .map(|(source, pacing, repeat)| {
             let commands = commands.clone();
             tokio::spawn(async move {
-                run_replay(file, pacing, repeat, stage_size, commands, started).await;
+                loop {
+                    let played = play_into(source.clone(), pacing, &commands, started).await;
+                    tracing::info!("replay: {played} frames played");
+                    if !repeat || commands.is_closed() {
+                        return;
+                    }
+                }
             })
         })
         .collect();
@@ -166,46 +183,4 @@ async fn play_into(
     }
     player.abort();
     played
-}
-
-/// Plays a replay file into the stage; errors are logged, never fatal.
-async fn run_replay(
-    file: PathBuf,
-    pacing: Pacing,
-    repeat: bool,
-    stage_size: (f64, f64),
-    commands: mpsc::Sender<Command>,
-    started: Instant,
-) {
-    loop {
-        let source = match ReplaySource::open(&file, stage_size) {
-            Ok(source) => source,
-            Err(e) => {
-                tracing::error!("replay {}: {e}", file.display());
-                return;
-            }
-        };
-        let (frames, mut frames_rx) = mpsc::channel::<ContactFrame>(64);
-        let player = tokio::spawn(replay(source, pacing, frames));
-        while let Some(frame) = frames_rx.recv().await {
-            let received = started.elapsed().as_secs_f64();
-            if commands
-                .send(Command::Frame { frame, received })
-                .await
-                .is_err()
-            {
-                return;
-            }
-        }
-        if let Ok(summary) = player.await {
-            tracing::info!(
-                "replay {}: {} frames played",
-                file.display(),
-                summary.frames_sent
-            );
-        }
-        if !repeat {
-            return;
-        }
-    }
 }

@@ -26,6 +26,22 @@ fn every_stage_file_in_config_parses_and_loads() {
     assert!(seen >= 1, "config/ holds the demo stage");
 }
 
+#[tokio::test]
+async fn every_stage_file_in_config_starts_with_its_inputs() {
+    for entry in std::fs::read_dir(config_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let mut config = StageConfig::load(&path).unwrap();
+            config.stage.listen = "127.0.0.1:0".parse().unwrap();
+            let web = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("clients/web");
+            let running = puppetry::serve::start(&config, web, None)
+                .await
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            running.shutdown().await;
+        }
+    }
+}
+
 #[test]
 fn the_demo_stage_pins_the_feet() {
     let config = StageConfig::load(&config_dir().join("demo.toml")).unwrap();

@@ -512,3 +512,56 @@ async fn a_replay_drives_the_puppet_to_the_direct_solve() {
     frame_until(&mut viewer, |f| max_distance(&f.vertices, &expected) < 1e-2).await;
     running.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
+    // The eGalax capture (multi-touch protocol B), calibrated onto the
+    // puppet's belly so its touches land on it, through the same decoder a
+    // live device uses.
+    let capture = root().join("../shared/fixtures/evemu/wetab.event");
+    let extra = format!(
+        r#"[[input]]
+kind = "replay"
+name = "table"
+file = "{}"
+pacing = "as_fast_as_possible"
+# Played over and over, so this viewer sees touches land and lift.
+repeat = true
+calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], stage_min = [590, 320], stage_max = [690, 400] }}
+"#,
+        capture.display()
+    );
+    let running = daemon(&extra).await;
+    let (mut viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let _ = stage;
+    // Frames solved for the capture's touches arrive, and at some point only
+    // the two pins of the stage file hold the puppet: every contact that
+    // landed has lifted.
+    let mut solved_for_touches = false;
+    let mut table_handles_seen = false;
+    loop {
+        match next_message(&mut viewer).await {
+            Message::Binary(bytes) => {
+                // Sequence 1 is the pins' solve at start.
+                solved_for_touches |= decode(&bytes).sequence > 1;
+            }
+            Message::Text(text) => {
+                let m: Value = serde_json::from_str(&text).unwrap();
+                if m["type"] != "handles" {
+                    continue;
+                }
+                let handles = m["handles"].as_array().unwrap();
+                table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
+                if table_handles_seen
+                    && handles.len() == 2
+                    && handles.iter().all(|h| h["kind"] == "pin")
+                {
+                    break;
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(solved_for_touches, "the capture's touches were solved");
+    running.shutdown().await;
+}

@@ -101,6 +101,15 @@ pub enum InputConfig {
     /// (`.event`, device coordinates fitted to the stage).
     Replay {
         file: PathBuf,
+        /// The source's name, which owns its contacts' handles; default
+        /// `replay:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Device to stage mapping for an evemu capture; default: the
+        /// device's full axis ranges fitted to the stage. Recordings are
+        /// already in stage coordinates and ignore it.
+        #[serde(default)]
+        calibration: Option<crate::input::CalibrationSpec>,
         #[serde(default)]
         pacing: PacingConfig,
         /// Play again from the start when the file ends.
