@@ -565,3 +565,72 @@ calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], stage_min = [59
     assert!(solved_for_touches, "the capture's touches were solved");
     running.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn performers_pin_and_unpin() {
+    let running = daemon("").await;
+    let (mut performer, stage) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": "secret"}),
+    )
+    .await;
+    let mesh = placed_mesh(&stage);
+    let grab = hand(&mesh);
+    let handles_where = |m: &Value, kind: &str| -> Vec<Value> {
+        m["handles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|h| h["kind"] == kind)
+            .cloned()
+            .collect()
+    };
+    // A pin on the hand, owned by this client.
+    performer
+        .send(Message::text(
+            json!({"type": "pin", "x": grab.x, "y": grab.y}).to_string(),
+        ))
+        .await
+        .unwrap();
+    let pin = loop {
+        let m = next_text(&mut performer).await;
+        if m["type"] == "handles" && handles_where(&m, "pin").len() == 3 {
+            break handles_where(&m, "pin")
+                .into_iter()
+                .find(|h| h["owner"] != "config")
+                .unwrap();
+        }
+    };
+    assert!(pin["owner"].as_str().unwrap().starts_with("client:"));
+    // A pin off every puppet is ignored; a drag then pulls against three pins.
+    performer
+        .send(Message::text(
+            json!({"type": "pin", "x": 5.0, "y": 5.0}).to_string(),
+        ))
+        .await
+        .unwrap();
+    // Unpinning removes it again.
+    let id = pin["id"].as_u64().unwrap();
+    performer
+        .send(Message::text(
+            json!({"type": "unpin", "puppet": 0, "handle": id}).to_string(),
+        ))
+        .await
+        .unwrap();
+    loop {
+        let m = next_text(&mut performer).await;
+        if m["type"] == "handles" && handles_where(&m, "pin").len() == 2 {
+            assert!(
+                handles_where(&m, "pin")
+                    .iter()
+                    .all(|h| h["owner"] == "config")
+            );
+            break;
+        }
+        assert!(
+            handles_where(&m, "pin").len() <= 3,
+            "the pin off the puppet was not made"
+        );
+    }
+    running.shutdown().await;
+}
