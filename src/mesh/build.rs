@@ -21,7 +21,7 @@ use spade::{
 use super::grid::BucketGrid;
 use super::polygon::{Shape, bounds, find_crossing, segment_distance, signed_area, simplify_keep};
 use super::trace::trace_png;
-use super::{MIN_THICKNESS, Mesh, MeshError, cross, thickness};
+use super::{MIN_THICKNESS, Mesh, MeshError, cross, invalid, thickness};
 
 type Cdt = ConstrainedDelaunayTriangulation<Point2<f64>>;
 
@@ -70,14 +70,6 @@ const SMOOTHING_ROUNDS: usize = 4;
 
 /// How close to the target a vertex count must come to stop the search.
 const COUNT_TOLERANCE: f64 = 0.04;
-
-fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> MeshError {
-    MeshError::Invalid {
-        file: file.to_string(),
-        field: field.into(),
-        problem: problem.into(),
-    }
-}
 
 /// Meshes a shape. The mesh has no uv and default weights; its vertices are
 /// in the shape's coordinates.

@@ -69,7 +69,11 @@ struct MeshFile {
     weights: Option<Vec<f64>>,
 }
 
-fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> MeshError {
+pub(crate) fn invalid(
+    file: &str,
+    field: impl Into<String>,
+    problem: impl Into<String>,
+) -> MeshError {
     MeshError::Invalid {
         file: file.to_string(),
         field: field.into(),

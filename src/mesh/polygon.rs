@@ -13,7 +13,7 @@ use serde::Deserialize;
 
 use super::grid::BucketGrid;
 use super::json::{self, Point};
-use super::{MeshError, cross};
+use super::{MeshError, cross, invalid};
 
 /// Largest coordinate magnitude accepted: far beyond any picture, yet small
 /// enough that areas and tolerances stay finite and meaningful.
@@ -54,14 +54,6 @@ struct PolygonFile {
     outer: Vec<Point>,
     #[serde(default)]
     holes: Vec<Vec<Point>>,
-}
-
-fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> MeshError {
-    MeshError::Invalid {
-        file: file.to_string(),
-        field: field.into(),
-        problem: problem.into(),
-    }
 }
 
 fn to_points(ring: Vec<Point>) -> Vec<DVec2> {

@@ -15,7 +15,7 @@ use glam::DVec2;
 use super::polygon::{
     Polygon, Shape, bounds, find_crossing, point_in_ring, signed_area, simplify_keep,
 };
-use super::{MeshError, cross};
+use super::{MeshError, cross, invalid};
 
 /// An outline traced from a picture, with the picture's size (for uv).
 #[derive(Debug, Clone, PartialEq)]
@@ -36,14 +36,6 @@ const THRESHOLD: f64 = 32767.5;
 /// Pictures with more pixels than this are refused rather than risk
 /// exhausting memory.
 const MAX_PIXELS: u64 = 1 << 28;
-
-fn invalid(file: &str, field: impl Into<String>, problem: impl Into<String>) -> MeshError {
-    MeshError::Invalid {
-        file: file.to_string(),
-        field: field.into(),
-        problem: problem.into(),
-    }
-}
 
 /// Reads a PNG (any colour type and bit depth; palette transparency is
 /// honoured, a picture without alpha is fully opaque) and traces it.
