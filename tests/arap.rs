@@ -16,6 +16,24 @@ fn solve(mesh: &Mesh, anchors: &[Anchor], targets: &[DVec2], steps: Steps) -> Ve
     arap.update(targets, steps).unwrap().to_vec()
 }
 
+/// Both steps of the solver against the dense reference, within `tolerance`
+/// of the mesh size; returns the reference's final pose.
+fn assert_agrees_with_reference(
+    mesh: &Mesh,
+    anchors: &[Anchor],
+    targets: &[DVec2],
+    tolerance: f64,
+) -> Vec<DVec2> {
+    let (ref1, ref2) = dense_reference(mesh, anchors, targets);
+    let tol = tolerance * mesh.size();
+    let step1 = solve(mesh, anchors, targets, Steps::ScaleFree);
+    let both = solve(mesh, anchors, targets, Steps::Both);
+    let (off1, off2) = (max_distance(&step1, &ref1), max_distance(&both, &ref2));
+    assert!(off1 < tol, "step 1 off by {off1}");
+    assert!(off2 < tol, "step 2 off by {off2}");
+    ref2
+}
+
 fn point_anchor(mesh: &Mesh, p: DVec2) -> Anchor {
     let loc = Locator::new(mesh)
         .locate(mesh, p)
@@ -41,20 +59,7 @@ fn vertex_handles_agree_with_dense_reference() {
         DVec2::new(0.5, 6.5),
         DVec2::new(4.0, 4.0),
     ];
-    let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
-    let tol = 1e-9 * mesh.size();
-    let step1 = solve(&mesh, &anchors, &targets, Steps::ScaleFree);
-    let both = solve(&mesh, &anchors, &targets, Steps::Both);
-    assert!(
-        max_distance(&step1, &ref1) < tol,
-        "step 1 off by {}",
-        max_distance(&step1, &ref1)
-    );
-    assert!(
-        max_distance(&both, &ref2) < tol,
-        "step 2 off by {}",
-        max_distance(&both, &ref2)
-    );
+    let ref2 = assert_agrees_with_reference(&mesh, &anchors, &targets, 1e-9);
     // The reference itself must have moved the mesh, or the test proves nothing.
     assert!(max_distance(&ref2, mesh.vertices()) > 1.0);
 }
@@ -72,10 +77,7 @@ fn point_handles_agree_with_dense_reference() {
         DVec2::new(9.0, 3.0),
         DVec2::new(5.0, 5.5),
     ];
-    let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
-    let tol = 1e-9 * mesh.size();
-    assert!(max_distance(&solve(&mesh, &anchors, &targets, Steps::ScaleFree), &ref1) < tol);
-    assert!(max_distance(&solve(&mesh, &anchors, &targets, Steps::Both), &ref2) < tol);
+    assert_agrees_with_reference(&mesh, &anchors, &targets, 1e-9);
 }
 
 #[test]
@@ -108,10 +110,7 @@ fn weighted_mesh_agrees_with_dense_reference() {
         DVec2::new(6.0, 7.0),
         DVec2::new(2.0, 4.0),
     ];
-    let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
-    let tol = 1e-9 * mesh.size();
-    assert!(max_distance(&solve(&mesh, &anchors, &targets, Steps::ScaleFree), &ref1) < tol);
-    assert!(max_distance(&solve(&mesh, &anchors, &targets, Steps::Both), &ref2) < tol);
+    assert_agrees_with_reference(&mesh, &anchors, &targets, 1e-9);
 }
 
 #[test]
@@ -458,23 +457,10 @@ fn thin_triangles_at_the_limit_still_solve_accurately() {
         Anchor::Vertex((rows * (cols + 1) + cols) as u32),
     ];
     let targets = [DVec2::new(-1.0, 0.0), DVec2::new(14.0, 5.0)];
-    let (ref1, ref2) = dense_reference(&mesh, &anchors, &targets);
     // Cholesky of the energies' matrices loses digits with the square of a
     // triangle's thinness and with the weights' contrast: 1e-8 here, 1e-9 on
     // ordinary meshes.
-    let tol = 1e-8 * mesh.size();
-    let step1 = solve(&mesh, &anchors, &targets, Steps::ScaleFree);
-    let both = solve(&mesh, &anchors, &targets, Steps::Both);
-    assert!(
-        max_distance(&step1, &ref1) < tol,
-        "step 1 off by {}",
-        max_distance(&step1, &ref1)
-    );
-    assert!(
-        max_distance(&both, &ref2) < tol,
-        "step 2 off by {}",
-        max_distance(&both, &ref2)
-    );
+    assert_agrees_with_reference(&mesh, &anchors, &targets, 1e-8);
     // Thinner than the limit is refused, naming the triangle.
     let mut thinner = v;
     for vertex in thinner.iter_mut().take(cols + 1) {
