@@ -13,7 +13,7 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 
 use crate::input::replay::{Pacing, ReplaySource, replay};
-use crate::input::{Calibration, ContactFrame, SourceId};
+use crate::input::{Calibration, ContactFrame, SourceId, tuio};
 use crate::stage::config::{InputConfig, PacingConfig, StageConfig};
 use crate::stage::thread::{self, Command};
 use crate::stage::{Stage, StageError};
@@ -36,6 +36,8 @@ const COMMAND_QUEUE: usize = 1024;
 /// A running daemon.
 pub struct Running {
     pub address: SocketAddr,
+    /// Where each TUIO input listens, in stage-file order.
+    pub tuio_addresses: Vec<SocketAddr>,
     /// The daemon's clock: frame timestamps are seconds since this.
     pub started: Instant,
     commands: mpsc::Sender<Command>,
@@ -88,27 +90,54 @@ pub async fn start(
     // Inputs are read now, so a bad file stops the start with its error.
     let size = DVec2::new(stage.width, stage.height);
     let mut replays = Vec::new();
+    let mut tuio = Vec::new();
     for (index, input) in config.inputs.iter().enumerate() {
-        let InputConfig::Replay {
-            file,
-            name,
-            calibration,
-            pacing,
-            repeat,
-        } = input;
-        let calibration = calibration
-            .clone()
-            .map(Calibration::new)
-            .transpose()
-            .map_err(|e| ServeError::Input(format!("input[{index}].calibration: {e}")))?;
-        let source_id = SourceId::from(name.clone().unwrap_or_else(|| format!("replay:{index}")));
-        let source = ReplaySource::open_with(&config.resolve(file), source_id, size, calibration)
-            .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?;
-        let pacing = match pacing {
-            PacingConfig::RealTime => Pacing::RealTime,
-            PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
+        let calibration = |spec: &Option<crate::input::CalibrationSpec>| {
+            spec.clone()
+                .map(Calibration::new)
+                .transpose()
+                .map_err(|e| ServeError::Input(format!("input[{index}].calibration: {e}")))
         };
-        replays.push((source, pacing, *repeat));
+        match input {
+            InputConfig::Replay {
+                file,
+                name,
+                calibration: spec,
+                pacing,
+                repeat,
+            } => {
+                let source_id =
+                    SourceId::from(name.clone().unwrap_or_else(|| format!("replay:{index}")));
+                let source = ReplaySource::open_with(
+                    &config.resolve(file),
+                    source_id,
+                    size,
+                    calibration(spec)?,
+                )
+                .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?;
+                let pacing = match pacing {
+                    PacingConfig::RealTime => Pacing::RealTime,
+                    PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
+                };
+                replays.push((source, pacing, *repeat));
+            }
+            InputConfig::Tuio {
+                listen,
+                calibration: spec,
+            } => {
+                let calibration = match calibration(spec)? {
+                    Some(c) => c,
+                    None => tuio::default_calibration(size)
+                        .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?,
+                };
+                let socket = tokio::net::UdpSocket::bind(listen).await.map_err(|e| {
+                    ServeError::Input(format!(
+                        "input[{index}]: cannot receive TUIO on {listen}: {e}"
+                    ))
+                })?;
+                tuio.push((socket, calibration));
+            }
+        }
     }
     if let Some((file, pacing)) = extra_replay {
         let source =
@@ -129,7 +158,7 @@ pub async fn start(
         next_client: AtomicU64::new(1),
     });
 
-    let inputs = replays
+    let inputs: Vec<JoinHandle<()>> = replays
         .into_iter()
         .map(|(source, pacing, repeat)| {
             let commands = commands.clone();
@@ -144,12 +173,38 @@ pub async fn start(
             })
         })
         .collect();
+    let mut tuio_addresses = Vec::new();
+    let mut inputs = inputs;
+    for (socket, calibration) in tuio {
+        tuio_addresses.push(
+            socket
+                .local_addr()
+                .map_err(|e| ServeError::Input(e.to_string()))?,
+        );
+        let commands = commands.clone();
+        inputs.push(tokio::spawn(async move {
+            let (frames, mut frames_rx) = mpsc::channel::<ContactFrame>(64);
+            let receiver = tokio::spawn(tuio::run_udp(socket, calibration, frames));
+            while let Some(frame) = frames_rx.recv().await {
+                let received = started.elapsed().as_secs_f64();
+                if commands
+                    .send(Command::Frame { frame, received })
+                    .await
+                    .is_err()
+                {
+                    break;
+                }
+            }
+            receiver.abort();
+        }));
+    }
     let (shutdown, shutdown_rx) = oneshot::channel();
     let server = tokio::spawn(stream::run(listener, shared, async {
         let _ = shutdown_rx.await;
     }));
     Ok(Running {
         address,
+        tuio_addresses,
         started,
         commands,
         shutdown,

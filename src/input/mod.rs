@@ -12,6 +12,7 @@ pub mod evdev;
 pub mod evemu;
 pub mod recording;
 pub mod replay;
+pub mod tuio;
 
 use std::fmt;
 use std::sync::Arc;

@@ -116,6 +116,23 @@ pub enum InputConfig {
         #[serde(default)]
         repeat: bool,
     },
+    /// TUIO 1.1 (`/tuio/2Dcur`) and 2.0 (`/tuio2/ptr`) over UDP: touch
+    /// tables, reacTIVision, TouchDesigner. Each TUIO source is its own
+    /// input source (`tuio:NAME`, `tuio2:NAME`).
+    Tuio {
+        /// Where to receive; default 127.0.0.1:3333 (use 0.0.0.0:3333 to
+        /// accept a table on the network).
+        #[serde(default = "default_tuio_listen")]
+        listen: SocketAddr,
+        /// Normalised TUIO coordinates (0..1, y down) to stage; default:
+        /// the unit square fitted to the stage, y flipped.
+        #[serde(default)]
+        calibration: Option<crate::input::CalibrationSpec>,
+    },
+}
+
+fn default_tuio_listen() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], crate::input::tuio::DEFAULT_PORT))
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
