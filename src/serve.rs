@@ -30,6 +30,9 @@ pub enum ServeError {
     Input(String),
 }
 
+/// Frames a source may get ahead of its forwarder.
+const SOURCE_QUEUE: usize = 64;
+
 /// Commands waiting for the stage thread before sources must wait.
 const COMMAND_QUEUE: usize = 1024;
 
@@ -158,7 +161,7 @@ pub async fn start(
         next_client: AtomicU64::new(1),
     });
 
-    let inputs: Vec<JoinHandle<()>> = replays
+    let mut inputs: Vec<JoinHandle<()>> = replays
         .into_iter()
         .map(|(source, pacing, repeat)| {
             let commands = commands.clone();
@@ -174,7 +177,6 @@ pub async fn start(
         })
         .collect();
     let mut tuio_addresses = Vec::new();
-    let mut inputs = inputs;
     for (socket, calibration) in tuio {
         tuio_addresses.push(
             socket
@@ -183,18 +185,9 @@ pub async fn start(
         );
         let commands = commands.clone();
         inputs.push(tokio::spawn(async move {
-            let (frames, mut frames_rx) = mpsc::channel::<ContactFrame>(64);
+            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
             let receiver = tokio::spawn(tuio::run_udp(socket, calibration, frames));
-            while let Some(frame) = frames_rx.recv().await {
-                let received = started.elapsed().as_secs_f64();
-                if commands
-                    .send(Command::Frame { frame, received })
-                    .await
-                    .is_err()
-                {
-                    break;
-                }
-            }
+            forward(frames_rx, &commands, started).await;
             receiver.abort();
         }));
     }
@@ -214,18 +207,30 @@ pub async fn start(
     })
 }
 
-/// Plays one source into the stage thread's commands, stamping each frame
-/// with its arrival on the daemon's clock; returns the frames played.
+/// Plays one replay source into the stage thread; returns the frames played.
 async fn play_into(
     source: ReplaySource,
     pacing: Pacing,
     commands: &mpsc::Sender<Command>,
     started: Instant,
 ) -> usize {
-    let (frames, mut frames_rx) = mpsc::channel::<ContactFrame>(64);
+    let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
     let player = tokio::spawn(replay(source, pacing, frames));
-    let mut played = 0;
-    while let Some(frame) = frames_rx.recv().await {
+    let played = forward(frames_rx, commands, started).await;
+    player.abort();
+    played
+}
+
+/// Forwards a source's frames to the stage thread, stamping each with its
+/// arrival on the daemon's clock, until the source ends or the stage stops;
+/// returns how many went through.
+async fn forward(
+    mut frames: mpsc::Receiver<ContactFrame>,
+    commands: &mpsc::Sender<Command>,
+    started: Instant,
+) -> usize {
+    let mut forwarded = 0;
+    while let Some(frame) = frames.recv().await {
         let received = started.elapsed().as_secs_f64();
         if commands
             .send(Command::Frame { frame, received })
@@ -234,8 +239,7 @@ async fn play_into(
         {
             break;
         }
-        played += 1;
+        forwarded += 1;
     }
-    player.abort();
-    played
+    forwarded
 }
