@@ -10,8 +10,10 @@
 
 pub mod evdev;
 pub mod evemu;
+pub mod hid;
 pub mod recording;
 pub mod replay;
+pub mod serial;
 pub mod tuio;
 
 use std::fmt;

@@ -1,0 +1,654 @@
+//! HID multi-touch digitizers as an input source, the part that needs no
+//! hardware: it owns reading a touch screen's or touch pad's layout out of its
+//! HID report descriptor ([`TouchLayout`]), the Input Mode feature report that
+//! switches such a device into multi-touch reporting ([`InputMode`]), and
+//! [`HidTouchDecoder`], plain synchronous state that turns raw input reports
+//! into calibrated [`ContactFrame`]s. Talking to the device (hidapi, reading
+//! reports, sending the feature report) belongs elsewhere.
+//!
+//! Descriptor items are parsed by the `hidreport` crate; this module only
+//! picks out the digitizer usages (HID Usage Tables, page 0x0D) and the
+//! Generic Desktop X/Y inside each Finger collection. Reports are read with a
+//! bounds-checked bit reader of our own, because `hidreport`'s extractors
+//! index the buffer unchecked and a short report must be an error, not a
+//! panic.
+//!
+//! Devices report in parallel mode (every finger slot in one report) or
+//! hybrid mode (a frame spread over several reports: the first carries the
+//! frame's Contact Count, the rest a count of 0). Either way the decoder
+//! gathers a whole frame before acting, because only a complete frame tells
+//! which contacts are gone: any tracked id the frame does not report as down
+//! is lifted, so a device that drops a lift report leaves nothing stuck.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use glam::DVec2;
+use hidreport::{CollectionType, Field, Report, ReportDescriptor, Usage, VariableField};
+
+use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceId};
+
+const PAGE_GENERIC_DESKTOP: u16 = 0x01;
+const PAGE_DIGITIZER: u16 = 0x0D;
+const USAGE_X: u16 = 0x30;
+const USAGE_Y: u16 = 0x31;
+const USAGE_TOUCH_SCREEN: u16 = 0x04;
+const USAGE_TOUCH_PAD: u16 = 0x05;
+const USAGE_DEVICE_CONFIGURATION: u16 = 0x0E;
+const USAGE_FINGER: u16 = 0x22;
+const USAGE_TIP_PRESSURE: u16 = 0x30;
+const USAGE_TIP_SWITCH: u16 = 0x42;
+const USAGE_CONTACT_ID: u16 = 0x51;
+const USAGE_INPUT_MODE: u16 = 0x52;
+const USAGE_CONTACT_COUNT: u16 = 0x54;
+const USAGE_SCAN_TIME: u16 = 0x56;
+
+#[derive(Debug, thiserror::Error)]
+pub enum HidError {
+    #[error("hid: report descriptor: {0}")]
+    Descriptor(#[from] hidreport::ParserError),
+    #[error(
+        "hid: report descriptor has no touch screen or touch pad collection \
+         (usage page 0x0D, usage 0x04 or 0x05) with Finger collections in an input report"
+    )]
+    NoTouchCollection,
+    #[error("hid: report descriptor: {problem}")]
+    Layout { problem: String },
+    #[error("hid: empty input report")]
+    EmptyReport,
+    #[error("hid: input report id {id} is not declared by the report descriptor")]
+    UnknownReport { id: u8 },
+    #[error("hid: {}: {got} bytes, the descriptor declares {expected}", report_name(*report_id))]
+    ShortReport {
+        report_id: Option<u8>,
+        expected: usize,
+        got: usize,
+    },
+    #[error("hid: {}: contact id {id} is reported twice in one frame", report_name(*report_id))]
+    DuplicateContact { report_id: Option<u8>, id: u32 },
+    #[error("hid: {0}")]
+    Calibration(#[from] CalibrationError),
+}
+
+fn report_name(id: Option<u8>) -> String {
+    match id {
+        Some(id) => format!("report id {id}"),
+        None => "report".to_string(),
+    }
+}
+
+fn layout(problem: impl Into<String>) -> HidError {
+    HidError::Layout {
+        problem: problem.into(),
+    }
+}
+
+/// Where one value sits in a report and what range the device declares for
+/// it. `bits` counts from the start of the report as read from the device,
+/// including the report id byte when the descriptor uses report ids.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HidField {
+    pub bits: Range<usize>,
+    pub logical_min: i32,
+    pub logical_max: i32,
+}
+
+impl HidField {
+    fn from_variable(field: &VariableField, what: &str) -> Result<HidField, HidError> {
+        let width = field.bits.len();
+        if width == 0 || width > 32 {
+            return Err(layout(format!(
+                "{what} is {width} bits wide; 1 to 32 are supported"
+            )));
+        }
+        Ok(HidField {
+            bits: field.bits.clone(),
+            logical_min: field.logical_minimum.into(),
+            logical_max: field.logical_maximum.into(),
+        })
+    }
+
+    /// The field's value, sign-extended when its logical range goes below
+    /// zero (the HID rule for signed fields). The caller checks the length.
+    fn read(&self, report: &[u8]) -> i64 {
+        let mut value: u64 = 0;
+        for (i, bit) in self.bits.clone().enumerate() {
+            if (report[bit / 8] >> (bit % 8)) & 1 == 1 {
+                value |= 1 << i;
+            }
+        }
+        let width = self.bits.len();
+        if self.logical_min < 0 && (value >> (width - 1)) & 1 == 1 {
+            value as i64 - (1i64 << width)
+        } else {
+            value as i64
+        }
+    }
+
+    fn write(&self, report: &mut [u8], value: u32) {
+        for (i, bit) in self.bits.clone().enumerate() {
+            let mask = 1u8 << (bit % 8);
+            if (value >> i) & 1 == 1 {
+                report[bit / 8] |= mask;
+            } else {
+                report[bit / 8] &= !mask;
+            }
+        }
+    }
+
+    fn range(&self) -> [f64; 2] {
+        [f64::from(self.logical_min), f64::from(self.logical_max)]
+    }
+}
+
+/// The fields of one Finger collection: one contact slot of the report.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Finger {
+    pub tip_switch: HidField,
+    pub contact_id: HidField,
+    pub x: HidField,
+    pub y: HidField,
+    pub tip_pressure: Option<HidField>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Surface {
+    TouchScreen,
+    TouchPad,
+}
+
+/// The Input Mode feature (Device Configuration collection): a device starts
+/// out as a mouse and only reports fingers once the host sets this to
+/// [`InputMode::MULTI_INPUT`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InputMode {
+    pub report_id: Option<u8>,
+    /// Bytes of the whole feature report, report id byte included.
+    pub report_len: usize,
+    pub field: HidField,
+}
+
+impl InputMode {
+    /// Input Mode value for "multi-input" (Windows precision touch).
+    pub const MULTI_INPUT: u32 = 2;
+
+    /// Writes `value` into a feature report buffer, leaving its other fields
+    /// alone: read the report from the device first when it shares the
+    /// report with other settings (Device Index, say), then send it back.
+    pub fn set(&self, report: &mut [u8], value: u32) -> Result<(), HidError> {
+        if report.len() < self.report_len {
+            return Err(HidError::ShortReport {
+                report_id: self.report_id,
+                expected: self.report_len,
+                got: report.len(),
+            });
+        }
+        if let Some(id) = self.report_id {
+            report[0] = id;
+        }
+        self.field.write(report, value);
+        Ok(())
+    }
+
+    /// A fresh feature report selecting multi-input, other fields zero.
+    pub fn multi_input_report(&self) -> Vec<u8> {
+        let mut report = vec![0; self.report_len];
+        self.field.write(&mut report, Self::MULTI_INPUT);
+        if let Some(id) = self.report_id {
+            report[0] = id;
+        }
+        report
+    }
+}
+
+/// What a digitizer's report descriptor says about its touch reports.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TouchLayout {
+    pub surface: Surface,
+    /// The input report carrying the fingers; `None` when the descriptor
+    /// uses no report ids (and reports have no id byte).
+    pub report_id: Option<u8>,
+    /// Bytes of the whole input report, report id byte included.
+    pub report_len: usize,
+    /// Contact slots, in report order.
+    pub fingers: Vec<Finger>,
+    pub contact_count: Option<HidField>,
+    pub scan_time: Option<HidField>,
+    pub input_mode: Option<InputMode>,
+    /// Every input report id the descriptor declares, so reports for other
+    /// collections (a mouse fallback, a pen) can be told from garbage.
+    input_report_ids: Vec<u8>,
+}
+
+fn usage_is(usage: &Usage, page: u16, id: u16) -> bool {
+    u16::from(usage.usage_page) == page && u16::from(usage.usage_id) == id
+}
+
+fn variables(report: &impl Report) -> impl Iterator<Item = &VariableField> {
+    report.fields().iter().filter_map(|f| match f {
+        Field::Variable(v) => Some(v),
+        _ => None,
+    })
+}
+
+fn report_id_of(report: &impl Report) -> Option<u8> {
+    report.report_id().map(u8::from)
+}
+
+#[derive(Default)]
+struct FingerParts {
+    tip_switch: Option<HidField>,
+    contact_id: Option<HidField>,
+    x: Option<HidField>,
+    y: Option<HidField>,
+    tip_pressure: Option<HidField>,
+}
+
+impl TouchLayout {
+    pub fn parse(descriptor: &[u8]) -> Result<TouchLayout, HidError> {
+        if descriptor.is_empty() {
+            return Err(layout("the descriptor is empty"));
+        }
+        let rdesc = ReportDescriptor::try_from(descriptor)?;
+        let input_report_ids = rdesc
+            .input_reports()
+            .iter()
+            .filter_map(report_id_of)
+            .collect();
+
+        // The first input report with a field inside a Finger collection of
+        // a touch application collection is the touch report.
+        let touch_app = |field: &VariableField| {
+            field.collections.iter().find_map(|c| {
+                if c.collection_type() != CollectionType::Application {
+                    return None;
+                }
+                c.usages().iter().find_map(|u| {
+                    if usage_is(u, PAGE_DIGITIZER, USAGE_TOUCH_SCREEN) {
+                        Some((c.id().clone(), Surface::TouchScreen))
+                    } else if usage_is(u, PAGE_DIGITIZER, USAGE_TOUCH_PAD) {
+                        Some((c.id().clone(), Surface::TouchPad))
+                    } else {
+                        None
+                    }
+                })
+            })
+        };
+        let finger_of = |field: &VariableField| {
+            field
+                .collections
+                .iter()
+                .find(|c| {
+                    c.usages()
+                        .iter()
+                        .any(|u| usage_is(u, PAGE_DIGITIZER, USAGE_FINGER))
+                })
+                .map(|c| c.id().clone())
+        };
+        let (report, app, surface) = rdesc
+            .input_reports()
+            .iter()
+            .find_map(|report| {
+                variables(report).find_map(|v| {
+                    let (app, surface) = touch_app(v)?;
+                    finger_of(v)?;
+                    Some((report, app, surface))
+                })
+            })
+            .ok_or(HidError::NoTouchCollection)?;
+        let report_id = report_id_of(report);
+
+        // Fingers in order of first appearance; the collection id tells one
+        // Finger collection from the next even when their items are equal.
+        let mut fingers: Vec<(hidreport::CollectionId, FingerParts)> = Vec::new();
+        let mut contact_count = None;
+        let mut scan_time = None;
+        for v in variables(report) {
+            if touch_app(v).is_none_or(|(a, _)| a != app) {
+                continue;
+            }
+            let page = u16::from(v.usage.usage_page);
+            let id = u16::from(v.usage.usage_id);
+            let Some(finger) = finger_of(v) else {
+                if page == PAGE_DIGITIZER && id == USAGE_CONTACT_COUNT {
+                    contact_count = Some(HidField::from_variable(v, "Contact Count")?);
+                } else if page == PAGE_DIGITIZER && id == USAGE_SCAN_TIME {
+                    scan_time = Some(HidField::from_variable(v, "Scan Time")?);
+                }
+                continue;
+            };
+            let index = match fingers.iter().position(|(c, _)| *c == finger) {
+                Some(index) => index,
+                None => {
+                    fingers.push((finger, FingerParts::default()));
+                    fingers.len() - 1
+                }
+            };
+            let what = |name: &str| format!("finger {} {name}", index + 1);
+            let parts = &mut fingers[index].1;
+            let slot = match (page, id) {
+                (PAGE_DIGITIZER, USAGE_TIP_SWITCH) => &mut parts.tip_switch,
+                (PAGE_DIGITIZER, USAGE_CONTACT_ID) => &mut parts.contact_id,
+                (PAGE_DIGITIZER, USAGE_TIP_PRESSURE) => &mut parts.tip_pressure,
+                (PAGE_GENERIC_DESKTOP, USAGE_X) => &mut parts.x,
+                (PAGE_GENERIC_DESKTOP, USAGE_Y) => &mut parts.y,
+                // Width, height, azimuth, confidence: not part of a contact yet.
+                _ => continue,
+            };
+            // Some descriptors declare a usage twice (a second X for a
+            // different unit); the first is the one Windows uses too.
+            if slot.is_none() {
+                *slot = Some(HidField::from_variable(v, &what("field"))?);
+            }
+        }
+
+        let fingers = fingers
+            .into_iter()
+            .enumerate()
+            .map(|(i, (_, parts))| {
+                let missing = |name: &str| {
+                    layout(format!(
+                        "finger {} of the touch report has no {name}",
+                        i + 1
+                    ))
+                };
+                Ok(Finger {
+                    tip_switch: parts
+                        .tip_switch
+                        .ok_or_else(|| missing("Tip Switch (0x0D/0x42)"))?,
+                    contact_id: parts
+                        .contact_id
+                        .ok_or_else(|| missing("Contact Identifier (0x0D/0x51)"))?,
+                    x: parts.x.ok_or_else(|| missing("X (0x01/0x30)"))?,
+                    y: parts.y.ok_or_else(|| missing("Y (0x01/0x31)"))?,
+                    tip_pressure: parts.tip_pressure,
+                })
+            })
+            .collect::<Result<Vec<Finger>, HidError>>()?;
+
+        let input_mode = rdesc.feature_reports().iter().find_map(|report| {
+            Report::fields(report).iter().find_map(|f| {
+                let Field::Variable(v) = f else { return None };
+                let in_config = v.collections.iter().any(|c| {
+                    c.usages()
+                        .iter()
+                        .any(|u| usage_is(u, PAGE_DIGITIZER, USAGE_DEVICE_CONFIGURATION))
+                });
+                (in_config && usage_is(&v.usage, PAGE_DIGITIZER, USAGE_INPUT_MODE)).then(|| {
+                    HidField::from_variable(v, "Input Mode").map(|field| InputMode {
+                        report_id: report_id_of(report),
+                        report_len: report.size_in_bytes(),
+                        field,
+                    })
+                })
+            })
+        });
+
+        Ok(TouchLayout {
+            surface,
+            report_id,
+            report_len: report.size_in_bytes(),
+            fingers,
+            contact_count,
+            scan_time,
+            input_mode: input_mode.transpose()?,
+            input_report_ids,
+        })
+    }
+
+    /// Stretches the device's logical X/Y ranges over a `size.x` × `size.y`
+    /// stage, flipping y because HID y grows downwards.
+    pub fn default_calibration(&self, stage_size: DVec2) -> Result<Calibration, HidError> {
+        let first = &self.fingers[0];
+        Ok(Calibration::fit(
+            first.x.range(),
+            first.y.range(),
+            stage_size,
+        )?)
+    }
+}
+
+/// One slot of a report as the device filled it in, in device units.
+#[derive(Debug, Clone)]
+struct Slot {
+    tip: bool,
+    id: u32,
+    position: DVec2,
+    pressure: Option<f64>,
+}
+
+/// A hybrid-mode frame still waiting for reports.
+#[derive(Debug)]
+struct Pending {
+    expected: usize,
+    scan_time: Option<i64>,
+    slots: Vec<Slot>,
+}
+
+#[derive(Debug, Clone)]
+struct Tracked {
+    position: DVec2,
+    pressure: Option<f64>,
+}
+
+/// Turns one digitizer's input reports into [`ContactFrame`]s. Feed it every
+/// input report the device sends with [`push`](HidTouchDecoder::push).
+#[derive(Debug)]
+pub struct HidTouchDecoder {
+    layout: TouchLayout,
+    source: SourceId,
+    calibration: Calibration,
+    pending: Option<Pending>,
+    /// Contacts currently down, by HID contact id; ordered so lifts come out
+    /// deterministically.
+    down: BTreeMap<u32, Tracked>,
+}
+
+impl HidTouchDecoder {
+    /// Reads the layout from `descriptor`. Without a `calibration`, the
+    /// device's logical X/Y ranges are fitted to a stage of `stage_size`
+    /// (see [`TouchLayout::default_calibration`]).
+    pub fn new(
+        descriptor: &[u8],
+        source: SourceId,
+        calibration: Option<Calibration>,
+        stage_size: DVec2,
+    ) -> Result<HidTouchDecoder, HidError> {
+        let layout = TouchLayout::parse(descriptor)?;
+        // One calibration serves every slot, so every slot must count in
+        // the same units.
+        let first = &layout.fingers[0];
+        for (i, finger) in layout.fingers.iter().enumerate().skip(1) {
+            if finger.x.range() != first.x.range() || finger.y.range() != first.y.range() {
+                return Err(layout_error_ranges(i));
+            }
+        }
+        let calibration = match calibration {
+            Some(calibration) => calibration,
+            None => layout.default_calibration(stage_size)?,
+        };
+        Ok(HidTouchDecoder {
+            layout,
+            source,
+            calibration,
+            pending: None,
+            down: BTreeMap::new(),
+        })
+    }
+
+    pub fn layout(&self) -> &TouchLayout {
+        &self.layout
+    }
+
+    /// Decodes one input report (report id byte first when the descriptor
+    /// uses report ids, as hidapi delivers them). Returns the frame it
+    /// completes when that frame changed anything; `None` while a hybrid
+    /// frame waits for more reports, for reports of the device's other
+    /// collections, and for frames that restate what is already known.
+    /// `time` is the report's arrival time in seconds; a frame takes the
+    /// time of the report that completes it.
+    ///
+    /// A malformed report is an error and leaves the state untouched.
+    pub fn push(&mut self, report: &[u8], time: f64) -> Result<Option<ContactFrame>, HidError> {
+        let Some(&first) = report.first() else {
+            return Err(HidError::EmptyReport);
+        };
+        if let Some(id) = self.layout.report_id
+            && first != id
+        {
+            return if self.layout.input_report_ids.contains(&first) {
+                Ok(None)
+            } else {
+                Err(HidError::UnknownReport { id: first })
+            };
+        }
+        if report.len() < self.layout.report_len {
+            return Err(HidError::ShortReport {
+                report_id: self.layout.report_id,
+                expected: self.layout.report_len,
+                got: report.len(),
+            });
+        }
+
+        let slots_here = self.layout.fingers.len();
+        let scan_time = self.layout.scan_time.as_ref().map(|f| f.read(report));
+        // A negative count can only be garbage; treat it as none valid.
+        let count = (self.layout.contact_count.as_ref())
+            .map(|field| usize::try_from(field.read(report)).unwrap_or(0));
+
+        // Which frame this report joins, and how many of its slots are valid.
+        let (continuing, expected, take) = match (count, &self.pending) {
+            // Without a count every report is a whole frame and only slots
+            // with the tip down say anything.
+            (None, _) => (false, 0, slots_here),
+            // Continuation of a hybrid frame. A different scan time means the
+            // frame's earlier reports belong to a scan that was cut short,
+            // and this report alone cannot make a frame either.
+            (Some(0), Some(pending)) if pending.scan_time == scan_time => {
+                let remaining = pending.expected - pending.slots.len();
+                (true, pending.expected, remaining.min(slots_here))
+            }
+            (Some(0), Some(_)) => {
+                self.pending = None;
+                return Ok(None);
+            }
+            // A new frame (a count of 0 with nothing pending: nothing is
+            // down). An unfinished frame before it lost a report; it is
+            // dropped rather than applied, since applying it would lift the
+            // fingers that were in the lost report.
+            (Some(expected), _) => (false, expected, expected.min(slots_here)),
+        };
+
+        let earlier: &[Slot] = match (&self.pending, continuing) {
+            (Some(pending), true) => &pending.slots,
+            _ => &[],
+        };
+        let mut fresh: Vec<Slot> = Vec::with_capacity(take);
+        for finger in &self.layout.fingers[..take] {
+            let tip = finger.tip_switch.read(report) != 0;
+            if count.is_none() && !tip {
+                continue;
+            }
+            let id = u32::try_from(finger.contact_id.read(report)).unwrap_or(u32::MAX);
+            if earlier.iter().chain(&fresh).any(|s| s.id == id) {
+                return Err(HidError::DuplicateContact {
+                    report_id: self.layout.report_id,
+                    id,
+                });
+            }
+            let position = DVec2::new(finger.x.read(report) as f64, finger.y.read(report) as f64);
+            let pressure = finger.tip_pressure.as_ref().map(|p| {
+                let [lo, hi] = p.range();
+                ((p.read(report) as f64 - lo) / (hi - lo)).clamp(0.0, 1.0)
+            });
+            fresh.push(Slot {
+                tip,
+                id,
+                position,
+                pressure,
+            });
+        }
+
+        let mut slots = match self.pending.take() {
+            Some(pending) if continuing => pending.slots,
+            _ => Vec::new(),
+        };
+        slots.append(&mut fresh);
+        if count.is_some() && slots.len() < expected {
+            self.pending = Some(Pending {
+                expected,
+                scan_time,
+                slots,
+            });
+            return Ok(None);
+        }
+        Ok(self.apply(slots, time))
+    }
+
+    /// Diffs a complete frame against the contacts that are down.
+    fn apply(&mut self, slots: Vec<Slot>, time: f64) -> Option<ContactFrame> {
+        let mut contacts = Vec::new();
+        let mut seen = Vec::with_capacity(slots.len());
+        for slot in slots {
+            seen.push(slot.id);
+            let contact = |phase, position, pressure| Contact {
+                pressure,
+                ..Contact::new(slot.id, phase, self.calibration.map(position))
+            };
+            match (slot.tip, self.down.get(&slot.id)) {
+                (true, None) => {
+                    contacts.push(contact(Phase::Down, slot.position, slot.pressure));
+                }
+                (true, Some(was)) => {
+                    if was.position != slot.position || was.pressure != slot.pressure {
+                        contacts.push(contact(Phase::Move, slot.position, slot.pressure));
+                    }
+                }
+                // Lift reports carry the final position on most devices, but
+                // some zero it; the last position while down is the safe one.
+                (false, Some(was)) => {
+                    contacts.push(contact(Phase::Up, was.position, was.pressure));
+                }
+                (false, None) => {}
+            }
+            if slot.tip {
+                self.down.insert(
+                    slot.id,
+                    Tracked {
+                        position: slot.position,
+                        pressure: slot.pressure,
+                    },
+                );
+            } else {
+                self.down.remove(&slot.id);
+            }
+        }
+        let gone: Vec<u32> = self
+            .down
+            .keys()
+            .copied()
+            .filter(|id| !seen.contains(id))
+            .collect();
+        for id in gone {
+            if let Some(was) = self.down.remove(&id) {
+                contacts.push(Contact {
+                    pressure: was.pressure,
+                    ..Contact::new(id, Phase::Up, self.calibration.map(was.position))
+                });
+            }
+        }
+        (!contacts.is_empty()).then(|| ContactFrame {
+            source: self.source.clone(),
+            time,
+            contacts,
+        })
+    }
+}
+
+fn layout_error_ranges(finger: usize) -> HidError {
+    layout(format!(
+        "finger {} declares different X/Y logical ranges from finger 1; \
+         one calibration cannot serve both",
+        finger + 1
+    ))
+}
