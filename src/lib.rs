@@ -6,9 +6,9 @@
 //!
 //! ```text
 //!   input ───────► stage ─────────► deform ──────► stream
-//!  (replays,       (contacts →       (ARAP solver,   (HTTP + WebSocket,
+//!  (TUIO, replays, (contacts →       (ARAP solver,   (HTTP + WebSocket,
 //!   evdev state,    handles, pins;    on the stage    newest frame per
-//!   evemu, jsonl)   stage thread)     thread)         client; web page)
+//!   serial, HID)    stage thread)     thread)         client; web page)
 //!                      ▲
 //!                     mesh (rest shapes: PNG/polygon → triangle mesh)
 //! ```
