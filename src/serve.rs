@@ -13,7 +13,8 @@ use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 
 use crate::input::replay::{Pacing, ReplaySource, replay};
-use crate::input::{Calibration, ContactFrame, SourceId, tuio};
+use crate::input::serial::{self, SerialDecoder};
+use crate::input::{Calibration, CalibrationSpec, ContactFrame, SourceId, tuio};
 use crate::stage::config::{InputConfig, PacingConfig, StageConfig};
 use crate::stage::thread::{self, Command};
 use crate::stage::{Stage, StageError};
@@ -94,6 +95,7 @@ pub async fn start(
     let size = DVec2::new(stage.width, stage.height);
     let mut replays = Vec::new();
     let mut tuio = Vec::new();
+    let mut serials = Vec::new();
     for (index, input) in config.inputs.iter().enumerate() {
         let calibration = |spec: &Option<crate::input::CalibrationSpec>| {
             spec.clone()
@@ -139,6 +141,29 @@ pub async fn start(
                     ))
                 })?;
                 tuio.push((socket, calibration));
+            }
+            InputConfig::Serial {
+                path,
+                baud,
+                format,
+                name,
+                calibration: spec,
+            } => {
+                let calibration = match calibration(spec)? {
+                    Some(c) => c,
+                    // Pad units are stage units.
+                    None => Calibration::new(CalibrationSpec::Range {
+                        x: [0.0, size.x],
+                        y: [0.0, size.y],
+                        flip_y: false,
+                        stage_min: [0.0, 0.0],
+                        stage_max: size.to_array(),
+                    })
+                    .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?,
+                };
+                let source =
+                    SourceId::from(name.clone().unwrap_or_else(|| format!("serial:{index}")));
+                serials.push((path.clone(), *baud, *format, source, calibration));
             }
         }
     }
@@ -189,6 +214,31 @@ pub async fn start(
             let receiver = tokio::spawn(tuio::run_udp(socket, calibration, frames));
             forward(frames_rx, &commands, started).await;
             receiver.abort();
+        }));
+    }
+    for (path, baud, format, source, calibration) in serials {
+        let commands = commands.clone();
+        inputs.push(tokio::spawn(async move {
+            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
+            let forwarder = tokio::spawn({
+                let commands = commands.clone();
+                async move { forward(frames_rx, &commands, started).await }
+            });
+            // A device that disappears is logged, its contacts lifted (by
+            // run_port), and reopened; the daemon never exits because of it.
+            loop {
+                let decoder = SerialDecoder::new(format, calibration.clone(), source.clone());
+                match serial::run_port(&path, baud, decoder, frames.clone()).await {
+                    Ok(()) => break,
+                    Err(e) => tracing::warn!("serial {path}: {e}; retrying in 1 s"),
+                }
+                if commands.is_closed() {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_secs(1)).await;
+            }
+            drop(frames);
+            let _ = forwarder.await;
         }));
     }
     let (shutdown, shutdown_rx) = oneshot::channel();

@@ -3,6 +3,8 @@
 //! performers stay apart; bad clients are refused without harm; a stalled
 //! client slows nobody; replays drive it; shutdown is clean.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -702,6 +704,54 @@ async fn a_tuio_table_over_udp_grabs_and_lets_go() {
     loop {
         let m = next_text(&mut viewer).await;
         if m["type"] == "handles" && contact_kinds(&m).is_empty() {
+            break;
+        }
+    }
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_serial_pad_grabs_and_a_hang_up_lets_go() {
+    use std::io::Write;
+    let mut pad = common::pty::open_pty();
+    let extra = format!(
+        "[[input]]\nkind = \"serial\"\npath = \"{}\"\nformat = \"csv\"\nname = \"pad\"\n",
+        pad.path
+    );
+    let running = daemon(&extra).await;
+    let (mut viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let mesh = placed_mesh(&stage);
+    let grab = hand(&mesh);
+    // Pad units are stage units by default.
+    write!(
+        pad.master,
+        "1,d,{},{}\nf\n1,m,{},{}\nf\n",
+        grab.x,
+        grab.y,
+        grab.x,
+        grab.y + 40.0
+    )
+    .unwrap();
+    let owners = |m: &Value| -> Vec<String> {
+        m["handles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|h| h["kind"] == "contact")
+            .map(|h| h["owner"].as_str().unwrap().to_string())
+            .collect()
+    };
+    loop {
+        let m = next_text(&mut viewer).await;
+        if m["type"] == "handles" && owners(&m) == ["pad"] {
+            break;
+        }
+    }
+    // The pad goes away: its contact is lifted.
+    drop(pad);
+    loop {
+        let m = next_text(&mut viewer).await;
+        if m["type"] == "handles" && owners(&m).is_empty() {
             break;
         }
     }

@@ -129,6 +129,26 @@ pub enum InputConfig {
         #[serde(default)]
         calibration: Option<crate::input::CalibrationSpec>,
     },
+    /// A serial pad (Arduino/Teensy-style): line CSV or SLIP-framed OSC at a
+    /// baud rate (see `puppetry::input::serial`). If the port goes away the
+    /// daemon lifts its contacts and reopens it every second.
+    Serial {
+        /// The port, e.g. `/dev/ttyACM0`.
+        path: String,
+        #[serde(default = "default_baud")]
+        baud: u32,
+        format: crate::input::serial::WireFormat,
+        /// The source's name; default `serial:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Pad units to stage; default: pad units are stage units.
+        #[serde(default)]
+        calibration: Option<crate::input::CalibrationSpec>,
+    },
+}
+
+fn default_baud() -> u32 {
+    115_200
 }
 
 fn default_tuio_listen() -> SocketAddr {

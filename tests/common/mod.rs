@@ -2,6 +2,8 @@
 //! least-squares reference for the two-step ARAP energies.
 #![allow(dead_code)]
 
+pub mod pty;
+
 use faer::Mat;
 use faer::linalg::solvers::{Solve, SolveLstsq};
 use glam::DVec2;
