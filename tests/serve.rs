@@ -637,35 +637,25 @@ async fn performers_pin_and_unpin() {
     running.shutdown().await;
 }
 
-/// A TUIO 1.1 cursor bundle: alive ids, (id, x, y) sets, frame number.
-fn tuio_bundle(alive: &[i32], sets: &[(i32, f32, f32)], fseq: i32) -> Vec<u8> {
-    use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
-    let cur = |args: Vec<OscType>| {
-        OscPacket::Message(OscMessage {
-            addr: "/tuio/2Dcur".into(),
-            args,
-        })
-    };
-    let mut content = vec![cur(std::iter::once(OscType::String("alive".into()))
-        .chain(alive.iter().map(|&s| s.into()))
-        .collect())];
-    for &(s, x, y) in sets {
-        content.push(cur(vec![
-            "set".into(),
-            s.into(),
-            x.into(),
-            y.into(),
-            0f32.into(),
-            0f32.into(),
-            0f32.into(),
-        ]));
+/// The owners of a "handles" message's contact handles.
+fn contact_owners(m: &Value) -> Vec<String> {
+    m["handles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|h| h["kind"] == "contact")
+        .map(|h| h["owner"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// Reads until a "handles" message whose contact owners satisfy `done`.
+async fn until_contact_owners(ws: &mut Client, done: impl Fn(&[String]) -> bool) {
+    loop {
+        let m = next_text(ws).await;
+        if m["type"] == "handles" && done(&contact_owners(&m)) {
+            return;
+        }
     }
-    content.push(cur(vec!["fseq".into(), fseq.into()]));
-    rosc::encoder::encode(&OscPacket::Bundle(OscBundle {
-        timetag: OscTime::from((0, 1)),
-        content,
-    }))
-    .unwrap()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -678,35 +668,18 @@ async fn a_tuio_table_over_udp_grabs_and_lets_go() {
     // TUIO is normalised, y down; the default calibration fits the stage.
     let (x, y) = ((grab.x / 1280.0) as f32, (1.0 - grab.y / 720.0) as f32);
     let udp = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    udp.send_to(&tuio_bundle(&[5], &[(5, x, y)], 1), table)
+    udp.send_to(&common::tuio::v1(None, &[5], &[(5, x, y)], 1), table)
         .await
         .unwrap();
-    udp.send_to(&tuio_bundle(&[5], &[(5, x, y - 0.05)], 2), table)
+    udp.send_to(&common::tuio::v1(None, &[5], &[(5, x, y - 0.05)], 2), table)
         .await
         .unwrap();
-    let contact_kinds = |m: &Value| -> Vec<String> {
-        m["handles"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|h| h["kind"] == "contact")
-            .map(|h| h["owner"].as_str().unwrap().to_string())
-            .collect()
-    };
-    loop {
-        let m = next_text(&mut viewer).await;
-        if m["type"] == "handles" && contact_kinds(&m).iter().any(|o| o.starts_with("tuio")) {
-            break;
-        }
-    }
+    until_contact_owners(&mut viewer, |o| o.iter().any(|o| o.starts_with("tuio"))).await;
     // The cursor leaves the alive list: its handle goes.
-    udp.send_to(&tuio_bundle(&[], &[], 3), table).await.unwrap();
-    loop {
-        let m = next_text(&mut viewer).await;
-        if m["type"] == "handles" && contact_kinds(&m).is_empty() {
-            break;
-        }
-    }
+    udp.send_to(&common::tuio::v1(None, &[], &[], 3), table)
+        .await
+        .unwrap();
+    until_contact_owners(&mut viewer, |o| o.is_empty()).await;
     running.shutdown().await;
 }
 
@@ -732,28 +705,9 @@ async fn a_serial_pad_grabs_and_a_hang_up_lets_go() {
         grab.y + 40.0
     )
     .unwrap();
-    let owners = |m: &Value| -> Vec<String> {
-        m["handles"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .filter(|h| h["kind"] == "contact")
-            .map(|h| h["owner"].as_str().unwrap().to_string())
-            .collect()
-    };
-    loop {
-        let m = next_text(&mut viewer).await;
-        if m["type"] == "handles" && owners(&m) == ["pad"] {
-            break;
-        }
-    }
+    until_contact_owners(&mut viewer, |o| o == ["pad"]).await;
     // The pad goes away: its contact is lifted.
     drop(pad);
-    loop {
-        let m = next_text(&mut viewer).await;
-        if m["type"] == "handles" && owners(&m).is_empty() {
-            break;
-        }
-    }
+    until_contact_owners(&mut viewer, |o| o.is_empty()).await;
     running.shutdown().await;
 }

@@ -12,7 +12,10 @@ use puppetry::input::tuio::{
     DEFAULT_PORT, MAX_SOURCES, TuioError, TuioTracker, default_calibration, run_udp,
 };
 use puppetry::input::{Calibration, CalibrationSpec, Contact, ContactFrame, Phase, SourceId};
-use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
+mod common;
+
+use common::tuio::{bundle, cur, msg, v1};
+use rosc::{OscTime, OscType};
 use tokio::net::UdpSocket;
 use tokio::sync::mpsc;
 
@@ -21,50 +24,6 @@ const STAGE: DVec2 = DVec2::new(200.0, 100.0);
 
 fn tracker() -> TuioTracker {
     TuioTracker::new(default_calibration(STAGE).unwrap())
-}
-
-fn msg(addr: &str, args: Vec<OscType>) -> OscPacket {
-    OscPacket::Message(OscMessage {
-        addr: addr.to_owned(),
-        args,
-    })
-}
-
-fn bundle(content: Vec<OscPacket>) -> Vec<u8> {
-    rosc::encoder::encode(&OscPacket::Bundle(OscBundle {
-        timetag: OscTime::from((0, 1)),
-        content,
-    }))
-    .unwrap()
-}
-
-fn cur(command: &str, mut args: Vec<OscType>) -> OscPacket {
-    args.insert(0, OscType::String(command.to_owned()));
-    msg("/tuio/2Dcur", args)
-}
-
-/// A TUIO 1.1 bundle: optional source, alive, sets `(s_id, x, y)`, fseq.
-fn v1(source: Option<&str>, alive: &[i32], sets: &[(i32, f32, f32)], fseq: i32) -> Vec<u8> {
-    let mut content = Vec::new();
-    if let Some(source) = source {
-        content.push(cur("source", vec![source.into()]));
-    }
-    content.push(cur("alive", alive.iter().map(|&s| s.into()).collect()));
-    for &(s, x, y) in sets {
-        content.push(cur(
-            "set",
-            vec![
-                s.into(),
-                x.into(),
-                y.into(),
-                0f32.into(),
-                0f32.into(),
-                0f32.into(),
-            ],
-        ));
-    }
-    content.push(cur("fseq", vec![fseq.into()]));
-    bundle(content)
 }
 
 /// A TUIO 2.0 bundle: frm, ptrs `(s_id, x, y, press)`, alv.

@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod pty;
+pub mod tuio;
 
 use faer::Mat;
 use faer::linalg::solvers::{Solve, SolveLstsq};
