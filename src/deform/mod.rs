@@ -6,6 +6,8 @@
 //! Plain synchronous numeric code: the daemon runs it on a thread of its own.
 
 pub mod arap;
+pub mod ffd;
+pub mod skeleton;
 pub mod sparse;
 
 pub use arap::{Anchor, Arap, ArapError, Steps};

@@ -11,6 +11,8 @@
 pub mod evdev;
 pub mod evemu;
 pub mod hid;
+pub mod hid_recording;
+pub mod mouse;
 pub mod recording;
 pub mod replay;
 pub mod serial;

@@ -1,0 +1,1 @@
+//! lp-FFD grid deformer (placeholder).

@@ -1,0 +1,1 @@
+//! Shape-aware skeletal deformer (placeholder).

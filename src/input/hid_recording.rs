@@ -1,0 +1,1 @@
+//! hid-recorder captures (placeholder).

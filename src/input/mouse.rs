@@ -1,0 +1,1 @@
+//! Mice as puppeteering tools (placeholder).
