@@ -331,8 +331,8 @@ impl MouseDecoder {
         }
         // Mice count y downwards on the screen; the stage is y-up.
         let motion = DVec2::new(p.motion[0] as f64, -(p.motion[1] as f64));
-        self.position = (self.position + motion * self.settings.speed)
-            .clamp(DVec2::ZERO, self.stage_size);
+        self.position =
+            (self.position + motion * self.settings.speed).clamp(DVec2::ZERO, self.stage_size);
         self.left = p.left.unwrap_or(self.left);
         self.right = p.right.unwrap_or(self.right);
 
@@ -369,7 +369,11 @@ impl MouseDecoder {
             let first_id = self.next_id;
             self.next_id = self.next_id.wrapping_add(count as u32);
             for (i, &at) in points[..count].iter().enumerate() {
-                contacts.push(Contact::new(first_id.wrapping_add(i as u32), Phase::Down, at));
+                contacts.push(Contact::new(
+                    first_id.wrapping_add(i as u32),
+                    Phase::Down,
+                    at,
+                ));
             }
             self.grab = Some(Grab {
                 first_id,
