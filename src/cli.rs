@@ -324,3 +324,153 @@ pub fn end_to_end_stages() -> Result<Vec<(String, crate::stage::config::StageCon
         ("gingerbread@10000".into(), large),
     ])
 }
+
+/// `puppetry devices`: every input device in `dir` — name, path, kind,
+/// ids, axes and ranges — and which entry of `config` (if given) would take
+/// it. Unreadable nodes are listed with what to do about them.
+pub fn devices_report(
+    dir: &Path,
+    config: Option<&crate::stage::config::StageConfig>,
+) -> Result<String, crate::input::device::DeviceError> {
+    use crate::input::device::{DeviceKind, DeviceMatch, scan};
+    use crate::stage::config::InputConfig;
+    use std::fmt::Write;
+
+    // Each device entry of the stage file: what it wants, of which kind.
+    let entries: Vec<(usize, String, DeviceMatch, DeviceKind)> = config
+        .map(|c| {
+            c.inputs
+                .iter()
+                .enumerate()
+                .filter_map(|(i, input)| {
+                    let (kind, device, name, label) = match input {
+                        InputConfig::Touch { device, name, .. } => {
+                            (DeviceKind::Touch, device, name, "touch")
+                        }
+                        InputConfig::Pen { device, name, .. } => {
+                            (DeviceKind::Pen, device, name, "pen")
+                        }
+                        InputConfig::Mouse { device, name, .. } => {
+                            (DeviceKind::Mouse, device, name, "mouse")
+                        }
+                        _ => return None,
+                    };
+                    let mut device = device.clone();
+                    device.path = device.path.map(|p| c.resolve(&p));
+                    let name = name.clone().unwrap_or_else(|| format!("{label}:{i}"));
+                    Some((i, name, device, kind))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut taken = vec![false; entries.len()];
+    let mut out = String::new();
+    let found = match scan(dir) {
+        Ok(found) => found,
+        Err(e) => {
+            let _ = writeln!(
+                out,
+                "{e}\n(no input devices here: this machine has none, or a container does not share /dev/input)"
+            );
+            Vec::new()
+        }
+    };
+    if found.is_empty() && dir.is_dir() {
+        let _ = writeln!(out, "no input devices in {}", dir.display());
+    }
+    for (path, info) in &found {
+        let info = match info {
+            Ok(info) => info,
+            Err(e) => {
+                let _ = writeln!(out, "{}: not readable: {e}", path.display());
+                continue;
+            }
+        };
+        let _ = writeln!(
+            out,
+            "{}  {}{}  \"{}\"",
+            path.display(),
+            info.kind,
+            match (info.kind, info.capabilities.direct) {
+                (DeviceKind::Touch, true) => " (direct)",
+                _ => "",
+            },
+            info.name
+        );
+        let _ = writeln!(
+            out,
+            "    id: bus {:04x} vendor {:04x} product {:04x}{}{}{}",
+            info.id.bus,
+            info.id.vendor,
+            info.id.product,
+            info.phys
+                .as_ref()
+                .map(|p| format!("  phys \"{p}\""))
+                .unwrap_or_default(),
+            info.uniq
+                .as_ref()
+                .map(|u| format!("  uniq \"{u}\""))
+                .unwrap_or_default(),
+            if info.capture { "  (evemu capture)" } else { "" },
+        );
+        for (code, axis) in &info.capabilities.absolute {
+            let _ = writeln!(
+                out,
+                "    {:<18} {} .. {}{}",
+                abs_name(*code),
+                axis.min,
+                axis.max,
+                if axis.resolution > 0 {
+                    format!("  ({} per mm or radian)", axis.resolution)
+                } else {
+                    String::new()
+                }
+            );
+        }
+        // An entry takes the first device that matches it.
+        for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
+            if !taken[k] && *kind == info.kind && wanted.matches(info) {
+                taken[k] = true;
+                let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+            }
+        }
+    }
+    for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
+        if !taken[k] {
+            let _ = writeln!(
+                out,
+                "input[{i}] \"{name}\" ({kind}, {wanted}): no such device now; the daemon waits for it"
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// The kernel's name of an absolute axis.
+fn abs_name(code: u16) -> String {
+    use crate::input::evdev::*;
+    let known = [
+        (ABS_X, "ABS_X"),
+        (ABS_Y, "ABS_Y"),
+        (ABS_PRESSURE, "ABS_PRESSURE"),
+        (ABS_TILT_X, "ABS_TILT_X"),
+        (ABS_TILT_Y, "ABS_TILT_Y"),
+        (ABS_MT_SLOT, "ABS_MT_SLOT"),
+        (ABS_MT_TOUCH_MAJOR, "ABS_MT_TOUCH_MAJOR"),
+        (ABS_MT_TOUCH_MINOR, "ABS_MT_TOUCH_MINOR"),
+        (ABS_MT_WIDTH_MAJOR, "ABS_MT_WIDTH_MAJOR"),
+        (ABS_MT_WIDTH_MINOR, "ABS_MT_WIDTH_MINOR"),
+        (ABS_MT_ORIENTATION, "ABS_MT_ORIENTATION"),
+        (ABS_MT_POSITION_X, "ABS_MT_POSITION_X"),
+        (ABS_MT_POSITION_Y, "ABS_MT_POSITION_Y"),
+        (ABS_MT_TOOL_TYPE, "ABS_MT_TOOL_TYPE"),
+        (ABS_MT_BLOB_ID, "ABS_MT_BLOB_ID"),
+        (ABS_MT_TRACKING_ID, "ABS_MT_TRACKING_ID"),
+        (ABS_MT_PRESSURE, "ABS_MT_PRESSURE"),
+        (ABS_MT_DISTANCE, "ABS_MT_DISTANCE"),
+    ];
+    known
+        .iter()
+        .find(|(c, _)| *c == code)
+        .map_or_else(|| format!("ABS_{code:#04x}"), |(_, n)| n.to_string())
+}

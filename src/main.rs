@@ -68,6 +68,31 @@ enum Command {
         #[arg(long)]
         svg: Option<PathBuf>,
     },
+    /// List the input devices this machine has (name, path, kind, ids, axes
+    /// and ranges) and which entry of a stage file would use each.
+    Devices {
+        /// Where device nodes are (or a folder of evemu captures).
+        #[arg(long, default_value = puppetry::input::device::DEFAULT_DIR)]
+        dir: PathBuf,
+        /// Show which of this stage file's inputs would take each device.
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Capture a device's raw events to an evemu file (play it back with
+    /// `serve --replay FILE` or a `kind = "replay"` input).
+    Record {
+        /// The device node, e.g. /dev/input/event5 or a /dev/input/by-id link.
+        device: PathBuf,
+        /// The capture to write (.event).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Stop after this many seconds (default: at Ctrl-C).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Take the device exclusively while recording.
+        #[arg(long)]
+        grab: bool,
+    },
     /// Time registration, compilation, updates and handle changes.
     Bench {
         /// One JSON object per case, one per line.
@@ -157,6 +182,51 @@ fn run(args: Args) -> anyhow::Result<()> {
                 running.shutdown().await;
                 anyhow::Ok(())
             })?;
+        }
+        Command::Devices { dir, config } => {
+            let config = config
+                .map(|path| puppetry::stage::config::StageConfig::load(&path))
+                .transpose()?;
+            print!("{}", cli::devices_report(&dir, config.as_ref())?);
+        }
+        Command::Record {
+            device,
+            output,
+            duration,
+            grab,
+        } => {
+            if let Some(d) = duration.filter(|d| !(d.is_finite() && *d > 0.0)) {
+                anyhow::bail!("--duration: {d} is not a positive number of seconds");
+            }
+            let runtime = tokio::runtime::Runtime::new()?;
+            let recorded = runtime.block_on(async {
+                let opened = puppetry::input::device::Device::open(&device, grab)?;
+                eprintln!(
+                    "recording {} (\"{}\") to {}; stop with Ctrl-C",
+                    device.display(),
+                    opened.info().name,
+                    output.display()
+                );
+                let stop = async {
+                    let _ = tokio::signal::ctrl_c().await;
+                };
+                puppetry::input::record::record(
+                    opened,
+                    &output,
+                    duration.map(std::time::Duration::from_secs_f64),
+                    stop,
+                )
+                .await
+            })?;
+            eprintln!(
+                "recorded {} events{}",
+                recorded.events,
+                if recorded.device_gone {
+                    " (the device went away)"
+                } else {
+                    ""
+                }
+            );
         }
         Command::Mesh {
             input,

@@ -9,14 +9,17 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
 
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
+use crate::input::device::{DeviceKind, DeviceMatch};
+use crate::input::hotplug::{self, DeviceInput};
+use crate::input::mouse::{Cursor, MouseSettings};
 use crate::input::replay::{Pacing, ReplaySource, replay};
 use crate::input::serial::{self, SerialDecoder};
 use crate::input::{Calibration, CalibrationSpec, ContactFrame, SourceId, tuio};
 use crate::stage::config::{InputConfig, PacingConfig, StageConfig};
-use crate::stage::thread::{self, Command};
+use crate::stage::thread::{self, Command, CursorView};
 use crate::stage::{Stage, StageError};
 use crate::stream::{self, Shared, StageDescription, StreamError};
 use glam::DVec2;
@@ -96,6 +99,7 @@ pub async fn start(
     let mut replays = Vec::new();
     let mut tuio = Vec::new();
     let mut serials = Vec::new();
+    let mut devices = Vec::new();
     for (index, input) in config.inputs.iter().enumerate() {
         let calibration = |spec: &Option<crate::input::CalibrationSpec>| {
             spec.clone()
@@ -165,6 +169,65 @@ pub async fn start(
                     SourceId::from(name.clone().unwrap_or_else(|| format!("serial:{index}")));
                 serials.push((path.clone(), *baud, *format, source, calibration));
             }
+            InputConfig::Touch {
+                device,
+                dir,
+                name,
+                grab,
+                calibration: spec,
+            }
+            | InputConfig::Pen {
+                device,
+                dir,
+                name,
+                grab,
+                calibration: spec,
+            } => {
+                let (kind, label) = match input {
+                    InputConfig::Pen { .. } => (DeviceKind::Pen, "pen"),
+                    _ => (DeviceKind::Touch, "touch"),
+                };
+                devices.push(DeviceInput {
+                    dir: config.resolve(dir),
+                    wanted: resolve_match(config, device),
+                    kind: Some(kind),
+                    source: SourceId::from(
+                        name.clone().unwrap_or_else(|| format!("{label}:{index}")),
+                    ),
+                    calibration: calibration(spec)?,
+                    grab: *grab,
+                    mouse: MouseSettings::for_stage(size),
+                    stage_size: size,
+                });
+            }
+            InputConfig::Mouse {
+                device,
+                dir,
+                name,
+                grab,
+                speed,
+                pair,
+                pair_spacing,
+                rotate_step_deg,
+            } => {
+                let mut mouse = MouseSettings::for_stage(size);
+                mouse.speed = speed.unwrap_or(mouse.speed);
+                mouse.pair = pair.unwrap_or(mouse.pair);
+                mouse.pair_spacing = pair_spacing.unwrap_or(mouse.pair_spacing);
+                mouse.rotate_step = rotate_step_deg.map_or(mouse.rotate_step, f64::to_radians);
+                devices.push(DeviceInput {
+                    dir: config.resolve(dir),
+                    wanted: resolve_match(config, device),
+                    kind: Some(DeviceKind::Mouse),
+                    source: SourceId::from(
+                        name.clone().unwrap_or_else(|| format!("mouse:{index}")),
+                    ),
+                    calibration: None,
+                    grab: *grab,
+                    mouse,
+                    stage_size: size,
+                });
+            }
         }
     }
     if let Some((file, pacing)) = extra_replay {
@@ -173,14 +236,15 @@ pub async fn start(
         replays.push((source, pacing, false));
     }
     let description = StageDescription::of(&stage);
-    let (outputs, changes, stage_thread) = thread::spawn(stage, commands_rx);
+    let (outputs, stage_thread) = thread::spawn(stage, commands_rx);
     let shared = Arc::new(Shared {
         stage: description,
         tokens: config.access.performer_tokens.clone(),
         web_root,
         commands: commands.clone(),
-        outputs,
-        changes,
+        outputs: outputs.puppets,
+        cursors: outputs.cursors,
+        changes: outputs.changes,
         client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
         started,
         next_client: AtomicU64::new(1),
@@ -241,6 +305,29 @@ pub async fn start(
             let _ = forwarder.await;
         }));
     }
+    for device in devices {
+        let commands = commands.clone();
+        inputs.push(tokio::spawn(async move {
+            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
+            let (cursor, cursor_rx) = watch::channel(None);
+            let source = device.source.to_string();
+            let spacing = if device.mouse.pair {
+                device.mouse.pair_spacing
+            } else {
+                0.0
+            };
+            let reader = tokio::spawn(hotplug::run(device, frames, cursor));
+            let cursors = tokio::spawn(forward_cursor(
+                cursor_rx,
+                source,
+                spacing,
+                commands.clone(),
+            ));
+            forward(frames_rx, &commands, started).await;
+            reader.abort();
+            cursors.abort();
+        }));
+    }
     let (shutdown, shutdown_rx) = oneshot::channel();
     let server = tokio::spawn(stream::run(listener, shared, async {
         let _ = shutdown_rx.await;
@@ -255,6 +342,39 @@ pub async fn start(
         inputs,
         stage_thread,
     })
+}
+
+/// A device entry's relative `path` is relative to the stage file.
+fn resolve_match(config: &StageConfig, wanted: &DeviceMatch) -> DeviceMatch {
+    let mut wanted = wanted.clone();
+    wanted.path = wanted.path.map(|p| config.resolve(&p));
+    wanted
+}
+
+/// Tells the stage thread where a mouse's cursor is whenever it moves. Only
+/// the newest position matters, so a watch channel (which keeps only that)
+/// feeds it.
+async fn forward_cursor(
+    mut cursor: watch::Receiver<Option<Cursor>>,
+    source: String,
+    spacing: f64,
+    commands: mpsc::Sender<Command>,
+) {
+    while cursor.changed().await.is_ok() {
+        let view = cursor.borrow_and_update().map(|c| CursorView {
+            at: c.position.to_array(),
+            angle: c.angle,
+            spacing,
+            holding: c.holding,
+        });
+        let command = Command::Cursor {
+            source: source.clone(),
+            cursor: view,
+        };
+        if commands.send(command).await.is_err() {
+            return;
+        }
+    }
 }
 
 /// Plays one replay source into the stage thread; returns the frames played.

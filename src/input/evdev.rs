@@ -13,7 +13,7 @@
 //! the codes are the values from `linux/input-event-codes.h`.
 
 use std::collections::BTreeMap;
-use std::f64::consts::FRAC_PI_2;
+use std::f64::consts::{FRAC_PI_2, PI};
 
 use glam::DVec2;
 
@@ -32,6 +32,7 @@ pub const SYN_MT_REPORT: u16 = 2;
 pub const SYN_DROPPED: u16 = 3;
 
 pub const BTN_TOOL_PEN: u16 = 0x140;
+pub const BTN_TOOL_RUBBER: u16 = 0x141;
 pub const BTN_TOOL_FINGER: u16 = 0x145;
 pub const BTN_TOUCH: u16 = 0x14a;
 pub const KEY_MAX: u16 = 0x2ff;
@@ -98,6 +99,30 @@ pub struct AbsInfo {
 
 /// A device's absolute axes by code.
 pub type AbsAxes = BTreeMap<u16, AbsInfo>;
+
+/// One multi-touch slot as the device holds it now (`EVIOCGMTSLOTS`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlotState {
+    pub slot: usize,
+    /// -1: the slot is empty.
+    pub tracking_id: i32,
+    pub x: i32,
+    pub y: i32,
+    pub pressure: Option<i32>,
+}
+
+/// What a device says its state is right now, read back with the
+/// `EVIOCGKEY`, `EVIOCGABS` and `EVIOCGMTSLOTS` ioctls: on open (fingers may
+/// already be down) and after `SYN_DROPPED`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DeviceState {
+    /// Keys and buttons held down.
+    pub keys: std::collections::BTreeSet<u16>,
+    /// Current value of every absolute axis.
+    pub abs: BTreeMap<u16, i32>,
+    /// Every slot, empty ones included.
+    pub slots: Vec<SlotState>,
+}
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EvdevError {
@@ -337,8 +362,8 @@ impl TouchDecoder {
             if (event.ev_type, event.code) == (EV_SYN, SYN_REPORT) {
                 self.clear_partial_report();
                 self.sync = match self.protocol {
-                    Protocol::Slots => SyncState::Resyncing,
-                    _ => SyncState::Normal,
+                    Protocol::Anonymous => SyncState::Normal,
+                    _ => SyncState::Resyncing,
                 };
             }
             return None;
@@ -361,7 +386,63 @@ impl TouchDecoder {
                 self.touching = event.value != 0;
                 None
             }
+            // A pen leaving proximity is lifted even if its tip-up was lost.
+            (EV_KEY, BTN_TOOL_PEN | BTN_TOOL_RUBBER) if event.value == 0 => {
+                self.touching = false;
+                None
+            }
             _ => None,
+        }
+    }
+
+    /// True after the `SYN_REPORT` that ends a drop, until
+    /// [`restore`](TouchDecoder::restore) or the next report: the reader
+    /// should read the device's state back now.
+    pub fn needs_resync(&self) -> bool {
+        self.sync == SyncState::Resyncing
+    }
+
+    /// Takes the device's own account of its state — on open, or after a
+    /// drop — and returns the frame of what the stage must be told.
+    /// Protocol A devices keep no state; their next report is complete.
+    pub fn restore(&mut self, time: f64, state: &DeviceState) -> Option<ContactFrame> {
+        match self.protocol {
+            Protocol::Slots => {
+                let slots: Vec<_> = state
+                    .slots
+                    .iter()
+                    .filter(|s| s.tracking_id >= 0)
+                    .map(|s| (s.slot, s.tracking_id, s.x, s.y))
+                    .collect();
+                for s in &state.slots {
+                    if let Some(slot) = self.slots.get_mut(s.slot) {
+                        slot.values.pressure = s.pressure;
+                    }
+                }
+                self.current_slot = state
+                    .abs
+                    .get(&ABS_MT_SLOT)
+                    .and_then(|&s| usize::try_from(s).ok())
+                    .filter(|&s| s < self.slots.len());
+                self.resync(time, &slots)
+            }
+            Protocol::Anonymous => {
+                self.sync = SyncState::Normal;
+                None
+            }
+            Protocol::SingleTouch => {
+                self.time = time;
+                let v = &mut self.single;
+                let axis = |code| state.abs.get(&code).copied();
+                v.x = axis(ABS_X).unwrap_or(v.x);
+                v.y = axis(ABS_Y).unwrap_or(v.y);
+                v.pressure = axis(ABS_PRESSURE).or(v.pressure);
+                v.tilt_x = axis(ABS_TILT_X).or(v.tilt_x);
+                v.tilt_y = axis(ABS_TILT_Y).or(v.tilt_y);
+                self.touching = state.keys.contains(&BTN_TOUCH);
+                self.clear_partial_report();
+                self.report()
+            }
         }
     }
 
@@ -650,10 +731,12 @@ impl TouchDecoder {
             let d = self.calibration.map_direction(at, axis_dir);
             (d != DVec2::ZERO && d.is_finite()).then(|| fold_axis_angle(d.y.atan2(d.x)))
         });
-        let (rx, ry) = self.tilt_resolution;
+        // Tilt axes without a resolution count degrees (older Wacom drivers).
+        let per_radian = |r: i32| if r > 0 { f64::from(r) } else { 180.0 / PI };
+        let (rx, ry) = (per_radian(self.tilt_resolution.0), per_radian(self.tilt_resolution.1));
         let tilt = match (v.tilt_x, v.tilt_y) {
-            (Some(tx), Some(ty)) if rx > 0 && ry > 0 => {
-                let t = DVec2::new(f64::from(tx) / f64::from(rx), f64::from(ty) / f64::from(ry));
+            (Some(tx), Some(ty)) => {
+                let t = DVec2::new(f64::from(tx) / rx, f64::from(ty) / ry);
                 let d = self.calibration.map_direction(at, t);
                 Some(if d.length() > 0.0 && d.is_finite() {
                     d * (t.length() / d.length())
@@ -681,7 +764,6 @@ fn next(counter: &mut u32) -> u32 {
 }
 
 fn fold_axis_angle(a: f64) -> f64 {
-    use std::f64::consts::PI;
     if a <= -FRAC_PI_2 {
         a + PI
     } else if a > FRAC_PI_2 {

@@ -314,3 +314,58 @@ fn clip(text: &str) -> String {
         None => text.to_string(),
     }
 }
+
+impl EvemuDevice {
+    /// Writes the description as `evemu-record` does (`N:`, `I:`, `P:`,
+    /// `B:` eight bytes a line, `A:`), so evemu tools and [`EvemuFile`]
+    /// read it back.
+    pub fn write(&self, out: &mut impl std::io::Write) -> std::io::Result<()> {
+        writeln!(out, "# EVEMU 1.3")?;
+        writeln!(out, "# Input device name: \"{}\"", self.name)?;
+        writeln!(out, "N: {}", self.name)?;
+        let id = &self.id;
+        writeln!(
+            out,
+            "I: {:04x} {:04x} {:04x} {:04x}",
+            id.bus, id.vendor, id.product, id.version
+        )?;
+        let mut properties = self.properties.clone();
+        properties.resize(properties.len().max(8), 0);
+        write!(out, "P:")?;
+        for byte in &properties {
+            write!(out, " {byte:02x}")?;
+        }
+        writeln!(out)?;
+        for (ev_type, bits) in &self.event_bits {
+            for chunk in bits.chunks(8) {
+                write!(out, "B: {ev_type:02x}")?;
+                for byte in chunk {
+                    write!(out, " {byte:02x}")?;
+                }
+                writeln!(out)?;
+            }
+        }
+        for (code, a) in &self.axes {
+            writeln!(
+                out,
+                "A: {code:02x} {} {} {} {} {}",
+                a.min, a.max, a.fuzz, a.flat, a.resolution
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Writes one `E:` line: `seconds.microseconds type code value`.
+pub fn write_event(out: &mut impl std::io::Write, event: &InputEvent) -> std::io::Result<()> {
+    let micros = (event.time * 1e6).round().max(0.0) as u64;
+    writeln!(
+        out,
+        "E: {}.{:06} {:04x} {:04x} {}",
+        micros / 1_000_000,
+        micros % 1_000_000,
+        event.ev_type,
+        event.code,
+        event.value
+    )
+}

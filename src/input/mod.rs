@@ -8,11 +8,14 @@
 //!
 //! Parsing and state are plain synchronous code; only replay pacing is async.
 
+pub mod device;
 pub mod evdev;
 pub mod evemu;
 pub mod hid;
 pub mod hid_recording;
+pub mod hotplug;
 pub mod mouse;
+pub mod record;
 pub mod recording;
 pub mod replay;
 pub mod serial;

@@ -193,6 +193,8 @@ pub struct MouseDecoder {
     grab: Option<Grab>,
     pending: Pending,
     dropping: bool,
+    /// A drop just ended: the buttons should be read back now.
+    resync_due: bool,
     next_id: u32,
 }
 
@@ -217,6 +219,7 @@ impl MouseDecoder {
             grab: None,
             pending: Pending::default(),
             dropping: false,
+            resync_due: false,
             next_id: 0,
         })
     }
@@ -250,9 +253,11 @@ impl MouseDecoder {
     /// Takes one event; returns a frame when it completes a report that
     /// changed a held contact.
     pub fn push(&mut self, event: InputEvent) -> Option<ContactFrame> {
+        self.resync_due = false;
         if self.dropping {
             if (event.ev_type, event.code) == (EV_SYN, SYN_REPORT) {
                 self.dropping = false;
+                self.resync_due = true;
             }
             return None;
         }
@@ -290,6 +295,12 @@ impl MouseDecoder {
         None
     }
 
+    /// True right after the `SYN_REPORT` that ends a drop: the reader should
+    /// read the buttons back and call [`resync`](MouseDecoder::resync).
+    pub fn needs_resync(&self) -> bool {
+        self.resync_due
+    }
+
     /// Sets the buttons from a read-back of the device (`EVIOCGKEY`), as
     /// after a drop: a release lost in the drop lifts the grab, a lost press
     /// starts one at the cursor. Call it once the `SYN_REPORT` that ends the
@@ -297,6 +308,7 @@ impl MouseDecoder {
     /// `time`.
     pub fn resync(&mut self, time: f64, left: bool, right: bool) -> Option<ContactFrame> {
         self.dropping = false;
+        self.resync_due = false;
         self.pending = Pending::default();
         self.right = right;
         self.left = left;

@@ -145,6 +145,87 @@ pub enum InputConfig {
         #[serde(default)]
         calibration: Option<crate::input::CalibrationSpec>,
     },
+    /// A touch table or screen (Linux evdev, multi-touch protocol A or B,
+    /// or single touch). Reopened when it comes back after going away.
+    Touch {
+        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+        /// `product`, all of which must match; default: the first device of
+        /// this kind. `puppetry devices` shows each device's values.
+        #[serde(default)]
+        device: crate::input::device::DeviceMatch,
+        /// Where device nodes appear; default `/dev/input`.
+        #[serde(default = "default_device_dir")]
+        dir: PathBuf,
+        /// The source's name; default `KIND:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+        /// also react to it.
+        #[serde(default)]
+        grab: bool,
+        /// Device units to stage; default: the device's full range fitted
+        /// to the stage.
+        #[serde(default)]
+        calibration: Option<crate::input::CalibrationSpec>,
+    },
+    /// A pen tablet (Linux evdev): the tip is a contact carrying pressure
+    /// and tilt.
+    Pen {
+        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+        /// `product`, all of which must match; default: the first device of
+        /// this kind. `puppetry devices` shows each device's values.
+        #[serde(default)]
+        device: crate::input::device::DeviceMatch,
+        /// Where device nodes appear; default `/dev/input`.
+        #[serde(default = "default_device_dir")]
+        dir: PathBuf,
+        /// The source's name; default `KIND:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+        /// also react to it.
+        #[serde(default)]
+        grab: bool,
+        #[serde(default)]
+        calibration: Option<crate::input::CalibrationSpec>,
+    },
+    /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
+    /// pair of points: button-drag moves them, the wheel or a right-button
+    /// drag rotates them.
+    Mouse {
+        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+        /// `product`, all of which must match; default: the first device of
+        /// this kind. `puppetry devices` shows each device's values.
+        #[serde(default)]
+        device: crate::input::device::DeviceMatch,
+        /// Where device nodes appear; default `/dev/input`.
+        #[serde(default = "default_device_dir")]
+        dir: PathBuf,
+        /// The source's name; default `KIND:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+        /// also react to it.
+        #[serde(default)]
+        grab: bool,
+        /// Stage units per mouse count; default 1.
+        #[serde(default)]
+        speed: Option<f64>,
+        /// Hold a pair of points (default) or one.
+        #[serde(default)]
+        pair: Option<bool>,
+        /// Distance between the pair's points, stage units; default a
+        /// twelfth of the stage's smaller side.
+        #[serde(default)]
+        pair_spacing: Option<f64>,
+        /// Rotation per wheel notch, degrees; default 15.
+        #[serde(default)]
+        rotate_step_deg: Option<f64>,
+    },
+}
+
+fn default_device_dir() -> PathBuf {
+    PathBuf::from(crate::input::device::DEFAULT_DIR)
 }
 
 fn default_baud() -> u32 {

@@ -4,6 +4,7 @@
 //! arrives faster than it solves, every pending command is applied — so no
 //! contact down or up is lost — and only the newest state is solved.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
@@ -34,6 +35,11 @@ pub enum Command {
     },
     /// A source went away: lift all its contacts.
     ReleaseSource(String),
+    /// A mouse's cursor moved (`None`: the mouse went away).
+    Cursor {
+        source: String,
+        cursor: Option<CursorView>,
+    },
     /// End the thread (the daemon is shutting down).
     Stop,
 }
@@ -68,6 +74,36 @@ pub struct HandleView {
     pub at: [f64; 2],
 }
 
+/// A mouse cursor as clients draw it: where it is, and the pair of points
+/// it holds (or would hold) around it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct CursorView {
+    pub at: [f64; 2],
+    /// Direction of the pair, radians counter-clockwise from +x.
+    pub angle: f64,
+    /// Distance between the pair's points; 0 for a one-point mouse.
+    pub spacing: f64,
+    /// A button is down and the points are grabbing.
+    pub holding: bool,
+}
+
+/// The "cursors" message: every mouse cursor on the stage.
+pub fn cursors_message(cursors: &BTreeMap<String, CursorView>) -> String {
+    let list: Vec<serde_json::Value> = cursors
+        .iter()
+        .map(|(source, c)| {
+            serde_json::json!({
+                "source": source,
+                "at": c.at,
+                "angle": c.angle,
+                "spacing": c.spacing,
+                "holding": c.holding,
+            })
+        })
+        .collect();
+    serde_json::json!({"type": "cursors", "cursors": list}).to_string()
+}
+
 /// The "handles" message of a puppet.
 pub fn handles_message(stage: &Stage, puppet: u32) -> String {
     let p = &stage.puppets()[puppet as usize];
@@ -96,6 +132,15 @@ pub struct PuppetOutput {
     pub handles: watch::Receiver<Arc<str>>,
 }
 
+/// What the stage thread publishes.
+pub struct Outputs {
+    pub puppets: Vec<PuppetOutput>,
+    /// The newest "cursors" message.
+    pub cursors: watch::Receiver<Arc<str>>,
+    /// Bumped after each publish, so clients wait on one signal.
+    pub changes: watch::Receiver<u64>,
+}
+
 /// The stage thread's publishing ends: per puppet its newest frame and
 /// handles, and a counter bumped after each publish so clients wait on one
 /// signal.
@@ -103,6 +148,7 @@ struct Publisher {
     frames: Vec<watch::Sender<Option<Bytes>>>,
     handles: Vec<watch::Sender<Arc<str>>>,
     sequences: Vec<u64>,
+    cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
 }
 
@@ -126,19 +172,25 @@ impl Publisher {
             self.changes.send_modify(|c| *c += 1);
         }
     }
+
+    fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorView>) {
+        self.cursors
+            .send_replace(Arc::from(cursors_message(cursors)));
+        self.changes.send_modify(|c| *c += 1);
+    }
 }
 
-/// Starts the stage thread; returns each puppet's outputs and the change
-/// counter. The thread stops when every command sender is dropped.
-pub fn spawn(
-    mut stage: Stage,
-    mut commands: mpsc::Receiver<Command>,
-) -> (Vec<PuppetOutput>, watch::Receiver<u64>, JoinHandle<()>) {
+/// Starts the stage thread; returns what it publishes. The thread stops
+/// when every command sender is dropped.
+pub fn spawn(mut stage: Stage, mut commands: mpsc::Receiver<Command>) -> (Outputs, JoinHandle<()>) {
     let (changes, changes_rx) = watch::channel(0u64);
+    let mut cursors = BTreeMap::new();
+    let (cursors_tx, cursors_rx) = watch::channel(Arc::<str>::from(cursors_message(&cursors)));
     let mut publisher = Publisher {
         frames: Vec::new(),
         handles: Vec::new(),
         sequences: vec![0; stage.puppets().len()],
+        cursors: cursors_tx,
         changes,
     };
     let mut outputs = Vec::new();
@@ -162,6 +214,7 @@ pub fn spawn(
             while let Some(first) = commands.blocking_recv() {
                 let mut newest = 0.0;
                 let mut stop = false;
+                let mut cursors_changed = false;
                 let mut apply = |stage: &mut Stage, command: Command| match command {
                     Command::Stop => stop = true,
                     Command::Frame { frame, received } => {
@@ -175,6 +228,13 @@ pub fn spawn(
                         stage.unpin(puppet, handle);
                     }
                     Command::ReleaseSource(source) => stage.release_source(&source),
+                    Command::Cursor { source, cursor } => {
+                        let old = match cursor {
+                            Some(c) => cursors.insert(source, c),
+                            None => cursors.remove(&source),
+                        };
+                        cursors_changed |= old != cursor;
+                    }
                 };
                 apply(&mut stage, first);
                 // Catch up: apply everything already waiting, solve once.
@@ -187,8 +247,18 @@ pub fn spawn(
                 }
                 let solved = stage.solve();
                 publisher.publish(&stage, &solved, newest);
+                if cursors_changed {
+                    publisher.publish_cursors(&cursors);
+                }
             }
         })
         .expect("spawn the stage thread");
-    (outputs, changes_rx, thread)
+    (
+        Outputs {
+            puppets: outputs,
+            cursors: cursors_rx,
+            changes: changes_rx,
+        },
+        thread,
+    )
 }

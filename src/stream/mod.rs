@@ -85,6 +85,8 @@ pub struct Shared {
     pub web_root: PathBuf,
     pub commands: mpsc::Sender<Command>,
     pub outputs: Vec<PuppetOutput>,
+    /// The newest "cursors" message (mouse cursors on the stage).
+    pub cursors: watch::Receiver<Arc<str>>,
     /// Bumped by the stage thread after each publish.
     pub changes: watch::Receiver<u64>,
     pub client_timeout: Duration,
@@ -239,10 +241,12 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     )
     .await?;
     let mut changes = shared.changes.clone();
+    let mut cursors = shared.cursors.clone();
     // Frames published before this client connected still count as new.
     for f in &mut frames {
         f.mark_changed();
     }
+    cursors.mark_changed();
     let mut bad_in_a_row = 0u32;
     let result: std::io::Result<()> = async {
         loop {
@@ -258,6 +262,10 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     let text = handles[i].borrow_and_update().to_string();
                     send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
+            }
+            if cursors.has_changed().unwrap_or(false) {
+                let text = cursors.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
             }
             tokio::select! {
                 changed = changes.changed() => {
