@@ -303,10 +303,9 @@ impl Parser<'_> {
             }
             "E" => {
                 if !self.have_descriptor {
-                    return Err(self.error(
-                        "line",
-                        "an `E:` report before the `R:` report descriptor",
-                    ));
+                    return Err(
+                        self.error("line", "an `E:` report before the `R:` report descriptor")
+                    );
                 }
                 let mut fields = rest.split_whitespace();
                 let time = self.time(fields.next())?;
@@ -343,7 +342,10 @@ impl Parser<'_> {
         Ok(())
     }
 
-    fn no_more<'t>(&self, mut fields: impl Iterator<Item = &'t str>) -> Result<(), HidRecordingError> {
+    fn no_more<'t>(
+        &self,
+        mut fields: impl Iterator<Item = &'t str>,
+    ) -> Result<(), HidRecordingError> {
         match fields.next() {
             Some(extra) => {
                 Err(self.error("line", format!("unexpected `{}` at the end", clip(extra))))

@@ -97,7 +97,10 @@ impl ReplaySource {
             file: file.clone(),
             source,
         })?;
-        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("hid")) {
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("hid"))
+        {
             let capture = HidRecording::parse(&file, &text)?;
             return ReplaySource::from_hid(&file, &capture, source, stage_size, calibration);
         }
