@@ -733,6 +733,19 @@ fn hid_recorder_text_parses_and_round_trips() {
         "{written}"
     );
     assert_eq!(HidRecording::parse("again", &written).unwrap(), recording);
+
+    // A line break in the name cannot start a new item.
+    let odd = HidRecording {
+        name: "two\nE: lines".to_string(),
+        ..recording.clone()
+    };
+    let mut written = Vec::new();
+    odd.write(&mut written).unwrap();
+    let back = HidRecording::parse("odd", std::str::from_utf8(&written).unwrap()).unwrap();
+    assert_eq!(
+        (back.name.as_str(), back.reports.len()),
+        ("two E: lines", 2)
+    );
 }
 
 fn parse_error(text: &str) -> (usize, &'static str, String) {

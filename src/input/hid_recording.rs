@@ -84,7 +84,7 @@ impl HidRecording {
     /// Writes the capture in `hid-recorder`'s format, one line per item, so
     /// hid-tools (`hid-replay`, `hid-decode`) can read it back.
     pub fn write(&self, out: &mut impl Write) -> std::io::Result<()> {
-        writeln!(out, "# {}", self.name)?;
+        writeln!(out, "# {}", one_line(&self.name))?;
         writeln!(out, "# written by puppetry")?;
         write!(out, "R: {}", self.descriptor.len())?;
         write_hex(out, &self.descriptor)?;
