@@ -1,10 +1,25 @@
 //! The HID digitizer decoder against a synthetic Windows-style touch screen:
 //! report id 1 with two finger slots, scan time and contact count; report id
 //! 2 a Contact Count Maximum feature; report id 3 the Input Mode feature.
+//! Then hid-recorder captures (parse, write, errors by line), their replay
+//! (a two-finger drag captured in parallel and in hybrid mode plays the same
+//! frames, also through the running daemon), device selection, and
+//! `run_device` against a stand-in device that fails mid-drag.
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::DVec2;
-use puppetry::input::hid::{HidError, HidTouchDecoder, InputMode, Surface, TouchLayout};
+use puppetry::input::hid::{
+    HidDeviceInfo, HidError, HidField, HidSelector, HidTouchDecoder, InputMode, ReportDevice,
+    Surface, TouchLayout, permission_hint, run_device,
+};
+use puppetry::input::hid_recording::{HidRecording, HidRecordingError};
+use puppetry::input::replay::{ReplayError, ReplaySource};
 use puppetry::input::{Calibration, ContactFrame, Phase, SourceId};
+use tokio::sync::mpsc;
 
 #[rustfmt::skip]
 const FINGER: &[u8] = &[
@@ -388,4 +403,757 @@ fn explicit_calibration_is_used() {
         0.0,
     );
     assert!((frame.contacts[0].position - DVec2::new(1.0, 1.0)).length() < 1e-9);
+}
+
+// hid-recorder captures, replay and device I/O.
+
+fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
+}
+
+/// The same touch screen with one finger slot, so two fingers take two
+/// reports: hybrid mode.
+fn one_slot_descriptor() -> Vec<u8> {
+    [HEAD, FINGER, TAIL].concat()
+}
+
+/// A report with as many slots as given (1 or 2).
+fn report_of(slots: &[Slot], scan: u16, count: u8) -> Vec<u8> {
+    let mut bytes = vec![0x01];
+    for &(tip, id, x, y, pressure) in slots {
+        bytes.push(u8::from(tip));
+        bytes.push(id);
+        bytes.extend(x.to_le_bytes());
+        bytes.extend(y.to_le_bytes());
+        bytes.push(pressure);
+    }
+    bytes.extend(scan.to_le_bytes());
+    bytes.push(count);
+    bytes
+}
+
+const DRAG_FRAMES: usize = 13;
+const FINGER_A: u8 = 3;
+const FINGER_B: u8 = 8;
+const PRESSURE: u8 = 100;
+
+/// Frame `k`'s time, minus `early_us` microseconds; worked out in whole
+/// microseconds so it survives the capture's six decimals exactly.
+fn drag_time_us(k: usize, early_us: usize) -> f64 {
+    (1_000_000 + 10_000 * k - early_us) as f64 / 1e6
+}
+
+fn drag_time(k: usize) -> f64 {
+    drag_time_us(k, 0)
+}
+
+fn a_at(k: usize) -> (u16, u16) {
+    (1000 + 50 * k as u16, 1500)
+}
+
+fn b_at(k: usize) -> (u16, u16) {
+    (1000 + 50 * k as u16, 2500 - 20 * k as u16)
+}
+
+/// The finger slots of frame `k` of the drag: both fingers down and moving
+/// right for frames 0..=9; A lifts in frame 10 while B moves on; B alone in
+/// 11; B lifts in 12. A lift report repeats the last position.
+fn drag_slots(k: usize) -> Vec<Slot> {
+    let slot = |tip, id, (x, y): (u16, u16)| (tip, id, x, y, if tip { PRESSURE } else { 0 });
+    match k {
+        0..=9 => vec![slot(true, FINGER_A, a_at(k)), slot(true, FINGER_B, b_at(k))],
+        10 => vec![
+            slot(false, FINGER_A, a_at(9)),
+            slot(true, FINGER_B, b_at(10)),
+        ],
+        11 => vec![slot(true, FINGER_B, b_at(11))],
+        _ => vec![slot(false, FINGER_B, b_at(11))],
+    }
+}
+
+/// The drag as hid-recorder would capture it from the two-slot screen
+/// (parallel: one report per frame) or the one-slot screen (hybrid: a
+/// two-finger frame is two reports, the second completing it at the frame's
+/// time).
+fn drag_recording(hybrid: bool) -> HidRecording {
+    let mut reports = Vec::new();
+    for k in 0..DRAG_FRAMES {
+        let slots = drag_slots(k);
+        let scan = 100 * k as u16;
+        let count = slots.len() as u8;
+        if hybrid {
+            for (i, slot) in slots.iter().enumerate() {
+                let time = drag_time_us(k, 500 * (slots.len() - 1 - i));
+                let count = if i == 0 { count } else { 0 };
+                reports.push((time, report_of(&[*slot], scan, count)));
+            }
+        } else {
+            let mut padded = slots.clone();
+            padded.resize(2, EMPTY);
+            reports.push((drag_time(k), report_of(&padded, scan, count)));
+        }
+    }
+    let mode = if hybrid { "hybrid" } else { "parallel" };
+    HidRecording {
+        name: format!("puppetry synthetic touch screen ({mode})"),
+        phys: "synthetic/input0".to_string(),
+        bus: 0x18,
+        vendor: 0x1234,
+        product: if hybrid { 0x0002 } else { 0x0001 },
+        descriptor: if hybrid {
+            one_slot_descriptor()
+        } else {
+            descriptor()
+        },
+        reports,
+    }
+}
+
+fn fixture_name(hybrid: bool) -> &'static str {
+    if hybrid {
+        "touch-hybrid.hid"
+    } else {
+        "touch-parallel.hid"
+    }
+}
+
+/// Regenerates the committed captures:
+/// `cargo test --release --test hid -- --ignored write_drag_fixtures`.
+#[test]
+#[ignore]
+fn write_drag_fixtures() {
+    for hybrid in [false, true] {
+        let mut text = Vec::new();
+        drag_recording(hybrid).write(&mut text).unwrap();
+        std::fs::write(fixture(fixture_name(hybrid)), text).unwrap();
+    }
+}
+
+#[test]
+fn fixtures_are_the_drag_captures() {
+    for hybrid in [false, true] {
+        let read = HidRecording::read(&fixture(fixture_name(hybrid))).unwrap();
+        assert_eq!(read, drag_recording(hybrid), "{}", fixture_name(hybrid));
+    }
+}
+
+/// What the drag must play as: (time, [(id, phase, device x, device y)]).
+/// One expected contact: id, phase, device position.
+type Expected = (u32, Phase, (u16, u16));
+
+fn expected_drag() -> Vec<(f64, Vec<Expected>)> {
+    let (a, b) = (u32::from(FINGER_A), u32::from(FINGER_B));
+    (0..DRAG_FRAMES)
+        .map(|k| {
+            let contacts = match k {
+                0 => vec![(a, Phase::Down, a_at(0)), (b, Phase::Down, b_at(0))],
+                1..=9 => vec![(a, Phase::Move, a_at(k)), (b, Phase::Move, b_at(k))],
+                10 => vec![(a, Phase::Up, a_at(9)), (b, Phase::Move, b_at(10))],
+                11 => vec![(b, Phase::Move, b_at(11))],
+                _ => vec![(b, Phase::Up, b_at(11))],
+            };
+            (drag_time(k), contacts)
+        })
+        .collect()
+}
+
+fn assert_drag(frames: &[ContactFrame], source: &str) {
+    let fit = Calibration::fit([0.0, 4095.0], [0.0, 4095.0], STAGE).unwrap();
+    let expected = expected_drag();
+    assert_eq!(frames.len(), expected.len());
+    for (frame, (time, contacts)) in frames.iter().zip(&expected) {
+        assert_eq!(frame.source.as_str(), source);
+        assert!((frame.time - time).abs() < 1e-9, "{} vs {time}", frame.time);
+        assert_eq!(frame.contacts.len(), contacts.len(), "at {time}");
+        for (got, &(id, phase, (x, y))) in frame.contacts.iter().zip(contacts) {
+            assert_eq!((got.id, got.phase), (id, phase), "at {time}");
+            let want = fit.map(DVec2::new(f64::from(x), f64::from(y)));
+            assert!((got.position - want).length() < 1e-9, "at {time}");
+            let pressure = got.pressure.unwrap();
+            assert!((pressure - f64::from(PRESSURE) / 255.0).abs() < 1e-12);
+        }
+    }
+}
+
+#[test]
+fn parallel_and_hybrid_captures_replay_the_same_drag() {
+    let parallel: Vec<ContactFrame> = ReplaySource::open(&fixture("touch-parallel.hid"), STAGE)
+        .unwrap()
+        .frames()
+        .collect();
+    let hybrid: Vec<ContactFrame> = ReplaySource::open(&fixture("touch-hybrid.hid"), STAGE)
+        .unwrap()
+        .frames()
+        .collect();
+    assert_drag(&parallel, "replay");
+    assert_eq!(parallel, hybrid);
+}
+
+/// Writes `recording` to a temporary file without the `.hid` extension.
+fn unnamed_capture(recording: &HidRecording) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("capture.txt");
+    let mut text = Vec::new();
+    recording.write(&mut text).unwrap();
+    std::fs::write(&path, text).unwrap();
+    (dir, path)
+}
+
+#[test]
+fn a_capture_is_recognised_by_content_and_contacts_left_down_are_lifted() {
+    for hybrid in [false, true] {
+        let mut cut = drag_recording(hybrid);
+        // Keep frames 0..=4: both fingers still down at the end.
+        let last = drag_time(4);
+        cut.reports.retain(|(time, _)| *time <= last + 1e-9);
+        let (_dir, path) = unnamed_capture(&cut);
+        let calibration =
+            Calibration::fit([0.0, 4095.0], [0.0, 4095.0], DVec2::new(2.0, 1.0)).unwrap();
+        let source = ReplaySource::open_with(
+            &path,
+            SourceId::new("table"),
+            STAGE,
+            Some(calibration.clone()),
+        )
+        .unwrap();
+        let frames: Vec<ContactFrame> = source.frames().collect();
+        assert_eq!(frames.len(), 6);
+        let end = frames.last().unwrap();
+        assert_eq!(end.source.as_str(), "table");
+        assert!((end.time - last).abs() < 1e-9);
+        assert_eq!(
+            phases(end),
+            [
+                (u32::from(FINGER_A), Phase::Up),
+                (u32::from(FINGER_B), Phase::Up)
+            ]
+        );
+        let (x, y) = b_at(4);
+        let want = calibration.map(DVec2::new(f64::from(x), f64::from(y)));
+        assert!((end.contacts[1].position - want).length() < 1e-12);
+    }
+}
+
+#[test]
+fn a_capture_led_by_a_device_line_is_sniffed_too() {
+    let mut text = Vec::new();
+    drag_recording(false).write(&mut text).unwrap();
+    let text = format!(
+        "# two devices would differ\nD: 0\n{}",
+        String::from_utf8(text).unwrap()
+    );
+    let frames: Vec<ContactFrame> =
+        ReplaySource::parse("mem", &text, SourceId::new("replay"), STAGE, None)
+            .unwrap()
+            .frames()
+            .collect();
+    assert_drag(&frames, "replay");
+}
+
+#[test]
+fn a_bad_report_in_a_capture_fails_the_open_with_its_place() {
+    let mut capture = drag_recording(false);
+    capture.reports[3].1.truncate(10);
+    let (_dir, path) = unnamed_capture(&capture);
+    let err = ReplaySource::open(&path, STAGE).unwrap_err();
+    assert!(
+        matches!(err, ReplayError::HidReport { index: 4, .. }),
+        "{err}"
+    );
+    let text = err.to_string();
+    assert!(
+        text.contains("capture.txt") && text.contains("report 4"),
+        "{text}"
+    );
+
+    // A descriptor that is no touch screen fails as well, naming the file.
+    capture.descriptor = vec![0x05, 0x01, 0x09, 0x02, 0xA1, 0x01, 0xC0];
+    let (_dir, path) = unnamed_capture(&capture);
+    let err = ReplaySource::open(&path, STAGE).unwrap_err();
+    assert!(matches!(err, ReplayError::HidDevice { .. }), "{err}");
+    assert!(err.to_string().contains("capture.txt"), "{err}");
+}
+
+#[test]
+fn hid_recorder_text_parses_and_round_trips() {
+    // As hid-recorder writes it: descriptor comments, a wrapped R: line, a
+    // name with a `#`, decoded-report comments between events.
+    let d = descriptor();
+    let hex = |bytes: &[u8]| {
+        bytes
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let first = report([(true, 5, 100, 200, 128), EMPTY], 7, 1);
+    let second = report([(false, 5, 100, 200, 0), EMPTY], 8, 1);
+    let text = format!(
+        "# ACME Touch #2\n\
+         # 0x05, 0x0d,  // Usage Page (Digitizers)  0\n\
+         #\n\
+         D: 0\n\
+         R: {len} {head}\n\
+         {tail}\n\
+         N: ACME Touch #2\n\
+         P: usb-0000:00:14.0-4/input0\n\
+         I: 3 0eef 7224\n\
+         # ReportID: 1 / Tip Switch: 1 | Contact Id: 5\n\
+         E: 000012.500000 {n} {first}\n\
+         \n\
+         E: 000012.508123 {n} {second}\n",
+        len = d.len(),
+        head = hex(&d[..40]),
+        tail = hex(&d[40..]),
+        n = REPORT_LEN,
+        first = hex(&first),
+        second = hex(&second),
+    );
+    let recording = HidRecording::parse("touch.hid", &text).unwrap();
+    assert_eq!(recording.name, "ACME Touch #2");
+    assert_eq!(recording.phys, "usb-0000:00:14.0-4/input0");
+    assert_eq!(
+        (recording.bus, recording.vendor, recording.product),
+        (3, 0x0eef, 0x7224)
+    );
+    assert_eq!(recording.descriptor, d);
+    assert_eq!(
+        recording.reports,
+        vec![(12.5, first.clone()), (12.508123, second.clone())]
+    );
+
+    let mut written = Vec::new();
+    recording.write(&mut written).unwrap();
+    let written = String::from_utf8(written).unwrap();
+    assert!(written.contains("\nI: 3 0eef 7224\n"), "{written}");
+    assert!(
+        written.contains("\nE: 000012.508123 18 01 00 05"),
+        "{written}"
+    );
+    assert_eq!(HidRecording::parse("again", &written).unwrap(), recording);
+
+    // A line break in the name cannot start a new item.
+    let odd = HidRecording {
+        name: "two\nE: lines".to_string(),
+        ..recording.clone()
+    };
+    let mut written = Vec::new();
+    odd.write(&mut written).unwrap();
+    let back = HidRecording::parse("odd", std::str::from_utf8(&written).unwrap()).unwrap();
+    assert_eq!(
+        (back.name.as_str(), back.reports.len()),
+        ("two E: lines", 2)
+    );
+}
+
+fn parse_error(text: &str) -> (usize, &'static str, String) {
+    match HidRecording::parse("bad.hid", text).unwrap_err() {
+        e @ HidRecordingError::Line { line, field, .. } => (line, field, e.to_string()),
+        other => panic!("expected a line error, got {other}"),
+    }
+}
+
+#[test]
+fn bad_captures_name_their_line_and_field() {
+    let r = "R: 3 05 0d 09\n";
+    let cases: &[(&str, usize, &str)] = &[
+        ("# x\nE: 000000.000000 1 01\n", 2, "line"),
+        ("R: 3 05 0d\nN: cut short\n", 1, "descriptor bytes"),
+        ("R: 2 05 0d 09\n", 1, "descriptor bytes"),
+        ("R: x 05\n", 1, "length"),
+        ("R: 3 05 0d\n0g\n", 2, "descriptor bytes"),
+        (&format!("{r}E: 000000.000000 2 01 zz\n"), 2, "report bytes"),
+        (&format!("{r}E: 1.5 1 01\nE: 1.25 1 01\n"), 3, "time"),
+        (&format!("{r}E: -1.0 1 01\n"), 2, "time"),
+        (&format!("{r}E: 000000.000000 0\n"), 2, "length"),
+        (&format!("{r}I: 3 xyz 0001\n"), 2, "vendor"),
+        (&format!("{r}I: 3 0001\n"), 2, "product"),
+        (&format!("{r}I: 3 0001 0002 0003\n"), 2, "line"),
+        (&format!("D: 0\n{r}D: 1\n"), 3, "device index"),
+        (&format!("{r}R: 1 c0\n"), 2, "line"),
+        (&format!("{r}X: 1\n"), 2, "line"),
+        (&format!("{r}05 0d\n"), 2, "line"),
+    ];
+    for &(text, line, field) in cases {
+        let (got_line, got_field, message) = parse_error(text);
+        assert_eq!((got_line, got_field), (line, field), "{text:?}: {message}");
+        assert!(
+            message.starts_with(&format!("bad.hid:{line}: {field}: ")),
+            "{message}"
+        );
+    }
+    let err = HidRecording::parse("empty.hid", "# nothing\nN: x\n").unwrap_err();
+    assert!(
+        matches!(err, HidRecordingError::NoDescriptor { .. }),
+        "{err}"
+    );
+    assert!(err.to_string().starts_with("empty.hid: "), "{err}");
+    let err = HidRecording::read(Path::new("/nonexistent/touch.hid")).unwrap_err();
+    assert!(matches!(err, HidRecordingError::Read { .. }), "{err}");
+}
+
+fn info(
+    path: &str,
+    vendor: u16,
+    product: u16,
+    serial: &str,
+    page: u16,
+    usage: u16,
+) -> HidDeviceInfo {
+    HidDeviceInfo {
+        path: path.to_string(),
+        vendor_id: vendor,
+        product_id: product,
+        serial: (!serial.is_empty()).then(|| serial.to_string()),
+        manufacturer: None,
+        product: None,
+        usage_page: page,
+        usage,
+        interface: 0,
+    }
+}
+
+#[test]
+fn selectors_pick_the_touch_interface_and_refuse_ambiguity() {
+    let devices = [
+        // A touch screen listed per top-level collection, with its mouse
+        // fallback on another interface.
+        info("/dev/hidraw1", 0x0eef, 0x7224, "A1", 0x01, 0x02),
+        info("/dev/hidraw2", 0x0eef, 0x7224, "A1", 0x0D, 0x0E),
+        info("/dev/hidraw2", 0x0eef, 0x7224, "A1", 0x0D, 0x04),
+        // A second, identical screen.
+        info("/dev/hidraw5", 0x0eef, 0x7224, "B2", 0x0D, 0x04),
+        info("/dev/hidraw7", 0x046d, 0xc52b, "", 0x01, 0x06),
+    ];
+    assert!(devices[2].is_touch() && devices[1].is_digitizer() && !devices[1].is_touch());
+
+    let by_serial = HidSelector {
+        vendor_id: Some(0x0eef),
+        serial: Some("A1".to_string()),
+        ..HidSelector::default()
+    };
+    assert_eq!(by_serial.pick(&devices).unwrap().path, "/dev/hidraw2");
+    assert!(by_serial.matches(&devices[0]) && !by_serial.matches(&devices[3]));
+
+    let by_ids = HidSelector {
+        vendor_id: Some(0x0eef),
+        product_id: Some(0x7224),
+        ..HidSelector::default()
+    };
+    let err = by_ids.pick(&devices).unwrap_err();
+    assert!(
+        matches!(&err, HidError::Ambiguous { paths, .. } if paths == &["/dev/hidraw2", "/dev/hidraw5"]),
+        "{err}"
+    );
+    assert!(err.to_string().contains("0eef:7224"), "{err}");
+
+    // A named path wins even when it is not the touch interface.
+    let by_path = HidSelector {
+        path: Some("/dev/hidraw1".to_string()),
+        ..HidSelector::default()
+    };
+    assert_eq!(by_path.pick(&devices).unwrap().usage, 0x02);
+
+    let missing = HidSelector {
+        vendor_id: Some(0xdead),
+        ..HidSelector::default()
+    };
+    let err = missing.pick(&devices).unwrap_err();
+    assert!(matches!(err, HidError::NotFound { .. }), "{err}");
+    assert!(err.to_string().contains("vendor dead"), "{err}");
+
+    let hint = permission_hint(Some(0x0eef));
+    assert!(hint.contains(r#"ATTRS{idVendor}=="0eef""#), "{hint}");
+    assert!(hint.contains("plugdev"), "{hint}");
+}
+
+/// A device that plays back a capture's reports, then either fails like an
+/// unplugged device or keeps timing out and raises a stop flag.
+struct FakeDevice<'a> {
+    descriptor: Vec<u8>,
+    reports: RefCell<VecDeque<Vec<u8>>>,
+    features: RefCell<Vec<Vec<u8>>>,
+    reject_features: bool,
+    /// When set, running out of reports stops the loop instead of failing.
+    stop_when_done: Option<&'a AtomicBool>,
+    /// Reads answered with a timeout, to show they are skipped.
+    timeouts: RefCell<usize>,
+}
+
+impl<'a> FakeDevice<'a> {
+    fn new(recording: &HidRecording, frames: usize) -> FakeDevice<'a> {
+        // Frames are reports in parallel mode.
+        FakeDevice {
+            descriptor: recording.descriptor.clone(),
+            reports: RefCell::new(
+                recording.reports[..frames]
+                    .iter()
+                    .map(|(_, r)| r.clone())
+                    .collect(),
+            ),
+            features: RefCell::new(Vec::new()),
+            reject_features: false,
+            stop_when_done: None,
+            timeouts: RefCell::new(0),
+        }
+    }
+}
+
+impl ReportDevice for FakeDevice<'_> {
+    fn descriptor(&self) -> Result<Vec<u8>, HidError> {
+        Ok(self.descriptor.clone())
+    }
+
+    fn send_feature(&self, report: &[u8]) -> Result<(), HidError> {
+        if self.reject_features {
+            return Err(unplugged("feature rejected"));
+        }
+        self.features.borrow_mut().push(report.to_vec());
+        Ok(())
+    }
+
+    fn read(&self, buf: &mut [u8], _timeout_ms: i32) -> Result<usize, HidError> {
+        // Every other read times out.
+        let mut timeouts = self.timeouts.borrow_mut();
+        let reports = self.reports.borrow().len();
+        if *timeouts < reports {
+            *timeouts = reports;
+            return Ok(0);
+        }
+        match self.reports.borrow_mut().pop_front() {
+            Some(report) => {
+                buf[..report.len()].copy_from_slice(&report);
+                Ok(report.len())
+            }
+            None => match self.stop_when_done {
+                Some(stop) => {
+                    stop.store(true, Ordering::Relaxed);
+                    Ok(0)
+                }
+                None => Err(unplugged("device disconnected")),
+            },
+        }
+    }
+}
+
+fn unplugged(message: &str) -> HidError {
+    HidError::Device {
+        what: "reading an input report".to_string(),
+        source: hidapi::HidError::HidApiError {
+            message: message.to_string(),
+        },
+    }
+}
+
+fn drain(mut rx: mpsc::Receiver<ContactFrame>) -> Vec<ContactFrame> {
+    let mut frames = Vec::new();
+    while let Ok(frame) = rx.try_recv() {
+        frames.push(frame);
+    }
+    frames
+}
+
+/// Compares frames ignoring time (run_device stamps its own clock).
+fn same_contacts(got: &[ContactFrame], want: &[ContactFrame]) {
+    assert_eq!(got.len(), want.len());
+    for (g, w) in got.iter().zip(want) {
+        assert_eq!(g.source, w.source);
+        assert_eq!(g.contacts, w.contacts);
+    }
+}
+
+#[test]
+fn run_device_selects_multi_input_and_lifts_contacts_when_the_device_fails() {
+    let recording = drag_recording(false);
+    // Six frames in, both fingers are down when the device goes away.
+    let device = FakeDevice::new(&recording, 6);
+    let (tx, rx) = mpsc::channel(64);
+    let stop = AtomicBool::new(false);
+    let result = run_device(&device, SourceId::new("hid0"), None, STAGE, &tx, &stop);
+    let err = result.unwrap_err();
+    assert!(err.to_string().contains("device disconnected"), "{err}");
+    // Report id 3: Input Mode 2 (multi-input), Device Index 0.
+    assert_eq!(*device.features.borrow(), vec![vec![3, 2, 0]]);
+
+    let frames = drain(rx);
+    let mut want: Vec<ContactFrame> = ReplaySource::from_hid(
+        "drag",
+        &HidRecording {
+            reports: recording.reports[..6].to_vec(),
+            ..recording.clone()
+        },
+        SourceId::new("hid0"),
+        STAGE,
+        None,
+    )
+    .unwrap()
+    .frames()
+    .collect();
+    assert_eq!(want.len(), 7, "six frames and the lift");
+    same_contacts(&frames, &want);
+    let lift = want.pop().unwrap();
+    assert!(lift.contacts.iter().all(|c| c.phase == Phase::Up));
+    assert!(frames.windows(2).all(|w| w[0].time <= w[1].time));
+}
+
+#[test]
+fn run_device_stops_on_request_and_reads_on_when_the_mode_is_refused() {
+    let recording = drag_recording(false);
+    let stop = AtomicBool::new(false);
+    let mut device = FakeDevice::new(&recording, 3);
+    device.reject_features = true;
+    device.stop_when_done = Some(&stop);
+    let (tx, rx) = mpsc::channel(64);
+    run_device(&device, SourceId::new("hid0"), None, STAGE, &tx, &stop).unwrap();
+    assert!(device.features.borrow().is_empty());
+    let frames = drain(rx);
+    let phases: Vec<Vec<(u32, Phase)>> = frames.iter().map(phases).collect();
+    let (a, b) = (u32::from(FINGER_A), u32::from(FINGER_B));
+    assert_eq!(
+        phases,
+        [
+            vec![(a, Phase::Down), (b, Phase::Down)],
+            vec![(a, Phase::Move), (b, Phase::Move)],
+            vec![(a, Phase::Move), (b, Phase::Move)],
+            vec![(a, Phase::Up), (b, Phase::Up)],
+        ]
+    );
+
+    // A closed channel ends the loop before anything is read.
+    let device = FakeDevice::new(&recording, 3);
+    let (tx, rx) = mpsc::channel(64);
+    drop(rx);
+    run_device(
+        &device,
+        SourceId::new("hid0"),
+        None,
+        STAGE,
+        &tx,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    assert_eq!(device.reports.borrow().len(), 3);
+}
+
+#[test]
+fn a_device_without_report_ids_gets_a_zero_report_id_byte() {
+    let mode = InputMode {
+        report_id: None,
+        report_len: 2,
+        field: HidField {
+            bits: 0..8,
+            logical_min: 0,
+            logical_max: 10,
+        },
+    };
+    assert_eq!(mode.multi_input_report(), vec![2, 0]);
+    assert_eq!(mode.multi_input_feature(), vec![0, 2, 0]);
+    let numbered = TouchLayout::parse(&descriptor())
+        .unwrap()
+        .input_mode
+        .unwrap();
+    assert_eq!(
+        numbered.multi_input_feature(),
+        numbered.multi_input_report()
+    );
+}
+
+/// The hybrid capture as a replay input of the running daemon, calibrated
+/// onto the demo puppet's belly: its fingers grab the puppet, and once they
+/// lift only the stage file's two pins hold it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hid_capture_drives_the_daemon_and_leaves_no_stuck_contact() {
+    use futures_util::{SinkExt, StreamExt};
+    use puppetry::stage::config::StageConfig;
+    use serde_json::{Value, json};
+    use tokio_tungstenite::tungstenite::Message;
+
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let assets = root.join("assets/gingerbread");
+    let text = format!(
+        r#"
+[stage]
+width = 1280
+height = 720
+listen = "127.0.0.1:0"
+
+[[puppet]]
+name = "gingerbread"
+image = "{image}"
+mesh = "{mesh}"
+at = [640, 360]
+pins = [[168, 58], [344, 58]]
+
+[[input]]
+kind = "replay"
+name = "table"
+file = "{capture}"
+pacing = "as_fast_as_possible"
+# Played over and over, so the viewer sees the fingers land and lift.
+repeat = true
+calibration = {{ kind = "range", x = [0, 4095], y = [0, 4095], stage_min = [590, 320], stage_max = [690, 400] }}
+"#,
+        image = assets.join("gingerbread.png").display(),
+        mesh = assets.join("gingerbread.mesh.json").display(),
+        capture = fixture("touch-hybrid.hid").display(),
+    );
+    let config = StageConfig::parse("test.toml", &text, Path::new("/")).unwrap();
+    let running = puppetry::serve::start(&config, root.join("clients/web"), None)
+        .await
+        .unwrap();
+    let url = format!("ws://{}/ws", running.address);
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    ws.send(Message::text(
+        json!({"type": "hello", "role": "viewer"}).to_string(),
+    ))
+    .await
+    .unwrap();
+    let wait = std::time::Duration::from_secs(20);
+    let mut table_handles_seen = false;
+    loop {
+        let message = tokio::time::timeout(wait, ws.next())
+            .await
+            .expect("a message in time")
+            .expect("connection open")
+            .expect("no error");
+        let Message::Text(text) = message else {
+            continue;
+        };
+        let m: Value = serde_json::from_str(&text).unwrap();
+        if m["type"] != "handles" {
+            continue;
+        }
+        let handles = m["handles"].as_array().unwrap();
+        table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
+        if table_handles_seen && handles.len() == 2 && handles.iter().all(|h| h["kind"] == "pin") {
+            break;
+        }
+    }
+    running.shutdown().await;
+}
+
+/// Whatever this host has (nothing, in CI), listing works, each listed
+/// interface is found again by its path, and opening what is not there
+/// says so instead of panicking.
+#[test]
+fn listing_and_opening_without_hardware() {
+    let devices = puppetry::input::hid::list_devices().unwrap();
+    for device in &devices {
+        let by_path = HidSelector {
+            path: Some(device.path.clone()),
+            ..HidSelector::default()
+        };
+        assert_eq!(by_path.pick(&devices).unwrap().path, device.path);
+    }
+    let nowhere = HidSelector {
+        path: Some("/nonexistent/hidraw99".to_string()),
+        ..HidSelector::default()
+    };
+    let err = puppetry::input::hid::open(&nowhere).unwrap_err();
+    assert!(
+        matches!(err, HidError::Device { .. }) && err.to_string().contains("hidraw99"),
+        "{err}"
+    );
 }

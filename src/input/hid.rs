@@ -3,8 +3,14 @@
 //! HID report descriptor ([`TouchLayout`]), the Input Mode feature report that
 //! switches such a device into multi-touch reporting ([`InputMode`]), and
 //! [`HidTouchDecoder`], plain synchronous state that turns raw input reports
-//! into calibrated [`ContactFrame`]s. Talking to the device (hidapi, reading
-//! reports, sending the feature report) belongs elsewhere.
+//! into calibrated [`ContactFrame`]s.
+//!
+//! The last section talks to real devices through hidapi (hidraw on Linux,
+//! the platform HID APIs elsewhere): [`list_devices`], [`open`] by
+//! [`HidSelector`], and [`run_device`], a blocking loop over any
+//! [`ReportDevice`] that switches the device to multi-touch reporting and
+//! feeds its reports through the decoder. It is written against the trait so
+//! tests can stand in for hardware.
 //!
 //! Descriptor items are parsed by the `hidreport` crate; this module only
 //! picks out the digitizer usages (HID Usage Tables, page 0x0D) and the
@@ -68,6 +74,24 @@ pub enum HidError {
     DuplicateContact { report_id: Option<u8>, id: u32 },
     #[error("hid: {0}")]
     Calibration(#[from] CalibrationError),
+    #[error("hid: {what}: {source}")]
+    Device {
+        what: String,
+        source: hidapi::HidError,
+    },
+    #[error("hid: {path}: permission denied; {hint}")]
+    Permission { path: String, hint: String },
+    #[error("hid: no HID device matches {selector}")]
+    NotFound { selector: String },
+    #[error(
+        "hid: {} devices match {selector} ({}); add a serial or a path to pick one",
+        paths.len(),
+        paths.join(", ")
+    )]
+    Ambiguous {
+        selector: String,
+        paths: Vec<String>,
+    },
 }
 
 fn report_name(id: Option<u8>) -> String {
@@ -480,6 +504,24 @@ impl HidTouchDecoder {
         &self.layout
     }
 
+    /// Lifts every contact that is down and drops any half-gathered hybrid
+    /// frame: for the end of a capture or a device that went away.
+    pub fn lift_all(&mut self, time: f64) -> Option<ContactFrame> {
+        self.pending = None;
+        let contacts: Vec<Contact> = std::mem::take(&mut self.down)
+            .into_iter()
+            .map(|(id, was)| Contact {
+                pressure: was.pressure,
+                ..Contact::new(id, Phase::Up, self.calibration.map(was.position))
+            })
+            .collect();
+        (!contacts.is_empty()).then(|| ContactFrame {
+            source: self.source.clone(),
+            time,
+            contacts,
+        })
+    }
+
     /// Decodes one input report (report id byte first when the descriptor
     /// uses report ids, as hidapi delivers them). Returns the frame it
     /// completes when that frame changed anything; `None` while a hybrid
@@ -651,4 +693,343 @@ fn layout_error_ranges(finger: usize) -> HidError {
          one calibration cannot serve both",
         finger + 1
     ))
+}
+
+// Device I/O: hidapi, and the loop that runs one device.
+
+/// Bytes read at once; hidraw truncates a report to the buffer, and no
+/// full-speed or high-speed report is longer than this.
+const READ_BUFFER: usize = 4096;
+/// How long one read waits before the loop looks at its stop flag again.
+const READ_TIMEOUT_MS: i32 = 100;
+
+/// One HID interface (one top-level collection's usage) as the platform
+/// lists it. hidapi lists a device once per top-level usage, so a touch
+/// screen with a mouse fallback shows up twice under one path.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HidDeviceInfo {
+    /// What [`open`] needs: `/dev/hidraw3` on Linux, a platform path
+    /// elsewhere.
+    pub path: String,
+    pub vendor_id: u16,
+    pub product_id: u16,
+    pub serial: Option<String>,
+    pub manufacturer: Option<String>,
+    pub product: Option<String>,
+    pub usage_page: u16,
+    pub usage: u16,
+    /// USB interface number; -1 when the bus has none.
+    pub interface: i32,
+}
+
+fn non_empty(text: Option<&str>) -> Option<String> {
+    text.filter(|t| !t.is_empty()).map(str::to_string)
+}
+
+impl From<&hidapi::DeviceInfo> for HidDeviceInfo {
+    fn from(info: &hidapi::DeviceInfo) -> HidDeviceInfo {
+        HidDeviceInfo {
+            path: info.path().to_string_lossy().into_owned(),
+            vendor_id: info.vendor_id(),
+            product_id: info.product_id(),
+            serial: non_empty(info.serial_number()),
+            manufacturer: non_empty(info.manufacturer_string()),
+            product: non_empty(info.product_string()),
+            usage_page: info.usage_page(),
+            usage: info.usage(),
+            interface: info.interface_number(),
+        }
+    }
+}
+
+impl HidDeviceInfo {
+    /// Anything on the Digitizers usage page: touch screens, touch pads,
+    /// pens, and their configuration collections.
+    pub fn is_digitizer(&self) -> bool {
+        self.usage_page == PAGE_DIGITIZER
+    }
+
+    /// A touch screen or touch pad collection, what [`run_device`] reads.
+    pub fn is_touch(&self) -> bool {
+        self.is_digitizer() && matches!(self.usage, USAGE_TOUCH_SCREEN | USAGE_TOUCH_PAD)
+    }
+
+    /// Whether this process may open the device, with the fix when it may
+    /// not. Listing needs no permission (the descriptor comes from sysfs),
+    /// so `puppetry devices` can show what it could not open.
+    pub fn check_access(&self) -> Result<(), HidError> {
+        check_access(&self.path, Some(self.vendor_id))
+    }
+}
+
+/// What to do when a hidraw node is not readable; with the vendor id when
+/// it is known, so the udev rule can be pasted as is.
+pub fn permission_hint(vendor_id: Option<u16>) -> String {
+    let vendor = vendor_id.map_or_else(|| "XXXX".to_string(), |v| format!("{v:04x}"));
+    format!(
+        "add the user to the `input` or `plugdev` group, or install a udev rule such as \
+         `KERNEL==\"hidraw*\", ATTRS{{idVendor}}==\"{vendor}\", MODE=\"0660\", GROUP=\"input\"` \
+         in /etc/udev/rules.d/70-puppetry.rules, then replug the device"
+    )
+}
+
+/// hidapi reports a refused open as a message, so the node is tried
+/// directly first to tell "permission denied" from the rest.
+fn check_access(path: &str, vendor_id: Option<u16>) -> Result<(), HidError> {
+    #[cfg(target_os = "linux")]
+    if let Err(e) = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)
+        && e.kind() == std::io::ErrorKind::PermissionDenied
+    {
+        return Err(HidError::Permission {
+            path: path.to_string(),
+            hint: permission_hint(vendor_id),
+        });
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = (path, vendor_id);
+    Ok(())
+}
+
+fn api() -> Result<hidapi::HidApi, HidError> {
+    hidapi::HidApi::new().map_err(|source| HidError::Device {
+        what: "listing devices".to_string(),
+        source,
+    })
+}
+
+/// Every HID interface the platform knows of, in its order. Filter with
+/// [`HidDeviceInfo::is_touch`] for what [`run_device`] can read.
+pub fn list_devices() -> Result<Vec<HidDeviceInfo>, HidError> {
+    Ok(api()?.device_list().map(HidDeviceInfo::from).collect())
+}
+
+/// Which device to open. Every field given must match; none given matches
+/// any device.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct HidSelector {
+    pub path: Option<String>,
+    pub vendor_id: Option<u16>,
+    pub product_id: Option<u16>,
+    pub serial: Option<String>,
+}
+
+impl HidSelector {
+    pub fn matches(&self, info: &HidDeviceInfo) -> bool {
+        self.path.as_ref().is_none_or(|p| *p == info.path)
+            && self.vendor_id.is_none_or(|v| v == info.vendor_id)
+            && self.product_id.is_none_or(|p| p == info.product_id)
+            && self
+                .serial
+                .as_ref()
+                .is_none_or(|s| info.serial.as_ref() == Some(s))
+    }
+
+    /// Of the listed interfaces that match, the one path to open: touch
+    /// collections first, then any digitizer, then anything, because a
+    /// vendor:product pair often names a device with several interfaces.
+    /// More than one path at the best level is ambiguous.
+    pub fn pick<'a>(&self, devices: &'a [HidDeviceInfo]) -> Result<&'a HidDeviceInfo, HidError> {
+        let matching: Vec<&HidDeviceInfo> = devices.iter().filter(|d| self.matches(d)).collect();
+        let levels: [&dyn Fn(&HidDeviceInfo) -> bool; 3] = [
+            &HidDeviceInfo::is_touch,
+            &HidDeviceInfo::is_digitizer,
+            &|_| true,
+        ];
+        for level in levels {
+            let mut paths: Vec<&HidDeviceInfo> = Vec::new();
+            for device in matching.iter().copied().filter(|d| level(d)) {
+                if !paths.iter().any(|p| p.path == device.path) {
+                    paths.push(device);
+                }
+            }
+            match paths.len() {
+                0 => continue,
+                1 => return Ok(paths[0]),
+                _ => {
+                    return Err(HidError::Ambiguous {
+                        selector: self.to_string(),
+                        paths: paths.iter().map(|d| d.path.clone()).collect(),
+                    });
+                }
+            }
+        }
+        Err(HidError::NotFound {
+            selector: self.to_string(),
+        })
+    }
+}
+
+impl std::fmt::Display for HidSelector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut parts = Vec::new();
+        if let Some(path) = &self.path {
+            parts.push(format!("path {path}"));
+        }
+        match (self.vendor_id, self.product_id) {
+            (Some(v), Some(p)) => parts.push(format!("{v:04x}:{p:04x}")),
+            (Some(v), None) => parts.push(format!("vendor {v:04x}")),
+            (None, Some(p)) => parts.push(format!("product {p:04x}")),
+            (None, None) => {}
+        }
+        if let Some(serial) = &self.serial {
+            parts.push(format!("serial {serial:?}"));
+        }
+        if parts.is_empty() {
+            f.write_str("any device")
+        } else {
+            f.write_str(&parts.join(", "))
+        }
+    }
+}
+
+/// Opens the device `selector` picks (see [`HidSelector::pick`]). A path
+/// the platform does not list is still tried, since it was named outright.
+pub fn open(selector: &HidSelector) -> Result<hidapi::HidDevice, HidError> {
+    let api = api()?;
+    let devices: Vec<HidDeviceInfo> = api.device_list().map(HidDeviceInfo::from).collect();
+    let (path, vendor_id) = match (selector.pick(&devices), &selector.path) {
+        (Ok(device), _) => (device.path.clone(), Some(device.vendor_id)),
+        (Err(HidError::NotFound { .. }), Some(path)) => (path.clone(), selector.vendor_id),
+        (Err(e), _) => return Err(e),
+    };
+    check_access(&path, vendor_id)?;
+    let c_path = std::ffi::CString::new(path.clone()).map_err(|_| HidError::NotFound {
+        selector: selector.to_string(),
+    })?;
+    api.open_path(&c_path).map_err(|source| HidError::Device {
+        what: format!("opening {path}"),
+        source,
+    })
+}
+
+/// What [`run_device`] needs from a device; [`hidapi::HidDevice`] is one,
+/// a test double another.
+pub trait ReportDevice {
+    fn descriptor(&self) -> Result<Vec<u8>, HidError>;
+    /// Sends a feature report; the first byte is the report id, 0 when the
+    /// device does not number its reports (hidapi's convention).
+    fn send_feature(&self, report: &[u8]) -> Result<(), HidError>;
+    /// Reads one input report into `buf`, waiting at most `timeout_ms`;
+    /// `Ok(0)` when none came in time.
+    fn read(&self, buf: &mut [u8], timeout_ms: i32) -> Result<usize, HidError>;
+}
+
+impl ReportDevice for hidapi::HidDevice {
+    fn descriptor(&self) -> Result<Vec<u8>, HidError> {
+        let mut buf = vec![0; hidapi::MAX_REPORT_DESCRIPTOR_SIZE];
+        let len = self
+            .get_report_descriptor(&mut buf)
+            .map_err(|source| HidError::Device {
+                what: "reading the report descriptor".to_string(),
+                source,
+            })?;
+        buf.truncate(len);
+        Ok(buf)
+    }
+
+    fn send_feature(&self, report: &[u8]) -> Result<(), HidError> {
+        self.send_feature_report(report)
+            .map_err(|source| HidError::Device {
+                what: "sending a feature report".to_string(),
+                source,
+            })
+    }
+
+    fn read(&self, buf: &mut [u8], timeout_ms: i32) -> Result<usize, HidError> {
+        self.read_timeout(buf, timeout_ms)
+            .map_err(|source| HidError::Device {
+                what: "reading an input report".to_string(),
+                source,
+            })
+    }
+}
+
+impl InputMode {
+    /// The multi-input feature report as hidapi sends it: with a leading 0
+    /// standing in for the report id when the device has none.
+    pub fn multi_input_feature(&self) -> Vec<u8> {
+        let report = self.multi_input_report();
+        match self.report_id {
+            Some(_) => report,
+            None => std::iter::once(0).chain(report).collect(),
+        }
+    }
+}
+
+/// Runs one digitizer until told to stop: reads its descriptor, switches it
+/// to multi-input when it has an Input Mode feature (a failure is logged and
+/// the device read anyway: many report fingers from power-up), then decodes
+/// every input report and sends each frame to `frames`. A full channel makes
+/// this wait, so no frame is dropped; being blocking, it belongs on its own
+/// thread (`std::thread` or `spawn_blocking`), never on an async task.
+///
+/// Times are seconds since this call started. Malformed reports are logged
+/// and skipped. Returns `Ok` once `stop` is set (lifting whatever is still
+/// down first) or `frames` is closed. A failed read lifts every contact
+/// still down and returns the error: the device went away, and the caller
+/// decides whether to reopen it.
+pub fn run_device(
+    device: &impl ReportDevice,
+    source: SourceId,
+    calibration: Option<Calibration>,
+    stage_size: DVec2,
+    frames: &tokio::sync::mpsc::Sender<ContactFrame>,
+    stop: &std::sync::atomic::AtomicBool,
+) -> Result<(), HidError> {
+    use std::sync::atomic::Ordering;
+    let started = std::time::Instant::now();
+    let descriptor = device.descriptor()?;
+    let mut decoder = HidTouchDecoder::new(&descriptor, source.clone(), calibration, stage_size)?;
+    if let Some(mode) = &decoder.layout().input_mode
+        && let Err(e) = device.send_feature(&mode.multi_input_feature())
+    {
+        tracing::warn!(%source, error = %e, "hid: could not select multi-input mode; reading anyway");
+    }
+    let mut buffer = vec![0u8; READ_BUFFER];
+    let mut bad_reports: u64 = 0;
+    loop {
+        if frames.is_closed() {
+            return Ok(());
+        }
+        if stop.load(Ordering::Relaxed) {
+            if let Some(frame) = decoder.lift_all(started.elapsed().as_secs_f64()) {
+                let _ = frames.blocking_send(frame);
+            }
+            return Ok(());
+        }
+        let len = match device.read(&mut buffer, READ_TIMEOUT_MS) {
+            Ok(len) => len,
+            Err(error) => {
+                if let Some(frame) = decoder.lift_all(started.elapsed().as_secs_f64()) {
+                    // A closed channel has nobody left to tell; the error
+                    // still goes back.
+                    let _ = frames.blocking_send(frame);
+                }
+                return Err(error);
+            }
+        };
+        if len == 0 {
+            continue;
+        }
+        let time = started.elapsed().as_secs_f64();
+        match decoder.push(&buffer[..len.min(buffer.len())], time) {
+            Ok(Some(frame)) => {
+                if frames.blocking_send(frame).is_err() {
+                    return Ok(());
+                }
+            }
+            Ok(None) => {}
+            Err(e) => {
+                // A device stuck sending garbage would flood the log; the
+                // count still says how bad it is.
+                bad_reports += 1;
+                if bad_reports.is_power_of_two() {
+                    tracing::warn!(%source, error = %e, bad_reports, "hid: skipping a malformed report");
+                }
+            }
+        }
+    }
 }

@@ -1,5 +1,7 @@
 //! Replaying files as input sources: an evemu capture (through the same
-//! [`TouchDecoder`] a live device uses) or a recording, as a plain iterator
+//! [`TouchDecoder`] a live device uses), a hid-recorder capture (through the
+//! same [`HidTouchDecoder`] a live HID digitizer uses) or a recording, as a
+//! plain iterator
 //! of frames ([`ReplaySource::frames`], for tests and benchmarks) or paced
 //! into the daemon's bounded channel by [`replay`]. Parsing happens up front
 //! in [`ReplaySource::open`], so a bad file fails before anything plays and
@@ -15,6 +17,8 @@ use tokio::time::Instant;
 
 use super::evdev::{InputEvent, TouchDecoder};
 use super::evemu::{EvemuError, EvemuFile};
+use super::hid::{HidError, HidTouchDecoder};
+use super::hid_recording::{HidRecording, HidRecordingError};
 use super::recording::{RecordingError, parse_recording};
 use super::{Calibration, ContactFrame, SourceId};
 
@@ -29,6 +33,18 @@ pub enum ReplayError {
     Evemu(#[from] EvemuError),
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    #[error(transparent)]
+    HidRecording(#[from] HidRecordingError),
+    #[error("{file}: {source}")]
+    HidDevice { file: String, source: HidError },
+    #[error("{file}: report {index} (at {time} s): {source}")]
+    HidReport {
+        file: String,
+        /// Counting from 1, in file order.
+        index: usize,
+        time: f64,
+        source: HidError,
+    },
 }
 
 /// How fast [`replay`] plays.
@@ -59,8 +75,10 @@ enum Inner {
 
 impl ReplaySource {
     /// Reads `path`: a recording when its first non-blank character is `{`,
-    /// else an evemu capture, whose frames come from source `replay` with the
-    /// device's ranges fitted to a `stage_size` (width, height) stage.
+    /// a hid-recorder capture when it is named `*.hid` or its first item is
+    /// an `R:` or `D:` line, else an evemu capture. A capture's frames come
+    /// from source `replay` with the device's ranges fitted to a
+    /// `stage_size` (width, height) stage.
     pub fn open(path: &Path, stage_size: impl Into<DVec2>) -> Result<ReplaySource, ReplayError> {
         ReplaySource::open_with(path, SourceId::from("replay"), stage_size.into(), None)
     }
@@ -79,6 +97,13 @@ impl ReplaySource {
             file: file.clone(),
             source,
         })?;
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("hid"))
+        {
+            let capture = HidRecording::parse(&file, &text)?;
+            return ReplaySource::from_hid(&file, &capture, source, stage_size, calibration);
+        }
         ReplaySource::parse(&file, &text, source, stage_size, calibration)
     }
 
@@ -97,6 +122,10 @@ impl ReplaySource {
             .starts_with('{')
         {
             return Ok(ReplaySource::from_frames(parse_recording(file, text)?));
+        }
+        if is_hid_recording(text) {
+            let capture = HidRecording::parse(file, text)?;
+            return ReplaySource::from_hid(file, &capture, source, stage_size, calibration);
         }
         let capture = EvemuFile::parse(file, text)?;
         let calibration = match calibration {
@@ -118,6 +147,42 @@ impl ReplaySource {
                 decoder: Box::new(decoder),
             }),
         })
+    }
+
+    /// Decodes a hid-recorder capture up front, so a report the decoder
+    /// rejects fails here, named by its place in `file`, rather than
+    /// mid-play. Without a `calibration` the descriptor's X/Y ranges are
+    /// fitted to `stage_size`. Contacts still down at the end are lifted at
+    /// the last report's time.
+    pub fn from_hid(
+        file: &str,
+        capture: &HidRecording,
+        source: SourceId,
+        stage_size: DVec2,
+        calibration: Option<Calibration>,
+    ) -> Result<ReplaySource, ReplayError> {
+        let mut decoder =
+            HidTouchDecoder::new(&capture.descriptor, source, calibration, stage_size).map_err(
+                |source| ReplayError::HidDevice {
+                    file: file.to_string(),
+                    source,
+                },
+            )?;
+        let mut frames = Vec::new();
+        for (index, (time, report)) in capture.reports.iter().enumerate() {
+            let frame = decoder
+                .push(report, *time)
+                .map_err(|source| ReplayError::HidReport {
+                    file: file.to_string(),
+                    index: index + 1,
+                    time: *time,
+                    source,
+                })?;
+            frames.extend(frame);
+        }
+        let end = capture.reports.last().map_or(0.0, |(time, _)| *time);
+        frames.extend(decoder.lift_all(end));
+        Ok(ReplaySource::from_frames(frames))
     }
 
     pub fn from_frames(frames: Vec<ContactFrame>) -> ReplaySource {
@@ -149,6 +214,16 @@ impl IntoIterator for ReplaySource {
     fn into_iter(self) -> Frames {
         self.frames()
     }
+}
+
+/// Whether the first item of `text` (skipping blank and `#` lines) is a
+/// hid-recorder `R:` descriptor or `D:` device line; evemu captures have
+/// neither.
+fn is_hid_recording(text: &str) -> bool {
+    text.lines()
+        .map(|line| line.trim_start_matches('\u{feff}').trim())
+        .find(|line| !line.is_empty() && !line.starts_with('#'))
+        .is_some_and(|line| line.starts_with("R:") || line.starts_with("D:"))
 }
 
 /// One playing of a [`ReplaySource`]; owns what it needs, so it can move
