@@ -435,6 +435,57 @@ pub fn devices_report(
             }
         }
     }
+    // HID digitizers (hidapi), for `kind = "hid"` entries.
+    let hid_entries: Vec<(usize, String, crate::input::hid::HidSelector)> = config
+        .map(|c| {
+            c.inputs
+                .iter()
+                .enumerate()
+                .filter_map(|(i, input)| match input {
+                    InputConfig::Hid { device, name, .. } => Some((
+                        i,
+                        name.clone().unwrap_or_else(|| format!("hid:{i}")),
+                        device.clone(),
+                    )),
+                    _ => None,
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    match crate::input::hid::list_devices() {
+        Ok(hids) => {
+            let touch: Vec<_> = hids.iter().filter(|h| h.is_touch()).collect();
+            if touch.is_empty() {
+                let _ = writeln!(out, "no HID touch digitizers (hidraw)");
+            }
+            for h in &touch {
+                let _ = writeln!(
+                    out,
+                    "{}  hid touch  \"{}\"\n    vendor_id {:#06x} product_id {:#06x}{}{}",
+                    h.path,
+                    h.product.as_deref().unwrap_or("?"),
+                    h.vendor_id,
+                    h.product_id,
+                    h.serial
+                        .as_ref()
+                        .map(|s| format!("  serial \"{s}\""))
+                        .unwrap_or_default(),
+                    match h.check_access() {
+                        Ok(()) => String::new(),
+                        Err(e) => format!("\n    not readable: {e}"),
+                    }
+                );
+                for (i, name, selector) in &hid_entries {
+                    if selector.matches(h) {
+                        let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+                    }
+                }
+            }
+        }
+        Err(e) => {
+            let _ = writeln!(out, "HID devices: {e}");
+        }
+    }
     for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
         if !taken[k] {
             let _ = writeln!(

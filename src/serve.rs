@@ -6,7 +6,7 @@
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use tokio::sync::{mpsc, oneshot, watch};
@@ -17,7 +17,7 @@ use crate::input::hotplug::{self, DeviceInput};
 use crate::input::mouse::{Cursor, MouseSettings};
 use crate::input::replay::{Pacing, ReplaySource, replay};
 use crate::input::serial::{self, SerialDecoder};
-use crate::input::{Calibration, CalibrationSpec, ContactFrame, SourceId, tuio};
+use crate::input::{Calibration, CalibrationSpec, ContactFrame, SourceId, hid, tuio};
 use crate::stage::config::{InputConfig, PacingConfig, StageConfig};
 use crate::stage::thread::{self, Command, CursorView};
 use crate::stage::{Stage, StageError};
@@ -100,6 +100,7 @@ pub async fn start(
     let mut tuio = Vec::new();
     let mut serials = Vec::new();
     let mut devices = Vec::new();
+    let mut hids = Vec::new();
     for (index, input) in config.inputs.iter().enumerate() {
         let calibration = |spec: &Option<crate::input::CalibrationSpec>| {
             spec.clone()
@@ -200,6 +201,14 @@ pub async fn start(
                     stage_size: size,
                 });
             }
+            InputConfig::Hid {
+                device,
+                name,
+                calibration: spec,
+            } => {
+                let source = SourceId::from(name.clone().unwrap_or_else(|| format!("hid:{index}")));
+                hids.push((device.clone(), source, calibration(spec)?));
+            }
             InputConfig::Mouse {
                 device,
                 dir,
@@ -209,8 +218,10 @@ pub async fn start(
                 pair,
                 pair_spacing,
                 rotate_step_deg,
+                start,
             } => {
                 let mut mouse = MouseSettings::for_stage(size);
+                mouse.start = start.map_or(mouse.start, DVec2::from);
                 mouse.speed = speed.unwrap_or(mouse.speed);
                 mouse.pair = pair.unwrap_or(mouse.pair);
                 mouse.pair_spacing = pair_spacing.unwrap_or(mouse.pair_spacing);
@@ -328,6 +339,22 @@ pub async fn start(
             cursors.abort();
         }));
     }
+    for (selector, source, calibration) in hids {
+        let commands = commands.clone();
+        inputs.push(tokio::spawn(async move {
+            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
+            // hidapi blocks, so the device has a thread of its own; it stops
+            // when this task ends (dropping the guard) or the stage closes.
+            let stop = StopOnDrop(Arc::new(AtomicBool::new(false)));
+            let thread_stop = stop.0.clone();
+            std::thread::Builder::new()
+                .name(format!("hid {source}"))
+                .spawn(move || run_hid(&selector, source, calibration, size, &frames, &thread_stop))
+                .ok();
+            forward(frames_rx, &commands, started).await;
+            drop(stop);
+        }));
+    }
     let (shutdown, shutdown_rx) = oneshot::channel();
     let server = tokio::spawn(stream::run(listener, shared, async {
         let _ = shutdown_rx.await;
@@ -342,6 +369,44 @@ pub async fn start(
         inputs,
         stage_thread,
     })
+}
+
+/// Sets its flag when dropped: tells a device thread its task has ended.
+struct StopOnDrop(Arc<AtomicBool>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
+/// One HID digitizer for the daemon's life: open, read, and when it fails
+/// (unplugged, not there yet, not readable) log it and try again every
+/// second, until stopped.
+fn run_hid(
+    selector: &hid::HidSelector,
+    source: SourceId,
+    calibration: Option<Calibration>,
+    size: DVec2,
+    frames: &mpsc::Sender<ContactFrame>,
+    stop: &AtomicBool,
+) {
+    let mut last_complaint = String::new();
+    while !stop.load(Ordering::Relaxed) && !frames.is_closed() {
+        let result = hid::open(selector).and_then(|device| {
+            tracing::info!("{source}: reading HID device {selector}");
+            last_complaint.clear();
+            hid::run_device(&device, source.clone(), calibration.clone(), size, frames, stop)
+        });
+        if let Err(e) = result {
+            let message = e.to_string();
+            if message != last_complaint {
+                tracing::warn!("{source}: {message}; retrying every second");
+                last_complaint = message;
+            }
+        }
+        std::thread::sleep(Duration::from_secs(1));
+    }
 }
 
 /// A device entry's relative `path` is relative to the stage file.

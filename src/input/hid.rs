@@ -808,7 +808,8 @@ pub fn list_devices() -> Result<Vec<HidDeviceInfo>, HidError> {
 
 /// Which device to open. Every field given must match; none given matches
 /// any device.
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct HidSelector {
     pub path: Option<String>,
     pub vendor_id: Option<u16>,

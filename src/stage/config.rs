@@ -189,6 +189,23 @@ pub enum InputConfig {
         #[serde(default)]
         calibration: Option<crate::input::CalibrationSpec>,
     },
+    /// A HID digitizer read through hidapi (hidraw on Linux): for touch
+    /// devices without a kernel driver, and hosts without evdev. The report
+    /// descriptor says where the contacts are; parallel and hybrid
+    /// reporting both work, and the Input Mode feature is set to multi-touch.
+    Hid {
+        /// Which device: any of `path` (`/dev/hidraw3`), `vendor_id`,
+        /// `product_id`, `serial`; default: the only touch digitizer.
+        #[serde(default)]
+        device: crate::input::hid::HidSelector,
+        /// The source's name; default `hid:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Logical units to stage; default: the contacts' logical range
+        /// fitted to the stage.
+        #[serde(default)]
+        calibration: Option<crate::input::CalibrationSpec>,
+    },
     /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
     /// pair of points: button-drag moves them, the wheel or a right-button
     /// drag rotates them.
@@ -221,6 +238,9 @@ pub enum InputConfig {
         /// Rotation per wheel notch, degrees; default 15.
         #[serde(default)]
         rotate_step_deg: Option<f64>,
+        /// Where the cursor starts, stage coordinates; default the centre.
+        #[serde(default)]
+        start: Option<[f64; 2]>,
     },
 }
 
