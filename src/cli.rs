@@ -411,7 +411,11 @@ pub fn devices_report(
                 .as_ref()
                 .map(|u| format!("  uniq \"{u}\""))
                 .unwrap_or_default(),
-            if info.capture { "  (evemu capture)" } else { "" },
+            if info.capture {
+                "  (evemu capture)"
+            } else {
+                ""
+            },
         );
         for (code, axis) in &info.capabilities.absolute {
             let _ = writeln!(

@@ -328,12 +328,8 @@ pub async fn start(
                 0.0
             };
             let reader = tokio::spawn(hotplug::run(device, frames, cursor));
-            let cursors = tokio::spawn(forward_cursor(
-                cursor_rx,
-                source,
-                spacing,
-                commands.clone(),
-            ));
+            let cursors =
+                tokio::spawn(forward_cursor(cursor_rx, source, spacing, commands.clone()));
             forward(frames_rx, &commands, started).await;
             reader.abort();
             cursors.abort();
@@ -396,7 +392,14 @@ fn run_hid(
         let result = hid::open(selector).and_then(|device| {
             tracing::info!("{source}: reading HID device {selector}");
             last_complaint.clear();
-            hid::run_device(&device, source.clone(), calibration.clone(), size, frames, stop)
+            hid::run_device(
+                &device,
+                source.clone(),
+                calibration.clone(),
+                size,
+                frames,
+                stop,
+            )
         });
         if let Err(e) = result {
             let message = e.to_string();

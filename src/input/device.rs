@@ -21,9 +21,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde::Deserialize;
 
 use super::evdev::{
-    ABS_MT_POSITION_X, ABS_MT_POSITION_Y, ABS_MT_PRESSURE, ABS_MT_SLOT, ABS_MT_TRACKING_ID, ABS_X,
-    ABS_MAX, ABS_Y, AbsAxes, AbsInfo, BTN_TOOL_PEN, BTN_TOUCH, DeviceState, EV_ABS, EV_KEY, EV_MAX,
-    EV_REL, EV_SYN, InputEvent, KEY_MAX, MAX_SLOTS, SYN_DROPPED, SYN_REPORT, SlotState,
+    ABS_MAX, ABS_MT_POSITION_X, ABS_MT_POSITION_Y, ABS_MT_PRESSURE, ABS_MT_SLOT,
+    ABS_MT_TRACKING_ID, ABS_X, ABS_Y, AbsAxes, AbsInfo, BTN_TOOL_PEN, BTN_TOUCH, DeviceState,
+    EV_ABS, EV_KEY, EV_MAX, EV_REL, EV_SYN, InputEvent, KEY_MAX, MAX_SLOTS, SlotState,
 };
 use super::evemu::{EvemuDevice, EvemuError, EvemuFile, InputId};
 
@@ -265,9 +265,12 @@ pub fn probe(path: &Path) -> Result<DeviceInfo, DeviceError> {
     Ok(node_info(path, &device))
 }
 
+/// A folder entry and what it turned out to be.
+pub type Scanned = (PathBuf, Result<DeviceInfo, DeviceError>);
+
 /// Every `event*` entry in `dir`, in number order, each described or with
 /// the reason it could not be (typically permissions).
-pub fn scan(dir: &Path) -> Result<Vec<(PathBuf, Result<DeviceInfo, DeviceError>)>, DeviceError> {
+pub fn scan(dir: &Path) -> Result<Vec<Scanned>, DeviceError> {
     let entries = std::fs::read_dir(dir).map_err(|source| DeviceError::List {
         dir: dir.display().to_string(),
         source,
@@ -509,9 +512,8 @@ impl Device {
     /// The device's state now, as the kernel holds it.
     pub fn state(&self) -> Result<DeviceState, DeviceError> {
         match &self.inner {
-            Inner::Node(stream) => {
-                node_state(stream.device(), &self.info).map_err(|e| DeviceError::io(&self.info.path, e))
-            }
+            Inner::Node(stream) => node_state(stream.device(), &self.info)
+                .map_err(|e| DeviceError::io(&self.info.path, e)),
             Inner::Capture(player) => Ok(player.state(&self.info)),
         }
     }
@@ -581,7 +583,9 @@ fn read_mt_slots(fd: std::os::fd::RawFd, code: u16, count: usize) -> io::Result<
 }
 
 /// Plays a capture as a device would deliver it, and keeps the state the
-/// kernel would report — including events a drop hid from the reader.
+/// kernel would report. A `SYN_DROPPED` in the capture is delivered where it
+/// stands; the reader must then discard the partial report that follows it
+/// and read the state back, which includes that report, as the kernel's does.
 struct CapturePlayer {
     events: Vec<InputEvent>,
     next: usize,
@@ -622,17 +626,6 @@ impl CapturePlayer {
         tokio::time::sleep_until((self.started + due).into()).await;
         self.next += 1;
         self.apply(&event);
-        if (event.ev_type, event.code) == (EV_SYN, SYN_DROPPED) {
-            // The kernel's buffer overflowed: the reader misses everything up
-            // to and including the next report, but the state has it.
-            while let Some(&hidden) = self.events.get(self.next) {
-                self.next += 1;
-                self.apply(&hidden);
-                if (hidden.ev_type, hidden.code) == (EV_SYN, SYN_REPORT) {
-                    break;
-                }
-            }
-        }
         event
     }
 
@@ -663,11 +656,9 @@ impl CapturePlayer {
     fn state(&self, info: &DeviceInfo) -> DeviceState {
         let mut abs = self.abs.clone();
         abs.insert(ABS_MT_SLOT, self.current_slot as i32);
-        let slot_count = info
-            .capabilities
-            .absolute
-            .get(&ABS_MT_SLOT)
-            .map_or(0, |a| (i64::from(a.max) + 1).clamp(0, MAX_SLOTS as i64) as usize);
+        let slot_count = info.capabilities.absolute.get(&ABS_MT_SLOT).map_or(0, |a| {
+            (i64::from(a.max) + 1).clamp(0, MAX_SLOTS as i64) as usize
+        });
         let slots = (0..slot_count)
             .map(|slot| {
                 let values = self.slots.get(&slot);

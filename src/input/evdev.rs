@@ -733,7 +733,10 @@ impl TouchDecoder {
         });
         // Tilt axes without a resolution count degrees (older Wacom drivers).
         let per_radian = |r: i32| if r > 0 { f64::from(r) } else { 180.0 / PI };
-        let (rx, ry) = (per_radian(self.tilt_resolution.0), per_radian(self.tilt_resolution.1));
+        let (rx, ry) = (
+            per_radian(self.tilt_resolution.0),
+            per_radian(self.tilt_resolution.1),
+        );
         let tilt = match (v.tilt_x, v.tilt_y) {
             (Some(tx), Some(ty)) => {
                 let t = DVec2::new(f64::from(tx) / rx, f64::from(ty) / ry);

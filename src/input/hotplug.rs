@@ -110,8 +110,8 @@ pub async fn run(
             Ok(None) => complain(
                 &mut last_complaint,
                 format!(
-                "no device matches {} in {}; waiting for one",
-                input.wanted,
+                    "no device matches {} in {}; waiting for one",
+                    input.wanted,
                     input.dir.display()
                 ),
             ),
@@ -125,7 +125,7 @@ pub async fn run(
 }
 
 enum Decoder {
-    Touch(TouchDecoder),
+    Touch(Box<TouchDecoder>),
     Mouse(MouseDecoder),
 }
 
@@ -143,15 +143,15 @@ impl Decoder {
         let axes = &info.capabilities.absolute;
         let calibration = match &input.calibration {
             Some(c) => c.clone(),
-            None => fit_calibration(axes, input.stage_size).map_err(|source| {
-                HotplugError::Decoder {
+            None => {
+                fit_calibration(axes, input.stage_size).map_err(|source| HotplugError::Decoder {
                     path: path.clone(),
                     source,
-                }
-            })?,
+                })?
+            }
         };
         TouchDecoder::new(input.source.clone(), axes, calibration)
-            .map(Decoder::Touch)
+            .map(|d| Decoder::Touch(Box::new(d)))
             .map_err(|source| HotplugError::Decoder { path, source })
     }
 
@@ -254,6 +254,9 @@ async fn read(
             });
         }
         if result.is_ok() {
+            if let Some(f) = &frame {
+                tracing::trace!("{}: {f:?}", input.source);
+            }
             send(frames, frame).await;
         }
     }
@@ -333,7 +336,9 @@ impl DirWatcher {
             };
             match removed {
                 Some(name) => {
-                    let gone = event.mask.intersects(EventMask::DELETE | EventMask::MOVED_FROM);
+                    let gone = event
+                        .mask
+                        .intersects(EventMask::DELETE | EventMask::MOVED_FROM);
                     if gone && event.name.as_deref() == Some(name) {
                         return;
                     }

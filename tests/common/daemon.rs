@@ -124,7 +124,6 @@ pub fn placed_mesh(stage: &Value) -> Mesh {
     Mesh::new("stage", vertices, triangles, None, None).unwrap()
 }
 
-
 /// A point on the puppet's raised hand, in stage coordinates.
 pub fn hand(mesh: &Mesh) -> DVec2 {
     // The right-most vertex is on the right hand; step inwards a little.
@@ -137,7 +136,6 @@ pub fn hand(mesh: &Mesh) -> DVec2 {
         });
     v - DVec2::new(15.0, 0.0)
 }
-
 
 /// The owners of a "handles" message's contact handles.
 pub fn contact_owners(m: &Value) -> Vec<String> {
@@ -159,4 +157,3 @@ pub async fn until_contact_owners(ws: &mut Client, done: impl Fn(&[String]) -> b
         }
     }
 }
-
