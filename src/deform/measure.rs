@@ -64,7 +64,10 @@ pub fn triangle_distortion(rest: [DVec2; 3], deformed: [DVec2; 3]) -> Distortion
 }
 
 /// Per-triangle distortions of `deformed` against the mesh's rest shape.
-pub fn triangle_distortions(mesh: &Mesh, deformed: &[DVec2]) -> Result<Vec<Distortion>, MeasureError> {
+pub fn triangle_distortions(
+    mesh: &Mesh,
+    deformed: &[DVec2],
+) -> Result<Vec<Distortion>, MeasureError> {
     let rest = mesh.vertices();
     if deformed.len() != rest.len() {
         return Err(MeasureError::VertexCount {
