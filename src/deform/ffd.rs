@@ -468,8 +468,16 @@ impl LpFfd {
                 value: weights[t],
             });
         }
+        // Rebuild aside, so a failure leaves the rig as it was.
+        let old_edges = std::mem::take(&mut self.edges);
+        let old_locality = std::mem::take(&mut self.locality_matrix);
         self.set_edges(weights);
-        self.refactor()
+        if let Err(e) = self.refactor() {
+            self.edges = old_edges;
+            self.locality_matrix = old_locality;
+            return Err(e);
+        }
+        Ok(())
     }
 
     /// Compilation: sets the vertex handles (points of the mesh) and the
@@ -484,12 +492,17 @@ impl LpFfd {
     ) -> Result<(), FfdError> {
         let (handles, rows) = self.resolve_vertex_handles(vertex_handles)?;
         let dragged = self.resolve_grid_handles(grid_handles)?;
+        // Factor before committing, so a failure leaves the rig as it was.
+        let matrix = self.global_matrix(self.params.locality, &rows, &dragged);
+        let (factor, inverse_diagonal) = cholesky(matrix, self.handle_count())?;
         self.vertex_handles = handles;
         self.vertex_rows = rows;
         self.vertex_target_count = vertex_handles.len();
         self.grid_handles = dragged;
         self.grid_target_count = grid_handles.len();
-        self.refactor()
+        self.factor = factor;
+        self.factor_inverse_diagonal = inverse_diagonal;
+        Ok(())
     }
 
     /// Update: moves the compiled handles to their targets (same order as
