@@ -7,6 +7,7 @@
 
 pub mod arap;
 pub mod ffd;
+pub mod measure;
 pub mod skeleton;
 pub mod sparse;
 
