@@ -130,20 +130,30 @@ fn a_rotated_bone_carries_the_triangles_it_crosses() {
         .filter(|&t| deformer.triangle_bone(t) == Some(1))
         .collect();
     assert!(carried.len() >= 28, "bone 1 crosses a row of triangles");
-    let mut worst: f64 = 0.0;
-    let mut moved: f64 = 0.0;
+    // The stitch is a least-squares compromise with the unrotated bone 0 at
+    // the shared joint; a quarter of the bone away from it, the triangles
+    // turn with the bone.
+    let (mut worst, mut worst_away, mut moved) = (0.0f64, 0.0f64, 0.0f64);
     for &t in &carried {
+        let corners = mesh.triangles()[t].map(|v| mesh.vertices()[v as usize]);
+        let away = corners.iter().all(|c| c.distance(pivot) > 3.5);
         for v in mesh.triangles()[t] {
             let rest = mesh.vertices()[v as usize];
-            worst = worst.max(vertices[v as usize].distance(rigid(rest)));
+            let error = vertices[v as usize].distance(rigid(rest));
+            worst = worst.max(error);
+            if away {
+                worst_away = worst_away.max(error);
+            }
             moved = moved.max(rigid(rest).distance(rest));
         }
     }
-    // The stitch is a least-squares compromise with the unrotated bone 0 at
-    // the shared joint, so "carried" means within a few percent of the move.
     assert!(
-        worst < 0.03 * moved,
-        "bone triangles strayed {worst} from the rigid rotation (moved {moved})"
+        worst_away < 0.01 * moved,
+        "bone triangles strayed {worst_away} from the rigid rotation (moved {moved})"
+    );
+    assert!(
+        worst < 0.05 * moved,
+        "{worst} near the joint (moved {moved})"
     );
     // Away from the joint, bone 0's triangles stay put.
     for t in (0..mesh.triangles().len()).filter(|&t| deformer.triangle_bone(t) == Some(0)) {
@@ -244,7 +254,10 @@ fn rotating_a_joint_in_fk_mode_moves_the_chain_below() {
         assert!(joints[j].distance(expected) < 1e-9, "joint {j}");
     }
     for j in (0..rest.len()).filter(|j| ![4, 5, 6].contains(j)) {
-        assert!(joints[j].distance(rest[j]) < 1e-9, "joint {j} should not move");
+        assert!(
+            joints[j].distance(rest[j]) < 1e-9,
+            "joint {j} should not move"
+        );
     }
     // Aiming the forearm at a point puts the hand on the ray toward it.
     let mut aimed = skeleton.rest_pose();
@@ -400,7 +413,8 @@ fn perpendicular_scale_widens_the_bone_triangles() {
     assert!((a * DVec2::X).distance(DVec2::X) < 1e-12);
     assert!((a * DVec2::Y).distance(DVec2::Y * 2.0) < 1e-12);
     // Bones of a longer skeleton scale along themselves, uniformly by default.
-    let mut plain = ShapeAware::register(&mesh, skeleton.clone(), SkeletonParams::default()).unwrap();
+    let mut plain =
+        ShapeAware::register(&mesh, skeleton.clone(), SkeletonParams::default()).unwrap();
     let mut pose = skeleton.rest_pose();
     pose.lengths[0] *= 1.5;
     pose.angles[0] += FRAC_PI_2;
@@ -427,7 +441,10 @@ fn bad_skeletons_and_inputs_are_named() {
         Err(SkeletonError::BoneJoinsJointToItself { bone: 1, joint: 1 })
     ));
     assert!(matches!(
-        check(vec![[0, 1], [1, 2]], vec![p(1.0, 1.0), p(5.0, 1.0), p(5.0, 1.0)]),
+        check(
+            vec![[0, 1], [1, 2]],
+            vec![p(1.0, 1.0), p(5.0, 1.0), p(5.0, 1.0)]
+        ),
         Err(SkeletonError::ZeroLengthBone { bone: 1, .. })
     ));
     assert!(matches!(
@@ -457,19 +474,25 @@ fn bad_skeletons_and_inputs_are_named() {
         Err(SkeletonError::NoBones)
     ));
     assert!(matches!(
-        check(vec![[0, 1], [1, 2]], vec![p(1.0, 1.0), p(f64::NAN, 1.0), p(2.0, 2.0)]),
+        check(
+            vec![[0, 1], [1, 2]],
+            vec![p(1.0, 1.0), p(f64::NAN, 1.0), p(2.0, 2.0)]
+        ),
         Err(SkeletonError::JointNotFinite { joint: 1 })
     ));
 
     // A joint off the mesh: the bar spans [0, 30] × [0, 6].
     let mesh = common::bar(30, 6, 30.0, 6.0);
-    let outside = Skeleton::new(vec![p(1.0, 3.0), p(15.0, 3.0), p(31.0, 3.0)], vec![
-        [0, 1],
-        [1, 2],
-    ])
+    let outside = Skeleton::new(
+        vec![p(1.0, 3.0), p(15.0, 3.0), p(31.0, 3.0)],
+        vec![[0, 1], [1, 2]],
+    )
     .unwrap();
     let error = ShapeAware::register(&mesh, outside, SkeletonParams::default()).unwrap_err();
-    assert!(matches!(error, SkeletonError::JointOutsideMesh { joint: 2, .. }));
+    assert!(matches!(
+        error,
+        SkeletonError::JointOutsideMesh { joint: 2, .. }
+    ));
     assert!(error.to_string().contains("joint 2"), "{error}");
 
     let (mesh, skeleton) = bar_arm();
