@@ -126,7 +126,7 @@ pub async fn run(
 
 enum Decoder {
     Touch(Box<TouchDecoder>),
-    Mouse(MouseDecoder),
+    Mouse(Box<MouseDecoder>),
 }
 
 impl Decoder {
@@ -134,7 +134,7 @@ impl Decoder {
         let path = info.path.display().to_string();
         if info.kind == DeviceKind::Mouse {
             return MouseDecoder::new(input.source.clone(), input.mouse.clone(), input.stage_size)
-                .map(Decoder::Mouse)
+                .map(|d| Decoder::Mouse(Box::new(d)))
                 .map_err(|e| HotplugError::Mouse {
                     path,
                     problem: e.to_string(),
