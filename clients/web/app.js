@@ -25,6 +25,7 @@ const api = window.puppetry = {
 };
 
 let stage = null;            // {width, height} in stage units
+let cursors = [];            // mouse cursors on the stage, from "cursors" messages
 let myOwner = '';            // "client:N", to tell our own handles apart
 let puppets = [];            // GL state per puppet, in stage order (drawn bottom to top)
 let needsDraw = true;
@@ -276,6 +277,24 @@ function drawOverlay() {
     }
   }
   for (const { x, y } of active.values()) dot(x, y, 10, ownerColour(myOwner, 0.6), 'rgb(0 0 0 / 0.6)');
+  // Mice on the stage: a cross at the cursor and the pair of points it
+  // holds (filled while its button is down).
+  for (const c of cursors) {
+    const [cx, cy] = stageToClient(c.at[0], c.at[1]);
+    const colour = ownerColour(c.source);
+    ctx2d.lineWidth = 2;
+    ctx2d.strokeStyle = colour;
+    ctx2d.beginPath();
+    ctx2d.moveTo(cx - r.left - 8, cy - r.top); ctx2d.lineTo(cx - r.left + 8, cy - r.top);
+    ctx2d.moveTo(cx - r.left, cy - r.top - 8); ctx2d.lineTo(cx - r.left, cy - r.top + 8);
+    ctx2d.stroke();
+    if (c.spacing > 0) {
+      const dx = Math.cos(c.angle) * c.spacing / 2, dy = Math.sin(c.angle) * c.spacing / 2;
+      for (const s of [-1, 1]) {
+        dot(c.at[0] + s * dx, c.at[1] + s * dy, 6, c.holding ? ownerColour(c.source, 0.7) : null, colour);
+      }
+    }
+  }
 }
 
 // ---------------------------------------------------------------- performer input
@@ -403,6 +422,10 @@ function onText(text) {
       if (p) { p.handles = msg.handles; needsOverlay = true; }
       return;
     }
+    case 'cursors':
+      cursors = msg.cursors;
+      needsOverlay = true;
+      return;
     case 'error':
       lastError = msg.message;
       return reportError(msg.message);
