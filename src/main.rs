@@ -93,6 +93,19 @@ enum Command {
         #[arg(long)]
         grab: bool,
     },
+    /// Make a `corners` calibration from a capture of four taps on the marks
+    /// the web page shows at `/?calibrate` (see docs/calibration.md).
+    Calibrate {
+        /// The capture (`puppetry record DEVICE -o taps.event`).
+        capture: PathBuf,
+        /// The stage file whose stage the marks were on.
+        #[arg(long)]
+        config: PathBuf,
+        /// How far in from the stage's edges the marks are, as a fraction
+        /// of its size (the page's `?calibrate=` value).
+        #[arg(long, default_value_t = 0.1)]
+        inset: f64,
+    },
     /// Time registration, compilation, updates and handle changes.
     Bench {
         /// One JSON object per case, one per line.
@@ -188,6 +201,16 @@ fn run(args: Args) -> anyhow::Result<()> {
                 .map(|path| puppetry::stage::config::StageConfig::load(&path))
                 .transpose()?;
             print!("{}", cli::devices_report(&dir, config.as_ref())?);
+        }
+        Command::Calibrate {
+            capture,
+            config,
+            inset,
+        } => {
+            let stage = puppetry::stage::config::StageConfig::load(&config)?;
+            let size = glam::DVec2::new(stage.stage.width, stage.stage.height);
+            let spec = puppetry::input::calibrate::from_capture(&capture, size, inset)?;
+            println!("{}", puppetry::input::calibrate::toml_line(&spec));
         }
         Command::Record {
             device,

@@ -701,3 +701,73 @@ fn fingers_already_down_when_a_table_is_opened_are_taken_up() {
     assert_eq!(moved.contacts[0].id, frame.contacts[0].id);
     assert!(moved.contacts[0].position.distance(DVec2::new(0.0, 0.0)) < 1e-9);
 }
+
+#[test]
+fn four_taps_on_the_marks_calibrate_a_skewed_table() {
+    // A table mounted slightly rotated and offset under the projection: the
+    // performer taps the four marks; the calibration made from the capture
+    // takes each tap to its mark, and stage points in between follow.
+    let dir = tempfile::tempdir().unwrap();
+    let stage_size = DVec2::new(1280.0, 720.0);
+    let marks = puppetry::input::calibrate::marks(stage_size, 0.1);
+    // Stage to device: 3 units per stage unit, turned 3°, shifted; y down.
+    let turn = 3f64.to_radians();
+    let to_device = |p: DVec2| {
+        let q = DVec2::new(p.x, stage_size.y - p.y) * 3.0;
+        let r = DVec2::new(
+            q.x * turn.cos() - q.y * turn.sin(),
+            q.x * turn.sin() + q.y * turn.cos(),
+        );
+        (r + DVec2::new(150.0, 40.0)).round()
+    };
+    let mut events = Vec::new();
+    for (i, mark) in marks.iter().enumerate() {
+        let at = to_device(*mark);
+        let t = i as f64;
+        events.extend([
+            (t, EV_ABS, ABS_MT_SLOT, 0),
+            (t, EV_ABS, ABS_MT_TRACKING_ID, i as i32 + 1),
+            (t, EV_ABS, ABS_MT_POSITION_X, at.x as i32),
+            (t, EV_ABS, ABS_MT_POSITION_Y, at.y as i32),
+            (t, EV_SYN, SYN_REPORT, 0),
+            (t + 0.5, EV_ABS, ABS_MT_TRACKING_ID, -1),
+            (t + 0.5, EV_SYN, SYN_REPORT, 0),
+        ]);
+    }
+    let taps = plug(dir.path(), "taps.event", &capture(&table(), &events));
+    let config = dir.path().join("stage.toml");
+    std::fs::write(&config, "[stage]\nwidth = 1280\nheight = 720\n").unwrap();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .arg("calibrate")
+        .arg(&taps)
+        .arg("--config")
+        .arg(&config)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{output:?}");
+    let line = String::from_utf8(output.stdout).unwrap();
+    // The printed line is a stage-file input's calibration as it stands.
+    let entry = format!("[stage]\nwidth = 1280\nheight = 720\n[[input]]\nkind = \"touch\"\n{line}");
+    let parsed =
+        puppetry::stage::config::StageConfig::parse("t.toml", &entry, Path::new("/")).unwrap();
+    let puppetry::stage::config::InputConfig::Touch {
+        calibration: Some(spec),
+        ..
+    } = &parsed.inputs[0]
+    else {
+        panic!("a touch input with a calibration: {line}");
+    };
+    let calibration = puppetry::input::Calibration::new(spec.clone()).unwrap();
+    for mark in marks {
+        let d = to_device(mark);
+        assert!(calibration.map(d).distance(mark) < 1e-6, "{mark}");
+    }
+    // Between the marks the map is the table's (up to rounding of taps).
+    let centre = stage_size / 2.0;
+    assert!(calibration.map(to_device(centre)).distance(centre) < 1.0);
+
+    // Fewer than four taps is refused, saying what to do.
+    let three = plug(dir.path(), "three.event", &capture(&table(), &events[..21]));
+    let err = puppetry::input::calibrate::from_capture(&three, stage_size, 0.1).unwrap_err();
+    assert!(err.to_string().contains("3 touch(es) found"), "{err}");
+}

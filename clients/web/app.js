@@ -4,6 +4,9 @@
 const params = new URLSearchParams(location.search);
 const role = params.get('role') === 'performer' ? 'performer' : 'viewer';
 const token = params.get('token') ?? '';
+// `?calibrate=0.1` shows the four marks `puppetry calibrate` expects, that
+// fraction of the stage in from its edges, numbered in the order to touch.
+const calibrateInset = params.has('calibrate') ? Number(params.get('calibrate') || 0.1) : null;
 
 const stageEl = document.getElementById('stage');
 const glCanvas = document.getElementById('gl');
@@ -277,6 +280,24 @@ function drawOverlay() {
     }
   }
   for (const { x, y } of active.values()) dot(x, y, 10, ownerColour(myOwner, 0.6), 'rgb(0 0 0 / 0.6)');
+  if (calibrateInset !== null && api.stage) {
+    const { width: w, height: h } = api.stage.stage;
+    const lo = calibrateInset, hi = 1 - calibrateInset;
+    const marks = [[lo * w, hi * h], [hi * w, hi * h], [hi * w, lo * h], [lo * w, lo * h]];
+    ctx2d.font = 'bold 20px sans-serif';
+    marks.forEach(([x, y], i) => {
+      const [cx, cy] = stageToClient(x, y);
+      const px = cx - r.left, py = cy - r.top;
+      ctx2d.lineWidth = 2;
+      ctx2d.strokeStyle = '#e00';
+      ctx2d.beginPath();
+      ctx2d.moveTo(px - 20, py); ctx2d.lineTo(px + 20, py);
+      ctx2d.moveTo(px, py - 20); ctx2d.lineTo(px, py + 20);
+      ctx2d.stroke();
+      ctx2d.fillStyle = '#e00';
+      ctx2d.fillText(String(i + 1), px + 8, py - 8);
+    });
+  }
   // Mice on the stage: a cross at the cursor and the pair of points it
   // holds (filled while its button is down).
   for (const c of cursors) {

@@ -2,12 +2,21 @@
 //! in for one) and the stage. It owns the normalised event model every source
 //! produces — [`ContactFrame`]s of [`Contact`]s in stage coordinates — and the
 //! [`Calibration`] that takes device coordinates to stage coordinates, so no
-//! device unit ever leaves this module. [`evdev`] turns raw kernel events into
-//! frames, [`evemu`] reads captures of those events, [`recording`] is the
-//! project's own frame log, and [`replay`] plays either into the daemon.
+//! device unit ever leaves this module.
 //!
-//! Parsing and state are plain synchronous code; only replay pacing is async.
+//! Decoders (plain synchronous state machines): [`evdev`] turns raw kernel
+//! events of touch surfaces and pens into frames, [`mouse`] turns a mouse's
+//! into a cursor holding a pair of points, [`hid`] decodes HID digitizer
+//! reports, [`tuio`] TUIO bundles and [`serial`] pad records.
+//!
+//! Sources: [`device`] finds, describes and opens Linux input devices and
+//! [`hotplug`] keeps one configured device read for the daemon's life;
+//! [`hid`], [`tuio`] and [`serial`] also hold their own I/O loops; [`evemu`],
+//! [`hid_recording`] and [`recording`] read captures and the project's own
+//! frame log, which [`replay`] plays into the daemon. [`record`] writes
+//! captures and [`calibrate`] turns four taps into a calibration.
 
+pub mod calibrate;
 pub mod device;
 pub mod evdev;
 pub mod evemu;
