@@ -679,3 +679,28 @@ impl CapturePlayer {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unreadable_node_says_what_to_do() {
+        let denied = DeviceError::io(
+            Path::new("/dev/input/event5"),
+            io::Error::from(io::ErrorKind::PermissionDenied),
+        );
+        let text = denied.to_string();
+        assert!(
+            text.starts_with("/dev/input/event5: permission denied"),
+            "{text}"
+        );
+        assert!(text.contains("usermod -aG input"), "{text}");
+        assert!(text.contains("udev rule"), "{text}");
+        let gone = DeviceError::io(
+            Path::new("/dev/input/event5"),
+            io::Error::from_raw_os_error(libc::ENODEV),
+        );
+        assert!(matches!(gone, DeviceError::Gone { .. }));
+    }
+}
