@@ -159,7 +159,7 @@ fn contact_handles(m: &Value) -> Vec<(String, DVec2)> {
 /// Reads until a "handles" message whose contact handles satisfy `done`.
 async fn until_handles(
     ws: &mut Client,
-    done: impl Fn(&[(String, DVec2)]) -> bool,
+    mut done: impl FnMut(&[(String, DVec2)]) -> bool,
 ) -> Vec<(String, DVec2)> {
     loop {
         let m = next_text(ws).await;
@@ -432,12 +432,12 @@ start = [{rx}, {ry}]
         &[
             (0.0, EV_KEY, BTN_LEFT, 1),
             (0.0, EV_SYN, SYN_REPORT, 0),
-            (0.1, EV_REL, REL_X, -25),
-            (0.1, EV_REL, REL_Y, -15),
-            (0.1, EV_SYN, SYN_REPORT, 0),
-            (0.12, EV_REL, REL_X, -25),
-            (0.12, EV_REL, REL_Y, -15),
-            (0.12, EV_SYN, SYN_REPORT, 0),
+            (0.3, EV_REL, REL_X, -25),
+            (0.3, EV_REL, REL_Y, -15),
+            (0.3, EV_SYN, SYN_REPORT, 0),
+            (0.35, EV_REL, REL_X, -25),
+            (0.35, EV_REL, REL_Y, -15),
+            (0.35, EV_SYN, SYN_REPORT, 0),
         ],
     );
     let (dx, dy) = (on_hand.x.round() as i32, -(on_hand.y.round() as i32));
@@ -449,12 +449,12 @@ start = [{rx}, {ry}]
             (0.0, EV_REL, REL_Y, dy),
             (0.0, EV_KEY, BTN_LEFT, 1),
             (0.0, EV_SYN, SYN_REPORT, 0),
-            (0.1, EV_REL, REL_WHEEL, 1),
-            (0.1, EV_REL, REL_WHEEL_HI_RES, 120),
-            (0.1, EV_SYN, SYN_REPORT, 0),
-            (0.12, EV_REL, REL_WHEEL, 1),
-            (0.12, EV_REL, REL_WHEEL_HI_RES, 120),
-            (0.12, EV_SYN, SYN_REPORT, 0),
+            (0.3, EV_REL, REL_WHEEL, 1),
+            (0.3, EV_REL, REL_WHEEL_HI_RES, 120),
+            (0.3, EV_SYN, SYN_REPORT, 0),
+            (0.35, EV_REL, REL_WHEEL, 1),
+            (0.35, EV_REL, REL_WHEEL_HI_RES, 120),
+            (0.35, EV_SYN, SYN_REPORT, 0),
         ],
     );
     let left_node = plug(dir.path(), "event1", &left);
@@ -473,13 +473,25 @@ start = [{rx}, {ry}]
         ("right", right_at - half(0.0)),
         ("right", right_at + half(0.0)),
     ];
+    // Each owner's points as they were in the first message naming it.
+    let mut first_seen: Vec<(String, DVec2)> = Vec::new();
     until_handles(&mut viewer, |h| {
-        h.len() == 4
-            && landed
-                .iter()
-                .all(|(owner, at)| h.iter().any(|(o, p)| o == owner && p.distance(*at) < 1e-6))
+        for owner in ["left", "right"] {
+            if !first_seen.iter().any(|(o, _)| o == owner) {
+                first_seen.extend(h.iter().filter(|(o, _)| o == owner).cloned());
+            }
+        }
+        first_seen.len() == 4
     })
     .await;
+    for (owner, at) in &landed {
+        assert!(
+            first_seen
+                .iter()
+                .any(|(o, p)| o == owner && p.distance(*at) < 1e-6),
+            "{owner} landed at {at}: {first_seen:?}"
+        );
+    }
     // Then the left pair is dragged and the right pair turned 30° about its
     // cursor; the grabbed points of the puppet go with them.
     let points: Vec<_> = landed.iter().map(|(_, at)| follow(&mesh, *at)).collect();

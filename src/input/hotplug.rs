@@ -25,6 +25,10 @@ use crate::input::mouse::{BTN_LEFT, BTN_RIGHT};
 /// How often to look again when the directory cannot be watched.
 const POLL_INTERVAL: Duration = Duration::from_secs(2);
 
+/// How long to wait before trying a device that failed again, when nothing
+/// in its folder changes (a permission fixed by hand, say).
+const RETRY_INTERVAL: Duration = Duration::from_secs(5);
+
 /// A stage-file device entry, resolved.
 #[derive(Debug, Clone)]
 pub struct DeviceInput {
@@ -93,17 +97,24 @@ pub async fn run(
                         info.kind
                     );
                     last_complaint.clear();
-                    match read(&input, device, &frames, &cursor, &mut watcher).await {
-                        Ok(()) => {}
-                        Err(e) => tracing::warn!("{}: {e}", input.source),
-                    }
+                    let result = read(&input, device, &frames, &cursor, &mut watcher).await;
                     cursor.send_replace(None);
-                    tracing::info!(
-                        "{}: {} went away; its contacts are lifted; waiting for it",
-                        input.source,
-                        info.path.display()
-                    );
-                    continue;
+                    match result {
+                        Ok(()) => {
+                            tracing::info!(
+                                "{}: {} went away; its contacts are lifted; waiting for it",
+                                input.source,
+                                info.path.display()
+                            );
+                            continue;
+                        }
+                        // Still there but unusable: wait for a change (or a
+                        // while) rather than reopening it in a tight loop.
+                        Err(e) => complain(
+                            &mut last_complaint,
+                            format!("{e}; its contacts are lifted; trying again later"),
+                        ),
+                    }
                 }
                 Err(e) => complain(&mut last_complaint, e.to_string()),
             },
@@ -119,6 +130,7 @@ pub async fn run(
         }
         tokio::select! {
             _ = watcher.changed(None) => {}
+            _ = tokio::time::sleep(RETRY_INTERVAL) => {}
             _ = frames.closed() => return,
         }
     }
