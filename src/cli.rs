@@ -253,9 +253,7 @@ pub fn solve_command(
 /// Parses a `--grid` value, `COLUMNSxROWS` (e.g. `10x10`; `×` also works).
 pub fn parse_grid(text: &str) -> Result<(usize, usize), String> {
     let expected = || format!("expected COLUMNSxROWS such as 10x10, got {text:?}");
-    let (columns, rows) = text
-        .split_once(['x', 'X', '×'])
-        .ok_or_else(expected)?;
+    let (columns, rows) = text.split_once(['x', 'X', '×']).ok_or_else(expected)?;
     let count = |part: &str| part.trim().parse::<usize>().map_err(|_| expected());
     let (columns, rows) = (count(columns)?, count(rows)?);
     if columns < 2 || rows < 2 {
@@ -310,7 +308,13 @@ pub fn compare_command(
             let slug: String = m
                 .method
                 .chars()
-                .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' })
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() {
+                        c.to_ascii_lowercase()
+                    } else {
+                        '-'
+                    }
+                })
                 .collect::<String>()
                 .split('-')
                 .filter(|w| !w.is_empty())

@@ -164,7 +164,9 @@ pub fn compare(
         .map_err(arap_err(PLAIN_ARAP))?
         .to_vec();
     let fitted = rig.inverse_ffd(&arap_pose).map_err(ffd(ARAP_INVERSE_FFD))?;
-    let fitted_pose = rig.deform_with_grid(&fitted).map_err(ffd(ARAP_INVERSE_FFD))?;
+    let fitted_pose = rig
+        .deform_with_grid(&fitted)
+        .map_err(ffd(ARAP_INVERSE_FFD))?;
 
     rig.compile(anchors, &[]).map_err(ffd(LP_FFD))?;
     let tolerance = CONVERGED * mesh.size();

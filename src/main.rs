@@ -99,7 +99,7 @@ enum Command {
     /// angular and area distortion of each (see docs/measures.md).
     Compare {
         /// Grid handles, COLUMNSxROWS.
-        #[arg(long, default_value = "10x10", value_parser = cli::parse_grid)]
+        #[arg(long, default_value = "10x10", value_name = "COLUMNSxROWS", value_parser = cli::parse_grid)]
         grid: (usize, usize),
         /// Run on this mesh (.mesh.json) instead of the bundled layered figure.
         #[arg(long, requires = "handles")]
