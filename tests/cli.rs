@@ -638,3 +638,47 @@ fn the_rig_bench_runs_both_rigs() {
     assert!(table.lines().any(|l| l.starts_with("lp-FFD")), "{table}");
     assert!(table.lines().any(|l| l.starts_with("skeleton")), "{table}");
 }
+
+#[test]
+fn the_lp_ffd_row_minimises_the_lp_ffd_energy() {
+    use puppetry::deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
+
+    let (mesh, anchors, targets) = layered_figure();
+    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let grid_of = |name| {
+        comparison
+            .methods
+            .iter()
+            .find(|m| m.method == name)
+            .unwrap()
+            .grid
+            .clone()
+            .unwrap()
+    };
+    let mut rig = LpFfd::register(
+        &mesh,
+        GridSpec::around(&mesh, 10, 10, Basis::Bernstein),
+        LpParams::default(),
+    )
+    .unwrap();
+    rig.compile(&anchors, &[]).unwrap();
+    let energy = |grid: &[DVec2]| rig.energy(grid, &targets, &[]).unwrap();
+    let best = energy(&grid_of(puppetry::compare::LP_FFD));
+    for other in [
+        puppetry::compare::DIRECT_FFD,
+        puppetry::compare::ARAP_INVERSE_FFD,
+    ] {
+        let e = energy(&grid_of(other));
+        assert!(best < e, "lp-FFD {best}, {other} {e}");
+    }
+    // A local minimum: nudging any grid handle a little costs energy.
+    let grid = grid_of(puppetry::compare::LP_FFD);
+    let step = 1e-3 * mesh.size();
+    for k in (0..grid.len()).step_by(7) {
+        for d in [DVec2::X, DVec2::Y, -DVec2::X, -DVec2::Y] {
+            let mut nudged = grid.clone();
+            nudged[k] += d * step;
+            assert!(energy(&nudged) >= best, "handle {k} nudged by {d}");
+        }
+    }
+}
