@@ -1,12 +1,19 @@
 //! `puppetry bench`: timings of the solver phases on meshes of chosen sizes —
 //! registration, compilation, per-frame update (median and p99) and the cost
 //! of a frame in which a finger lands or lifts. Prints a table or JSON lines.
+//!
+//! The rig cases time the other two deformers' whole frames through their own
+//! bench functions: lp-FFD on a 10×10 grid (both bases) with four vertex
+//! handles wandering, and the 15-bone gingerbread skeleton animated in
+//! forward kinematics (bone transforms and every propagation round).
 
 use std::time::{Duration, Instant};
 
 use glam::DVec2;
 use serde::Serialize;
 
+use crate::deform::ffd::{self, Basis, FfdBench, FfdError, GridSpec, LpParams};
+use crate::deform::skeleton::{self, Skeleton, SkeletonBench, SkeletonError, SkeletonParams};
 use crate::deform::{Anchor, Arap, ArapError, Steps};
 use crate::mesh::Mesh;
 
@@ -344,4 +351,110 @@ pub async fn end_to_end(
         latency_us_p50: percentile(&latencies, 0.5),
         latency_us_p99: percentile(&latencies, 0.99),
     })
+}
+
+/// The grid the rig cases use (the paper's size).
+pub const RIG_GRID: (usize, usize) = (10, 10);
+
+/// Vertex handles the lp-FFD cases drag.
+pub const RIG_VERTEX_HANDLES: usize = 4;
+
+/// One measured rig case, as printed by `puppetry bench --json` (tagged by
+/// `"rig"`).
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "rig")]
+pub enum RigResult {
+    #[serde(rename = "lp-ffd")]
+    LpFfd {
+        mesh: String,
+        /// "bernstein" or "lattice".
+        basis: &'static str,
+        #[serde(flatten)]
+        bench: FfdBench,
+    },
+    #[serde(rename = "skeleton")]
+    Skeleton(SkeletonBench),
+}
+
+/// An lp-FFD case: a [`RIG_GRID`] grid around `mesh` with the paper's
+/// weights and [`RIG_VERTEX_HANDLES`] handles, over `frames` frames.
+pub fn run_lp_ffd_case(
+    name: &str,
+    mesh: &Mesh,
+    basis: Basis,
+    frames: usize,
+) -> Result<RigResult, FfdError> {
+    let spec = GridSpec::around(mesh, RIG_GRID.0, RIG_GRID.1, basis);
+    let bench = ffd::bench(mesh, spec, LpParams::default(), RIG_VERTEX_HANDLES, frames)?;
+    Ok(RigResult::LpFfd {
+        mesh: name.to_string(),
+        basis: match basis {
+            Basis::Bernstein => "bernstein",
+            Basis::Lattice => "lattice",
+        },
+        bench,
+    })
+}
+
+/// A skeleton case: `skeleton` driving `mesh` with the paper's parameters
+/// over `frames` frames.
+pub fn run_skeleton_case(
+    name: &str,
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    frames: usize,
+) -> Result<RigResult, SkeletonError> {
+    let bench = skeleton::bench(name, mesh, skeleton, SkeletonParams::default(), frames)?;
+    Ok(RigResult::Skeleton(bench))
+}
+
+/// The header of the rig table.
+pub fn rig_table_header() -> String {
+    format!(
+        "{:<9} {:<20} {:>8} {:<34} {:>11} {:>13} {:>13} {:>13} {:>12}",
+        "rig",
+        "mesh",
+        "vertices",
+        "setup",
+        "register ms",
+        "frame µs p50",
+        "frame µs p99",
+        "frame µs min",
+        "cpu µs p50"
+    )
+}
+
+/// One row of the rig table.
+pub fn rig_table_row(r: &RigResult) -> String {
+    let (rig, mesh, vertices, setup, register, p50, p99, min, cpu) = match r {
+        RigResult::LpFfd { mesh, basis, bench } => (
+            "lp-FFD",
+            mesh.as_str(),
+            bench.vertices,
+            format!(
+                "{}×{} {basis}, {} handles, {} it",
+                bench.grid_columns, bench.grid_rows, bench.vertex_handles, bench.iterations
+            ),
+            bench.register_ms,
+            bench.update_us_median,
+            bench.update_us_p99,
+            bench.update_us_min,
+            // The lp-FFD bench times wall clock only.
+            "-".to_string(),
+        ),
+        RigResult::Skeleton(b) => (
+            "skeleton",
+            b.mesh.as_str(),
+            b.vertices,
+            format!("{} bones, {} stitches", b.bones, b.stitches),
+            b.register_ms,
+            b.update_us_median,
+            b.update_us_p99,
+            b.update_us_min,
+            format!("{:.1}", b.update_cpu_us_median),
+        ),
+    };
+    format!(
+        "{rig:<9} {mesh:<20} {vertices:>8} {setup:<34} {register:>11.2} {p50:>13.1} {p99:>13.1} {min:>13.1} {cpu:>12}"
+    )
 }

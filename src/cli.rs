@@ -1,4 +1,4 @@
-//! The scriptable commands behind `puppetry mesh`, `solve` and `bench`: file
+//! The scriptable commands behind `puppetry mesh`, `solve`, `compare` and `bench`: file
 //! formats in and out, and errors that name the file and field at fault.
 //! `main.rs` only parses arguments and reports.
 
@@ -8,6 +8,9 @@ use glam::DVec2;
 use serde::Deserialize;
 
 use crate::bench;
+use crate::compare::{self, CompareError, Comparison};
+use crate::deform::ffd::{Basis, FfdError, MAX_GRID_HANDLES};
+use crate::deform::skeleton::{SkeletonError, gingerbread_skeleton};
 use crate::deform::{Anchor, Arap, ArapError, Steps};
 use crate::mesh::build::{MeshOptions, mesh_png, triangulate};
 use crate::mesh::polygon::Shape;
@@ -19,6 +22,12 @@ pub enum CliError {
     Mesh(#[from] MeshError),
     #[error("{file}: {0}", file = .1)]
     Solve(ArapError, String),
+    #[error("{file}: {source}")]
+    Compare { file: String, source: CompareError },
+    #[error("{file}: lp-FFD: {0}", file = .1)]
+    Ffd(FfdError, String),
+    #[error("{file}: skeleton: {0}", file = .1)]
+    Skeleton(SkeletonError, String),
     #[error("{file}: cannot read: {source}")]
     Read {
         file: String,
@@ -241,6 +250,85 @@ pub fn solve_command(
     Ok(serde_json::json!({ "vertices": vertices }).to_string())
 }
 
+/// Parses a `--grid` value, `COLUMNSxROWS` (e.g. `10x10`; `×` also works).
+pub fn parse_grid(text: &str) -> Result<(usize, usize), String> {
+    let expected = || format!("expected COLUMNSxROWS such as 10x10, got {text:?}");
+    let (columns, rows) = text.split_once(['x', 'X', '×']).ok_or_else(expected)?;
+    let count = |part: &str| part.trim().parse::<usize>().map_err(|_| expected());
+    let (columns, rows) = (count(columns)?, count(rows)?);
+    if columns < 2 || rows < 2 {
+        return Err(format!(
+            "{columns}x{rows}: a grid needs at least 2 handles in each direction"
+        ));
+    }
+    if columns.saturating_mul(rows) > MAX_GRID_HANDLES {
+        return Err(format!(
+            "{columns}x{rows}: {} handles is more than the {MAX_GRID_HANDLES} the solver takes",
+            columns.saturating_mul(rows)
+        ));
+    }
+    Ok((columns, rows))
+}
+
+/// The bundled layered figure and its manipulation (see docs/measures.md).
+pub fn layered_figure() -> (PathBuf, PathBuf) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/gingerbread-layers");
+    (
+        dir.join("gingerbread-layers.mesh.json"),
+        dir.join("handles.json"),
+    )
+}
+
+/// `puppetry compare`: the four methods of the lp-FFD paper's Table 1 on a
+/// mesh and handles file (the bundled layered figure when `None`). With
+/// `svg`, also draws each result to `DIR/<method>.svg`.
+pub fn compare_command(
+    figure: Option<(&Path, &Path)>,
+    grid: (usize, usize),
+    svg: Option<&Path>,
+) -> Result<Comparison, CliError> {
+    let bundled = layered_figure();
+    let (mesh_path, handles_path) = figure.unwrap_or((&bundled.0, &bundled.1));
+    let mesh = Mesh::load(mesh_path)?;
+    let handles_name = handles_path.display().to_string();
+    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path)?, &mesh)?;
+    let comparison =
+        compare::compare(&mesh, &anchors, &targets, grid.0, grid.1).map_err(|source| {
+            CliError::Compare {
+                file: mesh_path.display().to_string(),
+                source,
+            }
+        })?;
+    if let Some(dir) = svg {
+        std::fs::create_dir_all(dir).map_err(|source| CliError::Write {
+            file: dir.display().to_string(),
+            source,
+        })?;
+        for m in &comparison.methods {
+            let slug: String = m
+                .method
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() {
+                        c.to_ascii_lowercase()
+                    } else {
+                        '-'
+                    }
+                })
+                .collect::<String>()
+                .split('-')
+                .filter(|w| !w.is_empty())
+                .collect::<Vec<_>>()
+                .join("-");
+            write(
+                &dir.join(format!("{slug}.svg")),
+                &svg_of(&mesh, &m.pose, &targets),
+            )?;
+        }
+    }
+    Ok(comparison)
+}
+
 /// Where the bundled demo puppet lives, relative to the crate root.
 pub fn demo_image() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/gingerbread/gingerbread.png")
@@ -285,6 +373,44 @@ pub fn bench_command(
                 print(&bench::table_row(&result));
             }
             results.push(result);
+        }
+    }
+    Ok(results)
+}
+
+/// Runs the rig cases (lp-FFD, both bases; the gingerbread skeleton on the
+/// demo puppet's meshes only, since it is drawn for that picture), printing
+/// each as it completes.
+pub fn rig_bench_command(
+    meshes: &[(String, Mesh)],
+    with_skeleton: bool,
+    json: bool,
+    mut print: impl FnMut(&str),
+) -> Result<Vec<bench::RigResult>, CliError> {
+    if !json {
+        print(&bench::rig_table_header());
+    }
+    let skeleton = gingerbread_skeleton();
+    let mut results = Vec::new();
+    let mut show = |result: bench::RigResult, results: &mut Vec<_>| {
+        if json {
+            print(&serde_json::to_string(&result).expect("plain numbers serialise"));
+        } else {
+            print(&bench::rig_table_row(&result));
+        }
+        results.push(result);
+    };
+    for (name, mesh) in meshes {
+        let frames = bench::frames_for(mesh.vertices().len());
+        for basis in [Basis::Bernstein, Basis::Lattice] {
+            let result = bench::run_lp_ffd_case(name, mesh, basis, frames)
+                .map_err(|e| CliError::Ffd(e, name.clone()))?;
+            show(result, &mut results);
+        }
+        if with_skeleton {
+            let result = bench::run_skeleton_case(name, mesh, &skeleton, frames)
+                .map_err(|e| CliError::Skeleton(e, name.clone()))?;
+            show(result, &mut results);
         }
     }
     Ok(results)

@@ -25,6 +25,7 @@
 
 pub mod bench;
 pub mod cli;
+pub mod compare;
 pub mod deform;
 pub mod input;
 pub mod mesh;

@@ -106,17 +106,45 @@ enum Command {
         #[arg(long, default_value_t = 0.1)]
         inset: f64,
     },
-    /// Time registration, compilation, updates and handle changes.
+    /// The lp-FFD paper's comparison (its Table 1): direct FFD (Hsu et al.),
+    /// ARAP followed by inverse FFD, plain ARAP and lp-FFD on one layered
+    /// figure, one grid and one set of vertex handles; prints the mean
+    /// angular and area distortion of each (see docs/measures.md).
+    Compare {
+        /// Grid handles, COLUMNSxROWS.
+        #[arg(long, default_value = "10x10", value_name = "COLUMNSxROWS", value_parser = cli::parse_grid)]
+        grid: (usize, usize),
+        /// Run on this mesh (.mesh.json) instead of the bundled layered figure.
+        #[arg(long, requires = "handles")]
+        mesh: Option<PathBuf>,
+        /// The vertex handles and targets for --mesh (the `solve` format).
+        #[arg(long, requires = "mesh")]
+        handles: Option<PathBuf>,
+        /// One JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Also draw each method's result to DIR/<method>.svg.
+        #[arg(long, value_name = "DIR")]
+        svg: Option<PathBuf>,
+    },
+    /// Time registration, compilation, updates and handle changes of the
+    /// ARAP solver, then whole frames of the two rigs (lp-FFD on a 10×10
+    /// grid, the 15-bone skeleton).
     Bench {
         /// One JSON object per case, one per line.
         #[arg(long)]
         json: bool,
-        /// Bench this mesh instead of the demo puppet at several sizes.
+        /// Bench this mesh instead of the demo puppet at several sizes (the
+        /// skeleton, drawn for the demo puppet, is left out).
         #[arg(long)]
         mesh: Option<PathBuf>,
-        /// Vertex counts to mesh the demo puppet at.
-        #[arg(long, value_delimiter = ',', default_value = "1000,10000,100000")]
-        sizes: Vec<usize>,
+        /// Vertex counts to mesh the demo puppet at [default: 1000,10000,100000
+        /// for ARAP, 1000,10000 for the rigs].
+        #[arg(long, value_delimiter = ',')]
+        sizes: Option<Vec<usize>>,
+        /// Only the rig cases (lp-FFD and skeleton).
+        #[arg(long, conflicts_with = "e2e")]
+        rigs: bool,
         /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
         /// as possible into it, with 1 and 16 WebSocket clients on loopback.
         #[arg(long)]
@@ -292,6 +320,21 @@ fn run(args: Args) -> anyhow::Result<()> {
             let out = cli::solve_command(&mesh, &handles, step1_only, svg.as_deref())?;
             println!("{out}");
         }
+        Command::Compare {
+            grid,
+            mesh,
+            handles,
+            json,
+            svg,
+        } => {
+            let figure = mesh.as_deref().zip(handles.as_deref());
+            let comparison = cli::compare_command(figure, grid, svg.as_deref())?;
+            if json {
+                println!("{}", serde_json::to_string(&comparison)?);
+            } else {
+                print!("{}", puppetry::compare::table(&comparison));
+            }
+        }
         Command::Bench {
             json, e2e: true, ..
         } => {
@@ -366,17 +409,29 @@ fn run(args: Args) -> anyhow::Result<()> {
             mesh,
             sizes,
             handles,
+            rigs,
             e2e: false,
         } => {
-            let meshes =
-                cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
             let stdout = std::io::stdout();
-            let handles: Vec<usize> = handles.into_iter().map(|h| h as usize).collect();
-            cli::bench_command(&meshes, &handles, json, |line| {
+            let print = |line: &str| {
                 let mut out = stdout.lock();
                 let _ = writeln!(out, "{line}");
                 let _ = out.flush();
-            })?;
+            };
+            if !rigs {
+                let sizes = sizes.clone().unwrap_or_else(|| vec![1000, 10_000, 100_000]);
+                let meshes =
+                    cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+                let handles: Vec<usize> = handles.into_iter().map(|h| h as usize).collect();
+                cli::bench_command(&meshes, &handles, json, print)?;
+                if !json {
+                    print("");
+                }
+            }
+            let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
+            let meshes =
+                cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+            cli::rig_bench_command(&meshes, mesh.is_none(), json, print)?;
         }
     }
     Ok(())

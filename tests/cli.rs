@@ -352,3 +352,333 @@ fn a_byte_order_mark_is_accepted() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// The bundled layered figure and its scenario, loaded through the library.
+fn layered_figure() -> (Mesh, Vec<Anchor>, Vec<DVec2>) {
+    let (mesh_path, handles_path) = puppetry::cli::layered_figure();
+    let mesh = Mesh::load(&mesh_path).unwrap();
+    let text = std::fs::read_to_string(&handles_path).unwrap();
+    let (anchors, targets) = puppetry::cli::parse_handles("handles.json", &text, &mesh).unwrap();
+    (mesh, anchors, targets)
+}
+
+const METHODS: [&str; 4] = [
+    puppetry::compare::DIRECT_FFD,
+    puppetry::compare::ARAP_INVERSE_FFD,
+    puppetry::compare::PLAIN_ARAP,
+    puppetry::compare::LP_FFD,
+];
+
+#[test]
+fn compare_prints_all_four_methods_on_the_layered_figure() {
+    let (mesh, _, _) = layered_figure();
+    assert!(
+        mesh.pieces().len() >= 6,
+        "the figure is made of separate layers"
+    );
+    let out = puppetry(&["compare"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("10×10 grid"), "{table}");
+    for method in METHODS {
+        let row = table
+            .lines()
+            // Names are padded to a column: "ARAP" must not take the
+            // "ARAP + inverse FFD" row.
+            .find(|l| l.starts_with(&format!("{method}  ")))
+            .unwrap_or_else(|| panic!("no row for {method} in {table}"));
+        let numbers: Vec<f64> = row[method.len()..]
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        assert_eq!(numbers.len(), 3, "{row}");
+        assert!(numbers.iter().all(|x| x.is_finite() && *x >= 0.0), "{row}");
+    }
+
+    let out = puppetry(&["compare", "--json", "--grid", "6x8"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let value: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(value["grid_columns"], 6);
+    assert_eq!(value["grid_rows"], 8);
+    assert_eq!(
+        value["vertices"].as_u64().unwrap() as usize,
+        mesh.vertices().len()
+    );
+    let methods = value["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods
+        .iter()
+        .map(|m| m["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, METHODS);
+    for m in methods {
+        for field in ["angular", "area", "handle_error"] {
+            let x = m[field].as_f64().unwrap();
+            assert!(x.is_finite() && x >= 0.0, "{field} of {m}");
+        }
+        // Every method really deformed the figure.
+        assert!(m["angular"].as_f64().unwrap() > 0.0, "{m}");
+    }
+    // ARAP takes its handles as hard constraints; the grid methods only
+    // approximately, but within a few percent of the figure.
+    let size = mesh.size();
+    for m in methods {
+        let error = m["handle_error"].as_f64().unwrap();
+        if m["method"] == puppetry::compare::PLAIN_ARAP {
+            assert!(error < 1e-9 * size, "{m}");
+        } else {
+            assert!(error < 0.05 * size, "{m}");
+        }
+    }
+}
+
+#[test]
+fn arap_plus_inverse_ffd_is_the_grid_fit_of_the_arap_result() {
+    use puppetry::deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
+    use puppetry::deform::{Arap, Steps};
+
+    let (mesh, anchors, targets) = layered_figure();
+    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let by_name = |name| {
+        comparison
+            .methods
+            .iter()
+            .find(|m| m.method == name)
+            .unwrap()
+    };
+    // The ARAP row is the ARAP solver's answer.
+    let mut arap = Arap::register(&mesh).unwrap();
+    arap.compile(&anchors).unwrap();
+    let arap_pose = arap.update(&targets, Steps::Both).unwrap().to_vec();
+    let plain = by_name(puppetry::compare::PLAIN_ARAP);
+    assert!(common::max_distance(&plain.pose, &arap_pose) < 1e-9 * mesh.size());
+
+    // The fitted grid satisfies the normal equations of
+    // λ_mp Σ_v |W_v P − a_v|² + λ_gr Σ_k |P_k − P⁰_k|², with W's columns
+    // read off plain FFD by moving one grid handle at a time.
+    let fitted = by_name(puppetry::compare::ARAP_INVERSE_FFD);
+    let grid = fitted.grid.clone().expect("a grid method");
+    let params = LpParams::default();
+    let rig = LpFfd::register(
+        &mesh,
+        GridSpec::around(&mesh, 10, 10, Basis::Bernstein),
+        params,
+    )
+    .unwrap();
+    let fitted_pose = rig.deform_with_grid(&grid).unwrap();
+    assert!(common::max_distance(&fitted.pose, &fitted_pose) < 1e-9 * mesh.size());
+    let rest_grid = rig.rest_grid().to_vec();
+    let gradient = |p: &[DVec2]| -> Vec<DVec2> {
+        let pose = rig.deform_with_grid(p).unwrap();
+        (0..rest_grid.len())
+            .map(|k| {
+                let mut nudged = rest_grid.clone();
+                nudged[k].x += 1.0;
+                let column = rig.deform_with_grid(&nudged).unwrap();
+                let mut g = (p[k] - rest_grid[k]) * params.regular;
+                for ((c, r), (v, a)) in column
+                    .iter()
+                    .zip(mesh.vertices())
+                    .zip(pose.iter().zip(&arap_pose))
+                {
+                    g += (*v - *a) * ((c.x - r.x) * params.vertex);
+                }
+                g
+            })
+            .collect()
+    };
+    let norm = |g: &[DVec2]| g.iter().map(|x| x.length_squared()).sum::<f64>().sqrt();
+    let at_rest = norm(&gradient(&rest_grid));
+    let at_fit = norm(&gradient(&grid));
+    assert!(at_rest > 0.0);
+    assert!(
+        at_fit < 1e-8 * at_rest,
+        "gradient {at_fit} at the fit, {at_rest} at rest"
+    );
+    // And the fit is not the ARAP pose itself: the grid cannot follow
+    // separate pieces moving on their own.
+    assert!(common::max_distance(&fitted_pose, &arap_pose) > 1e-3 * mesh.size());
+}
+
+#[test]
+fn compare_runs_on_a_figure_of_your_own() {
+    let dir = tempfile::tempdir().unwrap();
+    // Two overlapping bars, each a piece of its own with two handles.
+    let (mut vertices, mut triangles) = common::grid(8, 2, 8.0, 2.0, DVec2::ZERO);
+    let (v, t) = common::grid(2, 6, 2.0, 6.0, DVec2::new(3.0, -2.0));
+    let base = vertices.len() as u32;
+    vertices.extend(v);
+    triangles.extend(t.into_iter().map(|tri| tri.map(|x| x + base)));
+    let mesh = Mesh::new("cross", vertices, triangles, None, None).unwrap();
+    assert_eq!(mesh.pieces().len(), 2);
+    let mesh_path = scratch(&dir, "cross.mesh.json", mesh.to_json().as_bytes());
+    let last = base - 1;
+    let handles = format!(
+        r#"{{"handles": [{{"vertex": 0, "to": [0, 0]}}, {{"vertex": {last}, "to": [7, 4]}},
+            {{"vertex": {base}, "to": [3, -2]}}, {{"vertex": {}, "to": [6, 2]}}]}}"#,
+        mesh.vertices().len() - 1
+    );
+    let handles_path = scratch(&dir, "cross.handles.json", handles.as_bytes());
+    let out = puppetry(&[
+        "compare",
+        "--mesh",
+        mesh_path.to_str().unwrap(),
+        "--handles",
+        handles_path.to_str().unwrap(),
+        "--grid",
+        "4x4",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let value: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(value["pieces"], 2);
+    assert_eq!(value["handles"], 4);
+    assert_eq!(value["methods"].as_array().unwrap().len(), 4);
+}
+
+#[test]
+fn bad_compare_inputs_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
+    for (grid, expected) in [
+        ("1x5", "at least 2"),
+        ("ten", "COLUMNSxROWS"),
+        ("10x", "COLUMNSxROWS"),
+        ("100x100", "more than"),
+    ] {
+        let message = failure(&["compare", "--grid", grid]);
+        assert!(
+            message.contains("--grid") && message.contains(expected),
+            "{grid}: {message}"
+        );
+    }
+    let mesh = scratch(&dir, "square.mesh.json", SQUARE.as_bytes());
+    let m = mesh.to_str().unwrap();
+    let handles = scratch(
+        &dir,
+        "far.handles.json",
+        br#"{"handles": [{"vertex": 7, "to": [0, 0]}]}"#,
+    );
+    let message = failure(&[
+        "compare",
+        "--mesh",
+        m,
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(
+        message.contains("far.handles.json") && message.contains("handles[0].vertex"),
+        "{message}"
+    );
+    let broken = scratch(&dir, "broken.mesh.json", b"{\"vertices\": [");
+    let message = failure(&[
+        "compare",
+        "--mesh",
+        broken.to_str().unwrap(),
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(message.contains("broken.mesh.json"), "{message}");
+    let message = failure(&[
+        "compare",
+        "--mesh",
+        m,
+        "--handles",
+        "/nonexistent/handles.json",
+    ]);
+    assert!(message.contains("/nonexistent/handles.json"), "{message}");
+    let message = failure(&["compare", "--mesh", m]);
+    assert!(message.contains("--handles"), "{message}");
+}
+
+#[test]
+fn the_rig_bench_runs_both_rigs() {
+    let out = puppetry(&["bench", "--rigs", "--sizes", "300", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cases: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let rigs: Vec<&str> = cases.iter().map(|c| c["rig"].as_str().unwrap()).collect();
+    assert_eq!(rigs, ["lp-ffd", "lp-ffd", "skeleton"]);
+    assert_eq!(cases[0]["basis"], "bernstein");
+    assert_eq!(cases[1]["basis"], "lattice");
+    assert_eq!(cases[2]["bones"], 15);
+    for c in &cases {
+        assert!(c["frames"].as_u64().unwrap() > 0, "{c}");
+        let vertices = c["vertices"].as_u64().unwrap();
+        assert!((200..=400).contains(&vertices), "{c}");
+        for field in ["update_us_median", "update_us_p99", "update_us_min"] {
+            let x = c[field].as_f64().unwrap();
+            assert!(x.is_finite() && x > 0.0, "{field} of {c}");
+        }
+    }
+    for c in &cases[..2] {
+        assert_eq!(c["grid_columns"], 10);
+        assert_eq!(c["grid_rows"], 10);
+    }
+
+    let out = puppetry(&["bench", "--rigs", "--sizes", "300"]);
+    assert!(out.status.success());
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.lines().any(|l| l.starts_with("lp-FFD")), "{table}");
+    assert!(table.lines().any(|l| l.starts_with("skeleton")), "{table}");
+}
+
+#[test]
+fn the_lp_ffd_row_minimises_the_lp_ffd_energy() {
+    use puppetry::deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
+
+    let (mesh, anchors, targets) = layered_figure();
+    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let grid_of = |name| {
+        comparison
+            .methods
+            .iter()
+            .find(|m| m.method == name)
+            .unwrap()
+            .grid
+            .clone()
+            .unwrap()
+    };
+    let mut rig = LpFfd::register(
+        &mesh,
+        GridSpec::around(&mesh, 10, 10, Basis::Bernstein),
+        LpParams::default(),
+    )
+    .unwrap();
+    rig.compile(&anchors, &[]).unwrap();
+    let energy = |grid: &[DVec2]| rig.energy(grid, &targets, &[]).unwrap();
+    let best = energy(&grid_of(puppetry::compare::LP_FFD));
+    for other in [
+        puppetry::compare::DIRECT_FFD,
+        puppetry::compare::ARAP_INVERSE_FFD,
+    ] {
+        let e = energy(&grid_of(other));
+        assert!(best < e, "lp-FFD {best}, {other} {e}");
+    }
+    // A local minimum: nudging any grid handle a little costs energy.
+    let grid = grid_of(puppetry::compare::LP_FFD);
+    let step = 1e-3 * mesh.size();
+    for k in (0..grid.len()).step_by(7) {
+        for d in [DVec2::X, DVec2::Y, -DVec2::X, -DVec2::Y] {
+            let mut nudged = grid.clone();
+            nudged[k] += d * step;
+            assert!(energy(&nudged) >= best, "handle {k} nudged by {d}");
+        }
+    }
+}
