@@ -297,7 +297,7 @@ async fn a_replay_drags_a_grid_handle_and_a_vertex_handle_like_a_direct_lp_ffd_s
         grid_seen[index].distance(handle_to) < 1.0,
         "the dragged grid handle is near where it was pulled"
     );
-    // The handles message tells grid handles from points.
+    // The grid, exported.
     ws.send(json!({"type": "export_grid", "puppet": 0})).await;
     let export = ws.text_of("grid").await;
     assert_eq!(export["columns"], 10);
@@ -679,6 +679,73 @@ async fn painting_a_skeleton_puppet_refactors_it() {
         "painting matters here"
     );
     ws.frame_until(1, |v| max_distance(v, &expected) < 1e-2)
+        .await;
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn painting_a_grid_puppet_refactors_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh_file = dir.path().join("gingerbread.mesh.json");
+    std::fs::copy(demo_mesh(), &mesh_file).unwrap();
+    let config = config(&mesh_file, true, GRID, None);
+    let stage = staged(&config);
+    let mesh = stage.puppets()[0].mesh.clone();
+    let Rig::Grid(grid) = stage.puppets()[0].rig() else {
+        panic!("a grid puppet")
+    };
+    let spec = *grid.ffd().spec();
+    let pins = pins_on_stage(&stage);
+    let hand = mesh
+        .vertices()
+        .iter()
+        .copied()
+        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+            if b.x > a.x { b } else { a }
+        })
+        - DVec2::new(15.0, 0.0);
+    let hand_to = hand + DVec2::new(-30.0, 100.0);
+    let anchors: Vec<Anchor> = [pins[0], pins[1], hand]
+        .iter()
+        .map(|&p| anchor_at(&mesh, p))
+        .collect();
+    let targets = [pins[0], pins[1], hand_to];
+    let solve = |mesh: &Mesh| {
+        let params = LpParams {
+            iterations: 200,
+            ..LpParams::default()
+        };
+        let mut ffd = LpFfd::register(mesh, spec, params).unwrap();
+        ffd.compile(&anchors, &[]).unwrap();
+        for _ in 0..5 {
+            ffd.update(&targets, &[]).unwrap();
+        }
+        ffd.pose().to_vec()
+    };
+    let unpainted = solve(&mesh);
+
+    let running = run(&config).await;
+    let (mut ws, _) = performer(&running).await;
+    ws.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "down", "x": hand.x, "y": hand.y}]}))
+        .await;
+    ws.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "move", "x": hand_to.x, "y": hand_to.y}]}))
+        .await;
+    ws.frame_until(1, |v| max_distance(v, &unpainted) < 0.05)
+        .await;
+    // Soften the shoulder, where the arm bends.
+    let shoulder = hand - DVec2::new(150.0, 0.0);
+    ws.send(json!({"type": "paint", "puppet": 0, "x": shoulder.x, "y": shoulder.y, "radius": 60.0, "strength": 0.01}))
+        .await;
+    ws.send(json!({"type": "save_weights", "puppet": 0})).await;
+    ws.text_of("weights_saved").await;
+    let weights = Mesh::load(&mesh_file).unwrap().weights().to_vec();
+    assert!(weights.iter().any(|&w| w < 0.1), "softened");
+    let painted = solve(&with_weights(&mesh, &weights));
+    assert!(
+        max_distance(&painted, &unpainted) > 0.5,
+        "painting matters for this drag"
+    );
+    ws.frame_until(1, |v| max_distance(v, &painted) < 0.05)
         .await;
     running.shutdown().await;
 }

@@ -58,8 +58,8 @@ pub struct SkeletonRig {
 
 pub enum Rig {
     Free(FreeRig),
-    Grid(GridRig),
-    Skeleton(SkeletonRig),
+    Grid(Box<GridRig>),
+    Skeleton(Box<SkeletonRig>),
 }
 
 impl Rig {
@@ -90,13 +90,13 @@ impl Rig {
             let spec = GridSpec::around(placed, g.columns, g.rows, basis);
             let ffd = LpFfd::register(placed, spec, params)
                 .map_err(|e| ("grid".to_string(), e.to_string()))?;
-            return Ok(Rig::Grid(GridRig {
+            return Ok(Rig::Grid(Box::new(GridRig {
                 ffd,
                 vertex_anchors: Vec::new(),
                 grid_indices: Vec::new(),
                 vertex_targets: Vec::new(),
                 grid_targets: Vec::new(),
-            }));
+            })));
         }
         if let Some(s) = skeleton {
             fn err(
@@ -142,14 +142,14 @@ impl Rig {
             let pose = skeleton.rest_pose();
             let joints = skeleton.joints().to_vec();
             let deformer = ShapeAware::register(placed, skeleton, params).map_err(err("joints"))?;
-            return Ok(Rig::Skeleton(SkeletonRig {
+            return Ok(Rig::Skeleton(Box::new(SkeletonRig {
                 deformer,
                 mode: s.mode,
                 pose,
                 joints,
                 bone_ending,
                 key_poses,
-            }));
+            })));
         }
         let arap = Arap::register(placed).map_err(|e| ("mesh".to_string(), e.to_string()))?;
         Ok(Rig::Free(FreeRig {
