@@ -608,9 +608,13 @@ async fn painting_stiffens_a_free_form_puppet_and_saves_to_its_mesh_file() {
         .await;
     // Stiffen the arm's middle: the deformed arm is where the brush lands.
     let brush = hand + (hand_to - hand) * 0.3 - DVec2::new(60.0, 0.0);
-    ws.send(json!({"type": "paint", "puppet": 0, "x": brush.x, "y": brush.y, "radius": 70.0, "strength": 1000.0}),
-    )
-    .await;
+    ws.send(json!({"type": "paint", "puppet": 0, "x": brush.x, "y": brush.y, "radius": 70.0, "strength": 1000.0}))
+        .await;
+    // A second dab, most likely while the first rebuild is under way: the
+    // solver that ends up in use has both.
+    let elbow = brush + DVec2::new(50.0, 20.0);
+    ws.send(json!({"type": "paint", "puppet": 0, "x": elbow.x, "y": elbow.y, "radius": 40.0, "strength": 1000.0}))
+        .await;
     ws.send(json!({"type": "save_weights", "puppet": 0})).await;
     let saved = ws.text_of("weights_saved").await;
     assert_eq!(saved["file"], mesh_file.display().to_string());
@@ -748,4 +752,53 @@ async fn painting_a_grid_puppet_refactors_it() {
     ws.frame_until(1, |v| max_distance(v, &painted) < 0.05)
         .await;
     running.shutdown().await;
+}
+
+/// The rebuild bookkeeping without threads: one rebuild at a time, and a
+/// finished one that is already stale starts the next with the newest
+/// weights.
+#[test]
+fn dabs_during_a_rebuild_go_into_the_next_one() {
+    let config = config(&demo_mesh(), true, "", None);
+    let mut stage = staged(&config);
+    let centre = DVec2::new(640.0, 360.0);
+    let first = stage
+        .paint(0, centre, 50.0, 10.0)
+        .unwrap()
+        .expect("a free-form puppet rebuilds off the stage thread");
+    assert_eq!(first.mesh.weights(), stage.puppets()[0].weights());
+    assert!(
+        stage.paint(0, centre, 50.0, 10.0).unwrap().is_none(),
+        "no second rebuild while one is under way"
+    );
+    let newest = stage.puppets()[0].weights().to_vec();
+    assert_ne!(first.mesh.weights(), newest.as_slice());
+    let arap = Arap::register(&first.mesh).unwrap();
+    let second = stage
+        .install(0, first.generation, arap)
+        .expect("the weights moved on: another rebuild");
+    assert_eq!(second.mesh.weights(), newest.as_slice());
+    assert!(second.generation > first.generation);
+    let arap = Arap::register(&second.mesh).unwrap();
+    assert!(
+        stage.install(0, second.generation, arap).is_none(),
+        "up to date"
+    );
+    // Solving compiles the new solver with the pins: the rest pose holds.
+    stage.solve();
+    assert!(
+        max_distance(
+            stage.puppets()[0].pose(),
+            stage.puppets()[0].mesh.vertices()
+        ) < 1e-6
+    );
+    // Painting off the puppet changes nothing and rebuilds nothing.
+    assert!(
+        stage
+            .paint(0, DVec2::new(5.0, 5.0), 10.0, 10.0)
+            .unwrap()
+            .is_none()
+    );
+    assert!(stage.paint(0, centre, 0.0, 10.0).is_err());
+    assert!(stage.paint(1, centre, 10.0, 10.0).is_err());
 }
