@@ -233,6 +233,25 @@ pub struct Rebuild {
     pub mesh: Mesh,
 }
 
+/// A puppet's mesh file with painted weights, not yet written.
+#[derive(Debug)]
+pub struct WeightsFile {
+    pub path: PathBuf,
+    /// The mesh as loaded, in its own coordinates.
+    mesh: Mesh,
+    weights: Vec<f64>,
+}
+
+impl WeightsFile {
+    /// The `.mesh.json` text: the loaded mesh with the painted weights.
+    pub fn text(self) -> Result<String, String> {
+        let mut mesh = self.mesh;
+        mesh.set_weights(self.weights)
+            .map_err(|e| format!("{}: {e}", self.path.display()))?;
+        Ok(mesh.to_json())
+    }
+}
+
 /// All puppets and the contacts holding them.
 pub struct Stage {
     pub width: f64,
@@ -575,22 +594,18 @@ impl Stage {
         }))
     }
 
-    /// The mesh file's text with the painted weights: (file, text).
-    pub fn weights_file(&self, puppet: u32) -> Result<(PathBuf, String), String> {
+    /// What saving the puppet's painted weights writes, to be turned into
+    /// text off the stage thread ([`WeightsFile::text`]).
+    pub fn weights_file(&self, puppet: u32) -> Result<WeightsFile, String> {
         let p = self
             .puppets
             .get(puppet as usize)
             .ok_or_else(|| format!("puppet {puppet}: no such puppet"))?;
-        let s = &p.source_mesh;
-        let mesh = Mesh::new(
-            &p.mesh_file.display().to_string(),
-            s.vertices().to_vec(),
-            s.triangles().to_vec(),
-            s.uv().map(|uv| uv.to_vec()),
-            Some(p.weights.clone()),
-        )
-        .map_err(|e| e.to_string())?;
-        Ok((p.mesh_file.clone(), mesh.to_json()))
+        Ok(WeightsFile {
+            path: p.mesh_file.clone(),
+            mesh: p.source_mesh.clone(),
+            weights: p.weights.clone(),
+        })
     }
 
     /// Solves every puppet whose handles changed or moved; returns, per

@@ -16,11 +16,9 @@ use std::thread::JoinHandle;
 use bytes::{BufMut, Bytes, BytesMut};
 use glam::DVec2;
 use serde::Serialize;
-use std::path::PathBuf;
-
 use tokio::sync::{mpsc, oneshot, watch};
 
-use super::{Grip, HandleKind, Owner, Rebuild, Stage};
+use super::{Grip, HandleKind, Owner, Rebuild, Stage, WeightsFile};
 use crate::deform::Arap;
 use crate::input::ContactFrame;
 
@@ -72,11 +70,11 @@ pub enum Command {
         puppet: u32,
         reply: Reply<String>,
     },
-    /// The puppet's mesh file and its text with the painted weights (the
-    /// asker writes it: the stage thread does no file I/O).
+    /// The puppet's mesh file with the painted weights (the asker makes
+    /// the text and writes it: the stage thread does no file I/O).
     SaveWeights {
         puppet: u32,
-        reply: Reply<(PathBuf, String)>,
+        reply: Reply<WeightsFile>,
     },
     /// A worker rebuilt a free-form puppet's solver with painted weights
     /// (`None`: it failed).

@@ -529,12 +529,17 @@ async fn handle_message(
             return Ok(None);
         }
         ClientMessage::SaveWeights { puppet } => {
-            let (path, text) = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
-            let file = path.clone();
-            tokio::task::spawn_blocking(move || write_atomically(&file, &text))
+            let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
+            let path = file.path.clone();
+            let written = tokio::task::spawn_blocking(move || {
+                let path = file.path.clone();
+                let text = file.text()?;
+                write_atomically(&path, &text).map_err(|e| format!("{}: {e}", path.display()))
+            });
+            written
                 .await
                 .map_err(|e| format!("save_weights: {e}"))?
-                .map_err(|e| format!("save_weights: {}: {e}", path.display()))?;
+                .map_err(|e| format!("save_weights: {e}"))?;
             return Ok(Some(
                 serde_json::json!({"type": "weights_saved", "puppet": puppet, "file": path.display().to_string()})
                     .to_string(),
