@@ -126,24 +126,27 @@ fn bad_rig_sections_are_named_and_explained() {
 }
 
 #[test]
-fn rigs_the_deformers_refuse_are_named_by_puppet_and_field() {
+fn rigs_the_deformers_refuse_are_named_by_file_puppet_and_field() {
     for (rig, says) in [
         // A bone cycle.
         (
             "[puppet.skeleton]\njoints = [[256, 182], [256, 297]]\nbones = [[0, 1], [1, 0]]\n",
-            "puppet g: skeleton.bones",
+            "rig.toml: puppet[0] (g).skeleton.bones",
         ),
         // A joint off the mesh.
         (
             "[puppet.skeleton]\njoints = [[256, 182], [5000, 297]]\nbones = [[0, 1]]\n",
-            "puppet g: skeleton.joints",
+            "rig.toml: puppet[0] (g).skeleton.joints",
         ),
         // A key pose of the wrong shape.
         (
             "[puppet.skeleton]\njoints = [[256, 182], [256, 297]]\nbones = [[0, 1]]\n[[puppet.skeleton.poses]]\nname = \"a\"\nangles = [1, 2]\n",
-            "puppet g: skeleton.poses[0]",
+            "rig.toml: puppet[0] (g).skeleton.poses[0]",
         ),
-        ("[puppet.grid]\ncolumns = 40\nrows = 40\n", "puppet g: grid"),
+        (
+            "[puppet.grid]\ncolumns = 40\nrows = 40\n",
+            "rig.toml: puppet[0] (g).grid",
+        ),
     ] {
         let config = StageConfig::parse("rig.toml", &demo_puppet(rig), Path::new("/")).unwrap();
         let message = Stage::from_config(&config)

@@ -39,6 +39,10 @@ pub struct StageConfig {
     /// Where the file was read from; relative paths are resolved against it.
     #[serde(skip)]
     pub folder: PathBuf,
+    /// The file's name as given to [`StageConfig::parse`], for errors found
+    /// after parsing (a rig the deformers refuse).
+    #[serde(skip)]
+    pub file: String,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -457,6 +461,7 @@ impl StageConfig {
             message: e.to_string().trim_end().replace('\n', " "),
         })?;
         config.folder = folder.to_path_buf();
+        config.file = file.to_string();
         let invalid = |field: String, problem: &str| ConfigError::Invalid {
             file: file.to_string(),
             field,

@@ -29,8 +29,10 @@ pub use rig::{Grip, Rig};
 pub enum StageError {
     #[error(transparent)]
     Mesh(#[from] MeshError),
-    #[error("puppet {puppet}: {field}: {problem}")]
+    #[error("{file}: puppet[{index}] ({puppet}).{field}: {problem}")]
     Rig {
+        file: String,
+        index: usize,
         puppet: String,
         field: String,
         problem: String,
@@ -287,6 +289,8 @@ impl Stage {
                 p.skeleton.as_ref(),
             )
             .map_err(|(field, problem)| StageError::Rig {
+                file: config.file.clone(),
+                index: id,
                 puppet: p.name.clone(),
                 field,
                 problem,
