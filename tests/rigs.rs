@@ -740,9 +740,19 @@ async fn painting_a_grid_puppet_refactors_it() {
     let shoulder = hand - DVec2::new(150.0, 0.0);
     ws.send(json!({"type": "paint", "puppet": 0, "x": shoulder.x, "y": shoulder.y, "radius": 60.0, "strength": 0.01}))
         .await;
+    // Every client hears of the new weights.
+    let broadcast = ws.text_of("weights").await;
     ws.send(json!({"type": "save_weights", "puppet": 0})).await;
     ws.text_of("weights_saved").await;
     let weights = Mesh::load(&mesh_file).unwrap().weights().to_vec();
+    let heard: Vec<f64> = serde_json::from_value(broadcast["weights"].clone()).unwrap();
+    assert_eq!(heard.len(), weights.len());
+    assert!(
+        heard
+            .iter()
+            .zip(&weights)
+            .all(|(a, b)| (a - b).abs() <= 1e-12 * b.abs())
+    );
     assert!(weights.iter().any(|&w| w < 0.1), "softened");
     let painted = solve(&with_weights(&mesh, &weights));
     assert!(

@@ -176,6 +176,8 @@ function buildPuppets(msg) {
       // grid handles or posed joints) from rig frames.
       rig: src.rig ?? { kind: 'free' },
       rigPoints: kept?.rigPoints ?? (src.rig?.rest ? new Float32Array(src.rig.rest.flat()) : null),
+      // Per-triangle stiffness, shown while the paint tool is on.
+      weights: kept?.weights ?? src.weights ?? null,
     };
   });
   return Promise.all(msg.puppets.map((p) => loadTexture(p.texture)));
@@ -316,6 +318,28 @@ function drawOverlay() {
       const [x, y] = at(i);
       if (p.rig.kind === 'grid') dot(x, y, 3, 'rgb(41 98 255 / 0.8)', 'rgb(255 255 255 / 0.8)');
       else dot(x, y, 5, 'rgb(255 111 0 / 0.9)', '#000');
+    }
+  }
+  if (paintTool) {
+    // Painted stiffness: stiffer blue, softer red, stronger the further
+    // from the default weight 1 (on a log scale).
+    for (const p of puppets) {
+      if (!p.weights) continue;
+      const v = p.positions;
+      const t = p.src.triangles;
+      for (let k = 0; k < p.weights.length; k++) {
+        const w = p.weights[k];
+        if (w === 1) continue;
+        const strength = Math.min(1, Math.abs(Math.log10(w)) / 3);
+        ctx2d.fillStyle = w > 1 ? `rgb(41 98 255 / ${0.15 + 0.5 * strength})` : `rgb(213 0 0 / ${0.15 + 0.5 * strength})`;
+        ctx2d.beginPath();
+        for (let c = 0; c < 3; c++) {
+          const i = t[3 * k + c];
+          const [x, y] = stageToClient(v[2 * i], v[2 * i + 1]);
+          if (c === 0) ctx2d.moveTo(x - r.left, y - r.top); else ctx2d.lineTo(x - r.left, y - r.top);
+        }
+        ctx2d.fill();
+      }
     }
   }
   if (paintTool && brush) {
@@ -554,6 +578,11 @@ function onText(text) {
       cursors = msg.cursors;
       needsOverlay = true;
       return;
+    case 'weights': {
+      const p = puppets.find((q) => q.id === msg.puppet);
+      if (p) { p.weights = msg.weights; needsOverlay = true; }
+      return;
+    }
     case 'weights_saved':
       setStatus(`painted weights of puppet ${msg.puppet} saved to ${msg.file}`);
       return;
@@ -601,6 +630,7 @@ function onFrame(buf) {
   p.positions = new Float32Array(buf, 32, 2 * n);
   p.dirty = true;
   needsDraw = true;
+  if (paintTool) needsOverlay = true; // the stiffness tint follows the mesh
 }
 
 // A rig frame: the puppet's deformed grid handles or posed joints.

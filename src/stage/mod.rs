@@ -152,6 +152,11 @@ impl Puppet {
         &self.weights
     }
 
+    /// Bumped by every paint dab that changed a weight.
+    pub fn weights_generation(&self) -> u64 {
+        self.weights_generation
+    }
+
     /// The triangle of the current pose under `p` and `p`'s barycentric
     /// coordinates there: what a finger landing at `p` touches.
     pub fn hit(&self, p: DVec2) -> Option<Anchor> {

@@ -193,6 +193,12 @@ pub fn handles_message(stage: &Stage, puppet: u32) -> String {
     serde_json::json!({"type": "handles", "puppet": puppet, "handles": handles}).to_string()
 }
 
+/// The "weights" message of a puppet: its per-triangle weights now.
+pub fn weights_message(stage: &Stage, puppet: u32) -> String {
+    let p = &stage.puppets()[puppet as usize];
+    serde_json::json!({"type": "weights", "puppet": puppet, "weights": p.weights()}).to_string()
+}
+
 /// The newest output of one puppet.
 #[derive(Debug, Clone)]
 pub struct PuppetOutput {
@@ -202,6 +208,8 @@ pub struct PuppetOutput {
     pub rig: watch::Receiver<Option<Bytes>>,
     /// The newest "handles" message.
     pub handles: watch::Receiver<Arc<str>>,
+    /// The newest "weights" message (changes when a performer paints).
+    pub weights: watch::Receiver<Arc<str>>,
 }
 
 /// What the stage thread publishes.
@@ -220,6 +228,9 @@ struct Publisher {
     frames: Vec<watch::Sender<Option<Bytes>>>,
     rigs: Vec<watch::Sender<Option<Bytes>>>,
     handles: Vec<watch::Sender<Arc<str>>>,
+    weights: Vec<watch::Sender<Arc<str>>>,
+    /// Per puppet, the weights generation last published.
+    weights_published: Vec<u64>,
     sequences: Vec<u64>,
     cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
@@ -253,6 +264,24 @@ impl Publisher {
         if !solved.is_empty() {
             self.changes.send_modify(|c| *c += 1);
         }
+    }
+
+    /// Publishes the weights of every puppet painted since the last call;
+    /// returns whether there were any.
+    fn publish_weights(&mut self, stage: &Stage) -> bool {
+        let mut any = false;
+        for p in stage.puppets() {
+            let i = p.id as usize;
+            if p.weights_generation() != self.weights_published[i] {
+                self.weights_published[i] = p.weights_generation();
+                self.weights[i].send_replace(Arc::from(weights_message(stage, p.id)));
+                any = true;
+            }
+        }
+        if any {
+            self.changes.send_modify(|c| *c += 1);
+        }
+        any
     }
 
     fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorView>) {
@@ -305,6 +334,8 @@ pub fn spawn(
         frames: Vec::new(),
         rigs: Vec::new(),
         handles: Vec::new(),
+        weights: Vec::new(),
+        weights_published: vec![0; stage.puppets().len()],
         sequences: vec![0; stage.puppets().len()],
         cursors: cursors_tx,
         changes,
@@ -314,6 +345,9 @@ pub fn spawn(
         let (frame_tx, frame_rx) = watch::channel(None);
         let (rig_tx, rig_rx) = watch::channel(None);
         publisher.rigs.push(rig_tx);
+        let (weights_tx, weights_rx) =
+            watch::channel(Arc::<str>::from(weights_message(&stage, p.id)));
+        publisher.weights.push(weights_tx);
         let (handles_tx, handles_rx) =
             watch::channel(Arc::<str>::from(handles_message(&stage, p.id)));
         publisher.frames.push(frame_tx);
@@ -322,6 +356,7 @@ pub fn spawn(
             frame: frame_rx,
             rig: rig_rx,
             handles: handles_rx,
+            weights: weights_rx,
         });
     }
     // Pins from the stage file are handles before any input: solve once.
@@ -412,6 +447,7 @@ pub fn spawn(
                 }
                 let solved = stage.solve();
                 publisher.publish(&stage, &solved, newest);
+                publisher.publish_weights(&stage);
                 if cursors_changed {
                     publisher.publish_cursors(&cursors);
                 }

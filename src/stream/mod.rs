@@ -69,6 +69,7 @@ impl StageDescription {
                     "uv": p.mesh.uv().map(flat).unwrap_or_default(),
                     "triangles": p.mesh.triangles().iter().flatten().copied().collect::<Vec<u32>>(),
                     "rig": rig_description(p.rig()),
+                    "weights": p.mesh.weights(),
                 })
             })
             .collect();
@@ -284,6 +285,9 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let mut handles: Vec<_> = shared.outputs.iter().map(|o| o.handles.clone()).collect();
     let mut frames: Vec<_> = shared.outputs.iter().map(|o| o.frame.clone()).collect();
     let mut rigs: Vec<_> = shared.outputs.iter().map(|o| o.rig.clone()).collect();
+    // Weights are sent once painted (the stage message has none: the mesh
+    // file's are implied until then).
+    let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
     let puppets: Vec<serde_json::Value> = shared
         .stage
         .puppets
@@ -333,6 +337,10 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     if let Some(bytes) = frame {
                         send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
                     }
+                }
+                if weights[i].has_changed().unwrap_or(false) {
+                    let text = weights[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
                 if handles[i].has_changed().unwrap_or(false) {
                     let text = handles[i].borrow_and_update().to_string();

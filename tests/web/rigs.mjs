@@ -85,6 +85,9 @@ try {
   }
   await page.mouse.up();
   await page.waitForTimeout(300);
+  // The painted triangles come back as a weights message and are tinted.
+  await page.waitForFunction(() => window.puppetry.stage && document.getElementById('paint-tool').getAttribute('aria-pressed') === 'true');
+  if (shotDir) fs.writeFileSync(path.join(shotDir, `painted-${summary.kind}.png`), await page.screenshot());
   summary.errors = [...(await page.evaluate(() => window.puppetry.errors)), ...pageErrors];
   await context.close();
   if (summary.errors.length) finish(false, 'the page reported errors');
