@@ -122,6 +122,8 @@ pub struct Puppet {
     handles_changed: bool,
     /// Some handle moved (or the rig changed) since the last solve.
     moved: bool,
+    /// Painted weights not yet given to a grid or skeleton rig.
+    weights_pending: bool,
 }
 
 /// What a contact landing on a puppet finds.
@@ -313,6 +315,7 @@ impl Stage {
                 handles: Vec::new(),
                 handles_changed: false,
                 moved: false,
+                weights_pending: false,
             });
             for (index, pin) in p.pins.iter().enumerate() {
                 let at = stage_point(&mesh, p.at.into(), p.scale, DVec2::from(*pin));
@@ -483,7 +486,7 @@ impl Stage {
     }
 
     /// Paints stiffness under a brush (see `docs/rigs.md`). Grid and
-    /// skeleton puppets refactor at once; a free-form puppet returns the
+    /// skeleton puppets refactor at the next solve; a free-form puppet returns the
     /// rebuild to run off the stage thread (none while one is under way:
     /// the newest weights go in the next when it finishes).
     pub fn paint(
@@ -502,11 +505,12 @@ impl Stage {
             return Ok(None);
         }
         p.weights_generation += 1;
-        let weights = p.weights.clone();
         if let Rig::Free(_) = p.rig {
             return Ok(self.rebuild(puppet));
         }
-        p.rig.set_weights(&weights)?;
+        // Refactored once before the next solve, however many dabs arrive
+        // before it.
+        p.weights_pending = true;
         p.moved = true;
         Ok(None)
     }
@@ -624,6 +628,14 @@ impl Stage {
         for p in &mut self.puppets {
             if !(p.handles_changed || p.moved) {
                 continue;
+            }
+            if p.weights_pending {
+                p.weights_pending = false;
+                if let Err(problem) = p.rig.set_weights(&p.weights) {
+                    // Painted weights are clamped to the mesh's range, so
+                    // this is not expected; the rig keeps its old weights.
+                    tracing::warn!(puppet = %p.name, "painted weights refused: {problem}");
+                }
             }
             if let Err(problem) = p.rig.solve(&p.handles, p.handles_changed) {
                 // Grips come from hit tests on this rig, so only a
