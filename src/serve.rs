@@ -247,7 +247,7 @@ pub async fn start(
         replays.push((source, pacing, false));
     }
     let description = StageDescription::of(&stage);
-    let (outputs, stage_thread) = thread::spawn(stage, commands_rx);
+    let (outputs, stage_thread) = thread::spawn(stage, commands_rx, commands.downgrade());
     let shared = Arc::new(Shared {
         stage: description,
         tokens: config.access.performer_tokens.clone(),

@@ -77,3 +77,82 @@ fn bad_stage_files_are_named_and_explained() {
     let message = parse_error("[stage]\nwidth = 100\n");
     assert!(message.contains("height"), "{message}");
 }
+
+fn demo_puppet(rig: &str) -> String {
+    let assets = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/gingerbread");
+    format!(
+        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"g\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\n{rig}",
+        assets.join("gingerbread.png").display(),
+        assets.join("gingerbread.mesh.json").display(),
+    )
+}
+
+#[test]
+fn bad_rig_sections_are_named_and_explained() {
+    let grid = "[puppet.grid]\ncolumns = 10\nrows = 10\n";
+    let skeleton = "[puppet.skeleton]\njoints = [[256, 182], [256, 297]]\nbones = [[0, 1]]\n";
+    for (rig, says) in [
+        (format!("{grid}{skeleton}"), "one rig"),
+        (
+            "[puppet.grid]\ncolumns = 1\nrows = 10\n".to_string(),
+            "puppet[0].grid.columns",
+        ),
+        (format!("{grid}colour = 1\n"), "colour"),
+        (format!("{grid}locality = -1\n"), "puppet[0].grid.locality"),
+        (format!("{grid}basis = \"hexagon\"\n"), "hexagon"),
+        (
+            format!("{grid}iterations = 0\n"),
+            "puppet[0].grid.iterations",
+        ),
+        (format!("{skeleton}mode = \"ik\"\n"), "ik"),
+        (format!("pins = [[168, 58]]\n{skeleton}"), "puppet[0].pins"),
+        (
+            format!(
+                "{skeleton}[[puppet.skeleton.poses]]\nname = \"a\"\n[[puppet.skeleton.poses]]\nname = \"a\"\n"
+            ),
+            "puppet[0].skeleton.poses[1].name",
+        ),
+        (
+            format!("{skeleton}[puppet.skeleton.params]\nroundz = 3\n"),
+            "roundz",
+        ),
+    ] {
+        let message = parse_error(&demo_puppet(&rig));
+        assert!(
+            message.contains("bad.toml") && message.contains(says),
+            "{says}: {message}"
+        );
+    }
+}
+
+#[test]
+fn rigs_the_deformers_refuse_are_named_by_file_puppet_and_field() {
+    for (rig, says) in [
+        // A bone cycle.
+        (
+            "[puppet.skeleton]\njoints = [[256, 182], [256, 297]]\nbones = [[0, 1], [1, 0]]\n",
+            "rig.toml: puppet[0] (g).skeleton.bones",
+        ),
+        // A joint off the mesh.
+        (
+            "[puppet.skeleton]\njoints = [[256, 182], [5000, 297]]\nbones = [[0, 1]]\n",
+            "rig.toml: puppet[0] (g).skeleton.joints",
+        ),
+        // A key pose of the wrong shape.
+        (
+            "[puppet.skeleton]\njoints = [[256, 182], [256, 297]]\nbones = [[0, 1]]\n[[puppet.skeleton.poses]]\nname = \"a\"\nangles = [1, 2]\n",
+            "rig.toml: puppet[0] (g).skeleton.poses[0]",
+        ),
+        (
+            "[puppet.grid]\ncolumns = 40\nrows = 40\n",
+            "rig.toml: puppet[0] (g).grid",
+        ),
+    ] {
+        let config = StageConfig::parse("rig.toml", &demo_puppet(rig), Path::new("/")).unwrap();
+        let message = Stage::from_config(&config)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(message.contains(says), "{says}: {message}");
+    }
+}

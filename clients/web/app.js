@@ -14,12 +14,22 @@ const overlay = document.getElementById('overlay');
 const ctx2d = overlay.getContext('2d');
 const statusEl = document.getElementById('status');
 const pinButton = document.getElementById('pin-tool');
+const paintControls = document.getElementById('paint-controls');
+const paintButton = document.getElementById('paint-tool');
+const paintRadius = document.getElementById('paint-radius');
+const paintStrength = document.getElementById('paint-strength');
+const saveButton = document.getElementById('save-weights');
+const poseControls = document.getElementById('pose-controls');
+const poseFrom = document.getElementById('pose-from');
+const poseTo = document.getElementById('pose-to');
+const poseT = document.getElementById('pose-t');
 
 // Test and debugging surface (see tests/web/drag.mjs).
 const api = window.puppetry = {
   connected: false,
   framesReceived: 0,
   lastSequence: {},          // puppet id -> newest sequence number received
+  rigFrames: 0,              // rig frames (grid handles, joints) received
   errors: [],                // server "error" messages and client-side failures
   stage: null,               // the last stage message
   ready: false,              // stage received and every texture settled
@@ -165,6 +175,12 @@ function buildPuppets(msg) {
       count: src.triangles.length,
       texture: src.texture,
       handles: kept?.handles ?? src.handles ?? [],
+      // The rig as the stage describes it, and its newest points (deformed
+      // grid handles or posed joints) from rig frames.
+      rig: src.rig ?? { kind: 'free' },
+      rigPoints: kept?.rigPoints ?? (src.rig?.rest ? new Float32Array(src.rig.rest.flat()) : null),
+      // Per-triangle stiffness, shown while the paint tool is on.
+      weights: kept?.weights ?? src.weights ?? null,
     };
   });
   return Promise.all(msg.puppets.map((p) => loadTexture(p.texture)));
@@ -270,6 +286,74 @@ function drawOverlay() {
     ctx2d.strokeStyle = ring;
     ctx2d.stroke();
   };
+  // Rigs under the handles: the deformed grid (lines and handle dots) and
+  // the skeleton (bones and joints).
+  const line = (ax, ay, bx, by) => {
+    const [x0, y0] = stageToClient(ax, ay);
+    const [x1, y1] = stageToClient(bx, by);
+    ctx2d.moveTo(x0 - r.left, y0 - r.top);
+    ctx2d.lineTo(x1 - r.left, y1 - r.top);
+  };
+  for (const p of puppets) {
+    const q = p.rigPoints;
+    if (!q) continue;
+    const at = (i) => [q[2 * i], q[2 * i + 1]];
+    ctx2d.beginPath();
+    if (p.rig.kind === 'grid') {
+      const { columns: m, rows: n } = p.rig;
+      for (let row = 0; row < n; row++) {
+        for (let col = 0; col < m; col++) {
+          const i = row * m + col;
+          if (col + 1 < m) line(...at(i), ...at(i + 1));
+          if (row + 1 < n) line(...at(i), ...at(i + m));
+        }
+      }
+      ctx2d.lineWidth = 1;
+      ctx2d.strokeStyle = 'rgb(41 98 255 / 0.6)';
+    } else if (p.rig.kind === 'skeleton') {
+      for (const [a, b] of p.rig.bones) line(...at(a), ...at(b));
+      ctx2d.lineWidth = 4;
+      ctx2d.strokeStyle = 'rgb(255 111 0 / 0.75)';
+    }
+    ctx2d.stroke();
+    const count = q.length / 2;
+    for (let i = 0; i < count; i++) {
+      const [x, y] = at(i);
+      if (p.rig.kind === 'grid') dot(x, y, 3, 'rgb(41 98 255 / 0.8)', 'rgb(255 255 255 / 0.8)');
+      else dot(x, y, 5, 'rgb(255 111 0 / 0.9)', '#000');
+    }
+  }
+  if (paintTool) {
+    // Painted stiffness: stiffer blue, softer red, stronger the further
+    // from the default weight 1 (on a log scale).
+    for (const p of puppets) {
+      if (!p.weights) continue;
+      const v = p.positions;
+      const t = p.src.triangles;
+      for (let k = 0; k < p.weights.length; k++) {
+        const w = p.weights[k];
+        if (w === 1) continue;
+        const strength = Math.min(1, Math.abs(Math.log10(w)) / 3);
+        ctx2d.fillStyle = w > 1 ? `rgb(41 98 255 / ${0.15 + 0.5 * strength})` : `rgb(213 0 0 / ${0.15 + 0.5 * strength})`;
+        ctx2d.beginPath();
+        for (let c = 0; c < 3; c++) {
+          const i = t[3 * k + c];
+          const [x, y] = stageToClient(v[2 * i], v[2 * i + 1]);
+          if (c === 0) ctx2d.moveTo(x - r.left, y - r.top); else ctx2d.lineTo(x - r.left, y - r.top);
+        }
+        ctx2d.fill();
+      }
+    }
+  }
+  if (paintTool && brush) {
+    const [cx, cy] = stageToClient(brush.x, brush.y);
+    const [ex] = stageToClient(brush.x + Number(paintRadius.value), brush.y);
+    ctx2d.beginPath();
+    ctx2d.arc(cx - r.left, cy - r.top, Math.abs(ex - cx), 0, 2 * Math.PI);
+    ctx2d.lineWidth = 1.5;
+    ctx2d.strokeStyle = Number(paintStrength.value) >= 1 ? '#2962ff' : '#d50000';
+    ctx2d.stroke();
+  }
   for (const p of puppets) {
     for (const h of p.handles) {
       // Our own contacts are drawn where the pointer is now (below): "handles"
@@ -323,6 +407,9 @@ function drawOverlay() {
 const active = new Map(); // pointerId -> latest stage point, for contacts that went "down"
 let queue = [];           // contact events not yet sent, in order
 let pinTool = false;
+let paintTool = false;
+let brush = null;          // {x, y, down} where the paint brush is (stage coordinates)
+const painted = new Set(); // puppet ids painted since the last save
 
 function pinOrUnpin(x, y, cx, cy) {
   // A pin within reach of the click is removed; otherwise a new one is made.
@@ -342,6 +429,12 @@ function pinOrUnpin(x, y, cx, cy) {
 stageEl.addEventListener('pointerdown', (e) => {
   if (role !== 'performer' || !api.connected) return;
   const [x, y] = clientToStage(e.clientX, e.clientY);
+  if (paintTool) {
+    stageEl.setPointerCapture(e.pointerId);
+    brush = { x, y, down: true, dirty: true };
+    needsOverlay = true;
+    return;
+  }
   if (e.shiftKey || pinTool) {
     pinOrUnpin(x, y, e.clientX, e.clientY);
     return;
@@ -354,6 +447,12 @@ stageEl.addEventListener('pointerdown', (e) => {
 });
 
 stageEl.addEventListener('pointermove', (e) => {
+  if (paintTool) {
+    const [x, y] = clientToStage(e.clientX, e.clientY);
+    brush = { x, y, down: brush?.down ?? false, dirty: true };
+    needsOverlay = true;
+    return;
+  }
   const c = active.get(e.pointerId);
   if (!c) return; // hovering mouse, or a contact from before a reconnect
   [c.x, c.y] = clientToStage(e.clientX, e.clientY);
@@ -361,6 +460,7 @@ stageEl.addEventListener('pointermove', (e) => {
 });
 
 function lift(e) {
+  if (brush) brush.down = false;
   if (!active.delete(e.pointerId)) return;
   queue.push({ id: e.pointerId, phase: 'up' });
   needsOverlay = true;
@@ -391,12 +491,64 @@ function flushContacts() {
   needsOverlay = true;
 }
 
+// One dab per animation frame while the brush is down, on every puppet
+// whose current outline box it touches (the server paints only triangles
+// under it).
+function flushPaint() {
+  if (!paintTool || !brush?.down) return;
+  const radius = Number(paintRadius.value);
+  const strength = Number(paintStrength.value);
+  if (!(radius > 0 && strength > 0)) return reportError('paint radius and strength must be positive');
+  for (const p of puppets) {
+    const v = p.positions;
+    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+    for (let i = 0; i < v.length; i += 2) {
+      x0 = Math.min(x0, v[i]); x1 = Math.max(x1, v[i]);
+      y0 = Math.min(y0, v[i + 1]); y1 = Math.max(y1, v[i + 1]);
+    }
+    if (brush.x + radius < x0 || brush.x - radius > x1 || brush.y + radius < y0 || brush.y - radius > y1) continue;
+    send({ type: 'paint', puppet: p.id, x: brush.x, y: brush.y, radius, strength });
+    painted.add(p.id);
+  }
+}
+
+function setupPoses() {
+  // Key poses of the first skeleton puppet that has some.
+  const p = puppets.find((q) => q.rig.kind === 'skeleton' && q.rig.poses?.length);
+  poseControls.hidden = role !== 'performer' || !p;
+  if (!p) return;
+  for (const select of [poseFrom, poseTo]) {
+    select.replaceChildren(...p.rig.poses.map((name) => new Option(name, name)));
+  }
+  if (p.rig.poses.length > 1) poseTo.selectedIndex = 1;
+  poseControls.dataset.puppet = String(p.id);
+}
+
+function sendPose() {
+  send({ type: 'pose', puppet: Number(poseControls.dataset.puppet), from: poseFrom.value, to: poseTo.value, t: Number(poseT.value) });
+}
+
 if (role === 'performer') {
   pinButton.hidden = false;
+  paintControls.hidden = false;
   pinButton.addEventListener('click', () => {
     pinTool = !pinTool;
     pinButton.setAttribute('aria-pressed', String(pinTool));
   });
+  paintButton.addEventListener('click', () => {
+    paintTool = !paintTool;
+    paintButton.setAttribute('aria-pressed', String(paintTool));
+    if (!paintTool) brush = null;
+    needsOverlay = true;
+  });
+  saveButton.addEventListener('click', () => {
+    const ids = painted.size ? [...painted] : puppets.map((p) => p.id);
+    for (const puppet of ids) send({ type: 'save_weights', puppet });
+    painted.clear();
+  });
+  poseT.addEventListener('input', sendPose);
+  poseFrom.addEventListener('change', sendPose);
+  poseTo.addEventListener('change', sendPose);
 }
 
 // ---------------------------------------------------------------- connection
@@ -447,6 +599,17 @@ function onText(text) {
       cursors = msg.cursors;
       needsOverlay = true;
       return;
+    case 'weights': {
+      const p = puppets.find((q) => q.id === msg.puppet);
+      if (p) { p.weights = msg.weights; needsOverlay = true; }
+      return;
+    }
+    case 'weights_saved':
+      setStatus(`painted weights of puppet ${msg.puppet} saved to ${msg.file}`);
+      return;
+    case 'grid':
+      api.lastGrid = msg;
+      return;
     case 'error':
       lastError = msg.message;
       return reportError(msg.message);
@@ -465,6 +628,7 @@ function onStage(msg) {
   lastError = '';
   layout();
   buildPuppets(msg).then(() => { api.ready = true; });
+  setupPoses();
   api.connected = true;
   setStatus(`connected as ${msg.role} (client ${msg.client}) · ${msg.puppets.length} puppet(s)`);
 }
@@ -473,7 +637,9 @@ function onFrame(buf) {
   api.framesReceived++;
   if (buf.byteLength < 32) return reportError('short frame');
   const v = new DataView(buf);
-  if (v.getUint32(0, true) !== 1) return; // not a vertex frame: a newer kind
+  const kind = v.getUint32(0, true);
+  if (kind === 2) return onRigFrame(v, buf);
+  if (kind !== 1) return; // a newer kind
   const id = v.getUint32(4, true);
   const seq = Number(v.getBigUint64(8, true));
   const n = v.getUint32(24, true);
@@ -485,6 +651,19 @@ function onFrame(buf) {
   p.positions = new Float32Array(buf, 32, 2 * n);
   p.dirty = true;
   needsDraw = true;
+  if (paintTool) needsOverlay = true; // the stiffness tint follows the mesh
+}
+
+// A rig frame: the puppet's deformed grid handles or posed joints.
+function onRigFrame(v, buf) {
+  api.rigFrames++;
+  const id = v.getUint32(4, true);
+  const n = v.getUint32(24, true);
+  const p = puppets.find((q) => q.id === id);
+  if (!p) return reportError(`rig frame for unknown puppet ${id}`);
+  if (buf.byteLength < 32 + 8 * n) return reportError(`bad rig frame for puppet ${id}`);
+  p.rigPoints = new Float32Array(buf, 32, 2 * n);
+  needsOverlay = true;
 }
 
 // ---------------------------------------------------------------- main loop
@@ -492,6 +671,7 @@ function onFrame(buf) {
 function tick() {
   requestAnimationFrame(tick);
   flushContacts();
+  flushPaint();
   if (needsDraw) { draw(); needsDraw = false; }
   if (needsOverlay) { drawOverlay(); needsOverlay = false; }
 }

@@ -39,6 +39,10 @@ pub struct StageConfig {
     /// Where the file was read from; relative paths are resolved against it.
     #[serde(skip)]
     pub folder: PathBuf,
+    /// The file's name as given to [`StageConfig::parse`], for errors found
+    /// after parsing (a rig the deformers refuse).
+    #[serde(skip)]
+    pub file: String,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -87,10 +91,112 @@ pub struct PuppetConfig {
     /// Pins that hold from the start, in the mesh's own coordinates.
     #[serde(default)]
     pub pins: Vec<[f64; 2]>,
+    /// An lp-FFD grid rig (see `docs/rigs.md`); without `grid` or
+    /// `skeleton` the puppet is free-form (ARAP).
+    #[serde(default)]
+    pub grid: Option<GridConfig>,
+    /// A shape-aware skeleton rig.
+    #[serde(default)]
+    pub skeleton: Option<SkeletonConfig>,
 }
 
 fn one() -> f64 {
     1.0
+}
+
+/// `[puppet.grid]`: an M×N lp-FFD grid over the puppet's mesh. Weights left
+/// out are the paper's (`crate::deform::LpParams::default`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridConfig {
+    pub columns: usize,
+    pub rows: usize,
+    #[serde(default)]
+    pub basis: BasisConfig,
+    #[serde(default)]
+    pub locality: Option<f64>,
+    #[serde(default)]
+    pub vertex: Option<f64>,
+    #[serde(default)]
+    pub grid: Option<f64>,
+    #[serde(default)]
+    pub regular: Option<f64>,
+    #[serde(default)]
+    pub iterations: Option<usize>,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BasisConfig {
+    #[default]
+    Bernstein,
+    Lattice,
+}
+
+/// `[puppet.skeleton]`: joints (mesh coordinates) and bones
+/// (`[parent joint, child joint]`), how contacts drive them, and key poses.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkeletonConfig {
+    pub joints: Vec<[f64; 2]>,
+    pub bones: Vec<[usize; 2]>,
+    #[serde(default)]
+    pub mode: SkeletonMode,
+    #[serde(default)]
+    pub params: SkeletonParamsConfig,
+    #[serde(default)]
+    pub poses: Vec<KeyPoseConfig>,
+}
+
+/// How contacts drive a skeleton.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SkeletonMode {
+    /// A contact drags the joint it landed on; the others stay.
+    #[default]
+    Free,
+    /// A contact turns the bone ending at its joint about the parent joint
+    /// (a root joint moves the whole skeleton); the chain below follows.
+    Fk,
+}
+
+/// Overrides of `crate::deform::SkeletonParams::default()` (the paper's).
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SkeletonParamsConfig {
+    #[serde(default)]
+    pub bone_weight: Option<f64>,
+    #[serde(default)]
+    pub joint_weight: Option<f64>,
+    #[serde(default)]
+    pub rounds: Option<usize>,
+    #[serde(default)]
+    pub perpendicular_scale: Option<f64>,
+    #[serde(default)]
+    pub warm_start: Option<bool>,
+}
+
+/// A named key pose: the rest pose with some bones turned, or any of the
+/// pose's parts given whole (`crate::deform::Pose`). Angles are degrees,
+/// lengths and root positions mesh units / mesh coordinates.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyPoseConfig {
+    pub name: String,
+    /// `[bone, degrees]` pairs: turn these bones (relative to their rest
+    /// angle, or to `angles` if given) counter-clockwise.
+    #[serde(default)]
+    pub turn: Vec<(usize, f64)>,
+    /// Every bone's angle: absolute for bones leaving a root joint, else
+    /// relative to the parent bone.
+    #[serde(default)]
+    pub angles: Option<Vec<f64>>,
+    /// Every bone's length.
+    #[serde(default)]
+    pub lengths: Option<Vec<f64>>,
+    /// Every root joint's position (one per tree of the skeleton).
+    #[serde(default)]
+    pub roots: Option<Vec<[f64; 2]>>,
 }
 
 /// An input source. Replay files stand in for devices.
@@ -264,6 +370,77 @@ pub enum PacingConfig {
     AsFastAsPossible,
 }
 
+/// The rig sections' own checks (what the deformers check again on
+/// registration is left to them, so their errors name it precisely).
+fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
+    if p.grid.is_some() && p.skeleton.is_some() {
+        return Err((
+            format!("puppet[{i}]"),
+            "has both a grid and a skeleton; a puppet has one rig".into(),
+        ));
+    }
+    if let Some(g) = &p.grid {
+        let field = |f: &str| format!("puppet[{i}].grid.{f}");
+        if g.columns < 2 || g.rows < 2 {
+            return Err((
+                field("columns"),
+                "columns and rows must be at least 2".into(),
+            ));
+        }
+        for (name, value) in [
+            ("locality", g.locality),
+            ("vertex", g.vertex),
+            ("grid", g.grid),
+            ("regular", g.regular),
+        ] {
+            if let Some(v) = value
+                && !(v.is_finite() && v >= 0.0)
+            {
+                return Err((field(name), "must be a finite number ≥ 0".into()));
+            }
+        }
+        if g.iterations == Some(0) {
+            return Err((field("iterations"), "must be at least 1".into()));
+        }
+    }
+    if let Some(s) = &p.skeleton {
+        let field = |f: &str| format!("puppet[{i}].skeleton.{f}");
+        if !p.pins.is_empty() {
+            return Err((
+                format!("puppet[{i}].pins"),
+                "a skeleton puppet takes no pins (its joints are its handles)".into(),
+            ));
+        }
+        if s.joints.iter().flatten().any(|v| !v.is_finite()) {
+            return Err((field("joints"), "must be finite points".into()));
+        }
+        for (k, pose) in s.poses.iter().enumerate() {
+            let pose_field = |f: &str| field(&format!("poses[{k}].{f}"));
+            if pose.name.is_empty() {
+                return Err((pose_field("name"), "must not be empty".into()));
+            }
+            if s.poses[..k].iter().any(|q| q.name == pose.name) {
+                return Err((pose_field("name"), "is used by another pose".into()));
+            }
+            let finite = pose.turn.iter().all(|(_, d)| d.is_finite())
+                && pose.angles.iter().flatten().all(|v| v.is_finite())
+                && pose
+                    .lengths
+                    .iter()
+                    .flatten()
+                    .all(|v| v.is_finite() && *v >= 0.0)
+                && pose.roots.iter().flatten().flatten().all(|v| v.is_finite());
+            if !finite {
+                return Err((
+                    pose_field("turn"),
+                    "angles, lengths and roots must be finite (lengths ≥ 0)".into(),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 impl StageConfig {
     /// Reads and checks a stage file.
     pub fn load(path: &Path) -> Result<StageConfig, ConfigError> {
@@ -284,6 +461,7 @@ impl StageConfig {
             message: e.to_string().trim_end().replace('\n', " "),
         })?;
         config.folder = folder.to_path_buf();
+        config.file = file.to_string();
         let invalid = |field: String, problem: &str| ConfigError::Invalid {
             file: file.to_string(),
             field,
@@ -318,6 +496,7 @@ impl StageConfig {
                     "is used by another puppet",
                 ));
             }
+            check_rigs(i, p).map_err(|(field, problem)| invalid(field, &problem))?;
         }
         if config.access.performer_tokens.iter().any(|t| t.is_empty()) {
             return Err(invalid(

@@ -22,8 +22,9 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 
 use crate::input::{Contact, ContactFrame, Phase, SourceId};
-use crate::stage::Stage;
+use crate::stage::config::SkeletonMode;
 use crate::stage::thread::{Command, PuppetOutput};
+use crate::stage::{Rig, Stage};
 
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
@@ -67,6 +68,8 @@ impl StageDescription {
                     "rest": flat(p.mesh.vertices()),
                     "uv": p.mesh.uv().map(flat).unwrap_or_default(),
                     "triangles": p.mesh.triangles().iter().flatten().copied().collect::<Vec<u32>>(),
+                    "rig": rig_description(p.rig()),
+                    "weights": p.mesh.weights(),
                 })
             })
             .collect();
@@ -74,6 +77,43 @@ impl StageDescription {
             puppets,
             size: [stage.width, stage.height],
             images: stage.puppets().iter().map(|p| p.image.clone()).collect(),
+        }
+    }
+}
+
+/// The "rig" entry of a puppet in the "stage" message. Rest points are
+/// full-precision stage coordinates, row by row / joint by joint.
+fn rig_description(rig: &Rig) -> serde_json::Value {
+    let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
+    match rig {
+        Rig::Free(_) => serde_json::json!({"kind": "free"}),
+        Rig::Grid(r) => {
+            let spec = r.ffd().spec();
+            serde_json::json!({
+                "kind": "grid",
+                "columns": spec.columns,
+                "rows": spec.rows,
+                "basis": match spec.basis {
+                    crate::deform::ffd::Basis::Bernstein => "bernstein",
+                    crate::deform::ffd::Basis::Lattice => "lattice",
+                },
+                "min": [spec.min.x, spec.min.y],
+                "max": [spec.max.x, spec.max.y],
+                "rest": points(r.ffd().rest_grid()),
+            })
+        }
+        Rig::Skeleton(r) => {
+            let skeleton = r.deformer().skeleton();
+            serde_json::json!({
+                "kind": "skeleton",
+                "mode": match r.mode() {
+                    SkeletonMode::Free => "free",
+                    SkeletonMode::Fk => "fk",
+                },
+                "bones": skeleton.bones(),
+                "rest": points(skeleton.joints()),
+                "poses": r.pose_names(),
+            })
         }
     }
 }
@@ -149,10 +189,40 @@ async fn serve_connection(stream: TcpStream, shared: Arc<Shared>) -> std::io::Re
 #[derive(Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 enum ClientMessage {
-    Hello { role: Role, token: Option<String> },
-    Contacts { contacts: Vec<ClientContact> },
-    Pin { x: f64, y: f64 },
-    Unpin { puppet: u32, handle: u64 },
+    Hello {
+        role: Role,
+        token: Option<String>,
+    },
+    Contacts {
+        contacts: Vec<ClientContact>,
+    },
+    Pin {
+        x: f64,
+        y: f64,
+    },
+    Unpin {
+        puppet: u32,
+        handle: u64,
+    },
+    Paint {
+        puppet: u32,
+        x: f64,
+        y: f64,
+        radius: f64,
+        strength: f64,
+    },
+    SaveWeights {
+        puppet: u32,
+    },
+    ExportGrid {
+        puppet: u32,
+    },
+    Pose {
+        puppet: u32,
+        from: String,
+        to: String,
+        t: f64,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -214,6 +284,10 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     };
     let mut handles: Vec<_> = shared.outputs.iter().map(|o| o.handles.clone()).collect();
     let mut frames: Vec<_> = shared.outputs.iter().map(|o| o.frame.clone()).collect();
+    let mut rigs: Vec<_> = shared.outputs.iter().map(|o| o.rig.clone()).collect();
+    // Weights are sent once painted (the stage message has none: the mesh
+    // file's are implied until then).
+    let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
     let puppets: Vec<serde_json::Value> = shared
         .stage
         .puppets
@@ -243,7 +317,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let mut changes = shared.changes.clone();
     let mut cursors = shared.cursors.clone();
     // Frames published before this client connected still count as new.
-    for f in &mut frames {
+    for f in frames.iter_mut().chain(&mut rigs) {
         f.mark_changed();
     }
     cursors.mark_changed();
@@ -257,6 +331,16 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     if let Some(bytes) = frame {
                         send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
                     }
+                }
+                if rigs[i].has_changed().unwrap_or(false) {
+                    let frame = rigs[i].borrow_and_update().clone();
+                    if let Some(bytes) = frame {
+                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
+                    }
+                }
+                if weights[i].has_changed().unwrap_or(false) {
+                    let text = weights[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
                 if handles[i].has_changed().unwrap_or(false) {
                     let text = handles[i].borrow_and_update().to_string();
@@ -280,7 +364,12 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     Some(Err(e)) => return Err(io(e)),
                     Some(Ok(Message::Text(text))) => {
                         match handle_message(&text, role, &source, &shared).await {
-                            Ok(()) => bad_in_a_row = 0,
+                            Ok(answer) => {
+                                bad_in_a_row = 0;
+                                if let Some(answer) = answer {
+                                    send(&mut ws, Message::text(answer), shared.client_timeout).await?;
+                                }
+                            }
                             Err(problem) => {
                                 bad_in_a_row += 1;
                                 send(&mut ws, error_message(&problem), shared.client_timeout).await?;
@@ -323,16 +412,59 @@ async fn send(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Resu
     }
 }
 
-/// Acts on one text message of a connected client; `Err` is the problem to
-/// report back.
+/// Sends a request to the stage thread and waits for its answer.
+async fn ask<T>(
+    shared: &Shared,
+    command: impl FnOnce(crate::stage::thread::Reply<T>) -> Command,
+) -> Result<T, String> {
+    let (reply, answer) = tokio::sync::oneshot::channel();
+    shared
+        .commands
+        .send(command(reply))
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?;
+    answer
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?
+}
+
+/// Writes `text` to `path` atomically: a temporary file beside it, synced,
+/// then renamed over it, so readers see the old file or the new, never half.
+fn write_atomically(path: &std::path::Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("not a file path"))?
+        .to_string_lossy();
+    let temporary = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let result = (|| {
+        let mut file = std::fs::File::create(&temporary)?;
+        file.write_all(text.as_bytes())?;
+        file.sync_all()?;
+        std::fs::rename(&temporary, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    result
+}
+
+/// Acts on one text message of a connected client; `Ok` may carry an
+/// answer for this client, `Err` is the problem to report back.
 async fn handle_message(
     text: &str,
     role: Role,
     source: &str,
     shared: &Shared,
-) -> Result<(), String> {
+) -> Result<Option<String>, String> {
     let message: ClientMessage =
         serde_json::from_str(text).map_err(|e| format!("bad message: {e}"))?;
+    if let ClientMessage::ExportGrid { puppet } = message {
+        // Read-only: viewers may ask too.
+        return ask(shared, |reply| Command::ExportGrid { puppet, reply })
+            .await
+            .map(Some);
+    }
     if role != Role::Performer && !matches!(message, ClientMessage::Hello { .. }) {
         return Err("viewers cannot send input".into());
     }
@@ -363,10 +495,70 @@ async fn handle_message(
         },
         ClientMessage::Pin { .. } => return Err("pin needs finite x and y".into()),
         ClientMessage::Unpin { puppet, handle } => Command::Unpin { puppet, handle },
+        ClientMessage::Paint {
+            puppet,
+            x,
+            y,
+            radius,
+            strength,
+        } => {
+            let ok = |v: f64| v.is_finite() && v > 0.0;
+            if !(x.is_finite() && y.is_finite() && ok(radius) && ok(strength)) {
+                return Err("paint needs finite x, y and positive radius and strength".into());
+            }
+            let at = DVec2::new(x, y);
+            ask(shared, |reply| Command::Paint {
+                puppet,
+                at,
+                radius,
+                strength,
+                reply,
+            })
+            .await?;
+            return Ok(None);
+        }
+        ClientMessage::Pose {
+            puppet,
+            from,
+            to,
+            t,
+        } => {
+            if !t.is_finite() {
+                return Err("pose needs a finite t".into());
+            }
+            ask(shared, |reply| Command::KeyPose {
+                puppet,
+                from,
+                to,
+                t,
+                reply,
+            })
+            .await?;
+            return Ok(None);
+        }
+        ClientMessage::SaveWeights { puppet } => {
+            let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
+            let path = file.path.clone();
+            let written = tokio::task::spawn_blocking(move || {
+                let path = file.path.clone();
+                let text = file.text()?;
+                write_atomically(&path, &text).map_err(|e| format!("{}: {e}", path.display()))
+            });
+            written
+                .await
+                .map_err(|e| format!("save_weights: {e}"))?
+                .map_err(|e| format!("save_weights: {e}"))?;
+            return Ok(Some(
+                serde_json::json!({"type": "weights_saved", "puppet": puppet, "file": path.display().to_string()})
+                    .to_string(),
+            ));
+        }
+        ClientMessage::ExportGrid { .. } => unreachable!("answered above"),
     };
     shared
         .commands
         .send(command)
         .await
+        .map(|()| None)
         .map_err(|_| "the stage is shutting down".to_string())
 }
