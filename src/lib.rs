@@ -5,20 +5,24 @@
 //! possible; the deformed vertices stream to renderer clients.
 //!
 //! ```text
-//!   input ───────► stage ─────────► deform ──────► stream
-//!  (TUIO, replays, (contacts →       (ARAP solver,   (HTTP + WebSocket,
-//!   evdev state,    handles, pins;    on the stage    newest frame per
-//!   serial, HID)    stage thread)     thread)         client; web page)
-//!                      ▲
-//!                     mesh (rest shapes: PNG/polygon → triangle mesh)
+//!   input ──────────► stage ───────────► deform ─────────► stream
+//!  (evdev touch,      (contacts →         (free-form ARAP,  (HTTP + WebSocket,
+//!   pens, mice, HID,   handles: points,    lp-FFD grid,      newest frame per
+//!   serial, TUIO,      grid handles,       shape-aware       client; web page)
+//!   browsers,          joints; pins,       skeleton; on the
+//!   replays)           painting; the       stage thread)
+//!                      stage thread)
+//!                         ▲
+//!                        mesh (rest shapes: PNG/polygon → triangle mesh)
 //! ```
 //!
 //! [`input`] turns devices and replay files into contact frames in stage
-//! coordinates; [`stage`] maps contacts to handles on puppets and runs, on a
-//! thread of its own, the [`deform`] solver at the input rate; [`stream`]
+//! coordinates; [`stage`] maps contacts to handles on puppets — points of
+//! the mesh, grid handles or skeleton joints, by the puppet's rig — and runs,
+//! on a thread of its own, the [`deform`]ers at the input rate; [`stream`]
 //! serves the web renderer and sends every client the newest frames;
 //! [`serve`] assembles the daemon. [`mesh`] builds and validates rest meshes;
-//! [`cli`] and [`bench`] are the scriptable commands.
+//! [`cli`], [`bench`] and [`compare`] are the scriptable commands.
 //!
 //! `mesh` and `deform` are plain synchronous code over data: no async, no I/O
 //! on the solving path.

@@ -2,6 +2,11 @@
 //! positions, compute deformed vertex positions. Each deformer separates
 //! three phases — register (new rest mesh), compile (handle set changed),
 //! update (handles moved) — and the update phase never allocates.
+//! [`arap`] is the free-form two-step solver (Igarashi et al. 2005), [`ffd`]
+//! the locality-preserving FFD grid rig, [`skeleton`] the shape-aware
+//! skeletal deformer (Wang et al. 2013); [`sparse`] holds their
+//! factorisations and [`measure`] the distortion measures they are compared
+//! by.
 //!
 //! Plain synchronous numeric code: the daemon runs it on a thread of its own.
 
