@@ -5,6 +5,7 @@
 //! default calibration, its events replay through it. Every complaint names
 //! the file, the line and the field.
 
+use super::fields::{self, clip};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -262,56 +263,17 @@ impl Parser<'_> {
         field: &'static str,
     ) -> Result<T, EvemuError> {
         let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        let digits = text
-            .strip_prefix("0x")
-            .or_else(|| text.strip_prefix("0X"))
-            .unwrap_or(text);
-        u64::from_str_radix(digits, 16)
-            .ok()
-            .and_then(|v| T::try_from(v).ok())
-            .ok_or_else(|| {
-                self.error(
-                    field,
-                    format!("`{}` is not a hexadecimal number in range", clip(text)),
-                )
-            })
+        fields::hex(text).map_err(|problem| self.error(field, problem))
     }
 
     fn decimal(&self, text: Option<&str>, field: &'static str) -> Result<i32, EvemuError> {
         let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        text.parse::<i32>().map_err(|_| {
-            self.error(
-                field,
-                format!("`{}` is not a whole number in the 32-bit range", clip(text)),
-            )
-        })
+        fields::decimal(text).map_err(|problem| self.error(field, problem))
     }
 
-    /// `seconds.microseconds`, both plain digits. Parsed whole, so the
-    /// value is the decimal correctly rounded, same as a literal in a test.
     fn time(&self, text: Option<&str>) -> Result<f64, EvemuError> {
         let text = text.ok_or_else(|| self.error("time", "missing"))?;
-        let bad = || {
-            self.error(
-                "time",
-                format!("`{}` is not `seconds.microseconds`", clip(text)),
-            )
-        };
-        let (seconds, micros) = text.split_once('.').ok_or_else(bad)?;
-        let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
-        if !digits(seconds) || !digits(micros) || seconds.len() > 15 || micros.len() > 9 {
-            return Err(bad());
-        }
-        text.parse().map_err(|_| bad())
-    }
-}
-
-/// Keeps quoted input short in messages.
-fn clip(text: &str) -> String {
-    const MAX: usize = 40;
-    match text.char_indices().nth(MAX) {
-        Some((cut, _)) => format!("{}…", &text[..cut]),
-        None => text.to_string(),
+        fields::time(text).map_err(|problem| self.error("time", problem))
     }
 }
 

@@ -13,6 +13,7 @@
 //! two devices' reports. Every complaint names the file, the line and the
 //! field.
 
+use super::fields::{self, clip};
 use std::io::Write;
 use std::path::Path;
 
@@ -360,19 +361,7 @@ impl Parser<'_> {
         field: &'static str,
     ) -> Result<T, HidRecordingError> {
         let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        let digits = text
-            .strip_prefix("0x")
-            .or_else(|| text.strip_prefix("0X"))
-            .unwrap_or(text);
-        u64::from_str_radix(digits, 16)
-            .ok()
-            .and_then(|v| T::try_from(v).ok())
-            .ok_or_else(|| {
-                self.error(
-                    field,
-                    format!("`{}` is not a hexadecimal number in range", clip(text)),
-                )
-            })
+        fields::hex(text).map_err(|problem| self.error(field, problem))
     }
 
     fn decimal<T: std::str::FromStr>(
@@ -381,38 +370,11 @@ impl Parser<'_> {
         field: &'static str,
     ) -> Result<T, HidRecordingError> {
         let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        text.parse::<T>().map_err(|_| {
-            self.error(
-                field,
-                format!("`{}` is not a whole number in range", clip(text)),
-            )
-        })
+        fields::decimal(text).map_err(|problem| self.error(field, problem))
     }
 
-    /// `seconds.microseconds`, both plain digits, parsed whole so the value
-    /// is the decimal correctly rounded.
     fn time(&self, text: Option<&str>) -> Result<f64, HidRecordingError> {
         let text = text.ok_or_else(|| self.error("time", "missing"))?;
-        let bad = || {
-            self.error(
-                "time",
-                format!("`{}` is not `seconds.microseconds`", clip(text)),
-            )
-        };
-        let (seconds, micros) = text.split_once('.').ok_or_else(bad)?;
-        let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
-        if !digits(seconds) || !digits(micros) || seconds.len() > 15 || micros.len() > 9 {
-            return Err(bad());
-        }
-        text.parse().map_err(|_| bad())
-    }
-}
-
-/// Keeps quoted input short in messages.
-fn clip(text: &str) -> String {
-    const MAX: usize = 40;
-    match text.char_indices().nth(MAX) {
-        Some((cut, _)) => format!("{}…", &text[..cut]),
-        None => text.to_string(),
+        fields::time(text).map_err(|problem| self.error("time", problem))
     }
 }

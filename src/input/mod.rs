@@ -20,6 +20,7 @@ pub mod calibrate;
 pub mod device;
 pub mod evdev;
 pub mod evemu;
+mod fields;
 pub mod hid;
 pub mod hid_recording;
 pub mod hotplug;

@@ -1,0 +1,44 @@
+//! The fields of the line-based capture formats (evemu, hid-recorder):
+//! hexadecimal codes, decimal values and `seconds.microseconds` times, each
+//! parsed to a value or to the problem to report — the caller adds the file,
+//! line and field. Quoted input is clipped so a garbage line cannot flood a
+//! message.
+
+/// A hexadecimal number (an optional `0x`) that fits `T`.
+pub(crate) fn hex<T: TryFrom<u64>>(text: &str) -> Result<T, String> {
+    let digits = text
+        .strip_prefix("0x")
+        .or_else(|| text.strip_prefix("0X"))
+        .unwrap_or(text);
+    u64::from_str_radix(digits, 16)
+        .ok()
+        .and_then(|v| T::try_from(v).ok())
+        .ok_or_else(|| format!("`{}` is not a hexadecimal number in range", clip(text)))
+}
+
+/// A whole decimal number that fits `T`.
+pub(crate) fn decimal<T: std::str::FromStr>(text: &str) -> Result<T, String> {
+    text.parse::<T>()
+        .map_err(|_| format!("`{}` is not a whole number in range", clip(text)))
+}
+
+/// `seconds.microseconds`, both plain digits. Parsed whole, so the value is
+/// the decimal correctly rounded, same as a literal in a test.
+pub(crate) fn time(text: &str) -> Result<f64, String> {
+    let bad = || format!("`{}` is not `seconds.microseconds`", clip(text));
+    let (seconds, micros) = text.split_once('.').ok_or_else(bad)?;
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    if !digits(seconds) || !digits(micros) || seconds.len() > 15 || micros.len() > 9 {
+        return Err(bad());
+    }
+    text.parse().map_err(|_| bad())
+}
+
+/// Keeps quoted input short in messages.
+pub(crate) fn clip(text: &str) -> String {
+    const MAX: usize = 40;
+    match text.char_indices().nth(MAX) {
+        Some((cut, _)) => format!("{}…", &text[..cut]),
+        None => text.to_string(),
+    }
+}
