@@ -658,20 +658,7 @@ impl LpFfd {
         grid_targets: &[DVec2],
     ) -> Result<f64, FfdError> {
         let pose = self.deform_with_grid(grid)?;
-        check_points(
-            "vertex target",
-            vertex_targets,
-            self.vertex_target_count,
-            "vertex targets",
-            "compiled vertex handle",
-        )?;
-        check_points(
-            "grid target",
-            grid_targets,
-            self.grid_target_count,
-            "grid targets",
-            "compiled grid handle",
-        )?;
+        self.check_targets(vertex_targets, grid_targets)?;
         let p = &self.params;
         let mut fits = vec![DVec2::ZERO; self.rest.len()];
         let mut squares = vec![0.0; self.rest.len()];
@@ -878,8 +865,9 @@ impl LpFfd {
             .collect())
     }
 
-    fn set_targets(
-        &mut self,
+    /// One target per compiled handle of each kind, all finite.
+    fn check_targets(
+        &self,
         vertex_targets: &[DVec2],
         grid_targets: &[DVec2],
     ) -> Result<(), FfdError> {
@@ -897,6 +885,15 @@ impl LpFfd {
             "grid targets",
             "compiled grid handle",
         )?;
+        Ok(())
+    }
+
+    fn set_targets(
+        &mut self,
+        vertex_targets: &[DVec2],
+        grid_targets: &[DVec2],
+    ) -> Result<(), FfdError> {
+        self.check_targets(vertex_targets, grid_targets)?;
         let mut fixed = std::mem::take(&mut self.fixed_rhs);
         let dragged: &[(usize, usize)] = &self.grid_handles;
         self.constraint_rhs(

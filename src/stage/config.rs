@@ -253,6 +253,9 @@ pub enum InputConfig {
     },
     /// A touch table or screen (Linux evdev, multi-touch protocol A or B,
     /// or single touch). Reopened when it comes back after going away.
+    // The device fields are repeated in `Pen` and `Mouse` rather than
+    // shared with `#[serde(flatten)]`, which would silently turn off
+    // `deny_unknown_fields`.
     Touch {
         /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
         /// `product`, all of which must match; default: the first device of
