@@ -16,7 +16,6 @@ use puppetry::input::device::{Capabilities, DeviceInfo, DeviceKind, DeviceMatch}
 use puppetry::input::evdev::*;
 use puppetry::input::evemu::{EvemuFile, InputId, write_event};
 use puppetry::input::mouse::{BTN_LEFT, BTN_RIGHT, REL_WHEEL, REL_WHEEL_HI_RES, REL_X, REL_Y};
-use puppetry::serve::start;
 use serde_json::{Value, json};
 
 const TABLE_RANGE: i32 = 4095;
@@ -203,9 +202,7 @@ async fn a_table_unplugged_mid_touch_is_lifted_and_comes_back_the_same() {
         "[[input]]\nkind = \"touch\"\nname = \"table\"\ndir = \"{}\"\ndevice = {{ name = \"Synthetic Table\" }}\n",
         dir.path().display()
     );
-    let running = start(&stage_config(&extra), root().join("clients/web"), None)
-        .await
-        .unwrap();
+    let running = daemon(&extra).await;
     let (mut viewer, stage) = connect(&running, VIEWER()).await;
     let grab = hand(&placed_mesh(&stage));
     let (x, y) = table_units(grab);
@@ -260,9 +257,7 @@ async fn dropped_events_are_recovered_from_the_device_state() {
         "[[input]]\nkind = \"touch\"\nname = \"table\"\ndir = \"{}\"\n",
         dir.path().display()
     );
-    let running = start(&stage_config(&extra), root().join("clients/web"), None)
-        .await
-        .unwrap();
+    let running = daemon(&extra).await;
     let (mut viewer, stage) = connect(&running, VIEWER()).await;
     let grab = hand(&placed_mesh(&stage));
     let (x, y) = table_units(grab);
@@ -297,9 +292,7 @@ async fn a_pen_grabs_with_its_tip_and_lets_go_when_it_leaves() {
         "[[input]]\nkind = \"pen\"\nname = \"pen\"\ndir = \"{}\"\n",
         dir.path().display()
     );
-    let running = start(&stage_config(&extra), root().join("clients/web"), None)
-        .await
-        .unwrap();
+    let running = daemon(&extra).await;
     let (mut viewer, stage) = connect(&running, VIEWER()).await;
     let grab = hand(&placed_mesh(&stage));
     let units = |p: DVec2| {
@@ -404,9 +397,7 @@ start = [{rx}, {ry}]
     );
     // The right mouse's place on the puppet is found from the stage message,
     // so it starts in the corner and moves there (counts are stage units).
-    let running = start(&stage_config(&extra), root().join("clients/web"), None)
-        .await
-        .unwrap();
+    let running = daemon(&extra).await;
     let (mut viewer, stage) = connect(&running, VIEWER()).await;
     let mesh = placed_mesh(&stage);
     let locator = puppetry::mesh::Locator::new(&mesh);

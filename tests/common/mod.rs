@@ -2,6 +2,7 @@
 //! least-squares reference for the two-step ARAP energies.
 #![allow(dead_code)]
 
+pub mod browser;
 pub mod daemon;
 pub mod pty;
 pub mod tuio;
