@@ -1060,12 +1060,14 @@ fn a_device_without_report_ids_gets_a_zero_report_id_byte() {
     );
 }
 
-/// The hybrid capture as a replay input of the running daemon, calibrated
+/// The hybrid capture played into the running daemon, calibrated
 /// onto the demo puppet's belly: its fingers grab the puppet, and once they
 /// lift only the stage file's two pins hold it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_hid_capture_drives_the_daemon_and_leaves_no_stuck_contact() {
     use futures_util::{SinkExt, StreamExt};
+    use puppetry::input::replay::{Pacing, ReplaySource};
+    use puppetry::input::{Calibration, CalibrationSpec, SourceId};
     use puppetry::stage::config::StageConfig;
     use serde_json::{Value, json};
     use tokio_tungstenite::tungstenite::Message;
@@ -1086,18 +1088,9 @@ mesh = "{mesh}"
 at = [640, 360]
 pins = [[168, 58], [344, 58]]
 
-[[input]]
-kind = "replay"
-name = "table"
-file = "{capture}"
-pacing = "as_fast_as_possible"
-# Played over and over, so the viewer sees the fingers land and lift.
-repeat = true
-calibration = {{ kind = "range", x = [0, 4095], y = [0, 4095], stage_min = [590, 320], stage_max = [690, 400] }}
 "#,
         image = assets.join("gingerbread.png").display(),
         mesh = assets.join("gingerbread.mesh.json").display(),
-        capture = fixture("touch-hybrid.hid").display(),
     );
     let config = StageConfig::parse("test.toml", &text, Path::new("/")).unwrap();
     let running = puppetry::serve::start(&config, root.join("clients/web"), None)
@@ -1110,27 +1103,64 @@ calibration = {{ kind = "range", x = [0, 4095], y = [0, 4095], stage_min = [590,
     ))
     .await
     .unwrap();
-    let wait = std::time::Duration::from_secs(20);
-    let mut table_handles_seen = false;
-    loop {
-        let message = tokio::time::timeout(wait, ws.next())
-            .await
-            .expect("a message in time")
-            .expect("connection open")
-            .expect("no error");
-        let Message::Text(text) = message else {
-            continue;
-        };
-        let m: Value = serde_json::from_str(&text).unwrap();
-        if m["type"] != "handles" {
-            continue;
+    let calibration = Calibration::new(CalibrationSpec::Range {
+        x: [0.0, 4095.0],
+        y: [0.0, 4095.0],
+        flip_y: true,
+        stage_min: [590.0, 320.0],
+        stage_max: [690.0, 400.0],
+    })
+    .unwrap();
+    // Played at its own pace, over and over with a rest between, once the
+    // viewer is connected, so both states it waits for (fingers down, then
+    // all lifted) last long enough to be published on a loaded machine.
+    let performance = async {
+        loop {
+            let source = ReplaySource::open_with(
+                &fixture("touch-hybrid.hid"),
+                SourceId::from("table"),
+                glam::DVec2::new(1280.0, 720.0),
+                Some(calibration.clone()),
+            )
+            .unwrap();
+            running.play(source, Pacing::RealTime).await;
+            tokio::time::sleep(std::time::Duration::from_millis(500)).await;
         }
-        let handles = m["handles"].as_array().unwrap();
-        table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
-        if table_handles_seen && handles.len() == 2 && handles.iter().all(|h| h["kind"] == "pin") {
-            break;
+    };
+    let watch = async {
+        let wait = std::time::Duration::from_secs(20);
+        let mut table_handles_seen = false;
+        loop {
+            let message = tokio::time::timeout(wait, ws.next())
+                .await
+                .expect("a message in time")
+                .expect("connection open")
+                .expect("no error");
+            let Message::Text(text) = message else {
+                continue;
+            };
+            let m: Value = serde_json::from_str(&text).unwrap();
+            if m["type"] != "handles" {
+                continue;
+            }
+            let handles = m["handles"].as_array().unwrap();
+            table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
+            if table_handles_seen
+                && handles.len() == 2
+                && handles.iter().all(|h| h["kind"] == "pin")
+            {
+                return;
+            }
         }
-    }
+    };
+    tokio::time::timeout(std::time::Duration::from_secs(120), async {
+        tokio::select! {
+            () = performance => unreachable!("plays until the viewer has seen it all"),
+            () = watch => {}
+        }
+    })
+    .await
+    .expect("fingers seen down and lifted within the plays' time");
     running.shutdown().await;
 }
 

@@ -402,7 +402,7 @@ fn slip_bad_messages_name_index_and_argument_and_the_rest_apply() {
 // ---------------------------------------------------------------- async
 
 async fn recv(rx: &mut mpsc::Receiver<ContactFrame>) -> ContactFrame {
-    tokio::time::timeout(Duration::from_secs(10), rx.recv())
+    tokio::time::timeout(Duration::from_secs(20), rx.recv())
         .await
         .expect("a frame within 10 s")
         .expect("the sink is open")
@@ -436,7 +436,7 @@ async fn run_stream_sends_frames_and_lifts_all_at_end_of_stream() {
     assert_eq!(lifted.contacts.len(), 19);
     assert!(lifted.contacts.iter().all(|c| c.phase == Phase::Up));
     assert_eq!(lifted.contacts[0].id, 1);
-    let result = tokio::time::timeout(Duration::from_secs(10), task)
+    let result = tokio::time::timeout(Duration::from_secs(20), task)
         .await
         .expect("run_stream returns")
         .unwrap();
@@ -449,7 +449,7 @@ async fn run_stream_returns_ok_when_the_sink_closes() {
     let (tx, rx) = mpsc::channel(1);
     let task = tokio::spawn(run_stream(port, decoder(WireFormat::Csv), tx));
     drop(rx);
-    let result = tokio::time::timeout(Duration::from_secs(10), task)
+    let result = tokio::time::timeout(Duration::from_secs(20), task)
         .await
         .expect("run_stream returns")
         .unwrap();
@@ -500,7 +500,7 @@ async fn run_port_reads_a_pty_and_lifts_all_when_it_hangs_up() {
             contact(2, Phase::Up, 0.0, 100.0),
         ]
     );
-    let result = tokio::time::timeout(Duration::from_secs(10), task)
+    let result = tokio::time::timeout(Duration::from_secs(20), task)
         .await
         .expect("run_port returns")
         .unwrap();

@@ -12,6 +12,8 @@ use std::time::Duration;
 use futures_util::{SinkExt, StreamExt};
 use glam::DVec2;
 use puppetry::deform::{Anchor, Arap, Steps};
+use puppetry::input::replay::{Pacing, ReplaySource};
+use puppetry::input::{Calibration, CalibrationSpec, SourceId};
 use puppetry::mesh::{Locator, Mesh};
 use serde_json::{Value, json};
 use tokio::net::TcpStream;
@@ -131,6 +133,11 @@ async fn two_performers_hold_two_handles_apart() {
     ))
     .await
     .unwrap();
+    // Nothing orders messages across two connections: B's grab may be
+    // applied after A's move, and would then hold the already-moved mesh at
+    // another rest point. The daemon promises only that both grabs show in
+    // a handles message; wait for that before moving.
+    until_contact_owners(&mut a, |owners| owners.len() == 2).await;
     let to_a = grab_a + DVec2::new(0.0, 60.0);
     let to_b = grab_b + DVec2::new(-40.0, 0.0);
     a.send(contacts(
@@ -157,13 +164,7 @@ async fn two_performers_hold_two_handles_apart() {
     let owners = loop {
         let m = next_text(&mut b).await;
         if m["type"] == "handles" {
-            let owners: Vec<String> = m["handles"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .filter(|h| h["kind"] == "contact")
-                .map(|h| h["owner"].as_str().unwrap().to_string())
-                .collect();
+            let owners = contact_owners(&m);
             if owners.len() == 2 {
                 break owners;
             }
@@ -396,49 +397,71 @@ async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
     // puppet's belly so its touches land on it, through the same decoder a
     // live device uses.
     let capture = root().join("../shared/fixtures/evemu/wetab.event");
-    let extra = format!(
-        r#"[[input]]
-kind = "replay"
-name = "table"
-file = "{}"
-pacing = "as_fast_as_possible"
-# Played over and over, so this viewer sees touches land and lift.
-repeat = true
-calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], stage_min = [590, 320], stage_max = [690, 400] }}
-"#,
-        capture.display()
-    );
-    let running = daemon(&extra).await;
-    let (mut viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
-    let _ = stage;
+    let running = daemon("").await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let calibration = Calibration::new(CalibrationSpec::Range {
+        x: [0.0, 32760.0],
+        y: [0.0, 32760.0],
+        flip_y: true,
+        stage_min: [590.0, 320.0],
+        stage_max: [690.0, 400.0],
+    })
+    .unwrap();
+    // Played at its own pace, over and over with a rest between, once this
+    // viewer is connected: every state it must see (touches down, then all
+    // lifted) lasts long enough to be published on a loaded machine, and a
+    // play it missed is followed by another.
+    let performance = async {
+        loop {
+            let source = ReplaySource::open_with(
+                &capture,
+                SourceId::from("table"),
+                DVec2::new(1280.0, 720.0),
+                Some(calibration.clone()),
+            )
+            .unwrap();
+            running.play(source, Pacing::RealTime).await;
+            tokio::time::sleep(Duration::from_millis(500)).await;
+        }
+    };
     // Frames solved for the capture's touches arrive, and at some point only
     // the two pins of the stage file hold the puppet: every contact that
     // landed has lifted.
-    let mut solved_for_touches = false;
-    let mut table_handles_seen = false;
-    loop {
-        match next_message(&mut viewer).await {
-            Message::Binary(bytes) => {
-                // Sequence 1 is the pins' solve at start.
-                solved_for_touches |= decode(&bytes).sequence > 1;
-            }
-            Message::Text(text) => {
-                let m: Value = serde_json::from_str(&text).unwrap();
-                if m["type"] != "handles" {
-                    continue;
+    let watch = async {
+        let mut solved_for_touches = false;
+        let mut table_handles_seen = false;
+        loop {
+            match next_message(&mut viewer).await {
+                Message::Binary(bytes) => {
+                    // Sequence 1 is the pins' solve at start.
+                    solved_for_touches |= decode(&bytes).sequence > 1;
                 }
-                let handles = m["handles"].as_array().unwrap();
-                table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
-                if table_handles_seen
-                    && handles.len() == 2
-                    && handles.iter().all(|h| h["kind"] == "pin")
-                {
-                    break;
+                Message::Text(text) => {
+                    let m: Value = serde_json::from_str(&text).unwrap();
+                    if m["type"] != "handles" {
+                        continue;
+                    }
+                    let handles = m["handles"].as_array().unwrap();
+                    table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
+                    if table_handles_seen
+                        && handles.len() == 2
+                        && handles.iter().all(|h| h["kind"] == "pin")
+                    {
+                        return solved_for_touches;
+                    }
                 }
+                _ => {}
             }
-            _ => {}
         }
-    }
+    };
+    let solved_for_touches = tokio::time::timeout(PLAYS, async {
+        tokio::select! {
+            () = performance => unreachable!("plays until the viewer has seen it all"),
+            solved = watch => solved,
+        }
+    })
+    .await
+    .expect("touches seen down and lifted within the plays' time");
     assert!(solved_for_touches, "the capture's touches were solved");
     running.shutdown().await;
 }

@@ -28,6 +28,7 @@ const poseT = document.getElementById('pose-t');
 const api = window.puppetry = {
   connected: false,
   framesReceived: 0,
+  weightsReceived: 0,
   lastSequence: {},          // puppet id -> newest sequence number received
   rigFrames: 0,              // rig frames (grid handles, joints) received
   errors: [],                // server "error" messages and client-side failures
@@ -602,6 +603,7 @@ function onText(text) {
     case 'weights': {
       const p = puppets.find((q) => q.id === msg.puppet);
       if (p) { p.weights = msg.weights; needsOverlay = true; }
+      api.weightsReceived++;
       return;
     }
     case 'weights_saved':

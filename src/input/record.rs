@@ -63,6 +63,9 @@ pub async fn record(
     };
     loop {
         let event = tokio::select! {
+            // Events already due are written before the deadline is looked
+            // at, so a recorder that falls behind still keeps them.
+            biased;
             event = device.next_event() => event,
             _ = &mut deadline => break,
             _ = &mut stop => break,

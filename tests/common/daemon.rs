@@ -16,7 +16,13 @@ use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 pub type Client = WebSocketStream<MaybeTlsStream<TcpStream>>;
 
+/// How long a test waits for the next message it is owed. Generous: the
+/// daemon's promises, not the machine's load, decide pass or fail.
 pub const WAIT: Duration = Duration::from_secs(20);
+
+/// How long a test lets a looping replay play until it has seen every state
+/// it waits for.
+pub const PLAYS: Duration = Duration::from_secs(120);
 
 pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -31,7 +37,7 @@ pub fn stage_config(extra: &str) -> StageConfig {
 width = 1280
 height = 720
 listen = "127.0.0.1:0"
-client_timeout_s = 2
+client_timeout_s = 10
 
 [access]
 performer_tokens = ["secret"]

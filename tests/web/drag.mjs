@@ -125,23 +125,32 @@ try {
   }
 
   await waitFor('frames after the drag', (n) => window.puppetry.framesReceived > n, framesBefore);
-  await page.waitForTimeout(200); // let the last frames of the drag arrive
-  await settle();
-  const result = await page.evaluate(() => {
-    const a = window.__before;
-    const b = window.puppetry.snapshot();
-    let changed = 0;
-    if (a.length === b.length) {
-      for (let i = 0; i < a.length; i += 4) {
-        const d = Math.abs(a[i] - b[i]) + Math.abs(a[i + 1] - b[i + 1]) + Math.abs(a[i + 2] - b[i + 2]);
-        if (d > 24) changed++; // ignore rounding noise
+  // The drag's last frames may still be on their way: measure until the
+  // picture has changed enough, or the page's time is up.
+  const measure = async () => {
+    await settle();
+    return page.evaluate(() => {
+      const a = window.__before;
+      const b = window.puppetry.snapshot();
+      let changed = 0;
+      if (a.length === b.length) {
+        for (let i = 0; i < a.length; i += 4) {
+          const d = Math.abs(a[i] - b[i]) + Math.abs(a[i + 1] - b[i + 1]) + Math.abs(a[i + 2] - b[i + 2]);
+          if (d > 24) changed++; // ignore rounding noise
+        }
+      } else {
+        changed = -1; // canvas resized between the pictures
       }
-    } else {
-      changed = -1; // canvas resized between the pictures
-    }
-    const p = window.puppetry;
-    return { changed, total: a.length / 4, framesReceived: p.framesReceived, lastSequence: p.lastSequence, errors: p.errors };
-  });
+      const p = window.puppetry;
+      return { changed, total: a.length / 4, framesReceived: p.framesReceived, lastSequence: p.lastSequence, errors: p.errors };
+    });
+  };
+  let result = await measure();
+  const measureUntil = Date.now() + 15_000;
+  while (result.changed < minChanged && result.changed >= 0 && Date.now() < measureUntil) {
+    await page.waitForTimeout(100);
+    result = await measure();
+  }
   await shot('after');
   await release();
   await page.waitForTimeout(100); // a rejected lift would come back as an error

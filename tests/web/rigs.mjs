@@ -76,6 +76,7 @@ try {
   }
   // A paint stroke across the puppet.
   await page.click('#paint-tool');
+  const weightsBefore = await page.evaluate(() => window.puppetry.weightsReceived);
   const [x, y] = await page.evaluate(([sx, sy]) => window.puppetry.stageToClient(sx, sy), point);
   await page.mouse.move(x - 40, y);
   await page.mouse.down();
@@ -84,9 +85,8 @@ try {
     await page.mouse.move(x - 40 + 8 * i, y);
   }
   await page.mouse.up();
-  await page.waitForTimeout(300);
   // The painted triangles come back as a weights message and are tinted.
-  await page.waitForFunction(() => window.puppetry.stage && document.getElementById('paint-tool').getAttribute('aria-pressed') === 'true');
+  await page.waitForFunction((n) => window.puppetry.weightsReceived > n, weightsBefore);
   if (shotDir) fs.writeFileSync(path.join(shotDir, `painted-${summary.kind}.png`), await page.screenshot());
   summary.errors = [...(await page.evaluate(() => window.puppetry.errors)), ...pageErrors];
   await context.close();
