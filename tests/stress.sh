@@ -45,7 +45,7 @@ case "$load" in
     ;;
   build)
     scratch=$(mktemp -d)
-    cp -r Cargo.toml Cargo.lock src examples "$scratch/"
+    cp -r Cargo.toml Cargo.lock crates config assets clients "$scratch/"
     set -m
     (
       cd "$scratch"

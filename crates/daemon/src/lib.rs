@@ -1,0 +1,16 @@
+//! The daemon: everything of `puppetry serve` that is not numeric. It runs
+//! the stage on a thread of its own ([`stage_thread`]), feeds it from the
+//! configured input sources ([`serve`]), and serves the web renderer and the
+//! WebSocket protocol ([`stream`]) to renderer and performer clients.
+//!
+//! ```text
+//!   puppetry-input ──► stage_thread ──────────────► stream
+//!   (sources, under    (owns the puppetry-stage      (HTTP + WebSocket: newest
+//!    serve's care)      Stage; solves with            frame per client; the
+//!                       puppetry-deform; encodes      web page)
+//!                       each frame once)
+//! ```
+
+pub mod serve;
+pub mod stage_thread;
+pub mod stream;

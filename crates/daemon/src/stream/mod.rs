@@ -1,0 +1,564 @@
+//! The stream: HTTP and WebSocket on one port. Serves the web renderer and
+//! puppet pictures, and speaks the protocol of `docs/protocol.md` to
+//! renderer and performer clients. Each client task sends the newest frame
+//! of each puppet and skips the ones it was too slow for; a stalled client
+//! never delays the stage thread or other clients, and one that stops
+//! reading is dropped after the stage's client timeout.
+
+mod http;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use glam::DVec2;
+use serde::Deserialize;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{mpsc, watch};
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
+
+use crate::stage_thread::{Command, PuppetOutput};
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_stage::config::SkeletonMode;
+use puppetry_stage::{Rig, Stage};
+
+#[derive(Debug, thiserror::Error)]
+pub enum StreamError {
+    #[error("cannot listen on {address}: {source}")]
+    Listen {
+        address: SocketAddr,
+        source: std::io::Error,
+    },
+}
+
+/// Largest message a client may send.
+pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
+/// Read buffer of a client connection (see `serve_connection`).
+const READ_BUFFER: usize = 4 * 1024;
+/// Bad messages in a row before a client is disconnected.
+pub const MAX_BAD_MESSAGES: u32 = 20;
+
+/// What clients are told about the stage: fixed once the stage is loaded.
+pub struct StageDescription {
+    /// Per puppet, the "stage" message's entry without its handles.
+    pub puppets: Vec<serde_json::Value>,
+    pub size: [f64; 2],
+    pub images: Vec<PathBuf>,
+}
+
+impl StageDescription {
+    pub fn of(stage: &Stage) -> StageDescription {
+        let flat = |v: &[DVec2]| {
+            v.iter()
+                .flat_map(|q| [q.x as f32, q.y as f32])
+                .collect::<Vec<f32>>()
+        };
+        let puppets = stage
+            .puppets()
+            .iter()
+            .map(|p| {
+                serde_json::json!({
+                    "id": p.id,
+                    "name": p.name,
+                    "texture": format!("/puppets/{}/texture.png", p.id),
+                    "rest": flat(p.mesh.vertices()),
+                    "uv": p.mesh.uv().map(flat).unwrap_or_default(),
+                    "triangles": p.mesh.triangles().iter().flatten().copied().collect::<Vec<u32>>(),
+                    "rig": rig_description(p.rig()),
+                    "weights": p.mesh.weights(),
+                })
+            })
+            .collect();
+        StageDescription {
+            puppets,
+            size: [stage.width, stage.height],
+            images: stage.puppets().iter().map(|p| p.image.clone()).collect(),
+        }
+    }
+}
+
+/// The "rig" entry of a puppet in the "stage" message. Rest points are
+/// full-precision stage coordinates, row by row / joint by joint.
+fn rig_description(rig: &Rig) -> serde_json::Value {
+    let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
+    match rig {
+        Rig::Free(_) => serde_json::json!({"kind": "free"}),
+        Rig::Grid(r) => {
+            let spec = r.ffd().spec();
+            serde_json::json!({
+                "kind": "grid",
+                "columns": spec.columns,
+                "rows": spec.rows,
+                "basis": match spec.basis {
+                    puppetry_deform::ffd::Basis::Bernstein => "bernstein",
+                    puppetry_deform::ffd::Basis::Lattice => "lattice",
+                },
+                "min": [spec.min.x, spec.min.y],
+                "max": [spec.max.x, spec.max.y],
+                "rest": points(r.ffd().rest_grid()),
+            })
+        }
+        Rig::Skeleton(r) => {
+            let skeleton = r.deformer().skeleton();
+            serde_json::json!({
+                "kind": "skeleton",
+                "mode": match r.mode() {
+                    SkeletonMode::Free => "free",
+                    SkeletonMode::Fk => "fk",
+                },
+                "bones": skeleton.bones(),
+                "rest": points(skeleton.joints()),
+                "poses": r.pose_names(),
+            })
+        }
+    }
+}
+
+/// What every connection task shares.
+pub struct Shared {
+    pub stage: StageDescription,
+    pub tokens: Vec<String>,
+    pub web_root: PathBuf,
+    pub commands: mpsc::Sender<Command>,
+    pub outputs: Vec<PuppetOutput>,
+    /// The newest "cursors" message (mouse cursors on the stage).
+    pub cursors: watch::Receiver<Arc<str>>,
+    /// Bumped by the stage thread after each publish.
+    pub changes: watch::Receiver<u64>,
+    pub client_timeout: Duration,
+    pub started: Instant,
+    pub next_client: AtomicU64,
+}
+
+/// Binds the listener; `run` serves until `shutdown` resolves.
+pub async fn bind(address: SocketAddr) -> Result<TcpListener, StreamError> {
+    TcpListener::bind(address)
+        .await
+        .map_err(|source| StreamError::Listen { address, source })
+}
+
+/// Accepts connections until `shutdown` resolves; each is served by its own
+/// task, and an error in one is logged and contained.
+pub async fn run(
+    listener: TcpListener,
+    shared: Arc<Shared>,
+    shutdown: impl std::future::Future<Output = ()>,
+) {
+    tokio::pin!(shutdown);
+    loop {
+        tokio::select! {
+            _ = &mut shutdown => break,
+            accepted = listener.accept() => match accepted {
+                Ok((stream, peer)) => {
+                    let shared = shared.clone();
+                    tokio::spawn(async move {
+                        if let Err(e) = serve_connection(stream, shared).await {
+                            tracing::debug!(%peer, "connection ended: {e}");
+                        }
+                    });
+                }
+                Err(e) => tracing::warn!("accept failed: {e}"),
+            },
+        }
+    }
+}
+
+async fn serve_connection(stream: TcpStream, shared: Arc<Shared>) -> std::io::Result<()> {
+    let _ = stream.set_nodelay(true);
+    let (request, stream) = http::read_request(stream, shared.client_timeout).await?;
+    if request.path == "/ws" && request.wants_websocket() {
+        // tungstenite zero-fills its whole read buffer before every read
+        // attempt; clients send small messages, so a small buffer saves a
+        // 128 KiB memset per wake-up of every connection.
+        let config = WebSocketConfig::default()
+            .max_message_size(Some(MAX_CLIENT_MESSAGE))
+            .max_frame_size(Some(MAX_CLIENT_MESSAGE))
+            .read_buffer_size(READ_BUFFER);
+        let ws = tokio_tungstenite::accept_async_with_config(stream, Some(config))
+            .await
+            .map_err(std::io::Error::other)?;
+        return websocket(ws, shared).await;
+    }
+    http::serve_file(stream, &request, &shared).await
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum ClientMessage {
+    Hello {
+        role: Role,
+        token: Option<String>,
+    },
+    Contacts {
+        contacts: Vec<ClientContact>,
+    },
+    Pin {
+        x: f64,
+        y: f64,
+    },
+    Unpin {
+        puppet: u32,
+        handle: u64,
+    },
+    Paint {
+        puppet: u32,
+        x: f64,
+        y: f64,
+        radius: f64,
+        strength: f64,
+    },
+    SaveWeights {
+        puppet: u32,
+    },
+    ExportGrid {
+        puppet: u32,
+    },
+    Pose {
+        puppet: u32,
+        from: String,
+        to: String,
+        t: f64,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum Role {
+    Viewer,
+    Performer,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ClientContact {
+    id: u32,
+    phase: Phase,
+    x: Option<f64>,
+    y: Option<f64>,
+}
+
+fn error_message(message: &str) -> Message {
+    Message::text(serde_json::json!({"type": "error", "message": message}).to_string())
+}
+
+type Ws = tokio_tungstenite::WebSocketStream<http::Prefixed>;
+
+async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
+    let io = std::io::Error::other;
+    let client = shared.next_client.fetch_add(1, Ordering::Relaxed);
+    let source = format!("client:{client}");
+    // The first message must be a hello, in time.
+    let hello = tokio::time::timeout(shared.client_timeout, ws.next()).await;
+    let role = match hello {
+        Ok(Some(Ok(Message::Text(text)))) => match serde_json::from_str::<ClientMessage>(&text) {
+            Ok(ClientMessage::Hello {
+                role: Role::Viewer, ..
+            }) => Role::Viewer,
+            Ok(ClientMessage::Hello {
+                role: Role::Performer,
+                token: Some(token),
+            }) if shared.tokens.contains(&token) => Role::Performer,
+            Ok(ClientMessage::Hello {
+                role: Role::Performer,
+                ..
+            }) => {
+                let _ = ws
+                    .send(error_message("performer needs a valid token"))
+                    .await;
+                let _ = ws.close(None).await;
+                return Ok(());
+            }
+            _ => {
+                let _ = ws
+                    .send(error_message("the first message must be a hello"))
+                    .await;
+                let _ = ws.close(None).await;
+                return Ok(());
+            }
+        },
+        _ => return Ok(()),
+    };
+    let mut handles: Vec<_> = shared.outputs.iter().map(|o| o.handles.clone()).collect();
+    let mut frames: Vec<_> = shared.outputs.iter().map(|o| o.frame.clone()).collect();
+    let mut rigs: Vec<_> = shared.outputs.iter().map(|o| o.rig.clone()).collect();
+    // Weights are sent once painted (the stage message has none: the mesh
+    // file's are implied until then).
+    let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
+    let puppets: Vec<serde_json::Value> = shared
+        .stage
+        .puppets
+        .iter()
+        .zip(&mut handles)
+        .map(|(p, h)| {
+            let mut p = p.clone();
+            let message: serde_json::Value =
+                serde_json::from_str(&h.borrow_and_update()).unwrap_or_default();
+            p["handles"] = message["handles"].clone();
+            p
+        })
+        .collect();
+    let stage_message = serde_json::json!({
+        "type": "stage",
+        "client": client,
+        "role": if role == Role::Performer { "performer" } else { "viewer" },
+        "stage": {"width": shared.stage.size[0], "height": shared.stage.size[1]},
+        "puppets": puppets,
+    });
+    send(
+        &mut ws,
+        Message::text(stage_message.to_string()),
+        shared.client_timeout,
+    )
+    .await?;
+    let mut changes = shared.changes.clone();
+    let mut cursors = shared.cursors.clone();
+    // Frames published before this client connected still count as new.
+    for f in frames.iter_mut().chain(&mut rigs) {
+        f.mark_changed();
+    }
+    cursors.mark_changed();
+    let mut bad_in_a_row = 0u32;
+    let result: std::io::Result<()> = async {
+        loop {
+            // Send what is newest before waiting again.
+            for (i, f) in frames.iter_mut().enumerate() {
+                if f.has_changed().unwrap_or(false) {
+                    let frame = f.borrow_and_update().clone();
+                    if let Some(bytes) = frame {
+                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
+                    }
+                }
+                if rigs[i].has_changed().unwrap_or(false) {
+                    let frame = rigs[i].borrow_and_update().clone();
+                    if let Some(bytes) = frame {
+                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
+                    }
+                }
+                if weights[i].has_changed().unwrap_or(false) {
+                    let text = weights[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                }
+                if handles[i].has_changed().unwrap_or(false) {
+                    let text = handles[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                }
+            }
+            if cursors.has_changed().unwrap_or(false) {
+                let text = cursors.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
+            }
+            tokio::select! {
+                changed = changes.changed() => {
+                    if changed.is_err() {
+                        // The stage thread stopped: the daemon is shutting down.
+                        let _ = ws.close(None).await;
+                        return Ok(());
+                    }
+                }
+                incoming = ws.next() => match incoming {
+                    None => return Ok(()),
+                    Some(Err(e)) => return Err(io(e)),
+                    Some(Ok(Message::Text(text))) => {
+                        match handle_message(&text, role, &source, &shared).await {
+                            Ok(answer) => {
+                                bad_in_a_row = 0;
+                                if let Some(answer) = answer {
+                                    send(&mut ws, Message::text(answer), shared.client_timeout).await?;
+                                }
+                            }
+                            Err(problem) => {
+                                bad_in_a_row += 1;
+                                send(&mut ws, error_message(&problem), shared.client_timeout).await?;
+                                if bad_in_a_row >= MAX_BAD_MESSAGES {
+                                    let _ = ws.close(None).await;
+                                    return Ok(());
+                                }
+                            }
+                        }
+                    }
+                    Some(Ok(Message::Binary(_))) => {
+                        bad_in_a_row += 1;
+                        send(&mut ws, error_message("binary messages are not accepted"), shared.client_timeout).await?;
+                        if bad_in_a_row >= MAX_BAD_MESSAGES {
+                            let _ = ws.close(None).await;
+                            return Ok(());
+                        }
+                    }
+                    Some(Ok(Message::Close(_))) => return Ok(()),
+                    Some(Ok(_)) => {}
+                },
+            }
+        }
+    }
+    .await;
+    if role == Role::Performer {
+        // Whatever this client held is let go.
+        let _ = shared.commands.send(Command::ReleaseSource(source)).await;
+    }
+    result
+}
+
+async fn send(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Result<()> {
+    match tokio::time::timeout(timeout, ws.send(message)).await {
+        Ok(result) => result.map_err(std::io::Error::other),
+        Err(_) => Err(std::io::Error::new(
+            std::io::ErrorKind::TimedOut,
+            "client stopped reading",
+        )),
+    }
+}
+
+/// Sends a request to the stage thread and waits for its answer.
+async fn ask<T>(
+    shared: &Shared,
+    command: impl FnOnce(crate::stage_thread::Reply<T>) -> Command,
+) -> Result<T, String> {
+    let (reply, answer) = tokio::sync::oneshot::channel();
+    shared
+        .commands
+        .send(command(reply))
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?;
+    answer
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?
+}
+
+/// Writes `text` to `path` atomically: a temporary file beside it, synced,
+/// then renamed over it, so readers see the old file or the new, never half.
+fn write_atomically(path: &std::path::Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("not a file path"))?
+        .to_string_lossy();
+    let temporary = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let result = (|| {
+        let mut file = std::fs::File::create(&temporary)?;
+        file.write_all(text.as_bytes())?;
+        file.sync_all()?;
+        std::fs::rename(&temporary, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    result
+}
+
+/// Acts on one text message of a connected client; `Ok` may carry an
+/// answer for this client, `Err` is the problem to report back.
+async fn handle_message(
+    text: &str,
+    role: Role,
+    source: &str,
+    shared: &Shared,
+) -> Result<Option<String>, String> {
+    let message: ClientMessage =
+        serde_json::from_str(text).map_err(|e| format!("bad message: {e}"))?;
+    if let ClientMessage::ExportGrid { puppet } = message {
+        // Read-only: viewers may ask too.
+        return ask(shared, |reply| Command::ExportGrid { puppet, reply })
+            .await
+            .map(Some);
+    }
+    if role != Role::Performer && !matches!(message, ClientMessage::Hello { .. }) {
+        return Err("viewers cannot send input".into());
+    }
+    let command = match message {
+        ClientMessage::Hello { .. } => return Err("already said hello".into()),
+        ClientMessage::Contacts { contacts } => {
+            let mut frame = ContactFrame {
+                source: SourceId::from(source),
+                time: shared.started.elapsed().as_secs_f64(),
+                contacts: Vec::with_capacity(contacts.len()),
+            };
+            for c in contacts {
+                let position = match (c.x, c.y) {
+                    (Some(x), Some(y)) if x.is_finite() && y.is_finite() => DVec2::new(x, y),
+                    (None, None) if c.phase == Phase::Up => DVec2::ZERO,
+                    _ => return Err(format!("contact {}: needs finite x and y", c.id)),
+                };
+                frame.contacts.push(Contact::new(c.id, c.phase, position));
+            }
+            Command::Frame {
+                received: frame.time,
+                frame,
+            }
+        }
+        ClientMessage::Pin { x, y } if x.is_finite() && y.is_finite() => Command::Pin {
+            owner: source.to_string(),
+            at: DVec2::new(x, y),
+        },
+        ClientMessage::Pin { .. } => return Err("pin needs finite x and y".into()),
+        ClientMessage::Unpin { puppet, handle } => Command::Unpin { puppet, handle },
+        ClientMessage::Paint {
+            puppet,
+            x,
+            y,
+            radius,
+            strength,
+        } => {
+            let ok = |v: f64| v.is_finite() && v > 0.0;
+            if !(x.is_finite() && y.is_finite() && ok(radius) && ok(strength)) {
+                return Err("paint needs finite x, y and positive radius and strength".into());
+            }
+            let at = DVec2::new(x, y);
+            ask(shared, |reply| Command::Paint {
+                puppet,
+                at,
+                radius,
+                strength,
+                reply,
+            })
+            .await?;
+            return Ok(None);
+        }
+        ClientMessage::Pose {
+            puppet,
+            from,
+            to,
+            t,
+        } => {
+            if !t.is_finite() {
+                return Err("pose needs a finite t".into());
+            }
+            ask(shared, |reply| Command::KeyPose {
+                puppet,
+                from,
+                to,
+                t,
+                reply,
+            })
+            .await?;
+            return Ok(None);
+        }
+        ClientMessage::SaveWeights { puppet } => {
+            let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
+            let path = file.path.clone();
+            let written = tokio::task::spawn_blocking(move || {
+                let path = file.path.clone();
+                let text = file.text()?;
+                write_atomically(&path, &text).map_err(|e| format!("{}: {e}", path.display()))
+            });
+            written
+                .await
+                .map_err(|e| format!("save_weights: {e}"))?
+                .map_err(|e| format!("save_weights: {e}"))?;
+            return Ok(Some(
+                serde_json::json!({"type": "weights_saved", "puppet": puppet, "file": path.display().to_string()})
+                    .to_string(),
+            ));
+        }
+        ClientMessage::ExportGrid { .. } => unreachable!("answered above"),
+    };
+    shared
+        .commands
+        .send(command)
+        .await
+        .map(|()| None)
+        .map_err(|_| "the stage is shutting down".to_string())
+}

@@ -1,0 +1,19 @@
+//! Deformers: given a validated rest [`Mesh`](puppetry_mesh::Mesh) and handle
+//! positions, compute deformed vertex positions. Each deformer separates
+//! three phases — register (new rest mesh), compile (handle set changed),
+//! update (handles moved) — and the update phase never allocates.
+//! [`arap`] is the free-form two-step solver (Igarashi et al. 2005), [`ffd`]
+//! the locality-preserving FFD grid rig, [`skeleton`] the shape-aware
+//! skeletal deformer (Wang et al. 2013); [`sparse`] holds their
+//! factorisations and [`measure`] the distortion measures they are compared
+//! by.
+//!
+//! Plain synchronous numeric code: the daemon runs it on a thread of its own.
+
+pub mod arap;
+pub mod ffd;
+pub mod measure;
+pub mod skeleton;
+pub mod sparse;
+
+pub use arap::{Anchor, Arap, ArapError, Steps};

@@ -1,0 +1,1312 @@
+//! The shape-aware skeletal deformer of Wang, Yang, Peng & Wang (2013), as
+//! restated in `shared/design/algorithms.md` §3: a [`Skeleton`] (joints and
+//! bones forming a forest), its forward kinematics ([`Pose`]: root positions,
+//! joint angles, bone lengths) and [`ShapeAware`], which drives a rest
+//! [`Mesh`] from posed joint positions.
+//!
+//! Phases: [`ShapeAware::register`] takes the mesh and the skeleton, finds the
+//! triangles each bone crosses and each joint's barycentric row, assembles
+//! the stitching matrix (the per-triangle weighted edge Laplacian plus the
+//! joints' rows) and factors it once; the matrix depends only on the rest
+//! mesh, the skeleton and the weights. [`ShapeAware::update`] is the frame:
+//! per bone the 2×2 `A_b` from the virtual-joint construction, then
+//! `rounds + 1` stitches — each two back substitutions over the shared
+//! factor, x and y together — with, between them, every non-bone triangle's
+//! transform reset to the best-fit rotation of its rest triangle onto the
+//! stitched one. [`ShapeAware::set_weights`] refactors after stiffness is
+//! painted. Nothing in the update path allocates.
+//!
+//! Every frame starts the non-bone triangles at the identity, as the paper
+//! does, so a frame depends only on the joints it is given (free and FK mode
+//! agree, rest joints give the rest shape exactly). [`SkeletonParams`]'s
+//! `warm_start` instead starts from the previous frame's rotations, which
+//! converges further per frame during continuous motion at the price of that
+//! history independence.
+//!
+//! Pieces of the mesh holding no joint would leave the stitch singular (their
+//! translation is free). They are not solved: each is attached to the bone
+//! nearest to it in the rest pose and carried by that bone's transform about
+//! its parent joint, `v = p₁ + A_b (v̄ − p̄₁)`.
+
+use std::f64::consts::{PI, TAU};
+use std::time::Instant;
+
+use glam::{DMat2, DVec2};
+use serde::Serialize;
+
+use super::sparse::{FactorError, RealCholesky, UpperPattern, fill_reducing_order};
+use puppetry_mesh::json::MAX_COORDINATE;
+use puppetry_mesh::polygon::segment_distance;
+use puppetry_mesh::{Locator, MAX_WEIGHT, MIN_WEIGHT, Mesh};
+
+/// An error in a skeleton, a pose or the deformer's inputs: what and where.
+#[derive(Debug, thiserror::Error)]
+pub enum SkeletonError {
+    #[error("the skeleton has no bones")]
+    NoBones,
+    #[error("joint {joint}: position is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
+    JointNotFinite { joint: usize },
+    #[error("bone {bone}: joint {joint} is out of range (the skeleton has {count} joints)")]
+    BoneJointOutOfRange {
+        bone: usize,
+        joint: usize,
+        count: usize,
+    },
+    #[error("bone {bone}: joins joint {joint} to itself")]
+    BoneJoinsJointToItself { bone: usize, joint: usize },
+    #[error("bone {bone}: has zero length (joints {parent} and {child} coincide)")]
+    ZeroLengthBone {
+        bone: usize,
+        parent: usize,
+        child: usize,
+    },
+    #[error(
+        "joint {joint}: is the child of both bone {first} and bone {second}; a joint has one parent bone"
+    )]
+    TwoParents {
+        joint: usize,
+        first: usize,
+        second: usize,
+    },
+    #[error("joint {joint}: belongs to no bone")]
+    UnusedJoint { joint: usize },
+    #[error("bone {bone}: lies on a cycle; the bones must form a forest")]
+    Cycle { bone: usize },
+    #[error("joint {joint}: rest position {point:?} is not inside the mesh")]
+    JointOutsideMesh { joint: usize, point: [f64; 2] },
+    #[error("parameter {name}: {problem}, got {value}")]
+    BadParameter {
+        name: &'static str,
+        problem: &'static str,
+        value: f64,
+    },
+    #[error("expected {expected} joint positions (one per skeleton joint), got {got}")]
+    JointCount { expected: usize, got: usize },
+    #[error("pose: {field} has {got} entries, the skeleton needs {expected}")]
+    PoseShape {
+        field: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error("pose: {field}[{index}] is not a finite number (bone lengths must also be ≥ 0)")]
+    PoseNotFinite { field: &'static str, index: usize },
+    #[error("bone {bone} is out of range (the skeleton has {count} bones)")]
+    BoneOutOfRange { bone: usize, count: usize },
+    #[error("weights: has {got} entries, expected one per triangle ({expected})")]
+    WeightCount { expected: usize, got: usize },
+    #[error("weights[{index}]: must be between {MIN_WEIGHT:e} and {MAX_WEIGHT:e}, got {value}")]
+    BadWeight { index: usize, value: f64 },
+    #[error(transparent)]
+    Factor(#[from] FactorError),
+}
+
+/// Joints and the bones between them, validated: every bone joins two
+/// distinct, distant joints; every joint has at most one parent bone and
+/// belongs to some bone; the bones form a forest whose roots are the joints
+/// without a parent bone.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Skeleton {
+    joints: Vec<DVec2>,
+    bones: Vec<[usize; 2]>,
+    /// Per joint, the bone whose child it is.
+    parent_bone: Vec<Option<usize>>,
+    /// Root joints, increasing.
+    roots: Vec<usize>,
+    /// Per joint, its index in `roots` (`usize::MAX` for non-roots).
+    root_index: Vec<usize>,
+    /// Bones with every parent before its children.
+    order: Vec<usize>,
+}
+
+/// A skeleton's intrinsic parameters: each root joint's position (in the
+/// order of [`Skeleton::roots`]), each bone's angle — absolute (radians,
+/// counter-clockwise from +x) for a bone leaving a root joint, otherwise
+/// relative to the bone ending at its parent joint — and each bone's length.
+///
+/// The skeleton may be a forest, so there is one root position per tree.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pose {
+    pub roots: Vec<DVec2>,
+    pub angles: Vec<f64>,
+    pub lengths: Vec<f64>,
+}
+
+/// `a` wrapped into [−π, π).
+fn wrap_angle(a: f64) -> f64 {
+    (a + PI).rem_euclid(TAU) - PI
+}
+
+fn finite_point(p: DVec2) -> bool {
+    p.is_finite() && p.abs().max_element() <= MAX_COORDINATE
+}
+
+impl Pose {
+    /// The pose between key poses `a` (t = 0) and `b` (t = 1): root
+    /// positions and bone lengths linearly, each angle along the shorter arc.
+    /// Joint positions are never averaged, so limbs do not shrink mid-swing.
+    pub fn interpolate(a: &Pose, b: &Pose, t: f64) -> Result<Pose, SkeletonError> {
+        for (field, x, y) in [
+            ("roots", a.roots.len(), b.roots.len()),
+            ("angles", a.angles.len(), b.angles.len()),
+            ("lengths", a.lengths.len(), b.lengths.len()),
+        ] {
+            if x != y {
+                return Err(SkeletonError::PoseShape {
+                    field,
+                    expected: x,
+                    got: y,
+                });
+            }
+        }
+        if !t.is_finite() {
+            return Err(SkeletonError::BadParameter {
+                name: "t",
+                problem: "must be finite",
+                value: t,
+            });
+        }
+        Ok(Pose {
+            roots: a
+                .roots
+                .iter()
+                .zip(&b.roots)
+                .map(|(p, q)| p.lerp(*q, t))
+                .collect(),
+            angles: a
+                .angles
+                .iter()
+                .zip(&b.angles)
+                .map(|(p, q)| p + wrap_angle(q - p) * t)
+                .collect(),
+            lengths: a
+                .lengths
+                .iter()
+                .zip(&b.lengths)
+                .map(|(p, q)| p + (q - p) * t)
+                .collect(),
+        })
+    }
+
+    /// FK mode: turns `bone` about its parent joint by `delta` radians. Its
+    /// descendants' angles are relative, so the chain below follows.
+    pub fn rotate_joint(&mut self, bone: usize, delta: f64) -> Result<(), SkeletonError> {
+        let count = self.angles.len();
+        let angle = self
+            .angles
+            .get_mut(bone)
+            .ok_or(SkeletonError::BoneOutOfRange { bone, count })?;
+        if !delta.is_finite() {
+            return Err(SkeletonError::BadParameter {
+                name: "delta",
+                problem: "must be finite",
+                value: delta,
+            });
+        }
+        *angle = wrap_angle(*angle + delta);
+        Ok(())
+    }
+}
+
+impl Skeleton {
+    /// Validates a skeleton. `bones[b] = [parent joint, child joint]`;
+    /// joints are rest positions in mesh coordinates.
+    pub fn new(joints: Vec<DVec2>, bones: Vec<[usize; 2]>) -> Result<Skeleton, SkeletonError> {
+        if bones.is_empty() {
+            return Err(SkeletonError::NoBones);
+        }
+        if let Some(joint) = joints.iter().position(|p| !finite_point(*p)) {
+            return Err(SkeletonError::JointNotFinite { joint });
+        }
+        let count = joints.len();
+        let mut lo = DVec2::splat(f64::INFINITY);
+        let mut hi = DVec2::splat(f64::NEG_INFINITY);
+        for &p in &joints {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+        // Shorter than this, a bone's rest frame is numerically meaningless.
+        let shortest = (hi - lo).length() * 1e-9;
+        let mut parent_bone: Vec<Option<usize>> = vec![None; count];
+        let mut used = vec![false; count];
+        for (bone, &[parent, child]) in bones.iter().enumerate() {
+            for joint in [parent, child] {
+                if joint >= count {
+                    return Err(SkeletonError::BoneJointOutOfRange { bone, joint, count });
+                }
+                used[joint] = true;
+            }
+            if parent == child {
+                return Err(SkeletonError::BoneJoinsJointToItself {
+                    bone,
+                    joint: parent,
+                });
+            }
+            if joints[parent].distance(joints[child]) <= shortest {
+                return Err(SkeletonError::ZeroLengthBone {
+                    bone,
+                    parent,
+                    child,
+                });
+            }
+            if let Some(first) = parent_bone[child] {
+                return Err(SkeletonError::TwoParents {
+                    joint: child,
+                    first,
+                    second: bone,
+                });
+            }
+            parent_bone[child] = Some(bone);
+        }
+        if let Some(joint) = used.iter().position(|u| !u) {
+            return Err(SkeletonError::UnusedJoint { joint });
+        }
+        let roots: Vec<usize> = (0..count).filter(|&j| parent_bone[j].is_none()).collect();
+        let mut root_index = vec![usize::MAX; count];
+        for (k, &r) in roots.iter().enumerate() {
+            root_index[r] = k;
+        }
+        // Breadth-first from the roots: a bone never reached hangs off a
+        // cycle (every joint on a cycle has a parent, so no root leads in).
+        let mut order = Vec::with_capacity(bones.len());
+        let mut frontier = roots.clone();
+        while let Some(joint) = frontier.pop() {
+            for (bone, &[parent, child]) in bones.iter().enumerate() {
+                if parent == joint {
+                    order.push(bone);
+                    frontier.push(child);
+                }
+            }
+        }
+        if order.len() < bones.len() {
+            let mut reached = vec![false; bones.len()];
+            for &b in &order {
+                reached[b] = true;
+            }
+            let bone = reached.iter().position(|r| !r).unwrap_or(0);
+            return Err(SkeletonError::Cycle { bone });
+        }
+        Ok(Skeleton {
+            joints,
+            bones,
+            parent_bone,
+            roots,
+            root_index,
+            order,
+        })
+    }
+
+    /// Rest joint positions.
+    pub fn joints(&self) -> &[DVec2] {
+        &self.joints
+    }
+
+    /// `[parent joint, child joint]` per bone.
+    pub fn bones(&self) -> &[[usize; 2]] {
+        &self.bones
+    }
+
+    /// The joints without a parent bone, increasing: one per tree, in the
+    /// order of [`Pose::roots`].
+    pub fn roots(&self) -> &[usize] {
+        &self.roots
+    }
+
+    /// The bone ending at `bone`'s parent joint, if any.
+    pub fn parent_of(&self, bone: usize) -> Option<usize> {
+        self.parent_bone[self.bones[bone][0]]
+    }
+
+    /// The rest pose: [`Skeleton::pose_of`] the rest joints.
+    pub fn rest_pose(&self) -> Pose {
+        self.pose_of(&self.joints)
+            .expect("rest joints are validated")
+    }
+
+    fn check_pose(&self, pose: &Pose) -> Result<(), SkeletonError> {
+        let bones = self.bones.len();
+        for (field, expected, got) in [
+            ("roots", self.roots.len(), pose.roots.len()),
+            ("angles", bones, pose.angles.len()),
+            ("lengths", bones, pose.lengths.len()),
+        ] {
+            if expected != got {
+                return Err(SkeletonError::PoseShape {
+                    field,
+                    expected,
+                    got,
+                });
+            }
+        }
+        if let Some(index) = pose.roots.iter().position(|p| !finite_point(*p)) {
+            return Err(SkeletonError::PoseNotFinite {
+                field: "roots",
+                index,
+            });
+        }
+        if let Some(index) = pose.angles.iter().position(|a| !a.is_finite()) {
+            return Err(SkeletonError::PoseNotFinite {
+                field: "angles",
+                index,
+            });
+        }
+        if let Some(index) = pose
+            .lengths
+            .iter()
+            .position(|l| !(l.is_finite() && *l >= 0.0))
+        {
+            return Err(SkeletonError::PoseNotFinite {
+                field: "lengths",
+                index,
+            });
+        }
+        Ok(())
+    }
+
+    /// `bone`'s absolute angle in `pose`: its relative angles summed up the
+    /// chain (skeletons are shallow, so walking up beats keeping scratch).
+    fn absolute_angle(&self, pose: &Pose, bone: usize) -> f64 {
+        let mut angle = 0.0;
+        let mut at = Some(bone);
+        while let Some(b) = at {
+            angle += pose.angles[b];
+            at = self.parent_of(b);
+        }
+        angle
+    }
+
+    /// Forward kinematics: the posed joint positions.
+    pub fn joints_of(&self, pose: &Pose) -> Result<Vec<DVec2>, SkeletonError> {
+        let mut out = vec![DVec2::ZERO; self.joints.len()];
+        self.joints_into(pose, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Skeleton::joints_of`] into `out` (one entry per joint), without
+    /// allocating. `out` is untouched on error.
+    pub fn joints_into(&self, pose: &Pose, out: &mut [DVec2]) -> Result<(), SkeletonError> {
+        self.check_pose(pose)?;
+        if out.len() != self.joints.len() {
+            return Err(SkeletonError::JointCount {
+                expected: self.joints.len(),
+                got: out.len(),
+            });
+        }
+        for (&joint, &at) in self.roots.iter().zip(&pose.roots) {
+            out[joint] = at;
+        }
+        for &bone in &self.order {
+            let [parent, child] = self.bones[bone];
+            let angle = self.absolute_angle(pose, bone);
+            out[child] = out[parent] + DVec2::from_angle(angle) * pose.lengths[bone];
+        }
+        Ok(())
+    }
+
+    /// Inverse kinematics of a full set of joint positions: the pose whose
+    /// [`Skeleton::joints_of`] gives them back. A posed bone of zero length
+    /// gets angle 0 relative to the x axis.
+    pub fn pose_of(&self, joints: &[DVec2]) -> Result<Pose, SkeletonError> {
+        if joints.len() != self.joints.len() {
+            return Err(SkeletonError::JointCount {
+                expected: self.joints.len(),
+                got: joints.len(),
+            });
+        }
+        if let Some(joint) = joints.iter().position(|p| !finite_point(*p)) {
+            return Err(SkeletonError::JointNotFinite { joint });
+        }
+        let direction = |bone: usize| {
+            let [parent, child] = self.bones[bone];
+            joints[child] - joints[parent]
+        };
+        let absolute = |bone: usize| {
+            let d = direction(bone);
+            d.y.atan2(d.x)
+        };
+        let angles = (0..self.bones.len())
+            .map(|bone| match self.parent_of(bone) {
+                None => absolute(bone),
+                Some(parent) => wrap_angle(absolute(bone) - absolute(parent)),
+            })
+            .collect();
+        Ok(Pose {
+            roots: self.roots.iter().map(|&r| joints[r]).collect(),
+            angles,
+            lengths: (0..self.bones.len())
+                .map(|bone| direction(bone).length())
+                .collect(),
+        })
+    }
+
+    /// FK mode for a contact: turns `bone` about its parent joint so that it
+    /// points at `toward`; the chain below follows. A `toward` on the parent
+    /// joint leaves the pose as it is.
+    pub fn aim(&self, pose: &mut Pose, bone: usize, toward: DVec2) -> Result<(), SkeletonError> {
+        self.check_pose(pose)?;
+        if bone >= self.bones.len() {
+            return Err(SkeletonError::BoneOutOfRange {
+                bone,
+                count: self.bones.len(),
+            });
+        }
+        if !finite_point(toward) {
+            return Err(SkeletonError::BadParameter {
+                name: "toward",
+                problem: "must be a finite point",
+                value: toward.x + toward.y,
+            });
+        }
+        let angle = self.absolute_angle(pose, bone);
+        // The parent joint: walk up, each ancestor's angle peeled off in turn.
+        let mut pivot = DVec2::ZERO;
+        let mut ancestor_angle = angle - pose.angles[bone];
+        let mut joint = self.bones[bone][0];
+        while let Some(b) = self.parent_bone[joint] {
+            pivot += DVec2::from_angle(ancestor_angle) * pose.lengths[b];
+            ancestor_angle -= pose.angles[b];
+            joint = self.bones[b][0];
+        }
+        pivot += pose.roots[self.root_index[joint]];
+        let want = toward - pivot;
+        if want.length_squared() > 0.0 {
+            pose.rotate_joint(bone, wrap_angle(want.y.atan2(want.x) - angle))?;
+        }
+        Ok(())
+    }
+}
+
+/// The deformer's tunables; the defaults are the paper's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SkeletonParams {
+    /// Stiffness factor of the triangles a bone crosses (paper: 100).
+    pub bone_weight: f64,
+    /// `w_p`, the weight of the joints' positional rows (paper: 100).
+    pub joint_weight: f64,
+    /// Shape-matching updates per frame; a frame stitches `rounds + 1`
+    /// times (paper: about 12).
+    pub rounds: usize,
+    /// `s`, the posed virtual joint's distance from the bone over the bone's
+    /// length: the scale across the bone (paper: 1).
+    pub perpendicular_scale: f64,
+    /// Start each frame's non-bone rotations from the previous frame's
+    /// instead of the identity (see the module docs).
+    pub warm_start: bool,
+}
+
+impl Default for SkeletonParams {
+    fn default() -> Self {
+        SkeletonParams {
+            bone_weight: 100.0,
+            joint_weight: 100.0,
+            rounds: 12,
+            perpendicular_scale: 1.0,
+            warm_start: false,
+        }
+    }
+}
+
+impl SkeletonParams {
+    fn check(&self) -> Result<(), SkeletonError> {
+        let positive = |name, value: f64| {
+            if value.is_finite() && value > 0.0 {
+                Ok(())
+            } else {
+                Err(SkeletonError::BadParameter {
+                    name,
+                    problem: "must be a finite number above 0",
+                    value,
+                })
+            }
+        };
+        positive("bone_weight", self.bone_weight)?;
+        positive("joint_weight", self.joint_weight)?;
+        positive("perpendicular_scale", self.perpendicular_scale)?;
+        if self.rounds > MAX_ROUNDS {
+            return Err(SkeletonError::BadParameter {
+                name: "rounds",
+                problem: "is too many (at most 1000)",
+                value: self.rounds as f64,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Far beyond convergence; the cap keeps a typo from sizing a huge buffer.
+const MAX_ROUNDS: usize = 1000;
+
+/// A triangle of the solved pieces, corners in unknown numbering.
+/// Kept small (56 bytes): each frame sweeps the free ones once per round.
+#[derive(Debug, Clone)]
+struct StitchTriangle {
+    corners: [u32; 3],
+    /// The bone whose transform this triangle takes (bone triangles only).
+    bone: u32,
+    /// `3·w_t`: the per-triangle edge sum telescopes to
+    /// `b_i += w (2ē_i − ē_j − ē_k) = 3w A (v̄_i − c̄)`.
+    weight3: f64,
+    /// The first two rest corners minus the rest centroid; the third is
+    /// minus their sum.
+    centred: [DVec2; 2],
+}
+
+impl StitchTriangle {
+    #[inline(always)]
+    fn rest_corners(&self) -> [DVec2; 3] {
+        let [a, b] = self.centred;
+        [a, b, -(a + b)]
+    }
+
+    /// The stitched corners in `x`, about their centroid.
+    #[inline(always)]
+    fn corners_in(&self, x: &[DVec2]) -> [DVec2; 3] {
+        let p = self.corners.map(|c| x[c as usize]);
+        let centroid = (p[0] + p[1] + p[2]) * (1.0 / 3.0);
+        p.map(|q| q - centroid)
+    }
+}
+
+/// A joint's positional row over the unknowns.
+#[derive(Debug, Clone, Copy)]
+struct JointRow {
+    corners: [u32; 3],
+    bary: [f64; 3],
+}
+
+/// A piece holding no joint, carried by one bone.
+#[derive(Debug, Clone)]
+struct AttachedPiece {
+    vertices: Vec<u32>,
+    bone: usize,
+}
+
+/// The registered deformer for one rest mesh and skeleton. See the module
+/// docs for the phases.
+#[derive(Debug)]
+pub struct ShapeAware {
+    skeleton: Skeleton,
+    params: SkeletonParams,
+    rest: Vec<DVec2>,
+    /// Unknown index → mesh vertex (the factor's fill-reducing order).
+    unknown_vertex: Vec<u32>,
+    bone_triangles: Vec<StitchTriangle>,
+    free_triangles: Vec<StitchTriangle>,
+    /// The mesh triangle of each, to re-weight.
+    bone_mesh_triangles: Vec<u32>,
+    free_mesh_triangles: Vec<u32>,
+    /// Per free triangle, its current rotation as (cos, sin).
+    rotations: Vec<DVec2>,
+    joint_rows: Vec<JointRow>,
+    attached: Vec<AttachedPiece>,
+    /// Per mesh triangle, the bone it takes its transform from (`u32::MAX`
+    /// when no bone crosses it).
+    triangle_bone: Vec<u32>,
+    /// Per bone, the mesh triangles it crosses.
+    crossed: Vec<Vec<u32>>,
+    /// Per bone, `[p̄₂ − p̄₁, p̄₃ − p̄₁]⁻¹`.
+    rest_frame_inverse: Vec<DMat2>,
+    pattern: UpperPattern,
+    mesh_weights: Vec<f64>,
+    factor: RealCholesky,
+    // Frame state, sized at registration.
+    posed_joints: Vec<DVec2>,
+    fk_joints: Vec<DVec2>,
+    bone_transforms: Vec<DMat2>,
+    /// The last stitch, in unknown order.
+    solution: Vec<DVec2>,
+    /// The next stitch's right-hand side, solved in place.
+    rhs: Vec<DVec2>,
+    /// The bone triangles' and joints' share of the right-hand side, fixed
+    /// within a frame.
+    fixed_rhs: Vec<DVec2>,
+    pose: Vec<DVec2>,
+    energies: Vec<f64>,
+}
+
+/// Whether segment `ab` meets the closed counter-clockwise triangle `tri`:
+/// no separating axis among the triangle's edge normals, the segment's
+/// normal and the segment's direction (the shapes are convex).
+fn segment_meets_triangle(a: DVec2, b: DVec2, tri: [DVec2; 3]) -> bool {
+    for k in 0..3 {
+        let (p, q) = (tri[k], tri[(k + 1) % 3]);
+        let edge = q - p;
+        if edge.perp_dot(a - p) < 0.0 && edge.perp_dot(b - p) < 0.0 {
+            return false;
+        }
+    }
+    let d = b - a;
+    let sides = tri.map(|v| d.perp_dot(v - a));
+    if sides.iter().all(|&s| s > 0.0) || sides.iter().all(|&s| s < 0.0) {
+        return false;
+    }
+    let along = tri.map(|v| d.dot(v - a));
+    let length2 = d.length_squared();
+    !(along.iter().all(|&s| s < 0.0) || along.iter().all(|&s| s > length2))
+}
+
+/// `M = Σ_t w_t L_t + w_p Σ_j C_jᵀ C_j` over `pattern`, factored.
+fn assemble_and_factor<'a>(
+    pattern: &UpperPattern,
+    triangles: impl Iterator<Item = &'a StitchTriangle>,
+    joint_rows: &[JointRow],
+    joint_weight: f64,
+) -> Result<RealCholesky, SkeletonError> {
+    let mut values = vec![0.0; pattern.len()];
+    for triangle in triangles {
+        let w = triangle.weight3 / 3.0;
+        for k in 0..3 {
+            let (i, j) = (
+                triangle.corners[k] as usize,
+                triangle.corners[(k + 1) % 3] as usize,
+            );
+            values[pattern.position(i, i)] += w;
+            values[pattern.position(j, j)] += w;
+            values[pattern.position(i, j)] -= w;
+        }
+    }
+    for row in joint_rows {
+        for a in 0..3 {
+            for b in a..3 {
+                let (i, j) = (row.corners[a] as usize, row.corners[b] as usize);
+                values[pattern.position(i, j)] += joint_weight * row.bary[a] * row.bary[b];
+            }
+        }
+    }
+    Ok(RealCholesky::new(pattern, &values)?)
+}
+
+/// Adds free triangle `t`'s share `3w R (v̄ − c̄)` of the right-hand side.
+#[inline(always)]
+fn scatter_rotated(b: &mut [DVec2], t: &StitchTriangle, rotation: DVec2) {
+    let scaled = rotation * t.weight3;
+    let r = t.rest_corners();
+    for k in 0..3 {
+        b[t.corners[k] as usize] += scaled.rotate(r[k]);
+    }
+}
+
+impl ShapeAware {
+    /// Registration: locates the joints, finds the bones' triangles, orders,
+    /// assembles and factors the stitching matrix. The pose is the rest mesh.
+    pub fn register(
+        mesh: &Mesh,
+        skeleton: Skeleton,
+        params: SkeletonParams,
+    ) -> Result<ShapeAware, SkeletonError> {
+        params.check()?;
+        let rest = mesh.vertices().to_vec();
+        let triangles = mesh.triangles();
+        let locator = Locator::new(mesh);
+        let mut locations = Vec::with_capacity(skeleton.joints.len());
+        for (joint, &p) in skeleton.joints.iter().enumerate() {
+            let location = locator
+                .locate(mesh, p)
+                .ok_or(SkeletonError::JointOutsideMesh {
+                    joint,
+                    point: p.to_array(),
+                })?;
+            locations.push(location);
+        }
+
+        // Bones' triangles; a triangle several bones cross takes the bone
+        // passing nearest its centroid.
+        let bone_count = skeleton.bones.len();
+        let mut crossed: Vec<Vec<u32>> = vec![Vec::new(); bone_count];
+        let mut triangle_bone = vec![u32::MAX; triangles.len()];
+        let segments: Vec<(DVec2, DVec2)> = skeleton
+            .bones
+            .iter()
+            .map(|&[p, c]| (skeleton.joints[p], skeleton.joints[c]))
+            .collect();
+        for (t, tri) in triangles.iter().enumerate() {
+            let corners = tri.map(|v| rest[v as usize]);
+            let lo = corners[0].min(corners[1]).min(corners[2]);
+            let hi = corners[0].max(corners[1]).max(corners[2]);
+            let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
+            let mut nearest = f64::INFINITY;
+            for (bone, &(a, b)) in segments.iter().enumerate() {
+                if a.max(b).cmplt(lo).any() || a.min(b).cmpgt(hi).any() {
+                    continue;
+                }
+                if segment_meets_triangle(a, b, corners) {
+                    crossed[bone].push(t as u32);
+                    let distance = segment_distance(centroid, a, b);
+                    if distance < nearest {
+                        nearest = distance;
+                        triangle_bone[t] = bone as u32;
+                    }
+                }
+            }
+        }
+
+        // Pieces: solved when they hold a joint, otherwise attached.
+        let pieces = mesh.pieces();
+        let mut piece_of_vertex = vec![0usize; rest.len()];
+        for (p, piece) in pieces.iter().enumerate() {
+            for &v in &piece.vertices {
+                piece_of_vertex[v as usize] = p;
+            }
+        }
+        let mut solved = vec![false; pieces.len()];
+        for location in &locations {
+            let v = triangles[location.triangle as usize][0];
+            solved[piece_of_vertex[v as usize]] = true;
+        }
+        let mut attached = Vec::new();
+        let mut local = vec![u32::MAX; rest.len()];
+        let mut solved_vertices = Vec::new();
+        let mut solved_triangles = Vec::new();
+        for (p, piece) in pieces.into_iter().enumerate() {
+            if solved[p] {
+                for &v in &piece.vertices {
+                    local[v as usize] = solved_vertices.len() as u32;
+                    solved_vertices.push(v);
+                }
+                solved_triangles.extend(piece.triangles);
+            } else {
+                let mut best = (f64::INFINITY, 0);
+                for &v in &piece.vertices {
+                    for (bone, &(a, b)) in segments.iter().enumerate() {
+                        let distance = segment_distance(rest[v as usize], a, b);
+                        if distance < best.0 {
+                            best = (distance, bone);
+                        }
+                    }
+                }
+                attached.push(AttachedPiece {
+                    vertices: piece.vertices,
+                    bone: best.1,
+                });
+            }
+        }
+
+        let n = solved_vertices.len();
+        let mut edges = Vec::with_capacity(solved_triangles.len() * 3);
+        for &t in &solved_triangles {
+            let tri = triangles[t as usize].map(|v| local[v as usize]);
+            for k in 0..3 {
+                edges.push((tri[k], tri[(k + 1) % 3]));
+            }
+        }
+        let order = fill_reducing_order(n, &edges)?;
+        let mut slot = vec![u32::MAX; rest.len()];
+        let unknown_vertex: Vec<u32> = order
+            .iter()
+            .map(|&old| solved_vertices[old as usize])
+            .collect();
+        for (new, &v) in unknown_vertex.iter().enumerate() {
+            slot[v as usize] = new as u32;
+        }
+        let edges: Vec<(u32, u32)> = edges
+            .iter()
+            .map(|&(a, b)| {
+                (
+                    slot[solved_vertices[a as usize] as usize],
+                    slot[solved_vertices[b as usize] as usize],
+                )
+            })
+            .collect();
+        let pattern = UpperPattern::new(n, &edges);
+
+        let mut bone_triangles = Vec::new();
+        let mut free_triangles = Vec::new();
+        for &t in &solved_triangles {
+            let tri = triangles[t as usize];
+            let corners = tri.map(|v| slot[v as usize]);
+            let points = tri.map(|v| rest[v as usize]);
+            let centroid = (points[0] + points[1] + points[2]) / 3.0;
+            let bone = triangle_bone[t as usize];
+            let stiffness = if bone == u32::MAX {
+                1.0
+            } else {
+                params.bone_weight
+            };
+            let triangle = StitchTriangle {
+                corners,
+                bone,
+                weight3: 3.0 * stiffness * mesh.weights()[t as usize],
+                centred: [points[0] - centroid, points[1] - centroid],
+            };
+            if bone == u32::MAX {
+                free_triangles.push((t, triangle));
+            } else {
+                bone_triangles.push((t, triangle));
+            }
+        }
+        // Cache-friendly sweep order.
+        for list in [&mut bone_triangles, &mut free_triangles] {
+            list.sort_by_key(|(_, t)| *t.corners.iter().min().unwrap());
+        }
+        let (bone_mesh_triangles, bone_triangles): (Vec<u32>, Vec<StitchTriangle>) =
+            bone_triangles.into_iter().unzip();
+        let (free_mesh_triangles, free_triangles): (Vec<u32>, Vec<StitchTriangle>) =
+            free_triangles.into_iter().unzip();
+        let joint_rows: Vec<JointRow> = locations
+            .iter()
+            .map(|location| JointRow {
+                corners: triangles[location.triangle as usize].map(|v| slot[v as usize]),
+                bary: location.bary,
+            })
+            .collect();
+        let rest_frame_inverse = segments
+            .iter()
+            .map(|&(a, b)| {
+                let d = b - a;
+                DMat2::from_cols(d, d * 0.5 + d.perp()).inverse()
+            })
+            .collect();
+
+        let factor = assemble_and_factor(
+            &pattern,
+            bone_triangles.iter().chain(&free_triangles),
+            &joint_rows,
+            params.joint_weight,
+        )?;
+        let joint_count = skeleton.joints.len();
+        Ok(ShapeAware {
+            params,
+            rest: rest.clone(),
+            unknown_vertex,
+            rotations: vec![DVec2::X; free_triangles.len()],
+            bone_triangles,
+            free_triangles,
+            bone_mesh_triangles,
+            free_mesh_triangles,
+            joint_rows,
+            attached,
+            triangle_bone,
+            crossed,
+            rest_frame_inverse,
+            factor,
+            pattern,
+            mesh_weights: mesh.weights().to_vec(),
+            posed_joints: skeleton.joints.clone(),
+            fk_joints: vec![DVec2::ZERO; joint_count],
+            bone_transforms: vec![DMat2::IDENTITY; bone_count],
+            solution: vec![DVec2::ZERO; n],
+            rhs: vec![DVec2::ZERO; n],
+            fixed_rhs: vec![DVec2::ZERO; n],
+            pose: rest,
+            energies: vec![0.0; params.rounds + 1],
+            skeleton,
+        })
+    }
+
+    /// Live stiffness painting: replaces the per-triangle weights (one per
+    /// mesh triangle, within the mesh's weight range) and refactors.
+    pub fn set_weights(&mut self, weights: &[f64]) -> Result<(), SkeletonError> {
+        if weights.len() != self.mesh_weights.len() {
+            return Err(SkeletonError::WeightCount {
+                expected: self.mesh_weights.len(),
+                got: weights.len(),
+            });
+        }
+        if let Some(index) = weights
+            .iter()
+            .position(|w| !(MIN_WEIGHT..=MAX_WEIGHT).contains(w))
+        {
+            return Err(SkeletonError::BadWeight {
+                index,
+                value: weights[index],
+            });
+        }
+        let old = std::mem::replace(&mut self.mesh_weights, weights.to_vec());
+        let bone_weight = self.params.bone_weight;
+        let reweigh = |list: &mut [StitchTriangle], of: &[u32], stiffness: f64, weights: &[f64]| {
+            for (t, &mesh_triangle) in list.iter_mut().zip(of) {
+                t.weight3 = 3.0 * stiffness * weights[mesh_triangle as usize];
+            }
+        };
+        reweigh(
+            &mut self.bone_triangles,
+            &self.bone_mesh_triangles,
+            bone_weight,
+            weights,
+        );
+        reweigh(
+            &mut self.free_triangles,
+            &self.free_mesh_triangles,
+            1.0,
+            weights,
+        );
+        let factor = assemble_and_factor(
+            &self.pattern,
+            self.bone_triangles.iter().chain(&self.free_triangles),
+            &self.joint_rows,
+            self.params.joint_weight,
+        );
+        match factor {
+            Ok(factor) => {
+                self.factor = factor;
+                Ok(())
+            }
+            Err(e) => {
+                reweigh(
+                    &mut self.bone_triangles,
+                    &self.bone_mesh_triangles,
+                    bone_weight,
+                    &old,
+                );
+                reweigh(
+                    &mut self.free_triangles,
+                    &self.free_mesh_triangles,
+                    1.0,
+                    &old,
+                );
+                self.mesh_weights = old;
+                Err(e)
+            }
+        }
+    }
+
+    /// Free mode: deforms the mesh to the posed `joints` (one per skeleton
+    /// joint) and returns the vertex positions (mesh order). Does not
+    /// allocate.
+    pub fn update(&mut self, joints: &[DVec2]) -> Result<&[DVec2], SkeletonError> {
+        if joints.len() != self.posed_joints.len() {
+            return Err(SkeletonError::JointCount {
+                expected: self.posed_joints.len(),
+                got: joints.len(),
+            });
+        }
+        if let Some(joint) = joints.iter().position(|p| !finite_point(*p)) {
+            return Err(SkeletonError::JointNotFinite { joint });
+        }
+        self.posed_joints.copy_from_slice(joints);
+        self.solve_frame();
+        Ok(&self.pose)
+    }
+
+    /// FK mode: [`ShapeAware::update`] with the joints of `pose`. Does not
+    /// allocate.
+    pub fn update_pose(&mut self, pose: &Pose) -> Result<&[DVec2], SkeletonError> {
+        self.skeleton.joints_into(pose, &mut self.fk_joints)?;
+        if let Some(joint) = self.fk_joints.iter().position(|p| !finite_point(*p)) {
+            return Err(SkeletonError::JointNotFinite { joint });
+        }
+        std::mem::swap(&mut self.posed_joints, &mut self.fk_joints);
+        self.solve_frame();
+        Ok(&self.pose)
+    }
+
+    fn solve_frame(&mut self) {
+        let s = self.params.perpendicular_scale;
+        for (bone, &[parent, child]) in self.skeleton.bones.iter().enumerate() {
+            let (p1, p2) = (self.posed_joints[parent], self.posed_joints[child]);
+            let d = p2 - p1;
+            let virtual_joint = (p1 + p2) * 0.5 + d.perp() * s;
+            self.bone_transforms[bone] =
+                DMat2::from_cols(d, virtual_joint - p1) * self.rest_frame_inverse[bone];
+        }
+        if !self.params.warm_start {
+            self.rotations.fill(DVec2::X);
+        }
+        self.assemble_fixed_rhs();
+        // The first right-hand side; later ones are scattered by the fit.
+        self.rhs.copy_from_slice(&self.fixed_rhs);
+        for (t, rotation) in self.free_triangles.iter().zip(&self.rotations) {
+            scatter_rotated(&mut self.rhs, t, *rotation);
+        }
+        let rounds = self.params.rounds;
+        for round in 0..=rounds {
+            self.factor.solve(&mut self.rhs);
+            std::mem::swap(&mut self.rhs, &mut self.solution);
+            self.energies[round] = self.measure_and_fit(round < rounds);
+        }
+        for (&v, &p) in self.unknown_vertex.iter().zip(&self.solution) {
+            self.pose[v as usize] = p;
+        }
+        for piece in &self.attached {
+            let [parent, _] = self.skeleton.bones[piece.bone];
+            let (from, to) = (self.skeleton.joints[parent], self.posed_joints[parent]);
+            let transform = self.bone_transforms[piece.bone];
+            for &v in &piece.vertices {
+                self.pose[v as usize] = to + transform * (self.rest[v as usize] - from);
+            }
+        }
+    }
+
+    /// The part of the right-hand side `Σ_t 3w_t A_t (v̄ − c̄) + w_p Σ_j
+    /// C_jᵀ p_j` that stays fixed through a frame's rounds: the bone
+    /// triangles' and the joints'.
+    fn assemble_fixed_rhs(&mut self) {
+        let b = &mut self.fixed_rhs;
+        b.fill(DVec2::ZERO);
+        for t in &self.bone_triangles {
+            let a = self.bone_transforms[t.bone as usize] * t.weight3;
+            let r = t.rest_corners();
+            for k in 0..3 {
+                b[t.corners[k] as usize] += a * r[k];
+            }
+        }
+        let wp = self.params.joint_weight;
+        for (row, &p) in self.joint_rows.iter().zip(&self.posed_joints) {
+            for k in 0..3 {
+                b[row.corners[k] as usize] += p * (wp * row.bary[k]);
+            }
+        }
+    }
+
+    /// The stitching energy of the last stitch under the transforms it used;
+    /// with `fit`, then resets each free triangle's rotation to the best fit
+    /// of its rest triangle onto the stitched one (which, over a triangle,
+    /// minimises exactly its share of that energy, so the energy never rises
+    /// from one stitch to the next) and assembles the next right-hand side.
+    fn measure_and_fit(&mut self, fit: bool) -> f64 {
+        let x = &self.solution;
+        let mut energy = 0.0;
+        for t in &self.bone_triangles {
+            let a = self.bone_transforms[t.bone as usize];
+            let p = t.corners_in(x);
+            let r = t.rest_corners();
+            let residual: f64 = (0..3).map(|k| (p[k] - a * r[k]).length_squared()).sum();
+            energy += t.weight3 * residual;
+        }
+        let wp = self.params.joint_weight;
+        for (row, &p) in self.joint_rows.iter().zip(&self.posed_joints) {
+            let at: DVec2 = (0..3)
+                .map(|k| x[row.corners[k] as usize] * row.bary[k])
+                .sum();
+            energy += wp * (at - p).length_squared();
+        }
+        // With d = Σ r̄·p and c = Σ r̄×p (rest corners r̄ and stitched corners
+        // p about their centroids), the residual under rotation (cos, sin) is
+        // Σ|p|² + Σ|r̄|² − 2(cos·d + sin·c), and the best rotation is (d, c)
+        // normalised. Three sweeps — fit sums, normalisation, scatter — so
+        // the square roots and divisions overlap in a plain loop instead of
+        // stalling the scatter.
+        for (t, rotation) in self.free_triangles.iter().zip(self.rotations.iter_mut()) {
+            let p = t.corners_in(x);
+            let r = t.rest_corners();
+            let mut fitted = DVec2::ZERO;
+            let mut spread = 0.0;
+            for k in 0..3 {
+                fitted += DVec2::new(r[k].dot(p[k]), r[k].perp_dot(p[k]));
+                spread += p[k].length_squared() + r[k].length_squared();
+            }
+            energy += t.weight3 * (spread - 2.0 * rotation.dot(fitted));
+            if fit {
+                *rotation = fitted;
+            }
+        }
+        if fit {
+            for rotation in self.rotations.iter_mut() {
+                let norm2 = rotation.length_squared();
+                let scale = 1.0 / norm2.sqrt();
+                // A collapsed triangle fits no rotation: rest orientation.
+                *rotation = if norm2 > f64::MIN_POSITIVE && scale > 0.0 {
+                    *rotation * scale
+                } else {
+                    DVec2::X
+                };
+            }
+            self.rhs.copy_from_slice(&self.fixed_rhs);
+            for (t, rotation) in self.free_triangles.iter().zip(&self.rotations) {
+                scatter_rotated(&mut self.rhs, t, *rotation);
+            }
+        }
+        energy
+    }
+
+    /// The deformed vertex positions (mesh order) of the last update; the
+    /// rest mesh before the first.
+    pub fn pose(&self) -> &[DVec2] {
+        &self.pose
+    }
+
+    /// The stitching energy `E_s + w_p E_p` after each of the last update's
+    /// `rounds + 1` stitches (zeros before the first update). It never rises
+    /// from one entry to the next.
+    pub fn energies(&self) -> &[f64] {
+        &self.energies
+    }
+
+    pub fn skeleton(&self) -> &Skeleton {
+        &self.skeleton
+    }
+
+    pub fn params(&self) -> &SkeletonParams {
+        &self.params
+    }
+
+    /// The posed joints of the last update (the rest joints before it).
+    pub fn joints(&self) -> &[DVec2] {
+        &self.posed_joints
+    }
+
+    /// Bone `bone`'s 2×2 transform `A_b` in the last update.
+    pub fn bone_transform(&self, bone: usize) -> DMat2 {
+        self.bone_transforms[bone]
+    }
+
+    /// The mesh triangles bone `bone` crosses (touching included).
+    pub fn crossed_triangles(&self, bone: usize) -> &[u32] {
+        &self.crossed[bone]
+    }
+
+    /// The bone whose transform mesh triangle `triangle` takes, if a bone
+    /// crosses it (of several, the one passing nearest its centroid).
+    pub fn triangle_bone(&self, triangle: usize) -> Option<usize> {
+        match self.triangle_bone[triangle] {
+            u32::MAX => None,
+            b => Some(b as usize),
+        }
+    }
+
+    /// How many connected pieces hold no joint and are carried rigidly by
+    /// their nearest bone.
+    pub fn attached_pieces(&self) -> usize {
+        self.attached.len()
+    }
+
+    /// The bone carrying each attached piece, with the piece's vertices.
+    pub fn attachments(&self) -> impl Iterator<Item = (usize, &[u32])> {
+        self.attached
+            .iter()
+            .map(|a| (a.bone, a.vertices.as_slice()))
+    }
+
+    /// Entries of the stitching factor (its memory and per-stitch work).
+    pub fn factor_entries(&self) -> usize {
+        self.factor.factor_entries()
+    }
+}
+
+/// A plausible 15-bone skeleton for the bundled gingerbread man, in the
+/// coordinates `mesh::build::mesh_png` gives his picture (512 px, y up):
+/// spine, neck and head, three bones per arm (collar, upper arm, forearm)
+/// and per leg (hip, thigh, shin). The pelvis is the root.
+pub fn gingerbread_skeleton() -> Skeleton {
+    // Picture coordinates (y down), flipped below.
+    let picture = [
+        (256.0, 330.0), // 0 pelvis
+        (256.0, 215.0), // 1 chest
+        (256.0, 160.0), // 2 neck
+        (256.0, 70.0),  // 3 crown
+        (200.0, 205.0), // 4 left shoulder
+        (140.0, 208.0), // 5 left elbow
+        (80.0, 214.0),  // 6 left hand
+        (312.0, 205.0), // 7 right shoulder
+        (372.0, 208.0), // 8 right elbow
+        (432.0, 214.0), // 9 right hand
+        (222.0, 355.0), // 10 left hip
+        (192.0, 410.0), // 11 left knee
+        (165.0, 460.0), // 12 left foot
+        (290.0, 355.0), // 13 right hip
+        (320.0, 410.0), // 14 right knee
+        (347.0, 460.0), // 15 right foot
+    ];
+    let joints = picture
+        .iter()
+        .map(|&(x, y)| DVec2::new(x, 512.0 - y))
+        .collect();
+    let bones = vec![
+        [0, 1],
+        [1, 2],
+        [2, 3],
+        [1, 4],
+        [4, 5],
+        [5, 6],
+        [1, 7],
+        [7, 8],
+        [8, 9],
+        [0, 10],
+        [10, 11],
+        [11, 12],
+        [0, 13],
+        [13, 14],
+        [14, 15],
+    ];
+    Skeleton::new(joints, bones).expect("the gingerbread skeleton is valid")
+}
+
+/// One measured skeleton case.
+#[derive(Debug, Clone, Serialize)]
+pub struct SkeletonBench {
+    pub mesh: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub bones: usize,
+    /// Stitches per frame (`rounds + 1`).
+    pub stitches: usize,
+    pub factor_entries: usize,
+    pub register_ms: f64,
+    /// A whole frame: bone transforms and every propagation round.
+    pub update_us_median: f64,
+    pub update_us_p99: f64,
+    /// The same frames in this thread's CPU time: on a shared machine, the
+    /// cost without the time other processes held the core.
+    pub update_cpu_us_median: f64,
+    pub update_cpu_us_p99: f64,
+    /// The fastest frame: the least disturbed by a shared machine.
+    pub update_us_min: f64,
+    pub frames: usize,
+}
+
+/// CPU time this thread has used.
+fn thread_cpu_seconds() -> f64 {
+    let mut now = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `now` is a valid timespec for the call to fill.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut now) };
+    now.tv_sec as f64 + now.tv_nsec as f64 * 1e-9
+}
+
+/// Times registration and `frames` FK-animated frames (every bone swinging
+/// on its own phase) of `skeleton` driving `mesh`.
+pub fn bench(
+    name: &str,
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    params: SkeletonParams,
+    frames: usize,
+) -> Result<SkeletonBench, SkeletonError> {
+    let mut register_times = Vec::new();
+    let mut deformer = None;
+    for _ in 0..3 {
+        let start = Instant::now();
+        let d = ShapeAware::register(mesh, skeleton.clone(), params)?;
+        register_times.push(start.elapsed().as_secs_f64() * 1e3);
+        deformer = Some(d);
+    }
+    let mut deformer = deformer.expect("registered");
+    register_times.sort_by(f64::total_cmp);
+    let rest = skeleton.rest_pose();
+    let mut pose = rest.clone();
+    let mut joints = vec![DVec2::ZERO; skeleton.joints().len()];
+    let mut times = Vec::with_capacity(frames);
+    let mut cpu_times = Vec::with_capacity(frames);
+    for frame in 0..frames.max(1) {
+        let t = frame as f64 * 0.05;
+        for (bone, angle) in pose.angles.iter_mut().enumerate() {
+            *angle = rest.angles[bone] + 0.35 * (t + bone as f64 * 0.9).sin();
+        }
+        skeleton.joints_into(&pose, &mut joints)?;
+        let (start, cpu_start) = (Instant::now(), thread_cpu_seconds());
+        deformer.update(&joints)?;
+        times.push(start.elapsed().as_secs_f64() * 1e6);
+        cpu_times.push((thread_cpu_seconds() - cpu_start) * 1e6);
+    }
+    times.sort_by(f64::total_cmp);
+    cpu_times.sort_by(f64::total_cmp);
+    let percentile =
+        |sorted: &[f64], q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+    let at = |q: f64| percentile(&times, q);
+    Ok(SkeletonBench {
+        mesh: name.to_string(),
+        vertices: mesh.vertices().len(),
+        triangles: mesh.triangles().len(),
+        bones: skeleton.bones().len(),
+        stitches: params.rounds + 1,
+        factor_entries: deformer.factor_entries(),
+        register_ms: register_times[1],
+        update_us_median: at(0.5),
+        update_us_p99: at(0.99),
+        update_cpu_us_median: percentile(&cpu_times, 0.5),
+        update_cpu_us_p99: percentile(&cpu_times, 0.99),
+        update_us_min: times[0],
+        frames: times.len(),
+    })
+}

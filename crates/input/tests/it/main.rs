@@ -1,0 +1,13 @@
+//! The input crate's integration tests, one binary: decoders over real and
+//! synthetic captures, mice, HID reports, serial pads over pty pairs and
+//! TUIO over loopback UDP.
+
+mod common {
+    pub use puppetry_testkit::*;
+}
+
+mod hid;
+mod input;
+mod mouse;
+mod serial;
+mod tuio;

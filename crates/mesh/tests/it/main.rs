@@ -1,0 +1,4 @@
+//! The mesh crate's integration tests, one binary: tracing, meshing and
+//! validation of rest shapes.
+
+mod meshing;

@@ -1,0 +1,460 @@
+//! `puppetry bench`: timings of the solver phases on meshes of chosen sizes —
+//! registration, compilation, per-frame update (median and p99) and the cost
+//! of a frame in which a finger lands or lifts. Prints a table or JSON lines.
+//!
+//! The rig cases time the other two deformers' whole frames through their own
+//! bench functions: lp-FFD on a 10×10 grid (both bases) with four vertex
+//! handles wandering, and the 15-bone gingerbread skeleton animated in
+//! forward kinematics (bone transforms and every propagation round).
+
+use std::time::{Duration, Instant};
+
+use glam::DVec2;
+use serde::Serialize;
+
+use puppetry_deform::ffd::{self, Basis, FfdBench, FfdError, GridSpec, LpParams};
+use puppetry_deform::skeleton::{self, Skeleton, SkeletonBench, SkeletonError, SkeletonParams};
+use puppetry_deform::{Anchor, Arap, ArapError, Steps};
+use puppetry_mesh::Mesh;
+
+/// One measured case, as printed by `puppetry bench --json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct CaseResult {
+    pub mesh: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub handles: usize,
+    pub register_ms: f64,
+    pub compile_us: f64,
+    pub update_us_median: f64,
+    pub update_us_p99: f64,
+    /// Median of all frames that add or remove a handle.
+    pub handle_change_frame_us: f64,
+    pub handle_change_frame_us_p99: f64,
+    /// Medians of the adding and the removing frames alone.
+    pub handle_add_frame_us: f64,
+    pub handle_remove_frame_us: f64,
+    pub frames: usize,
+}
+
+/// Deterministic pseudo-random numbers, so every run benches the same handles.
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// `count` point handles spread over the mesh: random triangles, random
+/// interior points, the first few as far apart as possible.
+pub fn spread_anchors(mesh: &Mesh, count: usize, seed: u64) -> Vec<Anchor> {
+    let mut rng = Lcg(seed);
+    let tris = mesh.triangles().len();
+    (0..count)
+        .map(|_| {
+            let t = ((rng.next() * tris as f64) as usize).min(tris - 1) as u32;
+            let (a, b) = (rng.next(), rng.next());
+            let (a, b) = if a + b > 1.0 {
+                (1.0 - a, 1.0 - b)
+            } else {
+                (a, b)
+            };
+            Anchor::Point {
+                triangle: t,
+                bary: [1.0 - a - b, a, b],
+            }
+        })
+        .collect()
+}
+
+fn rest_point(mesh: &Mesh, anchor: &Anchor) -> DVec2 {
+    match *anchor {
+        Anchor::Vertex(v) => mesh.vertices()[v as usize],
+        Anchor::Point { triangle, bary } => mesh.point_at(triangle, bary),
+    }
+}
+
+/// Handle targets for frame `f`: each handle wanders on its own small circle,
+/// so the mesh bends and stretches a little every frame.
+fn animate(rest: &[DVec2], size: f64, frame: usize, out: &mut [DVec2]) {
+    let t = frame as f64 * 0.05;
+    for (h, (o, r)) in out.iter_mut().zip(rest).enumerate() {
+        let phase = t + h as f64 * 1.3;
+        *o = *r + DVec2::new(phase.cos(), phase.sin()) * (0.03 * size);
+    }
+}
+
+fn micros(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e6
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i]
+}
+
+/// Measures one mesh with `handles` handles over `frames` update frames.
+pub fn run_case(
+    name: &str,
+    mesh: &Mesh,
+    handles: usize,
+    frames: usize,
+) -> Result<CaseResult, ArapError> {
+    let registrations = if mesh.vertices().len() > 50_000 { 1 } else { 3 };
+    let mut register_times = Vec::new();
+    let mut arap = None;
+    for _ in 0..registrations {
+        let start = Instant::now();
+        let a = Arap::register(mesh)?;
+        register_times.push(start.elapsed().as_secs_f64() * 1e3);
+        arap = Some(a);
+    }
+    register_times.sort_by(f64::total_cmp);
+    let mut arap = arap.expect("registered at least once");
+    // One spare handle for the add/remove frames.
+    let anchors = spread_anchors(mesh, handles + 1, 0x5eed + handles as u64);
+    let rest: Vec<DVec2> = anchors.iter().map(|a| rest_point(mesh, a)).collect();
+    let size = mesh.size();
+    let mut targets = vec![DVec2::ZERO; handles + 1];
+
+    let start = Instant::now();
+    arap.compile(&anchors[..handles])?;
+    let compile_us = micros(start.elapsed());
+
+    let mut update = Vec::with_capacity(frames);
+    for f in 0..frames {
+        animate(&rest[..handles], size, f, &mut targets[..handles]);
+        let start = Instant::now();
+        arap.update(&targets[..handles], Steps::Both)?;
+        update.push(micros(start.elapsed()));
+    }
+    update.sort_by(f64::total_cmp);
+
+    // A finger lands (handles+1), then lifts (handles): compile + update.
+    // Plain frames in between, as when a performer's finger lands now and
+    // then, so the caches hold what a live solver's would.
+    let change_frames = (frames / 2).max(10);
+    let (mut adds, mut removes) = (Vec::new(), Vec::new());
+    for f in 0..change_frames * 2 {
+        let adding = f % 4 == 0;
+        let removing = f % 4 == 2;
+        let count = if f % 4 == 0 || f % 4 == 1 {
+            handles + 1
+        } else {
+            handles
+        };
+        animate(&rest[..count], size, frames + f, &mut targets[..count]);
+        let start = Instant::now();
+        if adding || removing {
+            arap.compile(&anchors[..count])?;
+        }
+        arap.update(&targets[..count], Steps::Both)?;
+        let took = micros(start.elapsed());
+        if adding {
+            adds.push(took);
+        } else if removing {
+            removes.push(took);
+        }
+    }
+    let mut change: Vec<f64> = adds.iter().chain(&removes).copied().collect();
+    change.sort_by(f64::total_cmp);
+    adds.sort_by(f64::total_cmp);
+    removes.sort_by(f64::total_cmp);
+
+    Ok(CaseResult {
+        mesh: name.to_string(),
+        vertices: mesh.vertices().len(),
+        triangles: mesh.triangles().len(),
+        handles,
+        register_ms: percentile(&register_times, 0.5),
+        compile_us,
+        update_us_median: percentile(&update, 0.5),
+        update_us_p99: percentile(&update, 0.99),
+        handle_change_frame_us: percentile(&change, 0.5),
+        handle_change_frame_us_p99: percentile(&change, 0.99),
+        handle_add_frame_us: percentile(&adds, 0.5),
+        handle_remove_frame_us: percentile(&removes, 0.5),
+        frames,
+    })
+}
+
+/// Frames to time for a mesh of `vertices`, so each case takes about a second.
+pub fn frames_for(vertices: usize) -> usize {
+    (2_000_000 / vertices.max(1)).clamp(20, 2000)
+}
+
+/// The header and one row of the human-readable table.
+pub fn table_header() -> String {
+    format!(
+        "{:<20} {:>8} {:>7} {:>11} {:>11} {:>13} {:>13} {:>10} {:>10}",
+        "mesh",
+        "vertices",
+        "handles",
+        "register ms",
+        "compile µs",
+        "update µs p50",
+        "update µs p99",
+        "add µs",
+        "remove µs"
+    )
+}
+
+pub fn table_row(r: &CaseResult) -> String {
+    format!(
+        "{:<20} {:>8} {:>7} {:>11.2} {:>11.1} {:>13.1} {:>13.1} {:>10.1} {:>10.1}",
+        r.mesh,
+        r.vertices,
+        r.handles,
+        r.register_ms,
+        r.compile_us,
+        r.update_us_median,
+        r.update_us_p99,
+        r.handle_add_frame_us,
+        r.handle_remove_frame_us
+    )
+}
+
+/// One end-to-end case, as printed by `puppetry bench --e2e --json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct EndToEndResult {
+    pub mesh: String,
+    pub vertices: usize,
+    pub clients: usize,
+    /// "real_time" (1 kHz input) or "as_fast_as_possible".
+    pub pacing: &'static str,
+    /// Input frames replayed (a contact dragged at 1 kHz of input time,
+    /// played as fast as possible).
+    pub input_frames: usize,
+    /// Solves the stage thread published (it solves the newest state when
+    /// inputs arrive faster than it solves).
+    pub solves: u64,
+    pub solves_per_s: f64,
+    /// From an input frame reaching the daemon to a client holding the
+    /// frame it caused, over every frame every client received.
+    pub latency_us_p50: f64,
+    pub latency_us_p99: f64,
+}
+
+/// Runs the daemon on `config` (its first puppet under `point`), connects
+/// `clients` viewers on loopback and replays a drag of `input_frames` frames
+/// (1 ms apart) into it with `pacing`.
+pub async fn end_to_end(
+    name: &str,
+    config: &puppetry_stage::config::StageConfig,
+    web_root: std::path::PathBuf,
+    point: DVec2,
+    clients: usize,
+    input_frames: usize,
+    pacing: puppetry_input::replay::Pacing,
+) -> Result<EndToEndResult, String> {
+    use futures_util::{SinkExt, StreamExt};
+    use tokio_tungstenite::tungstenite::Message;
+
+    use puppetry_input::replay::{Pacing, ReplaySource};
+    let pacing_name = match pacing {
+        Pacing::RealTime => "real_time",
+        Pacing::AsFastAsPossible => "as_fast_as_possible",
+    };
+    use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+
+    let running = puppetry_daemon::serve::start(config, web_root, None)
+        .await
+        .map_err(|e| e.to_string())?;
+    let started = running.started;
+    let url = format!("ws://{}/ws", running.address);
+    let mut readers = Vec::new();
+    let mut vertices = 0;
+    for _ in 0..clients {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .map_err(|e| e.to_string())?;
+        ws.send(Message::text(r#"{"type":"hello","role":"viewer"}"#))
+            .await
+            .map_err(|e| e.to_string())?;
+        // The stage message, then the frames this client sees.
+        let Some(Ok(Message::Text(stage))) = ws.next().await else {
+            return Err("no stage message".into());
+        };
+        let stage: serde_json::Value = serde_json::from_str(&stage).map_err(|e| e.to_string())?;
+        vertices = stage["puppets"][0]["rest"]
+            .as_array()
+            .map_or(0, |r| r.len() / 2);
+        readers.push(tokio::spawn(async move {
+            let mut latencies = Vec::new();
+            let mut sequences = Vec::new();
+            // Stop after a quiet spell: the replay is over and drained.
+            while let Ok(Some(Ok(message))) =
+                tokio::time::timeout(Duration::from_millis(500), ws.next()).await
+            {
+                if let Message::Binary(bytes) = message {
+                    let now = started.elapsed().as_secs_f64();
+                    let input = f64::from_le_bytes(bytes[16..24].try_into().unwrap());
+                    let sequence = u64::from_le_bytes(bytes[8..16].try_into().unwrap());
+                    if input > 0.0 {
+                        latencies.push((now - input) * 1e6);
+                        sequences.push((sequence, now));
+                    }
+                }
+            }
+            (latencies, sequences)
+        }));
+    }
+    let source = SourceId::from("bench");
+    let frames: Vec<ContactFrame> = (0..input_frames)
+        .map(|k| {
+            let phase = if k == 0 { Phase::Down } else { Phase::Move };
+            let angle = k as f64 * 0.02;
+            let at = point + DVec2::new(angle.cos() - 1.0, angle.sin()) * 40.0;
+            ContactFrame {
+                source: source.clone(),
+                time: k as f64 * 1e-3,
+                contacts: vec![Contact::new(1, phase, at)],
+            }
+        })
+        .collect();
+    running
+        .play(ReplaySource::from_frames(frames), pacing)
+        .await;
+    let mut latencies = Vec::new();
+    let mut first_reader = None;
+    for reader in readers {
+        let (l, s) = reader.await.map_err(|e| e.to_string())?;
+        latencies.extend(l);
+        first_reader.get_or_insert(s);
+    }
+    running.shutdown().await;
+    let sequences = first_reader.unwrap_or_default();
+    let (solves, span) = match (sequences.first(), sequences.last()) {
+        (Some(a), Some(b)) if b.1 > a.1 => (b.0 - a.0, b.1 - a.1),
+        _ => (0, 0.0),
+    };
+    latencies.sort_by(f64::total_cmp);
+    if latencies.is_empty() {
+        return Err("no frames reached the clients".into());
+    }
+    Ok(EndToEndResult {
+        mesh: name.to_string(),
+        vertices,
+        clients,
+        pacing: pacing_name,
+        input_frames,
+        solves,
+        solves_per_s: if span > 0.0 {
+            solves as f64 / span
+        } else {
+            0.0
+        },
+        latency_us_p50: percentile(&latencies, 0.5),
+        latency_us_p99: percentile(&latencies, 0.99),
+    })
+}
+
+/// The grid the rig cases use (the paper's size).
+pub const RIG_GRID: (usize, usize) = (10, 10);
+
+/// Vertex handles the lp-FFD cases drag.
+pub const RIG_VERTEX_HANDLES: usize = 4;
+
+/// One measured rig case, as printed by `puppetry bench --json` (tagged by
+/// `"rig"`).
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "rig")]
+pub enum RigResult {
+    #[serde(rename = "lp-ffd")]
+    LpFfd {
+        mesh: String,
+        /// "bernstein" or "lattice".
+        basis: &'static str,
+        #[serde(flatten)]
+        bench: FfdBench,
+    },
+    #[serde(rename = "skeleton")]
+    Skeleton(SkeletonBench),
+}
+
+/// An lp-FFD case: a [`RIG_GRID`] grid around `mesh` with the paper's
+/// weights and [`RIG_VERTEX_HANDLES`] handles, over `frames` frames.
+pub fn run_lp_ffd_case(
+    name: &str,
+    mesh: &Mesh,
+    basis: Basis,
+    frames: usize,
+) -> Result<RigResult, FfdError> {
+    let spec = GridSpec::around(mesh, RIG_GRID.0, RIG_GRID.1, basis);
+    let bench = ffd::bench(mesh, spec, LpParams::default(), RIG_VERTEX_HANDLES, frames)?;
+    Ok(RigResult::LpFfd {
+        mesh: name.to_string(),
+        basis: match basis {
+            Basis::Bernstein => "bernstein",
+            Basis::Lattice => "lattice",
+        },
+        bench,
+    })
+}
+
+/// A skeleton case: `skeleton` driving `mesh` with the paper's parameters
+/// over `frames` frames.
+pub fn run_skeleton_case(
+    name: &str,
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    frames: usize,
+) -> Result<RigResult, SkeletonError> {
+    let bench = skeleton::bench(name, mesh, skeleton, SkeletonParams::default(), frames)?;
+    Ok(RigResult::Skeleton(bench))
+}
+
+/// The header of the rig table.
+pub fn rig_table_header() -> String {
+    format!(
+        "{:<9} {:<20} {:>8} {:<34} {:>11} {:>13} {:>13} {:>13} {:>12}",
+        "rig",
+        "mesh",
+        "vertices",
+        "setup",
+        "register ms",
+        "frame µs p50",
+        "frame µs p99",
+        "frame µs min",
+        "cpu µs p50"
+    )
+}
+
+/// One row of the rig table.
+pub fn rig_table_row(r: &RigResult) -> String {
+    let (rig, mesh, vertices, setup, register, p50, p99, min, cpu) = match r {
+        RigResult::LpFfd { mesh, basis, bench } => (
+            "lp-FFD",
+            mesh.as_str(),
+            bench.vertices,
+            format!(
+                "{}×{} {basis}, {} handles, {} it",
+                bench.grid_columns, bench.grid_rows, bench.vertex_handles, bench.iterations
+            ),
+            bench.register_ms,
+            bench.update_us_median,
+            bench.update_us_p99,
+            bench.update_us_min,
+            // The lp-FFD bench times wall clock only.
+            "-".to_string(),
+        ),
+        RigResult::Skeleton(b) => (
+            "skeleton",
+            b.mesh.as_str(),
+            b.vertices,
+            format!("{} bones, {} stitches", b.bones, b.stitches),
+            b.register_ms,
+            b.update_us_median,
+            b.update_us_p99,
+            b.update_us_min,
+            format!("{:.1}", b.update_cpu_us_median),
+        ),
+    };
+    format!(
+        "{rig:<9} {mesh:<20} {vertices:>8} {setup:<34} {register:>11.2} {p50:>13.1} {p99:>13.1} {min:>13.1} {cpu:>12}"
+    )
+}

@@ -1,0 +1,650 @@
+//! The scriptable commands behind `puppetry mesh`, `solve`, `compare` and `bench`: file
+//! formats in and out, and errors that name the file and field at fault.
+//! `main.rs` only parses arguments and reports.
+
+use std::path::Path;
+
+use glam::DVec2;
+use serde::Deserialize;
+
+use crate::bench;
+use crate::compare::{self, CompareError, Comparison};
+use puppetry_deform::ffd::{Basis, FfdError, MAX_GRID_HANDLES};
+use puppetry_deform::skeleton::{SkeletonError, gingerbread_skeleton};
+use puppetry_deform::{Anchor, Arap, ArapError, Steps};
+use puppetry_mesh::build::{MeshOptions, mesh_png, triangulate};
+use puppetry_mesh::polygon::Shape;
+use puppetry_mesh::{Locator, Mesh, MeshError, json};
+
+#[derive(Debug, thiserror::Error)]
+pub enum CliError {
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error("{file}: {0}", file = .1)]
+    Solve(ArapError, String),
+    #[error("{file}: {source}")]
+    Compare { file: String, source: CompareError },
+    #[error("{file}: lp-FFD: {0}", file = .1)]
+    Ffd(FfdError, String),
+    #[error("{file}: skeleton: {0}", file = .1)]
+    Skeleton(SkeletonError, String),
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        file: String,
+        source: std::io::Error,
+    },
+    #[error("{file}: cannot write: {source}")]
+    Write {
+        file: String,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Bundle(#[from] crate::bundled::BundleError),
+}
+
+/// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
+/// a `.mesh.json`. Returns the mesh text.
+pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Mesh, CliError> {
+    let options = MeshOptions {
+        target_vertices: vertices,
+    };
+    let is_png = input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if is_png {
+        return Ok(mesh_png(input, &options)?);
+    }
+    let name = input.display().to_string();
+    let text = read(input)?;
+    let shape = Shape::from_json(&name, &text)?;
+    Ok(triangulate(&name, &shape, &options)?)
+}
+
+fn read(path: &Path) -> Result<String, CliError> {
+    std::fs::read_to_string(path).map_err(|source| {
+        let source = if source.kind() == std::io::ErrorKind::InvalidData {
+            std::io::Error::new(
+                source.kind(),
+                "not UTF-8 text: expected a JSON file (pictures must end in .png)",
+            )
+        } else {
+            source
+        };
+        CliError::Read {
+            file: path.display().to_string(),
+            source,
+        }
+    })
+}
+
+pub fn write(path: &Path, text: &str) -> Result<(), CliError> {
+    std::fs::write(path, text).map_err(|source| CliError::Write {
+        file: path.display().to_string(),
+        source,
+    })
+}
+
+/// The `--handles` file of `puppetry solve`.
+#[derive(Debug, Deserialize)]
+#[serde(
+    deny_unknown_fields,
+    expecting = "a handles object {\"handles\": [{\"vertex\": i, \"to\": [x, y]} | {\"point\": [x, y], \"to\": [x, y]}, …]}"
+)]
+struct HandlesFile {
+    handles: Vec<HandleEntry>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HandleEntry {
+    vertex: Option<i64>,
+    point: Option<json::Point>,
+    to: json::Point,
+}
+
+/// Parses a handles file against `mesh`: anchors and targets, in order.
+pub fn parse_handles(
+    file: &str,
+    text: &str,
+    mesh: &Mesh,
+) -> Result<(Vec<Anchor>, Vec<DVec2>), CliError> {
+    let parsed: HandlesFile = json::parse(file, text)?;
+    let invalid = |field: String, problem: String| {
+        CliError::Mesh(MeshError::Invalid {
+            file: file.to_string(),
+            field,
+            problem,
+        })
+    };
+    let locator = Locator::new(mesh);
+    let mut anchors = Vec::with_capacity(parsed.handles.len());
+    let mut targets = Vec::with_capacity(parsed.handles.len());
+    for (h, entry) in parsed.handles.iter().enumerate() {
+        let to = DVec2::from(entry.to.0);
+        if !(to.is_finite() && to.abs().max_element() <= json::MAX_COORDINATE) {
+            return Err(invalid(
+                format!("handles[{h}].to"),
+                format!(
+                    "{} is too far out: coordinates must stay within ±{:e}",
+                    json::show_point(to),
+                    json::MAX_COORDINATE
+                ),
+            ));
+        }
+        let anchor = match (entry.vertex, entry.point) {
+            (Some(v), None) => {
+                if v < 0 || v as usize >= mesh.vertices().len() {
+                    return Err(invalid(
+                        format!("handles[{h}].vertex"),
+                        format!(
+                            "{v} is out of range (the mesh has {} vertices)",
+                            mesh.vertices().len()
+                        ),
+                    ));
+                }
+                Anchor::Vertex(v as u32)
+            }
+            (None, Some(p)) => {
+                let p = DVec2::from(p.0);
+                let Some(location) = locator.locate(mesh, p) else {
+                    return Err(invalid(
+                        format!("handles[{h}].point"),
+                        format!("{} is outside the mesh", json::show_point(p)),
+                    ));
+                };
+                Anchor::Point {
+                    triangle: location.triangle,
+                    bary: location.bary,
+                }
+            }
+            (Some(_), Some(_)) => {
+                return Err(invalid(
+                    format!("handles[{h}]"),
+                    "give either \"vertex\" or \"point\", not both".into(),
+                ));
+            }
+            (None, None) => {
+                return Err(invalid(
+                    format!("handles[{h}]"),
+                    "needs a \"vertex\" index or a \"point\" [x, y]".into(),
+                ));
+            }
+        };
+        anchors.push(anchor);
+        targets.push(to);
+    }
+    Ok((anchors, targets))
+}
+
+/// An SVG picture of the rest mesh (grey) under the deformed mesh (orange)
+/// and the handle targets, so a person can see what `solve` did.
+pub fn svg_of(mesh: &Mesh, pose: &[DVec2], targets: &[DVec2]) -> String {
+    let all = mesh.vertices().iter().chain(pose).chain(targets);
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for p in all {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let margin = 0.05 * (hi - lo).max_element().max(1e-9);
+    let (lo, hi) = (lo - DVec2::splat(margin), hi + DVec2::splat(margin));
+    let size = hi - lo;
+    // SVG is y-down; meshes are y-up.
+    let at = |p: DVec2| format!("{:.3},{:.3}", p.x - lo.x, hi.y - p.y);
+    let wire = |points: &[DVec2], colour: &str| {
+        let mut path = String::new();
+        for t in mesh.triangles() {
+            let [a, b, c] = t.map(|i| at(points[i as usize]));
+            path.push_str(&format!("M{a}L{b}L{c}Z"));
+        }
+        format!(
+            r#"<path d="{path}" fill="none" stroke="{colour}" stroke-width="{:.3}" stroke-linejoin="round"/>"#,
+            size.max_element() / 800.0
+        )
+    };
+    let dots: String = targets
+        .iter()
+        .map(|t| {
+            format!(
+                r##"<circle cx="{}" cy="{}" r="{:.3}" fill="#1565c0"/>"##,
+                t.x - lo.x,
+                hi.y - t.y,
+                size.max_element() / 100.0
+            )
+        })
+        .collect();
+    format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {:.3} {:.3}" width="800">{}{}{}</svg>"#,
+        size.x,
+        size.y,
+        wire(mesh.vertices(), "#bbbbbb"),
+        wire(pose, "#e65100"),
+        dots
+    )
+}
+
+/// `puppetry solve`: the deformed vertices as `{"vertices": [[x, y], …]}`,
+/// and optionally an SVG picture of the result.
+pub fn solve_command(
+    mesh_path: &Path,
+    handles_path: &Path,
+    step1_only: bool,
+    svg: Option<&Path>,
+) -> Result<String, CliError> {
+    let mesh = Mesh::load(mesh_path)?;
+    let handles_name = handles_path.display().to_string();
+    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path)?, &mesh)?;
+    let mesh_name = mesh_path.display().to_string();
+    let mut arap = Arap::register(&mesh).map_err(|e| CliError::Solve(e, mesh_name))?;
+    arap.compile(&anchors)
+        .map_err(|e| CliError::Solve(e, handles_name.clone()))?;
+    let steps = if step1_only {
+        Steps::ScaleFree
+    } else {
+        Steps::Both
+    };
+    let pose = arap
+        .update(&targets, steps)
+        .map_err(|e| CliError::Solve(e, handles_name))?;
+    if let Some(svg) = svg {
+        write(svg, &svg_of(&mesh, pose, &targets))?;
+    }
+    let vertices: Vec<[f64; 2]> = pose.iter().map(|p| [p.x, p.y]).collect();
+    Ok(serde_json::json!({ "vertices": vertices }).to_string())
+}
+
+/// Parses a `--grid` value, `COLUMNSxROWS` (e.g. `10x10`; `×` also works).
+pub fn parse_grid(text: &str) -> Result<(usize, usize), String> {
+    let expected = || format!("expected COLUMNSxROWS such as 10x10, got {text:?}");
+    let (columns, rows) = text.split_once(['x', 'X', '×']).ok_or_else(expected)?;
+    let count = |part: &str| part.trim().parse::<usize>().map_err(|_| expected());
+    let (columns, rows) = (count(columns)?, count(rows)?);
+    if columns < 2 || rows < 2 {
+        return Err(format!(
+            "{columns}x{rows}: a grid needs at least 2 handles in each direction"
+        ));
+    }
+    if columns.saturating_mul(rows) > MAX_GRID_HANDLES {
+        return Err(format!(
+            "{columns}x{rows}: {} handles is more than the {MAX_GRID_HANDLES} the solver takes",
+            columns.saturating_mul(rows)
+        ));
+    }
+    Ok((columns, rows))
+}
+
+/// `puppetry compare`: the four methods of the lp-FFD paper's Table 1 on a
+/// mesh and handles file (the bundled layered figure when `None`). With
+/// `svg`, also draws each result to `DIR/<method>.svg`.
+pub fn compare_command(
+    figure: Option<(&Path, &Path)>,
+    grid: (usize, usize),
+    svg: Option<&Path>,
+) -> Result<Comparison, CliError> {
+    let bundled;
+    let (mesh_path, handles_path) = match figure {
+        Some(figure) => figure,
+        None => {
+            bundled = crate::bundled::layered_figure()?;
+            (bundled.0.as_path(), bundled.1.as_path())
+        }
+    };
+    let mesh = Mesh::load(mesh_path)?;
+    let handles_name = handles_path.display().to_string();
+    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path)?, &mesh)?;
+    let comparison =
+        compare::compare(&mesh, &anchors, &targets, grid.0, grid.1).map_err(|source| {
+            CliError::Compare {
+                file: mesh_path.display().to_string(),
+                source,
+            }
+        })?;
+    if let Some(dir) = svg {
+        std::fs::create_dir_all(dir).map_err(|source| CliError::Write {
+            file: dir.display().to_string(),
+            source,
+        })?;
+        for m in &comparison.methods {
+            let slug: String = m
+                .method
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() {
+                        c.to_ascii_lowercase()
+                    } else {
+                        '-'
+                    }
+                })
+                .collect::<String>()
+                .split('-')
+                .filter(|w| !w.is_empty())
+                .collect::<Vec<_>>()
+                .join("-");
+            write(
+                &dir.join(format!("{slug}.svg")),
+                &svg_of(&mesh, &m.pose, &targets),
+            )?;
+        }
+    }
+    Ok(comparison)
+}
+
+/// `puppetry bench`: the meshes to run, as (name, mesh).
+pub fn bench_meshes(mesh: Option<&Path>, sizes: &[usize]) -> Result<Vec<(String, Mesh)>, CliError> {
+    if let Some(path) = mesh {
+        return Ok(vec![(path.display().to_string(), Mesh::load(path)?)]);
+    }
+    let image = crate::bundled::demo_image()?;
+    sizes
+        .iter()
+        .map(|&n| {
+            let options = MeshOptions {
+                target_vertices: Some(n),
+            };
+            Ok((format!("gingerbread@{n}"), mesh_png(&image, &options)?))
+        })
+        .collect()
+}
+
+/// Runs the bench cases, printing each as it completes.
+pub fn bench_command(
+    meshes: &[(String, Mesh)],
+    handle_counts: &[usize],
+    json: bool,
+    mut print: impl FnMut(&str),
+) -> Result<Vec<bench::CaseResult>, CliError> {
+    if !json {
+        print(&bench::table_header());
+    }
+    let mut results = Vec::new();
+    for (name, mesh) in meshes {
+        for &handles in handle_counts {
+            let frames = bench::frames_for(mesh.vertices().len());
+            let result = bench::run_case(name, mesh, handles, frames)
+                .map_err(|e| CliError::Solve(e, name.clone()))?;
+            if json {
+                print(&serde_json::to_string(&result).expect("plain numbers serialise"));
+            } else {
+                print(&bench::table_row(&result));
+            }
+            results.push(result);
+        }
+    }
+    Ok(results)
+}
+
+/// Runs the rig cases (lp-FFD, both bases; the gingerbread skeleton on the
+/// demo puppet's meshes only, since it is drawn for that picture), printing
+/// each as it completes.
+pub fn rig_bench_command(
+    meshes: &[(String, Mesh)],
+    with_skeleton: bool,
+    json: bool,
+    mut print: impl FnMut(&str),
+) -> Result<Vec<bench::RigResult>, CliError> {
+    if !json {
+        print(&bench::rig_table_header());
+    }
+    let skeleton = gingerbread_skeleton();
+    let mut results = Vec::new();
+    let mut show = |result: bench::RigResult, results: &mut Vec<_>| {
+        if json {
+            print(&serde_json::to_string(&result).expect("plain numbers serialise"));
+        } else {
+            print(&bench::rig_table_row(&result));
+        }
+        results.push(result);
+    };
+    for (name, mesh) in meshes {
+        let frames = bench::frames_for(mesh.vertices().len());
+        for basis in [Basis::Bernstein, Basis::Lattice] {
+            let result = bench::run_lp_ffd_case(name, mesh, basis, frames)
+                .map_err(|e| CliError::Ffd(e, name.clone()))?;
+            show(result, &mut results);
+        }
+        if with_skeleton {
+            let result = bench::run_skeleton_case(name, mesh, &skeleton, frames)
+                .map_err(|e| CliError::Skeleton(e, name.clone()))?;
+            show(result, &mut results);
+        }
+    }
+    Ok(results)
+}
+
+/// The stages `puppetry bench --e2e` runs: the demo stage, and the same
+/// puppet meshed at about 10k vertices (written to a temporary file).
+/// All listen on a free loopback port.
+pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_stage::config::StageConfig)>, CliError> {
+    use puppetry_stage::config::{ConfigError, StageConfig};
+    let load = |path: &Path| {
+        StageConfig::load(path).map_err(|e| match e {
+            ConfigError::Read { file, source } => CliError::Read { file, source },
+            other => CliError::Mesh(MeshError::Invalid {
+                file: path.display().to_string(),
+                field: "stage".into(),
+                problem: other.to_string(),
+            }),
+        })
+    };
+    let mut demo = load(&crate::bundled::demo_stage()?)?;
+    demo.stage.listen = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
+    let mut large = demo.clone();
+    let mesh = mesh_png(
+        &crate::bundled::demo_image()?,
+        &MeshOptions {
+            target_vertices: Some(10_000),
+        },
+    )?;
+    let file =
+        std::env::temp_dir().join(format!("puppetry-bench-{}.mesh.json", std::process::id()));
+    write(&file, &mesh.to_json())?;
+    large.puppets[0].mesh = file;
+    Ok(vec![
+        ("demo stage".into(), demo),
+        ("gingerbread@10000".into(), large),
+    ])
+}
+
+/// `puppetry devices`: every input device in `dir` — name, path, kind,
+/// ids, axes and ranges — and which entry of `config` (if given) would take
+/// it. Unreadable nodes are listed with what to do about them.
+pub fn devices_report(
+    dir: &Path,
+    config: Option<&puppetry_stage::config::StageConfig>,
+) -> Result<String, puppetry_input::device::DeviceError> {
+    use puppetry_input::device::{DeviceKind, DeviceMatch, scan};
+    use puppetry_stage::config::InputConfig;
+    use std::fmt::Write;
+
+    // Each device entry of the stage file: what it wants, of which kind.
+    let entries: Vec<(usize, String, DeviceMatch, DeviceKind)> = config
+        .map(|c| {
+            c.inputs
+                .iter()
+                .enumerate()
+                .filter_map(|(i, input)| {
+                    let (kind, device, name, label) = match input {
+                        InputConfig::Touch { device, name, .. } => {
+                            (DeviceKind::Touch, device, name, "touch")
+                        }
+                        InputConfig::Pen { device, name, .. } => {
+                            (DeviceKind::Pen, device, name, "pen")
+                        }
+                        InputConfig::Mouse { device, name, .. } => {
+                            (DeviceKind::Mouse, device, name, "mouse")
+                        }
+                        _ => return None,
+                    };
+                    let mut device = device.clone();
+                    device.path = device.path.map(|p| c.resolve(&p));
+                    let name = name.clone().unwrap_or_else(|| format!("{label}:{i}"));
+                    Some((i, name, device, kind))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut taken = vec![false; entries.len()];
+    let mut out = String::new();
+    let found = match scan(dir) {
+        Ok(found) => found,
+        Err(e) => {
+            let _ = writeln!(
+                out,
+                "{e}\n(no input devices here: this machine has none, or a container does not share /dev/input)"
+            );
+            Vec::new()
+        }
+    };
+    if found.is_empty() && dir.is_dir() {
+        let _ = writeln!(out, "no input devices in {}", dir.display());
+    }
+    for (path, info) in &found {
+        let info = match info {
+            Ok(info) => info,
+            Err(e) => {
+                let _ = writeln!(out, "{}: not readable: {e}", path.display());
+                continue;
+            }
+        };
+        let _ = writeln!(
+            out,
+            "{}  {}{}  \"{}\"",
+            path.display(),
+            info.kind,
+            match (info.kind, info.capabilities.direct) {
+                (DeviceKind::Touch, true) => " (direct)",
+                _ => "",
+            },
+            info.name
+        );
+        let _ = writeln!(
+            out,
+            "    id: bus {:04x} vendor {:04x} product {:04x}{}{}{}",
+            info.id.bus,
+            info.id.vendor,
+            info.id.product,
+            info.phys
+                .as_ref()
+                .map(|p| format!("  phys \"{p}\""))
+                .unwrap_or_default(),
+            info.uniq
+                .as_ref()
+                .map(|u| format!("  uniq \"{u}\""))
+                .unwrap_or_default(),
+            if info.capture {
+                "  (evemu capture)"
+            } else {
+                ""
+            },
+        );
+        for (code, axis) in &info.capabilities.absolute {
+            let _ = writeln!(
+                out,
+                "    {:<18} {} .. {}{}",
+                abs_name(*code),
+                axis.min,
+                axis.max,
+                if axis.resolution > 0 {
+                    format!("  ({} per mm or radian)", axis.resolution)
+                } else {
+                    String::new()
+                }
+            );
+        }
+        // An entry takes the first device that matches it.
+        for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
+            if !taken[k] && *kind == info.kind && wanted.matches(info) {
+                taken[k] = true;
+                let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+            }
+        }
+    }
+    // HID digitizers (hidapi), for `kind = "hid"` entries.
+    let hid_entries: Vec<(usize, String, puppetry_input::hid::HidSelector)> = config
+        .map(|c| {
+            c.inputs
+                .iter()
+                .enumerate()
+                .filter_map(|(i, input)| match input {
+                    InputConfig::Hid { device, name, .. } => Some((
+                        i,
+                        name.clone().unwrap_or_else(|| format!("hid:{i}")),
+                        device.clone(),
+                    )),
+                    _ => None,
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    match puppetry_input::hid::list_devices() {
+        Ok(hids) => {
+            let touch: Vec<_> = hids.iter().filter(|h| h.is_touch()).collect();
+            if touch.is_empty() {
+                let _ = writeln!(out, "no HID touch digitizers (hidraw)");
+            }
+            for h in &touch {
+                let _ = writeln!(
+                    out,
+                    "{}  hid touch  \"{}\"\n    vendor_id {:#06x} product_id {:#06x}{}{}",
+                    h.path,
+                    h.product.as_deref().unwrap_or("?"),
+                    h.vendor_id,
+                    h.product_id,
+                    h.serial
+                        .as_ref()
+                        .map(|s| format!("  serial \"{s}\""))
+                        .unwrap_or_default(),
+                    match h.check_access() {
+                        Ok(()) => String::new(),
+                        Err(e) => format!("\n    not readable: {e}"),
+                    }
+                );
+                for (i, name, selector) in &hid_entries {
+                    if selector.matches(h) {
+                        let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+                    }
+                }
+            }
+        }
+        Err(e) => {
+            let _ = writeln!(out, "HID devices: {e}");
+        }
+    }
+    for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
+        if !taken[k] {
+            let _ = writeln!(
+                out,
+                "input[{i}] \"{name}\" ({kind}, {wanted}): no such device now; the daemon waits for it"
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// The kernel's name of an absolute axis.
+fn abs_name(code: u16) -> String {
+    use puppetry_input::evdev::*;
+    let known = [
+        (ABS_X, "ABS_X"),
+        (ABS_Y, "ABS_Y"),
+        (ABS_PRESSURE, "ABS_PRESSURE"),
+        (ABS_TILT_X, "ABS_TILT_X"),
+        (ABS_TILT_Y, "ABS_TILT_Y"),
+        (ABS_MT_SLOT, "ABS_MT_SLOT"),
+        (ABS_MT_TOUCH_MAJOR, "ABS_MT_TOUCH_MAJOR"),
+        (ABS_MT_TOUCH_MINOR, "ABS_MT_TOUCH_MINOR"),
+        (ABS_MT_WIDTH_MAJOR, "ABS_MT_WIDTH_MAJOR"),
+        (ABS_MT_WIDTH_MINOR, "ABS_MT_WIDTH_MINOR"),
+        (ABS_MT_ORIENTATION, "ABS_MT_ORIENTATION"),
+        (ABS_MT_POSITION_X, "ABS_MT_POSITION_X"),
+        (ABS_MT_POSITION_Y, "ABS_MT_POSITION_Y"),
+        (ABS_MT_TOOL_TYPE, "ABS_MT_TOOL_TYPE"),
+        (ABS_MT_BLOB_ID, "ABS_MT_BLOB_ID"),
+        (ABS_MT_TRACKING_ID, "ABS_MT_TRACKING_ID"),
+        (ABS_MT_PRESSURE, "ABS_MT_PRESSURE"),
+        (ABS_MT_DISTANCE, "ABS_MT_DISTANCE"),
+    ];
+    known
+        .iter()
+        .find(|(c, _)| *c == code)
+        .map_or_else(|| format!("ABS_{code:#04x}"), |(_, n)| n.to_string())
+}

@@ -1,0 +1,18 @@
+//! The `puppetry` command's own work: the commands that are not the daemon
+//! ([`cli`]: mesh, solve, devices, calibrate), the benchmarks ([`bench`])
+//! and the lp-FFD paper's comparison ([`compare`]). `main.rs` parses the
+//! command line and calls into these; the pipeline itself lives in the
+//! workspace's other crates.
+//!
+//! ```text
+//!   puppetry-input ──► puppetry-stage ──► puppetry-deform     puppetry-daemon
+//!   (contacts from     (contacts →        (ARAP, lp-FFD,      (stage thread,
+//!    devices, files)    handles)           skeleton)           protocol, edge)
+//!                            ▲                  ▲
+//!                            └── puppetry-mesh ─┘
+//! ```
+
+pub mod bench;
+pub mod bundled;
+pub mod cli;
+pub mod compare;

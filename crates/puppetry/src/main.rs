@@ -1,0 +1,450 @@
+//! The `puppetry` command line: argument parsing and error reporting only;
+//! the work is in the library (`puppetry::cli` and below).
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use puppetry::{bench, cli, compare};
+
+#[derive(Parser)]
+#[command(
+    name = "puppetry",
+    version,
+    about = "Realtime 2D puppetry: meshing, as-rigid-as-possible deformation"
+)]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the daemon: inputs to handles, the solver at the input rate, and
+    /// the web renderer and WebSocket stream on one port. Without --config,
+    /// serves the bundled demo stage.
+    Serve {
+        /// Stage file (TOML, see config/). Default: the bundled demo stage,
+        /// compiled into the binary.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Also play this recording (.jsonl) or evemu capture (.event).
+        #[arg(long)]
+        replay: Option<PathBuf>,
+        /// Play --replay as fast as possible instead of in real time.
+        #[arg(long)]
+        fast: bool,
+        /// Listen here instead of the stage file's address.
+        #[arg(long)]
+        listen: Option<std::net::SocketAddr>,
+        /// Serve the web client from this folder instead of the copy
+        /// compiled into the binary (for client development).
+        #[arg(long)]
+        web_root: Option<PathBuf>,
+    },
+    /// Build a triangle mesh from a PNG (traced from its alpha channel) or a
+    /// polygon JSON file; writes `.mesh.json` (see docs/mesh-format.md).
+    Mesh {
+        /// A .png picture or a .json polygon.
+        input: PathBuf,
+        /// Target vertex count; the result lands within ±15% unless the outline
+        /// itself needs more (many islands, thin parts) or fewer. Default: about
+        /// 1000, fewer for tiny shapes.
+        #[arg(long, value_parser = clap::value_parser!(u32).range(3..=2_000_000))]
+        vertices: Option<u32>,
+        /// Output file; standard output when absent.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+    },
+    /// Deform a mesh by handles and print {"vertices": [[x, y], …]}.
+    Solve {
+        /// The rest mesh (.mesh.json, see docs/mesh-format.md).
+        #[arg(long)]
+        mesh: PathBuf,
+        /// {"handles": [{"vertex": i, "to": [x, y]} | {"point": [x, y], "to": [x, y]}, …]}
+        #[arg(long)]
+        handles: PathBuf,
+        /// Print the scale-free intermediate result of step 1.
+        #[arg(long)]
+        step1_only: bool,
+        /// Also draw the rest and deformed meshes to this SVG file.
+        #[arg(long)]
+        svg: Option<PathBuf>,
+    },
+    /// List the input devices this machine has (name, path, kind, ids, axes
+    /// and ranges) and which entry of a stage file would use each.
+    Devices {
+        /// Where device nodes are (or a folder of evemu captures).
+        #[arg(long, default_value = puppetry_input::device::DEFAULT_DIR)]
+        dir: PathBuf,
+        /// Show which of this stage file's inputs would take each device.
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Capture a device's raw events to an evemu file (play it back with
+    /// `serve --replay FILE` or a `kind = "replay"` input).
+    Record {
+        /// The device node, e.g. /dev/input/event5 or a /dev/input/by-id link.
+        device: PathBuf,
+        /// The capture to write (.event).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Stop after this many seconds (default: at Ctrl-C).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Take the device exclusively while recording.
+        #[arg(long)]
+        grab: bool,
+    },
+    /// Make a `corners` calibration from a capture of four taps on the marks
+    /// the web page shows at `/?calibrate` (see docs/calibration.md).
+    Calibrate {
+        /// The capture (`puppetry record DEVICE -o taps.event`).
+        capture: PathBuf,
+        /// The stage file whose stage the marks were on.
+        #[arg(long)]
+        config: PathBuf,
+        /// How far in from the stage's edges the marks are, as a fraction
+        /// of its size (the page's `?calibrate=` value).
+        #[arg(long, default_value_t = 0.1)]
+        inset: f64,
+    },
+    /// The lp-FFD paper's comparison (its Table 1): direct FFD (Hsu et al.),
+    /// ARAP followed by inverse FFD, plain ARAP and lp-FFD on one layered
+    /// figure, one grid and one set of vertex handles; prints the mean
+    /// angular and area distortion of each (see docs/measures.md).
+    Compare {
+        /// Grid handles, COLUMNSxROWS.
+        #[arg(long, default_value = "10x10", value_name = "COLUMNSxROWS", value_parser = cli::parse_grid)]
+        grid: (usize, usize),
+        /// Run on this mesh (.mesh.json) instead of the bundled layered figure.
+        #[arg(long, requires = "handles")]
+        mesh: Option<PathBuf>,
+        /// The vertex handles and targets for --mesh (the `solve` format).
+        #[arg(long, requires = "mesh")]
+        handles: Option<PathBuf>,
+        /// One JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Also draw each method's result to DIR/<method>.svg.
+        #[arg(long, value_name = "DIR")]
+        svg: Option<PathBuf>,
+    },
+    /// Time registration, compilation, updates and handle changes of the
+    /// ARAP solver, then whole frames of the two rigs (lp-FFD on a 10×10
+    /// grid, the 15-bone skeleton).
+    Bench {
+        /// One JSON object per case, one per line.
+        #[arg(long)]
+        json: bool,
+        /// Bench this mesh instead of the demo puppet at several sizes (the
+        /// skeleton, drawn for the demo puppet, is left out).
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        /// Vertex counts to mesh the demo puppet at [default: 1000,10000,100000
+        /// for ARAP, 1000,10000 for the rigs].
+        #[arg(long, value_delimiter = ',')]
+        sizes: Option<Vec<usize>>,
+        /// Only the rig cases (lp-FFD and skeleton).
+        #[arg(long, conflicts_with = "e2e")]
+        rigs: bool,
+        /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
+        /// as possible into it, with 1 and 16 WebSocket clients on loopback.
+        #[arg(long)]
+        e2e: bool,
+        /// Handle counts to bench (at most 200: each handle change inverts a
+        /// dense system of about that size).
+        #[arg(long, value_delimiter = ',', default_value = "2,10,40",
+              value_parser = clap::value_parser!(u32).range(1..=200))]
+        handles: Vec<u32>,
+    },
+}
+
+fn main() -> ExitCode {
+    match run(Args::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            // Our messages already quote their cause; print each link of the
+            // chain only when it adds something.
+            let mut message = String::new();
+            for link in error.chain() {
+                let text = link.to_string();
+                if !message.contains(&text) {
+                    if !message.is_empty() {
+                        message.push_str(": ");
+                    }
+                    message.push_str(&text);
+                }
+            }
+            eprintln!("error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: Args) -> anyhow::Result<()> {
+    match args.command {
+        Command::Serve {
+            config,
+            replay,
+            fast,
+            listen,
+            web_root,
+        } => {
+            tracing_subscriber::fmt()
+                .with_env_filter(
+                    tracing_subscriber::EnvFilter::try_from_default_env()
+                        .unwrap_or_else(|_| "info".into()),
+                )
+                .with_writer(std::io::stderr)
+                .init();
+            let path = match config {
+                Some(path) => path,
+                None => puppetry::bundled::demo_stage()?,
+            };
+            let web_root = match web_root {
+                Some(dir) => dir,
+                None => puppetry::bundled::web_client()?,
+            };
+            let mut stage = puppetry_stage::config::StageConfig::load(&path)?;
+            if let Some(listen) = listen {
+                stage.stage.listen = listen;
+            }
+            let pacing = if fast {
+                puppetry_input::replay::Pacing::AsFastAsPossible
+            } else {
+                puppetry_input::replay::Pacing::RealTime
+            };
+            let runtime = tokio::runtime::Runtime::new()?;
+            runtime.block_on(async {
+                let running = puppetry_daemon::serve::start(
+                    &stage,
+                    web_root,
+                    replay.map(|file| (file, pacing)),
+                )
+                .await?;
+                let address = running.address;
+                println!("puppetry: serving {} at http://{address}/", path.display());
+                if let Some(token) = stage.access.performer_tokens.first() {
+                    println!("  perform: http://{address}/?role=performer&token={token}");
+                }
+                println!("  stop with Ctrl-C");
+                tokio::signal::ctrl_c().await?;
+                running.shutdown().await;
+                anyhow::Ok(())
+            })?;
+        }
+        Command::Devices { dir, config } => {
+            let config = config
+                .map(|path| puppetry_stage::config::StageConfig::load(&path))
+                .transpose()?;
+            print!("{}", cli::devices_report(&dir, config.as_ref())?);
+        }
+        Command::Calibrate {
+            capture,
+            config,
+            inset,
+        } => {
+            let stage = puppetry_stage::config::StageConfig::load(&config)?;
+            let size = glam::DVec2::new(stage.stage.width, stage.stage.height);
+            let spec = puppetry_input::calibrate::from_capture(&capture, size, inset)?;
+            println!("{}", puppetry_input::calibrate::toml_line(&spec));
+        }
+        Command::Record {
+            device,
+            output,
+            duration,
+            grab,
+        } => {
+            if let Some(d) = duration.filter(|d| !(d.is_finite() && *d > 0.0)) {
+                anyhow::bail!("--duration: {d} is not a positive number of seconds");
+            }
+            let runtime = tokio::runtime::Runtime::new()?;
+            let recorded = runtime.block_on(async {
+                let opened = puppetry_input::device::Device::open(&device, grab)?;
+                eprintln!(
+                    "recording {} (\"{}\") to {}; stop with Ctrl-C",
+                    device.display(),
+                    opened.info().name,
+                    output.display()
+                );
+                let stop = async {
+                    let _ = tokio::signal::ctrl_c().await;
+                };
+                puppetry_input::record::record(
+                    opened,
+                    &output,
+                    duration.map(std::time::Duration::from_secs_f64),
+                    stop,
+                )
+                .await
+            })?;
+            eprintln!(
+                "recorded {} events{}",
+                recorded.events,
+                if recorded.device_gone {
+                    " (the device went away)"
+                } else {
+                    ""
+                }
+            );
+        }
+        Command::Mesh {
+            input,
+            vertices,
+            output,
+        } => {
+            let vertices = vertices.map(|n| n as usize);
+            let mesh = cli::mesh_command(&input, vertices)?;
+            let got = mesh.vertices().len();
+            if let Some(n) = vertices.filter(|&n| got * 100 < n * 85 || got * 100 > n * 115) {
+                eprintln!(
+                    "note: asked for {n} vertices, got {got}: the outline needs {}",
+                    if got > n {
+                        "more (many islands or thin parts)"
+                    } else {
+                        "fewer (the shape is small)"
+                    }
+                );
+            }
+            let pieces = mesh.pieces().len();
+            let text = mesh.to_json();
+            match output {
+                Some(path) => cli::write(&path, &text)?,
+                None => println!("{text}"),
+            }
+            eprintln!(
+                "meshed {}: {} vertices, {} triangles, {} piece(s)",
+                input.display(),
+                mesh.vertices().len(),
+                mesh.triangles().len(),
+                pieces
+            );
+        }
+        Command::Solve {
+            mesh,
+            handles,
+            step1_only,
+            svg,
+        } => {
+            let out = cli::solve_command(&mesh, &handles, step1_only, svg.as_deref())?;
+            println!("{out}");
+        }
+        Command::Compare {
+            grid,
+            mesh,
+            handles,
+            json,
+            svg,
+        } => {
+            let figure = mesh.as_deref().zip(handles.as_deref());
+            let comparison = cli::compare_command(figure, grid, svg.as_deref())?;
+            if json {
+                println!("{}", serde_json::to_string(&comparison)?);
+            } else {
+                print!("{}", compare::table(&comparison));
+            }
+        }
+        Command::Bench {
+            json, e2e: true, ..
+        } => {
+            let stages = cli::end_to_end_stages()?;
+            let runtime = tokio::runtime::Runtime::new()?;
+            if !json {
+                println!(
+                    "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10} {:>14} {:>14}",
+                    "stage",
+                    "vertices",
+                    "clients",
+                    "input",
+                    "input frames",
+                    "solves",
+                    "solves/s",
+                    "latency µs p50",
+                    "latency µs p99"
+                );
+            }
+            let web_root = puppetry::bundled::web_client()?;
+            for (name, stage) in &stages {
+                let point = glam::DVec2::from(stage.puppets[0].at);
+                use puppetry_input::replay::Pacing;
+                for (clients, pacing) in [
+                    (1, Pacing::RealTime),
+                    (16, Pacing::RealTime),
+                    (1, Pacing::AsFastAsPossible),
+                    (16, Pacing::AsFastAsPossible),
+                ] {
+                    let frames = if pacing == Pacing::RealTime {
+                        2000
+                    } else {
+                        20000
+                    };
+                    let r = runtime
+                        .block_on(bench::end_to_end(
+                            name,
+                            stage,
+                            web_root.clone(),
+                            point,
+                            clients,
+                            frames,
+                            pacing,
+                        ))
+                        .map_err(anyhow::Error::msg)?;
+                    if json {
+                        println!("{}", serde_json::to_string(&r)?);
+                    } else {
+                        let input = if r.pacing == "real_time" {
+                            "1 kHz real time"
+                        } else {
+                            "as fast as possible"
+                        };
+                        println!(
+                            "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10.0} {:>14.0} {:>14.0}",
+                            r.mesh,
+                            r.vertices,
+                            r.clients,
+                            input,
+                            r.input_frames,
+                            r.solves,
+                            r.solves_per_s,
+                            r.latency_us_p50,
+                            r.latency_us_p99
+                        );
+                    }
+                }
+            }
+        }
+        Command::Bench {
+            json,
+            mesh,
+            sizes,
+            handles,
+            rigs,
+            e2e: false,
+        } => {
+            let stdout = std::io::stdout();
+            let print = |line: &str| {
+                let mut out = stdout.lock();
+                let _ = writeln!(out, "{line}");
+                let _ = out.flush();
+            };
+            if !rigs {
+                let sizes = sizes.clone().unwrap_or_else(|| vec![1000, 10_000, 100_000]);
+                let meshes =
+                    cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+                let handles: Vec<usize> = handles.into_iter().map(|h| h as usize).collect();
+                cli::bench_command(&meshes, &handles, json, print)?;
+                if !json {
+                    print("");
+                }
+            }
+            let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
+            let meshes =
+                cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+            cli::rig_bench_command(&meshes, mesh.is_none(), json, print)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,686 @@
+//! The command line as a user meets it: `puppetry solve` gives the solver's
+//! exact answer, `puppetry mesh` meshes the demo puppet, and every bad input
+//! fails with a message naming the file, the field or line, and the problem.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+use glam::DVec2;
+use puppetry_deform::Anchor;
+use puppetry_mesh::Mesh;
+use tempfile::TempDir;
+
+fn puppetry(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .args(args)
+        .output()
+        .expect("run puppetry")
+}
+
+/// A scratch file with these contents in the test's own temporary
+/// directory (removed when the test ends).
+fn scratch(dir: &TempDir, name: &str, contents: &[u8]) -> PathBuf {
+    let path = dir.path().join(name);
+    std::fs::write(&path, contents).unwrap();
+    path
+}
+
+fn parse_vertices(stdout: &[u8]) -> Vec<DVec2> {
+    let value: serde_json::Value = serde_json::from_slice(stdout).expect("solve prints JSON");
+    value["vertices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| DVec2::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
+        .collect()
+}
+
+#[test]
+fn solve_prints_the_dense_least_squares_answer() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = crate::common::jittered(7, 4);
+    let mesh_path = scratch(&dir, "solve.mesh.json", mesh.to_json().as_bytes());
+    let point = DVec2::new(6.3, 3.6);
+    let handles = format!(
+        r#"{{"handles": [{{"vertex": 0, "to": [-1, 0]}}, {{"point": [{}, {}], "to": [9, 6]}}]}}"#,
+        point.x, point.y
+    );
+    let handles_path = scratch(&dir, "solve.handles.json", handles.as_bytes());
+    let loc = puppetry_mesh::Locator::new(&mesh)
+        .locate(&mesh, point)
+        .unwrap();
+    let anchors = [
+        Anchor::Vertex(0),
+        Anchor::Point {
+            triangle: loc.triangle,
+            bary: loc.bary,
+        },
+    ];
+    let targets = [DVec2::new(-1.0, 0.0), DVec2::new(9.0, 6.0)];
+    let (step1, both) = crate::common::dense_reference(&mesh, &anchors, &targets);
+    let tol = 1e-9 * mesh.size();
+    let m = mesh_path.to_str().unwrap();
+    let h = handles_path.to_str().unwrap();
+    let out = puppetry(&["solve", "--mesh", m, "--handles", h]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(crate::common::max_distance(&parse_vertices(&out.stdout), &both) < tol);
+    let out = puppetry(&["solve", "--mesh", m, "--handles", h, "--step1-only"]);
+    assert!(out.status.success());
+    assert!(crate::common::max_distance(&parse_vertices(&out.stdout), &step1) < tol);
+}
+
+#[test]
+fn mesh_builds_the_demo_puppet_and_solve_runs_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let demo = puppetry_testkit::root().join("assets/gingerbread");
+    let out_path = scratch(&dir, "demo.mesh.json", b"");
+    let out = puppetry(&[
+        "mesh",
+        demo.join("gingerbread.png").to_str().unwrap(),
+        "--vertices",
+        "1500",
+        "-o",
+        out_path.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let mesh = Mesh::load(&out_path).unwrap();
+    let n = mesh.vertices().len();
+    assert!(
+        (1275..=1725).contains(&n),
+        "{n} vertices for a target of 1500"
+    );
+    assert!(
+        mesh.uv().is_some(),
+        "a mesh from a picture carries texture coordinates"
+    );
+    // The bundled mesh and handles (the README's demo) solve, and the dragged
+    // hand moves while the pinned feet stay.
+    let out = puppetry(&[
+        "solve",
+        "--mesh",
+        demo.join("gingerbread.mesh.json").to_str().unwrap(),
+        "--handles",
+        demo.join("handles.json").to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bundled = Mesh::load(&demo.join("gingerbread.mesh.json")).unwrap();
+    let pose = parse_vertices(&out.stdout);
+    assert_eq!(pose.len(), bundled.vertices().len());
+    let moved = pose
+        .iter()
+        .zip(bundled.vertices())
+        .map(|(p, q)| p.distance(*q))
+        .fold(0.0, f64::max);
+    assert!(moved > 40.0, "the dragged hand moved {moved}");
+}
+
+/// Runs puppetry, expects failure, and returns its error message.
+fn failure(args: &[&str]) -> String {
+    let out = puppetry(args);
+    assert!(!out.status.success(), "expected failure for {args:?}");
+    let message = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!message.contains("panicked"), "panicked: {message}");
+    message
+}
+
+fn solve_failure(dir: &TempDir, mesh_json: &str, handles_json: &str) -> String {
+    let m = scratch(dir, "bad.mesh.json", mesh_json.as_bytes());
+    let h = scratch(dir, "bad.handles.json", handles_json.as_bytes());
+    failure(&[
+        "solve",
+        "--mesh",
+        m.to_str().unwrap(),
+        "--handles",
+        h.to_str().unwrap(),
+    ])
+}
+
+const SQUARE: &str = r#"{"vertices": [[0,0],[1,0],[1,1],[0,1]], "triangles": [[0,1,2],[0,2,3]]}"#;
+const NO_HANDLES: &str = r#"{"handles": []}"#;
+
+#[test]
+fn bad_meshes_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: &[(&str, &[&str])] = &[
+        (
+            "{\"vertices\": [[0,0],[1,0]\n,[1,1]], \"triangles\": [[0,1,2]]",
+            &["bad.mesh.json", "line 2"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,7]]}"#,
+            &["triangles[0]", "out of range"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,1]]}"#,
+            &["triangles[0]", "repeats"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[2,0]], "triangles": [[0,1,2]]}"#,
+            &["triangles[0]", "zero area"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,2,1]]}"#,
+            &["triangles[0]", "clockwise"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1],[5,5]], "triangles": [[0,1,2]]}"#,
+            &["vertices[3]", "not used"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1e999]], "triangles": [[0,1,2]]}"#,
+            &["bad.mesh.json", "line 1"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,-2]]}"#,
+            &["bad.mesh.json", "line 1"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2]], "weights": [0]}"#,
+            &["weights[0]"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2]], "colour": 1}"#,
+            &["unknown field"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1,0]], "triangles": [[0,1,2]]}"#,
+            &["line 1", "expected a point [x, y], got 3"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2,0]]}"#,
+            &["expected a triangle [i, j, k]"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1e300]], "triangles": [[0,1,2]]}"#,
+            &["vertices[2]", "[1, 1e300]", "too far out"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1000,0],[500,0.1]], "triangles": [[0,1,2]]}"#,
+            &["triangles[0]", "too thin"],
+        ),
+        (
+            r#"{"vertices": [[0,0],[1,0],[1,1]], "triangles": [[0,1,2]], "weights": [1e-300]}"#,
+            &["weights[0]", "between"],
+        ),
+        ("\"my puppet\"", &["a mesh object"]),
+    ];
+    for (mesh, expected) in cases {
+        let message = solve_failure(&dir, mesh, NO_HANDLES);
+        for e in *expected {
+            assert!(
+                message.contains(e),
+                "for {mesh}: expected {e:?} in {message:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_handles_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: &[(&str, &[&str])] = &[
+        (
+            r#"{"handles": [{"point": [5, 5], "to": [0, 0]}]}"#,
+            &["handles[0].point", "outside the mesh"],
+        ),
+        (
+            r#"{"handles": [{"vertex": 0, "to": [0, 0]}, {"vertex": 9, "to": [0, 0]}]}"#,
+            &["handles[1].vertex", "out of range"],
+        ),
+        (
+            r#"{"handles": [{"vertex": 0, "point": [0.5, 0.5], "to": [0, 0]}]}"#,
+            &["handles[0]", "not both"],
+        ),
+        (r#"{"handles": [{"to": [0, 0]}]}"#, &["handles[0]", "needs"]),
+        (
+            r#"{"handles": [{"vertex": 0}]}"#,
+            &["bad.handles.json", "to"],
+        ),
+        (
+            "{\"handles\": [\n{\"vertex\": 0, \"to\": [0, 0]},\n]}",
+            &["bad.handles.json", "line 3"],
+        ),
+    ];
+    for (handles, expected) in cases {
+        let message = solve_failure(&dir, SQUARE, handles);
+        for e in *expected {
+            assert!(
+                message.contains(e),
+                "for {handles}: expected {e:?} in {message:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn bad_mesh_inputs_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
+    let crossing = scratch(
+        &dir,
+        "bowtie.json",
+        br#"{"outer": [[0,0],[10,10],[10,0],[0,10]]}"#,
+    );
+    let message = failure(&["mesh", crossing.to_str().unwrap()]);
+    assert!(
+        message.contains("bowtie.json") && message.contains("outer"),
+        "{message}"
+    );
+    assert!(message.contains("cross"), "{message}");
+
+    // A valid PNG whose pixels are all transparent.
+    let mut png_bytes = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut png_bytes, 8, 8);
+        encoder.set_color(png::ColorType::Rgba);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().unwrap();
+        writer.write_image_data(&[0u8; 8 * 8 * 4]).unwrap();
+    }
+    let clear = scratch(&dir, "clear.png", &png_bytes);
+    let message = failure(&["mesh", clear.to_str().unwrap()]);
+    assert!(
+        message.contains("clear.png") && message.contains("opaque"),
+        "{message}"
+    );
+
+    let not_png = scratch(&dir, "fake.png", b"GIF89a not a png at all");
+    let message = failure(&["mesh", not_png.to_str().unwrap()]);
+    assert!(message.contains("fake.png"), "{message}");
+
+    let missing = failure(&["mesh", "/nonexistent/puppet.png"]);
+    assert!(missing.contains("/nonexistent/puppet.png"), "{missing}");
+
+    let picture_as_json = scratch(&dir, "picture.json", &png_bytes);
+    let message = failure(&["mesh", picture_as_json.to_str().unwrap()]);
+    assert!(
+        message.contains("picture.json") && message.contains("not UTF-8"),
+        "{message}"
+    );
+
+    let sliver = scratch(
+        &dir,
+        "sliver.json",
+        br#"{"outer": [[0,0],[1000,0],[500,0.001]]}"#,
+    );
+    let message = failure(&["mesh", sliver.to_str().unwrap()]);
+    assert!(
+        message.contains("sliver.json") && message.contains("too thin"),
+        "{message}"
+    );
+
+    let message = failure(&["mesh", crossing.to_str().unwrap(), "--vertices", "0"]);
+    assert!(message.contains("--vertices"), "{message}");
+}
+
+#[test]
+fn a_byte_order_mark_is_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = scratch(
+        &dir,
+        "bom.mesh.json",
+        format!("\u{feff}{SQUARE}").as_bytes(),
+    );
+    let handles = scratch(
+        &dir,
+        "bom.handles.json",
+        format!("\u{feff}{NO_HANDLES}").as_bytes(),
+    );
+    let out = puppetry(&[
+        "solve",
+        "--mesh",
+        mesh.to_str().unwrap(),
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The bundled layered figure and its scenario, loaded through the library.
+fn layered_figure() -> (Mesh, Vec<Anchor>, Vec<DVec2>) {
+    let dir = puppetry_testkit::root().join("assets/gingerbread-layers");
+    let (mesh_path, handles_path) = (
+        dir.join("gingerbread-layers.mesh.json"),
+        dir.join("handles.json"),
+    );
+    let mesh = Mesh::load(&mesh_path).unwrap();
+    let text = std::fs::read_to_string(&handles_path).unwrap();
+    let (anchors, targets) = puppetry::cli::parse_handles("handles.json", &text, &mesh).unwrap();
+    (mesh, anchors, targets)
+}
+
+const METHODS: [&str; 4] = [
+    puppetry::compare::DIRECT_FFD,
+    puppetry::compare::ARAP_INVERSE_FFD,
+    puppetry::compare::PLAIN_ARAP,
+    puppetry::compare::LP_FFD,
+];
+
+#[test]
+fn compare_prints_all_four_methods_on_the_layered_figure() {
+    let (mesh, _, _) = layered_figure();
+    assert!(
+        mesh.pieces().len() >= 6,
+        "the figure is made of separate layers"
+    );
+    let out = puppetry(&["compare"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("10×10 grid"), "{table}");
+    for method in METHODS {
+        let row = table
+            .lines()
+            // Names are padded to a column: "ARAP" must not take the
+            // "ARAP + inverse FFD" row.
+            .find(|l| l.starts_with(&format!("{method}  ")))
+            .unwrap_or_else(|| panic!("no row for {method} in {table}"));
+        let numbers: Vec<f64> = row[method.len()..]
+            .split_whitespace()
+            .map(|x| x.parse().unwrap())
+            .collect();
+        assert_eq!(numbers.len(), 3, "{row}");
+        assert!(numbers.iter().all(|x| x.is_finite() && *x >= 0.0), "{row}");
+    }
+
+    let out = puppetry(&["compare", "--json", "--grid", "6x8"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let value: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(value["grid_columns"], 6);
+    assert_eq!(value["grid_rows"], 8);
+    assert_eq!(
+        value["vertices"].as_u64().unwrap() as usize,
+        mesh.vertices().len()
+    );
+    let methods = value["methods"].as_array().unwrap();
+    let names: Vec<&str> = methods
+        .iter()
+        .map(|m| m["method"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, METHODS);
+    for m in methods {
+        for field in ["angular", "area", "handle_error"] {
+            let x = m[field].as_f64().unwrap();
+            assert!(x.is_finite() && x >= 0.0, "{field} of {m}");
+        }
+        // Every method really deformed the figure.
+        assert!(m["angular"].as_f64().unwrap() > 0.0, "{m}");
+    }
+    // ARAP takes its handles as hard constraints; the grid methods only
+    // approximately, but within a few percent of the figure.
+    let size = mesh.size();
+    for m in methods {
+        let error = m["handle_error"].as_f64().unwrap();
+        if m["method"] == puppetry::compare::PLAIN_ARAP {
+            assert!(error < 1e-9 * size, "{m}");
+        } else {
+            assert!(error < 0.05 * size, "{m}");
+        }
+    }
+}
+
+#[test]
+fn arap_plus_inverse_ffd_is_the_grid_fit_of_the_arap_result() {
+    use puppetry_deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
+    use puppetry_deform::{Arap, Steps};
+
+    let (mesh, anchors, targets) = layered_figure();
+    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let by_name = |name| {
+        comparison
+            .methods
+            .iter()
+            .find(|m| m.method == name)
+            .unwrap()
+    };
+    // The ARAP row is the ARAP solver's answer.
+    let mut arap = Arap::register(&mesh).unwrap();
+    arap.compile(&anchors).unwrap();
+    let arap_pose = arap.update(&targets, Steps::Both).unwrap().to_vec();
+    let plain = by_name(puppetry::compare::PLAIN_ARAP);
+    assert!(crate::common::max_distance(&plain.pose, &arap_pose) < 1e-9 * mesh.size());
+
+    // The fitted grid satisfies the normal equations of
+    // λ_mp Σ_v |W_v P − a_v|² + λ_gr Σ_k |P_k − P⁰_k|², with W's columns
+    // read off plain FFD by moving one grid handle at a time.
+    let fitted = by_name(puppetry::compare::ARAP_INVERSE_FFD);
+    let grid = fitted.grid.clone().expect("a grid method");
+    let params = LpParams::default();
+    let rig = LpFfd::register(
+        &mesh,
+        GridSpec::around(&mesh, 10, 10, Basis::Bernstein),
+        params,
+    )
+    .unwrap();
+    let fitted_pose = rig.deform_with_grid(&grid).unwrap();
+    assert!(crate::common::max_distance(&fitted.pose, &fitted_pose) < 1e-9 * mesh.size());
+    let rest_grid = rig.rest_grid().to_vec();
+    let gradient = |p: &[DVec2]| -> Vec<DVec2> {
+        let pose = rig.deform_with_grid(p).unwrap();
+        (0..rest_grid.len())
+            .map(|k| {
+                let mut nudged = rest_grid.clone();
+                nudged[k].x += 1.0;
+                let column = rig.deform_with_grid(&nudged).unwrap();
+                let mut g = (p[k] - rest_grid[k]) * params.regular;
+                for ((c, r), (v, a)) in column
+                    .iter()
+                    .zip(mesh.vertices())
+                    .zip(pose.iter().zip(&arap_pose))
+                {
+                    g += (*v - *a) * ((c.x - r.x) * params.vertex);
+                }
+                g
+            })
+            .collect()
+    };
+    let norm = |g: &[DVec2]| g.iter().map(|x| x.length_squared()).sum::<f64>().sqrt();
+    let at_rest = norm(&gradient(&rest_grid));
+    let at_fit = norm(&gradient(&grid));
+    assert!(at_rest > 0.0);
+    assert!(
+        at_fit < 1e-8 * at_rest,
+        "gradient {at_fit} at the fit, {at_rest} at rest"
+    );
+    // And the fit is not the ARAP pose itself: the grid cannot follow
+    // separate pieces moving on their own.
+    assert!(crate::common::max_distance(&fitted_pose, &arap_pose) > 1e-3 * mesh.size());
+}
+
+#[test]
+fn compare_runs_on_a_figure_of_your_own() {
+    let dir = tempfile::tempdir().unwrap();
+    // Two overlapping bars, each a piece of its own with two handles.
+    let (mut vertices, mut triangles) = crate::common::grid(8, 2, 8.0, 2.0, DVec2::ZERO);
+    let (v, t) = crate::common::grid(2, 6, 2.0, 6.0, DVec2::new(3.0, -2.0));
+    let base = vertices.len() as u32;
+    vertices.extend(v);
+    triangles.extend(t.into_iter().map(|tri| tri.map(|x| x + base)));
+    let mesh = Mesh::new("cross", vertices, triangles, None, None).unwrap();
+    assert_eq!(mesh.pieces().len(), 2);
+    let mesh_path = scratch(&dir, "cross.mesh.json", mesh.to_json().as_bytes());
+    let last = base - 1;
+    let handles = format!(
+        r#"{{"handles": [{{"vertex": 0, "to": [0, 0]}}, {{"vertex": {last}, "to": [7, 4]}},
+            {{"vertex": {base}, "to": [3, -2]}}, {{"vertex": {}, "to": [6, 2]}}]}}"#,
+        mesh.vertices().len() - 1
+    );
+    let handles_path = scratch(&dir, "cross.handles.json", handles.as_bytes());
+    let out = puppetry(&[
+        "compare",
+        "--mesh",
+        mesh_path.to_str().unwrap(),
+        "--handles",
+        handles_path.to_str().unwrap(),
+        "--grid",
+        "4x4",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let value: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(value["pieces"], 2);
+    assert_eq!(value["handles"], 4);
+    assert_eq!(value["methods"].as_array().unwrap().len(), 4);
+}
+
+#[test]
+fn bad_compare_inputs_are_named_and_explained() {
+    let dir = tempfile::tempdir().unwrap();
+    for (grid, expected) in [
+        ("1x5", "at least 2"),
+        ("ten", "COLUMNSxROWS"),
+        ("10x", "COLUMNSxROWS"),
+        ("100x100", "more than"),
+    ] {
+        let message = failure(&["compare", "--grid", grid]);
+        assert!(
+            message.contains("--grid") && message.contains(expected),
+            "{grid}: {message}"
+        );
+    }
+    let mesh = scratch(&dir, "square.mesh.json", SQUARE.as_bytes());
+    let m = mesh.to_str().unwrap();
+    let handles = scratch(
+        &dir,
+        "far.handles.json",
+        br#"{"handles": [{"vertex": 7, "to": [0, 0]}]}"#,
+    );
+    let message = failure(&[
+        "compare",
+        "--mesh",
+        m,
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(
+        message.contains("far.handles.json") && message.contains("handles[0].vertex"),
+        "{message}"
+    );
+    let broken = scratch(&dir, "broken.mesh.json", b"{\"vertices\": [");
+    let message = failure(&[
+        "compare",
+        "--mesh",
+        broken.to_str().unwrap(),
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(message.contains("broken.mesh.json"), "{message}");
+    let message = failure(&[
+        "compare",
+        "--mesh",
+        m,
+        "--handles",
+        "/nonexistent/handles.json",
+    ]);
+    assert!(message.contains("/nonexistent/handles.json"), "{message}");
+    let message = failure(&["compare", "--mesh", m]);
+    assert!(message.contains("--handles"), "{message}");
+}
+
+#[test]
+fn the_rig_bench_runs_both_rigs() {
+    let out = puppetry(&["bench", "--rigs", "--sizes", "300", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cases: Vec<serde_json::Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let rigs: Vec<&str> = cases.iter().map(|c| c["rig"].as_str().unwrap()).collect();
+    assert_eq!(rigs, ["lp-ffd", "lp-ffd", "skeleton"]);
+    assert_eq!(cases[0]["basis"], "bernstein");
+    assert_eq!(cases[1]["basis"], "lattice");
+    assert_eq!(cases[2]["bones"], 15);
+    for c in &cases {
+        assert!(c["frames"].as_u64().unwrap() > 0, "{c}");
+        let vertices = c["vertices"].as_u64().unwrap();
+        assert!((200..=400).contains(&vertices), "{c}");
+        for field in ["update_us_median", "update_us_p99", "update_us_min"] {
+            let x = c[field].as_f64().unwrap();
+            assert!(x.is_finite() && x > 0.0, "{field} of {c}");
+        }
+    }
+    for c in &cases[..2] {
+        assert_eq!(c["grid_columns"], 10);
+        assert_eq!(c["grid_rows"], 10);
+    }
+
+    let out = puppetry(&["bench", "--rigs", "--sizes", "300"]);
+    assert!(out.status.success());
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.lines().any(|l| l.starts_with("lp-FFD")), "{table}");
+    assert!(table.lines().any(|l| l.starts_with("skeleton")), "{table}");
+}
+
+#[test]
+fn the_lp_ffd_row_minimises_the_lp_ffd_energy() {
+    use puppetry_deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
+
+    let (mesh, anchors, targets) = layered_figure();
+    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let grid_of = |name| {
+        comparison
+            .methods
+            .iter()
+            .find(|m| m.method == name)
+            .unwrap()
+            .grid
+            .clone()
+            .unwrap()
+    };
+    let mut rig = LpFfd::register(
+        &mesh,
+        GridSpec::around(&mesh, 10, 10, Basis::Bernstein),
+        LpParams::default(),
+    )
+    .unwrap();
+    rig.compile(&anchors, &[]).unwrap();
+    let energy = |grid: &[DVec2]| rig.energy(grid, &targets, &[]).unwrap();
+    let best = energy(&grid_of(puppetry::compare::LP_FFD));
+    for other in [
+        puppetry::compare::DIRECT_FFD,
+        puppetry::compare::ARAP_INVERSE_FFD,
+    ] {
+        let e = energy(&grid_of(other));
+        assert!(best < e, "lp-FFD {best}, {other} {e}");
+    }
+    // A local minimum: nudging any grid handle a little costs energy.
+    let grid = grid_of(puppetry::compare::LP_FFD);
+    let step = 1e-3 * mesh.size();
+    for k in (0..grid.len()).step_by(7) {
+        for d in [DVec2::X, DVec2::Y, -DVec2::X, -DVec2::Y] {
+            let mut nudged = grid.clone();
+            nudged[k] += d * step;
+            assert!(energy(&nudged) >= best, "handle {k} nudged by {d}");
+        }
+    }
+}

@@ -1,0 +1,165 @@
+//! A daemon on 127.0.0.1:0 with the demo puppet, and a WebSocket client's
+//! view of it: the helpers every end-to-end test drives it with.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use glam::DVec2;
+use puppetry_daemon::serve::{Running, start};
+use puppetry_mesh::Mesh;
+use puppetry_stage::config::StageConfig;
+use serde_json::Value;
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
+
+pub type Client = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+/// How long a test waits for the next message it is owed. Generous: the
+/// daemon's promises, not the machine's load, decide pass or fail.
+pub const WAIT: Duration = Duration::from_secs(20);
+
+/// How long a test lets a looping replay play until it has seen every state
+/// it waits for.
+pub const PLAYS: Duration = Duration::from_secs(120);
+
+pub fn root() -> PathBuf {
+    puppetry_testkit::root()
+}
+
+/// A stage with the demo puppet, its feet pinned, on a free port.
+pub fn stage_config(extra: &str) -> StageConfig {
+    let assets = root().join("assets/gingerbread");
+    let text = format!(
+        r#"
+[stage]
+width = 1280
+height = 720
+listen = "127.0.0.1:0"
+client_timeout_s = 10
+
+[access]
+performer_tokens = ["secret"]
+
+[[puppet]]
+name = "gingerbread"
+image = "{image}"
+mesh = "{mesh}"
+at = [640, 360]
+pins = [[168, 58], [344, 58]]
+{extra}
+"#,
+        image = assets.join("gingerbread.png").display(),
+        mesh = assets.join("gingerbread.mesh.json").display(),
+    );
+    StageConfig::parse("test.toml", &text, Path::new("/")).unwrap()
+}
+
+pub async fn daemon(extra: &str) -> Running {
+    start(&stage_config(extra), root().join("clients/web"), None)
+        .await
+        .unwrap()
+}
+
+pub async fn connect(running: &Running, hello: Value) -> (Client, Value) {
+    let url = format!("ws://{}/ws", running.address);
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    ws.send(Message::text(hello.to_string())).await.unwrap();
+    let stage = next_text(&mut ws).await;
+    (ws, stage)
+}
+
+pub async fn next_message(ws: &mut Client) -> Message {
+    tokio::time::timeout(WAIT, ws.next())
+        .await
+        .expect("a message in time")
+        .expect("connection open")
+        .expect("no error")
+}
+
+pub async fn next_text(ws: &mut Client) -> Value {
+    loop {
+        if let Message::Text(text) = next_message(ws).await {
+            return serde_json::from_str(&text).unwrap();
+        }
+    }
+}
+
+/// A decoded vertex frame.
+pub struct Frame {
+    pub puppet: u32,
+    pub sequence: u64,
+    pub vertices: Vec<DVec2>,
+}
+
+pub fn decode(bytes: &[u8]) -> Frame {
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    assert_eq!(u32_at(0), 1, "vertex frame kind");
+    let n = u32_at(24) as usize;
+    assert_eq!(bytes.len(), 32 + 8 * n);
+    let f = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()) as f64;
+    Frame {
+        puppet: u32_at(4),
+        sequence: u64::from_le_bytes(bytes[8..16].try_into().unwrap()),
+        vertices: (0..n)
+            .map(|i| DVec2::new(f(32 + 8 * i), f(36 + 8 * i)))
+            .collect(),
+    }
+}
+
+/// Reads until a frame satisfies `done`; returns it.
+pub async fn frame_until(ws: &mut Client, mut done: impl FnMut(&Frame) -> bool) -> Frame {
+    loop {
+        if let Message::Binary(bytes) = next_message(ws).await {
+            let frame = decode(&bytes);
+            if done(&frame) {
+                return frame;
+            }
+        }
+    }
+}
+
+/// The puppet's rest mesh as placed on the stage, from the stage message.
+pub fn placed_mesh(stage: &Value) -> Mesh {
+    let p = &stage["puppets"][0];
+    let rest: Vec<f64> = serde_json::from_value(p["rest"].clone()).unwrap();
+    let triangles: Vec<u32> = serde_json::from_value(p["triangles"].clone()).unwrap();
+    let vertices = rest.chunks(2).map(|c| DVec2::new(c[0], c[1])).collect();
+    let triangles = triangles.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Mesh::new("stage", vertices, triangles, None, None).unwrap()
+}
+
+/// A point on the puppet's raised hand, in stage coordinates.
+pub fn hand(mesh: &Mesh) -> DVec2 {
+    // The right-most vertex is on the right hand; step inwards a little.
+    let v = mesh
+        .vertices()
+        .iter()
+        .copied()
+        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+            if b.x > a.x { b } else { a }
+        });
+    v - DVec2::new(15.0, 0.0)
+}
+
+/// The owners of a "handles" message's contact handles.
+pub fn contact_owners(m: &Value) -> Vec<String> {
+    m["handles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|h| h["kind"] == "contact")
+        .map(|h| h["owner"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// Reads until a "handles" message whose contact owners satisfy `done`.
+pub async fn until_contact_owners(ws: &mut Client, done: impl Fn(&[String]) -> bool) {
+    loop {
+        let m = next_text(ws).await;
+        if m["type"] == "handles" && done(&contact_owners(&m)) {
+            return;
+        }
+    }
+}

@@ -1,0 +1,680 @@
+//! The stage: puppets placed in stage coordinates, and the mapping from
+//! touch contacts to handles on them. A contact that lands near a grid
+//! handle or joint of a rigged puppet grabs it ([`rig`]); otherwise one that
+//! lands on a puppet grabs the material point under it (a point handle in
+//! the triangle it touched, topmost puppet first; skeleton puppets ignore
+//! it); moving the contact drags what it holds; lifting it lets go. Painted
+//! per-triangle weights live here too. Pins are handles that stay. Every handle knows its owner, so
+//! contacts from different devices and clients never get confused.
+//!
+//! Plain synchronous state; [`thread`] runs it, with the solver, on a thread
+//! of its own.
+
+pub mod config;
+pub mod rig;
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use glam::DVec2;
+
+use config::StageConfig;
+use puppetry_deform::{Anchor, Arap};
+use puppetry_input::{ContactFrame, Phase};
+use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh, MeshError};
+pub use rig::{Grip, Rig};
+
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    #[error("{file}: puppet[{index}] ({puppet}).{field}: {problem}")]
+    Rig {
+        file: String,
+        index: usize,
+        puppet: String,
+        field: String,
+        problem: String,
+    },
+    #[error("puppet {puppet}: pin {index} at [{x}, {y}] is not on the puppet")]
+    PinOutside {
+        puppet: String,
+        index: usize,
+        x: f64,
+        y: f64,
+    },
+    #[error("puppet {puppet}: image {path}: {problem}")]
+    Image {
+        puppet: String,
+        path: String,
+        problem: String,
+    },
+}
+
+/// A grid handle or joint within this fraction of the stage's smaller side
+/// from where a contact lands is what it grabs.
+pub const GRAB_RADIUS_FRACTION: f64 = 1.0 / 60.0;
+
+/// Who holds a handle.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub enum Owner {
+    /// An input source (a device, a replay, a performer's browser), by id.
+    Source(String),
+    /// The stage file.
+    Config,
+}
+
+impl std::fmt::Display for Owner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Owner::Source(id) => f.write_str(id),
+            Owner::Config => f.write_str("config"),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HandleKind {
+    Contact,
+    Pin,
+}
+
+/// A handle on a puppet.
+#[derive(Debug, Clone)]
+pub struct Handle {
+    pub id: u64,
+    pub owner: Owner,
+    pub kind: HandleKind,
+    pub grip: Grip,
+    /// Where the handle is held now (stage coordinates).
+    pub target: DVec2,
+    /// From where the contact landed to the grid handle or joint it grabbed:
+    /// the rig point keeps that offset, so it does not jump to the finger.
+    pub offset: DVec2,
+}
+
+impl Handle {
+    /// Where the rig is asked to put what this handle holds.
+    pub fn rig_target(&self) -> DVec2 {
+        self.target + self.offset
+    }
+}
+
+/// A puppet on the stage, with its rig.
+pub struct Puppet {
+    pub id: u32,
+    pub name: String,
+    pub image: PathBuf,
+    /// The rest mesh, placed on the stage (with the stage file's weights).
+    pub mesh: Mesh,
+    /// The mesh file, and its mesh in its own coordinates: painted weights
+    /// are saved there.
+    pub mesh_file: PathBuf,
+    source_mesh: Mesh,
+    /// The per-triangle weights now (painted ones included).
+    weights: Vec<f64>,
+    /// Bumped by every paint stroke that changed a weight.
+    weights_generation: u64,
+    rig: Rig,
+    handles: Vec<Handle>,
+    /// The handle set changed since the last solve (recompile needed).
+    handles_changed: bool,
+    /// Some handle moved (or the rig changed) since the last solve.
+    moved: bool,
+    /// Painted weights not yet given to a grid or skeleton rig.
+    weights_pending: bool,
+}
+
+/// What a contact landing on a puppet finds.
+enum Reach {
+    Grip(Grip, DVec2),
+    /// On a skeleton puppet but away from its joints: ignored, and it does
+    /// not fall through to the puppets below.
+    Blocked,
+    Miss,
+}
+
+impl Puppet {
+    pub fn handles(&self) -> &[Handle] {
+        &self.handles
+    }
+
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+
+    /// The deformed vertices (stage coordinates, rest order).
+    pub fn pose(&self) -> &[DVec2] {
+        self.rig.pose()
+    }
+
+    /// The per-triangle weights now, painted ones included.
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
+    }
+
+    /// Bumped by every paint dab that changed a weight.
+    pub fn weights_generation(&self) -> u64 {
+        self.weights_generation
+    }
+
+    /// The triangle of the current pose under `p` and `p`'s barycentric
+    /// coordinates there: what a finger landing at `p` touches.
+    pub fn hit(&self, p: DVec2) -> Option<Anchor> {
+        let pose = self.pose();
+        let mut best: Option<(f64, u32, [f64; 3])> = None;
+        for (t, tri) in self.mesh.triangles().iter().enumerate() {
+            let [a, b, c] = tri.map(|i| pose[i as usize]);
+            let lo = a.min(b).min(c);
+            let hi = a.max(b).max(c);
+            if p.x < lo.x || p.y < lo.y || p.x > hi.x || p.y > hi.y {
+                continue;
+            }
+            let bary = barycentric_in(a, b, c, p);
+            let worst = bary[0].min(bary[1]).min(bary[2]);
+            // Deformed meshes may fold over: prefer the triangle containing
+            // the point most deeply.
+            if worst >= -1e-9 && best.is_none_or(|(w, _, _)| worst > w) {
+                best = Some((worst, t as u32, bary));
+            }
+        }
+        best.map(|(_, triangle, bary)| {
+            let clamped = bary.map(|b| b.max(0.0));
+            let sum: f64 = clamped.iter().sum();
+            Anchor::Point {
+                triangle,
+                bary: clamped.map(|b| b / sum),
+            }
+        })
+    }
+
+    /// A grid handle or joint near `p` first, then the material point.
+    fn reach(&self, p: DVec2, radius: f64) -> Reach {
+        if let Some(grip) = self.rig.point_near(p, radius) {
+            let at = self.rig.grip_position(grip).unwrap_or(p);
+            return Reach::Grip(grip, at - p);
+        }
+        match self.hit(p) {
+            Some(anchor) if self.rig.takes_points() => {
+                Reach::Grip(Grip::Point(anchor), DVec2::ZERO)
+            }
+            Some(_) => Reach::Blocked,
+            None => Reach::Miss,
+        }
+    }
+
+    /// Multiplies the weights of the triangles whose deformed centroid lies
+    /// within `radius` of `at` by `strength` raised to the brush's falloff
+    /// (1 at the centre, 0 at the rim), clamped to the mesh's weight range.
+    /// Returns whether any weight changed.
+    fn paint(&mut self, at: DVec2, radius: f64, strength: f64) -> bool {
+        let pose = self.rig.pose();
+        let mut changed = false;
+        for (tri, w) in self.mesh.triangles().iter().zip(&mut self.weights) {
+            let [a, b, c] = tri.map(|i| pose[i as usize]);
+            let d = ((a + b + c) / 3.0).distance(at);
+            if d >= radius {
+                continue;
+            }
+            let painted = (*w * strength.powf(1.0 - d / radius)).clamp(MIN_WEIGHT, MAX_WEIGHT);
+            if painted != *w {
+                *w = painted;
+                changed = true;
+            }
+        }
+        changed
+    }
+}
+
+fn barycentric_in(a: DVec2, b: DVec2, c: DVec2, p: DVec2) -> [f64; 3] {
+    let d = (b - a).perp_dot(c - a);
+    let l1 = (p - a).perp_dot(c - a) / d;
+    let l2 = (b - a).perp_dot(p - a) / d;
+    [1.0 - l1 - l2, l1, l2]
+}
+
+/// A free-form puppet's solver rebuild with painted weights: the mesh to
+/// register, and the weights generation it carries.
+pub struct Rebuild {
+    pub puppet: u32,
+    pub generation: u64,
+    pub mesh: Mesh,
+}
+
+/// A puppet's mesh file with painted weights, not yet written.
+#[derive(Debug)]
+pub struct WeightsFile {
+    pub path: PathBuf,
+    /// The mesh as loaded, in its own coordinates.
+    mesh: Mesh,
+    weights: Vec<f64>,
+}
+
+impl WeightsFile {
+    /// The `.mesh.json` text: the loaded mesh with the painted weights.
+    pub fn text(self) -> Result<String, String> {
+        let mut mesh = self.mesh;
+        mesh.set_weights(self.weights)
+            .map_err(|e| format!("{}: {e}", self.path.display()))?;
+        Ok(mesh.to_json())
+    }
+}
+
+/// All puppets and the contacts holding them.
+pub struct Stage {
+    pub width: f64,
+    pub height: f64,
+    puppets: Vec<Puppet>,
+    /// (source, contact id) → (puppet, handle id) for contacts that grabbed
+    /// something; contacts on empty stage are absent.
+    grabs: HashMap<(String, u32), (usize, u64)>,
+    next_handle: u64,
+}
+
+impl Stage {
+    /// Loads every puppet of the stage file, places it, rigs it and sets
+    /// its pins.
+    pub fn from_config(config: &StageConfig) -> Result<Stage, StageError> {
+        let mut stage = Stage {
+            width: config.stage.width,
+            height: config.stage.height,
+            puppets: Vec::new(),
+            grabs: HashMap::new(),
+            next_handle: 1,
+        };
+        for (id, p) in config.puppets.iter().enumerate() {
+            let mesh_file = config.resolve(&p.mesh);
+            let mesh = Mesh::load(&mesh_file)?;
+            let placed = place(&mesh, p.at.into(), p.scale)?;
+            let rig = Rig::from_config(
+                &mesh,
+                &placed,
+                p.at.into(),
+                p.scale,
+                p.grid.as_ref(),
+                p.skeleton.as_ref(),
+            )
+            .map_err(|(field, problem)| StageError::Rig {
+                file: config.file.clone(),
+                index: id,
+                puppet: p.name.clone(),
+                field,
+                problem,
+            })?;
+            stage.puppets.push(Puppet {
+                id: id as u32,
+                name: p.name.clone(),
+                image: config.resolve(&p.image),
+                weights: placed.weights().to_vec(),
+                mesh: placed,
+                mesh_file,
+                source_mesh: mesh.clone(),
+                weights_generation: 0,
+                rig,
+                handles: Vec::new(),
+                handles_changed: false,
+                moved: false,
+                weights_pending: false,
+            });
+            for (index, pin) in p.pins.iter().enumerate() {
+                let at = stage_point(&mesh, p.at.into(), p.scale, DVec2::from(*pin));
+                let anchor = stage.puppets[id].hit(at);
+                let pinned = anchor.and_then(|anchor| {
+                    stage.add_handle(
+                        id,
+                        Owner::Config,
+                        HandleKind::Pin,
+                        Grip::Point(anchor),
+                        at,
+                        DVec2::ZERO,
+                    )
+                });
+                if pinned.is_none() {
+                    return Err(StageError::PinOutside {
+                        puppet: p.name.clone(),
+                        index,
+                        x: pin[0],
+                        y: pin[1],
+                    });
+                }
+            }
+        }
+        Ok(stage)
+    }
+
+    pub fn puppets(&self) -> &[Puppet] {
+        &self.puppets
+    }
+
+    /// How far from a grid handle or joint a contact may land to grab it.
+    pub fn grab_radius(&self) -> f64 {
+        self.width.min(self.height) * GRAB_RADIUS_FRACTION
+    }
+
+    /// Applies one input frame: contacts land, move and lift.
+    pub fn apply(&mut self, frame: &ContactFrame) {
+        let source = frame.source.to_string();
+        for contact in &frame.contacts {
+            let key = (source.clone(), contact.id);
+            match contact.phase {
+                Phase::Down => {
+                    // A repeated down without an up: the old grab ends first.
+                    self.release(&key);
+                    if let Some(grab) = self.grab(
+                        Owner::Source(source.clone()),
+                        HandleKind::Contact,
+                        contact.position,
+                    ) {
+                        self.grabs.insert(key, grab);
+                    }
+                }
+                Phase::Move => {
+                    if let Some(&(puppet, handle)) = self.grabs.get(&key) {
+                        let puppet = &mut self.puppets[puppet];
+                        if let Some(h) = puppet
+                            .handles
+                            .iter_mut()
+                            .find(|h| h.id == handle && h.target != contact.position)
+                        {
+                            h.target = contact.position;
+                            puppet.moved = true;
+                        }
+                    }
+                }
+                Phase::Up => self.release(&key),
+            }
+        }
+    }
+
+    /// Lifts every contact of a source (it disconnected or vanished).
+    pub fn release_source(&mut self, source: &str) {
+        let keys: Vec<_> = self
+            .grabs
+            .keys()
+            .filter(|k| k.0 == source)
+            .cloned()
+            .collect();
+        for key in keys {
+            self.release(&key);
+        }
+    }
+
+    fn release(&mut self, key: &(String, u32)) {
+        if let Some((puppet, handle)) = self.grabs.remove(key) {
+            self.remove_handle(puppet, handle);
+        }
+    }
+
+    fn remove_handle(&mut self, puppet: usize, handle: u64) -> bool {
+        let p = &mut self.puppets[puppet];
+        let before = p.handles.len();
+        p.handles.retain(|h| h.id != handle);
+        let removed = p.handles.len() != before;
+        p.handles_changed |= removed;
+        removed
+    }
+
+    /// A new handle at `at` on the topmost puppet there: a grid handle or
+    /// joint within the grab radius, else the material point.
+    fn grab(&mut self, owner: Owner, kind: HandleKind, at: DVec2) -> Option<(usize, u64)> {
+        let radius = self.grab_radius();
+        for puppet in (0..self.puppets.len()).rev() {
+            match self.puppets[puppet].reach(at, radius) {
+                Reach::Grip(grip, offset) => {
+                    let id = self.add_handle(puppet, owner, kind, grip, at, offset)?;
+                    return Some((puppet, id));
+                }
+                Reach::Blocked => return None,
+                Reach::Miss => {}
+            }
+        }
+        None
+    }
+
+    fn add_handle(
+        &mut self,
+        puppet: usize,
+        owner: Owner,
+        kind: HandleKind,
+        grip: Grip,
+        at: DVec2,
+        offset: DVec2,
+    ) -> Option<u64> {
+        let id = self.next_handle;
+        self.next_handle += 1;
+        let p = &mut self.puppets[puppet];
+        p.handles.push(Handle {
+            id,
+            owner,
+            kind,
+            grip,
+            target: at,
+            offset,
+        });
+        p.handles_changed = true;
+        Some(id)
+    }
+
+    /// Pins what a contact landing at `at` would grab (a material point, a
+    /// grid handle or a joint); returns (puppet, handle id).
+    pub fn pin(&mut self, owner: Owner, at: DVec2) -> Option<(u32, u64)> {
+        self.grab(owner, HandleKind::Pin, at)
+            .map(|(puppet, id)| (puppet as u32, id))
+    }
+
+    /// Removes a pin; contacts cannot be unpinned.
+    pub fn unpin(&mut self, puppet: u32, handle: u64) -> bool {
+        let Some(p) = self.puppets.get(puppet as usize) else {
+            return false;
+        };
+        if !p
+            .handles
+            .iter()
+            .any(|h| h.id == handle && h.kind == HandleKind::Pin)
+        {
+            return false;
+        }
+        self.remove_handle(puppet as usize, handle)
+    }
+
+    fn puppet_mut(&mut self, puppet: u32) -> Result<&mut Puppet, String> {
+        let count = self.puppets.len();
+        self.puppets
+            .get_mut(puppet as usize)
+            .ok_or_else(|| format!("puppet {puppet}: no such puppet (the stage has {count})"))
+    }
+
+    /// Paints stiffness under a brush (see `docs/rigs.md`). Grid and
+    /// skeleton puppets refactor at the next solve; a free-form puppet returns the
+    /// rebuild to run off the stage thread (none while one is under way:
+    /// the newest weights go in the next when it finishes).
+    pub fn paint(
+        &mut self,
+        puppet: u32,
+        at: DVec2,
+        radius: f64,
+        strength: f64,
+    ) -> Result<Option<Rebuild>, String> {
+        let ok = |v: f64| v.is_finite() && v > 0.0;
+        if !(at.is_finite() && ok(radius) && ok(strength)) {
+            return Err("paint needs finite x, y and positive radius and strength".into());
+        }
+        let p = self.puppet_mut(puppet)?;
+        if !p.paint(at, radius, strength) {
+            return Ok(None);
+        }
+        p.weights_generation += 1;
+        if let Rig::Free(_) = p.rig {
+            return Ok(self.rebuild(puppet));
+        }
+        // Refactored once before the next solve, however many dabs arrive
+        // before it.
+        p.weights_pending = true;
+        p.moved = true;
+        Ok(None)
+    }
+
+    /// The rebuild a free-form puppet needs, if its weights are newer than
+    /// its solver and no rebuild is under way; marks it under way.
+    pub fn rebuild(&mut self, puppet: u32) -> Option<Rebuild> {
+        let p = self.puppets.get_mut(puppet as usize)?;
+        let Rig::Free(r) = &mut p.rig else {
+            return None;
+        };
+        if r.rebuilding || r.built_generation == p.weights_generation {
+            return None;
+        }
+        let mesh = Mesh::new(
+            "painted mesh",
+            p.mesh.vertices().to_vec(),
+            p.mesh.triangles().to_vec(),
+            p.mesh.uv().map(|uv| uv.to_vec()),
+            Some(p.weights.clone()),
+        )
+        .ok()?;
+        r.rebuilding = true;
+        Some(Rebuild {
+            puppet,
+            generation: p.weights_generation,
+            mesh,
+        })
+    }
+
+    /// Swaps in a rebuilt solver (the next solve compiles it with the
+    /// current handles); returns a further rebuild if the weights moved on
+    /// meanwhile.
+    pub fn install(&mut self, puppet: u32, generation: u64, arap: Arap) -> Option<Rebuild> {
+        let p = self.puppets.get_mut(puppet as usize)?;
+        let Rig::Free(r) = &mut p.rig else {
+            return None;
+        };
+        r.arap = arap;
+        r.built_generation = generation;
+        r.rebuilding = false;
+        p.handles_changed = true;
+        p.moved = true;
+        self.rebuild(puppet)
+    }
+
+    /// A rebuild failed: allow the next one.
+    pub fn rebuild_failed(&mut self, puppet: u32) {
+        if let Some(Puppet {
+            rig: Rig::Free(r), ..
+        }) = self.puppets.get_mut(puppet as usize)
+        {
+            r.rebuilding = false;
+        }
+    }
+
+    /// Sets a skeleton puppet to the pose `t` of the way from key pose
+    /// `from` to key pose `to`.
+    pub fn set_key_pose(
+        &mut self,
+        puppet: u32,
+        from: &str,
+        to: &str,
+        t: f64,
+    ) -> Result<(), String> {
+        let p = self.puppet_mut(puppet)?;
+        let Rig::Skeleton(r) = &mut p.rig else {
+            return Err(format!("puppet {puppet}: has no skeleton"));
+        };
+        r.set_key_pose(from, to, t)?;
+        p.moved = true;
+        Ok(())
+    }
+
+    /// The "grid" answer to an export request: the grid's size, rest and
+    /// deformed handles (stage coordinates, row by row from the lower left).
+    pub fn export_grid(&self, puppet: u32) -> Result<serde_json::Value, String> {
+        let p = self
+            .puppets
+            .get(puppet as usize)
+            .ok_or_else(|| format!("puppet {puppet}: no such puppet"))?;
+        let Rig::Grid(r) = &p.rig else {
+            return Err(format!("puppet {puppet}: has no grid"));
+        };
+        let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
+        let spec = r.ffd.spec();
+        Ok(serde_json::json!({
+            "type": "grid",
+            "puppet": puppet,
+            "columns": spec.columns,
+            "rows": spec.rows,
+            "rest": points(r.ffd.rest_grid()),
+            "grid": points(r.ffd.grid()),
+        }))
+    }
+
+    /// What saving the puppet's painted weights writes, to be turned into
+    /// text off the stage thread ([`WeightsFile::text`]).
+    pub fn weights_file(&self, puppet: u32) -> Result<WeightsFile, String> {
+        let p = self
+            .puppets
+            .get(puppet as usize)
+            .ok_or_else(|| format!("puppet {puppet}: no such puppet"))?;
+        Ok(WeightsFile {
+            path: p.mesh_file.clone(),
+            mesh: p.source_mesh.clone(),
+            weights: p.weights.clone(),
+        })
+    }
+
+    /// Solves every puppet whose handles changed or moved; returns, per
+    /// solved puppet, whether its handle set changed.
+    pub fn solve(&mut self) -> Vec<(u32, bool)> {
+        let mut solved = Vec::new();
+        for p in &mut self.puppets {
+            if !(p.handles_changed || p.moved) {
+                continue;
+            }
+            if p.weights_pending {
+                p.weights_pending = false;
+                if let Err(problem) = p.rig.set_weights(&p.weights) {
+                    // Painted weights are clamped to the mesh's range, so
+                    // this is not expected; the rig keeps its old weights.
+                    tracing::warn!(puppet = %p.name, "painted weights refused: {problem}");
+                }
+            }
+            if let Err(problem) = p.rig.solve(&p.handles, p.handles_changed) {
+                // Grips come from hit tests on this rig, so only a
+                // non-finite target can fail here; keep the last pose.
+                tracing::warn!(puppet = %p.name, "ignored a frame: {problem}");
+            }
+            solved.push((p.id, p.handles_changed));
+            p.handles_changed = false;
+            p.moved = false;
+        }
+        solved
+    }
+}
+
+/// A mesh point in stage coordinates: scaled about the mesh's bounding-box
+/// centre, which lands at `at`.
+pub(crate) fn stage_point(mesh: &Mesh, at: DVec2, scale: f64, p: DVec2) -> DVec2 {
+    let (lo, hi) = bounds(mesh.vertices());
+    at + (p - (lo + hi) / 2.0) * scale
+}
+
+fn bounds(points: &[DVec2]) -> (DVec2, DVec2) {
+    points.iter().fold(
+        (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    )
+}
+
+/// The mesh moved onto the stage (same triangles, uv and weights).
+fn place(mesh: &Mesh, at: DVec2, scale: f64) -> Result<Mesh, MeshError> {
+    let vertices = mesh
+        .vertices()
+        .iter()
+        .map(|&p| stage_point(mesh, at, scale, p))
+        .collect();
+    Mesh::new(
+        "placed mesh",
+        vertices,
+        mesh.triangles().to_vec(),
+        mesh.uv().map(|uv| uv.to_vec()),
+        Some(mesh.weights().to_vec()),
+    )
+}

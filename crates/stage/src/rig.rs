@@ -1,0 +1,398 @@
+//! A puppet's rig: which deformer drives it and how a contact's grip on it
+//! (a material point, a grid handle, a joint) becomes that deformer's
+//! handles. Free-form puppets run the ARAP solver, grid puppets lp-FFD and
+//! skeleton puppets the shape-aware skeletal deformer; all three honour the
+//! puppet's per-triangle weights. Built from the stage file by
+//! [`Rig::from_config`], in stage coordinates.
+
+use glam::DVec2;
+
+use super::config::{BasisConfig, GridConfig, KeyPoseConfig, SkeletonConfig, SkeletonMode};
+use super::{Handle, stage_point};
+use puppetry_deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
+use puppetry_deform::skeleton::{Pose, ShapeAware, Skeleton, SkeletonParams};
+use puppetry_deform::{Anchor, Arap, Steps};
+use puppetry_mesh::Mesh;
+
+/// What a handle holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Grip {
+    /// A material point of the mesh (free-form and grid puppets).
+    Point(Anchor),
+    /// A grid handle of an lp-FFD puppet, by index (row by row).
+    GridHandle(usize),
+    /// A joint of a skeleton puppet, by index.
+    Joint(usize),
+}
+
+/// A free-form puppet's solver.
+pub struct FreeRig {
+    pub(super) arap: Arap,
+    targets: Vec<DVec2>,
+    /// Weights generation the solver was built with, and whether a rebuild
+    /// with newer weights is under way on a worker thread.
+    pub(super) built_generation: u64,
+    pub(super) rebuilding: bool,
+}
+
+pub struct GridRig {
+    pub(super) ffd: LpFfd,
+    vertex_anchors: Vec<Anchor>,
+    grid_indices: Vec<usize>,
+    vertex_targets: Vec<DVec2>,
+    grid_targets: Vec<DVec2>,
+}
+
+pub struct SkeletonRig {
+    pub(super) deformer: ShapeAware,
+    pub(super) mode: SkeletonMode,
+    /// FK mode's state: the current pose.
+    pub(super) pose: Pose,
+    /// Free mode's state: the current joint positions.
+    pub(super) joints: Vec<DVec2>,
+    /// Per joint, the bone ending at it (`None` for roots).
+    bone_ending: Vec<Option<usize>>,
+    /// Key poses, in stage coordinates.
+    pub(super) key_poses: Vec<(String, Pose)>,
+}
+
+pub enum Rig {
+    Free(FreeRig),
+    Grid(Box<GridRig>),
+    Skeleton(Box<SkeletonRig>),
+}
+
+impl Rig {
+    /// The rig the stage file asks for, over `placed` (the mesh on the
+    /// stage); `source` is the mesh in its own coordinates, where the stage
+    /// file gives joints. Errors are `(field, problem)`.
+    pub fn from_config(
+        source: &Mesh,
+        placed: &Mesh,
+        at: DVec2,
+        scale: f64,
+        grid: Option<&GridConfig>,
+        skeleton: Option<&SkeletonConfig>,
+    ) -> Result<Rig, (String, String)> {
+        if let Some(g) = grid {
+            let basis = match g.basis {
+                BasisConfig::Bernstein => Basis::Bernstein,
+                BasisConfig::Lattice => Basis::Lattice,
+            };
+            let d = LpParams::default();
+            let params = LpParams {
+                locality: g.locality.unwrap_or(d.locality),
+                vertex: g.vertex.unwrap_or(d.vertex),
+                grid: g.grid.unwrap_or(d.grid),
+                regular: g.regular.unwrap_or(d.regular),
+                iterations: g.iterations.unwrap_or(d.iterations),
+            };
+            let spec = GridSpec::around(placed, g.columns, g.rows, basis);
+            let ffd = LpFfd::register(placed, spec, params)
+                .map_err(|e| ("grid".to_string(), e.to_string()))?;
+            return Ok(Rig::Grid(Box::new(GridRig {
+                ffd,
+                vertex_anchors: Vec::new(),
+                grid_indices: Vec::new(),
+                vertex_targets: Vec::new(),
+                grid_targets: Vec::new(),
+            })));
+        }
+        if let Some(s) = skeleton {
+            fn err(
+                field: &'static str,
+            ) -> impl Fn(puppetry_deform::skeleton::SkeletonError) -> (String, String) {
+                move |e| (format!("skeleton.{field}"), e.to_string())
+            }
+            let own = Skeleton::new(
+                s.joints.iter().map(|&j| DVec2::from(j)).collect(),
+                s.bones.clone(),
+            )
+            .map_err(err("bones"))?;
+            let to_stage = |p: DVec2| stage_point(source, at, scale, p);
+            let skeleton = Skeleton::new(
+                own.joints().iter().map(|&j| to_stage(j)).collect(),
+                own.bones().to_vec(),
+            )
+            .map_err(err("joints"))?;
+            let mut key_poses = Vec::new();
+            for (k, p) in s.poses.iter().enumerate() {
+                let pose = key_pose(&own, p)
+                    .map_err(|problem| (format!("skeleton.poses[{k}]"), problem))?;
+                let placed_pose = Pose {
+                    roots: pose.roots.iter().map(|&r| to_stage(r)).collect(),
+                    angles: pose.angles,
+                    lengths: pose.lengths.iter().map(|l| l * scale).collect(),
+                };
+                key_poses.push((p.name.clone(), placed_pose));
+            }
+            let d = SkeletonParams::default();
+            let c = &s.params;
+            let params = SkeletonParams {
+                bone_weight: c.bone_weight.unwrap_or(d.bone_weight),
+                joint_weight: c.joint_weight.unwrap_or(d.joint_weight),
+                rounds: c.rounds.unwrap_or(d.rounds),
+                perpendicular_scale: c.perpendicular_scale.unwrap_or(d.perpendicular_scale),
+                warm_start: c.warm_start.unwrap_or(d.warm_start),
+            };
+            let mut bone_ending = vec![None; skeleton.joints().len()];
+            for (b, &[_, child]) in skeleton.bones().iter().enumerate() {
+                bone_ending[child] = Some(b);
+            }
+            let pose = skeleton.rest_pose();
+            let joints = skeleton.joints().to_vec();
+            let deformer = ShapeAware::register(placed, skeleton, params).map_err(err("joints"))?;
+            return Ok(Rig::Skeleton(Box::new(SkeletonRig {
+                deformer,
+                mode: s.mode,
+                pose,
+                joints,
+                bone_ending,
+                key_poses,
+            })));
+        }
+        let arap = Arap::register(placed).map_err(|e| ("mesh".to_string(), e.to_string()))?;
+        Ok(Rig::Free(FreeRig {
+            arap,
+            targets: Vec::new(),
+            built_generation: 0,
+            rebuilding: false,
+        }))
+    }
+
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Rig::Free(_) => "free",
+            Rig::Grid(_) => "grid",
+            Rig::Skeleton(_) => "skeleton",
+        }
+    }
+
+    /// The deformed vertices (stage coordinates, rest order).
+    pub fn pose(&self) -> &[DVec2] {
+        match self {
+            Rig::Free(r) => r.arap.pose(),
+            Rig::Grid(r) => r.ffd.pose(),
+            Rig::Skeleton(r) => r.deformer.pose(),
+        }
+    }
+
+    /// The rig's own points as clients draw them: the deformed grid
+    /// handles, or the posed joints; none for free-form puppets.
+    pub fn points(&self) -> Option<&[DVec2]> {
+        match self {
+            Rig::Free(_) => None,
+            Rig::Grid(r) => Some(r.ffd.grid()),
+            Rig::Skeleton(r) => Some(r.deformer.joints()),
+        }
+    }
+
+    /// The nearest rig point (grid handle or joint) within `radius` of `p`.
+    pub fn point_near(&self, p: DVec2, radius: f64) -> Option<Grip> {
+        let points = self.points()?;
+        let (index, d) = points
+            .iter()
+            .enumerate()
+            .map(|(i, q)| (i, q.distance(p)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        if d > radius {
+            return None;
+        }
+        Some(match self {
+            Rig::Skeleton(_) => Grip::Joint(index),
+            _ => Grip::GridHandle(index),
+        })
+    }
+
+    /// Whether a point grip (a material point) can be held on this rig.
+    pub fn takes_points(&self) -> bool {
+        !matches!(self, Rig::Skeleton(_))
+    }
+
+    /// Where a grip's rig point is now (stage coordinates).
+    pub fn grip_position(&self, grip: Grip) -> Option<DVec2> {
+        match grip {
+            Grip::Point(_) => None,
+            Grip::GridHandle(i) | Grip::Joint(i) => self.points()?.get(i).copied(),
+        }
+    }
+
+    /// Compiles (if `changed`) and solves for the handles' targets.
+    /// Grips that do not belong to this rig are skipped (they cannot be
+    /// made: the stage only grips what [`Rig::point_near`] or a hit test
+    /// found).
+    pub fn solve(&mut self, handles: &[Handle], changed: bool) -> Result<(), String> {
+        match self {
+            Rig::Free(r) => {
+                if changed {
+                    let anchors: Vec<Anchor> = handles
+                        .iter()
+                        .filter_map(|h| match h.grip {
+                            Grip::Point(a) => Some(a),
+                            _ => None,
+                        })
+                        .collect();
+                    r.arap.compile(&anchors).map_err(|e| e.to_string())?;
+                }
+                r.targets.clear();
+                r.targets.extend(
+                    handles
+                        .iter()
+                        .filter(|h| matches!(h.grip, Grip::Point(_)))
+                        .map(|h| h.rig_target()),
+                );
+                r.arap
+                    .update(&r.targets, Steps::Both)
+                    .map_err(|e| e.to_string())?;
+            }
+            Rig::Grid(r) => {
+                if changed {
+                    r.vertex_anchors.clear();
+                    r.grid_indices.clear();
+                    for h in handles {
+                        match h.grip {
+                            Grip::Point(a) => r.vertex_anchors.push(a),
+                            Grip::GridHandle(i) => r.grid_indices.push(i),
+                            Grip::Joint(_) => {}
+                        }
+                    }
+                    r.ffd
+                        .compile(&r.vertex_anchors, &r.grid_indices)
+                        .map_err(|e| e.to_string())?;
+                }
+                r.vertex_targets.clear();
+                r.grid_targets.clear();
+                for h in handles {
+                    match h.grip {
+                        Grip::Point(_) => r.vertex_targets.push(h.rig_target()),
+                        Grip::GridHandle(_) => r.grid_targets.push(h.rig_target()),
+                        Grip::Joint(_) => {}
+                    }
+                }
+                r.ffd
+                    .update(&r.vertex_targets, &r.grid_targets)
+                    .map_err(|e| e.to_string())?;
+            }
+            Rig::Skeleton(r) => {
+                match r.mode {
+                    SkeletonMode::Free => {
+                        for h in handles {
+                            if let Grip::Joint(j) = h.grip
+                                && let Some(joint) = r.joints.get_mut(j)
+                            {
+                                *joint = h.rig_target();
+                            }
+                        }
+                        r.deformer.update(&r.joints).map_err(|e| e.to_string())?;
+                    }
+                    SkeletonMode::Fk => {
+                        let skeleton = r.deformer.skeleton();
+                        for h in handles {
+                            let Grip::Joint(j) = h.grip else { continue };
+                            match r.bone_ending.get(j).copied().flatten() {
+                                Some(bone) => skeleton
+                                    .aim(&mut r.pose, bone, h.rig_target())
+                                    .map_err(|e| e.to_string())?,
+                                None => {
+                                    if let Some(k) = skeleton.roots().iter().position(|&x| x == j) {
+                                        r.pose.roots[k] = h.rig_target();
+                                    }
+                                }
+                            }
+                        }
+                        r.deformer.update_pose(&r.pose).map_err(|e| e.to_string())?;
+                    }
+                }
+                // Both modes keep both states, so a key pose or a mode's
+                // next frame starts from what is on stage.
+                r.joints.copy_from_slice(r.deformer.joints());
+            }
+        }
+        Ok(())
+    }
+
+    /// Applies painted weights: the grid and skeleton refactor now; a
+    /// free-form puppet's solver is rebuilt elsewhere (see `thread`).
+    pub fn set_weights(&mut self, weights: &[f64]) -> Result<(), String> {
+        match self {
+            Rig::Free(_) => Ok(()),
+            Rig::Grid(r) => r.ffd.set_weights(weights).map_err(|e| e.to_string()),
+            Rig::Skeleton(r) => r.deformer.set_weights(weights).map_err(|e| e.to_string()),
+        }
+    }
+}
+
+impl GridRig {
+    /// The lp-FFD solver (its grid, spec and pose).
+    pub fn ffd(&self) -> &LpFfd {
+        &self.ffd
+    }
+}
+
+impl SkeletonRig {
+    /// The deformer (its skeleton and posed joints).
+    pub fn deformer(&self) -> &ShapeAware {
+        &self.deformer
+    }
+
+    pub fn mode(&self) -> SkeletonMode {
+        self.mode
+    }
+
+    /// Sets the skeleton to the pose between two key poses.
+    pub fn set_key_pose(&mut self, from: &str, to: &str, t: f64) -> Result<(), String> {
+        let find = |name: &str| {
+            self.key_poses
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, p)| p)
+                .ok_or_else(|| format!("no key pose named {name:?}"))
+        };
+        let pose = Pose::interpolate(find(from)?, find(to)?, t).map_err(|e| e.to_string())?;
+        let joints = self
+            .deformer
+            .skeleton()
+            .joints_of(&pose)
+            .map_err(|e| e.to_string())?;
+        self.pose = pose;
+        self.joints = joints;
+        Ok(())
+    }
+
+    pub fn pose_names(&self) -> Vec<&str> {
+        self.key_poses.iter().map(|(n, _)| n.as_str()).collect()
+    }
+}
+
+/// A key pose of the stage file, in the mesh's coordinates.
+fn key_pose(skeleton: &Skeleton, config: &KeyPoseConfig) -> Result<Pose, String> {
+    let mut pose = skeleton.rest_pose();
+    let bones = skeleton.bones().len();
+    let count = |what: &str, got: usize, expected: usize| {
+        if got == expected {
+            Ok(())
+        } else {
+            Err(format!(
+                "{what}: has {got} entries, the skeleton needs {expected}"
+            ))
+        }
+    };
+    if let Some(angles) = &config.angles {
+        count("angles", angles.len(), bones)?;
+        pose.angles = angles.iter().map(|a| a.to_radians()).collect();
+    }
+    if let Some(lengths) = &config.lengths {
+        count("lengths", lengths.len(), bones)?;
+        pose.lengths = lengths.clone();
+    }
+    if let Some(roots) = &config.roots {
+        count("roots", roots.len(), skeleton.roots().len())?;
+        pose.roots = roots.iter().map(|&r| DVec2::from(r)).collect();
+    }
+    for &(bone, degrees) in &config.turn {
+        pose.rotate_joint(bone, degrees.to_radians())
+            .map_err(|e| format!("turn: {e}"))?;
+    }
+    skeleton.joints_of(&pose).map_err(|e| e.to_string())?;
+    Ok(pose)
+}

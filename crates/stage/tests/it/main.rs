@@ -1,0 +1,7 @@
+//! The stage crate's integration tests, one binary; it counts each thread's
+//! allocations (`puppetry_testkit::alloc`) for the rigs' frame path.
+
+#[global_allocator]
+static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
+
+mod rigs_no_alloc;
