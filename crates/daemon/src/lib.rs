@@ -11,6 +11,7 @@
 //!                       each frame once)
 //! ```
 
+pub mod protocol;
 pub mod serve;
 pub mod stage_thread;
 pub mod stream;

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
-use crate::stage_thread::{self, Command, CursorView};
+use crate::stage_thread::{self, Command, CursorState};
 use crate::stream::{self, Shared, StageDescription, StreamError};
 use glam::DVec2;
 use puppetry_input::device::{DeviceKind, DeviceMatch};
@@ -429,7 +429,7 @@ async fn forward_cursor(
     commands: mpsc::Sender<Command>,
 ) {
     while cursor.changed().await.is_ok() {
-        let view = cursor.borrow_and_update().map(|c| CursorView {
+        let view = cursor.borrow_and_update().map(|c| CursorState {
             at: c.position.to_array(),
             angle: c.angle,
             spacing,

@@ -13,14 +13,17 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use bytes::{BufMut, Bytes, BytesMut};
+use bytes::Bytes;
 use glam::DVec2;
-use serde::Serialize;
 use tokio::sync::{mpsc, oneshot, watch};
 
 use puppetry_deform::Arap;
 use puppetry_input::ContactFrame;
-use puppetry_stage::{Grip, HandleKind, Owner, Rebuild, Stage, WeightsFile};
+use puppetry_stage::{GridExport, Grip, HandleKind, Owner, Rebuild, Stage, WeightsFile};
+
+use crate::protocol::{
+    self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, encode_frame,
+};
 
 /// The stage thread's answer to a request.
 pub type Reply<T> = oneshot::Sender<Result<T, String>>;
@@ -47,7 +50,7 @@ pub enum Command {
     /// A mouse's cursor moved (`None`: the mouse went away).
     Cursor {
         source: String,
-        cursor: Option<CursorView>,
+        cursor: Option<CursorState>,
     },
     /// Paint stiffness under a brush (stage coordinates).
     Paint {
@@ -65,10 +68,10 @@ pub enum Command {
         t: f64,
         reply: Reply<()>,
     },
-    /// The "grid" message of a grid puppet.
+    /// The grid of a grid puppet, rest and deformed.
     ExportGrid {
         puppet: u32,
-        reply: Reply<String>,
+        reply: Reply<GridExport>,
     },
     /// The puppet's mesh file with the painted weights (the asker makes
     /// the text and writes it: the stage thread does no file I/O).
@@ -87,58 +90,9 @@ pub enum Command {
     Stop,
 }
 
-/// The size of a binary frame's header (see `docs/protocol.md`).
-pub const FRAME_HEADER: usize = 32;
-/// `kind` of a vertex frame.
-pub const FRAME_KIND_VERTICES: u32 = 1;
-/// `kind` of a rig frame: the deformed grid handles or the posed joints.
-pub const FRAME_KIND_RIG: u32 = 2;
-
-/// Encodes a vertex frame: 32-byte little-endian header, then f32 x,y pairs.
-pub fn encode_frame(puppet: u32, sequence: u64, input_time: f64, pose: &[DVec2]) -> Bytes {
-    encode_points(FRAME_KIND_VERTICES, puppet, sequence, input_time, pose)
-}
-
-/// Encodes a frame of `kind` (same header, then the points as f32 pairs).
-pub fn encode_points(
-    kind: u32,
-    puppet: u32,
-    sequence: u64,
-    input_time: f64,
-    pose: &[DVec2],
-) -> Bytes {
-    let mut out = BytesMut::with_capacity(FRAME_HEADER + pose.len() * 8);
-    out.put_u32_le(kind);
-    out.put_u32_le(puppet);
-    out.put_u64_le(sequence);
-    out.put_f64_le(input_time);
-    out.put_u32_le(pose.len() as u32);
-    out.put_u32_le(0);
-    for p in pose {
-        out.put_f32_le(p.x as f32);
-        out.put_f32_le(p.y as f32);
-    }
-    out.freeze()
-}
-
-/// One handle as clients see it.
-#[derive(Debug, Clone, Serialize)]
-pub struct HandleView {
-    pub id: u64,
-    pub owner: String,
-    pub kind: &'static str,
-    pub at: [f64; 2],
-    /// What it holds: "point", "grid" (a grid handle) or "joint".
-    pub grip: &'static str,
-    /// The grid handle's or joint's index.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub index: Option<usize>,
-}
-
-/// A mouse cursor as clients draw it: where it is, and the pair of points
-/// it holds (or would hold) around it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct CursorView {
+/// A mouse cursor's state, as a mouse source reports it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CursorState {
     pub at: [f64; 2],
     /// Direction of the pair, radians counter-clockwise from +x.
     pub angle: f64,
@@ -148,55 +102,77 @@ pub struct CursorView {
     pub holding: bool,
 }
 
-/// The "cursors" message: every mouse cursor on the stage.
-pub fn cursors_message(cursors: &BTreeMap<String, CursorView>) -> String {
-    let list: Vec<serde_json::Value> = cursors
-        .iter()
-        .map(|(source, c)| {
-            serde_json::json!({
-                "source": source,
-                "at": c.at,
-                "angle": c.angle,
-                "spacing": c.spacing,
-                "holding": c.holding,
-            })
-        })
-        .collect();
-    serde_json::json!({"type": "cursors", "cursors": list}).to_string()
+/// A puppet's handle set as published: the typed list (newcomers' stage
+/// messages include it) and the `handles` message made from it once.
+#[derive(Debug)]
+pub struct PublishedHandles {
+    pub handles: Vec<HandleView>,
+    pub text: Arc<str>,
 }
 
-/// The "handles" message of a puppet.
-pub fn handles_message(stage: &Stage, puppet: u32) -> String {
-    let p = &stage.puppets()[puppet as usize];
-    let handles: Vec<HandleView> = p
+/// The "cursors" message: every mouse cursor on the stage.
+pub fn cursors_message(cursors: &BTreeMap<String, CursorState>) -> String {
+    let cursors = cursors
+        .iter()
+        .map(|(source, c)| CursorView {
+            source: source.clone(),
+            at: c.at,
+            angle: c.angle,
+            spacing: c.spacing,
+            holding: c.holding,
+        })
+        .collect();
+    ServerMessage::Cursors { cursors }.to_text()
+}
+
+/// A puppet's handles as clients see them.
+pub fn handle_views(stage: &Stage, puppet: u32) -> Vec<HandleView> {
+    stage.puppets()[puppet as usize]
         .handles()
         .iter()
         .map(|h| HandleView {
             id: h.id,
             owner: h.owner.to_string(),
             kind: match h.kind {
-                HandleKind::Contact => "contact",
-                HandleKind::Pin => "pin",
+                HandleKind::Contact => protocol::HandleKind::Contact,
+                HandleKind::Pin => protocol::HandleKind::Pin,
             },
             at: [h.target.x, h.target.y],
             grip: match h.grip {
-                Grip::Point(_) => "point",
-                Grip::GridHandle(_) => "grid",
-                Grip::Joint(_) => "joint",
+                Grip::Point(_) => GripKind::Point,
+                Grip::GridHandle(_) => GripKind::Grid,
+                Grip::Joint(_) => GripKind::Joint,
             },
             index: match h.grip {
                 Grip::Point(_) => None,
                 Grip::GridHandle(i) | Grip::Joint(i) => Some(i),
             },
         })
-        .collect();
-    serde_json::json!({"type": "handles", "puppet": puppet, "handles": handles}).to_string()
+        .collect()
+}
+
+/// The "handles" message of a puppet, with the list it was made from.
+pub fn published_handles(stage: &Stage, puppet: u32) -> Arc<PublishedHandles> {
+    let handles = handle_views(stage, puppet);
+    let text = ServerMessage::Handles {
+        puppet,
+        handles: handles.clone(),
+    }
+    .to_text();
+    Arc::new(PublishedHandles {
+        handles,
+        text: Arc::from(text),
+    })
 }
 
 /// The "weights" message of a puppet: its per-triangle weights now.
 pub fn weights_message(stage: &Stage, puppet: u32) -> String {
     let p = &stage.puppets()[puppet as usize];
-    serde_json::json!({"type": "weights", "puppet": puppet, "weights": p.weights()}).to_string()
+    ServerMessage::Weights {
+        puppet,
+        weights: p.weights().to_vec(),
+    }
+    .to_text()
 }
 
 /// The newest output of one puppet.
@@ -206,8 +182,8 @@ pub struct PuppetOutput {
     pub frame: watch::Receiver<Option<Bytes>>,
     /// The newest rig frame (grid or skeleton puppets only).
     pub rig: watch::Receiver<Option<Bytes>>,
-    /// The newest "handles" message.
-    pub handles: watch::Receiver<Arc<str>>,
+    /// The newest handle set and its "handles" message.
+    pub handles: watch::Receiver<Arc<PublishedHandles>>,
     /// The newest "weights" message (changes when a performer paints).
     pub weights: watch::Receiver<Arc<str>>,
 }
@@ -227,7 +203,7 @@ pub struct Outputs {
 struct Publisher {
     frames: Vec<watch::Sender<Option<Bytes>>>,
     rigs: Vec<watch::Sender<Option<Bytes>>>,
-    handles: Vec<watch::Sender<Arc<str>>>,
+    handles: Vec<watch::Sender<Arc<PublishedHandles>>>,
     weights: Vec<watch::Sender<Arc<str>>>,
     /// Per puppet, the weights generation last published.
     weights_published: Vec<u64>,
@@ -243,14 +219,15 @@ impl Publisher {
             self.sequences[i] += 1;
             let pose = stage.puppets()[i].pose();
             self.frames[i].send_replace(Some(encode_frame(
+                FrameKind::Vertices,
                 puppet,
                 self.sequences[i],
                 input_time,
                 pose,
             )));
             if let Some(points) = stage.puppets()[i].rig().points() {
-                self.rigs[i].send_replace(Some(encode_points(
-                    FRAME_KIND_RIG,
+                self.rigs[i].send_replace(Some(encode_frame(
+                    FrameKind::Rig,
                     puppet,
                     self.sequences[i],
                     input_time,
@@ -258,7 +235,7 @@ impl Publisher {
                 )));
             }
             if handles_changed {
-                self.handles[i].send_replace(Arc::from(handles_message(stage, puppet)));
+                self.handles[i].send_replace(published_handles(stage, puppet));
             }
         }
         if !solved.is_empty() {
@@ -284,7 +261,7 @@ impl Publisher {
         any
     }
 
-    fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorView>) {
+    fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorState>) {
         self.cursors
             .send_replace(Arc::from(cursors_message(cursors)));
         self.changes.send_modify(|c| *c += 1);
@@ -348,8 +325,7 @@ pub fn spawn(
         let (weights_tx, weights_rx) =
             watch::channel(Arc::<str>::from(weights_message(&stage, p.id)));
         publisher.weights.push(weights_tx);
-        let (handles_tx, handles_rx) =
-            watch::channel(Arc::<str>::from(handles_message(&stage, p.id)));
+        let (handles_tx, handles_rx) = watch::channel(published_handles(&stage, p.id));
         publisher.frames.push(frame_tx);
         publisher.handles.push(handles_tx);
         outputs.push(PuppetOutput {
@@ -407,7 +383,7 @@ pub fn spawn(
                         let _ = reply.send(r);
                     }
                     Command::ExportGrid { puppet, reply } => {
-                        let _ = reply.send(stage.export_grid(puppet).map(|v| v.to_string()));
+                        let _ = reply.send(stage.export_grid(puppet));
                     }
                     Command::SaveWeights { puppet, reply } => {
                         let _ = reply.send(stage.weights_file(puppet));

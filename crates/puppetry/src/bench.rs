@@ -259,6 +259,7 @@ pub async fn end_to_end(
         Pacing::RealTime => "real_time",
         Pacing::AsFastAsPossible => "as_fast_as_possible",
     };
+    use puppetry_daemon::protocol::{ClientMessage, FrameHeader, FrameKind, Role, ServerMessage};
     use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 
     let running = puppetry_daemon::serve::start(config, web_root, None)
@@ -272,17 +273,23 @@ pub async fn end_to_end(
         let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
             .await
             .map_err(|e| e.to_string())?;
-        ws.send(Message::text(r#"{"type":"hello","role":"viewer"}"#))
+        let hello = ClientMessage::Hello {
+            role: Role::Viewer,
+            token: None,
+        };
+        let hello = serde_json::to_string(&hello).map_err(|e| e.to_string())?;
+        ws.send(Message::text(hello))
             .await
             .map_err(|e| e.to_string())?;
         // The stage message, then the frames this client sees.
         let Some(Ok(Message::Text(stage))) = ws.next().await else {
             return Err("no stage message".into());
         };
-        let stage: serde_json::Value = serde_json::from_str(&stage).map_err(|e| e.to_string())?;
-        vertices = stage["puppets"][0]["rest"]
-            .as_array()
-            .map_or(0, |r| r.len() / 2);
+        let stage: ServerMessage = serde_json::from_str(&stage).map_err(|e| e.to_string())?;
+        let ServerMessage::Stage { puppets, .. } = stage else {
+            return Err(format!("expected the stage message, got {stage:?}"));
+        };
+        vertices = puppets.first().map_or(0, |p| p.rest.len() / 2);
         readers.push(tokio::spawn(async move {
             let mut latencies = Vec::new();
             let mut sequences = Vec::new();
@@ -292,9 +299,11 @@ pub async fn end_to_end(
             {
                 if let Message::Binary(bytes) = message {
                     let now = started.elapsed().as_secs_f64();
-                    let input = f64::from_le_bytes(bytes[16..24].try_into().unwrap());
-                    let sequence = u64::from_le_bytes(bytes[8..16].try_into().unwrap());
-                    if input > 0.0 {
+                    let Ok(header) = FrameHeader::decode(&bytes) else {
+                        continue;
+                    };
+                    let (input, sequence) = (header.input_time, header.sequence);
+                    if header.kind == FrameKind::Vertices && input > 0.0 {
                         latencies.push((now - input) * 1e6);
                         sequences.push((sequence, now));
                     }

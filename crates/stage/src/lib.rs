@@ -241,6 +241,18 @@ pub struct Rebuild {
     pub mesh: Mesh,
 }
 
+/// A grid puppet's grid, as an export request is answered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridExport {
+    pub puppet: u32,
+    pub columns: usize,
+    pub rows: usize,
+    /// Rest grid handles, row by row from the lower left.
+    pub rest: Vec<[f64; 2]>,
+    /// Deformed grid handles, in the same order.
+    pub grid: Vec<[f64; 2]>,
+}
+
 /// A puppet's mesh file with painted weights, not yet written.
 #[derive(Debug)]
 pub struct WeightsFile {
@@ -584,9 +596,10 @@ impl Stage {
         Ok(())
     }
 
-    /// The "grid" answer to an export request: the grid's size, rest and
-    /// deformed handles (stage coordinates, row by row from the lower left).
-    pub fn export_grid(&self, puppet: u32) -> Result<serde_json::Value, String> {
+    /// The grid of a grid puppet for an export request: its size, rest
+    /// and deformed handles (stage coordinates, row by row from the lower
+    /// left).
+    pub fn export_grid(&self, puppet: u32) -> Result<GridExport, String> {
         let p = self
             .puppets
             .get(puppet as usize)
@@ -596,14 +609,13 @@ impl Stage {
         };
         let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
         let spec = r.ffd.spec();
-        Ok(serde_json::json!({
-            "type": "grid",
-            "puppet": puppet,
-            "columns": spec.columns,
-            "rows": spec.rows,
-            "rest": points(r.ffd.rest_grid()),
-            "grid": points(r.ffd.grid()),
-        }))
+        Ok(GridExport {
+            puppet,
+            columns: spec.columns,
+            rows: spec.rows,
+            rest: points(r.ffd.rest_grid()),
+            grid: points(r.ffd.grid()),
+        })
     }
 
     /// What saving the puppet's painted weights writes, to be turned into

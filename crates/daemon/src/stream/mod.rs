@@ -15,15 +15,17 @@ use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
 use glam::DVec2;
-use serde::Deserialize;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{mpsc, watch};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 
+use crate::protocol::{
+    ClientMessage, GridBasis, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
+    StageSize,
+};
 use crate::stage_thread::{Command, PuppetOutput};
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
-use puppetry_stage::config::SkeletonMode;
 use puppetry_stage::{Rig, Stage};
 
 #[derive(Debug, thiserror::Error)]
@@ -45,8 +47,8 @@ pub const MAX_BAD_MESSAGES: u32 = 20;
 /// What clients are told about the stage: fixed once the stage is loaded.
 pub struct StageDescription {
     /// Per puppet, the "stage" message's entry without its handles.
-    pub puppets: Vec<serde_json::Value>,
-    pub size: [f64; 2],
+    pub puppets: Vec<PuppetDescription>,
+    pub size: StageSize,
     pub images: Vec<PathBuf>,
 }
 
@@ -60,22 +62,24 @@ impl StageDescription {
         let puppets = stage
             .puppets()
             .iter()
-            .map(|p| {
-                serde_json::json!({
-                    "id": p.id,
-                    "name": p.name,
-                    "texture": format!("/puppets/{}/texture.png", p.id),
-                    "rest": flat(p.mesh.vertices()),
-                    "uv": p.mesh.uv().map(flat).unwrap_or_default(),
-                    "triangles": p.mesh.triangles().iter().flatten().copied().collect::<Vec<u32>>(),
-                    "rig": rig_description(p.rig()),
-                    "weights": p.mesh.weights(),
-                })
+            .map(|p| PuppetDescription {
+                id: p.id,
+                name: p.name.clone(),
+                texture: format!("/puppets/{}/texture.png", p.id),
+                rest: flat(p.mesh.vertices()),
+                uv: p.mesh.uv().map(flat).unwrap_or_default(),
+                triangles: p.mesh.triangles().iter().flatten().copied().collect(),
+                handles: Vec::new(),
+                weights: p.mesh.weights().to_vec(),
+                rig: rig_description(p.rig()),
             })
             .collect();
         StageDescription {
             puppets,
-            size: [stage.width, stage.height],
+            size: StageSize {
+                width: stage.width,
+                height: stage.height,
+            },
             images: stage.puppets().iter().map(|p| p.image.clone()).collect(),
         }
     }
@@ -83,37 +87,35 @@ impl StageDescription {
 
 /// The "rig" entry of a puppet in the "stage" message. Rest points are
 /// full-precision stage coordinates, row by row / joint by joint.
-fn rig_description(rig: &Rig) -> serde_json::Value {
+fn rig_description(rig: &Rig) -> RigDescription {
     let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
     match rig {
-        Rig::Free(_) => serde_json::json!({"kind": "free"}),
+        Rig::Free(_) => RigDescription::Free,
         Rig::Grid(r) => {
             let spec = r.ffd().spec();
-            serde_json::json!({
-                "kind": "grid",
-                "columns": spec.columns,
-                "rows": spec.rows,
-                "basis": match spec.basis {
-                    puppetry_deform::ffd::Basis::Bernstein => "bernstein",
-                    puppetry_deform::ffd::Basis::Lattice => "lattice",
+            RigDescription::Grid {
+                columns: spec.columns,
+                rows: spec.rows,
+                basis: match spec.basis {
+                    puppetry_deform::ffd::Basis::Bernstein => GridBasis::Bernstein,
+                    puppetry_deform::ffd::Basis::Lattice => GridBasis::Lattice,
                 },
-                "min": [spec.min.x, spec.min.y],
-                "max": [spec.max.x, spec.max.y],
-                "rest": points(r.ffd().rest_grid()),
-            })
+                min: [spec.min.x, spec.min.y],
+                max: [spec.max.x, spec.max.y],
+                rest: points(r.ffd().rest_grid()),
+            }
         }
         Rig::Skeleton(r) => {
             let skeleton = r.deformer().skeleton();
-            serde_json::json!({
-                "kind": "skeleton",
-                "mode": match r.mode() {
-                    SkeletonMode::Free => "free",
-                    SkeletonMode::Fk => "fk",
+            RigDescription::Skeleton {
+                mode: match r.mode() {
+                    puppetry_stage::config::SkeletonMode::Free => SkeletonMode::Free,
+                    puppetry_stage::config::SkeletonMode::Fk => SkeletonMode::Fk,
                 },
-                "bones": skeleton.bones(),
-                "rest": points(skeleton.joints()),
-                "poses": r.pose_names(),
-            })
+                bones: skeleton.bones().to_vec(),
+                rest: points(skeleton.joints()),
+                poses: r.pose_names().into_iter().map(String::from).collect(),
+            }
         }
     }
 }
@@ -186,63 +188,8 @@ async fn serve_connection(stream: TcpStream, shared: Arc<Shared>) -> std::io::Re
     http::serve_file(stream, &request, &shared).await
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-enum ClientMessage {
-    Hello {
-        role: Role,
-        token: Option<String>,
-    },
-    Contacts {
-        contacts: Vec<ClientContact>,
-    },
-    Pin {
-        x: f64,
-        y: f64,
-    },
-    Unpin {
-        puppet: u32,
-        handle: u64,
-    },
-    Paint {
-        puppet: u32,
-        x: f64,
-        y: f64,
-        radius: f64,
-        strength: f64,
-    },
-    SaveWeights {
-        puppet: u32,
-    },
-    ExportGrid {
-        puppet: u32,
-    },
-    Pose {
-        puppet: u32,
-        from: String,
-        to: String,
-        t: f64,
-    },
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-enum Role {
-    Viewer,
-    Performer,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ClientContact {
-    id: u32,
-    phase: Phase,
-    x: Option<f64>,
-    y: Option<f64>,
-}
-
 fn error_message(message: &str) -> Message {
-    Message::text(serde_json::json!({"type": "error", "message": message}).to_string())
+    Message::text(ServerMessage::error(message).to_text())
 }
 
 type Ws = tokio_tungstenite::WebSocketStream<http::Prefixed>;
@@ -288,29 +235,25 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     // Weights are sent once painted (the stage message has none: the mesh
     // file's are implied until then).
     let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
-    let puppets: Vec<serde_json::Value> = shared
+    let puppets = shared
         .stage
         .puppets
         .iter()
         .zip(&mut handles)
-        .map(|(p, h)| {
-            let mut p = p.clone();
-            let message: serde_json::Value =
-                serde_json::from_str(&h.borrow_and_update()).unwrap_or_default();
-            p["handles"] = message["handles"].clone();
-            p
+        .map(|(p, h)| PuppetDescription {
+            handles: h.borrow_and_update().handles.clone(),
+            ..p.clone()
         })
         .collect();
-    let stage_message = serde_json::json!({
-        "type": "stage",
-        "client": client,
-        "role": if role == Role::Performer { "performer" } else { "viewer" },
-        "stage": {"width": shared.stage.size[0], "height": shared.stage.size[1]},
-        "puppets": puppets,
-    });
+    let stage_message = ServerMessage::Stage {
+        client,
+        role,
+        stage: shared.stage.size,
+        puppets,
+    };
     send(
         &mut ws,
-        Message::text(stage_message.to_string()),
+        Message::text(stage_message.to_text()),
         shared.client_timeout,
     )
     .await?;
@@ -343,7 +286,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
                 if handles[i].has_changed().unwrap_or(false) {
-                    let text = handles[i].borrow_and_update().to_string();
+                    let text = handles[i].borrow_and_update().text.to_string();
                     send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
             }
@@ -463,7 +406,18 @@ async fn handle_message(
         // Read-only: viewers may ask too.
         return ask(shared, |reply| Command::ExportGrid { puppet, reply })
             .await
-            .map(Some);
+            .map(|g| {
+                Some(
+                    ServerMessage::Grid {
+                        puppet: g.puppet,
+                        columns: g.columns,
+                        rows: g.rows,
+                        rest: g.rest,
+                        grid: g.grid,
+                    }
+                    .to_text(),
+                )
+            });
     }
     if role != Role::Performer && !matches!(message, ClientMessage::Hello { .. }) {
         return Err("viewers cannot send input".into());
@@ -549,8 +503,11 @@ async fn handle_message(
                 .map_err(|e| format!("save_weights: {e}"))?
                 .map_err(|e| format!("save_weights: {e}"))?;
             return Ok(Some(
-                serde_json::json!({"type": "weights_saved", "puppet": puppet, "file": path.display().to_string()})
-                    .to_string(),
+                ServerMessage::WeightsSaved {
+                    puppet,
+                    file: path.display().to_string(),
+                }
+                .to_text(),
             ));
         }
         ClientMessage::ExportGrid { .. } => unreachable!("answered above"),

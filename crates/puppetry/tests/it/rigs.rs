@@ -28,16 +28,11 @@ struct Frame {
 }
 
 fn decode(bytes: &[u8]) -> Frame {
-    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
-    let n = u32_at(24) as usize;
-    assert_eq!(bytes.len(), 32 + 8 * n, "frame length");
-    let f = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()) as f64;
+    let frame = puppetry_daemon::protocol::decode_frame(bytes).expect("a well-formed frame");
     Frame {
-        kind: u32_at(0),
-        puppet: u32_at(4),
-        points: (0..n)
-            .map(|i| DVec2::new(f(32 + 8 * i), f(36 + 8 * i)))
-            .collect(),
+        kind: frame.header.kind.code(),
+        puppet: frame.header.puppet,
+        points: frame.points,
     }
 }
 

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
 use glam::DVec2;
+use puppetry_daemon::protocol::{FrameKind, decode_frame};
 use puppetry_daemon::serve::{Running, start};
 use puppetry_mesh::Mesh;
 use puppetry_stage::config::StageConfig;
@@ -94,17 +95,12 @@ pub struct Frame {
 }
 
 pub fn decode(bytes: &[u8]) -> Frame {
-    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
-    assert_eq!(u32_at(0), 1, "vertex frame kind");
-    let n = u32_at(24) as usize;
-    assert_eq!(bytes.len(), 32 + 8 * n);
-    let f = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap()) as f64;
+    let frame = decode_frame(bytes).expect("a well-formed frame");
+    assert_eq!(frame.header.kind, FrameKind::Vertices, "vertex frame kind");
     Frame {
-        puppet: u32_at(4),
-        sequence: u64::from_le_bytes(bytes[8..16].try_into().unwrap()),
-        vertices: (0..n)
-            .map(|i| DVec2::new(f(32 + 8 * i), f(36 + 8 * i)))
-            .collect(),
+        puppet: frame.header.puppet,
+        sequence: frame.header.sequence,
+        vertices: frame.points,
     }
 }
 

@@ -1,0 +1,543 @@
+//! The wire protocol between the daemon and its clients, in one place: the
+//! typed text messages each way ([`ServerMessage`], [`ClientMessage`]) and
+//! the binary frame ([`FrameHeader`], [`encode_frame`], [`decode_frame`]).
+//! `docs/protocol.md` describes it and a test parses every example there
+//! into these types; `clients/web/protocol.js` mirrors it for the browser.
+//! The daemon, the benchmark client and the tests all speak through here,
+//! so no message is built or read by hand anywhere else.
+
+use bytes::{BufMut, Bytes, BytesMut};
+use glam::DVec2;
+use puppetry_input::Phase;
+use serde::{Deserialize, Serialize};
+
+/// Size of a binary frame's header.
+pub const FRAME_HEADER_BYTES: usize = 32;
+
+/// What a binary frame carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameKind {
+    /// The deformed vertices of a puppet (kind 1).
+    Vertices,
+    /// The deformed grid handles or posed joints of a rigged puppet (kind 2).
+    Rig,
+    /// A kind this build does not know; clients skip it.
+    Other(u32),
+}
+
+impl FrameKind {
+    pub fn code(self) -> u32 {
+        match self {
+            FrameKind::Vertices => 1,
+            FrameKind::Rig => 2,
+            FrameKind::Other(code) => code,
+        }
+    }
+
+    pub fn from_code(code: u32) -> FrameKind {
+        match code {
+            1 => FrameKind::Vertices,
+            2 => FrameKind::Rig,
+            other => FrameKind::Other(other),
+        }
+    }
+}
+
+/// The 32-byte little-endian header of a binary frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameHeader {
+    pub kind: FrameKind,
+    pub puppet: u32,
+    /// Per puppet, increasing; a rig frame shares its vertex frame's.
+    pub sequence: u64,
+    /// When the input that caused the solve reached the daemon (seconds
+    /// since it started).
+    pub input_time: f64,
+    /// Points that follow the header (f32 x, y pairs).
+    pub count: u32,
+}
+
+impl FrameHeader {
+    /// Appends the header to `out`.
+    pub fn encode_into(&self, out: &mut BytesMut) {
+        out.put_u32_le(self.kind.code());
+        out.put_u32_le(self.puppet);
+        out.put_u64_le(self.sequence);
+        out.put_f64_le(self.input_time);
+        out.put_u32_le(self.count);
+        out.put_u32_le(0);
+    }
+
+    /// Reads a header from the start of `bytes`.
+    pub fn decode(bytes: &[u8]) -> Result<FrameHeader, FrameError> {
+        let head: &[u8; FRAME_HEADER_BYTES] = bytes
+            .get(..FRAME_HEADER_BYTES)
+            .and_then(|h| h.try_into().ok())
+            .ok_or(FrameError::Short {
+                length: bytes.len(),
+            })?;
+        let u32_at =
+            |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
+        let eight = |o: usize| -> [u8; 8] { head[o..o + 8].try_into().expect("8 bytes") };
+        Ok(FrameHeader {
+            kind: FrameKind::from_code(u32_at(0)),
+            puppet: u32_at(4),
+            sequence: u64::from_le_bytes(eight(8)),
+            input_time: f64::from_le_bytes(eight(16)),
+            count: u32_at(24),
+        })
+    }
+}
+
+/// A binary frame that does not decode.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FrameError {
+    #[error("frame of {length} bytes is shorter than its 32-byte header")]
+    Short { length: usize },
+    #[error("frame says {count} points ({expected} bytes) but has {length} bytes")]
+    Length {
+        count: u32,
+        expected: usize,
+        length: usize,
+    },
+}
+
+/// Encodes a frame: the header (its `count` taken from `points`), then the
+/// points as f32 pairs. Encoded once per solve and shared by every client.
+pub fn encode_frame(
+    kind: FrameKind,
+    puppet: u32,
+    sequence: u64,
+    input_time: f64,
+    points: &[DVec2],
+) -> Bytes {
+    let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + points.len() * 8);
+    FrameHeader {
+        kind,
+        puppet,
+        sequence,
+        input_time,
+        count: points.len() as u32,
+    }
+    .encode_into(&mut out);
+    for p in points {
+        out.put_f32_le(p.x as f32);
+        out.put_f32_le(p.y as f32);
+    }
+    out.freeze()
+}
+
+/// A decoded frame: its header and its points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    pub header: FrameHeader,
+    pub points: Vec<DVec2>,
+}
+
+/// Decodes a whole frame, checking that its length matches its count.
+pub fn decode_frame(bytes: &[u8]) -> Result<Frame, FrameError> {
+    let header = FrameHeader::decode(bytes)?;
+    let expected = FRAME_HEADER_BYTES + header.count as usize * 8;
+    if bytes.len() != expected {
+        return Err(FrameError::Length {
+            count: header.count,
+            expected,
+            length: bytes.len(),
+        });
+    }
+    let f32_at =
+        |o: usize| f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]);
+    let points = (0..header.count as usize)
+        .map(|i| {
+            let o = FRAME_HEADER_BYTES + 8 * i;
+            DVec2::new(f64::from(f32_at(o)), f64::from(f32_at(o + 4)))
+        })
+        .collect();
+    Ok(Frame { header, points })
+}
+
+/// Who a client is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    Viewer,
+    Performer,
+}
+
+/// What a client sends (text).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ClientMessage {
+    /// The first message of every connection.
+    Hello {
+        role: Role,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        token: Option<String>,
+    },
+    /// One input frame of the client's own contacts.
+    Contacts {
+        contacts: Vec<ClientContact>,
+    },
+    /// A pin at a stage point, on the topmost puppet there.
+    Pin {
+        x: f64,
+        y: f64,
+    },
+    Unpin {
+        puppet: u32,
+        handle: u64,
+    },
+    /// One dab of the stiffness brush.
+    Paint {
+        puppet: u32,
+        x: f64,
+        y: f64,
+        radius: f64,
+        strength: f64,
+    },
+    SaveWeights {
+        puppet: u32,
+    },
+    ExportGrid {
+        puppet: u32,
+    },
+    /// A skeleton's pose `t` of the way between two key poses.
+    Pose {
+        puppet: u32,
+        from: String,
+        to: String,
+        t: f64,
+    },
+}
+
+/// One contact of a [`ClientMessage::Contacts`]; `x`, `y` may be left out
+/// of an `up`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClientContact {
+    pub id: u32,
+    pub phase: Phase,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub x: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub y: Option<f64>,
+}
+
+/// What the daemon sends (text).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ServerMessage {
+    /// The answer to `hello`: the stage and every puppet on it.
+    Stage {
+        client: u64,
+        role: Role,
+        stage: StageSize,
+        puppets: Vec<PuppetDescription>,
+    },
+    /// A puppet's handle set changed.
+    Handles {
+        puppet: u32,
+        handles: Vec<HandleView>,
+    },
+    /// Every mouse cursor on the stage.
+    Cursors { cursors: Vec<CursorView> },
+    /// A puppet's per-triangle stiffness after painting.
+    Weights { puppet: u32, weights: Vec<f64> },
+    /// The answer to `save_weights`.
+    WeightsSaved { puppet: u32, file: String },
+    /// The answer to `export_grid`.
+    Grid {
+        puppet: u32,
+        columns: usize,
+        rows: usize,
+        rest: Vec<[f64; 2]>,
+        grid: Vec<[f64; 2]>,
+    },
+    /// Something the client sent could not be done.
+    Error { message: String },
+}
+
+impl ServerMessage {
+    /// The message as the text sent on the wire.
+    pub fn to_text(&self) -> String {
+        serde_json::to_string(self).expect("server messages serialise")
+    }
+
+    /// An `error` message.
+    pub fn error(message: impl Into<String>) -> ServerMessage {
+        ServerMessage::Error {
+            message: message.into(),
+        }
+    }
+}
+
+/// The stage's size, in stage units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageSize {
+    pub width: f64,
+    pub height: f64,
+}
+
+/// A puppet as the stage message describes it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PuppetDescription {
+    pub id: u32,
+    pub name: String,
+    /// Where its picture is served.
+    pub texture: String,
+    /// The rest mesh placed on the stage: x0, y0, x1, y1, …
+    pub rest: Vec<f32>,
+    /// Texture coordinates (v down from the picture's top), or empty.
+    pub uv: Vec<f32>,
+    /// Vertex indices, three per triangle.
+    pub triangles: Vec<u32>,
+    pub handles: Vec<HandleView>,
+    /// Per-triangle stiffness as loaded.
+    pub weights: Vec<f64>,
+    pub rig: RigDescription,
+}
+
+/// How a puppet is rigged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum RigDescription {
+    Free,
+    Grid {
+        columns: usize,
+        rows: usize,
+        basis: GridBasis,
+        min: [f64; 2],
+        max: [f64; 2],
+        /// The grid handles at rest, row by row from `min`.
+        rest: Vec<[f64; 2]>,
+    },
+    Skeleton {
+        mode: SkeletonMode,
+        /// `[parent joint, child joint]` pairs.
+        bones: Vec<[usize; 2]>,
+        /// The joints at rest.
+        rest: Vec<[f64; 2]>,
+        /// The key poses a `pose` message may name.
+        poses: Vec<String>,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GridBasis {
+    Bernstein,
+    Lattice,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SkeletonMode {
+    Free,
+    Fk,
+}
+
+/// One handle as clients see it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HandleView {
+    pub id: u64,
+    /// `client:N`, an input source's name, or `config` for the stage
+    /// file's pins.
+    pub owner: String,
+    pub kind: HandleKind,
+    /// Where it was held when the handle set changed.
+    pub at: [f64; 2],
+    pub grip: GripKind,
+    /// The grid handle's or joint's index.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub index: Option<usize>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HandleKind {
+    Contact,
+    Pin,
+}
+
+/// What a handle holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GripKind {
+    /// A material point of the mesh.
+    Point,
+    /// A grid handle of a grid puppet.
+    Grid,
+    /// A joint of a skeleton puppet.
+    Joint,
+}
+
+/// A mouse cursor as clients draw it: where it is, and the pair of points
+/// it holds (or would hold) around it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CursorView {
+    /// The input source the mouse is.
+    pub source: String,
+    pub at: [f64; 2],
+    /// Direction of the pair, radians counter-clockwise from +x.
+    pub angle: f64,
+    /// Distance between the pair's points; 0 for a one-point mouse.
+    pub spacing: f64,
+    /// A button is down and the points are grabbing.
+    pub holding: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_round_trip_and_bad_lengths_are_named() {
+        let points = [DVec2::new(1.5, -2.0), DVec2::new(1e3, 0.25)];
+        let bytes = encode_frame(FrameKind::Rig, 3, 99, 1.25, &points);
+        let frame = decode_frame(&bytes).unwrap();
+        assert_eq!(frame.header.kind, FrameKind::Rig);
+        assert_eq!(frame.header.puppet, 3);
+        assert_eq!(frame.header.sequence, 99);
+        assert_eq!(frame.header.input_time, 1.25);
+        assert_eq!(frame.points, points);
+        assert_eq!(
+            decode_frame(&bytes[..40]),
+            Err(FrameError::Length {
+                count: 2,
+                expected: 48,
+                length: 40
+            })
+        );
+        assert_eq!(
+            decode_frame(&bytes[..10]),
+            Err(FrameError::Short { length: 10 })
+        );
+        assert_eq!(FrameKind::from_code(7), FrameKind::Other(7));
+    }
+
+    #[test]
+    fn unknown_fields_and_types_are_refused() {
+        let ok = r#"{"type": "pin", "x": 1.0, "y": 2.0}"#;
+        assert!(serde_json::from_str::<ClientMessage>(ok).is_ok());
+        for bad in [
+            r#"{"type": "pin", "x": 1.0, "y": 2.0, "z": 3.0}"#,
+            r#"{"type": "teleport"}"#,
+            r#"{"x": 1.0}"#,
+        ] {
+            assert!(serde_json::from_str::<ClientMessage>(bad).is_err(), "{bad}");
+        }
+    }
+
+    /// `docs/protocol.md`, compiled in so editing it reruns this test.
+    const DOC: &str = include_str!("../../../docs/protocol.md");
+
+    /// The JSON values of every ```json block of the document.
+    fn documented_values() -> Vec<serde_json::Value> {
+        let mut values = Vec::new();
+        let mut rest = DOC;
+        while let Some(start) = rest.find("```json") {
+            let block = &rest[start + "```json".len()..];
+            let end = block.find("```").expect("a closed code block");
+            for value in serde_json::Deserializer::from_str(&block[..end]).into_iter() {
+                let value: serde_json::Value =
+                    value.unwrap_or_else(|e| panic!("docs/protocol.md: not JSON: {e}\n{block}"));
+                values.push(value);
+            }
+            rest = &block[end + 3..];
+        }
+        values
+    }
+
+    /// Equal as JSON, numbers compared as numbers (the document may write
+    /// `1280` where the type writes `1280.0`).
+    fn same(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+        use serde_json::Value;
+        match (a, b) {
+            (Value::Number(x), Value::Number(y)) => {
+                let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+                (x - y).abs() <= 1e-6 * x.abs().max(1.0)
+            }
+            (Value::Array(x), Value::Array(y)) => {
+                x.len() == y.len() && x.iter().zip(y).all(|(x, y)| same(x, y))
+            }
+            (Value::Object(x), Value::Object(y)) => {
+                x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w)))
+            }
+            _ => a == b,
+        }
+    }
+
+    /// The `type` names a message enum accepts, read from serde's own
+    /// "expected one of" list, so a new variant is never missed.
+    fn type_names<T: serde::de::DeserializeOwned>() -> Vec<String> {
+        let error = serde_json::from_str::<T>(r#"{"type": "?"}"#)
+            .err()
+            .expect("no variant is called ?")
+            .to_string();
+        let list = error
+            .split("expected one of ")
+            .nth(1)
+            .unwrap_or_else(|| panic!("serde's message changed: {error}"));
+        list.split(',')
+            .map(|name| name.trim().trim_matches('`').to_string())
+            .map(|name| name.split('`').next().unwrap_or_default().to_string())
+            .collect()
+    }
+
+    fn round_trips<T: serde::de::DeserializeOwned + Serialize>(value: &serde_json::Value) {
+        let typed: T = serde_json::from_value(value.clone())
+            .unwrap_or_else(|e| panic!("docs/protocol.md: {value} does not fit the type: {e}"));
+        let back = serde_json::to_value(&typed).unwrap();
+        assert!(
+            same(value, &back),
+            "docs/protocol.md: {value} reads as {back}: a field is missing from the document or the type"
+        );
+    }
+
+    #[test]
+    fn every_documented_message_is_a_typed_message_and_every_type_is_documented() {
+        let client = type_names::<ClientMessage>();
+        let server = type_names::<ServerMessage>();
+        assert!(
+            client.len() >= 8 && server.len() >= 7,
+            "{client:?} {server:?}"
+        );
+        let mut seen = std::collections::BTreeSet::new();
+        let mut rigs = std::collections::BTreeSet::new();
+        for value in documented_values() {
+            if let Some(name) = value.get("type").and_then(|t| t.as_str()) {
+                if client.iter().any(|c| c == name) {
+                    round_trips::<ClientMessage>(&value);
+                } else {
+                    round_trips::<ServerMessage>(&value);
+                }
+                seen.insert(name.to_string());
+            } else if let Some(kind) = value.get("kind").and_then(|k| k.as_str()) {
+                round_trips::<RigDescription>(&value);
+                rigs.insert(kind.to_string());
+            } else {
+                panic!("docs/protocol.md: {value} is neither a message nor a rig");
+            }
+        }
+        for name in client.iter().chain(&server) {
+            assert!(
+                seen.contains(name),
+                "docs/protocol.md shows no `{name}` message"
+            );
+        }
+        assert_eq!(
+            rigs.into_iter().collect::<Vec<_>>(),
+            ["free", "grid", "skeleton"],
+            "every rig kind is shown"
+        );
+        // The frame table ends its header where the code does.
+        assert!(
+            DOC.contains(&format!("| {FRAME_HEADER_BYTES} | f32 × 2n |")),
+            "the frame table's points start at byte {FRAME_HEADER_BYTES}"
+        );
+    }
+}
