@@ -3,5 +3,4 @@
 fn main() {
     println!("cargo:rerun-if-changed=../../config");
     println!("cargo:rerun-if-changed=../../assets");
-    println!("cargo:rerun-if-changed=../../clients/web");
 }

@@ -13,7 +13,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use crate::stage_thread::{self, Command, CursorState};
-use crate::stream::{self, Shared, StageDescription, StreamError};
+use crate::stream::{self, Shared, StageDescription, StreamError, WebFiles};
 use glam::DVec2;
 use puppetry_input::device::{DeviceKind, DeviceMatch};
 use puppetry_input::hotplug::{self, DeviceInput};
@@ -77,11 +77,11 @@ impl Running {
     }
 }
 
-/// Starts the daemon for `config`, serving the web client from `web_root`,
+/// Starts the daemon for `config`, serving the web client from `web_files`,
 /// with an extra replay source if given.
 pub async fn start(
     config: &StageConfig,
-    web_root: PathBuf,
+    web_files: WebFiles,
     extra_replay: Option<(PathBuf, Pacing)>,
 ) -> Result<Running, ServeError> {
     let started = Instant::now();
@@ -251,7 +251,8 @@ pub async fn start(
     let shared = Arc::new(Shared {
         stage: description,
         tokens: config.access.performer_tokens.clone(),
-        web_root,
+        web_files,
+        max_connections: config.stage.max_connections,
         commands: commands.clone(),
         outputs: outputs.puppets,
         cursors: outputs.cursors,

@@ -245,7 +245,6 @@ pub struct EndToEndResult {
 pub async fn end_to_end(
     name: &str,
     config: &puppetry_stage::config::StageConfig,
-    web_root: std::path::PathBuf,
     point: DVec2,
     clients: usize,
     input_frames: usize,
@@ -262,9 +261,10 @@ pub async fn end_to_end(
     use puppetry_daemon::protocol::{ClientMessage, FrameHeader, FrameKind, Role, ServerMessage};
     use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 
-    let running = puppetry_daemon::serve::start(config, web_root, None)
-        .await
-        .map_err(|e| e.to_string())?;
+    let running =
+        puppetry_daemon::serve::start(config, puppetry_daemon::stream::WebFiles::Embedded, None)
+            .await
+            .map_err(|e| e.to_string())?;
     let started = running.started;
     let url = format!("ws://{}/ws", running.address);
     let mut readers = Vec::new();

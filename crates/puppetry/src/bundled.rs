@@ -1,5 +1,5 @@
 //! The demo stage, its puppets and the stage files of `config/`, compiled
-//! into the binary, so an installed `puppetry` needs no checkout: `serve`
+//! into the binary (the web client is compiled into the daemon crate), so an installed `puppetry` needs no checkout: `serve`
 //! with no `--config` plays the bundled demo, `compare` and the benchmarks
 //! find their figures. Stage files name their pictures and meshes by path,
 //! so the bundle is unpacked once into a folder of its own (named by a hash
@@ -12,7 +12,6 @@ use include_dir::{Dir, DirEntry, include_dir};
 
 static CONFIG: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../config");
 static ASSETS: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../assets");
-static WEB: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../clients/web");
 
 #[derive(Debug, thiserror::Error)]
 #[error("cannot unpack the bundled demo into {folder}: {source}")]
@@ -38,8 +37,7 @@ pub fn root() -> Result<PathBuf, BundleError> {
     let aside = base.join(format!(".unpacking-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&aside);
     let unpacked = unpack(&CONFIG, &aside.join("config"))
-        .and_then(|()| unpack(&ASSETS, &aside.join("assets")))
-        .and_then(|()| unpack(&WEB, &aside.join("clients/web")));
+        .and_then(|()| unpack(&ASSETS, &aside.join("assets")));
     if let Err(e) = unpacked {
         let _ = std::fs::remove_dir_all(&aside);
         return Err(failed(e));
@@ -57,11 +55,6 @@ pub fn root() -> Result<PathBuf, BundleError> {
 /// The bundled demo stage file (a copy of `config/demo.toml`).
 pub fn demo_stage() -> Result<PathBuf, BundleError> {
     Ok(root()?.join("config/demo.toml"))
-}
-
-/// The bundled web client.
-pub fn web_client() -> Result<PathBuf, BundleError> {
-    Ok(root()?.join("clients/web"))
 }
 
 /// The bundled demo picture.
@@ -122,6 +115,5 @@ fn fingerprint() -> u64 {
     let mut hash = 0xcbf2_9ce4_8422_2325;
     walk(&CONFIG, &mut hash);
     walk(&ASSETS, &mut hash);
-    walk(&WEB, &mut hash);
     hash
 }

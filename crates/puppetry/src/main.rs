@@ -204,9 +204,9 @@ fn run(args: Args) -> anyhow::Result<()> {
                 Some(path) => path,
                 None => puppetry::bundled::demo_stage()?,
             };
-            let web_root = match web_root {
-                Some(dir) => dir,
-                None => puppetry::bundled::web_client()?,
+            let web_files = match web_root {
+                Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
+                None => puppetry_daemon::stream::WebFiles::Embedded,
             };
             let mut stage = puppetry_stage::config::StageConfig::load(&path)?;
             if let Some(listen) = listen {
@@ -221,7 +221,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             runtime.block_on(async {
                 let running = puppetry_daemon::serve::start(
                     &stage,
-                    web_root,
+                    web_files,
                     replay.map(|file| (file, pacing)),
                 )
                 .await?;
@@ -366,7 +366,6 @@ fn run(args: Args) -> anyhow::Result<()> {
                     "latency µs p99"
                 );
             }
-            let web_root = puppetry::bundled::web_client()?;
             for (name, stage) in &stages {
                 let point = glam::DVec2::from(stage.puppets[0].at);
                 use puppetry_input::replay::Pacing;
@@ -383,13 +382,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                     };
                     let r = runtime
                         .block_on(bench::end_to_end(
-                            name,
-                            stage,
-                            web_root.clone(),
-                            point,
-                            clients,
-                            frames,
-                            pacing,
+                            name, stage, point, clients, frames, pacing,
                         ))
                         .map_err(anyhow::Error::msg)?;
                     if json {

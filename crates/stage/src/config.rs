@@ -57,6 +57,14 @@ pub struct StageSection {
     /// Clients that stop reading are dropped after this many seconds.
     #[serde(default = "default_client_timeout")]
     pub client_timeout_s: f64,
+    /// Open HTTP and WebSocket connections at most; past it a new one is
+    /// answered 503 and closed.
+    #[serde(default = "default_max_connections")]
+    pub max_connections: usize,
+}
+
+fn default_max_connections() -> usize {
+    1024
 }
 
 fn default_listen() -> SocketAddr {
@@ -481,6 +489,12 @@ impl StageConfig {
             return Err(invalid(
                 "stage.client_timeout_s".into(),
                 "must be a positive number of seconds",
+            ));
+        }
+        if s.max_connections == 0 {
+            return Err(invalid(
+                "stage.max_connections".into(),
+                "must be at least 1",
             ));
         }
         for (i, p) in config.puppets.iter().enumerate() {

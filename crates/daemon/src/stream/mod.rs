@@ -5,7 +5,9 @@
 //! never delays the stage thread or other clients, and one that stops
 //! reading is dropped after the stage's client timeout.
 
-mod http;
+mod edge;
+
+pub use edge::WebFiles;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -13,12 +15,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use futures_util::{SinkExt, StreamExt};
+use axum::extract::ws::{Message, WebSocket};
+use futures_util::StreamExt;
 use glam::DVec2;
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
-use tokio_tungstenite::tungstenite::Message;
-use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 
 use crate::protocol::{
     ClientMessage, GridBasis, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
@@ -124,7 +125,9 @@ fn rig_description(rig: &Rig) -> RigDescription {
 pub struct Shared {
     pub stage: StageDescription,
     pub tokens: Vec<String>,
-    pub web_root: PathBuf,
+    pub web_files: WebFiles,
+    /// Open connections past which new ones are refused.
+    pub max_connections: usize,
     pub commands: mpsc::Sender<Command>,
     pub outputs: Vec<PuppetOutput>,
     /// The newest "cursors" message (mouse cursors on the stage).
@@ -143,56 +146,28 @@ pub async fn bind(address: SocketAddr) -> Result<TcpListener, StreamError> {
         .map_err(|source| StreamError::Listen { address, source })
 }
 
-/// Accepts connections until `shutdown` resolves; each is served by its own
-/// task, and an error in one is logged and contained.
+/// Serves HTTP and WebSocket until `shutdown` resolves; each connection is
+/// served by its own task, and an error in one is logged and contained.
 pub async fn run(
     listener: TcpListener,
     shared: Arc<Shared>,
-    shutdown: impl std::future::Future<Output = ()>,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) {
-    tokio::pin!(shutdown);
-    loop {
-        tokio::select! {
-            _ = &mut shutdown => break,
-            accepted = listener.accept() => match accepted {
-                Ok((stream, peer)) => {
-                    let shared = shared.clone();
-                    tokio::spawn(async move {
-                        if let Err(e) = serve_connection(stream, shared).await {
-                            tracing::debug!(%peer, "connection ended: {e}");
-                        }
-                    });
-                }
-                Err(e) => tracing::warn!("accept failed: {e}"),
-            },
-        }
+    let listener = edge::CappedListener::new(listener, shared.max_connections);
+    let app = edge::router(shared);
+    if let Err(e) = axum::serve(listener, app)
+        .with_graceful_shutdown(shutdown)
+        .await
+    {
+        tracing::error!("the server stopped: {e}");
     }
-}
-
-async fn serve_connection(stream: TcpStream, shared: Arc<Shared>) -> std::io::Result<()> {
-    let _ = stream.set_nodelay(true);
-    let (request, stream) = http::read_request(stream, shared.client_timeout).await?;
-    if request.path == "/ws" && request.wants_websocket() {
-        // tungstenite zero-fills its whole read buffer before every read
-        // attempt; clients send small messages, so a small buffer saves a
-        // 128 KiB memset per wake-up of every connection.
-        let config = WebSocketConfig::default()
-            .max_message_size(Some(MAX_CLIENT_MESSAGE))
-            .max_frame_size(Some(MAX_CLIENT_MESSAGE))
-            .read_buffer_size(READ_BUFFER);
-        let ws = tokio_tungstenite::accept_async_with_config(stream, Some(config))
-            .await
-            .map_err(std::io::Error::other)?;
-        return websocket(ws, shared).await;
-    }
-    http::serve_file(stream, &request, &shared).await
 }
 
 fn error_message(message: &str) -> Message {
     Message::text(ServerMessage::error(message).to_text())
 }
 
-type Ws = tokio_tungstenite::WebSocketStream<http::Prefixed>;
+type Ws = WebSocket;
 
 async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let io = std::io::Error::other;
@@ -216,14 +191,14 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                 let _ = ws
                     .send(error_message("performer needs a valid token"))
                     .await;
-                let _ = ws.close(None).await;
+                let _ = ws.send(Message::Close(None)).await;
                 return Ok(());
             }
             _ => {
                 let _ = ws
                     .send(error_message("the first message must be a hello"))
                     .await;
-                let _ = ws.close(None).await;
+                let _ = ws.send(Message::Close(None)).await;
                 return Ok(());
             }
         },
@@ -298,7 +273,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                 changed = changes.changed() => {
                     if changed.is_err() {
                         // The stage thread stopped: the daemon is shutting down.
-                        let _ = ws.close(None).await;
+                        let _ = ws.send(Message::Close(None)).await;
                         return Ok(());
                     }
                 }
@@ -306,7 +281,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     None => return Ok(()),
                     Some(Err(e)) => return Err(io(e)),
                     Some(Ok(Message::Text(text))) => {
-                        match handle_message(&text, role, &source, &shared).await {
+                        match handle_message(text.as_str(), role, &source, &shared).await {
                             Ok(answer) => {
                                 bad_in_a_row = 0;
                                 if let Some(answer) = answer {
@@ -317,7 +292,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                                 bad_in_a_row += 1;
                                 send(&mut ws, error_message(&problem), shared.client_timeout).await?;
                                 if bad_in_a_row >= MAX_BAD_MESSAGES {
-                                    let _ = ws.close(None).await;
+                                    let _ = ws.send(Message::Close(None)).await;
                                     return Ok(());
                                 }
                             }
@@ -327,7 +302,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                         bad_in_a_row += 1;
                         send(&mut ws, error_message("binary messages are not accepted"), shared.client_timeout).await?;
                         if bad_in_a_row >= MAX_BAD_MESSAGES {
-                            let _ = ws.close(None).await;
+                            let _ = ws.send(Message::Close(None)).await;
                             return Ok(());
                         }
                     }

@@ -33,7 +33,7 @@ async fn every_stage_file_in_config_starts_with_its_inputs() {
         if path.extension().is_some_and(|e| e == "toml") {
             let mut config = StageConfig::load(&path).unwrap();
             config.stage.listen = "127.0.0.1:0".parse().unwrap();
-            let web = puppetry_testkit::root().join("clients/web");
+            let web = puppetry_daemon::stream::WebFiles::Embedded;
             let running = puppetry_daemon::serve::start(&config, web, None)
                 .await
                 .unwrap_or_else(|e| panic!("{}: {e}", path.display()));

@@ -169,22 +169,6 @@ async fn until_handles(
     }
 }
 
-/// Where the material point that lay at `rest_point` is in a frame. Handles
-/// are hard constraints, so a grabbed point is exactly at its target.
-fn follow(mesh: &puppetry_mesh::Mesh, rest_point: DVec2) -> impl Fn(&Frame) -> DVec2 + use<> {
-    let hit = puppetry_mesh::Locator::new(mesh)
-        .locate(mesh, rest_point)
-        .expect("on the puppet");
-    let corners = mesh.triangles()[hit.triangle as usize];
-    move |frame: &Frame| {
-        corners
-            .iter()
-            .zip(hit.bary)
-            .map(|(&v, w)| frame.vertices[v as usize] * w)
-            .sum()
-    }
-}
-
 /// Reads frames until `point` (see [`follow`]) is within `tolerance` of `to`.
 async fn until_at(ws: &mut Client, point: &impl Fn(&Frame) -> DVec2, to: DVec2) {
     // Frames carry f32 vertices.

@@ -8,6 +8,7 @@ mod common;
 mod cli;
 mod config;
 mod devices;
+mod edge;
 mod rigs;
 mod serve;
 mod web;

@@ -169,7 +169,7 @@ fn drag(id: u32, from: DVec2, to: DVec2, steps: usize) -> Vec<(u32, &'static str
 }
 
 async fn run(config: &StageConfig) -> Running {
-    start(config, root().join("clients/web"), None)
+    start(config, puppetry_daemon::stream::WebFiles::Embedded, None)
         .await
         .unwrap()
 }

@@ -332,11 +332,13 @@ async fn http_serves_the_page_and_the_picture() {
         async move {
             use tokio::io::{AsyncReadExt, AsyncWriteExt};
             let mut s = TcpStream::connect(address).await.unwrap();
-            s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes())
-                .await
-                .unwrap();
+            let request = format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+            s.write_all(request.as_bytes()).await.unwrap();
             let mut out = Vec::new();
-            s.read_to_end(&mut out).await.unwrap();
+            tokio::time::timeout(WAIT, s.read_to_end(&mut out))
+                .await
+                .expect("the answer in time")
+                .unwrap();
             out
         }
     };
@@ -623,9 +625,10 @@ pins = [[168, 58], [344, 58]]
         mesh = assets.join("gingerbread.mesh.json").display(),
     );
     let config = StageConfig::parse("test.toml", &text, std::path::Path::new("/")).unwrap();
-    let running = puppetry_daemon::serve::start(&config, root.join("clients/web"), None)
-        .await
-        .unwrap();
+    let running =
+        puppetry_daemon::serve::start(&config, puppetry_daemon::stream::WebFiles::Embedded, None)
+            .await
+            .unwrap();
     let url = format!("ws://{}/ws", running.address);
     let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
     ws.send(Message::text(

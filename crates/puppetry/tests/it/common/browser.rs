@@ -31,7 +31,7 @@ pub async fn run_page_script(stage: &str, script: &str, point: &str) -> serde_js
     let root = puppetry_testkit::root();
     let mut config = StageConfig::load(&root.join(format!("config/{stage}.toml"))).unwrap();
     config.stage.listen = "127.0.0.1:0".parse().unwrap();
-    let running = start(&config, root.join("clients/web"), None)
+    let running = start(&config, puppetry_daemon::stream::WebFiles::Embedded, None)
         .await
         .unwrap();
     let url = format!("http://{}/?role=performer&token=demo", running.address);

@@ -58,9 +58,13 @@ pins = [[168, 58], [344, 58]]
 }
 
 pub async fn daemon(extra: &str) -> Running {
-    start(&stage_config(extra), root().join("clients/web"), None)
-        .await
-        .unwrap()
+    start(
+        &stage_config(extra),
+        puppetry_daemon::stream::WebFiles::Embedded,
+        None,
+    )
+    .await
+    .unwrap()
 }
 
 pub async fn connect(running: &Running, hello: Value) -> (Client, Value) {
@@ -157,5 +161,21 @@ pub async fn until_contact_owners(ws: &mut Client, done: impl Fn(&[String]) -> b
         if m["type"] == "handles" && done(&contact_owners(&m)) {
             return;
         }
+    }
+}
+
+/// Where the material point that lay at `rest_point` is in a frame. Handles
+/// are hard constraints, so a grabbed point is exactly at its target.
+pub fn follow(mesh: &Mesh, rest_point: DVec2) -> impl Fn(&Frame) -> DVec2 + use<> {
+    let hit = puppetry_mesh::Locator::new(mesh)
+        .locate(mesh, rest_point)
+        .expect("on the puppet");
+    let corners = mesh.triangles()[hit.triangle as usize];
+    move |frame: &Frame| {
+        corners
+            .iter()
+            .zip(hit.bary)
+            .map(|(&v, w)| frame.vertices[v as usize] * w)
+            .sum()
     }
 }

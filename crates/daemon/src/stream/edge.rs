@@ -1,0 +1,220 @@
+//! The network edge: one port for HTTP and WebSocket, served by axum. It
+//! owns what a stranger can reach before any token is checked: the routes
+//! (the web client's files, puppet pictures, the WebSocket upgrade), the
+//! cap on open connections (past it a connection gets a 503 and is
+//! closed), request size limits, MIME types and 404s. Accept errors (a full
+//! file table, say) back off inside axum's own accept loop instead of
+//! spinning.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::ws::WebSocketUpgrade;
+use axum::extract::{Path, State};
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use include_dir::{Dir, include_dir};
+use tokio::io::AsyncWriteExt;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tower_http::limit::RequestBodyLimitLayer;
+use tower_http::services::ServeDir;
+
+use super::{MAX_CLIENT_MESSAGE, READ_BUFFER, Shared, websocket};
+
+/// The web client, compiled in.
+static WEB_CLIENT: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../clients/web");
+
+/// Largest request body taken (the daemon takes no bodies: GET only).
+const MAX_BODY: usize = 16 * 1024;
+
+/// Where the web client's files come from.
+#[derive(Debug, Clone, Default)]
+pub enum WebFiles {
+    /// The copy compiled into the daemon.
+    #[default]
+    Embedded,
+    /// A folder, for client development (`serve --web-root`).
+    Folder(PathBuf),
+}
+
+/// The routes of the daemon's one port.
+pub fn router(shared: Arc<Shared>) -> Router {
+    let files = match &shared.web_files {
+        WebFiles::Embedded => Router::new()
+            .route("/", get(|| async { embedded("index.html") }))
+            .route("/{*path}", get(embedded_path)),
+        WebFiles::Folder(dir) => Router::new().fallback_service(ServeDir::new(dir)),
+    };
+    Router::new()
+        .route("/ws", get(upgrade))
+        .route("/puppets/{id}/texture.png", get(texture))
+        .with_state(shared)
+        .merge(files)
+        .layer(RequestBodyLimitLayer::new(MAX_BODY))
+}
+
+async fn upgrade(State(shared): State<Arc<Shared>>, upgrade: WebSocketUpgrade) -> Response {
+    // tungstenite zero-fills its whole read buffer before every read
+    // attempt; clients send small messages, so a small buffer saves a
+    // 128 KiB memset per wake-up of every connection.
+    upgrade
+        .max_message_size(MAX_CLIENT_MESSAGE)
+        .max_frame_size(MAX_CLIENT_MESSAGE)
+        .read_buffer_size(READ_BUFFER)
+        .on_upgrade(move |socket| async move {
+            if let Err(e) = websocket(socket, shared).await {
+                tracing::debug!("websocket ended: {e}");
+            }
+        })
+}
+
+async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> Response {
+    let Some(path) = id
+        .parse::<usize>()
+        .ok()
+        .and_then(|i| shared.stage.images.get(i))
+    else {
+        return not_found();
+    };
+    match tokio::fs::read(path).await {
+        Ok(bytes) => with_type(Body::from(bytes), "image/png"),
+        Err(e) => {
+            tracing::warn!("{}: {e}", path.display());
+            not_found()
+        }
+    }
+}
+
+async fn embedded_path(Path(path): Path<String>) -> Response {
+    embedded(&path)
+}
+
+/// A file of the compiled-in web client. The path is already
+/// percent-decoded; anything that could climb out is simply not found
+/// (there is no file system beneath to climb into, but say so plainly).
+fn embedded(path: &str) -> Response {
+    if path.split('/').any(|part| part == ".." || part == ".") || path.contains('\\') {
+        return not_found();
+    }
+    match WEB_CLIENT.get_file(path) {
+        Some(file) => {
+            let mime = mime_guess::from_path(path).first_or_octet_stream();
+            with_type(Body::from(file.contents()), mime.as_ref())
+        }
+        None => not_found(),
+    }
+}
+
+fn with_type(body: Body, mime: &str) -> Response {
+    let mut response = body.into_response();
+    if let Ok(value) = HeaderValue::from_str(mime) {
+        response.headers_mut().insert(header::CONTENT_TYPE, value);
+    }
+    response
+}
+
+fn not_found() -> Response {
+    (StatusCode::NOT_FOUND, "not found\n").into_response()
+}
+
+/// The listener with a cap on open connections. A connection past the cap
+/// is answered `503` and closed at once, so a flood cannot hold the
+/// daemon's memory or file table; the others are served as usual.
+pub struct CappedListener {
+    listener: TcpListener,
+    open: Arc<Semaphore>,
+}
+
+impl CappedListener {
+    pub fn new(listener: TcpListener, max_connections: usize) -> CappedListener {
+        CappedListener {
+            listener,
+            open: Arc::new(Semaphore::new(max_connections)),
+        }
+    }
+}
+
+/// A connection holding its place under the cap until it closes.
+pub struct CappedStream {
+    stream: TcpStream,
+    _place: OwnedSemaphorePermit,
+}
+
+impl axum::serve::Listener for CappedListener {
+    type Io = CappedStream;
+    type Addr = std::net::SocketAddr;
+
+    async fn accept(&mut self) -> (Self::Io, Self::Addr) {
+        loop {
+            // axum's accept backs off on errors such as a full file table.
+            let (stream, peer) = axum::serve::Listener::accept(&mut self.listener).await;
+            let _ = stream.set_nodelay(true);
+            match self.open.clone().try_acquire_owned() {
+                Ok(place) => {
+                    return (
+                        CappedStream {
+                            stream,
+                            _place: place,
+                        },
+                        peer,
+                    );
+                }
+                Err(_) => {
+                    tracing::debug!(%peer, "connection refused: too many open connections");
+                    tokio::spawn(refuse(stream));
+                }
+            }
+        }
+    }
+
+    fn local_addr(&self) -> std::io::Result<Self::Addr> {
+        self.listener.local_addr()
+    }
+}
+
+async fn refuse(mut stream: TcpStream) {
+    let answer = b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n\
+        Content-Length: 26\r\nConnection: close\r\nRetry-After: 1\r\n\r\n\
+        too many open connections";
+    let _ = tokio::time::timeout(std::time::Duration::from_secs(2), async {
+        stream.write_all(answer).await?;
+        stream.shutdown().await
+    })
+    .await;
+}
+
+impl tokio::io::AsyncRead for CappedStream {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.stream).poll_read(cx, buf)
+    }
+}
+
+impl tokio::io::AsyncWrite for CappedStream {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.stream).poll_write(cx, buf)
+    }
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.stream).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+}

@@ -1,0 +1,190 @@
+//! The network edge under strangers' requests: malformed request lines, a
+//! huge header, paths that try to climb out of the web client, and ten
+//! times the connection cap at once. Each gets a clear answer, nothing in
+//! the daemon panics, and frames keep coming.
+
+use crate::common::daemon::*;
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use futures_util::SinkExt;
+use glam::DVec2;
+use serde_json::json;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::Message;
+
+/// Panics on the daemon's runtime threads since this binary started.
+static DAEMON_PANICS: AtomicUsize = AtomicUsize::new(0);
+
+/// Counts panics on tokio's worker threads (where the daemon's tasks run;
+/// test bodies run on their own threads), then reports them as usual.
+fn count_daemon_panics() {
+    static INSTALLED: std::sync::Once = std::sync::Once::new();
+    INSTALLED.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if std::thread::current()
+                .name()
+                .is_some_and(|n| n.starts_with("tokio-runtime-worker"))
+            {
+                DAEMON_PANICS.fetch_add(1, Ordering::SeqCst);
+            }
+            previous(info);
+        }));
+    });
+}
+
+/// Sends `request` as it is and returns the whole answer (the server
+/// closes the connection after it, or the test's wait runs out).
+async fn raw(address: std::net::SocketAddr, request: &[u8]) -> String {
+    let mut stream = TcpStream::connect(address).await.unwrap();
+    // The server may answer and close before a huge request is all sent.
+    let _ = stream.write_all(request).await;
+    let mut answer = Vec::new();
+    let _ = tokio::time::timeout(WAIT, stream.read_to_end(&mut answer)).await;
+    String::from_utf8_lossy(&answer).into_owned()
+}
+
+fn status(answer: &str) -> u16 {
+    answer
+        .strip_prefix("HTTP/1.1 ")
+        .and_then(|rest| rest.get(..3))
+        .and_then(|code| code.parse().ok())
+        .unwrap_or_else(|| panic!("not an HTTP answer: {answer:?}"))
+}
+
+fn get(path: &str) -> Vec<u8> {
+    format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").into_bytes()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn strangers_requests_get_clear_answers_and_no_panic() {
+    count_daemon_panics();
+    let panics_before = DAEMON_PANICS.load(Ordering::SeqCst);
+    let running = daemon("").await;
+    let address = running.address;
+
+    // A request line with no path, and one with an empty path segment.
+    assert_eq!(status(&raw(address, b"GET\r\nHost: x\r\n\r\n").await), 400);
+    assert_eq!(
+        status(&raw(address, b"GET  HTTP/1.1\r\nHost: x\r\n\r\n").await),
+        400
+    );
+    assert_eq!(status(&raw(address, &get("//")).await), 404);
+    // A 1 MB header.
+    let mut huge = b"GET / HTTP/1.1\r\nHost: x\r\nX-Filler: ".to_vec();
+    huge.extend(std::iter::repeat_n(b'a', 1 << 20));
+    huge.extend_from_slice(b"\r\n\r\n");
+    let answer = raw(address, &huge).await;
+    assert!(
+        answer.is_empty() || (400..500).contains(&status(&answer)),
+        "{answer:?}"
+    );
+    // Paths that try to climb out of the web client, plain and encoded.
+    for path in [
+        "/../Cargo.toml",
+        "/%2e%2e/Cargo.toml",
+        "/%2E%2E%2FCargo.toml",
+        "/..%2f..%2fCargo.toml",
+        "/puppets/0/../../Cargo.toml",
+        "/puppets/%2e%2e/texture.png",
+    ] {
+        assert_eq!(status(&raw(address, &get(path)).await), 404, "{path}");
+    }
+    // The page and a module are still served, with their types.
+    let page = raw(address, &get("/")).await;
+    assert_eq!(status(&page), 200);
+    assert!(
+        page.to_ascii_lowercase()
+            .contains("content-type: text/html"),
+        "{page:.200}"
+    );
+    let script = raw(address, &get("/app.js")).await;
+    assert_eq!(status(&script), 200);
+    assert!(
+        script
+            .to_ascii_lowercase()
+            .contains("content-type: text/javascript"),
+        "{script:.200}"
+    );
+    assert_eq!(status(&raw(address, &get("/no-such-file.js")).await), 404);
+    assert_eq!(
+        status(
+            &raw(
+                address,
+                b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+            )
+            .await
+        ),
+        405
+    );
+    running.shutdown().await;
+    assert_eq!(
+        DAEMON_PANICS.load(Ordering::SeqCst),
+        panics_before,
+        "the daemon panicked"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ten_times_the_connection_cap_is_refused_and_frames_keep_coming() {
+    count_daemon_panics();
+    let panics_before = DAEMON_PANICS.load(Ordering::SeqCst);
+    let cap = 8;
+    let mut config = stage_config("");
+    config.stage.max_connections = cap;
+    let running =
+        puppetry_daemon::serve::start(&config, puppetry_daemon::stream::WebFiles::Embedded, None)
+            .await
+            .unwrap();
+    let address = running.address;
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut performer, stage) = connect(&running, hello).await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    // The rest of the places taken by connections that say nothing.
+    let mut idle = Vec::new();
+    for _ in 0..cap - 2 {
+        idle.push(TcpStream::connect(address).await.unwrap());
+    }
+    // Ten times the cap at once: each is told, none is served.
+    let flood: Vec<_> = (0..10 * cap)
+        .map(|_| tokio::spawn(async move { raw(address, &get("/")).await }))
+        .collect();
+    for answer in flood {
+        let answer = answer.await.unwrap();
+        assert_eq!(status(&answer), 503, "{answer:?}");
+        assert!(answer.contains("too many open connections"), "{answer:?}");
+    }
+    // The connected clients were not disturbed: a drag still reaches the
+    // viewer as frames.
+    let mesh = placed_mesh(&stage);
+    let grab = hand(&mesh);
+    let to = grab + DVec2::new(0.0, 50.0);
+    for (phase, at) in [("down", grab), ("move", to)] {
+        let contacts = json!({"type": "contacts", "contacts": [{"id": 1, "phase": phase, "x": at.x, "y": at.y}]});
+        performer
+            .send(Message::text(contacts.to_string()))
+            .await
+            .unwrap();
+    }
+    let held = follow(&mesh, grab);
+    frame_until(&mut viewer, |f| held(f).distance(to) < 1e-2).await;
+    // Places freed are taken again.
+    drop(idle);
+    let mut served = false;
+    for _ in 0..200 {
+        if status(&raw(address, &get("/")).await) == 200 {
+            served = true;
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert!(served, "a connection is served once places are free");
+    running.shutdown().await;
+    assert_eq!(
+        DAEMON_PANICS.load(Ordering::SeqCst),
+        panics_before,
+        "the daemon panicked"
+    );
+}
