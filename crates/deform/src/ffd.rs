@@ -49,7 +49,6 @@
 //! handle `row·M + column` rests at `min + (column/(M−1), row/(N−1))·(max − min)`.
 
 use std::collections::HashMap;
-use std::time::Instant;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{
@@ -429,6 +428,12 @@ impl LpFfd {
     pub fn spec(&self) -> &GridSpec {
         &self.spec
     }
+    /// Sets the local/global iterations each update runs (warm-started
+    /// from the previous frame's grid).
+    pub fn set_iterations(&mut self, iterations: usize) {
+        self.params.iterations = iterations;
+    }
+
     pub fn params(&self) -> &LpParams {
         &self.params
     }
@@ -1245,94 +1250,4 @@ fn solve_in_place(factor: &[f64], inverse_diagonal: &[f64], x: &mut [DVec2]) {
             *y -= xi * *l;
         }
     }
-}
-
-/// Timings of the lp-FFD phases on one mesh, from [`bench`].
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct FfdBench {
-    pub vertices: usize,
-    pub triangles: usize,
-    pub grid_columns: usize,
-    pub grid_rows: usize,
-    pub vertex_handles: usize,
-    pub iterations: usize,
-    pub register_ms: f64,
-    pub compile_us: f64,
-    pub update_us_min: f64,
-    pub update_us_median: f64,
-    pub update_us_p99: f64,
-    pub frames: usize,
-    /// After the last frame: `(E − E*)/E*`, with `E*` the energy after 200
-    /// more iterations on the same targets — how far the warm-started
-    /// per-frame iterations trail the converged solution.
-    pub energy_gap: f64,
-}
-
-/// Times `frames` updates of an lp-FFD rig over `mesh` with
-/// `vertex_handles` vertex handles (spread by index) wandering on small
-/// circles, like the ARAP bench's handles.
-pub fn bench(
-    mesh: &Mesh,
-    spec: GridSpec,
-    params: LpParams,
-    vertex_handles: usize,
-    frames: usize,
-) -> Result<FfdBench, FfdError> {
-    let start = Instant::now();
-    let mut rig = LpFfd::register(mesh, spec, params)?;
-    let register_ms = start.elapsed().as_secs_f64() * 1e3;
-    let n = mesh.vertices().len();
-    let spacing = n / vertex_handles.max(1);
-    let chosen: Vec<usize> = (0..vertex_handles)
-        .map(|h| (h * spacing + spacing / 2).min(n - 1))
-        .collect();
-    let anchors: Vec<Anchor> = chosen.iter().map(|&v| Anchor::Vertex(v as u32)).collect();
-    let rest: Vec<DVec2> = chosen.iter().map(|&v| mesh.vertices()[v]).collect();
-    let start = Instant::now();
-    rig.compile(&anchors, &[])?;
-    let compile_us = start.elapsed().as_secs_f64() * 1e6;
-    let size = mesh.size();
-    let mut targets = rest.clone();
-    let mut times = Vec::with_capacity(frames);
-    for f in 0..frames {
-        let t = f as f64 * 0.05;
-        for (h, (o, r)) in targets.iter_mut().zip(&rest).enumerate() {
-            let phase = t + h as f64 * 1.3;
-            *o = *r + DVec2::new(phase.cos(), phase.sin()) * (0.03 * size);
-        }
-        let start = Instant::now();
-        rig.update(&targets, &[])?;
-        times.push(start.elapsed().as_secs_f64() * 1e6);
-    }
-    times.sort_by(f64::total_cmp);
-    let at = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
-    let energy = rig.energy(rig.grid(), &targets, &[])?;
-    let mut converged = LpFfd {
-        params: LpParams {
-            iterations: 200,
-            ..params
-        },
-        ..rig
-    };
-    converged.update(&targets, &[])?;
-    let best = converged.energy(converged.grid(), &targets, &[])?;
-    Ok(FfdBench {
-        vertices: n,
-        triangles: mesh.triangles().len(),
-        grid_columns: spec.columns,
-        grid_rows: spec.rows,
-        vertex_handles,
-        iterations: params.iterations,
-        register_ms,
-        compile_us,
-        update_us_min: if times.is_empty() { 0.0 } else { at(0.0) },
-        update_us_median: if times.is_empty() { 0.0 } else { at(0.5) },
-        update_us_p99: if times.is_empty() { 0.0 } else { at(0.99) },
-        frames,
-        energy_gap: if best > 0.0 {
-            (energy - best) / best
-        } else {
-            0.0
-        },
-    })
 }

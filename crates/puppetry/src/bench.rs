@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 use glam::DVec2;
 use serde::Serialize;
 
-use puppetry_deform::ffd::{self, Basis, FfdBench, FfdError, GridSpec, LpParams};
-use puppetry_deform::skeleton::{self, Skeleton, SkeletonBench, SkeletonError, SkeletonParams};
+use puppetry_deform::ffd::{Basis, FfdError, GridSpec, LpFfd, LpParams};
+use puppetry_deform::skeleton::{ShapeAware, Skeleton, SkeletonError, SkeletonParams};
 use puppetry_deform::{Anchor, Arap, ArapError, Steps};
 use puppetry_mesh::Mesh;
 
@@ -394,7 +394,7 @@ pub fn run_lp_ffd_case(
     frames: usize,
 ) -> Result<RigResult, FfdError> {
     let spec = GridSpec::around(mesh, RIG_GRID.0, RIG_GRID.1, basis);
-    let bench = ffd::bench(mesh, spec, LpParams::default(), RIG_VERTEX_HANDLES, frames)?;
+    let bench = ffd_bench(mesh, spec, LpParams::default(), RIG_VERTEX_HANDLES, frames)?;
     Ok(RigResult::LpFfd {
         mesh: name.to_string(),
         basis: match basis {
@@ -413,7 +413,7 @@ pub fn run_skeleton_case(
     skeleton: &Skeleton,
     frames: usize,
 ) -> Result<RigResult, SkeletonError> {
-    let bench = skeleton::bench(name, mesh, skeleton, SkeletonParams::default(), frames)?;
+    let bench = skeleton_bench(name, mesh, skeleton, SkeletonParams::default(), frames)?;
     Ok(RigResult::Skeleton(bench))
 }
 
@@ -466,4 +466,180 @@ pub fn rig_table_row(r: &RigResult) -> String {
     format!(
         "{rig:<9} {mesh:<20} {vertices:>8} {setup:<34} {register:>11.2} {p50:>13.1} {p99:>13.1} {min:>13.1} {cpu:>12}"
     )
+}
+
+/// Timings of the lp-FFD phases on one mesh, from [`ffd_bench`].
+#[derive(Debug, Clone, Serialize)]
+pub struct FfdBench {
+    pub vertices: usize,
+    pub triangles: usize,
+    pub grid_columns: usize,
+    pub grid_rows: usize,
+    pub vertex_handles: usize,
+    pub iterations: usize,
+    pub register_ms: f64,
+    pub compile_us: f64,
+    pub update_us_min: f64,
+    pub update_us_median: f64,
+    pub update_us_p99: f64,
+    pub frames: usize,
+    /// After the last frame: `(E − E*)/E*`, with `E*` the energy after 200
+    /// more iterations on the same targets — how far the warm-started
+    /// per-frame iterations trail the converged solution.
+    pub energy_gap: f64,
+}
+
+/// Times `frames` updates of an lp-FFD rig over `mesh` with
+/// `vertex_handles` vertex handles (spread by index) wandering on small
+/// circles, like the ARAP bench's handles.
+pub fn ffd_bench(
+    mesh: &Mesh,
+    spec: GridSpec,
+    params: LpParams,
+    vertex_handles: usize,
+    frames: usize,
+) -> Result<FfdBench, FfdError> {
+    let start = Instant::now();
+    let mut rig = LpFfd::register(mesh, spec, params)?;
+    let register_ms = start.elapsed().as_secs_f64() * 1e3;
+    let n = mesh.vertices().len();
+    let spacing = n / vertex_handles.max(1);
+    let chosen: Vec<usize> = (0..vertex_handles)
+        .map(|h| (h * spacing + spacing / 2).min(n - 1))
+        .collect();
+    let anchors: Vec<Anchor> = chosen.iter().map(|&v| Anchor::Vertex(v as u32)).collect();
+    let rest: Vec<DVec2> = chosen.iter().map(|&v| mesh.vertices()[v]).collect();
+    let start = Instant::now();
+    rig.compile(&anchors, &[])?;
+    let compile_us = start.elapsed().as_secs_f64() * 1e6;
+    let size = mesh.size();
+    let mut targets = rest.clone();
+    let mut times = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let t = f as f64 * 0.05;
+        for (h, (o, r)) in targets.iter_mut().zip(&rest).enumerate() {
+            let phase = t + h as f64 * 1.3;
+            *o = *r + DVec2::new(phase.cos(), phase.sin()) * (0.03 * size);
+        }
+        let start = Instant::now();
+        rig.update(&targets, &[])?;
+        times.push(start.elapsed().as_secs_f64() * 1e6);
+    }
+    times.sort_by(f64::total_cmp);
+    let at = |q: f64| times[((times.len() - 1) as f64 * q).round() as usize];
+    let energy = rig.energy(rig.grid(), &targets, &[])?;
+    // The same rig run on to convergence from where the frames left it.
+    rig.set_iterations(200);
+    rig.update(&targets, &[])?;
+    let best = rig.energy(rig.grid(), &targets, &[])?;
+    Ok(FfdBench {
+        vertices: n,
+        triangles: mesh.triangles().len(),
+        grid_columns: spec.columns,
+        grid_rows: spec.rows,
+        vertex_handles,
+        iterations: params.iterations,
+        register_ms,
+        compile_us,
+        update_us_min: if times.is_empty() { 0.0 } else { at(0.0) },
+        update_us_median: if times.is_empty() { 0.0 } else { at(0.5) },
+        update_us_p99: if times.is_empty() { 0.0 } else { at(0.99) },
+        frames,
+        energy_gap: if best > 0.0 {
+            (energy - best) / best
+        } else {
+            0.0
+        },
+    })
+}
+
+/// One measured skeleton case.
+#[derive(Debug, Clone, Serialize)]
+pub struct SkeletonBench {
+    pub mesh: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub bones: usize,
+    /// Stitches per frame (`rounds + 1`).
+    pub stitches: usize,
+    pub factor_entries: usize,
+    pub register_ms: f64,
+    /// A whole frame: bone transforms and every propagation round.
+    pub update_us_median: f64,
+    pub update_us_p99: f64,
+    /// The same frames in this thread's CPU time: on a shared machine, the
+    /// cost without the time other processes held the core.
+    pub update_cpu_us_median: f64,
+    pub update_cpu_us_p99: f64,
+    /// The fastest frame: the least disturbed by a shared machine.
+    pub update_us_min: f64,
+    pub frames: usize,
+}
+
+/// CPU time this thread has used.
+fn thread_cpu_seconds() -> f64 {
+    let mut now = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `now` is a valid timespec for the call to fill.
+    unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut now) };
+    now.tv_sec as f64 + now.tv_nsec as f64 * 1e-9
+}
+
+/// Times registration and `frames` FK-animated frames (every bone swinging
+/// on its own phase) of `skeleton` driving `mesh`.
+pub fn skeleton_bench(
+    name: &str,
+    mesh: &Mesh,
+    skeleton: &Skeleton,
+    params: SkeletonParams,
+    frames: usize,
+) -> Result<SkeletonBench, SkeletonError> {
+    let mut register_times = Vec::new();
+    let mut deformer = None;
+    for _ in 0..3 {
+        let start = Instant::now();
+        let d = ShapeAware::register(mesh, skeleton.clone(), params)?;
+        register_times.push(start.elapsed().as_secs_f64() * 1e3);
+        deformer = Some(d);
+    }
+    let mut deformer = deformer.expect("registered");
+    register_times.sort_by(f64::total_cmp);
+    let rest = skeleton.rest_pose();
+    let mut pose = rest.clone();
+    let mut joints = vec![DVec2::ZERO; skeleton.joints().len()];
+    let mut times = Vec::with_capacity(frames);
+    let mut cpu_times = Vec::with_capacity(frames);
+    for frame in 0..frames.max(1) {
+        let t = frame as f64 * 0.05;
+        for (bone, angle) in pose.angles.iter_mut().enumerate() {
+            *angle = rest.angles[bone] + 0.35 * (t + bone as f64 * 0.9).sin();
+        }
+        skeleton.joints_into(&pose, &mut joints)?;
+        let (start, cpu_start) = (Instant::now(), thread_cpu_seconds());
+        deformer.update(&joints)?;
+        times.push(start.elapsed().as_secs_f64() * 1e6);
+        cpu_times.push((thread_cpu_seconds() - cpu_start) * 1e6);
+    }
+    times.sort_by(f64::total_cmp);
+    cpu_times.sort_by(f64::total_cmp);
+    let percentile =
+        |sorted: &[f64], q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+    let at = |q: f64| percentile(&times, q);
+    Ok(SkeletonBench {
+        mesh: name.to_string(),
+        vertices: mesh.vertices().len(),
+        triangles: mesh.triangles().len(),
+        bones: skeleton.bones().len(),
+        stitches: params.rounds + 1,
+        factor_entries: deformer.factor_entries(),
+        register_ms: register_times[1],
+        update_us_median: at(0.5),
+        update_us_p99: at(0.99),
+        update_cpu_us_median: percentile(&cpu_times, 0.5),
+        update_cpu_us_p99: percentile(&cpu_times, 0.99),
+        update_us_min: times[0],
+        frames: times.len(),
+    })
 }

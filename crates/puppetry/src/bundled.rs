@@ -57,6 +57,27 @@ pub fn demo_stage() -> Result<PathBuf, BundleError> {
     Ok(root()?.join("config/demo.toml"))
 }
 
+/// The demo skeleton: the 15 bones of `config/skeleton.toml`, in the
+/// coordinates `mesh_png` gives the demo picture (512 px, y up).
+pub fn demo_skeleton() -> Result<puppetry_deform::skeleton::Skeleton, String> {
+    let path = root()
+        .map_err(|e| e.to_string())?
+        .join("config/skeleton.toml");
+    let config = puppetry_stage::config::StageConfig::load(&path).map_err(|e| e.to_string())?;
+    let spec = config
+        .puppets
+        .first()
+        .and_then(|p| p.skeleton.as_ref())
+        .ok_or_else(|| format!("{}: no puppet with a skeleton", path.display()))?;
+    let joints = spec
+        .joints
+        .iter()
+        .map(|&[x, y]| glam::DVec2::new(x, y))
+        .collect();
+    puppetry_deform::skeleton::Skeleton::new(joints, spec.bones.clone())
+        .map_err(|e| format!("{}: skeleton: {e}", path.display()))
+}
+
 /// The bundled demo picture.
 pub fn demo_image() -> Result<PathBuf, BundleError> {
     Ok(root()?.join("assets/gingerbread/gingerbread.png"))

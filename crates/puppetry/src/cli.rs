@@ -10,7 +10,7 @@ use serde::Deserialize;
 use crate::bench;
 use crate::compare::{self, CompareError, Comparison};
 use puppetry_deform::ffd::{Basis, FfdError, MAX_GRID_HANDLES};
-use puppetry_deform::skeleton::{SkeletonError, gingerbread_skeleton};
+use puppetry_deform::skeleton::SkeletonError;
 use puppetry_deform::{Anchor, Arap, ArapError, Steps};
 use puppetry_mesh::build::{MeshOptions, mesh_png, triangulate};
 use puppetry_mesh::polygon::Shape;
@@ -40,6 +40,8 @@ pub enum CliError {
     },
     #[error(transparent)]
     Bundle(#[from] crate::bundled::BundleError),
+    #[error("the bundled demo: {0}")]
+    Demo(String),
 }
 
 /// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
@@ -384,7 +386,7 @@ pub fn rig_bench_command(
     if !json {
         print(&bench::rig_table_header());
     }
-    let skeleton = gingerbread_skeleton();
+    let skeleton = crate::bundled::demo_skeleton().map_err(CliError::Demo)?;
     let mut results = Vec::new();
     let mut show = |result: bench::RigResult, results: &mut Vec<_>| {
         if json {

@@ -271,3 +271,41 @@ pub fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
         .map(|(p, q)| p.distance(*q))
         .fold(0.0, f64::max)
 }
+
+/// The demo skeleton of `config/skeleton.toml` (15 bones, in the
+/// coordinates `mesh_png` gives the demo picture), read from the checkout
+/// so tests and the stage file never disagree.
+pub fn gingerbread_skeleton() -> puppetry_deform::skeleton::Skeleton {
+    let path = crate::root().join("config/skeleton.toml");
+    let text = std::fs::read_to_string(&path).expect("config/skeleton.toml");
+    let stage: toml::Value = toml::from_str(&text).expect("a TOML stage file");
+    let skeleton = &stage["puppet"][0]["skeleton"];
+    let pair = |v: &toml::Value| {
+        let a = v.as_array().expect("a pair");
+        let num = |x: &toml::Value| {
+            x.as_float()
+                .or(x.as_integer().map(|i| i as f64))
+                .expect("a number")
+        };
+        (num(&a[0]), num(&a[1]))
+    };
+    let joints = skeleton["joints"]
+        .as_array()
+        .expect("joints")
+        .iter()
+        .map(|j| {
+            let (x, y) = pair(j);
+            DVec2::new(x, y)
+        })
+        .collect();
+    let bones = skeleton["bones"]
+        .as_array()
+        .expect("bones")
+        .iter()
+        .map(|b| {
+            let (p, c) = pair(b);
+            [p as usize, c as usize]
+        })
+        .collect();
+    puppetry_deform::skeleton::Skeleton::new(joints, bones).expect("the demo skeleton is valid")
+}

@@ -2,7 +2,7 @@
 //! the λ_ml = 0 special case, vertex handles within a tolerance derived from
 //! the energy weights, multi-piece meshes, rigid translation, painted
 //! rigidity, monotone local/global iterations, no allocation per frame, and
-//! input errors. `bench_frames` (ignored) prints frame timings.
+//! input errors. (Frame timings: `puppetry bench --rigs`.)
 
 use puppetry_testkit::alloc;
 
@@ -763,52 +763,4 @@ fn bad_handles_and_targets_are_rejected() {
         ffd.set_weights(&weights),
         Err(FfdError::BadWeight { triangle: 4, .. })
     ));
-}
-
-/// Frame timings on the demo puppet; run with
-/// `cargo test --release --test ffd bench_frames -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn bench_frames() {
-    use puppetry_deform::ffd::bench;
-    use puppetry_mesh::build::{MeshOptions, mesh_png};
-    let image = puppetry_testkit::root().join("assets/gingerbread/gingerbread.png");
-    for target in std::env::var("FFD_BENCH_SIZES").map_or(vec![1000, 10_000], |s| {
-        s.split(',').map(|n| n.parse().unwrap()).collect()
-    }) {
-        let mesh = mesh_png(
-            &image,
-            &MeshOptions {
-                target_vertices: Some(target),
-            },
-        )
-        .unwrap();
-        for basis in BASES {
-            for iterations in std::env::var("FFD_BENCH_ITERATIONS")
-                .map_or(vec![1, 2, 4, 6, 8], |s| {
-                    s.split(',').map(|n| n.parse().unwrap()).collect()
-                })
-            {
-                let spec = GridSpec::around(&mesh, 10, 10, basis);
-                let params = LpParams {
-                    iterations,
-                    ..LpParams::default()
-                };
-                let frames = if target > 5000 { 200 } else { 1000 };
-                let r = bench(&mesh, spec, params, 4, frames).unwrap();
-                println!(
-                    "{:>6} vertices {basis:?} 10x10, {} iterations: register {:.1} ms, \
-                     compile {:.0} µs, update min {:.0} µs p50 {:.0} µs p99 {:.0} µs, energy gap {:.4}",
-                    r.vertices,
-                    r.iterations,
-                    r.register_ms,
-                    r.compile_us,
-                    r.update_us_min,
-                    r.update_us_median,
-                    r.update_us_p99,
-                    r.energy_gap
-                );
-            }
-        }
-    }
 }

@@ -8,10 +8,9 @@ use puppetry_testkit::alloc;
 use std::f64::consts::{FRAC_PI_2, PI};
 
 use glam::{DMat2, DVec2};
-use puppetry_deform::skeleton::{
-    Pose, ShapeAware, Skeleton, SkeletonError, SkeletonParams, gingerbread_skeleton,
-};
+use puppetry_deform::skeleton::{Pose, ShapeAware, Skeleton, SkeletonError, SkeletonParams};
 use puppetry_mesh::Mesh;
+use puppetry_testkit::gingerbread_skeleton;
 
 /// Allocations this thread makes while running `f`.
 fn allocations_in(f: impl FnOnce()) -> usize {
@@ -594,33 +593,4 @@ fn updates_do_not_allocate() {
         ShapeAware::register(&mesh, skeleton.clone(), SkeletonParams::default()).unwrap();
     });
     assert!(count > 0);
-}
-
-/// Speed of the 15-bone gingerbread rig at about 1k and 10k vertices:
-/// `cargo test --release --test skeleton -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn bench_gingerbread() {
-    use puppetry_mesh::build::{MeshOptions, mesh_png};
-    let skeleton = gingerbread_skeleton();
-    for n in [1000, 10_000] {
-        let options = MeshOptions {
-            target_vertices: Some(n),
-        };
-        let mesh = mesh_png(
-            &puppetry_testkit::root().join("assets/gingerbread/gingerbread.png"),
-            &options,
-        )
-        .unwrap();
-        let frames = if n > 5000 { 300 } else { 2000 };
-        let result = puppetry_deform::skeleton::bench(
-            &format!("gingerbread@{n}"),
-            &mesh,
-            &skeleton,
-            SkeletonParams::default(),
-            frames,
-        )
-        .unwrap();
-        println!("{}", serde_json::to_string(&result).unwrap());
-    }
 }
