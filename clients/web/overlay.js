@@ -1,0 +1,193 @@
+// The 2D overlay over the GL picture (#overlay): rigs (deformed grid,
+// skeleton bones and joints), the painted stiffness tint and brush, every
+// handle (pins, others' contacts, our own contacts where the pointers are
+// now), calibration marks and mouse cursors. It only draws what it is given.
+
+import { CONFIG_OWNER, HANDLE_KIND, RIG_KIND } from './protocol.js';
+
+// A stable colour per owner, so everyone sees whose hand is whose.
+export function ownerColour(owner, alpha = 1) {
+  if (owner === CONFIG_OWNER) return `rgb(158 158 158 / ${alpha})`;
+  let h = 0;
+  for (const ch of owner) h = (h * 31 + ch.charCodeAt(0)) >>> 0;
+  return `hsl(${h % 360} 85% 50% / ${alpha})`;
+}
+
+export class Overlay {
+  /** canvas: the overlay canvas; stageElement: the letterboxed stage it covers. */
+  constructor(canvas, stageElement) {
+    this.canvas = canvas;
+    this.stageElement = stageElement;
+    this.ctx = canvas.getContext('2d');
+  }
+
+  /**
+   * Draws the whole overlay afresh from `scene`:
+   *   puppets           puppet states (handles, rig, rigPoints, weights, positions, src.triangles)
+   *   cursors           the newest "cursors" message's list
+   *   myOwner           "client:N": our own contacts come from ownContacts instead
+   *   ownContacts       stage points {x, y} of our pointers that hold contacts
+   *   showWeights       tint triangles by painted stiffness (while the paint tool is on)
+   *   brush             {x, y, radius, stiffens} or null: the paint brush outline
+   *   calibrationMarks  stage points to mark 1, 2, 3, 4, or null
+   *   stageToClient     (x, y) -> [clientX, clientY]
+   */
+  draw(scene) {
+    const { ctx, canvas } = this;
+    const { stageToClient } = scene;
+    const dpr = canvas.width / this.stageElement.clientWidth || 1;
+    const r = this.stageElement.getBoundingClientRect();
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.clearRect(0, 0, canvas.width, canvas.height);
+    // Overlay pixels (CSS) of a stage point.
+    const toOverlay = (x, y) => {
+      const [cx, cy] = stageToClient(x, y);
+      return [cx - r.left, cy - r.top];
+    };
+    const dot = (x, y, radius, fill, ring) => {
+      const [px, py] = toOverlay(x, y);
+      ctx.beginPath();
+      ctx.arc(px, py, radius, 0, 2 * Math.PI);
+      if (fill) { ctx.fillStyle = fill; ctx.fill(); }
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = ring;
+      ctx.stroke();
+    };
+    const line = (ax, ay, bx, by) => {
+      const [x0, y0] = toOverlay(ax, ay);
+      const [x1, y1] = toOverlay(bx, by);
+      ctx.moveTo(x0, y0);
+      ctx.lineTo(x1, y1);
+    };
+
+    this.drawRigs(scene.puppets, dot, line);
+    if (scene.showWeights) this.drawWeights(scene.puppets, toOverlay);
+    if (scene.brush) this.drawBrush(scene.brush, toOverlay);
+    this.drawHandles(scene.puppets, scene.myOwner, scene.ownContacts, dot);
+    if (scene.calibrationMarks) this.drawCalibrationMarks(scene.calibrationMarks, toOverlay);
+    this.drawCursors(scene.cursors, toOverlay, dot);
+  }
+
+  // Rigs under the handles: the deformed grid (lines and handle dots) and
+  // the skeleton (bones and joints).
+  drawRigs(puppets, dot, line) {
+    const ctx = this.ctx;
+    for (const p of puppets) {
+      const q = p.rigPoints;
+      if (!q) continue;
+      const at = (i) => [q[2 * i], q[2 * i + 1]];
+      ctx.beginPath();
+      if (p.rig.kind === RIG_KIND.GRID) {
+        const { columns: m, rows: n } = p.rig;
+        for (let row = 0; row < n; row++) {
+          for (let col = 0; col < m; col++) {
+            const i = row * m + col;
+            if (col + 1 < m) line(...at(i), ...at(i + 1));
+            if (row + 1 < n) line(...at(i), ...at(i + m));
+          }
+        }
+        ctx.lineWidth = 1;
+        ctx.strokeStyle = 'rgb(41 98 255 / 0.6)';
+      } else if (p.rig.kind === RIG_KIND.SKELETON) {
+        for (const [a, b] of p.rig.bones) line(...at(a), ...at(b));
+        ctx.lineWidth = 4;
+        ctx.strokeStyle = 'rgb(255 111 0 / 0.75)';
+      }
+      ctx.stroke();
+      const count = q.length / 2;
+      for (let i = 0; i < count; i++) {
+        const [x, y] = at(i);
+        if (p.rig.kind === RIG_KIND.GRID) dot(x, y, 3, 'rgb(41 98 255 / 0.8)', 'rgb(255 255 255 / 0.8)');
+        else dot(x, y, 5, 'rgb(255 111 0 / 0.9)', '#000');
+      }
+    }
+  }
+
+  // Painted stiffness: stiffer blue, softer red, stronger the further
+  // from the default weight 1 (on a log scale).
+  drawWeights(puppets, toOverlay) {
+    const ctx = this.ctx;
+    for (const p of puppets) {
+      if (!p.weights) continue;
+      const v = p.positions;
+      const t = p.src.triangles;
+      for (let k = 0; k < p.weights.length; k++) {
+        const w = p.weights[k];
+        if (w === 1) continue;
+        const strength = Math.min(1, Math.abs(Math.log10(w)) / 3);
+        ctx.fillStyle = w > 1 ? `rgb(41 98 255 / ${0.15 + 0.5 * strength})` : `rgb(213 0 0 / ${0.15 + 0.5 * strength})`;
+        ctx.beginPath();
+        for (let c = 0; c < 3; c++) {
+          const i = t[3 * k + c];
+          const [x, y] = toOverlay(v[2 * i], v[2 * i + 1]);
+          if (c === 0) ctx.moveTo(x, y); else ctx.lineTo(x, y);
+        }
+        ctx.fill();
+      }
+    }
+  }
+
+  // The brush's reach: blue while it stiffens, red while it softens.
+  drawBrush(brush, toOverlay) {
+    const ctx = this.ctx;
+    const [cx, cy] = toOverlay(brush.x, brush.y);
+    const [ex] = toOverlay(brush.x + brush.radius, brush.y);
+    ctx.beginPath();
+    ctx.arc(cx, cy, Math.abs(ex - cx), 0, 2 * Math.PI);
+    ctx.lineWidth = 1.5;
+    ctx.strokeStyle = brush.stiffens ? '#2962ff' : '#d50000';
+    ctx.stroke();
+  }
+
+  drawHandles(puppets, myOwner, ownContacts, dot) {
+    for (const p of puppets) {
+      for (const h of p.handles) {
+        // Our own contacts are drawn where the pointer is now (below): "handles"
+        // messages come only when the set changes, so their `at` goes stale.
+        if (h.kind === HANDLE_KIND.CONTACT && h.owner === myOwner) continue;
+        if (h.kind === HANDLE_KIND.PIN) dot(h.at[0], h.at[1], 6, ownerColour(h.owner), '#000');
+        else dot(h.at[0], h.at[1], 10, ownerColour(h.owner, 0.6), 'rgb(0 0 0 / 0.6)');
+      }
+    }
+    for (const { x, y } of ownContacts) dot(x, y, 10, ownerColour(myOwner, 0.6), 'rgb(0 0 0 / 0.6)');
+  }
+
+  // Red crosses, numbered in the order to touch them.
+  drawCalibrationMarks(marks, toOverlay) {
+    const ctx = this.ctx;
+    ctx.font = 'bold 20px sans-serif';
+    marks.forEach(([x, y], i) => {
+      const [px, py] = toOverlay(x, y);
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = '#e00';
+      ctx.beginPath();
+      ctx.moveTo(px - 20, py); ctx.lineTo(px + 20, py);
+      ctx.moveTo(px, py - 20); ctx.lineTo(px, py + 20);
+      ctx.stroke();
+      ctx.fillStyle = '#e00';
+      ctx.fillText(String(i + 1), px + 8, py - 8);
+    });
+  }
+
+  // Mice on the stage: a cross at the cursor and the pair of points it
+  // holds (filled while its button is down).
+  drawCursors(cursors, toOverlay, dot) {
+    const ctx = this.ctx;
+    for (const c of cursors) {
+      const [px, py] = toOverlay(c.at[0], c.at[1]);
+      const colour = ownerColour(c.source);
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = colour;
+      ctx.beginPath();
+      ctx.moveTo(px - 8, py); ctx.lineTo(px + 8, py);
+      ctx.moveTo(px, py - 8); ctx.lineTo(px, py + 8);
+      ctx.stroke();
+      if (c.spacing > 0) {
+        const dx = Math.cos(c.angle) * c.spacing / 2, dy = Math.sin(c.angle) * c.spacing / 2;
+        for (const s of [-1, 1]) {
+          dot(c.at[0] + s * dx, c.at[1] + s * dy, 6, c.holding ? ownerColour(c.source, 0.7) : null, colour);
+        }
+      }
+    }
+  }
+}

@@ -1,0 +1,205 @@
+// The performer's tools beside plain dragging, each with its controls in
+// the bar: the pin tool (click to pin, click a pin to remove it), the
+// stiffness paint brush (dabs, and saving the painted weights), the key pose
+// slider of a skeleton puppet; and the calibration marks `?calibrate=` asks
+// for. Tools take pointers before they become contacts (see input.js).
+
+import {
+  HANDLE_KIND, RIG_KIND,
+  paintMessage, pinMessage, poseMessage, saveWeightsMessage, unpinMessage,
+} from './protocol.js';
+
+// How near (CSS pixels) a click must be to a pin to remove it.
+const PIN_REACH = 12;
+
+export class PinTool {
+  /**
+   * button: the "pin" toggle. puppets(): the current puppet states;
+   * stageToClient(x, y): client coordinates; send(message).
+   */
+  constructor(button, { puppets, stageToClient, send }) {
+    this.button = button;
+    this.puppets = puppets;
+    this.stageToClient = stageToClient;
+    this.send = send;
+    this.on = false;
+  }
+
+  /** Shows the toggle (performers only). */
+  enable() {
+    this.button.hidden = false;
+    this.button.addEventListener('click', () => {
+      this.on = !this.on;
+      this.button.setAttribute('aria-pressed', String(this.on));
+    });
+  }
+
+  // While the tool is on, or with Shift held, a press pins or unpins.
+  pointerDown(e, x, y) {
+    if (!(e.shiftKey || this.on)) return false;
+    this.pinOrUnpin(x, y, e.clientX, e.clientY);
+    return true;
+  }
+
+  // A pin within reach of the click is removed; otherwise a new one is made.
+  pinOrUnpin(x, y, cx, cy) {
+    let best = null;
+    let bestDist = PIN_REACH;
+    for (const p of this.puppets()) {
+      for (const h of p.handles) {
+        if (h.kind !== HANDLE_KIND.PIN) continue;
+        const [hx, hy] = this.stageToClient(h.at[0], h.at[1]);
+        const d = Math.hypot(hx - cx, hy - cy);
+        if (d < bestDist) { best = { puppet: p.id, handle: h.id }; bestDist = d; }
+      }
+    }
+    this.send(best ? unpinMessage(best.puppet, best.handle) : pinMessage(x, y));
+  }
+}
+
+export class PaintTool {
+  /**
+   * elements: {controls, button, radius, strength, save} of the bar.
+   * puppets(): the current puppet states; clientToStage(cx, cy);
+   * send(message); reportError(message); onChange(): the brush moved or the
+   * tool turned on or off (the overlay should redraw).
+   */
+  constructor(elements, { puppets, clientToStage, send, reportError, onChange }) {
+    this.elements = elements;
+    this.puppets = puppets;
+    this.clientToStage = clientToStage;
+    this.send = send;
+    this.reportError = reportError;
+    this.onChange = onChange;
+    this.on = false;
+    this.brush = null;          // {x, y, down} where the brush is (stage coordinates)
+    this.painted = new Set();   // puppet ids painted since the last save
+  }
+
+  /** Shows the controls (performers only). */
+  enable() {
+    const { controls, button, save } = this.elements;
+    controls.hidden = false;
+    button.addEventListener('click', () => {
+      this.on = !this.on;
+      button.setAttribute('aria-pressed', String(this.on));
+      if (!this.on) this.brush = null;
+      this.onChange();
+    });
+    save.addEventListener('click', () => this.saveWeights());
+  }
+
+  get radius() {
+    return Number(this.elements.radius.value);
+  }
+
+  get strength() {
+    return Number(this.elements.strength.value);
+  }
+
+  pointerDown(e, x, y) {
+    if (!this.on) return false;
+    e.currentTarget.setPointerCapture(e.pointerId);
+    this.brush = { x, y, down: true };
+    this.onChange();
+    return true;
+  }
+
+  // While the tool is on, every move (hovering too) moves the brush.
+  pointerMove(e) {
+    if (!this.on) return false;
+    const [x, y] = this.clientToStage(e.clientX, e.clientY);
+    this.brush = { x, y, down: this.brush?.down ?? false };
+    this.onChange();
+    return true;
+  }
+
+  pointerUp() {
+    if (this.brush) this.brush.down = false;
+  }
+
+  // One dab per animation frame while the brush is down, on every puppet
+  // whose current outline box it touches (the server paints only triangles
+  // under it).
+  flush() {
+    const brush = this.brush;
+    if (!this.on || !brush?.down) return;
+    const radius = this.radius;
+    const strength = this.strength;
+    if (!(radius > 0 && strength > 0)) return this.reportError('paint radius and strength must be positive');
+    for (const p of this.puppets()) {
+      const v = p.positions;
+      let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+      for (let i = 0; i < v.length; i += 2) {
+        x0 = Math.min(x0, v[i]); x1 = Math.max(x1, v[i]);
+        y0 = Math.min(y0, v[i + 1]); y1 = Math.max(y1, v[i + 1]);
+      }
+      if (brush.x + radius < x0 || brush.x - radius > x1 || brush.y + radius < y0 || brush.y - radius > y1) continue;
+      this.send(paintMessage(p.id, brush.x, brush.y, radius, strength));
+      this.painted.add(p.id);
+    }
+  }
+
+  // The puppets painted since the last save, or every puppet if none was.
+  saveWeights() {
+    const ids = this.painted.size ? [...this.painted] : this.puppets().map((p) => p.id);
+    for (const puppet of ids) this.send(saveWeightsMessage(puppet));
+    this.painted.clear();
+  }
+
+  /** What the overlay draws of the brush: {x, y, radius, stiffens}, or null. */
+  outline() {
+    if (!this.on || !this.brush) return null;
+    return { x: this.brush.x, y: this.brush.y, radius: this.radius, stiffens: this.strength >= 1 };
+  }
+}
+
+export class PoseSlider {
+  /** elements: {controls, from, to, t} of the bar; send(message). */
+  constructor(elements, { send }) {
+    this.elements = elements;
+    this.send = send;
+    this.enabled = false;
+  }
+
+  /** Listens to the controls (performers only); they show once a stage has key poses. */
+  enable() {
+    const { from, to, t } = this.elements;
+    this.enabled = true;
+    t.addEventListener('input', () => this.sendPose());
+    from.addEventListener('change', () => this.sendPose());
+    to.addEventListener('change', () => this.sendPose());
+  }
+
+  // Offers the key poses of the first skeleton puppet that has some.
+  setup(puppets) {
+    const { controls, from, to } = this.elements;
+    const p = puppets.find((q) => q.rig.kind === RIG_KIND.SKELETON && q.rig.poses?.length);
+    controls.hidden = !this.enabled || !p;
+    if (!p) return;
+    for (const select of [from, to]) {
+      select.replaceChildren(...p.rig.poses.map((name) => new Option(name, name)));
+    }
+    if (p.rig.poses.length > 1) to.selectedIndex = 1;
+    controls.dataset.puppet = String(p.id);
+  }
+
+  sendPose() {
+    const { controls, from, to, t } = this.elements;
+    this.send(poseMessage(Number(controls.dataset.puppet), from.value, to.value, Number(t.value)));
+  }
+}
+
+// `?calibrate=0.1` shows the four marks `puppetry calibrate` expects, that
+// fraction of the stage in from its edges, numbered in the order to touch.
+// The inset, or null when the page was not asked for marks.
+export function calibrationInset(params) {
+  return params.has('calibrate') ? Number(params.get('calibrate') || 0.1) : null;
+}
+
+/** The marks' stage points, in the order to touch them (top left first, clockwise). */
+export function calibrationMarks(inset, stageSize) {
+  const { width: w, height: h } = stageSize;
+  const lo = inset, hi = 1 - inset;
+  return [[lo * w, hi * h], [hi * w, hi * h], [hi * w, lo * h], [lo * w, lo * h]];
+}
