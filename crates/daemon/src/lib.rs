@@ -13,5 +13,6 @@
 
 pub mod protocol;
 pub mod serve;
+pub mod sources;
 pub mod stage_thread;
 pub mod stream;

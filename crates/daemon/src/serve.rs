@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
+use crate::sources::{SOURCE_QUEUE, SourceError, WhenDone, forward, supervise};
 use crate::stage_thread::{self, Command, CursorState};
 use crate::stream::{self, Shared, StageDescription, StreamError, WebFiles};
 use glam::DVec2;
@@ -34,8 +35,10 @@ pub enum ServeError {
     Input(String),
 }
 
-/// Frames a source may get ahead of its forwarder.
-const SOURCE_QUEUE: usize = 64;
+/// One attempt of a source (see `sources::supervise`).
+type Attempt = std::pin::Pin<Box<dyn std::future::Future<Output = Result<(), SourceError>> + Send>>;
+/// Makes each attempt of a source, given the sender its frames go to.
+type AttemptMaker = Box<dyn FnMut(mpsc::Sender<ContactFrame>) -> Attempt + Send>;
 
 /// Commands waiting for the stage thread before sources must wait.
 const COMMAND_QUEUE: usize = 1024;
@@ -96,6 +99,63 @@ pub async fn start(
         })?;
     // Inputs are read now, so a bad file stops the start with its error.
     let size = DVec2::new(stage.width, stage.height);
+    let resolved = resolve_inputs(config, size, extra_replay).await?;
+    let description = StageDescription::of(&stage);
+    let (outputs, stage_thread) = stage_thread::spawn(stage, commands_rx, commands.downgrade());
+    let shared = Arc::new(Shared {
+        stage: description,
+        tokens: config.access.performer_tokens.clone(),
+        web_files,
+        max_connections: config.stage.max_connections,
+        commands: commands.clone(),
+        outputs: outputs.puppets,
+        cursors: outputs.cursors,
+        changes: outputs.changes,
+        client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
+        started,
+        next_client: AtomicU64::new(1),
+    });
+
+    let (inputs, tuio_addresses) = spawn_sources(resolved, &commands, started, size)?;
+    let (shutdown, shutdown_rx) = oneshot::channel();
+    let server = tokio::spawn(stream::run(listener, shared, async {
+        let _ = shutdown_rx.await;
+    }));
+    Ok(Running {
+        address,
+        tuio_addresses,
+        started,
+        commands,
+        shutdown,
+        server,
+        inputs,
+        stage_thread,
+    })
+}
+
+/// The stage file's inputs, opened or checked: replays read, TUIO sockets
+/// bound, devices resolved.
+struct ResolvedInputs {
+    replays: Vec<(SourceId, ReplaySource, Pacing, bool)>,
+    tuio: Vec<(tokio::net::UdpSocket, Calibration)>,
+    serials: Vec<(
+        String,
+        u32,
+        puppetry_input::serial::WireFormat,
+        SourceId,
+        Calibration,
+    )>,
+    devices: Vec<DeviceInput>,
+    hids: Vec<(hid::HidSelector, SourceId, Option<Calibration>)>,
+}
+
+/// Reads and checks every input of `config` (and an extra replay), so a bad
+/// file or address stops the start with its error.
+async fn resolve_inputs(
+    config: &StageConfig,
+    size: DVec2,
+    extra_replay: Option<(PathBuf, Pacing)>,
+) -> Result<ResolvedInputs, ServeError> {
     let mut replays = Vec::new();
     let mut tuio = Vec::new();
     let mut serials = Vec::new();
@@ -120,7 +180,7 @@ pub async fn start(
                     SourceId::from(name.clone().unwrap_or_else(|| format!("replay:{index}")));
                 let source = ReplaySource::open_with(
                     &config.resolve(file),
-                    source_id,
+                    source_id.clone(),
                     size,
                     calibration(spec)?,
                 )
@@ -129,7 +189,7 @@ pub async fn start(
                     PacingConfig::RealTime => Pacing::RealTime,
                     PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
                 };
-                replays.push((source, pacing, *repeat));
+                replays.push((source_id, source, pacing, *repeat));
             }
             InputConfig::Tuio {
                 listen,
@@ -244,128 +304,157 @@ pub async fn start(
     if let Some((file, pacing)) = extra_replay {
         let source =
             ReplaySource::open(&file, size).map_err(|e| ServeError::Input(e.to_string()))?;
-        replays.push((source, pacing, false));
+        replays.push((SourceId::from("replay"), source, pacing, false));
     }
-    let description = StageDescription::of(&stage);
-    let (outputs, stage_thread) = stage_thread::spawn(stage, commands_rx, commands.downgrade());
-    let shared = Arc::new(Shared {
-        stage: description,
-        tokens: config.access.performer_tokens.clone(),
-        web_files,
-        max_connections: config.stage.max_connections,
-        commands: commands.clone(),
-        outputs: outputs.puppets,
-        cursors: outputs.cursors,
-        changes: outputs.changes,
-        client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
-        started,
-        next_client: AtomicU64::new(1),
-    });
+    Ok(ResolvedInputs {
+        replays,
+        tuio,
+        serials,
+        devices,
+        hids,
+    })
+}
 
-    let mut inputs: Vec<JoinHandle<()>> = replays
-        .into_iter()
-        .map(|(source, pacing, repeat)| {
-            let commands = commands.clone();
-            tokio::spawn(async move {
-                loop {
-                    let played = play_into(source.clone(), pacing, &commands, started).await;
-                    tracing::info!("replay: {played} frames played");
-                    if !repeat || commands.is_closed() {
-                        return;
-                    }
-                }
-            })
-        })
-        .collect();
+/// Starts every resolved input under the one supervision policy; returns
+/// their tasks and where each TUIO input listens.
+fn spawn_sources(
+    resolved: ResolvedInputs,
+    commands: &mpsc::Sender<Command>,
+    started: Instant,
+    size: DVec2,
+) -> Result<(Vec<JoinHandle<()>>, Vec<SocketAddr>), ServeError> {
+    let ResolvedInputs {
+        replays,
+        tuio,
+        serials,
+        devices,
+        hids,
+    } = resolved;
+    // Every source runs under the one supervision policy (`sources`).
+    let supervised = |name: SourceId, when_done, attempt: AttemptMaker| {
+        tokio::spawn(supervise(
+            name,
+            when_done,
+            commands.clone(),
+            started,
+            attempt,
+        ))
+    };
+    let mut inputs: Vec<JoinHandle<()>> = Vec::new();
+    for (name, source, pacing, repeat) in replays {
+        let when_done = if repeat {
+            WhenDone::Repeat
+        } else {
+            WhenDone::Stop
+        };
+        inputs.push(supervised(
+            name,
+            when_done,
+            Box::new(move |frames| {
+                let source = source.clone();
+                Box::pin(async move {
+                    replay(source, pacing, frames).await;
+                    Ok(())
+                }) as Attempt
+            }),
+        ));
+    }
     let mut tuio_addresses = Vec::new();
-    for (socket, calibration) in tuio {
-        tuio_addresses.push(
-            socket
-                .local_addr()
-                .map_err(|e| ServeError::Input(e.to_string()))?,
-        );
-        let commands = commands.clone();
-        inputs.push(tokio::spawn(async move {
-            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
-            let receiver = tokio::spawn(tuio::run_udp(socket, calibration, frames));
-            forward(frames_rx, &commands, started).await;
-            receiver.abort();
-        }));
+    for (index, (socket, calibration)) in tuio.into_iter().enumerate() {
+        let address = socket
+            .local_addr()
+            .map_err(|e| ServeError::Input(e.to_string()))?;
+        tuio_addresses.push(address);
+        // The first attempt uses the socket bound at start (so a bad
+        // address stops the start); later ones bind the same address again.
+        let mut bound = Some(socket);
+        inputs.push(supervised(
+            SourceId::from(format!("tuio:{index}")),
+            WhenDone::Stop,
+            Box::new(move |frames| {
+                let socket = bound.take();
+                let calibration = calibration.clone();
+                Box::pin(async move {
+                    let socket = match socket {
+                        Some(socket) => socket,
+                        None => tokio::net::UdpSocket::bind(address)
+                            .await
+                            .map_err(|source| SourceError::Bind { address, source })?,
+                    };
+                    Ok(tuio::run_udp(socket, calibration, frames).await?)
+                }) as Attempt
+            }),
+        ));
     }
     for (path, baud, format, source, calibration) in serials {
-        let commands = commands.clone();
-        inputs.push(tokio::spawn(async move {
-            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
-            let forwarder = tokio::spawn({
-                let commands = commands.clone();
-                async move { forward(frames_rx, &commands, started).await }
-            });
-            // A device that disappears is logged, its contacts lifted (by
-            // run_port), and reopened; the daemon never exits because of it.
-            loop {
+        inputs.push(supervised(
+            source.clone(),
+            WhenDone::Stop,
+            Box::new(move |frames| {
                 let decoder = SerialDecoder::new(format, calibration.clone(), source.clone());
-                match serial::run_port(&path, baud, decoder, frames.clone()).await {
-                    Ok(()) => break,
-                    Err(e) => tracing::warn!("serial {path}: {e}; retrying in 1 s"),
-                }
-                if commands.is_closed() {
-                    break;
-                }
-                tokio::time::sleep(Duration::from_secs(1)).await;
-            }
-            drop(frames);
-            let _ = forwarder.await;
-        }));
+                let path = path.clone();
+                Box::pin(async move { Ok(serial::run_port(&path, baud, decoder, frames).await?) })
+                    as Attempt
+            }),
+        ));
     }
     for device in devices {
+        let name = device.source.clone();
+        let spacing = if device.mouse.pair {
+            device.mouse.pair_spacing
+        } else {
+            0.0
+        };
         let commands = commands.clone();
-        inputs.push(tokio::spawn(async move {
-            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
-            let (cursor, cursor_rx) = watch::channel(None);
-            let source = device.source.to_string();
-            let spacing = if device.mouse.pair {
-                device.mouse.pair_spacing
-            } else {
-                0.0
-            };
-            let reader = tokio::spawn(hotplug::run(device, frames, cursor));
-            let cursors =
-                tokio::spawn(forward_cursor(cursor_rx, source, spacing, commands.clone()));
-            forward(frames_rx, &commands, started).await;
-            reader.abort();
-            cursors.abort();
-        }));
+        inputs.push(supervised(
+            name,
+            WhenDone::Stop,
+            Box::new(move |frames| {
+                // hotplug keeps the device read for the daemon's life: it
+                // reopens on inotify events itself.
+                let device = device.clone();
+                let commands = commands.clone();
+                Box::pin(async move {
+                    let (cursor, cursor_rx) = watch::channel(None);
+                    let source = device.source.to_string();
+                    let cursors =
+                        tokio::spawn(forward_cursor(cursor_rx, source, spacing, commands));
+                    hotplug::run(device, frames, cursor).await;
+                    cursors.abort();
+                    Ok(())
+                }) as Attempt
+            }),
+        ));
     }
     for (selector, source, calibration) in hids {
-        let commands = commands.clone();
-        inputs.push(tokio::spawn(async move {
-            let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
-            // hidapi blocks, so the device has a thread of its own; it stops
-            // when this task ends (dropping the guard) or the stage closes.
-            let stop = StopOnDrop(Arc::new(AtomicBool::new(false)));
-            let thread_stop = stop.0.clone();
-            std::thread::Builder::new()
-                .name(format!("hid {source}"))
-                .spawn(move || run_hid(&selector, source, calibration, size, &frames, &thread_stop))
-                .ok();
-            forward(frames_rx, &commands, started).await;
-            drop(stop);
-        }));
+        let name = source.clone();
+        inputs.push(supervised(
+            name,
+            WhenDone::Stop,
+            Box::new(move |frames| {
+                let (selector, source, calibration) =
+                    (selector.clone(), source.clone(), calibration.clone());
+                Box::pin(async move {
+                    // hidapi blocks: each attempt reads on a blocking thread,
+                    // told to stop when the attempt is dropped (shutdown).
+                    let stop = StopOnDrop(Arc::new(AtomicBool::new(false)));
+                    let thread_stop = stop.0.clone();
+                    let read = tokio::task::spawn_blocking(move || {
+                        let device = hid::open(&selector)?;
+                        tracing::info!("{source}: reading HID device {selector}");
+                        hid::run_device(&device, source, calibration, size, &frames, &thread_stop)
+                    });
+                    let result = read.await;
+                    drop(stop);
+                    match result {
+                        Ok(read) => Ok(read?),
+                        Err(e) => Err(SourceError::Panicked(e.to_string())),
+                    }
+                }) as Attempt
+            }),
+        ));
     }
-    let (shutdown, shutdown_rx) = oneshot::channel();
-    let server = tokio::spawn(stream::run(listener, shared, async {
-        let _ = shutdown_rx.await;
-    }));
-    Ok(Running {
-        address,
-        tuio_addresses,
-        started,
-        commands,
-        shutdown,
-        server,
-        inputs,
-        stage_thread,
-    })
+    Ok((inputs, tuio_addresses))
 }
 
 /// Sets its flag when dropped: tells a device thread its task has ended.
@@ -374,42 +463,6 @@ struct StopOnDrop(Arc<AtomicBool>);
 impl Drop for StopOnDrop {
     fn drop(&mut self) {
         self.0.store(true, Ordering::Relaxed);
-    }
-}
-
-/// One HID digitizer for the daemon's life: open, read, and when it fails
-/// (unplugged, not there yet, not readable) log it and try again every
-/// second, until stopped.
-fn run_hid(
-    selector: &hid::HidSelector,
-    source: SourceId,
-    calibration: Option<Calibration>,
-    size: DVec2,
-    frames: &mpsc::Sender<ContactFrame>,
-    stop: &AtomicBool,
-) {
-    let mut last_complaint = String::new();
-    while !stop.load(Ordering::Relaxed) && !frames.is_closed() {
-        let result = hid::open(selector).and_then(|device| {
-            tracing::info!("{source}: reading HID device {selector}");
-            last_complaint.clear();
-            hid::run_device(
-                &device,
-                source.clone(),
-                calibration.clone(),
-                size,
-                frames,
-                stop,
-            )
-        });
-        if let Err(e) = result {
-            let message = e.to_string();
-            if message != last_complaint {
-                tracing::warn!("{source}: {message}; retrying every second");
-                last_complaint = message;
-            }
-        }
-        std::thread::sleep(Duration::from_secs(1));
     }
 }
 
@@ -458,27 +511,4 @@ async fn play_into(
     let played = forward(frames_rx, commands, started).await;
     player.abort();
     played
-}
-
-/// Forwards a source's frames to the stage thread, stamping each with its
-/// arrival on the daemon's clock, until the source ends or the stage stops;
-/// returns how many went through.
-async fn forward(
-    mut frames: mpsc::Receiver<ContactFrame>,
-    commands: &mpsc::Sender<Command>,
-    started: Instant,
-) -> usize {
-    let mut forwarded = 0;
-    while let Some(frame) = frames.recv().await {
-        let received = started.elapsed().as_secs_f64();
-        if commands
-            .send(Command::Frame { frame, received })
-            .await
-            .is_err()
-        {
-            break;
-        }
-        forwarded += 1;
-    }
-    forwarded
 }

@@ -1,0 +1,194 @@
+//! Supervision of input sources, written once. Every source the stage file
+//! names (replays, TUIO, serial pads, evdev devices, HID digitizers) runs
+//! under [`supervise`]: each attempt gets a fresh frame channel forwarded
+//! to the stage thread; when an attempt fails — the device vanished, the
+//! port went away, the task panicked — the error is logged with its type's
+//! message (once per distinct message, not on every retry), the source's
+//! contacts are lifted, and it is tried again after a backoff. No source
+//! can take the daemon down, and a dead one never spins a core.
+
+use std::future::Future;
+use std::time::{Duration, Instant};
+
+use tokio::sync::mpsc;
+
+use crate::stage_thread::Command;
+use puppetry_input::hid::HidError;
+use puppetry_input::serial::SerialError;
+use puppetry_input::tuio::TuioError;
+use puppetry_input::{ContactFrame, SourceId};
+
+/// Frames a source may get ahead of its forwarder.
+pub const SOURCE_QUEUE: usize = 64;
+
+/// The first wait after a failure; it doubles up to [`MAX_BACKOFF`].
+const FIRST_BACKOFF: Duration = Duration::from_secs(1);
+const MAX_BACKOFF: Duration = Duration::from_secs(10);
+/// An attempt that ran this long before failing counts as healthy: the
+/// next failure waits the first backoff again.
+const HEALTHY_RUN: Duration = Duration::from_secs(60);
+
+/// Why an attempt of a source ended badly.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    #[error(transparent)]
+    Serial(#[from] SerialError),
+    #[error(transparent)]
+    Tuio(#[from] TuioError),
+    #[error(transparent)]
+    Hid(#[from] HidError),
+    #[error("cannot receive TUIO on {address}: {source}")]
+    Bind {
+        address: std::net::SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("the source failed unexpectedly: {0}")]
+    Panicked(String),
+}
+
+/// What to do when an attempt ends without error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WhenDone {
+    /// The source is finished (a replay played once).
+    Stop,
+    /// Run it again at once (a replay that repeats).
+    Repeat,
+}
+
+/// Runs `attempt` for source `name` until it is done or the stage stops.
+/// Each call of `attempt` gets the sender its frames go to; the attempt
+/// ends when its future does.
+pub async fn supervise<F, Fut>(
+    name: SourceId,
+    when_done: WhenDone,
+    commands: mpsc::Sender<Command>,
+    started: Instant,
+    mut attempt: F,
+) where
+    F: FnMut(mpsc::Sender<ContactFrame>) -> Fut,
+    Fut: Future<Output = Result<(), SourceError>> + Send + 'static,
+{
+    let mut backoff = FIRST_BACKOFF;
+    let mut last_complaint: Option<String> = None;
+    loop {
+        let (frames, frames_rx) = mpsc::channel(SOURCE_QUEUE);
+        let began = Instant::now();
+        // Spawned, so a panic in the source is contained and reported here.
+        let running = tokio::spawn(attempt(frames));
+        let forwarded = forward(frames_rx, &commands, started).await;
+        let outcome = match running.await {
+            Ok(outcome) => outcome,
+            Err(e) => Err(SourceError::Panicked(e.to_string())),
+        };
+        if commands.is_closed() {
+            return;
+        }
+        match outcome {
+            Ok(()) => {
+                tracing::info!("{name}: {forwarded} frames");
+                match when_done {
+                    WhenDone::Stop => return,
+                    WhenDone::Repeat => continue,
+                }
+            }
+            Err(e) => {
+                // Whatever it held is let go, whether or not the source
+                // managed to say so itself.
+                let _ = commands
+                    .send(Command::ReleaseSource(name.to_string()))
+                    .await;
+                if began.elapsed() >= HEALTHY_RUN {
+                    backoff = FIRST_BACKOFF;
+                }
+                let message = e.to_string();
+                if last_complaint.as_deref() == Some(message.as_str()) {
+                    tracing::debug!("{name}: {message}; retrying in {backoff:?}");
+                } else {
+                    tracing::warn!("{name}: {message}; retrying in {backoff:?}");
+                    last_complaint = Some(message);
+                }
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(MAX_BACKOFF);
+            }
+        }
+    }
+}
+
+/// Forwards a source's frames to the stage thread, stamping each with its
+/// arrival on the daemon's clock, until the source ends or the stage stops;
+/// returns how many went through. A full command queue makes the source
+/// wait: no contact down or up is dropped.
+pub async fn forward(
+    mut frames: mpsc::Receiver<ContactFrame>,
+    commands: &mpsc::Sender<Command>,
+    started: Instant,
+) -> usize {
+    let mut forwarded = 0;
+    while let Some(frame) = frames.recv().await {
+        let received = started.elapsed().as_secs_f64();
+        if commands
+            .send(Command::Frame { frame, received })
+            .await
+            .is_err()
+        {
+            break;
+        }
+        forwarded += 1;
+    }
+    forwarded
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use puppetry_input::{Contact, Phase};
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    #[tokio::test(start_paused = true)]
+    async fn a_failing_source_is_lifted_and_retried_and_a_panic_is_contained() {
+        let (commands, mut received) = mpsc::channel(16);
+        let attempts = Arc::new(AtomicUsize::new(0));
+        let counted = attempts.clone();
+        let started = Instant::now();
+        let paused_clock = tokio::time::Instant::now();
+        let supervisor = tokio::spawn(supervise(
+            SourceId::from("flaky"),
+            WhenDone::Stop,
+            commands,
+            started,
+            move |frames: mpsc::Sender<ContactFrame>| {
+                let attempt = counted.fetch_add(1, Ordering::SeqCst);
+                async move {
+                    match attempt {
+                        0 => Err(SourceError::Panicked("the port went away".into())),
+                        1 => panic!("a bug in a decoder"),
+                        _ => {
+                            let frame = ContactFrame {
+                                source: SourceId::from("flaky"),
+                                time: 0.0,
+                                contacts: vec![Contact::new(1, Phase::Down, glam::DVec2::ZERO)],
+                            };
+                            let _ = frames.send(frame).await;
+                            Ok(())
+                        }
+                    }
+                }
+            },
+        ));
+        let mut seen = Vec::new();
+        while let Some(command) = received.recv().await {
+            seen.push(match command {
+                Command::ReleaseSource(name) => format!("release {name}"),
+                Command::Frame { frame, .. } => format!("frame {}", frame.source),
+                other => format!("{other:?}"),
+            });
+        }
+        supervisor.await.unwrap();
+        assert_eq!(seen, ["release flaky", "release flaky", "frame flaky"]);
+        assert_eq!(attempts.load(Ordering::SeqCst), 3, "done after a good run");
+        // Two backoffs were waited, 1 s then 2 s (tokio's paused clock
+        // jumps through them).
+        assert!(paused_clock.elapsed() >= Duration::from_secs(3));
+    }
+}
