@@ -9,6 +9,7 @@ mod cli;
 mod config;
 mod devices;
 mod edge;
+mod install;
 mod rigs;
 mod serve;
 mod web;
