@@ -19,14 +19,16 @@ use tokio::sync::{mpsc, oneshot, watch};
 
 use puppetry_deform::Arap;
 use puppetry_input::ContactFrame;
-use puppetry_stage::{GridExport, Grip, HandleKind, Owner, Rebuild, Stage, WeightsFile};
+use puppetry_stage::{
+    CommandError, GridExport, Grip, HandleKind, Owner, Rebuild, Stage, WeightsFile,
+};
 
 use crate::protocol::{
     self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, encode_frame,
 };
 
 /// The stage thread's answer to a request.
-pub type Reply<T> = oneshot::Sender<Result<T, String>>;
+pub type Reply<T> = oneshot::Sender<Result<T, CommandError>>;
 
 /// What the stage thread is asked to do.
 #[derive(Debug)]

@@ -7,8 +7,9 @@
 //! per-triangle weights live here too. Pins are handles that stay. Every handle knows its owner, so
 //! contacts from different devices and clients never get confused.
 //!
-//! Plain synchronous state; [`thread`] runs it, with the solver, on a thread
-//! of its own.
+//! Plain synchronous state, with no tokio and no wire format in reach: the
+//! daemon's stage thread runs it, with the solvers, on a thread of its own,
+//! and turns what it holds into protocol messages.
 
 pub mod config;
 pub mod rig;
@@ -23,6 +24,23 @@ use puppetry_deform::{Anchor, Arap};
 use puppetry_input::{ContactFrame, Phase};
 use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh, MeshError};
 pub use rig::{Grip, Rig};
+
+/// Why a performer's request (paint, pose, export, save) could not be done.
+#[derive(Debug, thiserror::Error)]
+pub enum CommandError {
+    #[error("puppet {puppet}: no such puppet (the stage has {count})")]
+    NoSuchPuppet { puppet: u32, count: usize },
+    #[error("puppet {puppet}: has no grid")]
+    NoGrid { puppet: u32 },
+    #[error("puppet {puppet}: has no skeleton")]
+    NoSkeleton { puppet: u32 },
+    #[error("paint needs finite x, y and positive radius and strength")]
+    BadBrush,
+    #[error("puppet {puppet}: {source}")]
+    Rig { puppet: u32, source: rig::RigError },
+    #[error("{file}: {source}")]
+    Weights { file: String, source: MeshError },
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum StageError {
@@ -264,10 +282,13 @@ pub struct WeightsFile {
 
 impl WeightsFile {
     /// The `.mesh.json` text: the loaded mesh with the painted weights.
-    pub fn text(self) -> Result<String, String> {
+    pub fn text(self) -> Result<String, CommandError> {
         let mut mesh = self.mesh;
         mesh.set_weights(self.weights)
-            .map_err(|e| format!("{}: {e}", self.path.display()))?;
+            .map_err(|source| CommandError::Weights {
+                file: self.path.display().to_string(),
+                source,
+            })?;
         Ok(mesh.to_json())
     }
 }
@@ -489,11 +510,18 @@ impl Stage {
         self.remove_handle(puppet as usize, handle)
     }
 
-    fn puppet_mut(&mut self, puppet: u32) -> Result<&mut Puppet, String> {
+    fn puppet(&self, puppet: u32) -> Result<&Puppet, CommandError> {
+        let count = self.puppets.len();
+        self.puppets
+            .get(puppet as usize)
+            .ok_or(CommandError::NoSuchPuppet { puppet, count })
+    }
+
+    fn puppet_mut(&mut self, puppet: u32) -> Result<&mut Puppet, CommandError> {
         let count = self.puppets.len();
         self.puppets
             .get_mut(puppet as usize)
-            .ok_or_else(|| format!("puppet {puppet}: no such puppet (the stage has {count})"))
+            .ok_or(CommandError::NoSuchPuppet { puppet, count })
     }
 
     /// Paints stiffness under a brush (see `docs/rigs.md`). Grid and
@@ -506,10 +534,10 @@ impl Stage {
         at: DVec2,
         radius: f64,
         strength: f64,
-    ) -> Result<Option<Rebuild>, String> {
+    ) -> Result<Option<Rebuild>, CommandError> {
         let ok = |v: f64| v.is_finite() && v > 0.0;
         if !(at.is_finite() && ok(radius) && ok(strength)) {
-            return Err("paint needs finite x, y and positive radius and strength".into());
+            return Err(CommandError::BadBrush);
         }
         let p = self.puppet_mut(puppet)?;
         if !p.paint(at, radius, strength) {
@@ -586,12 +614,13 @@ impl Stage {
         from: &str,
         to: &str,
         t: f64,
-    ) -> Result<(), String> {
+    ) -> Result<(), CommandError> {
         let p = self.puppet_mut(puppet)?;
         let Rig::Skeleton(r) = &mut p.rig else {
-            return Err(format!("puppet {puppet}: has no skeleton"));
+            return Err(CommandError::NoSkeleton { puppet });
         };
-        r.set_key_pose(from, to, t)?;
+        r.set_key_pose(from, to, t)
+            .map_err(|source| CommandError::Rig { puppet, source })?;
         p.moved = true;
         Ok(())
     }
@@ -599,13 +628,10 @@ impl Stage {
     /// The grid of a grid puppet for an export request: its size, rest
     /// and deformed handles (stage coordinates, row by row from the lower
     /// left).
-    pub fn export_grid(&self, puppet: u32) -> Result<GridExport, String> {
-        let p = self
-            .puppets
-            .get(puppet as usize)
-            .ok_or_else(|| format!("puppet {puppet}: no such puppet"))?;
+    pub fn export_grid(&self, puppet: u32) -> Result<GridExport, CommandError> {
+        let p = self.puppet(puppet)?;
         let Rig::Grid(r) = &p.rig else {
-            return Err(format!("puppet {puppet}: has no grid"));
+            return Err(CommandError::NoGrid { puppet });
         };
         let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
         let spec = r.ffd.spec();
@@ -620,11 +646,8 @@ impl Stage {
 
     /// What saving the puppet's painted weights writes, to be turned into
     /// text off the stage thread ([`WeightsFile::text`]).
-    pub fn weights_file(&self, puppet: u32) -> Result<WeightsFile, String> {
-        let p = self
-            .puppets
-            .get(puppet as usize)
-            .ok_or_else(|| format!("puppet {puppet}: no such puppet"))?;
+    pub fn weights_file(&self, puppet: u32) -> Result<WeightsFile, CommandError> {
+        let p = self.puppet(puppet)?;
         Ok(WeightsFile {
             path: p.mesh_file.clone(),
             mesh: p.source_mesh.clone(),

@@ -56,6 +56,19 @@ pub struct SkeletonRig {
     pub(super) key_poses: Vec<(String, Pose)>,
 }
 
+/// Why a rig could not solve, take weights or take a pose.
+#[derive(Debug, thiserror::Error)]
+pub enum RigError {
+    #[error(transparent)]
+    Arap(#[from] puppetry_deform::ArapError),
+    #[error("lp-FFD: {0}")]
+    Ffd(#[from] puppetry_deform::ffd::FfdError),
+    #[error("skeleton: {0}")]
+    Skeleton(#[from] puppetry_deform::skeleton::SkeletonError),
+    #[error("no key pose named {name:?}")]
+    UnknownPose { name: String },
+}
+
 pub enum Rig {
     Free(FreeRig),
     Grid(Box<GridRig>),
@@ -221,7 +234,7 @@ impl Rig {
     /// Grips that do not belong to this rig are skipped (they cannot be
     /// made: the stage only grips what [`Rig::point_near`] or a hit test
     /// found).
-    pub fn solve(&mut self, handles: &[Handle], changed: bool) -> Result<(), String> {
+    pub fn solve(&mut self, handles: &[Handle], changed: bool) -> Result<(), RigError> {
         match self {
             Rig::Free(r) => {
                 if changed {
@@ -232,7 +245,7 @@ impl Rig {
                             _ => None,
                         })
                         .collect();
-                    r.arap.compile(&anchors).map_err(|e| e.to_string())?;
+                    r.arap.compile(&anchors)?;
                 }
                 r.targets.clear();
                 r.targets.extend(
@@ -241,9 +254,7 @@ impl Rig {
                         .filter(|h| matches!(h.grip, Grip::Point(_)))
                         .map(|h| h.rig_target()),
                 );
-                r.arap
-                    .update(&r.targets, Steps::Both)
-                    .map_err(|e| e.to_string())?;
+                r.arap.update(&r.targets, Steps::Both)?;
             }
             Rig::Grid(r) => {
                 if changed {
@@ -256,9 +267,7 @@ impl Rig {
                             Grip::Joint(_) => {}
                         }
                     }
-                    r.ffd
-                        .compile(&r.vertex_anchors, &r.grid_indices)
-                        .map_err(|e| e.to_string())?;
+                    r.ffd.compile(&r.vertex_anchors, &r.grid_indices)?;
                 }
                 r.vertex_targets.clear();
                 r.grid_targets.clear();
@@ -269,9 +278,7 @@ impl Rig {
                         Grip::Joint(_) => {}
                     }
                 }
-                r.ffd
-                    .update(&r.vertex_targets, &r.grid_targets)
-                    .map_err(|e| e.to_string())?;
+                r.ffd.update(&r.vertex_targets, &r.grid_targets)?;
             }
             Rig::Skeleton(r) => {
                 match r.mode {
@@ -283,16 +290,14 @@ impl Rig {
                                 *joint = h.rig_target();
                             }
                         }
-                        r.deformer.update(&r.joints).map_err(|e| e.to_string())?;
+                        r.deformer.update(&r.joints)?;
                     }
                     SkeletonMode::Fk => {
                         let skeleton = r.deformer.skeleton();
                         for h in handles {
                             let Grip::Joint(j) = h.grip else { continue };
                             match r.bone_ending.get(j).copied().flatten() {
-                                Some(bone) => skeleton
-                                    .aim(&mut r.pose, bone, h.rig_target())
-                                    .map_err(|e| e.to_string())?,
+                                Some(bone) => skeleton.aim(&mut r.pose, bone, h.rig_target())?,
                                 None => {
                                     if let Some(k) = skeleton.roots().iter().position(|&x| x == j) {
                                         r.pose.roots[k] = h.rig_target();
@@ -300,7 +305,7 @@ impl Rig {
                                 }
                             }
                         }
-                        r.deformer.update_pose(&r.pose).map_err(|e| e.to_string())?;
+                        r.deformer.update_pose(&r.pose)?;
                     }
                 }
                 // Both modes keep both states, so a key pose or a mode's
@@ -313,11 +318,11 @@ impl Rig {
 
     /// Applies painted weights: the grid and skeleton refactor now; a
     /// free-form puppet's solver is rebuilt elsewhere (see `thread`).
-    pub fn set_weights(&mut self, weights: &[f64]) -> Result<(), String> {
+    pub fn set_weights(&mut self, weights: &[f64]) -> Result<(), RigError> {
         match self {
             Rig::Free(_) => Ok(()),
-            Rig::Grid(r) => r.ffd.set_weights(weights).map_err(|e| e.to_string()),
-            Rig::Skeleton(r) => r.deformer.set_weights(weights).map_err(|e| e.to_string()),
+            Rig::Grid(r) => Ok(r.ffd.set_weights(weights)?),
+            Rig::Skeleton(r) => Ok(r.deformer.set_weights(weights)?),
         }
     }
 }
@@ -340,20 +345,18 @@ impl SkeletonRig {
     }
 
     /// Sets the skeleton to the pose between two key poses.
-    pub fn set_key_pose(&mut self, from: &str, to: &str, t: f64) -> Result<(), String> {
+    pub fn set_key_pose(&mut self, from: &str, to: &str, t: f64) -> Result<(), RigError> {
         let find = |name: &str| {
             self.key_poses
                 .iter()
                 .find(|(n, _)| n == name)
                 .map(|(_, p)| p)
-                .ok_or_else(|| format!("no key pose named {name:?}"))
+                .ok_or_else(|| RigError::UnknownPose {
+                    name: name.to_string(),
+                })
         };
-        let pose = Pose::interpolate(find(from)?, find(to)?, t).map_err(|e| e.to_string())?;
-        let joints = self
-            .deformer
-            .skeleton()
-            .joints_of(&pose)
-            .map_err(|e| e.to_string())?;
+        let pose = Pose::interpolate(find(from)?, find(to)?, t)?;
+        let joints = self.deformer.skeleton().joints_of(&pose)?;
         self.pose = pose;
         self.joints = joints;
         Ok(())

@@ -344,6 +344,7 @@ async fn ask<T>(
     answer
         .await
         .map_err(|_| "the stage is shutting down".to_string())?
+        .map_err(|e| e.to_string())
 }
 
 /// Writes `text` to `path` atomically: a temporary file beside it, synced,
@@ -470,7 +471,7 @@ async fn handle_message(
             let path = file.path.clone();
             let written = tokio::task::spawn_blocking(move || {
                 let path = file.path.clone();
-                let text = file.text()?;
+                let text = file.text().map_err(|e| e.to_string())?;
                 write_atomically(&path, &text).map_err(|e| format!("{}: {e}", path.display()))
             });
             written
