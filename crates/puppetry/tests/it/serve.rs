@@ -391,30 +391,31 @@ async fn a_replay_drives_the_puppet_to_the_direct_solve() {
     running.shutdown().await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
-    // The eGalax capture (multi-touch protocol B), calibrated onto the
-    // puppet's belly so its touches land on it, through the same decoder a
-    // live device uses.
-    let capture = root().join("../shared/fixtures/evemu/wetab.event");
+/// Plays a capture into the demo daemon, calibrated onto the puppet's
+/// belly (device range `0..=range` on both axes), through the same decoder
+/// a live device uses, until a viewer has seen its touches grab the puppet
+/// and then only the stage file's two pins hold it: no contact is left
+/// stuck. Returns whether frames were solved for the touches.
+///
+/// The capture plays at its own pace, over and over with a rest between,
+/// once the viewer is connected: every state the viewer must see lasts long
+/// enough to be published on a loaded machine, and a play it missed is
+/// followed by another.
+async fn a_capture_grabs_and_lets_go(capture: &std::path::Path, range: f64) -> bool {
     let running = daemon("").await;
     let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
     let calibration = Calibration::new(CalibrationSpec::Range {
-        x: [0.0, 32760.0],
-        y: [0.0, 32760.0],
+        x: [0.0, range],
+        y: [0.0, range],
         flip_y: true,
         stage_min: [590.0, 320.0],
         stage_max: [690.0, 400.0],
     })
     .unwrap();
-    // Played at its own pace, over and over with a rest between, once this
-    // viewer is connected: every state it must see (touches down, then all
-    // lifted) lasts long enough to be published on a loaded machine, and a
-    // play it missed is followed by another.
     let performance = async {
         loop {
             let source = ReplaySource::open_with(
-                &capture,
+                capture,
                 SourceId::from("table"),
                 DVec2::new(1280.0, 720.0),
                 Some(calibration.clone()),
@@ -424,9 +425,6 @@ async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
             tokio::time::sleep(Duration::from_millis(500)).await;
         }
     };
-    // Frames solved for the capture's touches arrive, and at some point only
-    // the two pins of the stage file hold the puppet: every contact that
-    // landed has lifted.
     let watch = async {
         let mut solved_for_touches = false;
         let mut table_handles_seen = false;
@@ -454,7 +452,7 @@ async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
             }
         }
     };
-    let solved_for_touches = tokio::time::timeout(PLAYS, async {
+    let solved = tokio::time::timeout(PLAYS, async {
         tokio::select! {
             () = performance => unreachable!("plays until the viewer has seen it all"),
             solved = watch => solved,
@@ -462,8 +460,18 @@ async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
     })
     .await
     .expect("touches seen down and lifted within the plays' time");
-    assert!(solved_for_touches, "the capture's touches were solved");
     running.shutdown().await;
+    solved
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_real_touch_capture_drives_the_puppet_and_leaves_no_stuck_contact() {
+    // The eGalax capture (multi-touch protocol B).
+    let capture = root().join("../shared/fixtures/evemu/wetab.event");
+    assert!(
+        a_capture_grabs_and_lets_go(&capture, 32760.0).await,
+        "the capture's touches were solved"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -592,107 +600,12 @@ async fn a_serial_pad_grabs_and_a_hang_up_lets_go() {
     running.shutdown().await;
 }
 
-/// The hybrid capture played into the running daemon, calibrated
-/// onto the demo puppet's belly: its fingers grab the puppet, and once they
-/// lift only the stage file's two pins hold it.
+/// The HID hybrid capture (hid-recorder format) through the same path.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_hid_capture_drives_the_daemon_and_leaves_no_stuck_contact() {
-    use futures_util::{SinkExt, StreamExt};
-    use puppetry_input::replay::{Pacing, ReplaySource};
-    use puppetry_input::{Calibration, CalibrationSpec, SourceId};
-    use puppetry_stage::config::StageConfig;
-    use serde_json::{Value, json};
-    use tokio_tungstenite::tungstenite::Message;
-
-    let root = puppetry_testkit::root();
-    let assets = root.join("assets/gingerbread");
-    let text = format!(
-        r#"
-[stage]
-width = 1280
-height = 720
-listen = "127.0.0.1:0"
-
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-pins = [[168, 58], [344, 58]]
-
-"#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
+    let capture = root().join("tests/fixtures/touch-hybrid.hid");
+    assert!(
+        a_capture_grabs_and_lets_go(&capture, 4095.0).await,
+        "the capture's touches were solved"
     );
-    let config = StageConfig::parse("test.toml", &text, std::path::Path::new("/")).unwrap();
-    let running =
-        puppetry_daemon::serve::start(&config, puppetry_daemon::stream::WebFiles::Embedded, None)
-            .await
-            .unwrap();
-    let url = format!("ws://{}/ws", running.address);
-    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
-    ws.send(Message::text(
-        json!({"type": "hello", "role": "viewer"}).to_string(),
-    ))
-    .await
-    .unwrap();
-    let calibration = Calibration::new(CalibrationSpec::Range {
-        x: [0.0, 4095.0],
-        y: [0.0, 4095.0],
-        flip_y: true,
-        stage_min: [590.0, 320.0],
-        stage_max: [690.0, 400.0],
-    })
-    .unwrap();
-    // Played at its own pace, over and over with a rest between, once the
-    // viewer is connected, so both states it waits for (fingers down, then
-    // all lifted) last long enough to be published on a loaded machine.
-    let performance = async {
-        loop {
-            let source = ReplaySource::open_with(
-                &puppetry_testkit::root().join("tests/fixtures/touch-hybrid.hid"),
-                SourceId::from("table"),
-                glam::DVec2::new(1280.0, 720.0),
-                Some(calibration.clone()),
-            )
-            .unwrap();
-            running.play(source, Pacing::RealTime).await;
-            tokio::time::sleep(std::time::Duration::from_millis(500)).await;
-        }
-    };
-    let watch = async {
-        let wait = std::time::Duration::from_secs(20);
-        let mut table_handles_seen = false;
-        loop {
-            let message = tokio::time::timeout(wait, ws.next())
-                .await
-                .expect("a message in time")
-                .expect("connection open")
-                .expect("no error");
-            let Message::Text(text) = message else {
-                continue;
-            };
-            let m: Value = serde_json::from_str(&text).unwrap();
-            if m["type"] != "handles" {
-                continue;
-            }
-            let handles = m["handles"].as_array().unwrap();
-            table_handles_seen |= handles.iter().any(|h| h["owner"] == "table");
-            if table_handles_seen
-                && handles.len() == 2
-                && handles.iter().all(|h| h["kind"] == "pin")
-            {
-                return;
-            }
-        }
-    };
-    tokio::time::timeout(std::time::Duration::from_secs(120), async {
-        tokio::select! {
-            () = performance => unreachable!("plays until the viewer has seen it all"),
-            () = watch => {}
-        }
-    })
-    .await
-    .expect("fingers seen down and lifted within the plays' time");
-    running.shutdown().await;
 }
