@@ -10,7 +10,6 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use futures_util::SinkExt;
 use glam::DVec2;
 use serde_json::json;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
@@ -35,27 +34,17 @@ fn count_daemon_panics() {
     });
 }
 
-/// Sends `request` as it is and returns the whole answer (the server
-/// closes the connection after it, or the test's wait runs out).
+/// The whole answer to `request`, as text.
 async fn raw(address: std::net::SocketAddr, request: &[u8]) -> String {
-    let mut stream = TcpStream::connect(address).await.unwrap();
-    // The server may answer and close before a huge request is all sent.
-    let _ = stream.write_all(request).await;
-    let mut answer = Vec::new();
-    let _ = tokio::time::timeout(WAIT, stream.read_to_end(&mut answer)).await;
-    String::from_utf8_lossy(&answer).into_owned()
+    String::from_utf8_lossy(&http_raw(address, request).await).into_owned()
 }
 
 fn status(answer: &str) -> u16 {
-    answer
-        .strip_prefix("HTTP/1.1 ")
-        .and_then(|rest| rest.get(..3))
-        .and_then(|code| code.parse().ok())
-        .unwrap_or_else(|| panic!("not an HTTP answer: {answer:?}"))
+    http_status(answer.as_bytes())
 }
 
 fn get(path: &str) -> Vec<u8> {
-    format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").into_bytes()
+    get_request(path)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

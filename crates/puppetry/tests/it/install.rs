@@ -10,7 +10,7 @@ use futures_util::{SinkExt, StreamExt};
 use puppetry_daemon::protocol::{ClientMessage, FrameKind, Role, ServerMessage, decode_frame};
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::common::daemon::WAIT;
+use crate::common::daemon::{WAIT, http_get, http_status};
 
 /// Stops the daemon however the test ends.
 struct Daemon(Child);
@@ -55,6 +55,20 @@ async fn an_installed_binary_serves_the_bundled_demo_from_anywhere() {
         installed.status.success(),
         "cargo install: {}",
         String::from_utf8_lossy(&installed.stderr)
+    );
+
+    // Nothing in the binary names the checkout: a path baked in at build
+    // time (`env!("CARGO_MANIFEST_DIR")` in runtime code) would break the
+    // installed binary once the checkout moves, even though it still works
+    // here, where the checkout has not moved.
+    let binary = std::fs::read(prefix.path().join("bin/puppetry")).unwrap();
+    let checkout = puppetry_testkit::root().canonicalize().unwrap();
+    let checkout = checkout.to_string_lossy();
+    assert!(
+        !binary
+            .windows(checkout.len())
+            .any(|w| w == checkout.as_bytes()),
+        "the installed binary names the checkout {checkout}"
     );
 
     // Elsewhere, with nothing of the checkout in reach.
@@ -124,10 +138,9 @@ async fn an_installed_binary_serves_the_bundled_demo_from_anywhere() {
     assert_eq!(puppets[0].name, "gingerbread");
     assert_eq!(frame.unwrap().points.len() * 2, puppets[0].rest.len());
     // The page and the puppet's picture come from the binary too.
-    let page = http_get(&address, "/").await;
-    assert!(page.starts_with("HTTP/1.1 200"), "{page:.80}");
-    let picture = http_get(&address, "/puppets/0/texture.png").await;
-    assert!(picture.starts_with("HTTP/1.1 200"), "{picture:.80}");
+    assert_eq!(http_status(&http_get(address.as_str(), "/").await), 200);
+    let picture = http_get(address.as_str(), "/puppets/0/texture.png").await;
+    assert_eq!(http_status(&picture), 200);
     // The bundle was unpacked under the data folder, not the working one.
     assert!(elsewhere.path().join("data/puppetry/bundled").is_dir());
     assert_eq!(
@@ -135,18 +148,4 @@ async fn an_installed_binary_serves_the_bundled_demo_from_anywhere() {
         1,
         "only the data folder was written"
     );
-}
-
-/// A plain HTTP GET over TCP; returns the answer as text (lossy).
-async fn http_get(address: &str, path: &str) -> String {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let mut stream = tokio::net::TcpStream::connect(address).await.unwrap();
-    let request = format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
-    stream.write_all(request.as_bytes()).await.unwrap();
-    let mut answer = Vec::new();
-    tokio::time::timeout(WAIT, stream.read_to_end(&mut answer))
-        .await
-        .expect("an answer in time")
-        .unwrap();
-    String::from_utf8_lossy(&answer).into_owned()
 }

@@ -327,21 +327,7 @@ async fn shutdown_is_clean_and_frees_the_port() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn http_serves_the_page_and_the_picture() {
     let running = daemon("").await;
-    let get = |path: &'static str| {
-        let address = running.address;
-        async move {
-            use tokio::io::{AsyncReadExt, AsyncWriteExt};
-            let mut s = TcpStream::connect(address).await.unwrap();
-            let request = format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
-            s.write_all(request.as_bytes()).await.unwrap();
-            let mut out = Vec::new();
-            tokio::time::timeout(WAIT, s.read_to_end(&mut out))
-                .await
-                .expect("the answer in time")
-                .unwrap();
-            out
-        }
-    };
+    let get = |path: &'static str| http_get(running.address, path);
     let page = get("/").await;
     assert!(
         page.starts_with(b"HTTP/1.1 200"),

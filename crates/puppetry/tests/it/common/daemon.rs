@@ -179,3 +179,35 @@ pub fn follow(mesh: &Mesh, rest_point: DVec2) -> impl Fn(&Frame) -> DVec2 + use<
             .sum()
     }
 }
+
+/// Sends `request` as it is over a new connection and returns the whole
+/// answer (the server closes the connection after it, or [`WAIT`] runs
+/// out). A write the server cut short is not an error: it may answer and
+/// close before a huge request is all sent.
+pub async fn http_raw(address: impl tokio::net::ToSocketAddrs, request: &[u8]) -> Vec<u8> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = TcpStream::connect(address).await.unwrap();
+    let _ = stream.write_all(request).await;
+    let mut answer = Vec::new();
+    let _ = tokio::time::timeout(WAIT, stream.read_to_end(&mut answer)).await;
+    answer
+}
+
+/// A GET request for `path` that asks the server to close after answering.
+pub fn get_request(path: &str) -> Vec<u8> {
+    format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").into_bytes()
+}
+
+/// The whole answer to a GET of `path`.
+pub async fn http_get(address: impl tokio::net::ToSocketAddrs, path: &str) -> Vec<u8> {
+    http_raw(address, &get_request(path)).await
+}
+
+/// An HTTP answer's status code.
+pub fn http_status(answer: &[u8]) -> u16 {
+    answer
+        .strip_prefix(b"HTTP/1.1 ")
+        .and_then(|rest| rest.get(..3))
+        .and_then(|code| std::str::from_utf8(code).ok()?.parse().ok())
+        .unwrap_or_else(|| panic!("not an HTTP answer: {:?}", String::from_utf8_lossy(answer)))
+}
