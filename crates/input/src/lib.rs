@@ -49,8 +49,11 @@ pub enum Phase {
     Up,
 }
 
-/// One touch point as the stage sees it.
-#[derive(Debug, Clone, PartialEq)]
+/// One touch point as the stage sees it. Serialised (takes record the
+/// frames the stage applied) with positions as `[x, y]` and absent extras
+/// left out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Contact {
     /// Identifies the contact within its source from its `Down` to its `Up`.
     pub id: u32,
@@ -58,13 +61,16 @@ pub struct Contact {
     /// Stage coordinates (y-up). An `Up` carries the last known position.
     pub position: DVec2,
     /// Normalised to 0..=1 over the device's declared range.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pressure: Option<f64>,
     /// How far a pen leans, in radians from upright, as a stage-space vector:
     /// `x` leans towards +x, `y` towards +y.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tilt: Option<DVec2>,
     /// Direction of the contact's major axis in stage space, radians
     /// counter-clockwise from +x, folded into (-π/2, π/2] because an
     /// ellipse's axis has no head or tail.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub angle: Option<f64>,
 }
 
@@ -84,7 +90,8 @@ impl Contact {
 
 /// Names an input source: `evdev0`, `client:3`, `replay`. Cheap to clone
 /// because every frame carries one.
-#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(transparent)]
 pub struct SourceId(Arc<str>);
 
 impl SourceId {
@@ -123,7 +130,8 @@ impl AsRef<str> for SourceId {
 
 /// Every contact of one source that changed in one device report. A contact
 /// appears at most once per frame; contacts that did not change are absent.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ContactFrame {
     pub source: SourceId,
     /// Seconds, on the source's own clock (kernel time for devices, file

@@ -11,6 +11,7 @@
 //! daemon's stage thread runs it, with the solvers, on a thread of its own,
 //! and turns what it holds into protocol messages.
 
+pub mod change;
 pub mod config;
 pub mod rig;
 
@@ -19,6 +20,7 @@ use std::path::PathBuf;
 
 use glam::DVec2;
 
+pub use change::{Change, GripEvent, StageEvent};
 use config::StageConfig;
 use puppetry_deform::{Anchor, Arap};
 use puppetry_input::{ContactFrame, Phase};
@@ -40,6 +42,10 @@ pub enum CommandError {
     Rig { puppet: u32, source: rig::RigError },
     #[error("{file}: {source}")]
     Weights { file: String, source: MeshError },
+    #[error("puppet {puppet}: a rebuilt solver is swapped in with install, not applied")]
+    NeedsSolver { puppet: u32 },
+    #[error("spatial keyframing is not available on this stage")]
+    NoKeys,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -206,6 +212,17 @@ impl Puppet {
         })
     }
 
+    /// How events name a grip: a material point by its rest position.
+    fn grip_event(&self, grip: Grip) -> GripEvent {
+        match grip {
+            Grip::Point(anchor) => GripEvent::Point {
+                rest: anchor_position(&self.mesh, anchor),
+            },
+            Grip::GridHandle(index) => GripEvent::Grid { index },
+            Grip::Joint(index) => GripEvent::Joint { index },
+        }
+    }
+
     /// A grid handle or joint near `p` first, then the material point.
     fn reach(&self, p: DVec2, radius: f64) -> Reach {
         if let Some(grip) = self.rig.point_near(p, radius) {
@@ -241,6 +258,18 @@ impl Puppet {
             }
         }
         changed
+    }
+}
+
+/// Where an anchor lies on a mesh.
+fn anchor_position(mesh: &Mesh, anchor: Anchor) -> DVec2 {
+    let v = mesh.vertices();
+    match anchor {
+        Anchor::Vertex(i) => v[i as usize],
+        Anchor::Point { triangle, bary } => {
+            let tri = mesh.triangles()[triangle as usize];
+            (0..3).map(|k| v[tri[k] as usize] * bary[k]).sum()
+        }
     }
 }
 
@@ -302,6 +331,9 @@ pub struct Stage {
     /// something; contacts on empty stage are absent.
     grabs: HashMap<(String, u32), (usize, u64)>,
     next_handle: u64,
+    /// Handle events since the last [`Stage::take_events`], kept only while
+    /// a take records them.
+    events: Option<Vec<StageEvent>>,
 }
 
 impl Stage {
@@ -314,6 +346,7 @@ impl Stage {
             puppets: Vec::new(),
             grabs: HashMap::new(),
             next_handle: 1,
+            events: None,
         };
         for (id, p) in config.puppets.iter().enumerate() {
             let mesh_file = config.resolve(&p.mesh);
@@ -411,6 +444,13 @@ impl Stage {
                         {
                             h.target = contact.position;
                             puppet.moved = true;
+                            if let Some(events) = &mut self.events {
+                                events.push(StageEvent::Moved {
+                                    puppet: puppet.id,
+                                    handle,
+                                    at: contact.position,
+                                });
+                            }
                         }
                     }
                 }
@@ -444,6 +484,12 @@ impl Stage {
         p.handles.retain(|h| h.id != handle);
         let removed = p.handles.len() != before;
         p.handles_changed |= removed;
+        if removed && let Some(events) = &mut self.events {
+            events.push(StageEvent::Removed {
+                puppet: p.id,
+                handle,
+            });
+        }
         removed
     }
 
@@ -476,6 +522,20 @@ impl Stage {
         let id = self.next_handle;
         self.next_handle += 1;
         let p = &mut self.puppets[puppet];
+        if let Some(events) = &mut self.events {
+            events.push(StageEvent::Made {
+                puppet: p.id,
+                handle: id,
+                owner: owner.to_string(),
+                kind: match kind {
+                    HandleKind::Contact => "contact",
+                    HandleKind::Pin => "pin",
+                }
+                .to_string(),
+                grip: p.grip_event(grip),
+                at,
+            });
+        }
         p.handles.push(Handle {
             id,
             owner,
@@ -486,6 +546,57 @@ impl Stage {
         });
         p.handles_changed = true;
         Some(id)
+    }
+
+    /// Starts (or stops) keeping handle events for [`Stage::take_events`].
+    pub fn keep_events(&mut self, keep: bool) {
+        self.events = keep.then(Vec::new);
+    }
+
+    /// Moves the handle events kept since the last call to the end of `out`.
+    pub fn take_events(&mut self, out: &mut Vec<StageEvent>) {
+        if let Some(events) = &mut self.events {
+            out.append(events);
+        }
+    }
+
+    /// Applies one recorded or live change. A [`Change::Rebuilt`] needs the
+    /// rebuilt solver, which only the caller has: use [`Stage::install`].
+    /// A paint dab on a free-form puppet may return the solver rebuild to
+    /// run (as [`Stage::paint`]).
+    pub fn apply_change(&mut self, change: &Change) -> Result<Option<Rebuild>, CommandError> {
+        match change {
+            Change::Contacts { frame } => self.apply(frame),
+            Change::Release { source } => self.release_source(source),
+            Change::Pin { owner, at } => {
+                self.pin(Owner::Source(owner.clone()), *at);
+            }
+            Change::Unpin { puppet, handle } => {
+                self.unpin(*puppet, *handle);
+            }
+            Change::Paint {
+                puppet,
+                at,
+                radius,
+                strength,
+            } => return self.paint(*puppet, *at, *radius, *strength),
+            Change::KeyPose {
+                puppet,
+                from,
+                to,
+                t,
+            } => self.set_key_pose(*puppet, from, to, *t)?,
+            Change::Rebuilt { puppet, .. } => {
+                return Err(CommandError::NeedsSolver { puppet: *puppet });
+            }
+            Change::Cursor { .. }
+            | Change::KeyAdd { .. }
+            | Change::KeyMove { .. }
+            | Change::KeyDelete { .. } => {
+                return Err(CommandError::NoKeys);
+            }
+        }
+        Ok(None)
     }
 
     /// Pins what a contact landing at `at` would grab (a material point, a

@@ -1,0 +1,599 @@
+//! Takes: what the stage did during a performance, written append-only as
+//! it happens and read back for replay, overdub and export. A take holds,
+//! step by step, the [`Change`]s the stage thread applied (input frames,
+//! pins, paint dabs, key poses…), the handle [`StageEvent`]s they caused,
+//! and the vertex frames each solve produced, with their times — so
+//! replaying the changes into the same stage reproduces the frames bit for
+//! bit, and an export shows exactly what was seen. `docs/takes.md`
+//! describes the file.
+//!
+//! The file is a magic line and a run of framed records (length, kind,
+//! payload, CRC-32). A daemon killed mid-write leaves at most one partial
+//! record at the end: the reader reports it as a truncated tail and keeps
+//! everything before it. [`recorder`] writes on a thread of its own so the
+//! stage thread only hands records over; [`replay`] replays a take into a
+//! [`Stage`](puppetry_stage::Stage).
+
+pub mod recorder;
+pub mod replay;
+
+use std::fs::File;
+use std::io::{self, BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use glam::DVec2;
+use puppetry_mesh::Mesh;
+use puppetry_stage::{Change, Stage, StageEvent};
+use serde::{Deserialize, Serialize};
+
+/// The first bytes of every take.
+pub const MAGIC: &[u8; 8] = b"PTAKE01\n";
+/// The file name ending of takes.
+pub const EXTENSION: &str = "take";
+/// A record longer than this is corruption, not data (a 1M-vertex frame is
+/// 8 MB).
+const MAX_RECORD: u32 = 64 << 20;
+
+const KIND_HEADER: u8 = 1;
+const KIND_STEP: u8 = 2;
+const KIND_FRAME: u8 = 3;
+const KIND_END: u8 = 4;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TakeError {
+    #[error("{file}: {source}")]
+    Io { file: String, source: io::Error },
+    #[error("{file}: not a take (it does not start with the take magic)")]
+    NotATake { file: String },
+    #[error("{file}: record {index} at byte {offset}: {problem}")]
+    Corrupt {
+        file: String,
+        index: usize,
+        offset: u64,
+        problem: String,
+    },
+    #[error("{file}: take version {version} is newer than this build reads ({VERSION})")]
+    Version { file: String, version: u32 },
+    #[error("{file}: {problem}")]
+    Stage { file: String, problem: String },
+    #[error("{file}: already exists")]
+    Exists { file: String },
+}
+
+/// The take format's version, in every header.
+pub const VERSION: u32 = 1;
+
+/// A puppet as the take saw it: its rest mesh's hash tells a take of
+/// another stage, or of a mesh changed since, from a replayable one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PuppetInfo {
+    pub name: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    /// FNV-1a 64 of the rest mesh on the stage (vertices' f64 bits, then
+    /// triangles), in hex.
+    pub rest_hash: String,
+}
+
+/// The first record of a take.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Header {
+    pub version: u32,
+    pub name: String,
+    /// The stage file the daemon ran, as it named it.
+    pub stage_file: String,
+    pub stage_width: f64,
+    pub stage_height: f64,
+    pub puppets: Vec<PuppetInfo>,
+    /// Wall-clock start, seconds since the Unix epoch.
+    pub started_unix: f64,
+    /// The stage had seen no change before the take began, so replaying
+    /// the take into a stage fresh from its file reproduces it exactly.
+    pub fresh: bool,
+    /// Takes played back into this one while it was recorded (overdub).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub layers: Vec<String>,
+}
+
+impl Header {
+    /// The header of a take of `stage`, as the daemon runs it.
+    pub fn of_stage(name: &str, stage_file: &str, stage: &Stage, fresh: bool) -> Header {
+        Header {
+            version: VERSION,
+            name: name.to_string(),
+            stage_file: stage_file.to_string(),
+            stage_width: stage.width,
+            stage_height: stage.height,
+            puppets: stage
+                .puppets()
+                .iter()
+                .map(|p| PuppetInfo {
+                    name: p.name.clone(),
+                    vertices: p.mesh.vertices().len(),
+                    triangles: p.mesh.triangles().len(),
+                    rest_hash: rest_hash(&p.mesh),
+                })
+                .collect(),
+            started_unix: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs_f64())
+                .unwrap_or(0.0),
+            fresh,
+            layers: Vec::new(),
+        }
+    }
+
+    /// Why this take cannot be replayed into `stage`: another stage (puppet
+    /// count or names) or a changed rest mesh.
+    pub fn check_stage(&self, stage: &Stage) -> Result<(), String> {
+        if self.puppets.len() != stage.puppets().len() {
+            return Err(format!(
+                "recorded with {} puppets, the stage has {}",
+                self.puppets.len(),
+                stage.puppets().len()
+            ));
+        }
+        for (i, (recorded, p)) in self.puppets.iter().zip(stage.puppets()).enumerate() {
+            if recorded.name != p.name {
+                return Err(format!(
+                    "puppets[{i}]: recorded as {:?}, the stage has {:?}",
+                    recorded.name, p.name
+                ));
+            }
+            let now = rest_hash(&p.mesh);
+            if recorded.rest_hash != now {
+                return Err(format!(
+                    "puppets[{i}] ({}): rest mesh changed since the take (hash {} then, {now} now)",
+                    p.name, recorded.rest_hash
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A stable hash of a rest mesh (FNV-1a 64, hex): the same bits give the
+/// same hash on every machine and build.
+pub fn rest_hash(mesh: &Mesh) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    for v in mesh.vertices() {
+        eat(&v.x.to_bits().to_le_bytes());
+        eat(&v.y.to_bits().to_le_bytes());
+    }
+    for t in mesh.triangles() {
+        for i in t {
+            eat(&i.to_le_bytes());
+        }
+    }
+    format!("{h:016x}")
+}
+
+/// One solve of the stage: what was applied before it, and the handle
+/// events that caused. The frames it produced follow as [`Record::Frame`]s.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Step {
+    /// Seconds since the take began.
+    pub t: f64,
+    pub changes: Vec<Change>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<StageEvent>,
+}
+
+/// A puppet's solved vertices after a step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    pub puppet: u32,
+    /// Seconds since the take began.
+    pub t: f64,
+    pub points: Vec<[f32; 2]>,
+}
+
+impl Frame {
+    /// A frame of a pose, rounded to f32 as clients receive it.
+    pub fn of_pose(puppet: u32, t: f64, pose: &[DVec2]) -> Frame {
+        Frame {
+            puppet,
+            t,
+            points: pose.iter().map(|p| [p.x as f32, p.y as f32]).collect(),
+        }
+    }
+}
+
+/// How a take ended.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct End {
+    pub t: f64,
+    /// Why: "stopped", "shutdown", or the error that stopped it.
+    pub reason: String,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum Record {
+    Header(Header),
+    Step(Step),
+    Frame(Frame),
+    End(End),
+}
+
+impl Record {
+    fn encode(&self, out: &mut Vec<u8>) {
+        out.clear();
+        out.extend_from_slice(&[0; 4]);
+        match self {
+            Record::Header(h) => {
+                out.push(KIND_HEADER);
+                serde_json::to_writer(&mut *out, h).expect("headers serialise");
+            }
+            Record::Step(s) => {
+                out.push(KIND_STEP);
+                serde_json::to_writer(&mut *out, s).expect("steps serialise");
+            }
+            Record::End(e) => {
+                out.push(KIND_END);
+                serde_json::to_writer(&mut *out, e).expect("ends serialise");
+            }
+            Record::Frame(f) => {
+                out.push(KIND_FRAME);
+                out.extend_from_slice(&f.puppet.to_le_bytes());
+                out.extend_from_slice(&f.t.to_le_bytes());
+                out.extend_from_slice(&(f.points.len() as u32).to_le_bytes());
+                for p in &f.points {
+                    out.extend_from_slice(&p[0].to_le_bytes());
+                    out.extend_from_slice(&p[1].to_le_bytes());
+                }
+            }
+        }
+        let length = (out.len() - 4) as u32;
+        out[..4].copy_from_slice(&length.to_le_bytes());
+        let crc = crc32fast::hash(&out[4..]);
+        out.extend_from_slice(&crc.to_le_bytes());
+    }
+
+    fn decode(kind: u8, payload: &[u8]) -> Result<Record, String> {
+        let json = |what: &str| format!("{what}: ");
+        match kind {
+            KIND_HEADER => serde_json::from_slice(payload)
+                .map(Record::Header)
+                .map_err(|e| json("header") + &e.to_string()),
+            KIND_STEP => serde_json::from_slice(payload)
+                .map(Record::Step)
+                .map_err(|e| json("step") + &e.to_string()),
+            KIND_END => serde_json::from_slice(payload)
+                .map(Record::End)
+                .map_err(|e| json("end") + &e.to_string()),
+            KIND_FRAME => {
+                if payload.len() < 16 {
+                    return Err(format!("frame: {} bytes, shorter than its head", payload.len()));
+                }
+                let u32_at = |o: usize| u32::from_le_bytes(payload[o..o + 4].try_into().unwrap());
+                let puppet = u32_at(0);
+                let t = f64::from_le_bytes(payload[4..12].try_into().unwrap());
+                let count = u32_at(12) as usize;
+                if payload.len() != 16 + count * 8 {
+                    return Err(format!(
+                        "frame: {count} points need {} bytes, the record has {}",
+                        16 + count * 8,
+                        payload.len()
+                    ));
+                }
+                let f32_at = |o: usize| f32::from_le_bytes(payload[o..o + 4].try_into().unwrap());
+                let points = (0..count)
+                    .map(|i| [f32_at(16 + i * 8), f32_at(20 + i * 8)])
+                    .collect();
+                Ok(Record::Frame(Frame { puppet, t, points }))
+            }
+            other => Err(format!("unknown record kind {other}")),
+        }
+    }
+}
+
+/// Writes a take: the magic, the header, then records as they come.
+pub struct TakeWriter {
+    file: String,
+    out: BufWriter<File>,
+    scratch: Vec<u8>,
+}
+
+impl TakeWriter {
+    /// Creates `path` (never overwriting a take) and writes its header.
+    pub fn create(path: &Path, header: &Header) -> Result<TakeWriter, TakeError> {
+        let file = path.display().to_string();
+        let io = |source| TakeError::Io {
+            file: file.clone(),
+            source,
+        };
+        let created = File::options().write(true).create_new(true).open(path);
+        let handle = match created {
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                return Err(TakeError::Exists { file });
+            }
+            other => other.map_err(io)?,
+        };
+        let mut writer = TakeWriter {
+            file: file.clone(),
+            out: BufWriter::with_capacity(1 << 16, handle),
+            scratch: Vec::new(),
+        };
+        writer.out.write_all(MAGIC).map_err(io)?;
+        writer.write(&Record::Header(header.clone()))?;
+        writer.flush()?;
+        Ok(writer)
+    }
+
+    pub fn write(&mut self, record: &Record) -> Result<(), TakeError> {
+        record.encode(&mut self.scratch);
+        self.out
+            .write_all(&self.scratch)
+            .map_err(|source| TakeError::Io {
+                file: self.file.clone(),
+                source,
+            })
+    }
+
+    /// Hands what is buffered to the operating system, so a killed daemon
+    /// loses nothing written before this.
+    pub fn flush(&mut self) -> Result<(), TakeError> {
+        self.out.flush().map_err(|source| TakeError::Io {
+            file: self.file.clone(),
+            source,
+        })
+    }
+}
+
+/// How a take's file ends.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Tail {
+    /// After an end record (the take was stopped).
+    Ended(End),
+    /// Every record is whole but there is no end record (the daemon was
+    /// killed between two records).
+    Unended,
+    /// The last record is partial or damaged (the daemon was killed while
+    /// writing it): it and what follows were skipped.
+    Truncated { offset: u64, bytes: u64, problem: String },
+}
+
+/// Reads a take record by record, in bounded memory.
+pub struct TakeReader {
+    file: String,
+    input: BufReader<File>,
+    pub header: Header,
+    offset: u64,
+    index: usize,
+    tail: Option<Tail>,
+    length: u64,
+}
+
+impl TakeReader {
+    pub fn open(path: &Path) -> Result<TakeReader, TakeError> {
+        let file = path.display().to_string();
+        let io = |source| TakeError::Io {
+            file: file.clone(),
+            source,
+        };
+        let handle = File::open(path).map_err(io)?;
+        let length = handle.metadata().map_err(io)?.len();
+        let mut input = BufReader::with_capacity(1 << 16, handle);
+        let mut magic = [0u8; 8];
+        if input.read_exact(&mut magic).is_err() || &magic != MAGIC {
+            return Err(TakeError::NotATake { file });
+        }
+        let mut reader = TakeReader {
+            file: file.clone(),
+            input,
+            header: Header {
+                version: 0,
+                name: String::new(),
+                stage_file: String::new(),
+                stage_width: 0.0,
+                stage_height: 0.0,
+                puppets: Vec::new(),
+                started_unix: 0.0,
+                fresh: false,
+                layers: Vec::new(),
+            },
+            offset: MAGIC.len() as u64,
+            index: 0,
+            tail: None,
+            length,
+        };
+        match reader.next_record() {
+            Some(Ok(Record::Header(h))) => {
+                if h.version > VERSION {
+                    return Err(TakeError::Version {
+                        file,
+                        version: h.version,
+                    });
+                }
+                reader.header = h;
+                Ok(reader)
+            }
+            Some(Err(e)) => Err(e),
+            _ => Err(TakeError::Corrupt {
+                file,
+                index: 0,
+                offset: MAGIC.len() as u64,
+                problem: "the header record is missing or damaged".into(),
+            }),
+        }
+    }
+
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+
+    /// How the file ended; `None` until every record has been read.
+    pub fn tail(&self) -> Option<&Tail> {
+        self.tail.as_ref()
+    }
+
+    fn next_record(&mut self) -> Option<Result<Record, TakeError>> {
+        if self.tail.is_some() {
+            return None;
+        }
+        let start = self.offset;
+        let truncated = |reader: &mut TakeReader, problem: String| {
+            reader.tail = Some(Tail::Truncated {
+                offset: start,
+                bytes: reader.length.saturating_sub(start),
+                problem,
+            });
+            None
+        };
+        let mut head = [0u8; 5];
+        match self.input.read_exact(&mut head[..4]) {
+            Ok(()) => {}
+            Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
+                if start == self.length {
+                    self.tail = Some(Tail::Unended);
+                    return None;
+                }
+                return truncated(self, "a partial record length".into());
+            }
+            Err(source) => {
+                return Some(Err(TakeError::Io {
+                    file: self.file.clone(),
+                    source,
+                }));
+            }
+        }
+        let length = u32::from_le_bytes(head[..4].try_into().unwrap());
+        if length == 0 || length > MAX_RECORD || u64::from(length) + 8 > self.length - start {
+            return truncated(
+                self,
+                format!(
+                    "a record of {length} bytes, but {} remain",
+                    self.length - start - 4
+                ),
+            );
+        }
+        let mut body = vec![0u8; length as usize + 4];
+        if let Err(e) = self.input.read_exact(&mut body) {
+            return truncated(self, format!("cannot read the record: {e}"));
+        }
+        let (data, crc) = body.split_at(length as usize);
+        if crc32fast::hash(data) != u32::from_le_bytes(crc.try_into().unwrap()) {
+            return truncated(self, "checksum mismatch".into());
+        }
+        self.offset += 4 + u64::from(length) + 4;
+        let index = self.index;
+        self.index += 1;
+        match Record::decode(data[0], &data[1..]) {
+            Ok(Record::End(end)) => {
+                self.tail = Some(Tail::Ended(end.clone()));
+                Some(Ok(Record::End(end)))
+            }
+            Ok(record) => Some(Ok(record)),
+            Err(problem) => Some(Err(TakeError::Corrupt {
+                file: self.file.clone(),
+                index,
+                offset: start,
+                problem,
+            })),
+        }
+    }
+}
+
+impl Iterator for TakeReader {
+    type Item = Result<Record, TakeError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.next_record()
+    }
+}
+
+/// A take's summary, as `puppetry takes` and the `takes` message list it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TakeSummary {
+    pub name: String,
+    pub file: PathBuf,
+    pub started_unix: f64,
+    /// Seconds from the start to the last step or frame.
+    pub duration: f64,
+    pub steps: usize,
+    pub frames: usize,
+    pub puppets: Vec<String>,
+    pub fresh: bool,
+    /// "stopped"/"shutdown"/an error, "unended" (killed between records)
+    /// or "truncated: …" (killed mid-record; the tail was skipped).
+    pub ending: String,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub layers: Vec<String>,
+}
+
+/// Reads a whole take for its summary.
+pub fn summarize(path: &Path) -> Result<TakeSummary, TakeError> {
+    let mut reader = TakeReader::open(path)?;
+    let (mut steps, mut frames, mut duration) = (0, 0, 0.0f64);
+    for record in reader.by_ref() {
+        match record? {
+            Record::Step(s) => {
+                steps += 1;
+                duration = duration.max(s.t);
+            }
+            Record::Frame(f) => {
+                frames += 1;
+                duration = duration.max(f.t);
+            }
+            Record::End(e) => duration = duration.max(e.t),
+            Record::Header(_) => {}
+        }
+    }
+    let ending = match reader.tail() {
+        Some(Tail::Ended(end)) => end.reason.clone(),
+        Some(Tail::Truncated { bytes, problem, .. }) => {
+            format!("truncated: {bytes} bytes at the end skipped ({problem})")
+        }
+        _ => "unended".to_string(),
+    };
+    let h = &reader.header;
+    Ok(TakeSummary {
+        name: h.name.clone(),
+        file: path.to_path_buf(),
+        started_unix: h.started_unix,
+        duration,
+        steps,
+        frames,
+        puppets: h.puppets.iter().map(|p| p.name.clone()).collect(),
+        fresh: h.fresh,
+        ending,
+        layers: h.layers.clone(),
+    })
+}
+
+/// Every take in a folder (`*.take`), oldest first; unreadable ones are
+/// listed as errors, not hidden.
+pub fn list(dir: &Path) -> Result<Vec<Result<TakeSummary, TakeError>>, TakeError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| TakeError::Io {
+        file: dir.display().to_string(),
+        source,
+    })?;
+    let mut paths: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == EXTENSION))
+        .collect();
+    paths.sort();
+    Ok(paths.iter().map(|p| summarize(p)).collect())
+}
+
+/// A take name safe as a file name: letters, digits, `-`, `_` and `.`,
+/// not starting with a dot, at most 100 characters.
+pub fn valid_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 100
+        && !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}

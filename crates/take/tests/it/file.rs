@@ -1,0 +1,161 @@
+use std::path::Path;
+
+use glam::DVec2;
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_stage::{Change, GripEvent, StageEvent};
+use puppetry_take::recorder::Recorder;
+use puppetry_take::{Frame, Header, Record, Step, Tail, TakeError, TakeReader, summarize};
+
+fn header(name: &str) -> Header {
+    Header {
+        version: puppetry_take::VERSION,
+        name: name.into(),
+        stage_file: "demo.toml".into(),
+        stage_width: 1600.0,
+        stage_height: 900.0,
+        puppets: Vec::new(),
+        started_unix: 1.0,
+        fresh: true,
+        layers: Vec::new(),
+    }
+}
+
+fn step(i: usize) -> Step {
+    Step {
+        t: i as f64 * 0.001,
+        changes: vec![Change::Contacts {
+            frame: ContactFrame {
+                source: SourceId::new("evdev0"),
+                time: 12.5 + i as f64 / 3.0,
+                contacts: vec![Contact::new(
+                    7,
+                    if i == 0 { Phase::Down } else { Phase::Move },
+                    DVec2::new(100.0 + i as f64 / 7.0, 0.1 + 0.2),
+                )],
+            },
+        }],
+        events: vec![StageEvent::Made {
+            puppet: 0,
+            handle: 3,
+            owner: "evdev0".into(),
+            kind: "contact".into(),
+            grip: GripEvent::Point {
+                rest: DVec2::new(1.0 / 3.0, 2.0),
+            },
+            at: DVec2::new(5.0, 6.0),
+        }],
+    }
+}
+
+fn frame(i: usize) -> Frame {
+    Frame {
+        puppet: 0,
+        t: i as f64 * 0.001,
+        points: (0..50)
+            .map(|v| [v as f32 / 3.0 + i as f32, -(v as f32) * 1.1])
+            .collect(),
+    }
+}
+
+fn record(path: &Path, steps: usize) {
+    let recorder = Recorder::start(path, &header("t1")).unwrap();
+    for i in 0..steps {
+        recorder.record(Record::Step(step(i))).unwrap();
+        recorder.record(Record::Frame(frame(i))).unwrap();
+    }
+    recorder.finish("stopped").unwrap();
+}
+
+fn read_all(path: &Path) -> (Vec<Record>, Tail) {
+    let mut reader = TakeReader::open(path).unwrap();
+    let records: Vec<Record> = reader.by_ref().map(|r| r.unwrap()).collect();
+    (records, reader.tail().cloned().unwrap())
+}
+
+#[test]
+fn records_read_back_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t1.take");
+    record(&path, 20);
+    let (records, tail) = read_all(&path);
+    assert_eq!(records.len(), 41);
+    for i in 0..20 {
+        assert_eq!(records[2 * i], Record::Step(step(i)));
+        assert_eq!(records[2 * i + 1], Record::Frame(frame(i)));
+    }
+    assert!(matches!(tail, Tail::Ended(ref e) if e.reason == "stopped"));
+    let summary = summarize(&path).unwrap();
+    assert_eq!((summary.steps, summary.frames), (20, 20));
+    assert_eq!(summary.ending, "stopped");
+}
+
+#[test]
+fn a_cut_tail_is_reported_and_everything_before_it_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t1.take");
+    record(&path, 10);
+    let whole = std::fs::read(&path).unwrap();
+    let (all, _) = read_all(&path);
+    // Cut at every byte of the last three records: never an error, never a
+    // record lost before the cut.
+    let cut_from = whole.len() - 3 * (frame(0).points.len() * 8 + 30);
+    for cut in cut_from..whole.len() {
+        let cut_path = dir.path().join("cut.take");
+        std::fs::write(&cut_path, &whole[..cut]).unwrap();
+        let (records, tail) = read_all(&cut_path);
+        assert_eq!(records[..], all[..records.len()], "cut at {cut}");
+        match tail {
+            Tail::Truncated { bytes, .. } => assert!(bytes > 0),
+            Tail::Unended => {}
+            Tail::Ended(_) => panic!("cut at {cut} still ended"),
+        }
+        let summary = summarize(&cut_path).unwrap();
+        assert_ne!(summary.ending, "stopped");
+    }
+}
+
+#[test]
+fn a_damaged_record_ends_the_take_there() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t1.take");
+    record(&path, 10);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let at = bytes.len() / 2;
+    bytes[at] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    let (records, tail) = read_all(&path);
+    assert!(records.len() < 21);
+    assert!(
+        matches!(tail, Tail::Truncated { ref problem, .. } if problem.contains("checksum")),
+        "{tail:?}"
+    );
+}
+
+#[test]
+fn foreign_files_are_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("notes.take");
+    std::fs::write(&path, "hello").unwrap();
+    let err = TakeReader::open(&path).err().unwrap();
+    assert!(matches!(err, TakeError::NotATake { .. }));
+    assert!(err.to_string().contains("notes.take"), "{err}");
+    let missing = TakeReader::open(&dir.path().join("gone.take")).err().unwrap();
+    assert!(missing.to_string().contains("gone.take"), "{missing}");
+}
+
+#[test]
+fn a_take_is_never_overwritten() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t1.take");
+    record(&path, 1);
+    let again = Recorder::start(&path, &header("t1")).err().unwrap();
+    assert!(matches!(again, TakeError::Exists { .. }), "{again}");
+}
+
+#[test]
+fn an_unwritable_folder_is_an_error_naming_it() {
+    let err = Recorder::start(Path::new("/proc/no/such/t.take"), &header("t"))
+        .err()
+        .unwrap();
+    assert!(err.to_string().contains("/proc/no/such/t.take"), "{err}");
+}
