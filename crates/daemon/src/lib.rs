@@ -16,3 +16,4 @@ pub mod serve;
 pub mod sources;
 pub mod stage_thread;
 pub mod stream;
+pub mod takes;

@@ -208,6 +208,71 @@ pub enum ClientMessage {
         to: String,
         t: f64,
     },
+    /// Start recording a take (named, or `take-NNN`).
+    Record {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        name: Option<String>,
+    },
+    /// Stop the take being recorded.
+    StopRecording,
+    /// List the takes in the daemon's takes folder.
+    ListTakes,
+    /// Play a take into the stage. With `overdub`, a new take records the
+    /// played motion and the live hands together. Contacts of the played
+    /// take from `replace_sources`, or that grabbed a material point within
+    /// a `replace` region, are left out: the live performer replaces them.
+    Play {
+        take: String,
+        #[serde(default)]
+        overdub: bool,
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        replace: Vec<Region>,
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        replace_sources: Vec<String>,
+    },
+    /// Stop playing (and, if overdubbing, recording).
+    StopPlaying,
+}
+
+/// A disc of a puppet's rest shape (stage coordinates of the rest mesh).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Region {
+    pub puppet: u32,
+    pub at: [f64; 2],
+    pub radius: f64,
+}
+
+/// The take state every client sees.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TakeState {
+    /// The take being recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recording: Option<String>,
+    /// Seconds it has been recording when this was sent.
+    #[serde(default)]
+    pub elapsed: f64,
+    /// The take being played.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub playing: Option<String>,
+    /// Why the last take stopped early (a full disk, …).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+/// A take in the `takes` list.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TakeView {
+    pub name: String,
+    pub duration: f64,
+    pub steps: usize,
+    pub frames: usize,
+    /// "stopped", "shutdown", an error, "unended" or "truncated: …".
+    pub ending: String,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub layers: Vec<String>,
 }
 
 /// One contact of a [`ClientMessage::Contacts`]; `x`, `y` may be left out
@@ -253,6 +318,11 @@ pub enum ServerMessage {
         rest: Vec<[f64; 2]>,
         grid: Vec<[f64; 2]>,
     },
+    /// Recording and playing now (sent to everyone on every change).
+    Take(TakeState),
+    /// The answer to `list_takes`: every take, oldest first (unreadable
+    /// files are left out and logged).
+    Takes { takes: Vec<TakeView> },
     /// Something the client sent could not be done.
     Error { message: String },
 }

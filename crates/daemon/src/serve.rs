@@ -13,8 +13,9 @@ use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use crate::sources::{SOURCE_QUEUE, SourceError, WhenDone, forward, supervise};
-use crate::stage_thread::{self, Command, CursorState};
+use crate::stage_thread::{self, Command, CursorState, TakeSettings};
 use crate::stream::{self, Shared, StageDescription, StreamError, WebFiles};
+use crate::takes::PlayOptions;
 use glam::DVec2;
 use puppetry_input::device::{DeviceKind, DeviceMatch};
 use puppetry_input::hotplug::{self, DeviceInput};
@@ -55,9 +56,23 @@ pub struct Running {
     server: JoinHandle<()>,
     inputs: Vec<JoinHandle<()>>,
     stage_thread: std::thread::JoinHandle<()>,
+    shared: Arc<Shared>,
 }
 
 impl Running {
+    /// Every input has ended (replays that do not repeat) and no take is
+    /// playing: what was fed is in the stage thread's queue.
+    pub fn inputs_done(&self) -> bool {
+        self.inputs.iter().all(|i| i.is_finished())
+            && self
+                .shared
+                .player
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .as_ref()
+                .is_none_or(|p| p.is_finished())
+    }
+
     /// Plays `source` into the stage now, through the same path as a
     /// configured replay; finishes when the source is played.
     pub async fn play(&self, source: ReplaySource, pacing: Pacing) {
@@ -80,6 +95,32 @@ impl Running {
     }
 }
 
+/// How a daemon is started beyond its stage file.
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub web_files: WebFiles,
+    /// An extra replay source (a `.jsonl` recording or evemu capture).
+    pub extra_replay: Option<(PathBuf, Pacing)>,
+    /// Where takes are recorded and listed.
+    pub takes_dir: PathBuf,
+    /// Record a take from the first input to shutdown.
+    pub record: bool,
+    /// A take to play into the stage at start.
+    pub play: Option<(PathBuf, PlayOptions)>,
+}
+
+impl Options {
+    pub fn new(web_files: WebFiles) -> Options {
+        Options {
+            web_files,
+            extra_replay: None,
+            takes_dir: PathBuf::from("takes"),
+            record: false,
+            play: None,
+        }
+    }
+}
+
 /// Starts the daemon for `config`, serving the web client from `web_files`,
 /// with an extra replay source if given.
 pub async fn start(
@@ -87,8 +128,23 @@ pub async fn start(
     web_files: WebFiles,
     extra_replay: Option<(PathBuf, Pacing)>,
 ) -> Result<Running, ServeError> {
+    let mut options = Options::new(web_files);
+    options.extra_replay = extra_replay;
+    start_with(config, options).await
+}
+
+/// Starts the daemon for `config` with `options`.
+pub async fn start_with(config: &StageConfig, options: Options) -> Result<Running, ServeError> {
+    let Options {
+        web_files,
+        extra_replay,
+        takes_dir,
+        record,
+        play,
+    } = options;
     let started = Instant::now();
     let stage = Stage::from_config(config)?;
+    let take_puppets = puppetry_take::Header::of_stage("", &config.file, &stage, true).puppets;
     let (commands, commands_rx) = mpsc::channel(COMMAND_QUEUE);
     let listener = stream::bind(config.stage.listen).await?;
     let address = listener
@@ -101,7 +157,13 @@ pub async fn start(
     let size = DVec2::new(stage.width, stage.height);
     let resolved = resolve_inputs(config, size, extra_replay).await?;
     let description = StageDescription::of(&stage);
-    let (outputs, stage_thread) = stage_thread::spawn(stage, commands_rx, commands.downgrade());
+    let settings = TakeSettings {
+        dir: takes_dir.clone(),
+        stage_file: config.file.clone(),
+        record_from_first_input: record,
+    };
+    let (outputs, stage_thread) =
+        stage_thread::spawn(stage, commands_rx, commands.downgrade(), settings);
     let shared = Arc::new(Shared {
         stage: description,
         tokens: config.access.performer_tokens.clone(),
@@ -110,15 +172,30 @@ pub async fn start(
         commands: commands.clone(),
         outputs: outputs.puppets,
         cursors: outputs.cursors,
+        take: outputs.take,
         changes: outputs.changes,
+        takes_dir,
+        take_puppets,
+        player: std::sync::Mutex::new(None),
         client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
         started,
         next_client: AtomicU64::new(1),
     });
 
     let (inputs, tuio_addresses) = spawn_sources(resolved, &commands, started, size)?;
+    if let Some((path, play_options)) = play {
+        let player = crate::takes::play(
+            &path,
+            &shared.take_puppets,
+            play_options,
+            commands.clone(),
+            started,
+        )
+        .map_err(ServeError::Input)?;
+        *shared.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
+    }
     let (shutdown, shutdown_rx) = oneshot::channel();
-    let server = tokio::spawn(stream::run(listener, shared, async {
+    let server = tokio::spawn(stream::run(listener, shared.clone(), async {
         let _ = shutdown_rx.await;
     }));
     Ok(Running {
@@ -130,6 +207,7 @@ pub async fn start(
         server,
         inputs,
         stage_thread,
+        shared,
     })
 }
 

@@ -10,6 +10,7 @@
 //! new one back as a command, which swaps it in between two solves.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
@@ -20,11 +21,13 @@ use tokio::sync::{mpsc, oneshot, watch};
 use puppetry_deform::Arap;
 use puppetry_input::ContactFrame;
 use puppetry_stage::{
-    CommandError, GridExport, Grip, HandleKind, Owner, Rebuild, Stage, WeightsFile,
+    Change, CommandError, GridExport, Grip, HandleKind, Rebuild, Stage, StageEvent, WeightsFile,
 };
+use puppetry_take::recorder::Recorder;
+use puppetry_take::{Frame, Header, Record, Step};
 
 use crate::protocol::{
-    self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, encode_frame,
+    self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, TakeState, encode_frame,
 };
 
 /// The stage thread's answer to a request.
@@ -88,8 +91,37 @@ pub enum Command {
         generation: u64,
         arap: Option<Box<Arap>>,
     },
+    /// One step of a take played back: applied and solved on its own, so
+    /// with no live input between it gives the frames the take recorded.
+    Played {
+        changes: Vec<Change>,
+        received: f64,
+    },
+    /// Start recording a take into the takes folder (`None`: the next free
+    /// `take-NNN`); `layers` names takes played into it.
+    StartTake {
+        name: Option<String>,
+        layers: Vec<String>,
+        reply: oneshot::Sender<Result<String, String>>,
+    },
+    /// Stop the take being recorded; answers its name.
+    StopTake {
+        reply: oneshot::Sender<Result<String, String>>,
+    },
+    /// Which take is playing (`None`: playing stopped), for the take state.
+    Playing(Option<String>),
     /// End the thread (the daemon is shutting down).
     Stop,
+}
+
+/// Where takes go, and whether one starts by itself.
+#[derive(Debug, Clone)]
+pub struct TakeSettings {
+    pub dir: PathBuf,
+    /// The stage file, as takes name it.
+    pub stage_file: String,
+    /// Start a take with the first change (`serve --record`).
+    pub record_from_first_input: bool,
 }
 
 /// A mouse cursor's state, as a mouse source reports it.
@@ -195,6 +227,8 @@ pub struct Outputs {
     pub puppets: Vec<PuppetOutput>,
     /// The newest "cursors" message.
     pub cursors: watch::Receiver<Arc<str>>,
+    /// The newest "take" message (recording and playing now).
+    pub take: watch::Receiver<Arc<str>>,
     /// Bumped after each publish, so clients wait on one signal.
     pub changes: watch::Receiver<u64>,
 }
@@ -298,6 +332,140 @@ fn start_rebuild(rebuild: Rebuild, wake: &mpsc::WeakSender<Command>) {
     }
 }
 
+/// The take side of the stage thread: the take being recorded, the step
+/// being gathered for it, and the take state every client sees.
+struct Taking {
+    settings: TakeSettings,
+    recorder: Option<Recorder>,
+    /// No change has reached the stage yet.
+    fresh: bool,
+    step: Vec<Change>,
+    events: Vec<StageEvent>,
+    playing: Option<String>,
+    /// The take the one recording layers over, if it is an overdub.
+    overdub_of: Option<String>,
+    error: Option<String>,
+    state: watch::Sender<Arc<str>>,
+}
+
+impl Taking {
+    fn state_message(&self) -> String {
+        ServerMessage::Take(TakeState {
+            recording: self.recorder.as_ref().map(|r| r.name().to_string()),
+            elapsed: self.recorder.as_ref().map_or(0.0, |r| r.elapsed()),
+            playing: self.playing.clone(),
+            error: self.error.clone(),
+        })
+        .to_text()
+    }
+
+    fn publish(&self, changes: &watch::Sender<u64>) {
+        self.state.send_replace(Arc::from(self.state_message()));
+        changes.send_modify(|c| *c += 1);
+    }
+
+    /// Starts a take named `name` (or the next free `take-NNN`).
+    fn start(
+        &mut self,
+        stage: &mut Stage,
+        name: Option<String>,
+        layers: Vec<String>,
+    ) -> Result<String, String> {
+        if let Some(r) = &self.recorder {
+            return Err(format!("take {} is already recording", r.name()));
+        }
+        if let Some(name) = &name
+            && !puppetry_take::valid_name(name)
+        {
+            return Err(format!(
+                "take name {name:?}: use letters, digits, '-', '_' and '.' (at most 100)"
+            ));
+        }
+        std::fs::create_dir_all(&self.settings.dir)
+            .map_err(|e| format!("takes folder {}: {e}", self.settings.dir.display()))?;
+        let name = name.unwrap_or_else(|| {
+            (1..)
+                .map(|n| format!("take-{n:03}"))
+                .find(|n| !self.path_of(n).exists())
+                .expect("a free take name")
+        });
+        let mut header = Header::of_stage(&name, &self.settings.stage_file, stage, self.fresh);
+        self.overdub_of = layers.first().cloned();
+        header.layers = layers;
+        let recorder = Recorder::start(&self.path_of(&name), &header).map_err(|e| e.to_string())?;
+        tracing::info!("take {name}: recording to {}", recorder.path().display());
+        self.recorder = Some(recorder);
+        self.error = None;
+        self.step.clear();
+        self.events.clear();
+        stage.keep_events(true);
+        Ok(name)
+    }
+
+    fn path_of(&self, name: &str) -> PathBuf {
+        self.settings
+            .dir
+            .join(format!("{name}.{}", puppetry_take::EXTENSION))
+    }
+
+    /// Ends the take being recorded (if any), for `reason`.
+    fn stop(&mut self, stage: &mut Stage, reason: &str) -> Result<String, String> {
+        let recorder = self
+            .recorder
+            .take()
+            .ok_or_else(|| "no take is recording".to_string())?;
+        stage.keep_events(false);
+        let name = recorder.name().to_string();
+        match recorder.finish(reason) {
+            Ok(()) => {
+                tracing::info!("take {name}: {reason}");
+                Ok(name)
+            }
+            Err(e) => {
+                tracing::error!("{e}");
+                self.error = Some(e.to_string());
+                Err(e.to_string())
+            }
+        }
+    }
+
+    /// Records the step just solved and its frames; a take that cannot
+    /// keep up or write stops here, with its error shown to everyone.
+    fn record(&mut self, stage: &mut Stage, solved: &[(u32, bool)]) -> bool {
+        let Some(recorder) = &self.recorder else {
+            return false;
+        };
+        stage.take_events(&mut self.events);
+        if self.step.is_empty() && solved.is_empty() && self.events.is_empty() {
+            return false;
+        }
+        let t = recorder.elapsed();
+        let mut result = recorder.record(Record::Step(Step {
+            t,
+            changes: std::mem::take(&mut self.step),
+            events: std::mem::take(&mut self.events),
+        }));
+        for &(puppet, _) in solved {
+            if result.is_err() {
+                break;
+            }
+            let pose = stage.puppets()[puppet as usize].pose();
+            result = recorder.record(Record::Frame(Frame::of_pose(puppet, t, pose)));
+        }
+        if let Err(e) = result {
+            tracing::error!("{e}");
+            let reason = e.to_string();
+            if let Some(recorder) = self.recorder.take() {
+                stage.keep_events(false);
+                let _ = recorder.finish(&reason);
+            }
+            self.error = Some(reason);
+            return true;
+        }
+        false
+    }
+}
+
 /// Starts the stage thread; returns what it publishes. The thread stops
 /// when every command sender is dropped; `wake` (a weak sender of the same
 /// channel) is how solver rebuilds come back.
@@ -305,6 +473,7 @@ pub fn spawn(
     mut stage: Stage,
     mut commands: mpsc::Receiver<Command>,
     wake: mpsc::WeakSender<Command>,
+    takes: TakeSettings,
 ) -> (Outputs, JoinHandle<()>) {
     let (changes, changes_rx) = watch::channel(0u64);
     let mut cursors = BTreeMap::new();
@@ -337,98 +506,65 @@ pub fn spawn(
             weights: weights_rx,
         });
     }
+    let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
+    let mut taking = Taking {
+        settings: takes,
+        recorder: None,
+        fresh: true,
+        step: Vec::new(),
+        events: Vec::new(),
+        playing: None,
+        overdub_of: None,
+        error: None,
+        state: state_tx,
+    };
+    taking.state.send_replace(Arc::from(taking.state_message()));
     // Pins from the stage file are handles before any input: solve once.
     let solved = stage.solve();
     publisher.publish(&stage, &solved, 0.0);
     let thread = std::thread::Builder::new()
         .name("stage".into())
         .spawn(move || {
+            let mut batch = Batch::default();
             while let Some(first) = commands.blocking_recv() {
-                let mut newest = 0.0;
-                let mut stop = false;
-                let mut cursors_changed = false;
-                let mut apply = |stage: &mut Stage, command: Command| match command {
-                    Command::Stop => stop = true,
-                    Command::Frame { frame, received } => {
-                        newest = received;
-                        stage.apply(&frame);
-                    }
-                    Command::Pin { owner, at } => {
-                        stage.pin(Owner::Source(owner), at);
-                    }
-                    Command::Unpin { puppet, handle } => {
-                        stage.unpin(puppet, handle);
-                    }
-                    Command::ReleaseSource(source) => stage.release_source(&source),
-                    Command::Paint {
-                        puppet,
-                        at,
-                        radius,
-                        strength,
-                        reply,
-                    } => {
-                        let result = stage.paint(puppet, at, radius, strength);
-                        let _ = reply.send(result.map(|rebuild| {
-                            if let Some(rebuild) = rebuild {
-                                start_rebuild(rebuild, &wake);
-                            }
-                        }));
-                    }
-                    Command::KeyPose {
-                        puppet,
-                        from,
-                        to,
-                        t,
-                        reply,
-                    } => {
-                        let r = stage.set_key_pose(puppet, &from, &to, t);
-                        let _ = reply.send(r);
-                    }
-                    Command::ExportGrid { puppet, reply } => {
-                        let _ = reply.send(stage.export_grid(puppet));
-                    }
-                    Command::SaveWeights { puppet, reply } => {
-                        let _ = reply.send(stage.weights_file(puppet));
-                    }
-                    Command::Rebuilt {
-                        puppet,
-                        generation,
-                        arap,
-                    } => {
-                        let next = match arap {
-                            Some(arap) => stage.install(puppet, generation, *arap),
-                            None => {
-                                stage.rebuild_failed(puppet);
-                                None
-                            }
-                        };
-                        if let Some(rebuild) = next {
-                            start_rebuild(rebuild, &wake);
+                let mut next = Some(first);
+                while let Some(command) = next.take() {
+                    if let Command::Played { changes, received } = command {
+                        // A played step is solved on its own, as it was
+                        // when it was recorded.
+                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                        for change in changes {
+                            batch.apply(&mut stage, &mut taking, change, None, &wake);
                         }
+                        batch.newest = received;
+                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                    } else {
+                        batch.command(
+                            &mut stage,
+                            &mut taking,
+                            &mut cursors,
+                            command,
+                            &wake,
+                            &publisher.changes,
+                        );
                     }
-                    Command::Cursor { source, cursor } => {
-                        let old = match cursor {
-                            Some(c) => cursors.insert(source, c),
-                            None => cursors.remove(&source),
-                        };
-                        cursors_changed |= old != cursor;
+                    if batch.stop {
+                        break;
                     }
-                };
-                apply(&mut stage, first);
-                // Catch up: apply everything already waiting, solve once.
-                while let Ok(next) = commands.try_recv() {
-                    apply(&mut stage, next);
+                    // Catch up: apply everything already waiting, solve once.
+                    next = commands.try_recv().ok();
                 }
-                if stop {
+                if batch.stop {
+                    if taking.recorder.is_some() {
+                        let _ = taking.stop(&mut stage, "shutdown");
+                    }
                     // Dropping the publisher tells every client to close.
                     return;
                 }
-                let solved = stage.solve();
-                publisher.publish(&stage, &solved, newest);
-                publisher.publish_weights(&stage);
-                if cursors_changed {
-                    publisher.publish_cursors(&cursors);
-                }
+                batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+            }
+            if taking.recorder.is_some() {
+                let _ = taking.stop(&mut stage, "shutdown");
             }
         })
         .expect("spawn the stage thread");
@@ -436,8 +572,193 @@ pub fn spawn(
         Outputs {
             puppets: outputs,
             cursors: cursors_rx,
+            take: state_rx,
             changes: changes_rx,
         },
         thread,
     )
+}
+
+/// What the stage thread gathered since its last solve.
+#[derive(Default)]
+struct Batch {
+    /// When the newest input frame reached the daemon.
+    newest: f64,
+    stop: bool,
+    cursors_changed: bool,
+    /// Something was applied since the last solve.
+    dirty: bool,
+}
+
+impl Batch {
+    /// Applies one change to the stage (and the take's step when it took).
+    fn apply(
+        &mut self,
+        stage: &mut Stage,
+        taking: &mut Taking,
+        change: Change,
+        reply: Option<Reply<()>>,
+        wake: &mpsc::WeakSender<Command>,
+    ) {
+        if taking.settings.record_from_first_input && taking.fresh && taking.recorder.is_none() {
+            taking.settings.record_from_first_input = false;
+            if let Err(e) = taking.start(stage, None, Vec::new()) {
+                tracing::error!("serve --record: {e}");
+                taking.error = Some(e);
+            }
+        }
+        let result = stage.apply_change(&change);
+        taking.fresh = false;
+        self.dirty = true;
+        let result = result.map(|rebuild| {
+            if let Some(rebuild) = rebuild {
+                start_rebuild(rebuild, wake);
+            }
+        });
+        if result.is_ok() && taking.recorder.is_some() {
+            taking.step.push(change);
+        }
+        if let Some(reply) = reply {
+            let _ = reply.send(result);
+        }
+    }
+
+    fn command(
+        &mut self,
+        stage: &mut Stage,
+        taking: &mut Taking,
+        cursors: &mut BTreeMap<String, CursorState>,
+        command: Command,
+        wake: &mpsc::WeakSender<Command>,
+        changes: &watch::Sender<u64>,
+    ) {
+        match command {
+            Command::Stop => self.stop = true,
+            Command::Frame { frame, received } => {
+                self.newest = received;
+                self.apply(stage, taking, Change::Contacts { frame }, None, wake);
+            }
+            Command::Played { .. } => unreachable!("played steps are solved on their own"),
+            Command::Pin { owner, at } => {
+                self.apply(stage, taking, Change::Pin { owner, at }, None, wake)
+            }
+            Command::Unpin { puppet, handle } => {
+                self.apply(stage, taking, Change::Unpin { puppet, handle }, None, wake)
+            }
+            Command::ReleaseSource(source) => {
+                self.apply(stage, taking, Change::Release { source }, None, wake)
+            }
+            Command::Paint {
+                puppet,
+                at,
+                radius,
+                strength,
+                reply,
+            } => {
+                let change = Change::Paint {
+                    puppet,
+                    at,
+                    radius,
+                    strength,
+                };
+                self.apply(stage, taking, change, Some(reply), wake);
+            }
+            Command::KeyPose {
+                puppet,
+                from,
+                to,
+                t,
+                reply,
+            } => {
+                let change = Change::KeyPose {
+                    puppet,
+                    from,
+                    to,
+                    t,
+                };
+                self.apply(stage, taking, change, Some(reply), wake);
+            }
+            Command::ExportGrid { puppet, reply } => {
+                let _ = reply.send(stage.export_grid(puppet));
+            }
+            Command::SaveWeights { puppet, reply } => {
+                let _ = reply.send(stage.weights_file(puppet));
+            }
+            Command::Rebuilt {
+                puppet,
+                generation,
+                arap,
+            } => {
+                let next = match arap {
+                    Some(arap) => {
+                        if taking.recorder.is_some() {
+                            taking.step.push(Change::Rebuilt { puppet, generation });
+                        }
+                        self.dirty = true;
+                        stage.install(puppet, generation, *arap)
+                    }
+                    None => {
+                        stage.rebuild_failed(puppet);
+                        None
+                    }
+                };
+                if let Some(rebuild) = next {
+                    start_rebuild(rebuild, wake);
+                }
+            }
+            Command::Cursor { source, cursor } => {
+                let old = match cursor {
+                    Some(c) => cursors.insert(source, c),
+                    None => cursors.remove(&source),
+                };
+                self.cursors_changed |= old != cursor;
+            }
+            Command::StartTake {
+                name,
+                layers,
+                reply,
+            } => {
+                let _ = reply.send(taking.start(stage, name, layers));
+                taking.publish(changes);
+            }
+            Command::StopTake { reply } => {
+                let _ = reply.send(taking.stop(stage, "stopped"));
+                taking.publish(changes);
+            }
+            Command::Playing(name) => {
+                // An overdub ends with the take it layers over.
+                if name.is_none()
+                    && let Some(played) = taking.playing.take()
+                    && taking.overdub_of.as_deref() == Some(played.as_str())
+                {
+                    let _ = taking.stop(stage, "stopped");
+                }
+                taking.playing = name;
+                taking.publish(changes);
+            }
+        }
+    }
+
+    /// Solves what was applied, publishes it and records it.
+    fn finish(
+        &mut self,
+        stage: &mut Stage,
+        publisher: &mut Publisher,
+        taking: &mut Taking,
+        cursors: &BTreeMap<String, CursorState>,
+    ) {
+        if self.dirty {
+            self.dirty = false;
+            let solved = stage.solve();
+            publisher.publish(stage, &solved, self.newest);
+            publisher.publish_weights(stage);
+            if taking.record(stage, &solved) {
+                taking.publish(&publisher.changes);
+            }
+        }
+        if self.cursors_changed {
+            self.cursors_changed = false;
+            publisher.publish_cursors(cursors);
+        }
+    }
 }

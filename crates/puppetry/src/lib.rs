@@ -16,3 +16,4 @@ pub mod bench;
 pub mod bundled;
 pub mod cli;
 pub mod compare;
+pub mod takes;

@@ -43,6 +43,28 @@ enum Command {
         /// compiled into the binary (for client development).
         #[arg(long)]
         web_root: Option<PathBuf>,
+        /// Record a take into this folder from the first input to shutdown
+        /// (and list and play takes from it).
+        #[arg(long, value_name = "DIR")]
+        record: Option<PathBuf>,
+        /// Where takes are recorded, listed and played from (default
+        /// ./takes; --record sets it too).
+        #[arg(long, value_name = "DIR", conflicts_with = "record")]
+        takes: Option<PathBuf>,
+        /// Play this take (.take) into the stage at start (with --fast, as
+        /// fast as the stage takes it).
+        #[arg(long, value_name = "TAKE")]
+        play: Option<PathBuf>,
+    },
+    /// List the takes in a folder: name, length, steps, frames, how each
+    /// ended. With --verify, replay each into the stage (--config, default
+    /// the bundled demo) and check its frames bit for bit.
+    Takes {
+        dir: PathBuf,
+        #[arg(long)]
+        verify: bool,
+        #[arg(long)]
+        config: Option<PathBuf>,
     },
     /// Build a triangle mesh from a PNG (traced from its alpha channel) or a
     /// polygon JSON file; writes `.mesh.json` (see docs/mesh-format.md).
@@ -192,6 +214,9 @@ fn run(args: Args) -> anyhow::Result<()> {
             fast,
             listen,
             web_root,
+            record,
+            takes,
+            play,
         } => {
             tracing_subscriber::fmt()
                 .with_env_filter(
@@ -219,12 +244,20 @@ fn run(args: Args) -> anyhow::Result<()> {
             };
             let runtime = tokio::runtime::Runtime::new()?;
             runtime.block_on(async {
-                let running = puppetry_daemon::serve::start(
-                    &stage,
-                    web_files,
-                    replay.map(|file| (file, pacing)),
-                )
-                .await?;
+                let mut options = puppetry_daemon::serve::Options::new(web_files);
+                options.extra_replay = replay.map(|file| (file, pacing));
+                options.record = record.is_some();
+                if let Some(dir) = record.or(takes) {
+                    options.takes_dir = dir;
+                }
+                options.play = play.map(|take| {
+                    let play = puppetry_daemon::takes::PlayOptions {
+                        fast,
+                        ..Default::default()
+                    };
+                    (take, play)
+                });
+                let running = puppetry_daemon::serve::start_with(&stage, options).await?;
                 let address = running.address;
                 println!("puppetry: serving {} at http://{address}/", path.display());
                 if let Some(token) = stage.access.performer_tokens.first() {
@@ -235,6 +268,22 @@ fn run(args: Args) -> anyhow::Result<()> {
                 running.shutdown().await;
                 anyhow::Ok(())
             })?;
+        }
+        Command::Takes {
+            dir,
+            verify,
+            config,
+        } => {
+            let config = match config {
+                Some(path) => path,
+                None => puppetry::bundled::demo_stage()?,
+            };
+            let (report, ok) =
+                puppetry::takes::takes_command(&dir, verify.then_some(config.as_path()))?;
+            print!("{report}");
+            if !ok {
+                anyhow::bail!("a take did not replay exactly (see above)");
+            }
         }
         Command::Devices { dir, config } => {
             let config = config

@@ -18,12 +18,22 @@ use serde::{Deserialize, Serialize};
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Change {
     /// An input frame: contacts landed, moved or lifted.
-    Contacts { frame: ContactFrame },
+    Contacts {
+        frame: ContactFrame,
+    },
     /// A source went away: every contact it held is lifted.
-    Release { source: String },
+    Release {
+        source: String,
+    },
     /// A pin on what a contact at `at` would grab.
-    Pin { owner: String, at: DVec2 },
-    Unpin { puppet: u32, handle: u64 },
+    Pin {
+        owner: String,
+        at: DVec2,
+    },
+    Unpin {
+        puppet: u32,
+        handle: u64,
+    },
     /// One dab of the stiffness brush.
     Paint {
         puppet: u32,
@@ -40,15 +50,32 @@ pub enum Change {
     },
     /// A free-form puppet's solver, rebuilt with painted weights of this
     /// generation, was swapped in (the rebuild itself ran elsewhere).
-    Rebuilt { puppet: u32, generation: u64 },
+    Rebuilt {
+        puppet: u32,
+        generation: u64,
+    },
     /// The keyframing pad's control cursor of a puppet moved (pad
     /// coordinates, `[0, 1]²`), or was let go (`None`).
-    Cursor { puppet: u32, at: Option<DVec2> },
+    Cursor {
+        puppet: u32,
+        at: Option<DVec2>,
+    },
     /// A key pose made from the puppet's current pose, at a pad point.
-    KeyAdd { puppet: u32, name: String, at: DVec2 },
+    KeyAdd {
+        puppet: u32,
+        name: String,
+        at: DVec2,
+    },
     /// A key pose moved to another pad point.
-    KeyMove { puppet: u32, key: usize, at: DVec2 },
-    KeyDelete { puppet: u32, key: usize },
+    KeyMove {
+        puppet: u32,
+        key: usize,
+        at: DVec2,
+    },
+    KeyDelete {
+        puppet: u32,
+        key: usize,
+    },
 }
 
 /// What a handle holds, as events name it: a material point by its rest
@@ -71,10 +98,20 @@ pub enum StageEvent {
         puppet: u32,
         handle: u64,
         owner: String,
+        /// The owner's contact that grabbed it (none for pins).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        contact: Option<u32>,
         kind: String,
         grip: GripEvent,
         at: DVec2,
     },
-    Moved { puppet: u32, handle: u64, at: DVec2 },
-    Removed { puppet: u32, handle: u64 },
+    Moved {
+        puppet: u32,
+        handle: u64,
+        at: DVec2,
+    },
+    Removed {
+        puppet: u32,
+        handle: u64,
+    },
 }

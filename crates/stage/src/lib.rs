@@ -13,6 +13,7 @@
 
 pub mod change;
 pub mod config;
+pub mod keys;
 pub mod rig;
 
 use std::collections::HashMap;
@@ -393,6 +394,7 @@ impl Stage {
                         Grip::Point(anchor),
                         at,
                         DVec2::ZERO,
+                        None,
                     )
                 });
                 if pinned.is_none() {
@@ -430,6 +432,7 @@ impl Stage {
                         Owner::Source(source.clone()),
                         HandleKind::Contact,
                         contact.position,
+                        Some(contact.id),
                     ) {
                         self.grabs.insert(key, grab);
                     }
@@ -495,12 +498,18 @@ impl Stage {
 
     /// A new handle at `at` on the topmost puppet there: a grid handle or
     /// joint within the grab radius, else the material point.
-    fn grab(&mut self, owner: Owner, kind: HandleKind, at: DVec2) -> Option<(usize, u64)> {
+    fn grab(
+        &mut self,
+        owner: Owner,
+        kind: HandleKind,
+        at: DVec2,
+        contact: Option<u32>,
+    ) -> Option<(usize, u64)> {
         let radius = self.grab_radius();
         for puppet in (0..self.puppets.len()).rev() {
             match self.puppets[puppet].reach(at, radius) {
                 Reach::Grip(grip, offset) => {
-                    let id = self.add_handle(puppet, owner, kind, grip, at, offset)?;
+                    let id = self.add_handle(puppet, owner, kind, grip, at, offset, contact)?;
                     return Some((puppet, id));
                 }
                 Reach::Blocked => return None,
@@ -510,6 +519,7 @@ impl Stage {
         None
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn add_handle(
         &mut self,
         puppet: usize,
@@ -518,6 +528,7 @@ impl Stage {
         grip: Grip,
         at: DVec2,
         offset: DVec2,
+        contact: Option<u32>,
     ) -> Option<u64> {
         let id = self.next_handle;
         self.next_handle += 1;
@@ -527,6 +538,7 @@ impl Stage {
                 puppet: p.id,
                 handle: id,
                 owner: owner.to_string(),
+                contact,
                 kind: match kind {
                     HandleKind::Contact => "contact",
                     HandleKind::Pin => "pin",
@@ -602,7 +614,7 @@ impl Stage {
     /// Pins what a contact landing at `at` would grab (a material point, a
     /// grid handle or a joint); returns (puppet, handle id).
     pub fn pin(&mut self, owner: Owner, at: DVec2) -> Option<(u32, u64)> {
-        self.grab(owner, HandleKind::Pin, at)
+        self.grab(owner, HandleKind::Pin, at, None)
             .map(|(puppet, id)| (puppet as u32, id))
     }
 

@@ -273,7 +273,10 @@ impl Record {
                 .map_err(|e| json("end") + &e.to_string()),
             KIND_FRAME => {
                 if payload.len() < 16 {
-                    return Err(format!("frame: {} bytes, shorter than its head", payload.len()));
+                    return Err(format!(
+                        "frame: {} bytes, shorter than its head",
+                        payload.len()
+                    ));
                 }
                 let u32_at = |o: usize| u32::from_le_bytes(payload[o..o + 4].try_into().unwrap());
                 let puppet = u32_at(0);
@@ -360,7 +363,11 @@ pub enum Tail {
     Unended,
     /// The last record is partial or damaged (the daemon was killed while
     /// writing it): it and what follows were skipped.
-    Truncated { offset: u64, bytes: u64, problem: String },
+    Truncated {
+        offset: u64,
+        bytes: u64,
+        problem: String,
+    },
 }
 
 /// Reads a take record by record, in bounded memory.

@@ -121,15 +121,16 @@ pub fn verify(path: &Path, stage: Stage) -> Result<Verification, TakeError> {
                     ));
                     continue;
                 }
-                if let Some((v, (r, q))) = frame
-                    .points
-                    .iter()
-                    .zip(pose)
-                    .enumerate()
-                    .find(|(_, (r, q))| {
-                        r[0].to_bits() != (q.x as f32).to_bits()
-                            || r[1].to_bits() != (q.y as f32).to_bits()
-                    })
+                if let Some((v, (r, q))) =
+                    frame
+                        .points
+                        .iter()
+                        .zip(pose)
+                        .enumerate()
+                        .find(|(_, (r, q))| {
+                            r[0].to_bits() != (q.x as f32).to_bits()
+                                || r[1].to_bits() != (q.y as f32).to_bits()
+                        })
                 {
                     first_mismatch = Some(format!(
                         "frame {frames} (puppet {}, t {:.4}): vertex {v} recorded {:?}, replayed [{}, {}]",

@@ -132,6 +132,14 @@ pub struct Shared {
     pub outputs: Vec<PuppetOutput>,
     /// The newest "cursors" message (mouse cursors on the stage).
     pub cursors: watch::Receiver<Arc<str>>,
+    /// The newest "take" message (recording and playing now).
+    pub take: watch::Receiver<Arc<str>>,
+    /// Where takes are recorded and listed.
+    pub takes_dir: std::path::PathBuf,
+    /// The stage's puppets as takes name them (rest-mesh hashes).
+    pub take_puppets: Vec<puppetry_take::PuppetInfo>,
+    /// The take playing, if any (never locked across an await).
+    pub player: std::sync::Mutex<Option<crate::takes::Player>>,
     /// Bumped by the stage thread after each publish.
     pub changes: watch::Receiver<u64>,
     pub client_timeout: Duration,
@@ -234,11 +242,13 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     .await?;
     let mut changes = shared.changes.clone();
     let mut cursors = shared.cursors.clone();
+    let mut take = shared.take.clone();
     // Frames published before this client connected still count as new.
     for f in frames.iter_mut().chain(&mut rigs) {
         f.mark_changed();
     }
     cursors.mark_changed();
+    take.mark_changed();
     let mut bad_in_a_row = 0u32;
     let result: std::io::Result<()> = async {
         loop {
@@ -267,6 +277,10 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
             }
             if cursors.has_changed().unwrap_or(false) {
                 let text = cursors.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
+            }
+            if take.has_changed().unwrap_or(false) {
+                let text = take.borrow_and_update().to_string();
                 send(&mut ws, Message::text(text), shared.client_timeout).await?;
             }
             tokio::select! {
@@ -395,6 +409,9 @@ async fn handle_message(
                 )
             });
     }
+    if let ClientMessage::ListTakes = message {
+        return list_takes(shared).await.map(Some);
+    }
     if role != Role::Performer && !matches!(message, ClientMessage::Hello { .. }) {
         return Err("viewers cannot send input".into());
     }
@@ -486,7 +503,41 @@ async fn handle_message(
                 .to_text(),
             ));
         }
-        ClientMessage::ExportGrid { .. } => unreachable!("answered above"),
+        ClientMessage::ExportGrid { .. } | ClientMessage::ListTakes => {
+            unreachable!("answered above")
+        }
+        ClientMessage::Record { name } => {
+            start_take(shared, name, Vec::new()).await?;
+            return Ok(None);
+        }
+        ClientMessage::StopRecording => {
+            stop_take(shared).await?;
+            return Ok(None);
+        }
+        ClientMessage::Play {
+            take,
+            overdub,
+            replace,
+            replace_sources,
+        } => {
+            play_take(shared, &take, overdub, replace, replace_sources).await?;
+            return Ok(None);
+        }
+        ClientMessage::StopPlaying => {
+            let player = shared
+                .player
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .take();
+            match player {
+                Some(player) => {
+                    player.stop();
+                    let _ = tokio::task::spawn_blocking(move || player.join()).await;
+                }
+                None => return Err("no take is playing".into()),
+            }
+            return Ok(None);
+        }
     };
     shared
         .commands
@@ -494,4 +545,117 @@ async fn handle_message(
         .await
         .map(|()| None)
         .map_err(|_| "the stage is shutting down".to_string())
+}
+
+async fn start_take(
+    shared: &Shared,
+    name: Option<String>,
+    layers: Vec<String>,
+) -> Result<String, String> {
+    let (reply, answer) = tokio::sync::oneshot::channel();
+    shared
+        .commands
+        .send(Command::StartTake {
+            name,
+            layers,
+            reply,
+        })
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?;
+    answer
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?
+}
+
+async fn stop_take(shared: &Shared) -> Result<String, String> {
+    let (reply, answer) = tokio::sync::oneshot::channel();
+    shared
+        .commands
+        .send(Command::StopTake { reply })
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?;
+    answer
+        .await
+        .map_err(|_| "the stage is shutting down".to_string())?
+}
+
+/// Plays a take; with `overdub`, records a new take of it and the live
+/// hands, which stops when the played take ends.
+async fn play_take(
+    shared: &Shared,
+    take: &str,
+    overdub: bool,
+    replace: Vec<crate::protocol::Region>,
+    replace_sources: Vec<String>,
+) -> Result<(), String> {
+    let path = crate::takes::take_path(&shared.takes_dir, take)?;
+    {
+        let mut slot = shared.player.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(p) = slot.as_ref() {
+            if !p.is_finished() {
+                return Err(format!("take {} is already playing", p.name));
+            }
+            *slot = None;
+        }
+    }
+    if overdub {
+        start_take(shared, None, vec![take.to_string()]).await?;
+    }
+    let options = crate::takes::PlayOptions {
+        fast: false,
+        replace,
+        replace_sources,
+    };
+    let puppets = shared.take_puppets.clone();
+    let commands = shared.commands.clone();
+    let started = shared.started;
+    let opened = tokio::task::spawn_blocking(move || {
+        crate::takes::play(&path, &puppets, options, commands, started)
+    })
+    .await
+    .map_err(|e| e.to_string())?;
+    let player = match opened {
+        Ok(player) => player,
+        Err(e) => {
+            if overdub {
+                let _ = stop_take(shared).await;
+            }
+            return Err(e);
+        }
+    };
+    let mut slot = shared.player.lock().unwrap_or_else(|p| p.into_inner());
+    *slot = Some(player);
+    Ok(())
+}
+
+/// The `takes` message: every take in the takes folder.
+async fn list_takes(shared: &Shared) -> Result<String, String> {
+    let dir = shared.takes_dir.clone();
+    let listed = tokio::task::spawn_blocking(move || {
+        if !dir.exists() {
+            return Ok(Vec::new());
+        }
+        puppetry_take::list(&dir)
+    })
+    .await
+    .map_err(|e| e.to_string())?
+    .map_err(|e| e.to_string())?;
+    let takes = listed
+        .into_iter()
+        .filter_map(|t| match t {
+            Ok(t) => Some(crate::protocol::TakeView {
+                name: t.name,
+                duration: t.duration,
+                steps: t.steps,
+                frames: t.frames,
+                ending: t.ending,
+                layers: t.layers,
+            }),
+            Err(e) => {
+                tracing::warn!("{e}");
+                None
+            }
+        })
+        .collect();
+    Ok(ServerMessage::Takes { takes }.to_text())
 }

@@ -12,5 +12,6 @@ mod edge;
 mod install;
 mod rigs;
 mod serve;
+mod takes;
 mod web;
 mod web_rigs;

@@ -38,6 +38,7 @@ fn step(i: usize) -> Step {
             puppet: 0,
             handle: 3,
             owner: "evdev0".into(),
+            contact: Some(7),
             kind: "contact".into(),
             grip: GripEvent::Point {
                 rest: DVec2::new(1.0 / 3.0, 2.0),
@@ -139,7 +140,9 @@ fn foreign_files_are_refused_by_name() {
     let err = TakeReader::open(&path).err().unwrap();
     assert!(matches!(err, TakeError::NotATake { .. }));
     assert!(err.to_string().contains("notes.take"), "{err}");
-    let missing = TakeReader::open(&dir.path().join("gone.take")).err().unwrap();
+    let missing = TakeReader::open(&dir.path().join("gone.take"))
+        .err()
+        .unwrap();
     assert!(missing.to_string().contains("gone.take"), "{missing}");
 }
 

@@ -1,0 +1,264 @@
+//! Playing takes into the live stage: a player thread reads a take step by
+//! step and hands each step to the stage thread at the time it was
+//! recorded (or at once with `fast`), renaming its sources so they never
+//! collide with live ones. Overdub leaves out what the live performers
+//! replace: the played take's contacts from named sources, or those that
+//! grabbed a material point inside a region of the rest shape.
+//!
+//! Reading runs on a thread of its own (takes are files; the async tasks
+//! never wait on the disk); steps reach the stage thread through the same
+//! bounded command channel as every source, so none is dropped.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use glam::DVec2;
+use puppetry_input::{Phase, SourceId};
+use puppetry_stage::{Change, GripEvent, StageEvent};
+use puppetry_take::{PuppetInfo, Record, Step, TakeReader};
+use tokio::sync::mpsc;
+
+use crate::protocol::Region;
+use crate::stage_thread::Command;
+
+/// How a take is played.
+#[derive(Debug, Clone, Default)]
+pub struct PlayOptions {
+    /// As fast as the stage takes the steps, not at their recorded times.
+    pub fast: bool,
+    /// Contacts that grabbed a material point inside one of these are left
+    /// out (a live performer re-records that part).
+    pub replace: Vec<Region>,
+    /// Contacts of these recorded sources are left out.
+    pub replace_sources: Vec<String>,
+}
+
+/// A take playing.
+pub struct Player {
+    pub name: String,
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<Result<usize, String>>>,
+}
+
+impl Player {
+    /// Asks the player to stop after the step it is on.
+    pub fn stop(&self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+
+    pub fn is_finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
+    /// Waits for the player; returns the steps played.
+    pub fn join(mut self) -> Result<usize, String> {
+        match self.thread.take() {
+            Some(t) => t
+                .join()
+                .unwrap_or_else(|_| Err("the player panicked".into())),
+            None => Ok(0),
+        }
+    }
+}
+
+/// Opens the take at `path`, checks it against the stage's puppets and
+/// starts playing it; `done` runs on the player thread when it ends.
+pub fn play(
+    path: &Path,
+    puppets: &[PuppetInfo],
+    options: PlayOptions,
+    commands: mpsc::Sender<Command>,
+    started: Instant,
+) -> Result<Player, String> {
+    let reader = TakeReader::open(path).map_err(|e| e.to_string())?;
+    check(&reader.header.puppets, puppets).map_err(|p| format!("{}: {p}", path.display()))?;
+    let name = reader.header.name.clone();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stopping = stop.clone();
+    let label = name.clone();
+    let thread = std::thread::Builder::new()
+        .name(format!("play {name}"))
+        .spawn(move || {
+            let _ = commands.blocking_send(Command::Playing(Some(label.clone())));
+            let result = run(reader, &label, &options, &commands, started, &stopping);
+            let _ = commands.blocking_send(Command::Playing(None));
+            result
+        })
+        .map_err(|e| format!("cannot start a player: {e}"))?;
+    Ok(Player {
+        name,
+        stop,
+        thread: Some(thread),
+    })
+}
+
+/// Why a take does not fit the stage it is played into.
+fn check(recorded: &[PuppetInfo], stage: &[PuppetInfo]) -> Result<(), String> {
+    if recorded.len() != stage.len() {
+        return Err(format!(
+            "recorded with {} puppets, the stage has {}",
+            recorded.len(),
+            stage.len()
+        ));
+    }
+    for (i, (r, s)) in recorded.iter().zip(stage).enumerate() {
+        if r.name != s.name || r.rest_hash != s.rest_hash {
+            return Err(format!(
+                "puppets[{i}]: recorded as {:?} (rest mesh {}), the stage has {:?} (rest mesh {})",
+                r.name, r.rest_hash, s.name, s.rest_hash
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn run(
+    reader: TakeReader,
+    name: &str,
+    options: &PlayOptions,
+    commands: &mpsc::Sender<Command>,
+    started: Instant,
+    stop: &AtomicBool,
+) -> Result<usize, String> {
+    let began = Instant::now();
+    let mut filter = Filter::new(name, options);
+    let mut played = 0;
+    let file = reader.file().to_string();
+    for record in reader {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        let Record::Step(step) = record.map_err(|e| e.to_string())? else {
+            continue;
+        };
+        if !options.fast {
+            let due = began + Duration::from_secs_f64(step.t.max(0.0));
+            // Sleep in short slices so a stop request is heard.
+            while let Some(wait) = due.checked_duration_since(Instant::now()) {
+                if stop.load(Ordering::Relaxed) {
+                    return Ok(played);
+                }
+                std::thread::sleep(wait.min(Duration::from_millis(50)));
+            }
+        }
+        let changes = filter.step(step);
+        if changes.is_empty() {
+            continue;
+        }
+        let received = started.elapsed().as_secs_f64();
+        if commands
+            .blocking_send(Command::Played { changes, received })
+            .is_err()
+        {
+            return Err(format!("{file}: the stage stopped"));
+        }
+        played += 1;
+    }
+    tracing::info!("take {name}: played {played} steps");
+    Ok(played)
+}
+
+/// Renames a played take's sources and leaves out what is replaced.
+struct Filter<'a> {
+    prefix: String,
+    options: &'a PlayOptions,
+    /// Recorded (source, contact) left out until they lift.
+    muted: HashSet<(String, u32)>,
+}
+
+impl<'a> Filter<'a> {
+    fn new(name: &str, options: &'a PlayOptions) -> Filter<'a> {
+        Filter {
+            prefix: format!("{name}/"),
+            options,
+            muted: HashSet::new(),
+        }
+    }
+
+    fn renamed(&self, source: &str) -> String {
+        format!("{}{source}", self.prefix)
+    }
+
+    /// Whether the contact that made a handle in this step is replaced.
+    fn replaced(&self, events: &[StageEvent], source: &str, contact: u32) -> bool {
+        if self.options.replace_sources.iter().any(|s| s == source) {
+            return true;
+        }
+        events.iter().any(|e| match e {
+            StageEvent::Made {
+                puppet,
+                owner,
+                contact: Some(c),
+                grip: GripEvent::Point { rest },
+                ..
+            } if owner == source && *c == contact => self
+                .options
+                .replace
+                .iter()
+                .any(|r| r.puppet == *puppet && rest.distance(DVec2::from(r.at)) <= r.radius),
+            _ => false,
+        })
+    }
+
+    fn step(&mut self, step: Step) -> Vec<Change> {
+        let mut out = Vec::with_capacity(step.changes.len());
+        for change in step.changes {
+            match change {
+                Change::Contacts { mut frame } => {
+                    let source = frame.source.to_string();
+                    let mut kept = Vec::with_capacity(frame.contacts.len());
+                    for contact in frame.contacts {
+                        let key = (source.clone(), contact.id);
+                        let skip = match contact.phase {
+                            Phase::Down => {
+                                let replaced = self.replaced(&step.events, &source, contact.id);
+                                if replaced {
+                                    self.muted.insert(key);
+                                } else {
+                                    self.muted.remove(&key);
+                                }
+                                replaced
+                            }
+                            Phase::Move => self.muted.contains(&key),
+                            Phase::Up => self.muted.remove(&key),
+                        };
+                        if !skip {
+                            kept.push(contact);
+                        }
+                    }
+                    if !kept.is_empty() {
+                        frame.contacts = kept;
+                        frame.source = SourceId::new(self.renamed(&source));
+                        out.push(Change::Contacts { frame });
+                    }
+                }
+                Change::Release { source } => {
+                    self.muted.retain(|(s, _)| *s != source);
+                    out.push(Change::Release {
+                        source: self.renamed(&source),
+                    });
+                }
+                Change::Pin { owner, at } => out.push(Change::Pin {
+                    owner: self.renamed(&owner),
+                    at,
+                }),
+                // The live daemon swaps in its own rebuilt solvers.
+                Change::Rebuilt { .. } => {}
+                other => out.push(other),
+            }
+        }
+        out
+    }
+}
+
+/// The takes folder's file for a take name, refusing names that would
+/// leave the folder.
+pub fn take_path(dir: &Path, name: &str) -> Result<PathBuf, String> {
+    if !puppetry_take::valid_name(name) {
+        return Err(format!("take {name:?}: not a take name"));
+    }
+    Ok(dir.join(format!("{name}.{}", puppetry_take::EXTENSION)))
+}

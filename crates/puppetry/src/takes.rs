@@ -1,0 +1,88 @@
+//! `puppetry takes DIR [--verify]`: the takes in a folder, and whether each
+//! replays bit for bit into its stage.
+
+use std::fmt::Write;
+use std::path::Path;
+
+use puppetry_stage::Stage;
+use puppetry_stage::config::StageConfig;
+use puppetry_take::replay::verify;
+use puppetry_take::{Tail, TakeError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TakesError {
+    #[error(transparent)]
+    Take(#[from] TakeError),
+    #[error(transparent)]
+    Config(#[from] puppetry_stage::config::ConfigError),
+    #[error(transparent)]
+    Stage(#[from] puppetry_stage::StageError),
+}
+
+/// The listing (and, with a stage file, the replay check of each take);
+/// the flag is false when a take failed to replay exactly.
+pub fn takes_command(dir: &Path, verify_with: Option<&Path>) -> Result<(String, bool), TakesError> {
+    let config = verify_with.map(StageConfig::load).transpose()?;
+    let mut out = String::new();
+    let mut ok = true;
+    let takes = puppetry_take::list(dir)?;
+    if takes.is_empty() {
+        let _ = writeln!(out, "no takes in {}", dir.display());
+    }
+    for take in takes {
+        let take = match take {
+            Ok(t) => t,
+            Err(e) => {
+                ok = false;
+                let _ = writeln!(out, "{e}");
+                continue;
+            }
+        };
+        let _ = writeln!(
+            out,
+            "{}  {:.2} s  {} steps  {} frames  {}{}{}",
+            take.name,
+            take.duration,
+            take.steps,
+            take.frames,
+            take.ending,
+            if take.layers.is_empty() {
+                String::new()
+            } else {
+                format!("  overdub of {}", take.layers.join(", "))
+            },
+            if take.fresh { "" } else { "  (began mid-show)" },
+        );
+        if let Some(config) = &config {
+            let stage = Stage::from_config(config)?;
+            match verify(&take.file, stage) {
+                Ok(v) => {
+                    let tail = match &v.tail {
+                        Tail::Truncated { bytes, .. } => {
+                            format!(", {bytes} bytes of cut tail skipped")
+                        }
+                        _ => String::new(),
+                    };
+                    match v.first_mismatch {
+                        None => {
+                            let _ = writeln!(
+                                out,
+                                "  replays exactly: {} frames of {} steps{tail}",
+                                v.frames, v.steps
+                            );
+                        }
+                        Some(m) => {
+                            ok &= !take.fresh;
+                            let _ = writeln!(out, "  differs: {m}");
+                        }
+                    }
+                }
+                Err(e) => {
+                    ok = false;
+                    let _ = writeln!(out, "  cannot replay: {e}");
+                }
+            }
+        }
+    }
+    Ok((out, ok))
+}

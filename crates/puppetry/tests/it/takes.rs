@@ -1,0 +1,422 @@
+//! Takes end to end: a take recorded from two real touch captures replays
+//! bit for bit (offline and through a second daemon), a killed daemon's
+//! take reads back, a full disk stops the take but not the show, and
+//! performers record, list, play and overdub takes over WebSocket.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use futures_util::SinkExt;
+use puppetry_daemon::serve::{Options, Running, start_with};
+use puppetry_daemon::stream::WebFiles;
+use puppetry_stage::config::StageConfig;
+use puppetry_stage::{Change, Stage};
+use puppetry_take::replay::verify;
+use puppetry_take::{Frame, Record, Tail, TakeReader, summarize};
+use serde_json::{Value, json};
+use tokio_tungstenite::tungstenite::Message;
+
+use crate::common::daemon::{PLAYS, WAIT, connect, next_text, root, stage_config};
+
+/// Two real captures, each calibrated onto the puppet, played once at
+/// their own pace (so the stage solves between their frames).
+fn two_captures() -> String {
+    let evemu = root().join("../shared/fixtures/evemu");
+    format!(
+        r#"
+[[input]]
+kind = "replay"
+name = "wetab"
+file = "{wetab}"
+calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], flip_y = true, stage_min = [590, 320], stage_max = [690, 400] }}
+
+[[input]]
+kind = "replay"
+name = "ntrig"
+file = "{ntrig}"
+calibration = {{ kind = "range", x = [0, 9600], y = [0, 7200], flip_y = true, stage_min = [600, 330], stage_max = [680, 420] }}
+"#,
+        wetab = evemu.join("wetab.event").display(),
+        ntrig = evemu.join("ntrig-dell-xt2.event").display(),
+    )
+}
+
+fn options(takes: &Path) -> Options {
+    let mut o = Options::new(WebFiles::Embedded);
+    o.takes_dir = takes.to_path_buf();
+    o
+}
+
+/// Waits (bounded) until every input and player has ended, then shuts the
+/// daemon down: the stage thread applies what is queued before it stops.
+async fn finish(running: Running) {
+    let deadline = Instant::now() + PLAYS;
+    while !running.inputs_done() {
+        assert!(Instant::now() < deadline, "the inputs did not end");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    running.shutdown().await;
+}
+
+fn only_take(dir: &Path) -> PathBuf {
+    let takes: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(takes.len(), 1, "{takes:?}");
+    takes[0].clone()
+}
+
+fn frames_and_steps(path: &Path) -> (Vec<Frame>, Vec<puppetry_take::Step>) {
+    let (mut frames, mut steps) = (Vec::new(), Vec::new());
+    for record in TakeReader::open(path).unwrap() {
+        match record.unwrap() {
+            Record::Frame(f) => frames.push(f),
+            Record::Step(s) => steps.push(s),
+            _ => {}
+        }
+    }
+    (frames, steps)
+}
+
+fn sources(steps: &[puppetry_take::Step]) -> Vec<String> {
+    let mut sources: Vec<String> = steps
+        .iter()
+        .flat_map(|s| &s.changes)
+        .filter_map(|c| match c {
+            Change::Contacts { frame } => Some(frame.source.to_string()),
+            _ => None,
+        })
+        .collect();
+    sources.sort();
+    sources.dedup();
+    sources
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_take_of_two_real_captures_replays_bit_for_bit() {
+    let config = stage_config(&two_captures());
+    let first = tempfile::tempdir().unwrap();
+    let mut o = options(first.path());
+    o.record = true;
+    finish(start_with(&config, o).await.unwrap()).await;
+    let take = only_take(first.path());
+    let (recorded, steps) = frames_and_steps(&take);
+    assert_eq!(sources(&steps), ["ntrig", "wetab"], "both sources recorded");
+    assert!(recorded.len() > 20, "{} frames", recorded.len());
+    let summary = summarize(&take).unwrap();
+    assert_eq!(summary.ending, "shutdown");
+    assert!(summary.fresh);
+
+    // Offline: the steps replayed into a fresh stage give every frame.
+    let v = verify(&take, Stage::from_config(&config).unwrap()).unwrap();
+    assert_eq!(v.first_mismatch, None);
+    assert_eq!(v.frames, recorded.len());
+
+    // Through a daemon: play the take as fast as it goes and record that.
+    let quiet = stage_config("");
+    let second = tempfile::tempdir().unwrap();
+    let mut o = options(second.path());
+    o.record = true;
+    o.play = Some((
+        take.clone(),
+        puppetry_daemon::takes::PlayOptions {
+            fast: true,
+            ..Default::default()
+        },
+    ));
+    finish(start_with(&quiet, o).await.unwrap()).await;
+    let (replayed, _) = frames_and_steps(&only_take(second.path()));
+    assert_eq!(replayed.len(), recorded.len());
+    for (k, (a, b)) in recorded.iter().zip(&replayed).enumerate() {
+        assert_eq!(a.puppet, b.puppet, "frame {k}");
+        let bits = |f: &Frame| -> Vec<u32> {
+            f.points
+                .iter()
+                .flat_map(|p| [p[0].to_bits(), p[1].to_bits()])
+                .collect()
+        };
+        assert!(bits(a) == bits(b), "frame {k} differs");
+    }
+}
+
+/// A stage file on disk (for the binary) with a looping real-time replay.
+fn stage_file(dir: &Path) -> PathBuf {
+    let config = stage_config("");
+    let _ = config;
+    let assets = root().join("assets/gingerbread");
+    let evemu = root().join("../shared/fixtures/evemu");
+    let text = format!(
+        r#"
+[stage]
+width = 1280
+height = 720
+listen = "127.0.0.1:0"
+
+[access]
+performer_tokens = ["secret"]
+
+[[puppet]]
+name = "gingerbread"
+image = "{image}"
+mesh = "{mesh}"
+at = [640, 360]
+pins = [[168, 58], [344, 58]]
+
+[[input]]
+kind = "replay"
+name = "wetab"
+file = "{wetab}"
+repeat = true
+calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], flip_y = true, stage_min = [590, 320], stage_max = [690, 400] }}
+"#,
+        image = assets.join("gingerbread.png").display(),
+        mesh = assets.join("gingerbread.mesh.json").display(),
+        wetab = evemu.join("wetab.event").display(),
+    );
+    let path = dir.join("stage.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Starts the binary serving `stage` and recording into `takes`, through
+/// `sh` so a file-size limit can stand in for a full disk; returns the child
+/// and its address.
+fn serve_binary(
+    stage: &Path,
+    takes: &Path,
+    size_limit_kb: Option<u32>,
+) -> (std::process::Child, String) {
+    use std::io::BufRead;
+    let limit = size_limit_kb
+        .map(|kb| format!("trap '' XFSZ; ulimit -f {kb}; "))
+        .unwrap_or_default();
+    let script = format!(
+        "{limit}exec '{bin}' serve --config '{stage}' --record '{takes}'",
+        bin = env!("CARGO_BIN_EXE_puppetry"),
+        stage = stage.display(),
+        takes = takes.display(),
+    );
+    let mut child = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(script)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    out.read_line(&mut line).unwrap();
+    let address = line
+        .split("http://")
+        .nth(1)
+        .and_then(|rest| rest.split('/').next())
+        .unwrap_or_else(|| panic!("no address in {line:?}"))
+        .to_string();
+    // Keep reading stdout so the daemon never blocks on a full pipe.
+    std::thread::spawn(move || for _ in out.lines() {});
+    (child, address)
+}
+
+#[test]
+fn a_killed_daemon_leaves_a_take_that_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    let (mut child, _) = serve_binary(&stage_file(dir.path()), &takes, None);
+    // Until the take holds frames on disk (bounded).
+    let deadline = Instant::now() + PLAYS;
+    let take = takes.join("take-001.take");
+    loop {
+        if let Ok(s) = summarize(&take)
+            && s.frames >= 20
+        {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no frames reached the take");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SIGKILL: no chance to finish the take.
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let summary = summarize(&take).unwrap();
+    assert!(
+        summary.ending == "unended" || summary.ending.starts_with("truncated"),
+        "{}",
+        summary.ending
+    );
+    assert!(summary.frames >= 20);
+    let config = StageConfig::load(&dir.path().join("stage.toml")).unwrap();
+    let v = verify(&take, Stage::from_config(&config).unwrap()).unwrap();
+    assert_eq!(v.first_mismatch, None, "what was kept replays exactly");
+    assert!(!matches!(v.tail, Tail::Ended(_)));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_stops_the_take_and_the_show_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    // 64 KB of file at most: the take fails within a second of playing.
+    let (mut child, address) = serve_binary(&stage_file(dir.path()), &takes, Some(64));
+    let url = format!("ws://{address}/ws");
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    ws.send(Message::text(
+        json!({"type": "hello", "role": "viewer"}).to_string(),
+    ))
+    .await
+    .unwrap();
+    let error = tokio::time::timeout(PLAYS, async {
+        loop {
+            let m = next_text(&mut ws).await;
+            if m["type"] == "take"
+                && let Some(error) = m["error"].as_str()
+            {
+                return error.to_string();
+            }
+        }
+    })
+    .await
+    .expect("the take's error reached the page");
+    assert!(error.contains("take-001"), "{error}");
+    assert!(error.to_lowercase().contains("file too large"), "{error}");
+    // The show goes on: frames keep coming after the take stopped.
+    let mut frames = 0;
+    tokio::time::timeout(WAIT, async {
+        while frames < 5 {
+            if let Message::Binary(_) = crate::common::daemon::next_message(&mut ws).await {
+                frames += 1;
+            }
+        }
+    })
+    .await
+    .expect("frames after the take stopped");
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // What was written before the limit still reads.
+    summarize(&takes.join("take-001.take")).unwrap();
+}
+
+async fn take_state(
+    ws: &mut crate::common::daemon::Client,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    tokio::time::timeout(WAIT, async {
+        loop {
+            let m = next_text(ws).await;
+            if m["type"] == "take" && done(&m) {
+                return m;
+            }
+        }
+    })
+    .await
+    .expect("the take state")
+}
+
+async fn send(ws: &mut crate::common::daemon::Client, m: Value) {
+    ws.send(Message::text(m.to_string())).await.unwrap();
+}
+
+async fn drag(ws: &mut crate::common::daemon::Client, id: u32, from: [f64; 2], to: [f64; 2]) {
+    send(ws, json!({"type": "contacts", "contacts": [{"id": id, "phase": "down", "x": from[0], "y": from[1]}]})).await;
+    for i in 1..=20 {
+        let t = i as f64 / 20.0;
+        let x = from[0] + (to[0] - from[0]) * t;
+        let y = from[1] + (to[1] - from[1]) * t;
+        send(
+            ws,
+            json!({"type": "contacts", "contacts": [{"id": id, "phase": "move", "x": x, "y": y}]}),
+        )
+        .await;
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    send(
+        ws,
+        json!({"type": "contacts", "contacts": [{"id": id, "phase": "up"}]}),
+    )
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn performers_record_list_play_and_overdub_takes() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start_with(&stage_config(""), options(dir.path()))
+        .await
+        .unwrap();
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut ws, _) = connect(&running, hello.clone()).await;
+    let (mut other, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+
+    send(&mut ws, json!({"type": "record"})).await;
+    // Every client sees the red state.
+    take_state(&mut other, |m| m["recording"] == "take-001").await;
+    // Two hands: the head up-left, the right hand right.
+    drag(&mut ws, 1, [640.0, 470.0], [600.0, 500.0]).await;
+    drag(&mut ws, 2, [720.0, 380.0], [760.0, 380.0]).await;
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    take_state(&mut other, |m| m.get("recording").is_none()).await;
+
+    send(&mut other, json!({"type": "list_takes"})).await;
+    let list = tokio::time::timeout(WAIT, async {
+        loop {
+            let m = next_text(&mut other).await;
+            if m["type"] == "takes" {
+                return m;
+            }
+        }
+    })
+    .await
+    .unwrap();
+    assert_eq!(list["takes"][0]["name"], "take-001");
+    assert!(list["takes"][0]["steps"].as_u64().unwrap() > 20);
+
+    // Overdub: play take-001, replacing what its hand on the head did, while
+    // the live performer plays the left hand.
+    send(
+        &mut ws,
+        json!({"type": "play", "take": "take-001", "overdub": true,
+               "replace": [{"puppet": 0, "at": [640.0, 470.0], "radius": 15.0}]}),
+    )
+    .await;
+    take_state(&mut other, |m| {
+        m["playing"] == "take-001" && m["recording"] == "take-002"
+    })
+    .await;
+    drag(&mut ws, 3, [560.0, 380.0], [520.0, 380.0]).await;
+    // The overdub stops by itself when take-001 ends.
+    tokio::time::timeout(PLAYS, async {
+        loop {
+            let m = next_text(&mut other).await;
+            if m["type"] == "take" && m.get("playing").is_none() && m.get("recording").is_none() {
+                return;
+            }
+        }
+    })
+    .await
+    .expect("the overdub ended with its take");
+    running.shutdown().await;
+
+    let overdub = dir.path().join("take-002.take");
+    assert_eq!(summarize(&overdub).unwrap().layers, ["take-001"]);
+    let (_, steps) = frames_and_steps(&overdub);
+    let sources = sources(&steps);
+    assert!(
+        sources.iter().any(|s| s.starts_with("take-001/")),
+        "{sources:?}"
+    );
+    assert!(
+        sources.iter().any(|s| s.starts_with("client:")),
+        "{sources:?}"
+    );
+    // The replaced hand (contact 1 of take-001) was left out; contact 2 played.
+    let played: Vec<u32> = steps
+        .iter()
+        .flat_map(|s| &s.changes)
+        .filter_map(|c| match c {
+            Change::Contacts { frame } if frame.source.as_str().starts_with("take-001/") => {
+                Some(frame.contacts.iter().map(|c| c.id).collect::<Vec<_>>())
+            }
+            _ => None,
+        })
+        .flatten()
+        .collect();
+    assert!(played.contains(&2) && !played.contains(&1), "{played:?}");
+}
