@@ -13,7 +13,9 @@
 pub mod arap;
 pub mod ffd;
 pub mod measure;
+pub mod rbf;
 pub mod skeleton;
 pub mod sparse;
 
 pub use arap::{Anchor, Arap, ArapError, Steps};
+pub use rbf::{RbfBlend, RbfError};

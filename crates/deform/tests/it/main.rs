@@ -13,4 +13,5 @@ mod arap;
 mod ffd;
 mod measure;
 mod no_alloc;
+mod rbf;
 mod skeleton;

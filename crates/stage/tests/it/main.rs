@@ -4,4 +4,5 @@
 #[global_allocator]
 static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
 
+mod keys;
 mod rigs_no_alloc;
