@@ -1,0 +1,340 @@
+//! Exports of a recorded performance. The input is an [`Animation`]: a
+//! stage, its puppets (mesh, texture coordinates, picture) and, per puppet,
+//! the deformed vertices of every frame, already resampled to a fixed frame
+//! rate ([`resample`] turns irregular recorded frames into that). From it:
+//!
+//! - [`gltf`]: a glTF 2.0 binary (`.glb`), textured meshes animated by
+//!   morph targets in chunks;
+//! - [`frames`]: a PNG sequence drawn by our own software rasteriser
+//!   ([`raster`]), which matches the web renderer;
+//! - [`video`]: the same frames piped into `ffmpeg` (`.mp4`, `.mov` ProRes
+//!   4444 with alpha, `.webm` VP9 with alpha);
+//! - [`spine`]: Spine 4.2 JSON, a mesh attachment per puppet and a deform
+//!   timeline.
+//!
+//! Plain synchronous code: every exporter is a function taking the
+//! animation, its options and a [`Progress`], and writing a file (or a
+//! `Write`). Every bad input is refused with an [`ExportError`] naming the
+//! file, field or command-line flag.
+
+pub mod frames;
+pub mod gltf;
+pub mod raster;
+pub mod resample;
+pub mod spine;
+pub mod video;
+
+use std::io::BufReader;
+use std::path::Path;
+
+/// An error of an export: which file, field or flag, and what is wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    /// Reading or writing a file failed.
+    #[error("{file}: {source}")]
+    Io {
+        file: String,
+        source: std::io::Error,
+    },
+    /// A file's content or name is unusable (not a PNG, unknown extension),
+    /// or a tool working on it failed.
+    #[error("{file}: {problem}")]
+    File { file: String, problem: String },
+    /// A field of the [`Animation`] is inconsistent, e.g.
+    /// `puppets[0] "gingerbread".frames[3]`.
+    #[error("{field}: {problem}")]
+    Invalid { field: String, problem: String },
+    /// A command-line value is out of range: `--fps`, `--from`, `--to`,
+    /// `--size`, `--chunk`.
+    #[error("{flag}: {problem}")]
+    Flag { flag: String, problem: String },
+    /// An external program is not installed.
+    #[error("{tool} not found on PATH; install it ({install})")]
+    ToolMissing { tool: String, install: String },
+}
+
+pub(crate) fn io_error(file: &Path) -> impl FnOnce(std::io::Error) -> ExportError + '_ {
+    move |source| ExportError::Io {
+        file: file.display().to_string(),
+        source,
+    }
+}
+
+pub(crate) fn invalid(field: impl Into<String>, problem: impl Into<String>) -> ExportError {
+    ExportError::Invalid {
+        field: field.into(),
+        problem: problem.into(),
+    }
+}
+
+pub(crate) fn flag(flag: &str, problem: impl Into<String>) -> ExportError {
+    ExportError::Flag {
+        flag: flag.to_string(),
+        problem: problem.into(),
+    }
+}
+
+/// Told how far an export is: `done` of `total` steps (frames, or chunks
+/// for glTF). Called from the exporting thread, in increasing order, ending
+/// with `done == total`.
+pub trait Progress {
+    fn step(&mut self, done: usize, total: usize);
+}
+
+/// No progress reports.
+impl Progress for () {
+    fn step(&mut self, _done: usize, _total: usize) {}
+}
+
+/// A straight (not premultiplied) RGBA picture, 8 bits per channel, rows
+/// top to bottom.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RgbaImage {
+    pub width: u32,
+    pub height: u32,
+    /// `width × height × 4` bytes.
+    pub pixels: Vec<u8>,
+}
+
+/// One puppet of an [`Animation`]: its mesh, picture and motion.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AnimatedPuppet {
+    pub name: String,
+    /// Counter-clockwise triangles (at rest) over the vertices.
+    pub triangles: Vec<[u32; 3]>,
+    /// One texture coordinate per vertex, as the web renderer uses them:
+    /// `u = px / width`, `v = py / height`, v down from the picture's top
+    /// edge (the daemon sends the mesh's `uv` unflipped, and renderer.js
+    /// uploads the first image row at t = 0).
+    pub uv: Vec<[f32; 2]>,
+    pub image: RgbaImage,
+    /// Frame k: the deformed vertex positions in stage coordinates (y up).
+    pub frames: Vec<Vec<[f32; 2]>>,
+}
+
+impl AnimatedPuppet {
+    /// The number of vertices: one per texture coordinate.
+    pub fn vertex_count(&self) -> usize {
+        self.uv.len()
+    }
+}
+
+/// A self-contained animation at a fixed frame rate, the input of every
+/// exporter. Frame k is shown at `t = k / fps`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Animation {
+    /// The stage's size in stage units; y up, origin at the lower left.
+    pub stage_width: f64,
+    pub stage_height: f64,
+    pub fps: f64,
+    /// Drawn in this order: later puppets on top.
+    pub puppets: Vec<AnimatedPuppet>,
+    /// Every puppet has exactly this many frames.
+    pub frame_count: usize,
+}
+
+impl Animation {
+    /// The length in seconds: `frame_count / fps` (the last frame is shown
+    /// for one frame's time).
+    pub fn duration(&self) -> f64 {
+        self.frame_count as f64 / self.fps
+    }
+
+    /// Checks everything the exporters rely on, naming the field at fault:
+    /// positive finite stage size and frame rate, at least one frame and
+    /// puppet, per puppet a vertex count that the texture coordinates, every
+    /// frame and the triangles agree on, finite numbers, and a picture whose
+    /// pixel buffer fits its size.
+    pub fn validate(&self) -> Result<(), ExportError> {
+        for (field, v) in [
+            ("stage_width", self.stage_width),
+            ("stage_height", self.stage_height),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(invalid(
+                    field,
+                    format!("must be a positive number, got {v}"),
+                ));
+            }
+        }
+        check_fps(self.fps, "fps")?;
+        if self.frame_count == 0 {
+            return Err(invalid("frame_count", "the animation has no frames"));
+        }
+        if self.puppets.is_empty() {
+            return Err(invalid("puppets", "the animation has no puppets"));
+        }
+        for (i, p) in self.puppets.iter().enumerate() {
+            let at = |field: &str| format!("puppets[{i}] {:?}.{field}", p.name);
+            let n = p.vertex_count();
+            if n == 0 {
+                return Err(invalid(at("uv"), "the puppet has no vertices"));
+            }
+            if n > u32::MAX as usize {
+                return Err(invalid(at("uv"), "too many vertices"));
+            }
+            if let Some(j) = p.uv.iter().position(|q| !q.iter().all(|c| c.is_finite())) {
+                return Err(invalid(at(&format!("uv[{j}]")), "is not a finite number"));
+            }
+            if p.triangles.is_empty() {
+                return Err(invalid(at("triangles"), "the puppet has no triangles"));
+            }
+            for (t, tri) in p.triangles.iter().enumerate() {
+                if let Some(&v) = tri.iter().find(|&&v| v as usize >= n) {
+                    return Err(invalid(
+                        at(&format!("triangles[{t}]")),
+                        format!(
+                            "vertex index {v} is out of range (the puppet has {n} vertices, one per uv)"
+                        ),
+                    ));
+                }
+            }
+            if p.frames.len() != self.frame_count {
+                return Err(invalid(
+                    at("frames"),
+                    format!(
+                        "has {} frames, expected frame_count = {}",
+                        p.frames.len(),
+                        self.frame_count
+                    ),
+                ));
+            }
+            for (k, frame) in p.frames.iter().enumerate() {
+                if frame.len() != n {
+                    return Err(invalid(
+                        at(&format!("frames[{k}]")),
+                        format!("has {} vertices, expected {n} (one per uv)", frame.len()),
+                    ));
+                }
+                if let Some(j) = frame.iter().position(|q| !q.iter().all(|c| c.is_finite())) {
+                    return Err(invalid(
+                        at(&format!("frames[{k}][{j}]")),
+                        "is not a finite number",
+                    ));
+                }
+            }
+            let img = &p.image;
+            if img.width == 0 || img.height == 0 {
+                return Err(invalid(at("image"), "the picture is empty"));
+            }
+            let expected = img.width as u64 * img.height as u64 * 4;
+            if img.pixels.len() as u64 != expected {
+                return Err(invalid(
+                    at("image.pixels"),
+                    format!(
+                        "has {} bytes, expected {}×{}×4 = {expected}",
+                        img.pixels.len(),
+                        img.width,
+                        img.height
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Refuses a frame rate that is not a positive finite number, naming
+/// `name` (a field or a flag).
+pub(crate) fn check_fps(fps: f64, name: &str) -> Result<(), ExportError> {
+    if fps.is_finite() && fps > 0.0 && fps <= 1000.0 {
+        Ok(())
+    } else {
+        let problem = format!("must be a positive frame rate (at most 1000), got {fps}");
+        Err(if name.starts_with("--") {
+            flag(name, problem)
+        } else {
+            invalid(name, problem)
+        })
+    }
+}
+
+/// Reads a PNG into straight RGBA8: palette, grey and grey+alpha, RGB and
+/// RGBA at any bit depth (16-bit keeps its high byte; tRNS becomes alpha).
+pub fn load_png(path: &Path) -> Result<RgbaImage, ExportError> {
+    let name = path.display().to_string();
+    let not_png = |e: png::DecodingError| match e {
+        png::DecodingError::IoError(source) => ExportError::Io {
+            file: name.clone(),
+            source,
+        },
+        other => ExportError::File {
+            file: name.clone(),
+            problem: format!("not a valid PNG image: {other}"),
+        },
+    };
+    let file = std::fs::File::open(path).map_err(io_error(path))?;
+    let mut decoder = png::Decoder::new(BufReader::new(file));
+    // Palette → RGB(A) with tRNS as alpha, low bit depths → 8 bits.
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().map_err(not_png)?;
+    let (width, height) = reader.info().size();
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| ExportError::File {
+            file: name.clone(),
+            problem: format!("{width}×{height} pixels is too large"),
+        })?;
+    let mut buf = vec![0u8; size];
+    let frame = reader.next_frame(&mut buf).map_err(not_png)?;
+    let (color, depth) = reader.output_color_type();
+    let bytes = match depth {
+        png::BitDepth::Eight => 1,
+        png::BitDepth::Sixteen => 2,
+        other => {
+            return Err(ExportError::File {
+                file: name,
+                problem: format!("unexpected bit depth {other:?} after expansion"),
+            });
+        }
+    };
+    let channels = color.samples();
+    let mut pixels = Vec::with_capacity(width as usize * height as usize * 4);
+    for row in buf.chunks_exact(frame.line_size).take(height as usize) {
+        for px in row[..width as usize * channels * bytes].chunks_exact(channels * bytes) {
+            // The high byte of each sample (big-endian in PNG).
+            let s = |c: usize| px[c * bytes];
+            let rgba = match color {
+                png::ColorType::Grayscale => [s(0), s(0), s(0), 255],
+                png::ColorType::GrayscaleAlpha => [s(0), s(0), s(0), s(1)],
+                png::ColorType::Rgb => [s(0), s(1), s(2), 255],
+                png::ColorType::Rgba => [s(0), s(1), s(2), s(3)],
+                png::ColorType::Indexed => {
+                    return Err(ExportError::File {
+                        file: name,
+                        problem: "palette left unexpanded".into(),
+                    });
+                }
+            };
+            pixels.extend_from_slice(&rgba);
+        }
+    }
+    if pixels.len() != width as usize * height as usize * 4 {
+        return Err(ExportError::File {
+            file: name,
+            problem: "the PNG image data is truncated".into(),
+        });
+    }
+    Ok(RgbaImage {
+        width,
+        height,
+        pixels,
+    })
+}
+
+/// Writes straight RGBA8 pixels as a PNG, compressed for speed
+/// (`Compression::Fast`: fdeflate, adaptive row filters).
+pub fn write_png<W: std::io::Write>(
+    out: W,
+    width: u32,
+    height: u32,
+    pixels: &[u8],
+) -> Result<(), png::EncodingError> {
+    let mut encoder = png::Encoder::new(out, width, height);
+    encoder.set_color(png::ColorType::Rgba);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.set_compression(png::Compression::Fast);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(pixels)?;
+    writer.finish()
+}

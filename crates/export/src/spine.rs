@@ -1,0 +1,327 @@
+//! Spine 4.2 JSON: a skeleton of one `root` bone at the origin, one slot
+//! per puppet (drawing order = slot order) holding a mesh attachment, and
+//! one animation whose deform timelines move the mesh vertices.
+//!
+//! The layout is the one `SkeletonJson` of the Spine runtimes (spine-core
+//! 4.2) reads: `skins` is an array of `{name, attachments: {SLOT: {NAME:
+//! mesh}}}`, and deform timelines sit under
+//! `animations.NAME.attachments.SKIN.SLOT.ATTACHMENT.deform`, each key
+//! `{time, offset, vertices}` with `vertices` the offsets from the setup
+//! vertices starting at float index `offset` (zeros before and after are
+//! left out; a key without `vertices` is the setup pose).
+//!
+//! - **Setup pose = frame 0.** The attachment's `vertices` are frame 0 in
+//!   stage coordinates (Spine is y-up too, and the root bone is the
+//!   identity), so key k holds `frame k − frame 0`.
+//! - **Keys at `t = k / fps`, linear** (Spine's default curve): applying
+//!   the animation at `k / fps` gives frame k exactly, and times in between
+//!   blend the neighbouring frames, as the glTF export does.
+//! - **Hull first.** Spine wants the mesh's hull — the vertices of its
+//!   boundary loop, in loop order — to be the first `hull` vertices. The
+//!   vertices are reordered so: the longest boundary loop (counter-
+//!   clockwise, as the triangles wind) first, then every other vertex in its
+//!   old order; `uvs`, `triangles`, setup vertices and every deform key use
+//!   the same permutation, which the export returns ([`SpineLayout`]).
+//!   (Spine knows one hull per mesh: a puppet of several islands or with
+//!   holes has its other boundary vertices after the hull.)
+//! - **Pictures.** `uvs` are the mesh's own (v down from the picture's top
+//!   edge, as Spine's region UVs). Each attachment's `path` names its
+//!   picture; [`export_spine`] writes the pictures beside the JSON as
+//!   `PATH.png` and sets `skeleton.images` to `./`, so the Spine editor's
+//!   "Import Data" finds them.
+
+use std::collections::{HashMap, HashSet};
+use std::io::Write;
+use std::path::Path;
+
+use serde::Serialize;
+use serde_json::json;
+
+use crate::{AnimatedPuppet, Animation, ExportError, Progress, io_error};
+
+/// Options of a Spine export.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpineOptions {
+    /// The animation's name.
+    pub animation_name: String,
+}
+
+impl Default for SpineOptions {
+    fn default() -> Self {
+        SpineOptions {
+            animation_name: "take".into(),
+        }
+    }
+}
+
+/// The version written in `skeleton.spine`.
+pub const SPINE_VERSION: &str = "4.2.00";
+
+/// How the export laid out one puppet.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpinePuppet {
+    /// Slot and attachment name (the puppet's name, made unique).
+    pub slot: String,
+    /// The attachment's `path`: its picture is `PATH.png`.
+    pub path: String,
+    /// `order[i]` is the puppet's vertex that became Spine vertex `i`.
+    pub order: Vec<u32>,
+    /// The number of hull vertices (the first ones in `order`).
+    pub hull: usize,
+}
+
+/// How the export laid out the puppets, in slot order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpineLayout {
+    pub puppets: Vec<SpinePuppet>,
+}
+
+/// The boundary loop with the most vertices, in the triangles' winding
+/// order (counter-clockwise around the outside for counter-clockwise
+/// triangles), each vertex once.
+pub fn hull(triangles: &[[u32; 3]]) -> Vec<u32> {
+    let directed: HashSet<(u32, u32)> = triangles
+        .iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .collect();
+    // Boundary edges: those whose reverse no triangle has.
+    let mut outgoing: HashMap<u32, Vec<u32>> = HashMap::new();
+    let mut boundary: Vec<(u32, u32)> = directed
+        .iter()
+        .filter(|&&(a, b)| !directed.contains(&(b, a)))
+        .copied()
+        .collect();
+    boundary.sort_unstable();
+    for &(a, b) in &boundary {
+        outgoing.entry(a).or_default().push(b);
+    }
+    let mut used: HashSet<(u32, u32)> = HashSet::new();
+    let mut best: Vec<u32> = Vec::new();
+    for &(a0, b0) in &boundary {
+        if used.contains(&(a0, b0)) {
+            continue;
+        }
+        let mut walk = vec![a0];
+        used.insert((a0, b0));
+        let mut at = b0;
+        while at != a0 {
+            walk.push(at);
+            let next = outgoing
+                .get(&at)
+                .and_then(|targets| targets.iter().find(|&&t| !used.contains(&(at, t))));
+            match next {
+                Some(&t) => {
+                    used.insert((at, t));
+                    at = t;
+                }
+                None => break, // not a closed loop (a non-manifold mesh)
+            }
+        }
+        let mut seen = HashSet::new();
+        walk.retain(|v| seen.insert(*v));
+        if walk.len() > best.len() {
+            best = walk;
+        }
+    }
+    best
+}
+
+/// Spine vertex order of a puppet: hull first, then the rest in order.
+fn vertex_order(p: &AnimatedPuppet) -> (Vec<u32>, usize) {
+    let hull = hull(&p.triangles);
+    let mut in_hull = vec![false; p.vertex_count()];
+    for &v in &hull {
+        in_hull[v as usize] = true;
+    }
+    let mut order = hull.clone();
+    order.extend((0..p.vertex_count() as u32).filter(|&v| !in_hull[v as usize]));
+    (order, hull.len())
+}
+
+/// A file-name-safe, unique name for each puppet.
+fn names(animation: &Animation) -> Vec<(String, String)> {
+    let mut taken = HashSet::new();
+    animation
+        .puppets
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let base = if p.name.trim().is_empty() {
+                format!("puppet {i}")
+            } else {
+                p.name.clone()
+            };
+            let mut name = base.clone();
+            let mut n = 2;
+            while !taken.insert(name.clone()) {
+                name = format!("{base} {n}");
+                n += 1;
+            }
+            let path = name
+                .chars()
+                .map(|c| {
+                    if c.is_alphanumeric() || "-_ .".contains(c) {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
+            (name, path)
+        })
+        .collect()
+}
+
+#[derive(Serialize)]
+struct Key<'a> {
+    time: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    offset: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    vertices: Option<&'a [f32]>,
+}
+
+/// Writes `animation` as Spine JSON to `out`; returns the vertex orders.
+/// `progress` counts frames, per puppet.
+pub fn write_spine(
+    animation: &Animation,
+    options: &SpineOptions,
+    progress: &mut dyn Progress,
+    out: &mut dyn Write,
+) -> Result<SpineLayout, ExportError> {
+    animation.validate()?;
+    let err = |source| ExportError::Io {
+        file: "Spine output".into(),
+        source,
+    };
+    let names = names(animation);
+    let mut layout = SpineLayout {
+        puppets: Vec::new(),
+    };
+    let mut slots = Vec::new();
+    let mut skin = serde_json::Map::new();
+    for (p, (name, path)) in animation.puppets.iter().zip(&names) {
+        let (order, hull) = vertex_order(p);
+        let mut new_index = vec![0u32; order.len()];
+        for (i, &v) in order.iter().enumerate() {
+            new_index[v as usize] = i as u32;
+        }
+        let uvs: Vec<f32> = order.iter().flat_map(|&v| p.uv[v as usize]).collect();
+        let setup: Vec<f32> = order
+            .iter()
+            .flat_map(|&v| p.frames[0][v as usize])
+            .collect();
+        let triangles: Vec<u32> = p
+            .triangles
+            .iter()
+            .flatten()
+            .map(|&v| new_index[v as usize])
+            .collect();
+        slots.push(json!({"name": name, "bone": "root", "attachment": name}));
+        skin.insert(
+            name.clone(),
+            json!({name.clone(): {
+                "type": "mesh", "path": path,
+                "uvs": uvs, "triangles": triangles, "vertices": setup, "hull": hull,
+                "width": p.image.width, "height": p.image.height,
+            }}),
+        );
+        layout.puppets.push(SpinePuppet {
+            slot: name.clone(),
+            path: path.clone(),
+            order,
+            hull,
+        });
+    }
+    let head = json!({
+        "skeleton": {
+            "spine": SPINE_VERSION,
+            "x": 0.0, "y": 0.0,
+            "width": animation.stage_width, "height": animation.stage_height,
+            "fps": animation.fps,
+            "images": "./",
+        },
+        "bones": [{"name": "root"}],
+        "slots": slots,
+        "skins": [{"name": "default", "attachments": skin}],
+    });
+    // The head, less its closing brace, then the animation streamed key by
+    // key (a long take has millions of numbers).
+    let mut text = serde_json::to_vec(&head).expect("Spine JSON serialises");
+    text.pop();
+    out.write_all(&text).map_err(err)?;
+    write!(out, ",\"animations\":{{").map_err(err)?;
+    serde_json::to_writer(&mut *out, &options.animation_name).map_err(|e| err(e.into()))?;
+    write!(out, ":{{\"attachments\":{{\"default\":{{").map_err(err)?;
+    let total = animation.frame_count * animation.puppets.len();
+    let mut done = 0;
+    let mut offsets = Vec::new();
+    for (i, (p, placed)) in animation.puppets.iter().zip(&layout.puppets).enumerate() {
+        if i > 0 {
+            out.write_all(b",").map_err(err)?;
+        }
+        let name = serde_json::to_string(&placed.slot).expect("a string serialises");
+        write!(out, "{name}:{{{name}:{{\"deform\":[").map_err(err)?;
+        let setup = &p.frames[0];
+        for k in 0..animation.frame_count {
+            offsets.clear();
+            offsets.extend(placed.order.iter().flat_map(|&v| {
+                let (q, o) = (p.frames[k][v as usize], setup[v as usize]);
+                [q[0] - o[0], q[1] - o[1]]
+            }));
+            let first = offsets.iter().position(|&d| d != 0.0);
+            let last = offsets.iter().rposition(|&d| d != 0.0);
+            let key = match (first, last) {
+                (Some(a), Some(b)) => Key {
+                    time: k as f64 / animation.fps,
+                    offset: (a > 0).then_some(a),
+                    vertices: Some(&offsets[a..=b]),
+                },
+                _ => Key {
+                    time: k as f64 / animation.fps,
+                    offset: None,
+                    vertices: None,
+                },
+            };
+            if k > 0 {
+                out.write_all(b",").map_err(err)?;
+            }
+            serde_json::to_writer(&mut *out, &key).map_err(|e| err(e.into()))?;
+            done += 1;
+            progress.step(done, total);
+        }
+        out.write_all(b"]}}").map_err(err)?;
+    }
+    out.write_all(b"}}}}}\n").map_err(err)?;
+    Ok(layout)
+}
+
+/// Writes `animation` as Spine JSON at `path`, and each puppet's picture
+/// beside it as `PATH.png` (see [`SpinePuppet::path`]).
+pub fn export_spine(
+    animation: &Animation,
+    options: &SpineOptions,
+    progress: &mut dyn Progress,
+    path: &Path,
+) -> Result<SpineLayout, ExportError> {
+    let file = std::fs::File::create(path).map_err(io_error(path))?;
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    let layout = write_spine(animation, options, progress, &mut out).map_err(|e| match e {
+        ExportError::Io { source, .. } => io_error(path)(source),
+        other => other,
+    })?;
+    out.flush().map_err(io_error(path))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    for (p, placed) in animation.puppets.iter().zip(&layout.puppets) {
+        let image = dir.join(format!("{}.png", placed.path));
+        let mut bytes = Vec::new();
+        crate::write_png(&mut bytes, p.image.width, p.image.height, &p.image.pixels).map_err(
+            |e| ExportError::File {
+                file: image.display().to_string(),
+                problem: format!("cannot encode PNG: {e}"),
+            },
+        )?;
+        std::fs::write(&image, bytes).map_err(io_error(&image))?;
+    }
+    Ok(layout)
+}

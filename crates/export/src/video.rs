@@ -1,0 +1,253 @@
+//! Video through `ffmpeg`: the frames of [`crate::raster`] are piped raw
+//! (`-f rawvideo -pix_fmt rgba -s WxH -r FPS -i -`) into an `ffmpeg` found
+//! on `PATH`, which encodes by the output's extension:
+//!
+//! | extension | codec | pixels | alpha |
+//! |---|---|---|---|
+//! | `.mp4` | H.264 (`libx264`) | `yuv420p` | no: composited over [`VideoOptions::background`] (default white); width and height must be even |
+//! | `.mov` | ProRes 4444 (`prores_ks -profile:v 4444`) | `yuva444p10le` | yes |
+//! | `.webm` | VP9 (`libvpx-vp9`) | `yuva420p` | yes (stored beside the colour planes; `ffprobe` shows `yuv420p` with the tag `alpha_mode=1`, and decoding with `-c:v libvpx-vp9` gives it back) |
+//!
+//! ffmpeg's messages are captured; when it fails, the error quotes its last
+//! lines.
+
+use std::io::{BufRead, Read, Write};
+use std::path::Path;
+use std::process::{Command, Stdio};
+
+use crate::raster::{check_size, render_frames};
+use crate::{Animation, ExportError, Progress, flag};
+
+/// Options of a video export.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VideoOptions {
+    /// Picture size in pixels (`--size WxH`).
+    pub width: u32,
+    pub height: u32,
+    /// What `.mp4` (no alpha) shows behind the puppets: RGB.
+    pub background: [u8; 3],
+    /// The `ffmpeg` to run; `None` looks it up on `PATH`.
+    pub ffmpeg: Option<std::path::PathBuf>,
+}
+
+impl VideoOptions {
+    pub fn new(width: u32, height: u32) -> VideoOptions {
+        VideoOptions {
+            width,
+            height,
+            background: [255, 255, 255],
+            ffmpeg: None,
+        }
+    }
+}
+
+/// The kinds of video, by extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VideoFormat {
+    /// `.mp4`: H.264, opaque.
+    Mp4,
+    /// `.mov`: ProRes 4444 with alpha.
+    ProRes,
+    /// `.webm`: VP9 with alpha.
+    WebM,
+}
+
+impl VideoFormat {
+    /// The format an output path asks for, by its extension (any case).
+    pub fn of(path: &Path) -> Result<VideoFormat, ExportError> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("mp4") => Ok(VideoFormat::Mp4),
+            Some("mov") => Ok(VideoFormat::ProRes),
+            Some("webm") => Ok(VideoFormat::WebM),
+            other => Err(ExportError::File {
+                file: path.display().to_string(),
+                problem: match other {
+                    Some(e) => format!("unknown video extension \".{e}\": use .mp4, .mov or .webm"),
+                    None => "no extension: use .mp4, .mov or .webm".into(),
+                },
+            }),
+        }
+    }
+
+    /// ffmpeg's output arguments.
+    fn codec_args(self) -> &'static [&'static str] {
+        match self {
+            VideoFormat::Mp4 => &[
+                "-c:v",
+                "libx264",
+                "-pix_fmt",
+                "yuv420p",
+                "-crf",
+                "18",
+                "-movflags",
+                "+faststart",
+            ],
+            VideoFormat::ProRes => &[
+                "-c:v",
+                "prores_ks",
+                "-profile:v",
+                "4444",
+                "-pix_fmt",
+                "yuva444p10le",
+                "-vendor",
+                "apl0",
+            ],
+            VideoFormat::WebM => &[
+                "-c:v",
+                "libvpx-vp9",
+                "-pix_fmt",
+                "yuva420p",
+                "-crf",
+                "30",
+                "-b:v",
+                "0",
+                "-auto-alt-ref",
+                "0",
+            ],
+        }
+    }
+}
+
+/// The frame rate as ffmpeg reads it: a fraction when the rate is a whole
+/// number of frames per 1, 1001 or 1000 seconds (30, 30000/1001…), so
+/// `r_frame_rate` comes out exact.
+pub fn frame_rate_arg(fps: f64) -> String {
+    for den in [1u64, 1001, 1000] {
+        let num = fps * den as f64;
+        if (num - num.round()).abs() < 1e-6 * den as f64 {
+            return format!("{}/{den}", num.round() as u64);
+        }
+    }
+    format!("{fps}")
+}
+
+/// Finds `ffmpeg` on `PATH`.
+pub fn find_ffmpeg() -> Result<std::path::PathBuf, ExportError> {
+    find_on_path("ffmpeg").ok_or_else(|| ExportError::ToolMissing {
+        tool: "ffmpeg".into(),
+        install: "Debian: apt-get install ffmpeg".into(),
+    })
+}
+
+fn find_on_path(name: &str) -> Option<std::path::PathBuf> {
+    use std::os::unix::fs::PermissionsExt;
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join(name))
+        .find(|p| {
+            std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+        })
+}
+
+/// Lines of ffmpeg's messages kept for an error.
+const TAIL_LINES: usize = 15;
+
+/// Encodes every frame of `animation` into the video `path` (format by
+/// extension, see the module doc). `progress` counts frames piped.
+pub fn export_video(
+    animation: &Animation,
+    options: &VideoOptions,
+    progress: &mut dyn Progress,
+    path: &Path,
+) -> Result<(), ExportError> {
+    let format = VideoFormat::of(path)?;
+    animation.validate()?;
+    let (w, h) = (options.width, options.height);
+    check_size(w, h)?;
+    if format == VideoFormat::Mp4 && (w % 2 != 0 || h % 2 != 0) {
+        return Err(flag(
+            "--size",
+            format!("{w}x{h}: H.264 (.mp4, yuv420p) needs an even width and height"),
+        ));
+    }
+    let ffmpeg = match &options.ffmpeg {
+        Some(p) => p.clone(),
+        None => find_ffmpeg()?,
+    };
+    let file = path.display().to_string();
+    let mut child = Command::new(&ffmpeg)
+        .args(["-hide_banner", "-nostdin", "-loglevel", "error", "-y"])
+        .args(["-f", "rawvideo", "-pix_fmt", "rgba"])
+        .args(["-s", &format!("{w}x{h}")])
+        .args(["-r", &frame_rate_arg(animation.fps)])
+        .args(["-i", "-"])
+        .args(format.codec_args())
+        .args(["-r", &frame_rate_arg(animation.fps)])
+        .arg(path)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| ExportError::File {
+            file: file.clone(),
+            problem: format!("cannot run {}: {e}", ffmpeg.display()),
+        })?;
+    let mut stdin = child.stdin.take().expect("piped stdin");
+    let stderr = child.stderr.take().expect("piped stderr");
+    // ffmpeg's messages, read as they come so it never blocks on them.
+    let log = std::thread::spawn(move || {
+        let mut tail = std::collections::VecDeque::new();
+        let mut reader = std::io::BufReader::new(stderr);
+        let mut line = Vec::new();
+        while reader.read_until(b'\n', &mut line).is_ok_and(|n| n > 0) {
+            if tail.len() == TAIL_LINES {
+                tail.pop_front();
+            }
+            tail.push_back(String::from_utf8_lossy(&line).trim_end().to_string());
+            line.clear();
+        }
+        let _ = reader.read_to_end(&mut line);
+        tail.into_iter().collect::<Vec<_>>().join("\n")
+    });
+    let total = animation.frame_count;
+    let opaque = format == VideoFormat::Mp4;
+    let bg = options.background.map(|c| c as u32);
+    let piped = render_frames(
+        animation,
+        w,
+        h,
+        |_, pixels| {
+            let mut frame = pixels.to_vec();
+            if opaque {
+                over_background(&mut frame, bg);
+            }
+            Ok(frame)
+        },
+        |k, frame| {
+            stdin.write_all(&frame).map_err(|e| ExportError::File {
+                file: file.clone(),
+                problem: format!("ffmpeg stopped reading frames at frame {k}: {e}"),
+            })?;
+            progress.step(k + 1, total);
+            Ok(())
+        },
+    );
+    drop(stdin); // end of input: ffmpeg finishes the file
+    let status = child.wait().map_err(|e| ExportError::File {
+        file: file.clone(),
+        problem: format!("waiting for ffmpeg: {e}"),
+    })?;
+    let tail = log.join().unwrap_or_default();
+    if !status.success() {
+        return Err(ExportError::File {
+            file,
+            problem: format!("ffmpeg failed ({status}); its last messages:\n{tail}"),
+        });
+    }
+    piped
+}
+
+/// Straight RGBA over an opaque colour, in place.
+fn over_background(frame: &mut [u8], bg: [u32; 3]) {
+    for px in frame.chunks_exact_mut(4) {
+        let a = px[3] as u32;
+        for c in 0..3 {
+            px[c] = ((px[c] as u32 * a + bg[c] * (255 - a) + 127) / 255) as u8;
+        }
+        px[3] = 255;
+    }
+}

@@ -1,0 +1,14 @@
+//! Integration tests of puppetry-export, on the demo puppet moved
+//! synthetically ([`fixture`]). Checks that need Node run always and fail
+//! with what to install when it is missing; checks that need Chromium run
+//! with `PUPPETRY_BROWSER_TESTS=1` (as `.ci/run` sets), like the
+//! workspace's other browser tests; the video checks need ffmpeg.
+
+mod common;
+mod errors;
+mod fixture;
+mod frames;
+mod gltf;
+mod resample;
+mod spine;
+mod video;

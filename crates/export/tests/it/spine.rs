@@ -1,0 +1,95 @@
+//! Spine JSON: Spine's own runtime (spine-core 4.2, in Node) reads it and
+//! poses the meshes at frame times exactly as the frames.
+
+use std::collections::HashSet;
+
+use puppetry_export::spine::{SpineOptions, export_spine, hull};
+
+use crate::common::{arg, node_script};
+use crate::fixture::two_figures;
+
+const FRAMES: usize = 30;
+const FPS: f64 = 30.0;
+
+#[test]
+fn spine_runtime_poses_the_frames() {
+    let animation = two_figures(FRAMES, FPS);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("take.json");
+    let layout = export_spine(&animation, &SpineOptions::default(), &mut (), &path).unwrap();
+    // Two puppets of one name get two slots.
+    let slots: Vec<&str> = layout.puppets.iter().map(|p| p.slot.as_str()).collect();
+    assert_eq!(slots, ["gingerbread", "gingerbread 2"]);
+    for p in &layout.puppets {
+        assert!(dir.path().join(format!("{}.png", p.path)).is_file());
+    }
+    let ks = [0usize, 1, 7, 15, 22, 29];
+    let times: Vec<String> = ks.iter().map(|&k| (k as f64 / FPS).to_string()).collect();
+    let result = node_script(
+        "export-spine.mjs",
+        &["@esotericsoftware/spine-core"],
+        &[arg(&path), "take", &times.join(",")],
+    );
+    assert_eq!(result["version"], puppetry_export::spine::SPINE_VERSION);
+    for p in &layout.puppets {
+        assert_eq!(result["hull"][&p.slot], p.hull as u64, "hull of {}", p.slot);
+    }
+    let samples = result["samples"].as_array().unwrap();
+    assert_eq!(samples.len(), ks.len());
+    for (sample, &k) in samples.iter().zip(&ks) {
+        for (p, placed) in animation.puppets.iter().zip(&layout.puppets) {
+            let world = sample["slots"][&placed.slot].as_array().unwrap();
+            assert_eq!(world.len(), placed.order.len() * 2);
+            let mut worst = 0.0f64;
+            for (i, &v) in placed.order.iter().enumerate() {
+                let e = p.frames[k][v as usize];
+                let g = |c: usize| world[i * 2 + c].as_f64().unwrap();
+                worst = worst
+                    .max((g(0) - e[0] as f64).abs())
+                    .max((g(1) - e[1] as f64).abs());
+            }
+            assert!(worst <= 1e-4, "frame {k}, {}: off by {worst}", placed.slot);
+        }
+    }
+}
+
+#[test]
+fn the_hull_is_the_boundary_loop_and_comes_first() {
+    let animation = two_figures(2, FPS);
+    let p = &animation.puppets[0];
+    let loop_ = hull(&p.triangles);
+    // Every step of the loop (and back to its start) is a boundary edge:
+    // an edge of exactly one triangle, run the way that triangle runs it.
+    let directed: HashSet<(u32, u32)> = p
+        .triangles
+        .iter()
+        .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+        .collect();
+    for i in 0..loop_.len() {
+        let (a, b) = (loop_[i], loop_[(i + 1) % loop_.len()]);
+        assert!(
+            directed.contains(&(a, b)) && !directed.contains(&(b, a)),
+            "{a}→{b}"
+        );
+    }
+    // The demo mesh is one piece without holes: every boundary edge is on it.
+    let boundary = directed
+        .iter()
+        .filter(|&&(a, b)| !directed.contains(&(b, a)))
+        .count();
+    assert_eq!(boundary, loop_.len());
+    let dir = tempfile::tempdir().unwrap();
+    let layout = export_spine(
+        &animation,
+        &SpineOptions::default(),
+        &mut (),
+        &dir.path().join("s.json"),
+    )
+    .unwrap();
+    assert_eq!(&layout.puppets[0].order[..loop_.len()], &loop_[..]);
+    assert_eq!(layout.puppets[0].hull, loop_.len());
+    // A permutation of all vertices.
+    let mut sorted = layout.puppets[0].order.clone();
+    sorted.sort_unstable();
+    assert_eq!(sorted, (0..p.vertex_count() as u32).collect::<Vec<_>>());
+}

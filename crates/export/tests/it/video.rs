@@ -1,0 +1,223 @@
+//! Videos through ffmpeg: ffprobe must see the codec, the pixel format
+//! (with alpha for .mov and .webm), the frame rate and the duration, and a
+//! decoded frame must show the puppet — over white for .mp4, over
+//! transparency for the others.
+
+use std::path::Path;
+use std::process::Command;
+
+use puppetry_export::video::{VideoOptions, export_video, frame_rate_arg};
+
+use crate::common::{arg, require_tool};
+use crate::fixture::two_figures;
+
+const FRAMES: usize = 36;
+const FPS: f64 = 24.0;
+const W: u32 = 320;
+const H: u32 = 240;
+
+fn tools() {
+    require_tool("ffmpeg", "Debian: apt-get install ffmpeg");
+    require_tool("ffprobe", "Debian: apt-get install ffmpeg");
+}
+
+/// ffprobe's view of the first video stream and the container.
+fn probe(path: &Path) -> serde_json::Value {
+    let out = Command::new("ffprobe")
+        .args(["-v", "error"])
+        .args(["-select_streams", "v:0", "-count_frames"])
+        .args([
+            "-show_entries",
+            "stream=codec_name,profile,pix_fmt,r_frame_rate,nb_read_frames,width,height:stream_tags:format=duration",
+        ])
+        .args(["-of", "json"])
+        .arg(path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// Frame `k` decoded to RGBA.
+fn decode(path: &Path, decoder: Option<&str>, k: usize) -> Vec<u8> {
+    let mut cmd = Command::new("ffmpeg");
+    cmd.args(["-v", "error", "-nostdin"]);
+    if let Some(d) = decoder {
+        cmd.args(["-c:v", d]);
+    }
+    let out = cmd
+        .arg("-i")
+        .arg(path)
+        .args(["-vf", &format!("select=eq(n\\,{k})"), "-frames:v", "1"])
+        .args(["-f", "rawvideo", "-pix_fmt", "rgba", "-"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(out.stdout.len(), (W * H * 4) as usize);
+    out.stdout
+}
+
+/// The pixel format ffmpeg decodes to with `decoder` (ffprobe 5 cannot
+/// choose a decoder, and only libvpx returns VP9's alpha).
+fn decoded_pix_fmt(path: &Path, decoder: &str) -> String {
+    let out = Command::new("ffmpeg")
+        .args(["-hide_banner", "-nostdin", "-c:v", decoder, "-i"])
+        .arg(path)
+        .args(["-frames:v", "1", "-f", "null", "-"])
+        .output()
+        .unwrap();
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{log}");
+    let line = log
+        .lines()
+        .find(|l| l.contains("Stream #0:0") && l.contains("Video: vp9"))
+        .unwrap_or_else(|| panic!("no input stream line in {log}"));
+    line.split(", ")
+        .nth(1)
+        .unwrap()
+        .split('(')
+        .next()
+        .unwrap()
+        .to_string()
+}
+
+/// Exports a video, then checks it: ffprobe's `codec`, `profile` (when
+/// given) and pixel format starting with `pix_fmt`; frame rate, frame count
+/// and duration; frame 0's pixels decoded with `decoder`.
+fn check(
+    ext: &str,
+    codec: &str,
+    profile: Option<&str>,
+    pix_fmt: &str,
+    decoder: Option<&str>,
+    alpha: bool,
+) {
+    tools();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(format!("take.{ext}"));
+    let mut frames = 0;
+    struct Count<'a>(&'a mut usize);
+    impl puppetry_export::Progress for Count<'_> {
+        fn step(&mut self, done: usize, _: usize) {
+            *self.0 = done;
+        }
+    }
+    export_video(
+        &two_figures(FRAMES, FPS),
+        &VideoOptions::new(W, H),
+        &mut Count(&mut frames),
+        &path,
+    )
+    .unwrap();
+    assert_eq!(frames, FRAMES);
+    let info = probe(&path);
+    let stream = &info["streams"][0];
+    assert_eq!(stream["codec_name"], codec, "{info}");
+    if let Some(profile) = profile {
+        assert_eq!(stream["profile"], profile, "{info}");
+    }
+    assert!(
+        stream["pix_fmt"].as_str().unwrap().starts_with(pix_fmt),
+        "{info}"
+    );
+    assert_eq!(stream["r_frame_rate"], "24/1", "{info}");
+    assert_eq!(
+        (stream["width"].as_u64(), stream["height"].as_u64()),
+        (Some(W as u64), Some(H as u64))
+    );
+    assert_eq!(stream["nb_read_frames"], FRAMES.to_string(), "{info}");
+    let duration: f64 = info["format"]["duration"]
+        .as_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let expected = FRAMES as f64 / FPS;
+    assert!(
+        (duration - expected).abs() <= 1.0 / FPS,
+        "{ext}: duration {duration} s, expected {expected} s within a frame"
+    );
+    // Frame 0: a corner is background, the big figure's belly is puppet.
+    // (Stage 800×600 at 0.4: the belly (360, 290) is pixel (144, 124).)
+    let px = decode(&path, decoder, 0);
+    let at = |x: u32, y: u32| &px[((y * W + x) * 4) as usize..][..4];
+    if alpha {
+        assert!(
+            at(2, 2)[3] <= 2,
+            "{ext}: corner {:?} is transparent",
+            at(2, 2)
+        );
+    } else {
+        assert!(
+            at(2, 2).iter().all(|&c| c >= 250),
+            "{ext}: corner {:?} is white",
+            at(2, 2)
+        );
+    }
+    assert!(at(144, 124)[3] >= 250, "{ext}: the puppet is opaque");
+    assert!(
+        at(144, 124)[..3].iter().any(|&c| c < 230),
+        "{ext}: the puppet is not background {:?}",
+        at(144, 124)
+    );
+    if ext == "webm" {
+        // ffprobe's own VP9 decoder sees the colour planes (yuv420p) and
+        // the tag saying an alpha plane rides beside them; libvpx decodes
+        // both.
+        assert_eq!(stream["tags"]["alpha_mode"], "1", "{info}");
+        assert_eq!(decoded_pix_fmt(&path, "libvpx-vp9"), "yuva420p");
+    }
+}
+
+#[test]
+fn mp4_is_h264_over_white_at_the_frame_rate() {
+    check("mp4", "h264", Some("High"), "yuv420p", None, false);
+}
+
+#[test]
+fn mov_is_prores_4444_with_alpha() {
+    // Encoded from yuva444p10le; ffmpeg's ProRes decoder returns 12 bits.
+    check("mov", "prores", Some("4444"), "yuva444p1", None, true);
+}
+
+#[test]
+fn webm_is_vp9_with_alpha() {
+    check("webm", "vp9", None, "yuv420p", Some("libvpx-vp9"), true);
+}
+
+#[test]
+fn frame_rates_reach_ffmpeg_as_exact_fractions() {
+    assert_eq!(frame_rate_arg(30.0), "30/1");
+    assert_eq!(frame_rate_arg(30000.0 / 1001.0), "30000/1001");
+    assert_eq!(frame_rate_arg(12.5), "12500/1000");
+}
+
+#[test]
+fn a_failing_ffmpeg_is_quoted() {
+    // A "ffmpeg" that complains and fails: its last lines reach the error.
+    tools();
+    let dir = tempfile::tempdir().unwrap();
+    let fake = dir.path().join("ffmpeg");
+    std::fs::write(
+        &fake,
+        "#!/bin/sh\necho 'first line' >&2\necho 'Unknown encoder libx264' >&2\nexit 3\n",
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let mut options = VideoOptions::new(W, H);
+    options.ffmpeg = Some(fake);
+    let out = dir.path().join("take.mp4");
+    let err = export_video(&two_figures(3, FPS), &options, &mut (), &out).unwrap_err();
+    let text = err.to_string();
+    assert!(text.contains(arg(&out)), "{text}");
+    assert!(text.contains("Unknown encoder libx264"), "{text}");
+    assert!(text.contains("exit status: 3"), "{text}");
+}
