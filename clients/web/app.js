@@ -7,11 +7,12 @@
 import {
   RIG_KIND, ROLE, SERVER_MESSAGE, FRAME_KIND_RIG, FRAME_KIND_VERTICES,
   clientOwner, decodeFrameHeader, encodeClientMessage, framePoints, helloMessage, parseServerMessage,
+  listTakesMessage, playMessage, recordMessage, stopPlayingMessage, stopRecordingMessage,
 } from './protocol.js';
 import { MeshRenderer } from './renderer.js';
 import { Overlay } from './overlay.js';
 import { PointerContacts, StageView } from './input.js';
-import { PaintTool, PinTool, PoseSlider, calibrationInset, calibrationMarks } from './tools.js';
+import { PaintTool, PinTool, PoseSlider, TakeControls, calibrationInset, calibrationMarks } from './tools.js';
 
 const params = new URLSearchParams(location.search);
 const role = params.get('role') === ROLE.PERFORMER ? ROLE.PERFORMER : ROLE.VIEWER;
@@ -109,6 +110,25 @@ const poseSlider = new PoseSlider({
   t: byId('pose-t'),
 }, { send });
 
+const takeControls = new TakeControls({
+  controls: byId('take-controls'),
+  record: byId('record'),
+  state: byId('take-state'),
+  list: byId('take-list'),
+  play: byId('take-play'),
+  overdub: byId('take-overdub'),
+  stop: byId('take-stop'),
+}, {
+  send,
+  messages: {
+    record: recordMessage,
+    stopRecording: stopRecordingMessage,
+    listTakes: listTakesMessage,
+    play: playMessage,
+    stopPlaying: stopPlayingMessage,
+  },
+});
+
 const pointerContacts = new PointerContacts(stageEl, view, {
   canStart: () => role === ROLE.PERFORMER && api.connected,
   tools: [paintTool, pinTool], // the brush, when on, wins over pinning
@@ -119,6 +139,7 @@ if (role === ROLE.PERFORMER) {
   pinTool.enable();
   paintTool.enable();
   poseSlider.enable();
+  takeControls.enable();
 }
 
 function layout() {
@@ -201,6 +222,14 @@ function onText(text) {
     case SERVER_MESSAGE.GRID:
       api.lastGrid = msg;
       return;
+    case SERVER_MESSAGE.TAKE:
+      api.take = msg;
+      takeControls.onState(msg);
+      return;
+    case SERVER_MESSAGE.TAKES:
+      api.takes = msg.takes;
+      takeControls.onList(msg);
+      return;
     case SERVER_MESSAGE.ERROR:
       lastError = msg.message;
       return reportError(msg.message);
@@ -221,6 +250,7 @@ function onStage(msg) {
   puppets = msg.puppets.map(puppetState);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });
   poseSlider.setup(puppets);
+  if (role === ROLE.PERFORMER) send(listTakesMessage());
   api.connected = true;
   setStatus(`connected as ${msg.role} (client ${msg.client}) · ${msg.puppets.length} puppet(s)`);
 }

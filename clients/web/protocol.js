@@ -15,6 +15,11 @@ export const CLIENT_MESSAGE = Object.freeze({
   SAVE_WEIGHTS: 'save_weights',
   EXPORT_GRID: 'export_grid',
   POSE: 'pose',
+  RECORD: 'record',
+  STOP_RECORDING: 'stop_recording',
+  LIST_TAKES: 'list_takes',
+  PLAY: 'play',
+  STOP_PLAYING: 'stop_playing',
 });
 
 /** `type` of the text messages the server sends. */
@@ -25,6 +30,8 @@ export const SERVER_MESSAGE = Object.freeze({
   WEIGHTS: 'weights',
   WEIGHTS_SAVED: 'weights_saved',
   GRID: 'grid',
+  TAKE: 'take',
+  TAKES: 'takes',
   ERROR: 'error',
 });
 
@@ -99,6 +106,29 @@ export function exportGridMessage(puppet) {
 /** A skeleton's pose `t` of the way from key pose `from` to key pose `to`. */
 export function poseMessage(puppet, from, to, t) {
   return { type: CLIENT_MESSAGE.POSE, puppet, from, to, t };
+}
+
+/** Starts recording a take (`name` may be left out: the next free take-NNN). */
+export function recordMessage(name) {
+  return name === undefined ? { type: CLIENT_MESSAGE.RECORD } : { type: CLIENT_MESSAGE.RECORD, name };
+}
+
+export function stopRecordingMessage() {
+  return { type: CLIENT_MESSAGE.STOP_RECORDING };
+}
+
+/** Asks for the takes (answered with a `takes` message). */
+export function listTakesMessage() {
+  return { type: CLIENT_MESSAGE.LIST_TAKES };
+}
+
+/** Plays take `take`; with `overdub`, records a new take of it and the live hands. */
+export function playMessage(take, overdub = false) {
+  return { type: CLIENT_MESSAGE.PLAY, take, overdub };
+}
+
+export function stopPlayingMessage() {
+  return { type: CLIENT_MESSAGE.STOP_PLAYING };
 }
 
 export function encodeClientMessage(message) {

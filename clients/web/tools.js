@@ -203,3 +203,75 @@ export function calibrationMarks(inset, stageSize) {
   const lo = inset, hi = 1 - inset;
   return [[lo * w, hi * h], [hi * w, hi * h], [hi * w, lo * h], [lo * w, lo * h]];
 }
+
+/**
+ * Takes: the record button (red with the elapsed time on every page while
+ * a take records), the take list, play and overdub. Everyone sees the
+ * state; performers get the buttons.
+ */
+export class TakeControls {
+  constructor(elements, { send, messages }) {
+    this.el = elements;
+    this.send = send;
+    this.m = messages;
+    this.state = { recording: null, playing: null, error: null };
+    this.since = 0; // performance.now() when `elapsed` was 0
+    this.el.controls.hidden = false;
+    for (const b of [this.el.record, this.el.play, this.el.overdub, this.el.stop, this.el.list]) b.hidden = true;
+    setInterval(() => this.showElapsed(), 250);
+  }
+
+  /** Performers get the buttons. */
+  enable() {
+    for (const b of [this.el.record, this.el.play, this.el.overdub, this.el.stop, this.el.list]) b.hidden = false;
+    this.el.record.addEventListener('click', () => {
+      this.send(this.state.recording ? this.m.stopRecording() : this.m.record());
+    });
+    this.el.play.addEventListener('click', () => this.chosen() && this.send(this.m.play(this.chosen(), false)));
+    this.el.overdub.addEventListener('click', () => this.chosen() && this.send(this.m.play(this.chosen(), true)));
+    this.el.stop.addEventListener('click', () => this.send(this.m.stopPlaying()));
+  }
+
+  chosen() {
+    return this.el.list.value || null;
+  }
+
+  /** A `take` message. */
+  onState(msg) {
+    const wasRecording = this.state.recording;
+    this.state = { recording: msg.recording ?? null, playing: msg.playing ?? null, error: msg.error ?? null };
+    this.since = performance.now() - (msg.elapsed ?? 0) * 1000;
+    this.el.record.setAttribute('aria-pressed', String(!!this.state.recording));
+    this.el.record.textContent = this.state.recording ? '■ stop' : '● rec';
+    this.showElapsed();
+    // A take just ended: it belongs in the list.
+    if (wasRecording !== this.state.recording) this.send(this.m.listTakes());
+  }
+
+  showElapsed() {
+    const s = this.state;
+    let text = '';
+    if (s.recording) {
+      const t = (performance.now() - this.since) / 1000;
+      const minutes = Math.floor(t / 60);
+      text = `REC ${s.recording} ${minutes}:${(t % 60).toFixed(1).padStart(4, '0')}`;
+    }
+    if (s.playing) text += `${text ? ' · ' : ''}playing ${s.playing}`;
+    if (!text && s.error) text = s.error;
+    this.el.state.textContent = text;
+    this.el.state.classList.toggle('recording', !!s.recording);
+    this.el.state.classList.toggle('error', !s.recording && !!s.error);
+  }
+
+  /** A `takes` message: the list, newest selected. */
+  onList(msg) {
+    const list = this.el.list;
+    list.replaceChildren(...msg.takes.map((t) => {
+      const o = document.createElement('option');
+      o.value = t.name;
+      o.textContent = `${t.name} (${t.duration.toFixed(1)} s${t.layers?.length ? `, over ${t.layers.join(', ')}` : ''})`;
+      return o;
+    }));
+    if (msg.takes.length) list.value = msg.takes[msg.takes.length - 1].name;
+  }
+}

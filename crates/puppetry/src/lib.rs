@@ -16,4 +16,5 @@ pub mod bench;
 pub mod bundled;
 pub mod cli;
 pub mod compare;
+pub mod export;
 pub mod takes;

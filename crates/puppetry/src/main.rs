@@ -56,6 +56,32 @@ enum Command {
         #[arg(long, value_name = "TAKE")]
         play: Option<PathBuf>,
     },
+    /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
+    /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
+    /// alpha), webm (VP9 with alpha) — videos through ffmpeg — or spine
+    /// (Spine 4.x JSON with a deform timeline).
+    Export {
+        take: PathBuf,
+        #[arg(long)]
+        format: String,
+        /// The stage file the take was recorded on (default: the bundled
+        /// demo stage).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        #[arg(long, default_value_t = 30.0)]
+        fps: f64,
+        /// Seconds into the take (default: its start).
+        #[arg(long)]
+        from: Option<f64>,
+        /// Seconds into the take (default: its end).
+        #[arg(long)]
+        to: Option<f64>,
+        /// Picture size of png and video exports.
+        #[arg(long, default_value = "1280x720", value_parser = parse_size)]
+        size: (u32, u32),
+        #[arg(short, long)]
+        output: PathBuf,
+    },
     /// List the takes in a folder: name, length, steps, frames, how each
     /// ended. With --verify, replay each into the stage (--config, default
     /// the bundled demo) and check its frames bit for bit.
@@ -184,6 +210,21 @@ enum Command {
     },
 }
 
+/// `--size WxH`.
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{text:?}: expected WIDTHxHEIGHT, e.g. 1280x720"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|n| (1..=16384).contains(n))
+            .ok_or_else(|| format!("{text:?}: {v:?} is not a size from 1 to 16384"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
 fn main() -> ExitCode {
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
@@ -268,6 +309,33 @@ fn run(args: Args) -> anyhow::Result<()> {
                 running.shutdown().await;
                 anyhow::Ok(())
             })?;
+        }
+        Command::Export {
+            take,
+            format,
+            config,
+            fps,
+            from,
+            to,
+            size,
+            output,
+        } => {
+            let config = match config {
+                Some(path) => path,
+                None => puppetry::bundled::demo_stage()?,
+            };
+            let request = puppetry::export::ExportRequest {
+                take,
+                config,
+                format: format.clone(),
+                fps,
+                from,
+                to,
+                size,
+                output,
+            };
+            let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
+            println!("{}", puppetry::export::export_command(&request, &mut bar)?);
         }
         Command::Takes {
             dir,

@@ -420,3 +420,149 @@ async fn performers_record_list_play_and_overdub_takes() {
         .collect();
     assert!(played.contains(&2) && !played.contains(&1), "{played:?}");
 }
+
+fn puppetry(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_command_line_lists_verifies_and_exports_a_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    let mut o = options(&takes);
+    o.record = true;
+    finish(start_with(&stage_config(&two_captures()), o).await.unwrap()).await;
+    let stage = stage_file(dir.path());
+    let s = |p: &Path| p.display().to_string();
+
+    let listed = puppetry(&["takes", &s(&takes), "--verify", "--config", &s(&stage)]);
+    let text = String::from_utf8_lossy(&listed.stdout);
+    assert!(listed.status.success(), "{text}");
+    assert!(
+        text.contains("take-001") && text.contains("replays exactly"),
+        "{text}"
+    );
+
+    let take = s(&takes.join("take-001.take"));
+    let summary = summarize(&takes.join("take-001.take")).unwrap();
+    let glb = dir.path().join("take.glb");
+    let out = puppetry(&[
+        "export",
+        &take,
+        "--config",
+        &s(&stage),
+        "--format",
+        "glb",
+        "--fps",
+        "30",
+        "-o",
+        &s(&glb),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(&std::fs::read(&glb).unwrap()[..4], b"glTF");
+
+    let png = dir.path().join("png");
+    let out = puppetry(&[
+        "export",
+        &take,
+        "--config",
+        &s(&stage),
+        "--format",
+        "png",
+        "--fps",
+        "10",
+        "--size",
+        "320x180",
+        "-o",
+        &s(&png),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames = std::fs::read_dir(&png).unwrap().count();
+    let expected = ((summary.duration + 0.1) * 10.0).ceil() as usize;
+    assert!(
+        frames.abs_diff(expected) <= 1,
+        "{frames} frames, expected {expected}"
+    );
+
+    // Bad requests name what is wrong.
+    let bad = |args: &[&str], needle: &str| {
+        let out = puppetry(args);
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(
+            !out.status.success() && err.contains(needle),
+            "{args:?}: {err}"
+        );
+    };
+    let cfg = s(&stage);
+    bad(
+        &[
+            "export", &take, "--config", &cfg, "--format", "gif", "-o", "x.gif",
+        ],
+        "--format",
+    );
+    bad(
+        &[
+            "export", &take, "--config", &cfg, "--format", "glb", "--from", "3", "--to", "1", "-o",
+            "x.glb",
+        ],
+        "--to",
+    );
+    bad(
+        &[
+            "export",
+            &take,
+            "--config",
+            &cfg,
+            "--format",
+            "mp4",
+            "-o",
+            &s(&dir.path().join("x.webm")),
+        ],
+        "x.webm",
+    );
+    let cut = dir.path().join("cut.take");
+    std::fs::write(&cut, &std::fs::read(&take).unwrap()[..100]).unwrap();
+    bad(
+        &[
+            "export",
+            &s(&cut),
+            "--config",
+            &cfg,
+            "--format",
+            "glb",
+            "-o",
+            "x.glb",
+        ],
+        "cut.take",
+    );
+    // A take of another stage: a changed mesh is told by its rest hash.
+    let moved = std::fs::read_to_string(&stage)
+        .unwrap()
+        .replace("at = [640, 360]", "at = [600, 360]");
+    let other = dir.path().join("other.toml");
+    std::fs::write(&other, moved).unwrap();
+    bad(
+        &[
+            "export",
+            &take,
+            "--config",
+            &s(&other),
+            "--format",
+            "glb",
+            "-o",
+            "x.glb",
+        ],
+        "rest mesh changed",
+    );
+}
