@@ -17,4 +17,5 @@ pub mod bundled;
 pub mod cli;
 pub mod compare;
 pub mod export;
+pub mod take_bench;
 pub mod takes;

@@ -202,6 +202,10 @@ enum Command {
         /// as possible into it, with 1 and 16 WebSocket clients on loopback.
         #[arg(long)]
         e2e: bool,
+        /// Bench takes instead: what recording costs the live path, and
+        /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
+        #[arg(long, conflicts_with_all = ["e2e", "rigs"])]
+        takes: bool,
         /// Handle counts to bench (at most 200: each handle change inverts a
         /// dense system of about that size).
         #[arg(long, value_delimiter = ',', default_value = "2,10,40",
@@ -464,6 +468,11 @@ fn run(args: Args) -> anyhow::Result<()> {
                 print!("{}", compare::table(&comparison));
             }
         }
+        Command::Bench { takes: true, .. } => {
+            let stages = cli::end_to_end_stages()?;
+            let print = |line: &str| println!("{line}");
+            puppetry::take_bench::take_bench(&stages[0].1, &print).map_err(anyhow::Error::msg)?;
+        }
         Command::Bench {
             json, e2e: true, ..
         } => {
@@ -533,6 +542,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             handles,
             rigs,
             e2e: false,
+            ..
         } => {
             let stdout = std::io::stdout();
             let print = |line: &str| {

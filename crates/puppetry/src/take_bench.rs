@@ -1,0 +1,167 @@
+//! `puppetry bench --takes`: what recording a take costs the live path
+//! (the stage thread's step with and without handing a step and its frame
+//! to the recorder), and how long exports of a 60 s, 60 fps take of the
+//! demo puppet take (glTF and a 1280×720 PNG sequence). Rounds alternate
+//! with and without recording so load on the machine hits both alike;
+//! medians are printed.
+
+use std::time::Instant;
+
+use glam::DVec2;
+use puppetry_export::{AnimatedPuppet, Animation};
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_stage::config::StageConfig;
+use puppetry_stage::{Change, Stage};
+use puppetry_take::recorder::Recorder;
+use puppetry_take::{Frame, Header, Record, Step};
+
+fn contacts(id: u32, phase: Phase, at: DVec2) -> Change {
+    Change::Contacts {
+        frame: ContactFrame {
+            source: SourceId::new("bench"),
+            time: 0.0,
+            contacts: vec![Contact::new(id, phase, at)],
+        },
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// One round of `steps` 1 kHz drag steps; µs per step.
+fn round(stage: &mut Stage, at: DVec2, steps: usize, recorder: Option<&Recorder>) -> f64 {
+    let mut events = Vec::new();
+    let _ = stage.apply_change(&contacts(1, Phase::Down, at));
+    stage.solve();
+    stage.take_events(&mut events);
+    let began = Instant::now();
+    for i in 0..steps {
+        let phase = i as f64 / steps as f64 * std::f64::consts::TAU;
+        let change = contacts(
+            1,
+            Phase::Move,
+            at + DVec2::new(phase.sin(), phase.cos()) * 40.0,
+        );
+        let _ = stage.apply_change(&change);
+        let solved = stage.solve();
+        if let Some(r) = recorder {
+            stage.take_events(&mut events);
+            let t = r.elapsed();
+            let _ = r.record(Record::Step(Step {
+                t,
+                changes: vec![change],
+                events: std::mem::take(&mut events),
+            }));
+            for &(p, _) in &solved {
+                let pose = stage.puppets()[p as usize].pose();
+                let _ = r.record(Record::Frame(Frame::of_pose(p, t, pose)));
+            }
+        }
+    }
+    let per_step = began.elapsed().as_secs_f64() * 1e6 / steps as f64;
+    let _ = stage.apply_change(&contacts(1, Phase::Up, at));
+    stage.solve();
+    per_step
+}
+
+/// Prints the recording overhead and the export times.
+pub fn take_bench(config: &StageConfig, print: &dyn Fn(&str)) -> Result<(), String> {
+    let mut stage = Stage::from_config(config).map_err(|e| e.to_string())?;
+    let at = DVec2::from(config.puppets[0].at);
+    let vertices = stage.puppets()[0].mesh.vertices().len();
+    let dir = std::env::temp_dir().join(format!("puppetry-take-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let (mut without, mut with) = (Vec::new(), Vec::new());
+    for r in 0..7 {
+        without.push(round(&mut stage, at, 1000, None));
+        let header = Header::of_stage("bench", "bench", &stage, false);
+        stage.keep_events(true);
+        let recorder =
+            Recorder::start(&dir.join(format!("r{r}.take")), &header).map_err(|e| e.to_string())?;
+        with.push(round(&mut stage, at, 1000, Some(&recorder)));
+        recorder.finish("stopped").map_err(|e| e.to_string())?;
+        stage.keep_events(false);
+    }
+    let (a, b) = (median(without), median(with));
+    print(&format!(
+        "take recording, {vertices} vertices, 1 kHz drag: step {a:.1} µs without, {b:.1} µs with \
+         (+{:.1} µs = {:.1}% of the step, {:.2}% of a 1 ms input frame); medians of 7 alternating rounds of 1000 steps",
+        b - a,
+        (b - a) / a * 100.0,
+        (b - a) / 1000.0 * 100.0
+    ));
+
+    // A 60 s take at 60 fps of the puppet, each frame a solve of a drag.
+    let fps = 60.0;
+    let frame_count = 3600;
+    let mut frames = Vec::with_capacity(frame_count);
+    let _ = stage.apply_change(&contacts(2, Phase::Down, at));
+    for k in 0..frame_count {
+        let phase = k as f64 / 120.0 * std::f64::consts::TAU;
+        let _ = stage.apply_change(&contacts(
+            2,
+            Phase::Move,
+            at + DVec2::new(phase.sin(), phase.cos()) * 60.0,
+        ));
+        stage.solve();
+        frames.push(
+            stage.puppets()[0]
+                .pose()
+                .iter()
+                .map(|p| [p.x as f32, p.y as f32])
+                .collect(),
+        );
+    }
+    let p = &stage.puppets()[0];
+    let animation = Animation {
+        stage_width: stage.width,
+        stage_height: stage.height,
+        fps,
+        puppets: vec![AnimatedPuppet {
+            name: p.name.clone(),
+            triangles: p.mesh.triangles().to_vec(),
+            uv: p
+                .mesh
+                .uv()
+                .map(|uv| uv.iter().map(|t| [t.x as f32, t.y as f32]).collect())
+                .unwrap_or_default(),
+            image: puppetry_export::load_png(&p.image).map_err(|e| e.to_string())?,
+            frames,
+        }],
+        frame_count,
+    };
+    let began = Instant::now();
+    puppetry_export::gltf::export_glb(
+        &animation,
+        &puppetry_export::gltf::GltfOptions {
+            chunk: 32,
+            animation_name: "take".into(),
+        },
+        &mut (),
+        &dir.join("bench.glb"),
+    )
+    .map_err(|e| e.to_string())?;
+    print(&format!(
+        "export glb, 60 s at 60 fps, {vertices} vertices: {:.2} s",
+        began.elapsed().as_secs_f64()
+    ));
+    let began = Instant::now();
+    puppetry_export::frames::export_png_sequence(
+        &animation,
+        &puppetry_export::frames::PngOptions {
+            width: 1280,
+            height: 720,
+        },
+        &mut (),
+        &dir.join("png"),
+    )
+    .map_err(|e| e.to_string())?;
+    print(&format!(
+        "export png 1280x720, 60 s at 60 fps, {vertices} vertices: {:.2} s",
+        began.elapsed().as_secs_f64()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(())
+}
