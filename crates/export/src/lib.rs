@@ -86,6 +86,13 @@ impl Progress for () {
     fn step(&mut self, _done: usize, _total: usize) {}
 }
 
+/// A closure `|done, total| …` reports progress.
+impl<F: FnMut(usize, usize)> Progress for F {
+    fn step(&mut self, done: usize, total: usize) {
+        self(done, total)
+    }
+}
+
 /// A straight (not premultiplied) RGBA picture, 8 bits per channel, rows
 /// top to bottom.
 #[derive(Debug, Clone, PartialEq)]

@@ -104,16 +104,11 @@ fn check(
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join(format!("take.{ext}"));
     let mut frames = 0;
-    struct Count<'a>(&'a mut usize);
-    impl puppetry_export::Progress for Count<'_> {
-        fn step(&mut self, done: usize, _: usize) {
-            *self.0 = done;
-        }
-    }
+    let mut progress = |done, _| frames = done;
     export_video(
         &two_figures(FRAMES, FPS),
         &VideoOptions::new(W, H),
-        &mut Count(&mut frames),
+        &mut progress,
         &path,
     )
     .unwrap();
