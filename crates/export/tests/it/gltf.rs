@@ -212,3 +212,24 @@ fn three_js_plays_the_glb_back_to_the_frames() {
         "three.js: every sampled vertex within {worst_all:.2e} stage units of its frame"
     ));
 }
+
+#[test]
+fn short_and_uneven_takes_validate_too() {
+    // One frame (no morph targets, one visibility key), two frames, and a
+    // last chunk of one target.
+    let dir = tempfile::tempdir().unwrap();
+    for frames in [1usize, 2, 34] {
+        let path = dir.path().join(format!("take{frames}.glb"));
+        export_glb(
+            &two_figures(frames, FPS),
+            &GltfOptions::default(),
+            &mut (),
+            &path,
+        )
+        .unwrap();
+        let report = node_script("export-validate.mjs", &["gltf-validator"], &[arg(&path)]);
+        let issues = &report["issues"];
+        assert_eq!(issues["numErrors"], 0, "{frames} frames: {issues}");
+        assert_eq!(issues["numWarnings"], 0, "{frames} frames: {issues}");
+    }
+}
