@@ -127,19 +127,20 @@ pub fn frame_rate_arg(fps: f64) -> String {
 
 /// Finds `ffmpeg` on `PATH`.
 pub fn find_ffmpeg() -> Result<std::path::PathBuf, ExportError> {
-    find_on_path("ffmpeg").ok_or_else(|| ExportError::ToolMissing {
-        tool: "ffmpeg".into(),
-        install: "Debian: apt-get install ffmpeg".into(),
-    })
+    find_ffmpeg_in(&std::env::var_os("PATH").unwrap_or_default())
 }
 
-fn find_on_path(name: &str) -> Option<std::path::PathBuf> {
+/// Finds `ffmpeg` in the folders of a `PATH`-style list.
+pub fn find_ffmpeg_in(path: &std::ffi::OsStr) -> Result<std::path::PathBuf, ExportError> {
     use std::os::unix::fs::PermissionsExt;
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path)
-        .map(|dir| dir.join(name))
+    std::env::split_paths(path)
+        .map(|dir| dir.join("ffmpeg"))
         .find(|p| {
             std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0)
+        })
+        .ok_or_else(|| ExportError::ToolMissing {
+            tool: "ffmpeg".into(),
+            install: "Debian: apt-get install ffmpeg".into(),
         })
 }
 

@@ -256,3 +256,13 @@ fn load_png_expands_every_colour_type() {
         "{err}"
     );
 }
+
+#[test]
+fn a_missing_ffmpeg_says_how_to_install_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = puppetry_export::video::find_ffmpeg_in(dir.path().as_os_str()).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "ffmpeg not found on PATH; install it (Debian: apt-get install ffmpeg)"
+    );
+}
