@@ -232,6 +232,41 @@ pub enum ClientMessage {
     },
     /// Stop playing (and, if overdubbing, recording).
     StopPlaying,
+    /// Move a puppet's keyframing cursor (pad coordinates `[0, 1]²`), or
+    /// let it go (`at` left out).
+    Cursor {
+        puppet: u32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        at: Option<[f64; 2]>,
+    },
+    /// A key pose of the puppet as it is now, at a pad point.
+    KeyAdd {
+        puppet: u32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        name: Option<String>,
+        at: [f64; 2],
+    },
+    KeyMove {
+        puppet: u32,
+        key: usize,
+        at: [f64; 2],
+    },
+    KeyDelete {
+        puppet: u32,
+        key: usize,
+    },
+    /// Write the puppet's key poses to its key file.
+    SaveKeys {
+        puppet: u32,
+    },
+}
+
+/// A key pose on the pad.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyView {
+    pub name: String,
+    pub at: [f64; 2],
 }
 
 /// A disc of a puppet's rest shape (stage coordinates of the rest mesh).
@@ -318,6 +353,16 @@ pub enum ServerMessage {
         rest: Vec<[f64; 2]>,
         grid: Vec<[f64; 2]>,
     },
+    /// A puppet's key poses and keyframing cursor (on connecting and on
+    /// every change).
+    Keys {
+        puppet: u32,
+        keys: Vec<KeyView>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        cursor: Option<[f64; 2]>,
+    },
+    /// The answer to `save_keys`.
+    KeysSaved { puppet: u32, file: String },
     /// Recording and playing now (sent to everyone on every change).
     Take(TakeState),
     /// The answer to `list_takes`: every take, oldest first (unreadable
@@ -430,6 +475,8 @@ pub struct HandleView {
 pub enum HandleKind {
     Contact,
     Pin,
+    /// Held by the keyframing cursor's blend of key poses.
+    Key,
 }
 
 /// What a handle holds.

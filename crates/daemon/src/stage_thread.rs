@@ -108,6 +108,16 @@ pub enum Command {
     StopTake {
         reply: oneshot::Sender<Result<String, String>>,
     },
+    /// A keyframing change (cursor, key added, moved, deleted).
+    Keys {
+        change: Change,
+        reply: Reply<()>,
+    },
+    /// The key file of a puppet, to write (the asker writes it).
+    SaveKeys {
+        puppet: u32,
+        reply: Reply<(PathBuf, puppetry_stage::keys::KeyFile)>,
+    },
     /// Which take is playing (`None`: playing stopped), for the take state.
     Playing(Option<String>),
     /// End the thread (the daemon is shutting down).
@@ -170,6 +180,7 @@ pub fn handle_views(stage: &Stage, puppet: u32) -> Vec<HandleView> {
             kind: match h.kind {
                 HandleKind::Contact => protocol::HandleKind::Contact,
                 HandleKind::Pin => protocol::HandleKind::Pin,
+                HandleKind::Key => protocol::HandleKind::Key,
             },
             at: [h.target.x, h.target.y],
             grip: match h.grip {
@@ -209,6 +220,24 @@ pub fn weights_message(stage: &Stage, puppet: u32) -> String {
     .to_text()
 }
 
+/// The "keys" message of a puppet: its key poses and cursor now.
+pub fn keys_message(stage: &Stage, puppet: u32) -> String {
+    let k = stage.puppets()[puppet as usize].keying();
+    ServerMessage::Keys {
+        puppet,
+        keys: k
+            .keys()
+            .iter()
+            .map(|e| protocol::KeyView {
+                name: e.name.clone(),
+                at: e.at,
+            })
+            .collect(),
+        cursor: k.cursor().map(|c| c.to_array()),
+    }
+    .to_text()
+}
+
 /// The newest output of one puppet.
 #[derive(Debug, Clone)]
 pub struct PuppetOutput {
@@ -220,6 +249,8 @@ pub struct PuppetOutput {
     pub handles: watch::Receiver<Arc<PublishedHandles>>,
     /// The newest "weights" message (changes when a performer paints).
     pub weights: watch::Receiver<Arc<str>>,
+    /// The newest "keys" message (key poses and the cursor).
+    pub keys: watch::Receiver<Arc<str>>,
 }
 
 /// What the stage thread publishes.
@@ -243,6 +274,8 @@ struct Publisher {
     weights: Vec<watch::Sender<Arc<str>>>,
     /// Per puppet, the weights generation last published.
     weights_published: Vec<u64>,
+    keys: Vec<watch::Sender<Arc<str>>>,
+    keys_published: Vec<u64>,
     sequences: Vec<u64>,
     cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
@@ -279,10 +312,19 @@ impl Publisher {
         }
     }
 
-    /// Publishes the weights of every puppet painted since the last call;
-    /// returns whether there were any.
+    /// Publishes the weights of every puppet painted since the last call,
+    /// and the keys of every puppet whose keys or cursor changed; returns
+    /// whether there were any.
     fn publish_weights(&mut self, stage: &Stage) -> bool {
         let mut any = false;
+        for p in stage.puppets() {
+            let i = p.id as usize;
+            if p.keying().generation != self.keys_published[i] {
+                self.keys_published[i] = p.keying().generation;
+                self.keys[i].send_replace(Arc::from(keys_message(stage, p.id)));
+                any = true;
+            }
+        }
         for p in stage.puppets() {
             let i = p.id as usize;
             if p.weights_generation() != self.weights_published[i] {
@@ -484,6 +526,8 @@ pub fn spawn(
         handles: Vec::new(),
         weights: Vec::new(),
         weights_published: vec![0; stage.puppets().len()],
+        keys: Vec::new(),
+        keys_published: vec![0; stage.puppets().len()],
         sequences: vec![0; stage.puppets().len()],
         cursors: cursors_tx,
         changes,
@@ -496,6 +540,8 @@ pub fn spawn(
         let (weights_tx, weights_rx) =
             watch::channel(Arc::<str>::from(weights_message(&stage, p.id)));
         publisher.weights.push(weights_tx);
+        let (keys_tx, keys_rx) = watch::channel(Arc::<str>::from(keys_message(&stage, p.id)));
+        publisher.keys.push(keys_tx);
         let (handles_tx, handles_rx) = watch::channel(published_handles(&stage, p.id));
         publisher.frames.push(frame_tx);
         publisher.handles.push(handles_tx);
@@ -504,6 +550,7 @@ pub fn spawn(
             rig: rig_rx,
             handles: handles_rx,
             weights: weights_rx,
+            keys: keys_rx,
         });
     }
     let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
@@ -680,6 +727,12 @@ impl Batch {
             }
             Command::ExportGrid { puppet, reply } => {
                 let _ = reply.send(stage.export_grid(puppet));
+            }
+            Command::Keys { change, reply } => {
+                self.apply(stage, taking, change, Some(reply), wake);
+            }
+            Command::SaveKeys { puppet, reply } => {
+                let _ = reply.send(stage.key_file(puppet));
             }
             Command::SaveWeights { puppet, reply } => {
                 let _ = reply.send(stage.weights_file(puppet));

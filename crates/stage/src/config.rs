@@ -36,6 +36,9 @@ pub struct StageConfig {
     pub puppets: Vec<PuppetConfig>,
     #[serde(default, rename = "input")]
     pub inputs: Vec<InputConfig>,
+    /// Keyframing pads on input sources (spatial keyframing).
+    #[serde(default, rename = "pad")]
+    pub pads: Vec<PadConfig>,
     /// Where the file was read from; relative paths are resolved against it.
     #[serde(skip)]
     pub folder: PathBuf,
@@ -106,6 +109,24 @@ pub struct PuppetConfig {
     /// A shape-aware skeleton rig.
     #[serde(default)]
     pub skeleton: Option<SkeletonConfig>,
+    /// The puppet's key-pose file (spatial keyframing, `docs/keyframing.md`):
+    /// loaded if it exists, written by `save_keys`.
+    #[serde(default)]
+    pub keys: Option<PathBuf>,
+}
+
+/// `[[pad]]`: a rectangle of the stage where contacts (of one source, or
+/// any) move a puppet's keyframing cursor instead of grabbing.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PadConfig {
+    /// The puppet's name.
+    pub puppet: String,
+    /// Only this input source's contacts (default: any).
+    #[serde(default)]
+    pub source: Option<String>,
+    /// `[x0, y0, x1, y1]` in stage coordinates: the pad's corners.
+    pub area: [f64; 4],
 }
 
 fn one() -> f64 {
@@ -514,6 +535,21 @@ impl StageConfig {
                 ));
             }
             check_rigs(i, p).map_err(|(field, problem)| invalid(field, &problem))?;
+        }
+        for (i, pad) in config.pads.iter().enumerate() {
+            if !config.puppets.iter().any(|p| p.name == pad.puppet) {
+                return Err(invalid(
+                    format!("pad[{i}].puppet"),
+                    &format!("no puppet is named {:?}", pad.puppet),
+                ));
+            }
+            let [x0, y0, x1, y1] = pad.area;
+            if !pad.area.iter().all(|v| v.is_finite()) || x0 == x1 || y0 == y1 {
+                return Err(invalid(
+                    format!("pad[{i}].area"),
+                    "must be [x0, y0, x1, y1], finite, with some width and height",
+                ));
+            }
         }
         if config.access.performer_tokens.iter().any(|t| t.is_empty()) {
             return Err(invalid(

@@ -14,6 +14,7 @@
 pub mod change;
 pub mod config;
 pub mod keys;
+pub mod pad;
 pub mod rig;
 
 use std::collections::HashMap;
@@ -45,8 +46,15 @@ pub enum CommandError {
     Weights { file: String, source: MeshError },
     #[error("puppet {puppet}: a rebuilt solver is swapped in with install, not applied")]
     NeedsSolver { puppet: u32 },
-    #[error("spatial keyframing is not available on this stage")]
-    NoKeys,
+    #[error("puppet {puppet}: {source}")]
+    Keys {
+        puppet: u32,
+        source: keys::KeysError,
+    },
+    #[error("puppet {puppet}: no key file is named for it in the stage file (`keys`)")]
+    NoKeyFile { puppet: u32 },
+    #[error("pad point [{x}, {y}] is not finite")]
+    BadPadPoint { x: f64, y: f64 },
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -67,6 +75,14 @@ pub enum StageError {
         index: usize,
         x: f64,
         y: f64,
+    },
+    #[error(transparent)]
+    KeyFile(#[from] keys::KeysError),
+    #[error("{file}: {field}: {problem}")]
+    Keys {
+        file: String,
+        field: String,
+        problem: String,
     },
     #[error("puppet {puppet}: image {path}: {problem}")]
     Image {
@@ -102,6 +118,8 @@ impl std::fmt::Display for Owner {
 pub enum HandleKind {
     Contact,
     Pin,
+    /// Held by the keyframing cursor's blend of key poses.
+    Key,
 }
 
 /// A handle on a puppet.
@@ -148,6 +166,10 @@ pub struct Puppet {
     moved: bool,
     /// Painted weights not yet given to a grid or skeleton rig.
     weights_pending: bool,
+    /// Where the mesh sits on the stage.
+    placement: pad::Placement,
+    /// Spatial keyframing: key poses and the cursor.
+    keying: pad::Keying,
 }
 
 /// What a contact landing on a puppet finds.
@@ -162,6 +184,31 @@ enum Reach {
 impl Puppet {
     pub fn handles(&self) -> &[Handle] {
         &self.handles
+    }
+
+    /// Spatial keyframing: key poses and the cursor.
+    pub fn keying(&self) -> &pad::Keying {
+        &self.keying
+    }
+
+    /// Where an anchor is in the current pose.
+    fn posed(&self, anchor: Anchor) -> DVec2 {
+        let pose = self.pose();
+        match anchor {
+            Anchor::Vertex(i) => pose[i as usize],
+            Anchor::Point { triangle, bary } => {
+                let tri = self.mesh.triangles()[triangle as usize];
+                (0..3).map(|k| pose[tri[k] as usize] * bary[k]).sum()
+            }
+        }
+    }
+
+    /// Where a grip is now: a material point in the pose, a rig point.
+    fn grip_now(&self, grip: Grip) -> Option<DVec2> {
+        match grip {
+            Grip::Point(anchor) => Some(self.posed(anchor)),
+            other => self.rig.grip_position(other),
+        }
     }
 
     pub fn rig(&self) -> &Rig {
@@ -331,6 +378,9 @@ pub struct Stage {
     /// (source, contact id) → (puppet, handle id) for contacts that grabbed
     /// something; contacts on empty stage are absent.
     grabs: HashMap<(String, u32), (usize, u64)>,
+    /// Keyframing pads of input sources, and the contacts moving them.
+    pads: Vec<pad::Pad>,
+    pad_contacts: HashMap<(String, u32), usize>,
     next_handle: u64,
     /// Handle events since the last [`Stage::take_events`], kept only while
     /// a take records them.
@@ -346,6 +396,8 @@ impl Stage {
             height: config.stage.height,
             puppets: Vec::new(),
             grabs: HashMap::new(),
+            pads: Vec::new(),
+            pad_contacts: HashMap::new(),
             next_handle: 1,
             events: None,
         };
@@ -368,7 +420,15 @@ impl Stage {
                 field,
                 problem,
             })?;
+            let (lo, hi) = bounds(mesh.vertices());
+            let placement = pad::Placement {
+                at: p.at.into(),
+                scale: p.scale,
+                centre: (lo + hi) / 2.0,
+            };
             stage.puppets.push(Puppet {
+                placement,
+                keying: pad::Keying::empty(None),
                 id: id as u32,
                 name: p.name.clone(),
                 image: config.resolve(&p.image),
@@ -406,6 +466,34 @@ impl Stage {
                     });
                 }
             }
+            if let Some(keys) = &p.keys {
+                let file = config.resolve(keys);
+                let puppet = &stage.puppets[id];
+                let keying = if file.exists() {
+                    let key_file = keys::KeyFile::load(&file)?;
+                    pad::Keying::load(
+                        file.clone(),
+                        key_file,
+                        &p.name,
+                        &puppet.rig,
+                        puppet.placement,
+                        |at| puppet.hit(at),
+                    )
+                    .map_err(|(field, problem)| StageError::Keys {
+                        file: file.display().to_string(),
+                        field,
+                        problem,
+                    })?
+                } else {
+                    pad::Keying::empty(Some(file))
+                };
+                stage.puppets[id].keying = keying;
+            }
+        }
+        for pad in &config.pads {
+            if let Some(puppet) = stage.puppets.iter().position(|p| p.name == pad.puppet) {
+                stage.pads.push(pad::Pad::from_config(pad, puppet));
+            }
         }
         Ok(stage)
     }
@@ -424,10 +512,28 @@ impl Stage {
         let source = frame.source.to_string();
         for contact in &frame.contacts {
             let key = (source.clone(), contact.id);
+            if let Some(&pad) = self.pad_contacts.get(&key) {
+                self.move_cursor(pad, contact.position);
+                if contact.phase != Phase::Move {
+                    self.pad_contacts.remove(&key);
+                }
+                if contact.phase != Phase::Down {
+                    continue;
+                }
+            }
             match contact.phase {
                 Phase::Down => {
                     // A repeated down without an up: the old grab ends first.
                     self.release(&key);
+                    if let Some(pad) = self
+                        .pads
+                        .iter()
+                        .position(|p| p.takes(&source, contact.position))
+                    {
+                        self.pad_contacts.insert(key, pad);
+                        self.move_cursor(pad, contact.position);
+                        continue;
+                    }
                     if let Some(grab) = self.grab(
                         Owner::Source(source.clone()),
                         HandleKind::Contact,
@@ -462,8 +568,19 @@ impl Stage {
         }
     }
 
+    fn move_cursor(&mut self, pad: usize, at: DVec2) {
+        let pad = &self.pads[pad];
+        let cursor = pad.cursor(at);
+        let k = &mut self.puppets[pad.puppet].keying;
+        if k.cursor != Some(cursor) {
+            k.cursor = Some(cursor);
+            k.touch();
+        }
+    }
+
     /// Lifts every contact of a source (it disconnected or vanished).
     pub fn release_source(&mut self, source: &str) {
+        self.pad_contacts.retain(|k, _| k.0 != source);
         let keys: Vec<_> = self
             .grabs
             .keys()
@@ -542,6 +659,7 @@ impl Stage {
                 kind: match kind {
                     HandleKind::Contact => "contact",
                     HandleKind::Pin => "pin",
+                    HandleKind::Key => "key",
                 }
                 .to_string(),
                 grip: p.grip_event(grip),
@@ -601,11 +719,40 @@ impl Stage {
             Change::Rebuilt { puppet, .. } => {
                 return Err(CommandError::NeedsSolver { puppet: *puppet });
             }
-            Change::Cursor { .. }
-            | Change::KeyAdd { .. }
-            | Change::KeyMove { .. }
-            | Change::KeyDelete { .. } => {
-                return Err(CommandError::NoKeys);
+            Change::Cursor { puppet, at } => self.set_cursor(*puppet, *at)?,
+            Change::KeyAdd { puppet, name, at } => {
+                self.add_key(*puppet, name.clone(), *at)?;
+            }
+            Change::KeyMove { puppet, key, at } => {
+                let p = self.puppet_mut(*puppet)?;
+                let set = p.keying.set.as_mut().ok_or(CommandError::Keys {
+                    puppet: *puppet,
+                    source: keys::KeysError::NoSuchKey {
+                        index: *key,
+                        count: 0,
+                    },
+                })?;
+                set.move_key(*key, at.to_array())
+                    .map_err(|source| CommandError::Keys {
+                        puppet: *puppet,
+                        source,
+                    })?;
+                p.keying.touch();
+            }
+            Change::KeyDelete { puppet, key } => {
+                let p = self.puppet_mut(*puppet)?;
+                let set = p.keying.set.as_mut().ok_or(CommandError::Keys {
+                    puppet: *puppet,
+                    source: keys::KeysError::NoSuchKey {
+                        index: *key,
+                        count: 0,
+                    },
+                })?;
+                set.remove(*key).map_err(|source| CommandError::Keys {
+                    puppet: *puppet,
+                    source,
+                })?;
+                p.keying.touch();
             }
         }
         Ok(None)
@@ -778,9 +925,188 @@ impl Stage {
         })
     }
 
+    /// Moves (or lets go, `None`) a puppet's keyframing cursor, in pad
+    /// coordinates.
+    pub fn set_cursor(&mut self, puppet: u32, at: Option<DVec2>) -> Result<(), CommandError> {
+        if let Some(at) = at
+            && !at.is_finite()
+        {
+            return Err(CommandError::BadPadPoint { x: at.x, y: at.y });
+        }
+        let at = at.map(|a| a.clamp(DVec2::ZERO, DVec2::ONE));
+        let k = &mut self.puppet_mut(puppet)?.keying;
+        if k.cursor != at {
+            k.cursor = at;
+            k.touch();
+        }
+        Ok(())
+    }
+
+    /// Adds a key pose of the puppet as it is now at pad point `at`; the
+    /// first key of a puppet keys what its contacts hold (or its
+    /// skeleton). Returns the key's index.
+    pub fn add_key(&mut self, puppet: u32, name: String, at: DVec2) -> Result<usize, CommandError> {
+        let p = self.puppet(puppet)?;
+        let held: Vec<(Grip, DVec2)> = p
+            .handles
+            .iter()
+            // Pins stay where they are: keys hold what hands hold.
+            .filter(|h| h.kind == HandleKind::Contact)
+            .filter_map(|h| match h.grip {
+                Grip::Point(anchor) => Some((h.grip, anchor_position(&p.mesh, anchor))),
+                Grip::GridHandle(i) => Some((h.grip, p.rig.grip_position(Grip::GridHandle(i))?)),
+                Grip::Joint(_) => None,
+            })
+            .collect();
+        let now: Vec<Option<DVec2>> = p
+            .keying
+            .targets
+            .iter()
+            .chain(&held)
+            .map(|&(grip, _)| {
+                // Where a hand holds it, what the hand asked for; else where
+                // the solve put it.
+                let rest = |g: Grip| match g {
+                    Grip::Point(a) => Some(anchor_position(&p.mesh, a)),
+                    _ => None,
+                };
+                p.handles
+                    .iter()
+                    .find(|h| {
+                        h.kind != HandleKind::Key
+                            && (h.grip == grip
+                                || rest(h.grip)
+                                    .zip(rest(grip))
+                                    .is_some_and(|(a, b)| a.distance(b) < 1e-9))
+                    })
+                    .map(|h| h.rig_target())
+                    .or_else(|| p.grip_now(grip))
+            })
+            .collect();
+        let targets_before = p.keying.targets.clone();
+        let placement = p.placement;
+        let p = &mut self.puppets[puppet as usize];
+        let lookup = |grip: Grip| {
+            targets_before
+                .iter()
+                .chain(&held)
+                .position(|&(g, _)| g == grip)
+                .and_then(|i| now[i])
+        };
+        p.keying
+            .add_key(name, at, &p.rig, &held, placement, lookup)
+            .map_err(|source| CommandError::Keys { puppet, source })
+    }
+
+    /// The key file to write for a puppet (`save_keys`): where, and what.
+    pub fn key_file(&self, puppet: u32) -> Result<(PathBuf, keys::KeyFile), CommandError> {
+        let p = self.puppet(puppet)?;
+        let file = p
+            .keying
+            .file
+            .clone()
+            .ok_or(CommandError::NoKeyFile { puppet })?;
+        Ok((file, p.keying.key_file(&p.name, &p.rig, p.placement)))
+    }
+
+    /// Puts each keyed puppet's handles where its cursor's blend of key
+    /// poses says, adding or removing key handles as fingers take keyed
+    /// grips over or let go.
+    fn drive_keys(&mut self) {
+        let radius = self.grab_radius();
+        for index in 0..self.puppets.len() {
+            let p = &self.puppets[index];
+            let k = &p.keying;
+            if !(k.dirty || (p.handles_changed && !k.targets.is_empty())) {
+                continue;
+            }
+            let wanted = k.cursor.is_some() && k.set.as_ref().is_some_and(|s| !s.is_empty());
+            if k.skeleton {
+                let p = &mut self.puppets[index];
+                let k = &mut p.keying;
+                k.dirty = false;
+                if let (true, Some(set), Some(cursor)) = (wanted, k.set.as_mut(), k.cursor) {
+                    k.blended.resize(set.width(), 0.0);
+                    if set.blend_into(cursor, &mut k.blended)
+                        && let Some(pose) = pad::skeleton_pose(&p.rig, &k.blended)
+                        && let Rig::Skeleton(r) = &mut p.rig
+                        && r.set_pose(pose).is_ok()
+                    {
+                        p.moved = true;
+                    }
+                }
+                continue;
+            }
+            // A finger on or near a keyed grip takes it over.
+            let taken: Vec<bool> = k
+                .targets
+                .iter()
+                .map(|&(grip, rest)| {
+                    p.handles.iter().any(|h| {
+                        h.kind != HandleKind::Key
+                            && match (h.grip, grip) {
+                                (Grip::Point(a), Grip::Point(_)) => {
+                                    anchor_position(&p.mesh, a).distance(rest) <= radius
+                                }
+                                (a, b) => a == b,
+                            }
+                    })
+                })
+                .collect();
+            let mut plan = Vec::new();
+            for (i, &(grip, _)) in k.targets.iter().enumerate() {
+                let want = wanted && !taken[i];
+                match (k.handles[i], want) {
+                    (Some(id), false) => plan.push((i, Some(id), None)),
+                    (None, true) => plan.push((i, None, Some(grip))),
+                    _ => {}
+                }
+            }
+            for (i, remove, add) in plan {
+                if let Some(id) = remove {
+                    self.remove_handle(index, id);
+                    self.puppets[index].keying.handles[i] = None;
+                }
+                if let Some(grip) = add {
+                    let at = self.puppets[index].grip_now(grip).unwrap_or_default();
+                    let offset = DVec2::ZERO;
+                    let id = self.add_handle(
+                        index,
+                        Owner::Source("keys".into()),
+                        HandleKind::Key,
+                        grip,
+                        at,
+                        offset,
+                        None,
+                    );
+                    self.puppets[index].keying.handles[i] = id;
+                }
+            }
+            let p = &mut self.puppets[index];
+            let k = &mut p.keying;
+            k.dirty = false;
+            if let (true, Some(set), Some(cursor)) = (wanted, k.set.as_mut(), k.cursor) {
+                k.blended.resize(set.width(), 0.0);
+                if set.blend_into(cursor, &mut k.blended) {
+                    for (i, id) in k.handles.iter().enumerate() {
+                        let Some(id) = id else { continue };
+                        let target = DVec2::new(k.blended[2 * i], k.blended[2 * i + 1]);
+                        if let Some(h) = p.handles.iter_mut().find(|h| h.id == *id)
+                            && h.target != target
+                        {
+                            h.target = target;
+                            p.moved = true;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Solves every puppet whose handles changed or moved; returns, per
     /// solved puppet, whether its handle set changed.
     pub fn solve(&mut self) -> Vec<(u32, bool)> {
+        self.drive_keys();
         let mut solved = Vec::new();
         for p in &mut self.puppets {
             if !(p.handles_changed || p.moved) {

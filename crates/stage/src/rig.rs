@@ -362,6 +362,19 @@ impl SkeletonRig {
         Ok(())
     }
 
+    /// The FK pose now.
+    pub fn pose(&self) -> &Pose {
+        &self.pose
+    }
+
+    /// Sets the skeleton to a pose (a blend of key poses).
+    pub fn set_pose(&mut self, pose: Pose) -> Result<(), RigError> {
+        let joints = self.deformer.skeleton().joints_of(&pose)?;
+        self.pose = pose;
+        self.joints = joints;
+        Ok(())
+    }
+
     pub fn pose_names(&self) -> Vec<&str> {
         self.key_poses.iter().map(|(n, _)| n.as_str()).collect()
     }

@@ -27,7 +27,7 @@ use crate::protocol::{
 };
 use crate::stage_thread::{Command, PuppetOutput};
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
-use puppetry_stage::{Rig, Stage};
+use puppetry_stage::{Change, Rig, Stage};
 
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
@@ -218,6 +218,11 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     // Weights are sent once painted (the stage message has none: the mesh
     // file's are implied until then).
     let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
+    // Key poses and cursors: everyone gets them on connecting.
+    let mut keys: Vec<_> = shared.outputs.iter().map(|o| o.keys.clone()).collect();
+    for k in &mut keys {
+        k.mark_changed();
+    }
     let puppets = shared
         .stage
         .puppets
@@ -265,6 +270,10 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     if let Some(bytes) = frame {
                         send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
                     }
+                }
+                if keys[i].has_changed().unwrap_or(false) {
+                    let text = keys[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
                 if weights[i].has_changed().unwrap_or(false) {
                     let text = weights[i].borrow_and_update().to_string();
@@ -522,6 +531,61 @@ async fn handle_message(
         } => {
             play_take(shared, &take, overdub, replace, replace_sources).await?;
             return Ok(None);
+        }
+        ClientMessage::Cursor { puppet, at } => {
+            let change = Change::Cursor {
+                puppet,
+                at: at.map(DVec2::from),
+            };
+            ask(shared, |reply| Command::Keys { change, reply }).await?;
+            return Ok(None);
+        }
+        ClientMessage::KeyAdd { puppet, name, at } => {
+            let name = name.unwrap_or_else(|| {
+                format!(
+                    "key {}",
+                    std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map(|d| d.as_millis() % 100_000)
+                        .unwrap_or(0)
+                )
+            });
+            let change = Change::KeyAdd {
+                puppet,
+                name,
+                at: DVec2::from(at),
+            };
+            ask(shared, |reply| Command::Keys { change, reply }).await?;
+            return Ok(None);
+        }
+        ClientMessage::KeyMove { puppet, key, at } => {
+            let change = Change::KeyMove {
+                puppet,
+                key,
+                at: DVec2::from(at),
+            };
+            ask(shared, |reply| Command::Keys { change, reply }).await?;
+            return Ok(None);
+        }
+        ClientMessage::KeyDelete { puppet, key } => {
+            let change = Change::KeyDelete { puppet, key };
+            ask(shared, |reply| Command::Keys { change, reply }).await?;
+            return Ok(None);
+        }
+        ClientMessage::SaveKeys { puppet } => {
+            let (path, file) = ask(shared, |reply| Command::SaveKeys { puppet, reply }).await?;
+            let target = path.clone();
+            tokio::task::spawn_blocking(move || file.save(&target))
+                .await
+                .map_err(|e| format!("save_keys: {e}"))?
+                .map_err(|e| format!("save_keys: {e}"))?;
+            return Ok(Some(
+                ServerMessage::KeysSaved {
+                    puppet,
+                    file: path.display().to_string(),
+                }
+                .to_text(),
+            ));
         }
         ClientMessage::StopPlaying => {
             let player = shared

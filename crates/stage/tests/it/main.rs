@@ -4,5 +4,6 @@
 #[global_allocator]
 static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
 
+mod keyframing;
 mod keys;
 mod rigs_no_alloc;
