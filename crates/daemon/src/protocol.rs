@@ -296,6 +296,20 @@ pub struct TakeState {
     pub error: Option<String>,
 }
 
+/// An export's progress (sent to everyone).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExportState {
+    pub take: String,
+    pub format: String,
+    /// Frames (or chunks) done of `total`.
+    pub done: usize,
+    pub total: usize,
+    pub finished: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
 /// A take in the `takes` list.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -365,6 +379,8 @@ pub enum ServerMessage {
     KeysSaved { puppet: u32, file: String },
     /// Recording and playing now (sent to everyone on every change).
     Take(TakeState),
+    /// How the export of a take downloading from the page is going.
+    Export(ExportState),
     /// The answer to `list_takes`: every take, oldest first (unreadable
     /// files are left out and logged).
     Takes { takes: Vec<TakeView> },

@@ -10,7 +10,9 @@
 //! - [`video`]: the same frames piped into `ffmpeg` (`.mp4`, `.mov` ProRes
 //!   4444 with alpha, `.webm` VP9 with alpha);
 //! - [`spine`]: Spine 4.2 JSON, a mesh attachment per puppet and a deform
-//!   timeline.
+//!   timeline;
+//! - [`take`]: a recorded take, read and resampled into an [`Animation`]
+//!   and exported in any of the above.
 //!
 //! Plain synchronous code: every exporter is a function taking the
 //! animation, its options and a [`Progress`], and writing a file (or a
@@ -22,6 +24,7 @@ pub mod gltf;
 pub mod raster;
 pub mod resample;
 pub mod spine;
+pub mod take;
 pub mod video;
 
 use std::io::BufReader;

@@ -328,7 +328,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 Some(path) => path,
                 None => puppetry::bundled::demo_stage()?,
             };
-            let request = puppetry::export::ExportRequest {
+            let request = puppetry_export::take::ExportRequest {
                 take,
                 config,
                 format: format.clone(),
@@ -339,7 +339,10 @@ fn run(args: Args) -> anyhow::Result<()> {
                 output,
             };
             let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
-            println!("{}", puppetry::export::export_command(&request, &mut bar)?);
+            println!(
+                "{}",
+                puppetry_export::take::export_take(&request, &mut bar)?
+            );
         }
         Command::Takes {
             dir,

@@ -52,6 +52,8 @@ pub fn router(shared: Arc<Shared>) -> Router {
     Router::new()
         .route("/ws", get(upgrade))
         .route("/puppets/{id}/texture.png", get(texture))
+        .route("/takes/{file}", get(super::exports::take_file))
+        .route("/takes/{name}/export", get(super::exports::export))
         .with_state(shared)
         .merge(files)
         .layer(RequestBodyLimitLayer::new(MAX_BODY))

@@ -6,6 +6,7 @@
 //! reading is dropped after the stage's client timeout.
 
 mod edge;
+mod exports;
 
 pub use edge::WebFiles;
 
@@ -140,6 +141,12 @@ pub struct Shared {
     pub take_puppets: Vec<puppetry_take::PuppetInfo>,
     /// The take playing, if any (never locked across an await).
     pub player: std::sync::Mutex<Option<crate::takes::Player>>,
+    /// The stage file, for exports of takes.
+    pub config: puppetry_stage::config::StageConfig,
+    /// An export is running (one at a time).
+    pub exporting: std::sync::atomic::AtomicBool,
+    /// The newest "export" message.
+    pub export_state: watch::Sender<Arc<str>>,
     /// Bumped by the stage thread after each publish.
     pub changes: watch::Receiver<u64>,
     pub client_timeout: Duration,
@@ -248,6 +255,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let mut changes = shared.changes.clone();
     let mut cursors = shared.cursors.clone();
     let mut take = shared.take.clone();
+    let mut export = shared.export_state.subscribe();
     // Frames published before this client connected still count as new.
     for f in frames.iter_mut().chain(&mut rigs) {
         f.mark_changed();
@@ -292,7 +300,18 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                 let text = take.borrow_and_update().to_string();
                 send(&mut ws, Message::text(text), shared.client_timeout).await?;
             }
+            if export.has_changed().unwrap_or(false) {
+                let text = export.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
+            }
             tokio::select! {
+                // `changed` marks the value seen: send it here.
+                changed = export.changed() => {
+                    if changed.is_ok() {
+                        let text = export.borrow_and_update().to_string();
+                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                    }
+                }
                 changed = changes.changed() => {
                     if changed.is_err() {
                         // The stage thread stopped: the daemon is shutting down.

@@ -566,3 +566,201 @@ async fn the_command_line_lists_verifies_and_exports_a_take() {
         "rest mesh changed",
     );
 }
+
+/// The next text message of `kind` that satisfies `done`.
+async fn until(
+    ws: &mut crate::common::daemon::Client,
+    kind: &str,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    tokio::time::timeout(WAIT, async {
+        loop {
+            let m = next_text(ws).await;
+            if m["type"] == kind && done(&m) {
+                return m;
+            }
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no {kind} message came"))
+}
+
+fn contact(id: u32, phase: &str, at: [f64; 2]) -> Value {
+    json!({"type": "contacts", "contacts": [{"id": id, "phase": phase, "x": at[0], "y": at[1]}]})
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn performers_keyframe_over_the_wire_and_the_take_replays_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let key_file = dir.path().join("g.keys.json");
+    let config = stage_config(&format!("keys = \"{}\"", key_file.display()));
+    let takes = dir.path().join("takes");
+    let running = start_with(&config, options(&takes)).await.unwrap();
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut ws, _) = connect(&running, hello).await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    until(&mut viewer, "keys", |m| {
+        m["keys"].as_array().unwrap().is_empty()
+    })
+    .await;
+    send(&mut ws, json!({"type": "record"})).await;
+    until(&mut viewer, "take", |m| m["recording"] == "take-001").await;
+
+    // Two key poses of the head, set by a hand holding it.
+    let head = [640.0, 470.0];
+    send(&mut ws, contact(1, "down", head)).await;
+    send(&mut ws, contact(1, "move", [600.0, 500.0])).await;
+    send(
+        &mut ws,
+        json!({"type": "key_add", "puppet": 0, "name": "left", "at": [0.1, 0.5]}),
+    )
+    .await;
+    send(&mut ws, contact(1, "move", [690.0, 500.0])).await;
+    send(
+        &mut ws,
+        json!({"type": "key_add", "puppet": 0, "name": "right", "at": [0.9, 0.5]}),
+    )
+    .await;
+    send(
+        &mut ws,
+        json!({"type": "contacts", "contacts": [{"id": 1, "phase": "up"}]}),
+    )
+    .await;
+    let keys = until(&mut viewer, "keys", |m| {
+        m["keys"].as_array().unwrap().len() == 2
+    })
+    .await;
+    assert_eq!(keys["keys"][1]["name"], "right");
+
+    // The cursor drives the head: a key handle, and every page sees the cursor.
+    for i in 0..=20 {
+        let u = 0.1 + 0.8 * i as f64 / 20.0;
+        send(
+            &mut ws,
+            json!({"type": "cursor", "puppet": 0, "at": [u, 0.5]}),
+        )
+        .await;
+    }
+    let (mut cursor_seen, mut key_handles) = (false, None);
+    tokio::time::timeout(WAIT, async {
+        while !(cursor_seen && key_handles.is_some()) {
+            let m = next_text(&mut viewer).await;
+            cursor_seen |= m["type"] == "keys" && m["cursor"] == json!([0.9, 0.5]);
+            if m["type"] == "handles" {
+                let keyed = m["handles"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .filter(|h| h["kind"] == "key" && h["owner"] == "keys")
+                    .count();
+                if keyed > 0 {
+                    key_handles = Some(keyed);
+                }
+            }
+        }
+    })
+    .await
+    .expect("the cursor and its key handle reached the viewer");
+    assert_eq!(key_handles, Some(1), "one keyed point: the head");
+    send(&mut ws, json!({"type": "save_keys", "puppet": 0})).await;
+    let saved = until(&mut ws, "keys_saved", |_| true).await;
+    assert_eq!(saved["file"], key_file.display().to_string());
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    until(&mut viewer, "take", |m| m.get("recording").is_none()).await;
+    running.shutdown().await;
+
+    // The key file loads with the stage; the take holds the keyframing and
+    // replays bit for bit.
+    let again = Stage::from_config(&config).unwrap();
+    assert_eq!(again.puppets()[0].keying().keys().len(), 2);
+    let take = takes.join("take-001.take");
+    let (_, steps) = frames_and_steps(&take);
+    let changes: Vec<&Change> = steps.iter().flat_map(|s| &s.changes).collect();
+    assert_eq!(
+        changes
+            .iter()
+            .filter(|c| matches!(c, Change::KeyAdd { .. }))
+            .count(),
+        2
+    );
+    assert!(
+        changes
+            .iter()
+            .filter(|c| matches!(c, Change::Cursor { .. }))
+            .count()
+            >= 2
+    );
+    std::fs::remove_file(&key_file).unwrap();
+    let v = verify(&take, Stage::from_config(&config).unwrap()).unwrap();
+    assert_eq!(v.first_mismatch, None);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_downloads_takes_and_their_exports() {
+    use crate::common::daemon::{http_get, http_status};
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    let running = start_with(&stage_config(""), options(&takes))
+        .await
+        .unwrap();
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut ws, _) = connect(&running, hello).await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    send(&mut ws, json!({"type": "record"})).await;
+    until(&mut viewer, "take", |m| m["recording"] == "take-001").await;
+    drag(&mut ws, 1, [640.0, 470.0], [600.0, 500.0]).await;
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    until(&mut viewer, "take", |m| m.get("recording").is_none()).await;
+
+    let body = |answer: &[u8]| {
+        let at = answer.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+        answer[at + 4..].to_vec()
+    };
+    let file = http_get(running.address, "/takes/take-001.take").await;
+    assert_eq!(http_status(&file), 200);
+    assert_eq!(
+        body(&file),
+        std::fs::read(takes.join("take-001.take")).unwrap()
+    );
+
+    let glb = http_get(running.address, "/takes/take-001/export?format=glb&fps=24").await;
+    assert_eq!(
+        http_status(&glb),
+        200,
+        "{}",
+        String::from_utf8_lossy(&glb[..glb.len().min(400)])
+    );
+    assert!(String::from_utf8_lossy(&glb[..400.min(glb.len())]).contains("take-001.glb"));
+    assert_eq!(&body(&glb)[..4], b"glTF");
+    // Every page saw the export finish.
+    until(&mut viewer, "export", |m| {
+        m["finished"] == true && m["error"].is_null()
+    })
+    .await;
+
+    let spine = http_get(running.address, "/takes/take-001/export?format=spine").await;
+    assert_eq!(http_status(&spine), 200);
+    let json: Value = serde_json::from_slice(&body(&spine)).unwrap();
+    assert!(json["skeleton"]["spine"].as_str().unwrap().starts_with('4'));
+
+    assert_eq!(
+        http_status(&http_get(running.address, "/takes/take-001/export?format=png").await),
+        400
+    );
+    assert_eq!(
+        http_status(&http_get(running.address, "/takes/take-001/export?fps=x").await),
+        400
+    );
+    assert_eq!(
+        http_status(&http_get(running.address, "/takes/nope/export").await),
+        404
+    );
+    assert_eq!(
+        http_status(&http_get(running.address, "/takes/..%2Fstage.take").await),
+        404
+    );
+    let late = http_get(running.address, "/takes/take-001/export?from=5&to=1").await;
+    assert_eq!(http_status(&late), 422);
+    assert!(String::from_utf8_lossy(&late).contains("--to"));
+    running.shutdown().await;
+}

@@ -1,0 +1,204 @@
+//! Exports of recorded takes: a take's vertex frames, resampled by sample
+//! and hold to a frame rate (so each frame is exactly what a viewer saw at
+//! that instant), with the puppets' meshes and pictures from the stage
+//! file, handed to one of the exporters. Frames are read streaming: only
+//! the sampled ones are kept. `puppetry export` and the daemon's download
+//! of a take both run through [`export_take`].
+
+use std::path::{Path, PathBuf};
+
+use crate::{AnimatedPuppet, Animation, ExportError, Progress};
+use puppetry_stage::Stage;
+use puppetry_stage::config::StageConfig;
+use puppetry_take::{Record, TakeError, TakeReader};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TakeExportError {
+    #[error(transparent)]
+    Take(#[from] TakeError),
+    #[error(transparent)]
+    Export(#[from] ExportError),
+    #[error(transparent)]
+    Config(#[from] puppetry_stage::config::ConfigError),
+    #[error(transparent)]
+    Stage(#[from] puppetry_stage::StageError),
+    #[error("{file}: {problem}")]
+    Mismatch { file: String, problem: String },
+    #[error("--format: {0:?} is not one of glb, png, mp4, mov, webm, spine")]
+    Format(String),
+    #[error("-o {path}: {problem}")]
+    Output { path: String, problem: String },
+}
+
+/// The formats, as `--format` names them.
+pub const FORMATS: [&str; 6] = ["glb", "png", "mp4", "mov", "webm", "spine"];
+
+/// What to export.
+#[derive(Debug, Clone)]
+pub struct ExportRequest {
+    pub take: PathBuf,
+    pub config: PathBuf,
+    pub format: String,
+    pub fps: f64,
+    pub from: Option<f64>,
+    pub to: Option<f64>,
+    pub size: (u32, u32),
+    pub output: PathBuf,
+}
+
+/// The take as an animation at `fps` over `from..to` (default: the whole
+/// take, its last frame included).
+pub fn animation_of_take(
+    take: &Path,
+    config: &StageConfig,
+    fps: f64,
+    from: Option<f64>,
+    to: Option<f64>,
+) -> Result<Animation, TakeExportError> {
+    let stage = Stage::from_config(config)?;
+    let summary = puppetry_take::summarize(take)?;
+    let mut reader = TakeReader::open(take)?;
+    reader
+        .header
+        .check_stage(&stage)
+        .map_err(|problem| TakeExportError::Mismatch {
+            file: take.display().to_string(),
+            problem,
+        })?;
+    let from = from.unwrap_or(0.0);
+    let to = to.unwrap_or(summary.duration + 1.0 / fps);
+    let n = crate::resample::frame_count(fps, from, to)?;
+    // Before the first recorded frame a puppet shows its pose at the start.
+    let replayer = puppetry_take::replay::Replayer::new(stage);
+    let stage = replayer.stage();
+    let mut current: Vec<Vec<[f32; 2]>> = stage
+        .puppets()
+        .iter()
+        .map(|p| p.pose().iter().map(|q| [q.x as f32, q.y as f32]).collect())
+        .collect();
+    let mut frames: Vec<Vec<Vec<[f32; 2]>>> = vec![Vec::with_capacity(n); current.len()];
+    let instant = |k: usize| from + k as f64 / fps;
+    for record in reader.by_ref() {
+        let Record::Frame(frame) = record? else {
+            continue;
+        };
+        let p = frame.puppet as usize;
+        if p >= current.len() || frame.points.len() != current[p].len() {
+            return Err(TakeExportError::Mismatch {
+                file: take.display().to_string(),
+                problem: format!(
+                    "a frame of puppet {} with {} points does not fit the stage",
+                    frame.puppet,
+                    frame.points.len()
+                ),
+            });
+        }
+        // Every instant before this frame shows what was current then.
+        for (q, out) in frames.iter_mut().enumerate() {
+            while out.len() < n && instant(out.len()) < frame.t {
+                out.push(current[q].clone());
+            }
+        }
+        current[p] = frame.points;
+    }
+    for (q, out) in frames.iter_mut().enumerate() {
+        while out.len() < n {
+            out.push(current[q].clone());
+        }
+    }
+    let mut puppets = Vec::new();
+    for (p, motion) in stage.puppets().iter().zip(frames) {
+        let image = crate::load_png(&p.image)?;
+        puppets.push(AnimatedPuppet {
+            name: p.name.clone(),
+            triangles: p.mesh.triangles().to_vec(),
+            uv: p
+                .mesh
+                .uv()
+                .map(|uv| uv.iter().map(|t| [t.x as f32, t.y as f32]).collect())
+                .unwrap_or_else(|| vec![[0.0, 0.0]; p.mesh.vertices().len()]),
+            image,
+            frames: motion,
+        });
+    }
+    Ok(Animation {
+        stage_width: stage.width,
+        stage_height: stage.height,
+        fps,
+        puppets,
+        frame_count: n,
+    })
+}
+
+/// Runs an export; returns what was written, for the user.
+pub fn export_take(
+    request: &ExportRequest,
+    progress: &mut dyn Progress,
+) -> Result<String, TakeExportError> {
+    if !FORMATS.contains(&request.format.to_ascii_lowercase().as_str()) {
+        return Err(TakeExportError::Format(request.format.clone()));
+    }
+    let config = StageConfig::load(&request.config)?;
+    export_take_with(request, &config, progress)
+}
+
+/// [`export_take`] with the stage file already read.
+pub fn export_take_with(
+    request: &ExportRequest,
+    config: &StageConfig,
+    progress: &mut dyn Progress,
+) -> Result<String, TakeExportError> {
+    let format = request.format.to_ascii_lowercase();
+    if !FORMATS.contains(&format.as_str()) {
+        return Err(TakeExportError::Format(request.format.clone()));
+    }
+    let animation = animation_of_take(
+        &request.take,
+        config,
+        request.fps,
+        request.from,
+        request.to,
+    )?;
+    let out = &request.output;
+    let (width, height) = request.size;
+    match format.as_str() {
+        "glb" => {
+            let options = crate::gltf::GltfOptions {
+                chunk: 32,
+                animation_name: "take".into(),
+            };
+            crate::gltf::export_glb(&animation, &options, progress, out)?;
+        }
+        "png" => {
+            let options = crate::frames::PngOptions { width, height };
+            crate::frames::export_png_sequence(&animation, &options, progress, out)?;
+        }
+        "spine" => {
+            crate::spine::export_spine(
+                &animation,
+                &crate::spine::SpineOptions::default(),
+                progress,
+                out,
+            )?;
+        }
+        video => {
+            let wanted = out.extension().and_then(|e| e.to_str()).unwrap_or("");
+            if !wanted.eq_ignore_ascii_case(video) {
+                return Err(TakeExportError::Output {
+                    path: out.display().to_string(),
+                    problem: format!("--format {video} writes a .{video} file"),
+                });
+            }
+            let options = crate::video::VideoOptions::new(width, height);
+            crate::video::export_video(&animation, &options, progress, out)?;
+        }
+    }
+    Ok(format!(
+        "{}: {} frames at {} fps ({:.2} s) of {} puppet(s)",
+        out.display(),
+        animation.frame_count,
+        animation.fps,
+        animation.duration(),
+        animation.puppets.len()
+    ))
+}
