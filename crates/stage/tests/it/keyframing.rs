@@ -438,3 +438,68 @@ fn a_skeleton_keys_its_joint_angles() {
         assert!(d < 1e-9, "key {i}: {d} off");
     }
 }
+
+#[test]
+fn a_grid_puppet_keys_its_grid_handles() {
+    // Enough iterations for lp-FFD to converge from wherever it starts.
+    let grid = "[puppet.grid]\ncolumns = 6\nrows = 6\niterations = 200\n";
+    let mut stage = Stage::from_config(&config(grid, "")).unwrap();
+    stage.solve();
+    let handles: Vec<DVec2> = {
+        let points = stage.puppets()[0].rig().points().unwrap();
+        vec![points[33], points[2]]
+    };
+    let mut seen = Vec::new();
+    for (k, offset) in [[0.0, 40.0], [30.0, -20.0]].into_iter().enumerate() {
+        let downs: Vec<_> = handles
+            .iter()
+            .enumerate()
+            .map(|(i, &at)| (i as u32, Phase::Down, at))
+            .collect();
+        apply(&mut stage, &contacts("hands", &downs));
+        let moves: Vec<_> = handles
+            .iter()
+            .enumerate()
+            .map(|(i, &at)| {
+                (
+                    i as u32,
+                    Phase::Move,
+                    at + DVec2::from(offset) * (i + 1) as f64,
+                )
+            })
+            .collect();
+        apply(&mut stage, &contacts("hands", &moves));
+        seen.push(pose(&stage));
+        let at = DVec2::new(0.2 + 0.6 * k as f64, 0.5);
+        apply(
+            &mut stage,
+            &Change::KeyAdd {
+                puppet: 0,
+                name: format!("k{k}"),
+                at,
+            },
+        );
+        let ups: Vec<_> = (0..2).map(|i| (i, Phase::Up, DVec2::ZERO)).collect();
+        apply(&mut stage, &contacts("hands", &ups));
+    }
+    for (k, seen) in seen.iter().enumerate() {
+        cursor(&mut stage, DVec2::new(0.2 + 0.6 * k as f64, 0.5));
+        let keyed: Vec<_> = stage.puppets()[0]
+            .handles()
+            .iter()
+            .filter(|h| h.kind == HandleKind::Key)
+            .map(|h| h.grip)
+            .collect();
+        assert!(
+            keyed
+                .iter()
+                .all(|g| matches!(g, puppetry_stage::Grip::GridHandle(_))),
+            "{keyed:?}"
+        );
+        assert_eq!(keyed.len(), 2);
+        // lp-FFD iterates from its last state, so a pose reached along
+        // another path agrees to the solver's convergence, not to the bit.
+        let d = max_distance(&pose(&stage), seen);
+        assert!(d < 1e-3, "key {k}: {d} off its pose");
+    }
+}
