@@ -113,30 +113,33 @@ async fn a_take_of_two_real_captures_replays_bit_for_bit() {
     assert_eq!(v.first_mismatch, None);
     assert_eq!(v.frames, recorded.len());
 
-    // Through a daemon: play the take as fast as it goes and record that.
-    let quiet = stage_config("");
-    let second = tempfile::tempdir().unwrap();
-    let mut o = options(second.path());
-    o.record = true;
-    o.play = Some((
-        take.clone(),
-        puppetry_daemon::takes::PlayOptions {
-            fast: true,
-            ..Default::default()
-        },
-    ));
-    finish(start_with(&quiet, o).await.unwrap()).await;
-    let (replayed, _) = frames_and_steps(&only_take(second.path()));
-    assert_eq!(replayed.len(), recorded.len());
-    for (k, (a, b)) in recorded.iter().zip(&replayed).enumerate() {
-        assert_eq!(a.puppet, b.puppet, "frame {k}");
-        let bits = |f: &Frame| -> Vec<u32> {
-            f.points
-                .iter()
-                .flat_map(|p| [p[0].to_bits(), p[1].to_bits()])
-                .collect()
-        };
-        assert!(bits(a) == bits(b), "frame {k} differs");
+    // Through a daemon: play the take, as fast as it goes and in real
+    // time, recording each playback.
+    for fast in [true, false] {
+        let quiet = stage_config("");
+        let second = tempfile::tempdir().unwrap();
+        let mut o = options(second.path());
+        o.record = true;
+        o.play = Some((
+            take.clone(),
+            puppetry_daemon::takes::PlayOptions {
+                fast,
+                ..Default::default()
+            },
+        ));
+        finish(start_with(&quiet, o).await.unwrap()).await;
+        let (replayed, _) = frames_and_steps(&only_take(second.path()));
+        assert_eq!(replayed.len(), recorded.len(), "fast: {fast}");
+        for (k, (a, b)) in recorded.iter().zip(&replayed).enumerate() {
+            assert_eq!(a.puppet, b.puppet, "frame {k}");
+            let bits = |f: &Frame| -> Vec<u32> {
+                f.points
+                    .iter()
+                    .flat_map(|p| [p[0].to_bits(), p[1].to_bits()])
+                    .collect()
+            };
+            assert!(bits(a) == bits(b), "frame {k} differs (fast: {fast})");
+        }
     }
 }
 
