@@ -2,15 +2,16 @@
 // Viewers draw the stage; performers also send their pointers as contacts.
 // This module wires the page together: the connection (with reconnects),
 // the state of the stage and its puppets, the status line, the main loop,
-// and the `window.puppetry` test and debugging surface.
+// the keyframing pad, and the `window.puppetry` test and debugging surface.
 
 import {
-  RIG_KIND, ROLE, SERVER_MESSAGE, FRAME_KIND_RIG, FRAME_KIND_VERTICES,
+  HANDLE_KIND, RIG_KIND, ROLE, SERVER_MESSAGE, FRAME_KIND_RIG, FRAME_KIND_VERTICES,
   clientOwner, decodeFrameHeader, encodeClientMessage, framePoints, helloMessage, parseServerMessage,
   listTakesMessage, playMessage, recordMessage, stopPlayingMessage, stopRecordingMessage,
 } from './protocol.js';
 import { MeshRenderer } from './renderer.js';
-import { Overlay } from './overlay.js';
+import { Overlay, keyHandleAnchor } from './overlay.js';
+import { KeyPad } from './keypad.js';
 import { PointerContacts, StageView } from './input.js';
 import { PaintTool, PinTool, PoseSlider, TakeControls, calibrationInset, calibrationMarks } from './tools.js';
 
@@ -25,7 +26,7 @@ const glCanvas = byId('gl');
 const overlayCanvas = byId('overlay');
 const statusEl = byId('status');
 
-// Test and debugging surface (see tests/web/drag.mjs and rigs.mjs).
+// Test and debugging surface (see tests/web/drag.mjs, rigs.mjs, record.mjs and keypad.mjs).
 const api = window.puppetry = {
   connected: false,
   framesReceived: 0,
@@ -34,10 +35,14 @@ const api = window.puppetry = {
   rigFrames: 0,              // rig frames (grid handles, joints) received
   errors: [],                // server "error" messages and client-side failures
   stage: null,               // the last stage message
+  keys: {},                  // puppet id -> the last "keys" message (key poses and the pad's cursor)
+  handles: {},               // puppet id -> its handles now (stage message, then "handles" messages)
   ready: false,              // stage received and every texture settled
   stageToClient,
   snapshot,
   // lastGrid: the last "grid" message, once one came
+  // take, takes: the last "take" message and the last "takes" list
+  // export: the last "export" message (a take's export progress)
 };
 
 let cursors = [];            // mouse cursors on the stage, from "cursors" messages
@@ -129,6 +134,15 @@ const takeControls = new TakeControls({
   },
 });
 
+const keyPad = new KeyPad({
+  panel: byId('keypad'),
+  canvas: byId('keypad-canvas'),
+  puppet: byId('keypad-puppet'),
+  add: byId('key-add'),
+  save: byId('save-keys'),
+  letGo: byId('key-let-go'),
+}, { send, canSend: () => api.connected });
+
 const pointerContacts = new PointerContacts(stageEl, view, {
   canStart: () => role === ROLE.PERFORMER && api.connected,
   tools: [paintTool, pinTool], // the brush, when on, wins over pinning
@@ -140,11 +154,13 @@ if (role === ROLE.PERFORMER) {
   paintTool.enable();
   poseSlider.enable();
   takeControls.enable();
+  keyPad.enable();
 }
 
 function layout() {
   view.layout();
   needsDraw = needsOverlay = true;
+  keyPad.dirty = true; // the device pixel ratio may have changed
 }
 
 addEventListener('resize', layout);
@@ -167,7 +183,37 @@ function puppetState(src) {
     rigPoints: src.rig?.rest ? new Float32Array(src.rig.rest.flat()) : null,
     // Per-triangle stiffness, shown while the paint tool is on.
     weights: src.weights ?? null,
+    // Key handle id -> where on the mesh it is drawn (overlay.js keyHandleAnchor).
+    keyAnchors: new Map(),
+    framed: false,                          // a vertex frame has come
   };
+}
+
+// A puppet's new handle set. Key handles that stay keep their place on the
+// mesh; new ones are pinned to it where they are now (see anchorKeyHandles).
+function setHandles(p, handles) {
+  p.handles = handles;
+  api.handles[p.id] = handles;
+  const kept = new Map();
+  for (const h of handles) {
+    const anchor = p.keyAnchors.get(h.id);
+    if (anchor) kept.set(h.id, anchor);
+  }
+  p.keyAnchors = kept;
+  anchorKeyHandles(p);
+  needsOverlay = true;
+}
+
+// Pins key handles without a place yet to the mesh, so the overlay draws them
+// moving with the cursor's blend. Not before the puppet's first frame: the
+// rest positions are not where a handle's `at` is.
+function anchorKeyHandles(p) {
+  if (!p.framed) return;
+  for (const h of p.handles) {
+    if (h.kind !== HANDLE_KIND.KEY || p.keyAnchors.has(h.id)) continue;
+    const anchor = keyHandleAnchor(h, p.positions, p.src.triangles);
+    if (anchor) p.keyAnchors.set(h.id, anchor);
+  }
 }
 
 const puppetById = (id) => puppets.find((q) => q.id === id);
@@ -203,9 +249,19 @@ function onText(text) {
     case SERVER_MESSAGE.STAGE: return onStage(msg);
     case SERVER_MESSAGE.HANDLES: {
       const p = puppetById(msg.puppet);
-      if (p) { p.handles = msg.handles; needsOverlay = true; }
+      if (p) setHandles(p, msg.handles);
       return;
     }
+    case SERVER_MESSAGE.KEYS:
+      api.keys[msg.puppet] = msg;
+      keyPad.onKeys(msg);
+      return;
+    case SERVER_MESSAGE.KEYS_SAVED:
+      setStatus(`keys of puppet ${msg.puppet} saved to ${msg.file}`);
+      return;
+    case SERVER_MESSAGE.EXPORT:
+      api.export = msg;
+      return;
     case SERVER_MESSAGE.CURSORS:
       cursors = msg.cursors;
       needsOverlay = true;
@@ -248,8 +304,12 @@ function onStage(msg) {
   lastError = '';
   layout();
   puppets = msg.puppets.map(puppetState);
+  api.keys = {};             // this connection's "keys" messages follow
+  api.handles = {};
+  for (const p of puppets) setHandles(p, p.handles);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });
   poseSlider.setup(puppets);
+  keyPad.setup(puppets);
   if (role === ROLE.PERFORMER) send(listTakesMessage());
   api.connected = true;
   setStatus(`connected as ${msg.role} (client ${msg.client}) · ${msg.puppets.length} puppet(s)`);
@@ -270,8 +330,10 @@ function onFrame(buf) {
   api.lastSequence[id] = header.sequence;
   p.positions = points;
   p.dirty = true;
+  if (!p.framed) { p.framed = true; anchorKeyHandles(p); }
   needsDraw = true;
-  if (paintTool.on) needsOverlay = true; // the stiffness tint follows the mesh
+  // The stiffness tint and the key handles follow the mesh.
+  if (paintTool.on || p.keyAnchors.size) needsOverlay = true;
 }
 
 // A rig frame: the puppet's deformed grid handles or posed joints.
@@ -302,7 +364,8 @@ function drawOverlay() {
 }
 
 // Per animation frame: at most one "contacts" message, one paint dab (on each
-// puppet under the brush), and a redraw of what changed.
+// puppet under the brush), one cursor message of the keyframing pad, and a
+// redraw of what changed.
 function tick() {
   requestAnimationFrame(tick);
   const message = pointerContacts.takeMessage();
@@ -311,6 +374,7 @@ function tick() {
     needsOverlay = true;
   }
   paintTool.flush();
+  keyPad.flush();
   if (needsDraw) { renderer.draw(); needsDraw = false; }
   if (needsOverlay) { drawOverlay(); needsOverlay = false; }
 }

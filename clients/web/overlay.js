@@ -1,9 +1,11 @@
 // The 2D overlay over the GL picture (#overlay): rigs (deformed grid,
 // skeleton bones and joints), the painted stiffness tint and brush, every
 // handle (pins, others' contacts, our own contacts where the pointers are
-// now), calibration marks and mouse cursors. It only draws what it is given.
+// now, the keyframing cursor's key handles as diamonds), calibration marks
+// and mouse cursors. It only draws what it is given.
 
-import { CONFIG_OWNER, HANDLE_KIND, RIG_KIND } from './protocol.js';
+import { CONFIG_OWNER, HANDLE_GRIP, HANDLE_KIND, RIG_KIND } from './protocol.js';
+import { KEY_COLOUR } from './keypad.js';
 
 // A stable colour per owner, so everyone sees whose hand is whose.
 export function ownerColour(owner, alpha = 1) {
@@ -11,6 +13,56 @@ export function ownerColour(owner, alpha = 1) {
   let h = 0;
   for (const ch of owner) h = (h * 31 + ch.charCodeAt(0)) >>> 0;
   return `hsl(${h % 360} 85% 50% / ${alpha})`;
+}
+
+/**
+ * Where a key handle is drawn as the mesh moves. A `handles` message gives
+ * a handle's `at` only when the set changes, but key handles keep moving
+ * while the pad's cursor does, with no message. They hold material points
+ * (or grid handles, joints), so the handle is pinned to the mesh where it
+ * was: the triangle under `at` in the positions then, and its barycentric
+ * weights; or the rig point it holds. Null when nothing can be found.
+ */
+export function keyHandleAnchor(handle, positions, triangles) {
+  if ((handle.grip === HANDLE_GRIP.GRID || handle.grip === HANDLE_GRIP.JOINT) && Number.isInteger(handle.index)) {
+    return { rig: handle.index };
+  }
+  const [x, y] = handle.at;
+  // The triangle containing the point, or failing that (a point a hair
+  // outside the mesh) the one it is least outside of.
+  let best = null;
+  let bestOutside = Infinity;
+  for (let t = 0; t < triangles.length; t += 3) {
+    const a = triangles[t], b = triangles[t + 1], c = triangles[t + 2];
+    const ax = positions[2 * a], ay = positions[2 * a + 1];
+    const bx = positions[2 * b], by = positions[2 * b + 1];
+    const cx = positions[2 * c], cy = positions[2 * c + 1];
+    const det = (by - cy) * (ax - cx) + (cx - bx) * (ay - cy);
+    if (det === 0) continue;
+    const wa = ((by - cy) * (x - cx) + (cx - bx) * (y - cy)) / det;
+    const wb = ((cy - ay) * (x - cx) + (ax - cx) * (y - cy)) / det;
+    const wc = 1 - wa - wb;
+    const outside = Math.max(0, -wa, -wb, -wc);
+    if (outside < bestOutside) {
+      bestOutside = outside;
+      best = { a, b, c, wa, wb, wc };
+      if (outside === 0) break;
+    }
+  }
+  return best;
+}
+
+/** The stage point of an anchor from keyHandleAnchor, given the newest positions and rig points. */
+export function anchorPoint(anchor, positions, rigPoints) {
+  if (anchor.rig !== undefined) {
+    if (!rigPoints || 2 * anchor.rig + 1 >= rigPoints.length) return null;
+    return [rigPoints[2 * anchor.rig], rigPoints[2 * anchor.rig + 1]];
+  }
+  const { a, b, c, wa, wb, wc } = anchor;
+  return [
+    wa * positions[2 * a] + wb * positions[2 * b] + wc * positions[2 * c],
+    wa * positions[2 * a + 1] + wb * positions[2 * b + 1] + wc * positions[2 * c + 1],
+  ];
 }
 
 export class Overlay {
@@ -23,7 +75,7 @@ export class Overlay {
 
   /**
    * Draws the whole overlay afresh from `scene`:
-   *   puppets           puppet states (handles, rig, rigPoints, weights, positions, src.triangles)
+   *   puppets           puppet states (handles, keyAnchors, rig, rigPoints, weights, positions, src.triangles)
    *   cursors           the newest "cursors" message's list
    *   myOwner           "client:N": our own contacts come from ownContacts instead
    *   ownContacts       stage points {x, y} of our pointers that hold contacts
@@ -63,7 +115,7 @@ export class Overlay {
     this.drawRigs(scene.puppets, dot, line);
     if (scene.showWeights) this.drawWeights(scene.puppets, toOverlay);
     if (scene.brush) this.drawBrush(scene.brush, toOverlay);
-    this.drawHandles(scene.puppets, scene.myOwner, scene.ownContacts, dot);
+    this.drawHandles(scene.puppets, scene.myOwner, scene.ownContacts, dot, toOverlay);
     if (scene.calibrationMarks) this.drawCalibrationMarks(scene.calibrationMarks, toOverlay);
     this.drawCursors(scene.cursors, toOverlay, dot);
   }
@@ -139,17 +191,36 @@ export class Overlay {
     ctx.stroke();
   }
 
-  drawHandles(puppets, myOwner, ownContacts, dot) {
+  drawHandles(puppets, myOwner, ownContacts, dot, toOverlay) {
     for (const p of puppets) {
       for (const h of p.handles) {
         // Our own contacts are drawn where the pointer is now (below): "handles"
         // messages come only when the set changes, so their `at` goes stale.
         if (h.kind === HANDLE_KIND.CONTACT && h.owner === myOwner) continue;
-        if (h.kind === HANDLE_KIND.PIN) dot(h.at[0], h.at[1], 6, ownerColour(h.owner), '#000');
+        if (h.kind === HANDLE_KIND.KEY) {
+          const anchor = p.keyAnchors?.get(h.id);
+          const at = (anchor && anchorPoint(anchor, p.positions, p.rigPoints)) ?? h.at;
+          this.drawDiamond(toOverlay(at[0], at[1]));
+        } else if (h.kind === HANDLE_KIND.PIN) dot(h.at[0], h.at[1], 6, ownerColour(h.owner), '#000');
         else dot(h.at[0], h.at[1], 10, ownerColour(h.owner, 0.6), 'rgb(0 0 0 / 0.6)');
       }
     }
     for (const { x, y } of ownContacts) dot(x, y, 10, ownerColour(myOwner, 0.6), 'rgb(0 0 0 / 0.6)');
+  }
+
+  // A key handle: a small diamond in the pad's key colour, unlike the round
+  // dots of hands and pins, since no hand holds it (the pad's cursor does).
+  drawDiamond([px, py]) {
+    const ctx = this.ctx;
+    const r = 7;
+    ctx.beginPath();
+    ctx.moveTo(px, py - r); ctx.lineTo(px + r, py); ctx.lineTo(px, py + r); ctx.lineTo(px - r, py);
+    ctx.closePath();
+    ctx.fillStyle = KEY_COLOUR;
+    ctx.fill();
+    ctx.lineWidth = 1.5;
+    ctx.strokeStyle = '#000';
+    ctx.stroke();
   }
 
   // Red crosses, numbered in the order to touch them.

@@ -20,6 +20,11 @@ export const CLIENT_MESSAGE = Object.freeze({
   LIST_TAKES: 'list_takes',
   PLAY: 'play',
   STOP_PLAYING: 'stop_playing',
+  KEY_ADD: 'key_add',
+  KEY_MOVE: 'key_move',
+  KEY_DELETE: 'key_delete',
+  CURSOR: 'cursor',
+  SAVE_KEYS: 'save_keys',
 });
 
 /** `type` of the text messages the server sends. */
@@ -32,6 +37,9 @@ export const SERVER_MESSAGE = Object.freeze({
   GRID: 'grid',
   TAKE: 'take',
   TAKES: 'takes',
+  EXPORT: 'export',
+  KEYS: 'keys',
+  KEYS_SAVED: 'keys_saved',
   ERROR: 'error',
 });
 
@@ -40,13 +48,30 @@ export const ROLE = Object.freeze({ VIEWER: 'viewer', PERFORMER: 'performer' });
 export const CONTACT_PHASE = Object.freeze({ DOWN: 'down', MOVE: 'move', UP: 'up' });
 
 /** A handle's `kind` (handles and stage messages). */
-export const HANDLE_KIND = Object.freeze({ CONTACT: 'contact', PIN: 'pin' });
+export const HANDLE_KIND = Object.freeze({ CONTACT: 'contact', PIN: 'pin', KEY: 'key' });
+
+/** What a handle holds (`grip`, handles and stage messages); `grid` and `joint` come with an `index`. */
+export const HANDLE_GRIP = Object.freeze({ POINT: 'point', GRID: 'grid', JOINT: 'joint' });
 
 /** A puppet's `rig.kind` (stage message). */
 export const RIG_KIND = Object.freeze({ FREE: 'free', GRID: 'grid', SKELETON: 'skeleton' });
 
 /** The `owner` of the stage file's pins. */
 export const CONFIG_OWNER = 'config';
+
+/** The `owner` of the handles the keyframing cursor's blend of key poses holds. */
+export const KEYS_OWNER = 'keys';
+
+/**
+ * The keyframing pad is the unit square: pad points are [u, v] with both in
+ * 0…1, v up (as stage coordinates, unlike the pad's canvas). The server
+ * clamps cursors into it and refuses keys outside it.
+ */
+export const PAD_MIN = 0;
+export const PAD_MAX = 1;
+
+/** The pad's centre: where "+ key" puts a key while no cursor is down. */
+export const PAD_CENTRE = Object.freeze([0.5, 0.5]);
 
 /** The `owner` of this client's own contacts and pins, given the stage message's `client`. */
 export function clientOwner(client) {
@@ -122,13 +147,60 @@ export function listTakesMessage() {
   return { type: CLIENT_MESSAGE.LIST_TAKES };
 }
 
-/** Plays take `take`; with `overdub`, records a new take of it and the live hands. */
-export function playMessage(take, overdub = false) {
-  return { type: CLIENT_MESSAGE.PLAY, take, overdub };
+/**
+ * Plays take `take`; with `overdub`, records a new take of it and the live
+ * hands. `replace` (regions from replaceRegion) and `replaceSources` (source
+ * names) leave those contacts of the played take out, for the live hands to
+ * redo; both are sent only when not empty, as the server writes them.
+ */
+export function playMessage(take, overdub = false, { replace = [], replaceSources = [] } = {}) {
+  const message = { type: CLIENT_MESSAGE.PLAY, take, overdub };
+  if (replace.length) message.replace = replace;
+  if (replaceSources.length) message.replace_sources = replaceSources;
+  return message;
+}
+
+/** A disc of a puppet's rest shape (stage coordinates of the rest mesh), for playMessage's `replace`. */
+export function replaceRegion(puppet, at, radius) {
+  return { puppet, at, radius };
 }
 
 export function stopPlayingMessage() {
   return { type: CLIENT_MESSAGE.STOP_PLAYING };
+}
+
+/**
+ * A key pose of the puppet as it is now, at pad point `at` ([u, v]). `name`
+ * may be left out (the server names it). A puppet's first key keys the
+ * points its contacts hold, so something must hold the puppet then.
+ */
+export function keyAddMessage(puppet, at, name) {
+  return name === undefined
+    ? { type: CLIENT_MESSAGE.KEY_ADD, puppet, at }
+    : { type: CLIENT_MESSAGE.KEY_ADD, puppet, name, at };
+}
+
+/** Moves key `key` (its index in the `keys` message) to pad point `at`. */
+export function keyMoveMessage(puppet, key, at) {
+  return { type: CLIENT_MESSAGE.KEY_MOVE, puppet, key, at };
+}
+
+/** Removes key `key` (its index in the `keys` message). */
+export function keyDeleteMessage(puppet, key) {
+  return { type: CLIENT_MESSAGE.KEY_DELETE, puppet, key };
+}
+
+/**
+ * Moves the puppet's keyframing cursor to pad point `at`; with `at` left out
+ * the cursor lets go and the puppet is free again.
+ */
+export function cursorMessage(puppet, at) {
+  return at === undefined ? { type: CLIENT_MESSAGE.CURSOR, puppet } : { type: CLIENT_MESSAGE.CURSOR, puppet, at };
+}
+
+/** Writes the puppet's keys to its key file (answered with `keys_saved`). */
+export function saveKeysMessage(puppet) {
+  return { type: CLIENT_MESSAGE.SAVE_KEYS, puppet };
 }
 
 export function encodeClientMessage(message) {

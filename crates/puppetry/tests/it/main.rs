@@ -14,4 +14,5 @@ mod rigs;
 mod serve;
 mod takes;
 mod web;
+mod web_protocol;
 mod web_rigs;

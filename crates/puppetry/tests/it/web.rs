@@ -1,6 +1,7 @@
 //! The web renderer in headless Chromium against the real daemon: the page
 //! loads, draws the puppet, and a synthetic drag deforms it (pixels change).
-//! Runs only with `PUPPETRY_BROWSER_TESTS=1` (see `tests/common/browser.rs`).
+//! Also the record button and the keyframing pad. Runs only with
+//! `PUPPETRY_BROWSER_TESTS=1` (see `tests/it/common/browser.rs`).
 
 use crate::common::browser;
 
@@ -15,4 +16,51 @@ async fn a_browser_drag_deforms_the_puppet() {
         summary["changedPixels"].as_u64().unwrap() > 500,
         "{summary}"
     );
+}
+
+/// Takes from the page: the record button turns red with "REC take-001"
+/// and a running time on a performer's page and a viewer's, a drag is
+/// recorded, and after stopping the take list holds take-001, which is in
+/// the daemon's (temporary) takes folder.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_record_button_records_a_take_every_page_sees() {
+    if !browser::enabled("the_record_button_records_a_take_every_page_sees") {
+        return;
+    }
+    let run = browser::run_page("demo", "record.mjs", "640,360", &[]).await;
+    let summary = &run.summary;
+    assert!(
+        summary["changedPixels"].as_u64().unwrap() > 500,
+        "{summary}"
+    );
+    let takes: Vec<_> = puppetry_take::list(run.takes.path())
+        .unwrap()
+        .into_iter()
+        .map(|t| t.unwrap())
+        .collect();
+    assert_eq!(takes.len(), 1, "{takes:?}");
+    let take = &takes[0];
+    assert_eq!(take.name, "take-001");
+    assert_eq!(take.ending, "stopped", "{take:?}");
+    // The drag is in it: contact steps and the frames they caused.
+    assert!(take.steps > 0 && take.frames > 0, "{take:?}");
+}
+
+/// The keyframing pad: two key poses made from the page (the puppet's head
+/// held by a finger, then by the mouse), then a drag on the pad from one
+/// key to the other moves the puppet; the cursor every page sees follows,
+/// key handles appear, keys move and go, and a viewer sees the pad
+/// read-only.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_key_pad_blends_key_poses_made_on_the_page() {
+    if !browser::enabled("the_key_pad_blends_key_poses_made_on_the_page") {
+        return;
+    }
+    // The demo puppet's head.
+    let summary = browser::run_page_script("demo", "keypad.mjs", "640,540").await;
+    assert!(
+        summary["changedPixels"].as_u64().unwrap() > 500,
+        "{summary}"
+    );
+    assert!(summary["keyHandles"].as_u64().unwrap() > 0, "{summary}");
 }

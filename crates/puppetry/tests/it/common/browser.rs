@@ -4,9 +4,11 @@
 //! with `PUPPETRY_BROWSER_TESTS=1` (set by `.ci/run`, which installs
 //! Chromium and the Node packages), so `cargo test` works on a bare machine.
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use puppetry_daemon::serve::start;
+use puppetry_daemon::serve::{Options, start_with};
+use puppetry_daemon::stream::WebFiles;
 use puppetry_stage::config::StageConfig;
 
 /// Whether browser tests are on. When they are not, says so where it is
@@ -24,26 +26,49 @@ pub fn enabled(test: &str) -> bool {
     on
 }
 
+/// What a page script ran against, kept for the test to look at.
+pub struct PageRun {
+    /// The script's summary (it succeeded).
+    pub summary: serde_json::Value,
+    /// The daemon's takes folder: a fresh temporary one, so takes recorded
+    /// from the page never land in the source tree; removed when dropped.
+    pub takes: tempfile::TempDir,
+}
+
 /// Serves `config/<stage>.toml` on a free port, runs `tests/web/<script>`
 /// against it with the pointer at the stage point `point` ("x,y"), and
 /// returns the script's summary once it has succeeded.
 pub async fn run_page_script(stage: &str, script: &str, point: &str) -> serde_json::Value {
+    run_page(stage, script, point, &[]).await.summary
+}
+
+/// As [`run_page_script`], with extra environment variables for the script,
+/// and the takes folder kept for the caller.
+pub async fn run_page(stage: &str, script: &str, point: &str, env: &[(&str, &str)]) -> PageRun {
     let root = puppetry_testkit::root();
+    let node_modules = root.join("tests/web/node_modules");
+    check_tools(&node_modules);
     let mut config = StageConfig::load(&root.join(format!("config/{stage}.toml"))).unwrap();
     config.stage.listen = "127.0.0.1:0".parse().unwrap();
-    let running = start(&config, puppetry_daemon::stream::WebFiles::Embedded, None)
-        .await
-        .unwrap();
+    let takes = tempfile::tempdir().unwrap();
+    let mut options = Options::new(WebFiles::Embedded);
+    options.takes_dir = takes.path().to_path_buf();
+    let running = start_with(&config, options).await.unwrap();
     let url = format!("http://{}/?role=performer&token=demo", running.address);
     let script = root.join("tests/web").join(script);
     let point = point.to_string();
+    let env: Vec<(String, String)> = env
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
     let output = tokio::task::spawn_blocking(move || {
         Command::new("node")
             .arg(script)
             .env("PUPPETRY_URL", url)
             .env("PUPPETRY_POINT", point)
+            .envs(env)
             .output()
-            .expect("node runs (install nodejs)")
+            .expect("node runs (install Node.js: apt-get install nodejs)")
     })
     .await
     .unwrap();
@@ -54,5 +79,28 @@ pub async fn run_page_script(stage: &str, script: &str, point: &str) -> serde_js
     let summary: serde_json::Value =
         serde_json::from_str(stdout.lines().last().unwrap_or("{}")).unwrap();
     assert_eq!(summary["ok"], true, "{stdout}");
-    summary
+    PageRun { summary, takes }
+}
+
+/// With browser tests on, what they need missing is a failure that says
+/// what to install (rather than a launch error deep in a script).
+fn check_tools(node_modules: &Path) {
+    let node = Command::new("node").arg("--version").output();
+    assert!(
+        node.as_ref().is_ok_and(|o| o.status.success()),
+        "PUPPETRY_BROWSER_TESTS is set but Node.js does not run ({node:?}): install it (apt-get install nodejs npm)"
+    );
+    let chromium = std::env::var_os("CHROMIUM")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    assert!(
+        chromium.is_file(),
+        "PUPPETRY_BROWSER_TESTS is set but there is no Chromium at {}: install it (apt-get install chromium) or set CHROMIUM to its path",
+        chromium.display()
+    );
+    assert!(
+        node_modules.join("playwright-core").is_dir(),
+        "PUPPETRY_BROWSER_TESTS is set but {} has no playwright-core: run `npm install` in tests/web",
+        node_modules.display()
+    );
 }

@@ -1,0 +1,293 @@
+// The keyframing pad (docs/protocol.md "Spatial keyframing"): a small square
+// panel where a puppet's key poses sit as dots and one cursor blends them.
+// Performers drag the cursor (the puppet follows live), add keys where it
+// is, move keys with Shift-drag, delete them with a right-click or Alt-click,
+// save them and let the cursor go. Viewers see the dots and the cursor of a
+// puppet that has keys, read-only. What is drawn is always the server's
+// state (its `keys` messages), so every page shows the same pad.
+
+import {
+  PAD_CENTRE, PAD_MAX, PAD_MIN,
+  cursorMessage, keyAddMessage, keyDeleteMessage, keyMoveMessage, saveKeysMessage,
+} from './protocol.js';
+
+// How near (CSS pixels) a press must be to a key dot to take that key.
+const DOT_REACH = 10;
+const DOT_RADIUS = 6;
+// Key dots and the overlay's key handles share a colour, so the two read as one thing.
+export const KEY_COLOUR = '#ffab00';
+const CURSOR_COLOUR = '#00e5ff';
+
+const clampPad = (v) => Math.min(PAD_MAX, Math.max(PAD_MIN, v));
+
+export class KeyPad {
+  /**
+   * elements: {panel, canvas, puppet (a select), add, save, letGo}.
+   * send(message); canSend(): whether a message can go now (connected).
+   */
+  constructor(elements, { send, canSend }) {
+    this.el = elements;
+    this.send = send;
+    this.canSend = canSend;
+    this.editable = false;
+    this.puppets = [];          // [{id, name}] from the stage message, in stage order
+    this.selected = null;       // puppet id the pad shows
+    this.state = new Map();     // puppet id -> {keys: [{name, at}], cursor?}: the newest keys message
+    this.drag = null;           // {pointerId, puppet, mode: 'cursor' | 'move', key, at}
+    this.pendingCursor = null;  // {puppet, at}: the newest cursor point not yet sent
+    this.dirty = true;          // redraw at the next flush
+    this.el.panel.hidden = true;
+    this.el.puppet.addEventListener('change', () => {
+      this.selected = Number(this.el.puppet.value);
+      this.drag = null;
+      this.dirty = true;
+    });
+  }
+
+  /** Performers: the buttons and the pad's pointer input. */
+  enable() {
+    this.editable = true;
+    const { canvas, add, save, letGo } = this.el;
+    for (const b of [add, save, letGo]) b.hidden = false;
+    canvas.classList.add('editable');
+    canvas.addEventListener('pointerdown', (e) => this.onDown(e));
+    canvas.addEventListener('pointermove', (e) => this.onMove(e));
+    canvas.addEventListener('pointerup', (e) => this.onUp(e, true));
+    canvas.addEventListener('pointercancel', (e) => this.onUp(e, false));
+    // A right-click (or a long press on a touch screen) deletes the key
+    // under it; the browser's own menu never shows over the pad.
+    canvas.addEventListener('contextmenu', (e) => {
+      e.preventDefault();
+      const key = this.keyAt(e.clientX, e.clientY);
+      if (key !== null) this.send(keyDeleteMessage(this.selected, key));
+    });
+    add.addEventListener('click', () => this.addKey());
+    save.addEventListener('click', () => this.selected !== null && this.send(saveKeysMessage(this.selected)));
+    letGo.addEventListener('click', () => this.letGo());
+    // K adds a key too: a mouse performer's one pointer is busy holding the
+    // puppet in the pose to key, so the button is out of its reach then.
+    addEventListener('keydown', (e) => {
+      if (e.repeat || e.ctrlKey || e.metaKey || e.altKey || (e.key !== 'k' && e.key !== 'K')) return;
+      if (e.target instanceof HTMLElement && e.target.matches('input, select, textarea')) return;
+      this.addKey();
+    });
+  }
+
+  /** A stage message: the puppets the pad can show (keys come in their own messages). */
+  setup(puppets) {
+    this.puppets = puppets.map((p) => ({ id: p.id, name: p.src.name }));
+    this.state.clear(); // a new connection: its keys messages follow
+    this.drag = null;
+    this.pendingCursor = null;
+    if (!this.puppets.some((p) => p.id === this.selected)) this.selected = this.puppets[0]?.id ?? null;
+    this.refresh();
+  }
+
+  /** A `keys` message. */
+  onKeys(msg) {
+    this.state.set(msg.puppet, { keys: msg.keys, cursor: msg.cursor ?? null });
+    // A key being moved that went away (deleted from another page) ends the move.
+    if (this.drag?.mode === 'move' && this.drag.puppet === msg.puppet && this.drag.key >= msg.keys.length) this.drag = null;
+    this.refresh();
+  }
+
+  // Which puppets the selector offers (viewers: only those with keys), whether
+  // the panel shows, and the selection kept valid.
+  refresh() {
+    const { panel, puppet } = this.el;
+    const offered = this.editable ? this.puppets : this.puppets.filter((p) => this.state.get(p.id)?.keys.length);
+    if (offered.length && !offered.some((p) => p.id === this.selected)) this.selected = offered[0].id;
+    const ids = offered.map((p) => String(p.id)).join();
+    if (puppet.dataset.ids !== ids) {
+      puppet.replaceChildren(...offered.map((p) => new Option(`${p.id}: ${p.name}`, String(p.id))));
+      puppet.dataset.ids = ids;
+    }
+    if (this.selected !== null) puppet.value = String(this.selected);
+    puppet.hidden = offered.length < 2;
+    panel.hidden = offered.length === 0;
+    this.dirty = true;
+  }
+
+  // ---------------------------------------------------------------- pointers
+
+  /** The pad point [u, v] under client coordinates, clamped to the pad. */
+  padPoint(cx, cy) {
+    const r = this.el.canvas.getBoundingClientRect();
+    return [clampPad((cx - r.left) / r.width), clampPad(1 - (cy - r.top) / r.height)];
+  }
+
+  /** Client coordinates of a pad point. */
+  padToClient([u, v]) {
+    const r = this.el.canvas.getBoundingClientRect();
+    return [r.left + u * r.width, r.top + (1 - v) * r.height];
+  }
+
+  /** The index of the selected puppet's key nearest to client coordinates, within reach, or null. */
+  keyAt(cx, cy) {
+    const keys = this.state.get(this.selected)?.keys ?? [];
+    let best = null;
+    let bestDist = DOT_REACH;
+    keys.forEach((k, i) => {
+      const [x, y] = this.padToClient(k.at);
+      const d = Math.hypot(x - cx, y - cy);
+      if (d < bestDist) { best = i; bestDist = d; }
+    });
+    return best;
+  }
+
+  onDown(e) {
+    if (this.selected === null || this.drag) return;
+    if (e.pointerType === 'mouse' && e.button !== 0) return; // right-click: see contextmenu
+    const key = this.keyAt(e.clientX, e.clientY);
+    if (key !== null && e.altKey) {
+      e.preventDefault();
+      this.send(keyDeleteMessage(this.selected, key));
+      return;
+    }
+    // Capture: the drag goes on when the pointer leaves the small pad.
+    this.el.canvas.setPointerCapture(e.pointerId);
+    const puppet = this.selected;
+    if (key !== null && e.shiftKey) {
+      this.drag = { pointerId: e.pointerId, puppet, mode: 'move', key, at: this.state.get(puppet).keys[key].at };
+    } else {
+      this.drag = { pointerId: e.pointerId, puppet, mode: 'cursor' };
+      // A press on a key recalls exactly its pose: the cursor snaps to it.
+      const at = key !== null ? this.state.get(puppet).keys[key].at : this.padPoint(e.clientX, e.clientY);
+      this.pendingCursor = { puppet, at };
+    }
+    this.dirty = true;
+  }
+
+  onMove(e) {
+    const d = this.drag;
+    if (!d || d.pointerId !== e.pointerId) return;
+    const at = this.padPoint(e.clientX, e.clientY);
+    if (d.mode === 'move') {
+      d.at = at;
+      this.dirty = true;
+    } else {
+      this.pendingCursor = { puppet: d.puppet, at };
+    }
+  }
+
+  // The end of a drag: a moved key goes to where it was dropped (one
+  // key_move, not one per pointer move: every move re-solves the blend); a
+  // cancelled move leaves it where it was. The cursor stays where it is.
+  onUp(e, dropped) {
+    const d = this.drag;
+    if (!d || d.pointerId !== e.pointerId) return;
+    this.drag = null;
+    if (d.mode === 'move' && dropped) {
+      const key = this.state.get(d.puppet)?.keys[d.key];
+      if (key && (key.at[0] !== d.at[0] || key.at[1] !== d.at[1])) this.send(keyMoveMessage(d.puppet, d.key, d.at));
+    }
+    this.dirty = true;
+  }
+
+  // ---------------------------------------------------------------- buttons
+
+  // A key of the puppet as it is now, where the cursor is (the point being
+  // dragged to, if that has not gone out yet), else at the pad's centre.
+  addKey() {
+    const puppet = this.selected;
+    if (puppet === null) return;
+    const state = this.state.get(puppet);
+    const pending = this.pendingCursor?.puppet === puppet ? this.pendingCursor.at : null;
+    const at = pending ?? state?.cursor ?? PAD_CENTRE;
+    this.send(keyAddMessage(puppet, [...at], nextKeyName(state?.keys ?? [])));
+  }
+
+  letGo() {
+    const puppet = this.selected;
+    if (puppet === null) return;
+    if (this.drag?.mode === 'cursor') this.drag = null;
+    if (this.pendingCursor?.puppet === puppet) this.pendingCursor = null;
+    this.send(cursorMessage(puppet));
+  }
+
+  // ---------------------------------------------------------------- per animation frame
+
+  /**
+   * Called once per animation frame: sends the newest cursor point (at most
+   * one cursor message per frame however fast the pointer moves) and
+   * redraws if anything changed.
+   */
+  flush() {
+    if (this.pendingCursor && this.canSend()) {
+      const { puppet, at } = this.pendingCursor;
+      this.pendingCursor = null;
+      this.send(cursorMessage(puppet, at));
+    }
+    if (this.dirty && !this.el.panel.hidden) {
+      this.dirty = false;
+      this.draw();
+    }
+  }
+
+  draw() {
+    const canvas = this.el.canvas;
+    const css = canvas.clientWidth;
+    const dpr = devicePixelRatio || 1;
+    const size = Math.max(1, Math.round(css * dpr));
+    if (canvas.width !== size || canvas.height !== size) canvas.width = canvas.height = size;
+    const ctx = canvas.getContext('2d');
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.clearRect(0, 0, css, css);
+    const toPad = ([u, v]) => [u * css, (1 - v) * css];
+
+    // Quarter lines, so a performer can aim for the same spot again.
+    ctx.strokeStyle = 'rgb(255 255 255 / 0.12)';
+    ctx.lineWidth = 1;
+    ctx.beginPath();
+    for (const f of [0.25, 0.5, 0.75]) {
+      ctx.moveTo(f * css, 0); ctx.lineTo(f * css, css);
+      ctx.moveTo(0, f * css); ctx.lineTo(css, f * css);
+    }
+    ctx.stroke();
+
+    const state = this.state.get(this.selected);
+    if (!state) return;
+    ctx.font = '11px system-ui, sans-serif';
+    ctx.textBaseline = 'middle';
+    state.keys.forEach((k, i) => {
+      const moving = this.drag?.mode === 'move' && this.drag.puppet === this.selected && this.drag.key === i;
+      const [x, y] = toPad(moving ? this.drag.at : k.at);
+      ctx.beginPath();
+      ctx.arc(x, y, DOT_RADIUS, 0, 2 * Math.PI);
+      ctx.fillStyle = KEY_COLOUR;
+      ctx.globalAlpha = moving ? 0.6 : 1;
+      ctx.fill();
+      ctx.globalAlpha = 1;
+      ctx.lineWidth = 1.5;
+      ctx.strokeStyle = '#000';
+      ctx.stroke();
+      // The name beside the dot, on the side with room for it.
+      const width = ctx.measureText(k.name).width;
+      const right = x + DOT_RADIUS + 3 + width <= css;
+      ctx.textAlign = right ? 'left' : 'right';
+      ctx.fillStyle = '#eee';
+      ctx.fillText(k.name, right ? x + DOT_RADIUS + 3 : x - DOT_RADIUS - 3, Math.min(css - 6, Math.max(6, y)));
+    });
+
+    if (state.cursor) {
+      const [x, y] = toPad(state.cursor);
+      ctx.strokeStyle = CURSOR_COLOUR;
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.arc(x, y, 8, 0, 2 * Math.PI);
+      ctx.moveTo(x - 13, y); ctx.lineTo(x - 4, y);
+      ctx.moveTo(x + 4, y); ctx.lineTo(x + 13, y);
+      ctx.moveTo(x, y - 13); ctx.lineTo(x, y - 4);
+      ctx.moveTo(x, y + 4); ctx.lineTo(x, y + 13);
+      ctx.stroke();
+    }
+  }
+}
+
+/** "key N" for the smallest N from the count of keys up that no key is named yet (names must differ). */
+export function nextKeyName(keys) {
+  const names = new Set(keys.map((k) => k.name));
+  let n = keys.length + 1;
+  while (names.has(`key ${n}`)) n++;
+  return `key ${n}`;
+}

@@ -1,0 +1,45 @@
+//! The web client's mirror of the wire protocol (`clients/web/protocol.js`)
+//! names every message type and every value of the fields clients branch on
+//! that `docs/protocol.md` shows. Every JSON example there is a real message
+//! (the daemon's tests parse each), so a message or kind added to the
+//! protocol and its documentation but not to the page fails here. No
+//! browser needed.
+
+/// The fields whose values the page's code compares against constants.
+const FIELDS: [&str; 5] = ["type", "kind", "grip", "role", "phase"];
+
+#[test]
+fn the_web_protocol_mirror_names_every_documented_value() {
+    let root = puppetry_testkit::root();
+    let docs = std::fs::read_to_string(root.join("docs/protocol.md")).unwrap();
+    let mirror = std::fs::read_to_string(root.join("clients/web/protocol.js")).unwrap();
+    let mut seen = std::collections::BTreeSet::new();
+    for field in FIELDS {
+        let key = format!("\"{field}\":");
+        let mut rest = docs.as_str();
+        while let Some(at) = rest.find(&key) {
+            rest = &rest[at + key.len()..];
+            let value = rest.trim_start();
+            // Only string values ("kind": 1 of a frame header table is not JSON).
+            let Some(value) = value.strip_prefix('"') else {
+                continue;
+            };
+            let end = value.find('"').unwrap();
+            seen.insert((field, value[..end].to_string()));
+        }
+    }
+    assert!(
+        seen.iter().any(|(f, v)| *f == "type" && v == "hello"),
+        "no message types found in docs/protocol.md"
+    );
+    let missing: Vec<String> = seen
+        .iter()
+        .filter(|(_, value)| !mirror.contains(&format!("'{value}'")))
+        .map(|(field, value)| format!("{field} {value:?}"))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "clients/web/protocol.js does not name these values of docs/protocol.md: {}",
+        missing.join(", ")
+    );
+}

@@ -1,0 +1,137 @@
+// What record.mjs and keypad.mjs share: a fresh headless Chromium, the
+// one-line JSON summary and exit (within 60 s whatever hangs), waiting on
+// the page's state with messages that say what did not happen, and the
+// canvas snapshot comparison of drag.mjs.
+
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { chromium } from 'playwright-core';
+
+const DEADLINE_MS = 55_000;
+
+/**
+ * Starts a script run: returns {summary, finish(ok, reason), launch(options)}.
+ * finish prints the summary and exits (0 only when ok); a watchdog calls it
+ * after DEADLINE_MS, so a hung browser, page or server still ends the run.
+ */
+export function startRun(summary) {
+  const t0 = Date.now();
+  let userDataDir;
+  let context;
+  const finish = (ok, reason) => {
+    // process.exit skips `finally` blocks: clean up here. (Playwright kills
+    // the browser it launched when this process exits.)
+    if (userDataDir) fs.rmSync(userDataDir, { recursive: true, force: true });
+    Object.assign(summary, { ok, ms: Date.now() - t0 }, reason ? { reason } : {});
+    console.log(JSON.stringify(summary));
+    process.exit(ok ? 0 : 1);
+  };
+  setTimeout(() => finish(false, `timed out after ${DEADLINE_MS} ms${summary.step ? ` (at: ${summary.step})` : ''}`), DEADLINE_MS);
+
+  // A persistent context is how Playwright takes a --user-data-dir: a fresh one.
+  const launch = async ({ hasTouch = false } = {}) => {
+    userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'puppetry-chromium-'));
+    context = await chromium.launchPersistentContext(userDataDir, {
+      executablePath: process.env.CHROMIUM ?? '/usr/bin/chromium',
+      headless: true,
+      timeout: 20_000,
+      args: [
+        '--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+        '--disable-background-networking', '--disable-component-update', '--disable-sync',
+        // WebGL on the CPU: headless Chromium without a GPU refuses WebGL otherwise.
+        '--use-gl=angle', '--use-angle=swiftshader', '--enable-unsafe-swiftshader',
+        // Two pages share the two cores: a page in the background must keep
+        // its timers and animation frames going.
+        '--disable-background-timer-throttling', '--disable-renderer-backgrounding',
+        '--disable-backgrounding-occluded-windows',
+      ],
+      viewport: { width: 1280, height: 720 },
+      hasTouch,
+    });
+    return context;
+  };
+  return { finish, launch };
+}
+
+/**
+ * A page of the context at `url`, its errors collected into `errors`, once
+ * connected with its stage and textures ready.
+ */
+export async function openPage(context, url, errors, label) {
+  const page = context.pages().find((p) => p.url() === 'about:blank') ?? await context.newPage();
+  page.setDefaultTimeout(15_000);
+  page.on('pageerror', (err) => errors.push(`${label} pageerror: ${err.message}`));
+  page.on('console', (msg) => {
+    if (msg.type() === 'error') errors.push(`${label} console: ${msg.text()}`);
+  });
+  await page.goto(url);
+  await waitFor(page, `${label}: the stage and its textures`, () => window.puppetry?.connected && window.puppetry.ready);
+  return page;
+}
+
+/** waitForFunction, failing with a message that says what did not happen. */
+export async function waitFor(page, what, fn, arg, timeout = 15_000) {
+  try {
+    await page.waitForFunction(fn, arg, { timeout, polling: 50 });
+  } catch (err) {
+    throw new Error(`timed out waiting for ${what}`, { cause: err });
+  }
+}
+
+/** Two animation frames: the newest state has been drawn and presented. */
+export function settle(page) {
+  return page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+}
+
+/** Keeps the GL canvas's pixels now as the "before" picture (see changedPixels). */
+export async function keepSnapshot(page) {
+  await settle(page);
+  await page.evaluate(() => { window.__before = window.puppetry.snapshot(); });
+}
+
+/**
+ * Pixels of the GL canvas (the puppet's picture alone, never the overlay)
+ * that differ from keepSnapshot's picture beyond rounding noise; -1 when the
+ * canvas was resized in between.
+ */
+export async function changedPixels(page) {
+  await settle(page);
+  return page.evaluate(() => {
+    const a = window.__before;
+    const b = window.puppetry.snapshot();
+    if (a.length !== b.length) return -1;
+    let changed = 0;
+    for (let i = 0; i < a.length; i += 4) {
+      const d = Math.abs(a[i] - b[i]) + Math.abs(a[i + 1] - b[i + 1]) + Math.abs(a[i + 2] - b[i + 2]);
+      if (d > 24) changed++;
+    }
+    return changed;
+  });
+}
+
+/**
+ * changedPixels, measured again until at least `min` changed or `ms` passed:
+ * the last frames of a motion may still be on their way.
+ */
+export async function changedPixelsAtLeast(page, min, ms = 15_000) {
+  let changed = await changedPixels(page);
+  const until = Date.now() + ms;
+  while (changed >= 0 && changed < min && Date.now() < until) {
+    await page.waitForTimeout(100);
+    changed = await changedPixels(page);
+  }
+  return changed;
+}
+
+/** Client coordinates of a stage point on the page. */
+export function stageToClient(page, [x, y]) {
+  return page.evaluate(([sx, sy]) => window.puppetry.stageToClient(sx, sy), [x, y]);
+}
+
+/** Whatever the page reported (its own errors list too) after a failure. */
+export async function pageState(page) {
+  const status = await page?.textContent('#status', { timeout: 1000 }).catch(() => undefined);
+  const errors = await page?.evaluate(() => window.puppetry?.errors ?? []).catch(() => []);
+  return { status, errors: errors ?? [] };
+}

@@ -1,0 +1,145 @@
+// Headless-browser check of takes from the page: a performer presses the
+// record button, which turns red with "REC take-001" and a running time on
+// the performer's page and on a viewer's; drags the puppet; presses it again,
+// and the take list then holds take-001.
+//
+//   PUPPETRY_URL='http://127.0.0.1:PORT/?role=performer&token=T' \
+//   PUPPETRY_POINT='640,360' node record.mjs
+//
+// The daemon must record into an empty takes folder (the take is take-001).
+// PUPPETRY_POINT is a stage point on the puppet to drag. Optional:
+// PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
+// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+
+import fs from 'node:fs';
+import path from 'node:path';
+import {
+  changedPixelsAtLeast, keepSnapshot, openPage, pageState, stageToClient, startRun, waitFor,
+} from './page-common.mjs';
+
+const url = process.env.PUPPETRY_URL;
+const point = (process.env.PUPPETRY_POINT ?? '').split(',').map(Number);
+const shotDir = process.env.PUPPETRY_SCREENSHOTS;
+const summary = { ok: false, url };
+const { finish, launch } = startRun(summary);
+
+if (!url || point.length !== 2 || point.some((v) => !Number.isFinite(v))) {
+  finish(false, 'set PUPPETRY_URL and PUPPETRY_POINT="x,y"');
+}
+
+// A viewer's page: the same server, no role (app.js makes that a viewer).
+const viewerUrl = (() => {
+  const u = new URL(url);
+  u.search = '';
+  return u.toString();
+})();
+
+const errors = [];
+let performer;
+let viewer;
+const step = (what) => { summary.step = what; };
+
+async function shot(page, name) {
+  if (!shotDir) return;
+  fs.mkdirSync(shotDir, { recursive: true });
+  fs.writeFileSync(path.join(shotDir, `${name}.png`), await page.screenshot());
+}
+
+// The state line's time, "REC take-001 0:01.3" -> 1.3 s (NaN if not recording).
+const ELAPSED = /^REC (\S+) (\d+):(\d+(?:\.\d+)?)/;
+const elapsedOf = (text) => {
+  const m = ELAPSED.exec(text ?? '');
+  return m ? Number(m[2]) * 60 + Number(m[3]) : NaN;
+};
+
+// "rgb(r, g, b)" (or rgba) as numbers.
+const rgb = (css) => (css.match(/\d+(\.\d+)?/g) ?? []).slice(0, 3).map(Number);
+const reddish = ([r, g, b]) => r >= 150 && g <= 120 && b <= 120;
+
+try {
+  step('launch');
+  const context = await launch();
+  step('open the performer page');
+  performer = await openPage(context, url, errors, 'performer');
+  step('open the viewer page');
+  viewer = await openPage(context, viewerUrl, errors, 'viewer');
+  await performer.bringToFront();
+
+  step('the record button before recording');
+  summary.viewerRole = await viewer.evaluate(() => window.puppetry.stage.role);
+  if (summary.viewerRole !== 'viewer') throw new Error(`the second page is a ${summary.viewerRole}, not a viewer`);
+  if (!(await performer.isVisible('#record'))) throw new Error('the performer has no record button');
+  if (await viewer.isVisible('#record')) throw new Error('a viewer has a record button');
+  const pressedBefore = await performer.getAttribute('#record', 'aria-pressed');
+  if (pressedBefore !== 'false') throw new Error(`#record is aria-pressed=${pressedBefore} before recording`);
+
+  step('start recording');
+  await performer.click('#record');
+  await waitFor(performer, 'the record button to turn on', () => document.getElementById('record').getAttribute('aria-pressed') === 'true');
+  summary.recordBackground = await performer.evaluate(() => getComputedStyle(document.getElementById('record')).backgroundColor);
+  if (!reddish(rgb(summary.recordBackground))) throw new Error(`the record button is ${summary.recordBackground}, not red`);
+
+  step('REC take-001 with a running time');
+  await waitFor(performer, '"REC take-001" in #take-state',
+    (re) => new RegExp(re).test(document.getElementById('take-state').textContent), ELAPSED.source.replace('(\\S+)', 'take-001'));
+  const first = elapsedOf(await performer.textContent('#take-state'));
+  await waitFor(performer, 'the recording time to increase', ([re, t0]) => {
+    const m = new RegExp(re).exec(document.getElementById('take-state').textContent);
+    return m && Number(m[2]) * 60 + Number(m[3]) > t0;
+  }, [ELAPSED.source, first]);
+  summary.elapsed = [first, elapsedOf(await performer.textContent('#take-state'))];
+
+  step('the viewer sees the recording');
+  await waitFor(viewer, 'the viewer\'s #take-state to say "REC take-001"', () => {
+    const el = document.getElementById('take-state');
+    return el.textContent.startsWith('REC take-001') && el.classList.contains('recording')
+      && window.puppetry.take?.recording === 'take-001';
+  });
+  if (!(await viewer.isVisible('#take-state'))) throw new Error('the viewer\'s take state is not shown');
+  summary.viewerStateColour = await viewer.evaluate(() => getComputedStyle(document.getElementById('take-state')).color);
+  if (!reddish(rgb(summary.viewerStateColour))) throw new Error(`the viewer's take state is ${summary.viewerStateColour}, not red`);
+  summary.viewerState = await viewer.textContent('#take-state');
+  await shot(performer, 'recording-performer');
+  await shot(viewer, 'recording-viewer');
+
+  step('drag the puppet');
+  await performer.bringToFront();
+  await keepSnapshot(performer);
+  const [x, y] = await stageToClient(performer, point);
+  const framesBefore = await performer.evaluate(() => window.puppetry.framesReceived);
+  await performer.mouse.move(x, y);
+  await performer.mouse.down();
+  for (let i = 1; i <= 20; i++) {
+    await performer.waitForTimeout(16);
+    await performer.mouse.move(x, y - (100 * i) / 20);
+  }
+  await waitFor(performer, 'frames after the drag', (n) => window.puppetry.framesReceived > n, framesBefore);
+  summary.changedPixels = await changedPixelsAtLeast(performer, 500);
+  await performer.mouse.up();
+  if (summary.changedPixels < 500) throw new Error(`the drag changed only ${summary.changedPixels} pixels`);
+
+  step('stop recording');
+  await performer.click('#record');
+  await waitFor(performer, 'the record button to turn off', () => document.getElementById('record').getAttribute('aria-pressed') === 'false');
+  step('take-001 in the take list');
+  await waitFor(performer, 'take-001 in #take-list',
+    () => [...document.querySelectorAll('#take-list option')].some((o) => o.value === 'take-001'));
+  summary.takeList = await performer.evaluate(() => [...document.querySelectorAll('#take-list option')].map((o) => o.textContent));
+  summary.take = await performer.evaluate(() => window.puppetry.takes?.find((t) => t.name === 'take-001'));
+  summary.afterState = await performer.textContent('#take-state');
+  if (ELAPSED.test(summary.afterState)) throw new Error(`#take-state still says ${summary.afterState}`);
+  await waitFor(viewer, 'the viewer to see the take end', () => !document.getElementById('take-state').classList.contains('recording'));
+  await shot(performer, 'stopped-performer');
+
+  summary.errors = [...errors, ...(await performer.evaluate(() => window.puppetry.errors)),
+    ...(await viewer.evaluate(() => window.puppetry.errors))];
+  step('done');
+  await context.close();
+  if (summary.errors.length) finish(false, 'the pages reported errors');
+  finish(true);
+} catch (err) {
+  const p = await pageState(performer);
+  const v = await pageState(viewer);
+  Object.assign(summary, { status: p.status, viewerStatus: v.status, errors: [...errors, ...p.errors, ...v.errors] });
+  finish(false, err.message.split('\n')[0]);
+}
