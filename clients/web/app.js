@@ -123,6 +123,8 @@ const takeControls = new TakeControls({
   play: byId('take-play'),
   overdub: byId('take-overdub'),
   stop: byId('take-stop'),
+  format: byId('take-format'),
+  download: byId('take-download'),
 }, {
   send,
   messages: {
@@ -261,6 +263,7 @@ function onText(text) {
       return;
     case SERVER_MESSAGE.EXPORT:
       api.export = msg;
+      takeControls.onExport(msg);
       return;
     case SERVER_MESSAGE.CURSORS:
       cursors = msg.cursors;

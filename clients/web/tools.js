@@ -217,13 +217,20 @@ export class TakeControls {
     this.state = { recording: null, playing: null, error: null };
     this.since = 0; // performance.now() when `elapsed` was 0
     this.el.controls.hidden = false;
-    for (const b of [this.el.record, this.el.play, this.el.overdub, this.el.stop, this.el.list]) b.hidden = true;
+    for (const b of this.buttons()) b.hidden = true;
+    this.exporting = null; // the newest `export` message while one runs
     setInterval(() => this.showElapsed(), 250);
+  }
+
+  buttons() {
+    const e = this.el;
+    return [e.record, e.play, e.overdub, e.stop, e.list, e.format, e.download];
   }
 
   /** Performers get the buttons. */
   enable() {
-    for (const b of [this.el.record, this.el.play, this.el.overdub, this.el.stop, this.el.list]) b.hidden = false;
+    for (const b of this.buttons()) b.hidden = false;
+    this.el.download.addEventListener('click', () => this.download());
     this.el.record.addEventListener('click', () => {
       this.send(this.state.recording ? this.m.stopRecording() : this.m.record());
     });
@@ -234,6 +241,27 @@ export class TakeControls {
 
   chosen() {
     return this.el.list.value || null;
+  }
+
+  /** Downloads the chosen take as the file itself or an export the daemon makes. */
+  download() {
+    const take = this.chosen();
+    if (!take) return;
+    const format = this.el.format.value;
+    const name = encodeURIComponent(take);
+    const link = document.createElement('a');
+    link.href = format === 'take' ? `/takes/${name}.take` : `/takes/${name}/export?format=${format}&fps=30`;
+    link.download = '';
+    document.body.append(link);
+    link.click();
+    link.remove();
+  }
+
+  /** An `export` message: progress of an export being downloaded. */
+  onExport(msg) {
+    this.exporting = msg.finished ? null : msg;
+    if (msg.finished && msg.error) this.state.error = `export of ${msg.take}: ${msg.error}`;
+    this.showElapsed();
   }
 
   /** A `take` message. */
@@ -257,6 +285,11 @@ export class TakeControls {
       text = `REC ${s.recording} ${minutes}:${(t % 60).toFixed(1).padStart(4, '0')}`;
     }
     if (s.playing) text += `${text ? ' · ' : ''}playing ${s.playing}`;
+    const x = this.exporting;
+    if (x) {
+      const percent = x.total ? Math.floor((100 * x.done) / x.total) : 0;
+      text += `${text ? ' · ' : ''}exporting ${x.take} (${x.format}) ${percent}%`;
+    }
     if (!text && s.error) text = s.error;
     this.el.state.textContent = text;
     this.el.state.classList.toggle('recording', !!s.recording);

@@ -120,6 +120,11 @@ const finite = (v) => typeof v === 'number' && Number.isFinite(v);
 
 // Returns an error message, or null when the input was fine.
 function onInput(c, msg) {
+  // The page asks for the takes on connecting; the mock has none.
+  if (msg.type === 'list_takes') {
+    c.ws.send(JSON.stringify({ type: 'takes', takes: [] }));
+    return null;
+  }
   if (c.role !== 'performer') return 'only performers may send input';
   if (msg.type === 'contacts') {
     if (!Array.isArray(msg.contacts)) return 'contacts: not an array';

@@ -131,6 +131,22 @@ try {
   await waitFor(viewer, 'the viewer to see the take end', () => !document.getElementById('take-state').classList.contains('recording'));
   await shot(performer, 'stopped-performer');
 
+  step('download the take as glTF from the take list');
+  await performer.selectOption('#take-list', 'take-001');
+  await performer.selectOption('#take-format', 'glb');
+  const [download] = await Promise.all([
+    performer.waitForEvent('download', { timeout: 30_000 }),
+    performer.click('#take-download'),
+  ]);
+  const head = fs.readFileSync(await download.path()).subarray(0, 4).toString('latin1');
+  summary.download = { name: download.suggestedFilename(), head };
+  if (head !== 'glTF' || summary.download.name !== 'take-001.glb') {
+    throw new Error(`the download is ${JSON.stringify(summary.download)}, not take-001.glb`);
+  }
+  // Every page hears how the export went.
+  await waitFor(viewer, 'the export to end on the viewer page',
+    () => window.puppetry.export?.finished === true && !window.puppetry.export.error);
+
   summary.errors = [...errors, ...(await performer.evaluate(() => window.puppetry.errors)),
     ...(await viewer.evaluate(() => window.puppetry.errors))];
   step('done');

@@ -152,13 +152,8 @@ pub fn export_take_with(
     if !FORMATS.contains(&format.as_str()) {
         return Err(TakeExportError::Format(request.format.clone()));
     }
-    let animation = animation_of_take(
-        &request.take,
-        config,
-        request.fps,
-        request.from,
-        request.to,
-    )?;
+    let animation =
+        animation_of_take(&request.take, config, request.fps, request.from, request.to)?;
     let out = &request.output;
     let (width, height) = request.size;
     match format.as_str() {

@@ -61,7 +61,10 @@ pub async fn export(
     };
     let (format, extension, mime) = request;
     if shared.exporting.swap(true, Ordering::AcqRel) {
-        return plain(StatusCode::TOO_MANY_REQUESTS, "an export is running; try again when it ends");
+        return plain(
+            StatusCode::TOO_MANY_REQUESTS,
+            "an export is running; try again when it ends",
+        );
     }
     let out = std::env::temp_dir().join(format!(
         "puppetry-export-{}-{name}.{extension}",
@@ -107,8 +110,8 @@ pub async fn export(
                 format: export.format.clone(),
                 shown: usize::MAX,
             };
-            let result = export_take_with(&export, &runner.config, &mut progress)
-                .map_err(|e| e.to_string());
+            let result =
+                export_take_with(&export, &runner.config, &mut progress).map_err(|e| e.to_string());
             runner.export_state.send_replace(Arc::from(
                 ServerMessage::Export(ExportState {
                     take: label,
