@@ -1,13 +1,13 @@
 //! Recording a take while the show runs: the stage thread hands records to
-//! a bounded queue and a writer thread of the recorder's own encodes and
-//! appends them, flushing at least every [`FLUSH_EVERY`], so the stage
-//! thread never waits on the disk and a killed daemon loses at most the
-//! last tenth of a second. A full queue (the disk cannot keep up) or a
+//! a bounded queue and a writer thread of the recorder's own, polling it,
+//! encodes and appends them, flushing at least every [`FLUSH_EVERY`] (plus
+//! one poll), so the stage thread never waits on the disk nor wakes the
+//! writer, and a killed daemon loses at most the last tenth of a second. A full queue (the disk cannot keep up) or a
 //! failed write (full disk, folder gone) stops the take with an error the
 //! daemon reports; the show goes on.
 
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::mpsc::{self, SyncSender, TryRecvError, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -16,6 +16,9 @@ use crate::{End, Header, Record, TakeError, TakeWriter};
 
 /// Written data reaches the operating system at least this often.
 pub const FLUSH_EVERY: Duration = Duration::from_millis(50);
+
+/// How long the writer sleeps when it has caught up.
+const POLL: Duration = Duration::from_millis(10);
 
 /// Records waiting for the writer at most; a 1k-vertex frame is 8 KB, so
 /// this bounds the queue to tens of megabytes.
@@ -54,16 +57,19 @@ impl Recorder {
                 let mut dirty = false;
                 let outcome: Result<(), TakeError> = (|| {
                     loop {
-                        match records.recv_timeout(FLUSH_EVERY) {
+                        match records.try_recv() {
                             Ok(record) => {
                                 writer.write(&record)?;
                                 dirty = true;
                             }
-                            Err(RecvTimeoutError::Timeout) => {}
-                            Err(RecvTimeoutError::Disconnected) => {
+                            Err(TryRecvError::Disconnected) => {
                                 writer.flush()?;
                                 return Ok(());
                             }
+                            // Polling, not waiting on the queue: a waiting
+                            // receiver makes every send a wake-up system
+                            // call on the stage thread.
+                            Err(TryRecvError::Empty) => std::thread::sleep(POLL),
                         }
                         if dirty && last_flush.elapsed() >= FLUSH_EVERY {
                             writer.flush()?;
