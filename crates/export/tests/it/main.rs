@@ -11,4 +11,5 @@ mod frames;
 mod gltf;
 mod resample;
 mod spine;
+mod take;
 mod video;

@@ -1,0 +1,114 @@
+//! From a recorded take: the animation holds the take's own frames, and
+//! Spine's runtime applied at t gives the take's vertices at t; the glb of
+//! a take passes the Khronos validator.
+
+use std::path::Path;
+
+use glam::DVec2;
+use puppetry_export::spine::{SpineOptions, export_spine};
+use puppetry_export::take::animation_of_take;
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_stage::config::StageConfig;
+use puppetry_stage::{Change, Stage};
+use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
+
+use crate::common::{arg, node_script};
+use crate::fixture::root;
+
+const FPS: f64 = 30.0;
+const STEPS: usize = 24;
+
+fn config() -> StageConfig {
+    let assets = root().join("assets/gingerbread");
+    let text = format!(
+        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"gingerbread\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\npins = [[168, 58], [344, 58]]\n",
+        assets.join("gingerbread.png").display(),
+        assets.join("gingerbread.mesh.json").display()
+    );
+    StageConfig::parse("take-test.toml", &text, Path::new("/")).unwrap()
+}
+
+/// A take of a hand dragging the head, one step per 1/30 s (written with
+/// exact times, as a recorder would at that pace); returns its frames.
+fn record(path: &Path, config: &StageConfig) -> Vec<Vec<[f32; 2]>> {
+    let mut stage = Stage::from_config(config).unwrap();
+    stage.solve();
+    let mut writer =
+        TakeWriter::create(path, &Header::of_stage("t", "take-test.toml", &stage, true)).unwrap();
+    let mut frames = Vec::new();
+    for k in 0..STEPS {
+        let phase = if k == 0 { Phase::Down } else { Phase::Move };
+        let a = k as f64 / STEPS as f64 * std::f64::consts::TAU;
+        let at = DVec2::new(640.0, 470.0) + DVec2::new(a.sin(), 1.0 - a.cos()) * 50.0;
+        let change = Change::Contacts {
+            frame: ContactFrame {
+                source: SourceId::new("hand"),
+                time: k as f64,
+                contacts: vec![Contact::new(1, phase, at)],
+            },
+        };
+        stage.apply_change(&change).unwrap();
+        let solved = stage.solve();
+        let t = k as f64 / FPS;
+        writer
+            .write(&Record::Step(Step {
+                t,
+                changes: vec![change],
+                events: Vec::new(),
+            }))
+            .unwrap();
+        for (p, _) in solved {
+            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
+            frames.push(frame.points.clone());
+            writer.write(&Record::Frame(frame)).unwrap();
+        }
+    }
+    writer.flush().unwrap();
+    frames
+}
+
+#[test]
+fn a_take_exports_its_own_frames_and_spine_plays_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let take = dir.path().join("t.take");
+    let config = config();
+    let recorded = record(&take, &config);
+    let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
+    assert!(animation.frame_count >= STEPS);
+    // Frame k of the export is the take's frame k, bit for bit.
+    for (k, frame) in recorded.iter().enumerate() {
+        assert!(animation.puppets[0].frames[k] == *frame, "frame {k}");
+    }
+
+    let path = dir.path().join("take.json");
+    let layout = export_spine(&animation, &SpineOptions::default(), &mut (), &path).unwrap();
+    let ks = [0usize, 5, 11, 23];
+    let times: Vec<String> = ks.iter().map(|&k| (k as f64 / FPS).to_string()).collect();
+    let result = node_script(
+        "export-spine.mjs",
+        &["@esotericsoftware/spine-core"],
+        &[arg(&path), "take", &times.join(",")],
+    );
+    let samples = result["samples"].as_array().unwrap();
+    let placed = &layout.puppets[0];
+    for (sample, &k) in samples.iter().zip(&ks) {
+        let world = sample["slots"][&placed.slot].as_array().unwrap();
+        for (i, &v) in placed.order.iter().enumerate() {
+            let e = recorded[k][v as usize];
+            for c in 0..2 {
+                let got = world[i * 2 + c].as_f64().unwrap();
+                assert!(
+                    (got - e[c] as f64).abs() <= 1e-4,
+                    "t = {k}/30, vertex {v}: {got} vs {}",
+                    e[c]
+                );
+            }
+        }
+    }
+
+    let glb = dir.path().join("take.glb");
+    puppetry_export::gltf::export_glb(&animation, &Default::default(), &mut (), &glb).unwrap();
+    let report = node_script("export-validate.mjs", &["gltf-validator"], &[arg(&glb)]);
+    assert_eq!(report["issues"]["numErrors"], 0, "{report}");
+    assert_eq!(report["issues"]["numWarnings"], 0, "{report}");
+}
