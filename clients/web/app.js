@@ -13,7 +13,7 @@ import { MeshRenderer } from './renderer.js';
 import { Overlay, keyHandleAnchor } from './overlay.js';
 import { KeyPad } from './keypad.js';
 import { PointerContacts, StageView } from './input.js';
-import { PaintTool, PinTool, PoseSlider, TakeControls, calibrationInset, calibrationMarks } from './tools.js';
+import { PaintTool, PinTool, PoseSlider, ReplaceTool, TakeControls, calibrationInset, calibrationMarks } from './tools.js';
 
 const params = new URLSearchParams(location.search);
 const role = params.get('role') === ROLE.PERFORMER ? ROLE.PERFORMER : ROLE.VIEWER;
@@ -145,9 +145,13 @@ const keyPad = new KeyPad({
   letGo: byId('key-let-go'),
 }, { send, canSend: () => api.connected });
 
+const replaceTool = new ReplaceTool(byId('take-replace'), { puppets: currentPuppets, onChange: redrawOverlay });
+takeControls.replaceTool = replaceTool;
+api.replaceRegions = () => replaceTool.regions();
+
 const pointerContacts = new PointerContacts(stageEl, view, {
   canStart: () => role === ROLE.PERFORMER && api.connected,
-  tools: [paintTool, pinTool], // the brush, when on, wins over pinning
+  tools: [replaceTool, paintTool, pinTool], // replace marking, then the brush, win over pinning
   onLifted: redrawOverlay,
 });
 
@@ -156,6 +160,7 @@ if (role === ROLE.PERFORMER) {
   paintTool.enable();
   poseSlider.enable();
   takeControls.enable();
+  replaceTool.enable();
   keyPad.enable();
 }
 
@@ -361,6 +366,7 @@ function drawOverlay() {
     ownContacts: pointerContacts.points(),
     showWeights: paintTool.on,
     brush: paintTool.outline(),
+    replace: replaceTool.outlines(),
     calibrationMarks: calibrateInset !== null && api.stage ? calibrationMarks(calibrateInset, api.stage.stage) : null,
     stageToClient,
   });

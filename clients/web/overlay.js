@@ -115,6 +115,7 @@ export class Overlay {
     this.drawRigs(scene.puppets, dot, line);
     if (scene.showWeights) this.drawWeights(scene.puppets, toOverlay);
     if (scene.brush) this.drawBrush(scene.brush, toOverlay);
+    for (const disc of scene.replace ?? []) this.drawReplace(disc, toOverlay);
     this.drawHandles(scene.puppets, scene.myOwner, scene.ownContacts, dot, toOverlay);
     if (scene.calibrationMarks) this.drawCalibrationMarks(scene.calibrationMarks, toOverlay);
     this.drawCursors(scene.cursors, toOverlay, dot);
@@ -177,6 +178,21 @@ export class Overlay {
         ctx.fill();
       }
     }
+  }
+
+  // A part the next overdub re-records: a dashed red disc.
+  drawReplace(disc, toOverlay) {
+    const ctx = this.ctx;
+    const [cx, cy] = toOverlay(disc.x, disc.y);
+    const [ex] = toOverlay(disc.x + disc.radius, disc.y);
+    ctx.save();
+    ctx.beginPath();
+    ctx.setLineDash([6, 4]);
+    ctx.lineWidth = 2;
+    ctx.strokeStyle = '#ff5252';
+    ctx.arc(cx, cy, Math.abs(ex - cx), 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.restore();
   }
 
   // The brush's reach: blue while it stiffens, red while it softens.

@@ -1,16 +1,80 @@
 // The performer's tools beside plain dragging, each with its controls in
 // the bar: the pin tool (click to pin, click a pin to remove it), the
 // stiffness paint brush (dabs, and saving the painted weights), the key pose
-// slider of a skeleton puppet; and the calibration marks `?calibrate=` asks
-// for. Tools take pointers before they become contacts (see input.js).
+// slider of a skeleton puppet, the takes' controls and overdub's replace
+// tool; and the calibration marks `?calibrate=` asks for. Tools take pointers before they become contacts (see input.js).
 
 import {
   HANDLE_KIND, RIG_KIND,
-  paintMessage, pinMessage, poseMessage, saveWeightsMessage, unpinMessage,
+  paintMessage, pinMessage, poseMessage, replaceRegion, saveWeightsMessage, unpinMessage,
 } from './protocol.js';
+import { anchorPoint, keyHandleAnchor } from './overlay.js';
 
 // How near (CSS pixels) a click must be to a pin to remove it.
 const PIN_REACH = 12;
+
+/**
+ * Overdub's "replace": while on, a press on a puppet marks a disc of its
+ * rest shape; the next overdub leaves out what the played take's hands did
+ * there (the live performer re-records that part: the left arm, say).
+ */
+export class ReplaceTool {
+  constructor(button, { puppets, onChange, radius = 40 }) {
+    this.button = button;
+    this.puppets = puppets;
+    this.onChange = onChange;
+    this.radius = radius;
+    this.on = false;
+    this.discs = []; // {puppet, at (rest), anchor (to draw it on the pose)}
+  }
+
+  enable() {
+    this.button.hidden = false;
+    this.button.addEventListener('click', () => {
+      this.on = !this.on;
+      this.button.setAttribute('aria-pressed', String(this.on));
+      if (!this.on) this.clear();
+    });
+  }
+
+  clear() {
+    this.discs = [];
+    this.onChange();
+  }
+
+  pointerDown(e, x, y) {
+    if (!this.on) return false;
+    // The topmost puppet whose current pose covers the point.
+    for (const p of [...this.puppets()].reverse()) {
+      const anchor = keyHandleAnchor({ at: [x, y] }, p.positions, p.src.triangles);
+      if (!anchor) continue;
+      const [ax, ay] = anchorPoint(anchor, p.positions, null);
+      if (Math.hypot(ax - x, ay - y) > 0.5) continue;
+      const rest = anchorPoint(anchor, p.src.rest, null);
+      this.discs.push({ puppet: p.id, at: rest, anchor });
+      this.onChange();
+      return true;
+    }
+    return true; // off the puppets: nothing to mark, and not a contact either
+  }
+
+  /** The discs as playMessage's `replace`. */
+  regions() {
+    return this.discs.map((d) => replaceRegion(d.puppet, d.at, this.radius));
+  }
+
+  /** The discs where they are now, for the overlay. */
+  outlines() {
+    const out = [];
+    for (const d of this.discs) {
+      const p = this.puppets().find((q) => q.id === d.puppet);
+      if (!p) continue;
+      const [x, y] = anchorPoint(d.anchor, p.positions, null);
+      out.push({ x, y, radius: this.radius });
+    }
+    return out;
+  }
+}
 
 export class PinTool {
   /**
@@ -235,7 +299,12 @@ export class TakeControls {
       this.send(this.state.recording ? this.m.stopRecording() : this.m.record());
     });
     this.el.play.addEventListener('click', () => this.chosen() && this.send(this.m.play(this.chosen(), false)));
-    this.el.overdub.addEventListener('click', () => this.chosen() && this.send(this.m.play(this.chosen(), true)));
+    this.el.overdub.addEventListener('click', () => {
+      if (!this.chosen()) return;
+      const replace = this.replaceTool?.regions() ?? [];
+      this.send(this.m.play(this.chosen(), true, { replace }));
+      this.replaceTool?.clear();
+    });
     this.el.stop.addEventListener('click', () => this.send(this.m.stopPlaying()));
   }
 

@@ -147,6 +147,18 @@ try {
   await waitFor(viewer, 'the export to end on the viewer page',
     () => window.puppetry.export?.finished === true && !window.puppetry.export.error);
 
+  step('overdub take-001, replacing the part its hand dragged');
+  await performer.bringToFront();
+  await performer.click('#take-replace');
+  await performer.mouse.click(x, y);
+  await waitFor(performer, 'a replace region where the drag began', () => window.puppetry.replaceRegions().length === 1);
+  summary.replace = await performer.evaluate(() => window.puppetry.replaceRegions());
+  await performer.click('#take-overdub');
+  await waitFor(performer, 'the overdub recording take-002 over take-001',
+    () => window.puppetry.take?.recording === 'take-002' && window.puppetry.take?.playing === 'take-001');
+  await waitFor(performer, 'the overdub to end with take-001',
+    () => window.puppetry.take && !window.puppetry.take.recording && !window.puppetry.take.playing);
+
   summary.errors = [...errors, ...(await performer.evaluate(() => window.puppetry.errors)),
     ...(await viewer.evaluate(() => window.puppetry.errors))];
   step('done');

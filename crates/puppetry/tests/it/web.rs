@@ -38,12 +38,30 @@ async fn the_record_button_records_a_take_every_page_sees() {
         .into_iter()
         .map(|t| t.unwrap())
         .collect();
-    assert_eq!(takes.len(), 1, "{takes:?}");
+    assert_eq!(takes.len(), 2, "{takes:?}");
     let take = &takes[0];
     assert_eq!(take.name, "take-001");
     assert_eq!(take.ending, "stopped", "{take:?}");
     // The drag is in it: contact steps and the frames they caused.
     assert!(take.steps > 0 && take.frames > 0, "{take:?}");
+    // The overdub layered over take-001 and left out its hand, whose grab
+    // was inside the replaced disc.
+    let overdub = &takes[1];
+    assert_eq!(overdub.layers, ["take-001"], "{overdub:?}");
+    assert_eq!(summary["replace"].as_array().unwrap().len(), 1, "{summary}");
+    let played_contacts = puppetry_take::TakeReader::open(&overdub.file)
+        .unwrap()
+        .filter_map(|r| match r.unwrap() {
+            puppetry_take::Record::Step(s) => Some(s),
+            _ => None,
+        })
+        .flat_map(|s| s.changes)
+        .filter(|c| {
+            matches!(c, puppetry_stage::Change::Contacts { frame }
+                if frame.source.as_str().starts_with("take-001/"))
+        })
+        .count();
+    assert_eq!(played_contacts, 0, "the replaced hand was played");
 }
 
 /// The keyframing pad: two key poses made from the page (the puppet's head
