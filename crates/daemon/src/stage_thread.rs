@@ -386,6 +386,9 @@ struct Taking {
     playing: Option<String>,
     /// The take the one recording layers over, if it is an overdub.
     overdub_of: Option<String>,
+    /// The take state changed where it could not be published at once (a
+    /// take started by the first input): publish after the next solve.
+    announce: bool,
     error: Option<String>,
     state: watch::Sender<Arc<str>>,
 }
@@ -562,6 +565,7 @@ pub fn spawn(
         events: Vec::new(),
         playing: None,
         overdub_of: None,
+        announce: false,
         error: None,
         state: state_tx,
     };
@@ -653,6 +657,7 @@ impl Batch {
                 tracing::error!("serve --record: {e}");
                 taking.error = Some(e);
             }
+            taking.announce = true;
         }
         let result = stage.apply_change(&change);
         taking.fresh = false;
@@ -805,7 +810,7 @@ impl Batch {
             let solved = stage.solve();
             publisher.publish(stage, &solved, self.newest);
             publisher.publish_weights(stage);
-            if taking.record(stage, &solved) {
+            if taking.record(stage, &solved) || std::mem::take(&mut taking.announce) {
                 taking.publish(&publisher.changes);
             }
         }

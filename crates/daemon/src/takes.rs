@@ -105,10 +105,11 @@ fn check(recorded: &[PuppetInfo], stage: &[PuppetInfo]) -> Result<(), String> {
         ));
     }
     for (i, (r, s)) in recorded.iter().zip(stage).enumerate() {
-        if r.name != s.name || r.rest_hash != s.rest_hash {
+        let setup_differs = !r.setup_hash.is_empty() && r.setup_hash != s.setup_hash;
+        if r.name != s.name || r.rest_hash != s.rest_hash || setup_differs {
             return Err(format!(
-                "puppets[{i}]: recorded as {:?} (rest mesh {}), the stage has {:?} (rest mesh {})",
-                r.name, r.rest_hash, s.name, s.rest_hash
+                "puppets[{i}]: recorded as {:?} (rest mesh {}, rig and pins {}), the stage has {:?} (rest mesh {}, rig and pins {})",
+                r.name, r.rest_hash, r.setup_hash, s.name, s.rest_hash, s.setup_hash
             ));
         }
     }
@@ -257,8 +258,11 @@ impl<'a> Filter<'a> {
 /// The takes folder's file for a take name, refusing names that would
 /// leave the folder.
 pub fn take_path(dir: &Path, name: &str) -> Result<PathBuf, String> {
+    let name = name.strip_suffix(".take").unwrap_or(name);
     if !puppetry_take::valid_name(name) {
-        return Err(format!("take {name:?}: not a take name"));
+        return Err(format!(
+            "take {name:?}: not a take name (letters, digits, '-', '_' and '.', as `list_takes` names them)"
+        ));
     }
     Ok(dir.join(format!("{name}.{}", puppetry_take::EXTENSION)))
 }

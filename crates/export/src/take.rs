@@ -65,8 +65,40 @@ pub fn animation_of_take(
             file: take.display().to_string(),
             problem,
         })?;
+    let end = summary.duration;
     let from = from.unwrap_or(0.0);
-    let to = to.unwrap_or(summary.duration + 1.0 / fps);
+    if from < 0.0 {
+        return Err(ExportError::Flag {
+            flag: "--from".into(),
+            problem: format!("{from} s is before the take's start (0 s)"),
+        }
+        .into());
+    }
+    if from >= end && end > 0.0 {
+        return Err(ExportError::Flag {
+            flag: "--from".into(),
+            problem: format!("{from} s is past the take's end ({end:.3} s)"),
+        }
+        .into());
+    }
+    // Past the end, every frame would hold the last pose: refuse rather
+    // than pad silently (one frame's slack for rounding).
+    if let Some(to) = to
+        && to > end + 1.0 / fps
+    {
+        return Err(ExportError::Flag {
+            flag: "--to".into(),
+            problem: format!("{to} s is past the take's end ({end:.3} s)"),
+        }
+        .into());
+    }
+    // Up to and including the take's end (a frame recorded at its very
+    // last instant is shown).
+    let to = to.unwrap_or(if end > from {
+        end + 1e-6
+    } else {
+        from + 1.0 / fps
+    });
     let n = crate::resample::frame_count(fps, from, to)?;
     // Before the first recorded frame a puppet shows its pose at the start.
     let replayer = puppetry_take::replay::Replayer::new(stage);

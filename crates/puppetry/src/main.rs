@@ -308,8 +308,15 @@ fn run(args: Args) -> anyhow::Result<()> {
                 if let Some(token) = stage.access.performer_tokens.first() {
                     println!("  perform: http://{address}/?role=performer&token={token}");
                 }
-                println!("  stop with Ctrl-C");
-                tokio::signal::ctrl_c().await?;
+                println!("  stop with Ctrl-C (or SIGTERM)");
+                // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
+                // either way a take being recorded is ended cleanly.
+                let mut terminate =
+                    tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+                tokio::select! {
+                    stopped = tokio::signal::ctrl_c() => stopped?,
+                    _ = terminate.recv() => {}
+                }
                 running.shutdown().await;
                 anyhow::Ok(())
             })?;

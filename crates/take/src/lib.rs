@@ -74,6 +74,10 @@ pub struct PuppetInfo {
     /// FNV-1a 64 of the rest mesh on the stage (vertices' f64 bits, then
     /// triangles), in hex.
     pub rest_hash: String,
+    /// FNV-1a 64 of the puppet's rig and the stage file's pins: the same
+    /// mesh rigged or pinned otherwise is another stage.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub setup_hash: String,
 }
 
 /// The first record of a take.
@@ -114,6 +118,7 @@ impl Header {
                     vertices: p.mesh.vertices().len(),
                     triangles: p.mesh.triangles().len(),
                     rest_hash: rest_hash(&p.mesh),
+                    setup_hash: setup_hash(p),
                 })
                 .collect(),
             started_unix: std::time::SystemTime::now()
@@ -149,6 +154,14 @@ impl Header {
                     p.name, recorded.rest_hash
                 ));
             }
+            let setup = setup_hash(p);
+            if !recorded.setup_hash.is_empty() && recorded.setup_hash != setup {
+                return Err(format!(
+                    "puppets[{i}] ({}): rigged or pinned otherwise than when the take was recorded \
+                     (another stage file than {}?)",
+                    p.name, self.stage_file
+                ));
+            }
         }
         Ok(())
     }
@@ -157,23 +170,74 @@ impl Header {
 /// A stable hash of a rest mesh (FNV-1a 64, hex): the same bits give the
 /// same hash on every machine and build.
 pub fn rest_hash(mesh: &Mesh) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    };
+    let mut h = Fnv::new();
     for v in mesh.vertices() {
-        eat(&v.x.to_bits().to_le_bytes());
-        eat(&v.y.to_bits().to_le_bytes());
+        h.eat(&v.x.to_bits().to_le_bytes());
+        h.eat(&v.y.to_bits().to_le_bytes());
     }
     for t in mesh.triangles() {
         for i in t {
-            eat(&i.to_le_bytes());
+            h.eat(&i.to_le_bytes());
         }
     }
-    format!("{h:016x}")
+    h.hex()
+}
+
+/// A stable hash of a puppet's rig (kind and shape) and its stage-file pins.
+pub fn setup_hash(puppet: &puppetry_stage::Puppet) -> String {
+    use puppetry_stage::{Grip, HandleKind, Owner, Rig};
+    let mut h = Fnv::new();
+    match puppet.rig() {
+        Rig::Free(_) => h.eat(b"free"),
+        Rig::Grid(r) => {
+            let spec = r.ffd().spec();
+            h.eat(b"grid");
+            h.eat(&(spec.columns as u64).to_le_bytes());
+            h.eat(&(spec.rows as u64).to_le_bytes());
+        }
+        Rig::Skeleton(r) => {
+            h.eat(b"skeleton");
+            for j in r.deformer().skeleton().joints() {
+                h.eat(&j.x.to_bits().to_le_bytes());
+                h.eat(&j.y.to_bits().to_le_bytes());
+            }
+        }
+    }
+    for pin in puppet
+        .handles()
+        .iter()
+        .filter(|h| h.kind == HandleKind::Pin && h.owner == Owner::Config)
+    {
+        if let Grip::Point(puppetry_deform::Anchor::Point { triangle, bary }) = pin.grip {
+            h.eat(&triangle.to_le_bytes());
+            for b in bary {
+                h.eat(&b.to_bits().to_le_bytes());
+            }
+        }
+        h.eat(&pin.target.x.to_bits().to_le_bytes());
+        h.eat(&pin.target.y.to_bits().to_le_bytes());
+    }
+    h.hex()
+}
+
+/// FNV-1a 64: stable across machines and builds, unlike std's hasher.
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+
+    fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= u64::from(b);
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+
+    fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
 }
 
 /// One solve of the stage: what was applied before it, and the handle
@@ -565,8 +629,14 @@ pub fn summarize(path: &Path) -> Result<TakeSummary, TakeError> {
         _ => "unended".to_string(),
     };
     let h = &reader.header;
+    // Takes are named by their file (that is how they are played and
+    // downloaded); the header keeps the name they were recorded under.
+    let name = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| h.name.clone());
     Ok(TakeSummary {
-        name: h.name.clone(),
+        name,
         file: path.to_path_buf(),
         started_unix: h.started_unix,
         duration,
@@ -579,8 +649,8 @@ pub fn summarize(path: &Path) -> Result<TakeSummary, TakeError> {
     })
 }
 
-/// Every take in a folder (`*.take`), oldest first; unreadable ones are
-/// listed as errors, not hidden.
+/// Every take in a folder (`*.take`), oldest first (by when each began);
+/// unreadable ones are listed as errors, after the others, not hidden.
 pub fn list(dir: &Path) -> Result<Vec<Result<TakeSummary, TakeError>>, TakeError> {
     let entries = std::fs::read_dir(dir).map_err(|source| TakeError::Io {
         file: dir.display().to_string(),
@@ -591,7 +661,14 @@ pub fn list(dir: &Path) -> Result<Vec<Result<TakeSummary, TakeError>>, TakeError
         .filter(|p| p.extension().is_some_and(|e| e == EXTENSION))
         .collect();
     paths.sort();
-    Ok(paths.iter().map(|p| summarize(p)).collect())
+    let mut takes: Vec<_> = paths.iter().map(|p| summarize(p)).collect();
+    takes.sort_by(|a, b| match (a, b) {
+        (Ok(a), Ok(b)) => a.started_unix.total_cmp(&b.started_unix),
+        (Ok(_), Err(_)) => std::cmp::Ordering::Less,
+        (Err(_), Ok(_)) => std::cmp::Ordering::Greater,
+        (Err(_), Err(_)) => std::cmp::Ordering::Equal,
+    });
+    Ok(takes)
 }
 
 /// A take name safe as a file name: letters, digits, `-`, `_` and `.`,

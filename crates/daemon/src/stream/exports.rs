@@ -14,7 +14,8 @@ use axum::extract::{Path, Query, State};
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
-use puppetry_export::take::{ExportRequest, export_take_with};
+use puppetry_export::ExportError;
+use puppetry_export::take::{ExportRequest, TakeExportError, export_take_with};
 
 use super::Shared;
 use crate::protocol::{ExportState, ServerMessage};
@@ -60,6 +61,9 @@ pub async fn export(
         Err(problem) => return plain(StatusCode::BAD_REQUEST, &problem),
     };
     let (format, extension, mime) = request;
+    if let Err(problem) = check_numbers(&query, format) {
+        return plain(StatusCode::BAD_REQUEST, &problem);
+    }
     if shared.exporting.swap(true, Ordering::AcqRel) {
         return plain(
             StatusCode::TOO_MANY_REQUESTS,
@@ -110,8 +114,14 @@ pub async fn export(
                 format: export.format.clone(),
                 shown: usize::MAX,
             };
+            // A flag error is the request's fault: a 400 naming the parameter.
             let result =
-                export_take_with(&export, &runner.config, &mut progress).map_err(|e| e.to_string());
+                export_take_with(&export, &runner.config, &mut progress).map_err(|e| match e {
+                    TakeExportError::Export(ExportError::Flag { flag, problem }) => {
+                        (true, format!("{}: {problem}", flag.trim_start_matches('-')))
+                    }
+                    other => (false, other.to_string()),
+                });
             runner.export_state.send_replace(Arc::from(
                 ServerMessage::Export(ExportState {
                     take: label,
@@ -119,7 +129,7 @@ pub async fn export(
                     done: 1,
                     total: 1,
                     finished: true,
-                    error: result.as_ref().err().cloned(),
+                    error: result.as_ref().err().map(|(_, e)| e.clone()),
                 })
                 .to_text(),
             ));
@@ -149,7 +159,8 @@ pub async fn export(
                 Err(e) => plain(StatusCode::INTERNAL_SERVER_ERROR, &e.to_string()),
             }
         }
-        Ok(Err(problem)) => plain(StatusCode::UNPROCESSABLE_ENTITY, &problem),
+        Ok(Err((true, problem))) => plain(StatusCode::BAD_REQUEST, &problem),
+        Ok(Err((false, problem))) => plain(StatusCode::UNPROCESSABLE_ENTITY, &problem),
         Err(_) => plain(StatusCode::INTERNAL_SERVER_ERROR, "the export stopped"),
     }
 }
@@ -157,7 +168,10 @@ pub async fn export(
 type Parsed = (&'static str, &'static str, &'static str);
 
 fn parse(query: &HashMap<String, String>, name: &str) -> Result<Parsed, String> {
-    let format = query.get("format").map(String::as_str).unwrap_or("glb");
+    let format = query
+        .get("format")
+        .map(String::as_str)
+        .ok_or("format: required (glb, mp4, mov, webm or spine)")?;
     DOWNLOADABLE
         .iter()
         .find(|(f, _, _)| *f == format)
@@ -167,6 +181,38 @@ fn parse(query: &HashMap<String, String>, name: &str) -> Result<Parsed, String> 
                 "format {format:?} of {name}: the page downloads glb, mp4, mov, webm or spine (png sequences: puppetry export)"
             )
         })
+}
+
+/// The query's numbers, checked here so a bad one is a 400 naming the
+/// parameter (the exporters name command-line flags).
+fn check_numbers(query: &HashMap<String, String>, format: &str) -> Result<(), String> {
+    let get = |key: &str| match number(query, key) {
+        None => Ok(None),
+        Some(Ok(v)) if v.is_finite() => Ok(Some(v)),
+        Some(_) => Err(format!("{key}: not a finite number")),
+    };
+    if let Some(fps) = get("fps")?
+        && !(fps > 0.0 && fps <= 1000.0)
+    {
+        return Err(format!("fps: {fps} is not a frame rate from 0 to 1000"));
+    }
+    if let (Some(from), Some(to)) = (get("from")?, get("to")?)
+        && from >= to
+    {
+        return Err(format!("to: {to} s is not after from ({from} s)"));
+    }
+    if let Some(text) = query.get("size") {
+        let (w, h) = size(text)?;
+        if w == 0 || h == 0 || w > 16384 || h > 16384 {
+            return Err(format!("size: {text} is not from 1x1 to 16384x16384"));
+        }
+        if format == "mp4" && (w % 2 == 1 || h % 2 == 1) {
+            return Err(format!(
+                "size: {text}: H.264 needs an even width and height"
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn number(query: &HashMap<String, String>, key: &str) -> Option<Result<f64, ()>> {

@@ -348,7 +348,11 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                             return Ok(());
                         }
                     }
-                    Some(Ok(Message::Close(_))) => return Ok(()),
+                    Some(Ok(Message::Close(_))) => {
+                        // Answer the close, so the client sees a clean 1000.
+                        let _ = ws.send(Message::Close(None)).await;
+                        return Ok(());
+                    }
                     Some(Ok(_)) => {}
                 },
             }
@@ -672,6 +676,20 @@ async fn play_take(
     replace_sources: Vec<String>,
 ) -> Result<(), String> {
     let path = crate::takes::take_path(&shared.takes_dir, take)?;
+    let puppets = shared.take_puppets.len();
+    for (i, r) in replace.iter().enumerate() {
+        if r.puppet as usize >= puppets {
+            return Err(format!(
+                "replace[{i}].puppet: no puppet {} (the stage has {puppets})",
+                r.puppet
+            ));
+        }
+        if !(r.radius.is_finite() && r.radius > 0.0 && r.at.iter().all(|v| v.is_finite())) {
+            return Err(format!(
+                "replace[{i}]: needs a finite `at` and a positive `radius`"
+            ));
+        }
+    }
     {
         let mut slot = shared.player.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(p) = slot.as_ref() {

@@ -549,6 +549,46 @@ async fn the_command_line_lists_verifies_and_exports_a_take() {
         ],
         "cut.take",
     );
+    // The same mesh rigged otherwise is another stage.
+    let gridded = std::fs::read_to_string(&stage).unwrap().replace(
+        "pins = [[168, 58], [344, 58]]",
+        "pins = [[168, 58], [344, 58]]\n[puppet.grid]\ncolumns = 4\nrows = 4",
+    );
+    let grid = dir.path().join("grid.toml");
+    std::fs::write(&grid, gridded).unwrap();
+    let out = puppetry(&["takes", &s(&takes), "--verify", "--config", &s(&grid)]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        !out.status.success() && text.contains("rigged or pinned otherwise"),
+        "{text}"
+    );
+    bad(
+        &[
+            "export",
+            &take,
+            "--config",
+            &s(&grid),
+            "--format",
+            "glb",
+            "-o",
+            "x.glb",
+        ],
+        "rigged or pinned otherwise",
+    );
+    bad(
+        &[
+            "export",
+            &take,
+            "--config",
+            &cfg,
+            "--format",
+            "glb",
+            "--from=-1",
+            "-o",
+            "x.glb",
+        ],
+        "--from",
+    );
     // A take of another stage: a changed mesh is told by its rest hash.
     let moved = std::fs::read_to_string(&stage)
         .unwrap()
@@ -762,8 +802,77 @@ async fn the_page_downloads_takes_and_their_exports() {
         http_status(&http_get(running.address, "/takes/..%2Fstage.take").await),
         404
     );
-    let late = http_get(running.address, "/takes/take-001/export?from=5&to=1").await;
-    assert_eq!(http_status(&late), 422);
-    assert!(String::from_utf8_lossy(&late).contains("--to"));
+    let late = http_get(
+        running.address,
+        "/takes/take-001/export?format=glb&from=5&to=1",
+    )
+    .await;
+    assert_eq!(http_status(&late), 400);
+    assert!(String::from_utf8_lossy(&late).contains("to: 1 s is not after from"));
+    // Past the take's end: refused, naming the parameter, not padded.
+    let past = http_get(running.address, "/takes/take-001/export?format=glb&to=500").await;
+    assert_eq!(http_status(&past), 400);
+    assert!(String::from_utf8_lossy(&past).contains("to: 500 s is past the take's end"));
+    let no_format = http_get(running.address, "/takes/take-001/export").await;
+    assert_eq!(http_status(&no_format), 400);
+    assert!(String::from_utf8_lossy(&no_format).contains("format: required"));
     running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_take_started_by_the_first_input_is_announced_to_every_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut o = options(dir.path());
+    o.record = true;
+    let running = start_with(&stage_config(""), o).await.unwrap();
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let (mut ws, _) = connect(&running, hello).await;
+    drag(&mut ws, 1, [640.0, 470.0], [600.0, 500.0]).await;
+    take_state(&mut viewer, |m| m["recording"] == "take-001").await;
+    // Takes are listed oldest first, by file name.
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    take_state(&mut viewer, |m| m.get("recording").is_none()).await;
+    send(&mut ws, json!({"type": "record", "name": "b-second"})).await;
+    take_state(&mut viewer, |m| m["recording"] == "b-second").await;
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    take_state(&mut viewer, |m| m.get("recording").is_none()).await;
+    send(&mut ws, json!({"type": "list_takes"})).await;
+    let list = until(&mut ws, "takes", |_| true).await;
+    let names: Vec<&str> = list["takes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["take-001", "b-second"]);
+    // A bad replace region is refused.
+    send(&mut ws, json!({"type": "play", "take": "take-001", "replace": [{"puppet": 9, "at": [0, 0], "radius": 1}]})).await;
+    let error = until(&mut ws, "error", |_| true).await;
+    assert!(
+        error["message"]
+            .as_str()
+            .unwrap()
+            .contains("replace[0].puppet"),
+        "{error}"
+    );
+    running.shutdown().await;
+}
+
+#[test]
+fn sigterm_ends_the_take_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    let (mut child, _) = serve_binary(&stage_file(dir.path()), &takes, None);
+    let take = takes.join("take-001.take");
+    let deadline = Instant::now() + PLAYS;
+    while !summarize(&take).is_ok_and(|s| s.frames >= 5) {
+        assert!(Instant::now() < deadline, "no frames reached the take");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SAFETY: signalling our own child process.
+    unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+    let status = child.wait().unwrap();
+    assert!(status.success(), "the daemon stopped with {status}");
+    assert_eq!(summarize(&take).unwrap().ending, "shutdown");
 }
