@@ -24,25 +24,12 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import {
-  changedPixelsAtLeast, keepSnapshot, openPage, pageState, stageToClient, startRun, waitFor,
+  startScript,
+  changedPixelsAtLeast, keepSnapshot, openPage, pageState, stageToClient, waitFor,
 } from './page-common.mjs';
 
-const url = process.env.PUPPETRY_URL;
-const point = (process.env.PUPPETRY_POINT ?? '').split(',').map(Number);
+const { url, point, shotDir, viewerUrl, summary, finish, launch } = startScript();
 const shift = Number(process.env.PUPPETRY_SHIFT ?? 100);
-const shotDir = process.env.PUPPETRY_SCREENSHOTS;
-const summary = { ok: false, url };
-const { finish, launch } = startRun(summary);
-
-if (!url || point.length !== 2 || point.some((v) => !Number.isFinite(v))) {
-  finish(false, 'set PUPPETRY_URL and PUPPETRY_POINT="x,y"');
-}
-
-const viewerUrl = (() => {
-  const u = new URL(url);
-  u.search = '';
-  return u.toString();
-})();
 
 // The two pad points the keys sit at.
 const A = [0.2, 0.2];

@@ -15,6 +15,26 @@ const DEADLINE_MS = 55_000;
  * finish prints the summary and exits (0 only when ok); a watchdog calls it
  * after DEADLINE_MS, so a hung browser, page or server still ends the run.
  */
+/**
+ * The environment every page script takes (PUPPETRY_URL, PUPPETRY_POINT,
+ * PUPPETRY_SCREENSHOTS), checked, with a run started: {url, point,
+ * shotDir, viewerUrl (the same server, no role: a viewer), summary,
+ * finish, launch}.
+ */
+export function startScript() {
+  const url = process.env.PUPPETRY_URL;
+  const point = (process.env.PUPPETRY_POINT ?? '').split(',').map(Number);
+  const shotDir = process.env.PUPPETRY_SCREENSHOTS;
+  const summary = { ok: false, url };
+  const { finish, launch } = startRun(summary);
+  if (!url || point.length !== 2 || point.some((v) => !Number.isFinite(v))) {
+    finish(false, 'set PUPPETRY_URL and PUPPETRY_POINT="x,y"');
+  }
+  const viewer = new URL(url);
+  viewer.search = '';
+  return { url, point, shotDir, viewerUrl: viewer.toString(), summary, finish, launch };
+}
+
 export function startRun(summary) {
   const t0 = Date.now();
   let userDataDir;

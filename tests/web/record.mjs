@@ -14,25 +14,11 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import {
-  changedPixelsAtLeast, keepSnapshot, openPage, pageState, stageToClient, startRun, waitFor,
+  startScript,
+  changedPixelsAtLeast, keepSnapshot, openPage, pageState, stageToClient, waitFor,
 } from './page-common.mjs';
 
-const url = process.env.PUPPETRY_URL;
-const point = (process.env.PUPPETRY_POINT ?? '').split(',').map(Number);
-const shotDir = process.env.PUPPETRY_SCREENSHOTS;
-const summary = { ok: false, url };
-const { finish, launch } = startRun(summary);
-
-if (!url || point.length !== 2 || point.some((v) => !Number.isFinite(v))) {
-  finish(false, 'set PUPPETRY_URL and PUPPETRY_POINT="x,y"');
-}
-
-// A viewer's page: the same server, no role (app.js makes that a viewer).
-const viewerUrl = (() => {
-  const u = new URL(url);
-  u.search = '';
-  return u.toString();
-})();
+const { url, point, shotDir, viewerUrl, summary, finish, launch } = startScript();
 
 const errors = [];
 let performer;

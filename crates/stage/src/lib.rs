@@ -512,7 +512,11 @@ impl Stage {
         let source = frame.source.to_string();
         for contact in &frame.contacts {
             let key = (source.clone(), contact.id);
-            if let Some(&pad) = self.pad_contacts.get(&key) {
+            // Most stages have no pads: no lookup per contact then.
+            if let Some(&pad) = (!self.pad_contacts.is_empty())
+                .then(|| self.pad_contacts.get(&key))
+                .flatten()
+            {
                 self.move_cursor(pad, contact.position);
                 if contact.phase != Phase::Move {
                     self.pad_contacts.remove(&key);

@@ -16,7 +16,7 @@ use puppetry_take::{Frame, Record, Tail, TakeReader, summarize};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::common::daemon::{PLAYS, WAIT, connect, next_text, root, stage_config};
+use crate::common::daemon::{PLAYS, WAIT, connect, next_text, root, stage_config, stage_text};
 
 /// Two real captures, each calibrated onto the puppet, played once at
 /// their own pace (so the stage solves between their frames).
@@ -145,27 +145,9 @@ async fn a_take_of_two_real_captures_replays_bit_for_bit() {
 
 /// A stage file on disk (for the binary) with a looping real-time replay.
 fn stage_file(dir: &Path) -> PathBuf {
-    let config = stage_config("");
-    let _ = config;
-    let assets = root().join("assets/gingerbread");
     let evemu = root().join("../shared/fixtures/evemu");
-    let text = format!(
+    let replay = format!(
         r#"
-[stage]
-width = 1280
-height = 720
-listen = "127.0.0.1:0"
-
-[access]
-performer_tokens = ["secret"]
-
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-pins = [[168, 58], [344, 58]]
-
 [[input]]
 kind = "replay"
 name = "wetab"
@@ -173,12 +155,10 @@ file = "{wetab}"
 repeat = true
 calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], flip_y = true, stage_min = [590, 320], stage_max = [690, 400] }}
 "#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
         wetab = evemu.join("wetab.event").display(),
     );
     let path = dir.join("stage.toml");
-    std::fs::write(&path, text).unwrap();
+    std::fs::write(&path, stage_text(&replay)).unwrap();
     path
 }
 
@@ -424,6 +404,16 @@ async fn performers_record_list_play_and_overdub_takes() {
     assert!(played.contains(&2) && !played.contains(&1), "{played:?}");
 }
 
+/// Runs the binary; fails the test with its error output if it fails.
+fn succeeds(args: &[&str]) {
+    let out = puppetry(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 fn puppetry(args: &[&str]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
         .args(args)
@@ -452,7 +442,7 @@ async fn the_command_line_lists_verifies_and_exports_a_take() {
     let take = s(&takes.join("take-001.take"));
     let summary = summarize(&takes.join("take-001.take")).unwrap();
     let glb = dir.path().join("take.glb");
-    let out = puppetry(&[
+    succeeds(&[
         "export",
         &take,
         "--config",
@@ -464,15 +454,10 @@ async fn the_command_line_lists_verifies_and_exports_a_take() {
         "-o",
         &s(&glb),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     assert_eq!(&std::fs::read(&glb).unwrap()[..4], b"glTF");
 
     let png = dir.path().join("png");
-    let out = puppetry(&[
+    succeeds(&[
         "export",
         &take,
         "--config",
@@ -486,11 +471,6 @@ async fn the_command_line_lists_verifies_and_exports_a_take() {
         "-o",
         &s(&png),
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let frames = std::fs::read_dir(&png).unwrap().count();
     let expected = ((summary.duration + 0.1) * 10.0).ceil() as usize;
     assert!(

@@ -31,8 +31,14 @@ pub fn root() -> PathBuf {
 
 /// A stage with the demo puppet, its feet pinned, on a free port.
 pub fn stage_config(extra: &str) -> StageConfig {
+    StageConfig::parse("test.toml", &stage_text(extra), Path::new("/")).unwrap()
+}
+
+/// The stage file text of [`stage_config`] (for tests that run the binary
+/// on a file).
+pub fn stage_text(extra: &str) -> String {
     let assets = root().join("assets/gingerbread");
-    let text = format!(
+    format!(
         r#"
 [stage]
 width = 1280
@@ -53,8 +59,7 @@ pins = [[168, 58], [344, 58]]
 "#,
         image = assets.join("gingerbread.png").display(),
         mesh = assets.join("gingerbread.mesh.json").display(),
-    );
-    StageConfig::parse("test.toml", &text, Path::new("/")).unwrap()
+    )
 }
 
 pub async fn daemon(extra: &str) -> Running {
