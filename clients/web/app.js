@@ -51,6 +51,7 @@ const api = window.puppetry = {
   connected: false,
   framesReceived: 0,
   weightsReceived: 0,
+  weights: {},               // puppet id -> its per-triangle weights now
   lastSequence: {},          // puppet id -> newest sequence number received
   rigFrames: 0,              // rig frames (grid handles, joints) received
   handleFrames: 0,           // handle frames (where the handles are) received
@@ -71,6 +72,7 @@ const api = window.puppetry = {
   fps: null,                 // animation frames per second, or null
   view: options,
   stageToClient,
+  clientToStage,
   snapshot,
   dots: () => overlay.drawn ?? [],   // what the overlay drew last: handles and cursors, in stage coordinates
   poseShown: () => poseSlider.shown(),
@@ -350,12 +352,16 @@ function onClose(e) {
 }
 
 // The server refused our token: from now on this page is a viewer, and the
-// token is forgotten (a reload does not send it again).
+// token is forgotten and the role dropped from the address (a reload is a
+// viewer, and does not send it again).
 function refuseToken() {
   if (askedRole !== ROLE.VIEWER) {
     askedRole = ROLE.VIEWER;
     access.token = '';
     forgetToken(sessionStorage);
+    const url = new URL(location.href);
+    url.searchParams.delete('role');
+    history.replaceState(history.state, '', url);
   }
   api.tokenRefused = true;
   applyRole(ROLE.VIEWER);
@@ -419,6 +425,7 @@ function onText(text) {
     case SERVER_MESSAGE.WEIGHTS: {
       const p = puppetById(msg.puppet);
       if (p) { p.weights = msg.weights; needsOverlay = true; }
+      api.weights[msg.puppet] = msg.weights;
       api.weightsReceived++;
       return;
     }
@@ -478,6 +485,7 @@ function onStage(msg) {
   api.handles = {};
   api.history = {};
   api.pose = {};
+  api.weights = Object.fromEntries(puppets.map((p) => [p.id, p.weights]));
   people.clear();
   for (const p of puppets) setHandles(p, p.handles, p.handlesGeneration);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });

@@ -49,7 +49,11 @@ export class FpsMeter {
 
   /** Called once per animation frame with its timestamp (ms); true when the rate was updated. */
   tick(now) {
-    if (this.since === null) this.since = now;
+    // Frames after `since` (the frame at `since` closed the last count).
+    if (this.since === null) {
+      this.since = now;
+      return false;
+    }
     this.count++;
     if (now - this.since < 1000) return false;
     this.fps = Math.round((1000 * this.count) / (now - this.since));

@@ -18,6 +18,10 @@ import { anchorPoint, keyHandleAnchor } from './overlay.js';
 // How near (CSS pixels) a click must be to a pin to remove it.
 const PIN_REACH = 12;
 
+// How long after the page's own change of the key pose slider the server's
+// pose messages wait (they echo earlier changes): longer than a round trip.
+const POSE_QUIET_MS = 400;
+
 /**
  * Overdub's "replace": while on, a press on a puppet marks a disc of its
  * rest shape; the next overdub leaves out what the played take's hands did
@@ -275,21 +279,33 @@ export class PoseSlider {
     this.enabled = false;
     this.puppet = null;   // the puppet id it shows, or null
     this.held = false;    // the performer's pointer is on the slider
-    this.pending = null;  // a pose message that came while held
+    this.quietUntil = 0;  // performance.now() until which the page's own changes are in flight
+    this.pending = null;  // a pose message that came while held or quiet
+    this.timer = null;
     const { from, to, t } = elements;
     t.addEventListener('input', () => this.sendPose());
     from.addEventListener('change', () => this.sendPose());
     to.addEventListener('change', () => this.sendPose());
-    // While a hand is on the slider the server's echoes of its own moves
-    // would make the thumb jump back: they wait until it lets go.
+    // While a hand is on the slider, and shortly after the page changed
+    // it, the server's echoes of earlier changes would move the controls
+    // back under the hand: they wait, and the newest then shows.
     t.addEventListener('pointerdown', () => { this.held = true; });
     const release = () => {
       this.held = false;
-      if (this.pending) this.onPose(this.pending);
+      this.applyPending();
     };
     t.addEventListener('pointerup', release);
     t.addEventListener('pointercancel', release);
-    t.addEventListener('change', release);
+  }
+
+  applyPending() {
+    clearTimeout(this.timer);
+    const wait = this.quietUntil - performance.now();
+    if (wait > 0) {
+      this.timer = setTimeout(() => this.applyPending(), wait);
+      return;
+    }
+    if (this.pending && !this.held) this.onPose(this.pending);
   }
 
   /** Lets the page move the slider (performers and directors); viewers see it. */
@@ -305,6 +321,7 @@ export class PoseSlider {
     controls.hidden = !p;
     this.puppet = p ? p.id : null;
     this.pending = null;
+    this.quietUntil = 0;
     if (!p) return;
     for (const select of [from, to]) {
       select.replaceChildren(...p.rig.poses.map((name) => new Option(name, name)));
@@ -318,8 +335,9 @@ export class PoseSlider {
   /** A `pose` message: the puppet's blend now. */
   onPose(msg) {
     if (msg.puppet !== this.puppet) return;
-    if (this.held) {
+    if (this.held || performance.now() < this.quietUntil) {
       this.pending = msg;
+      this.applyPending();
       return;
     }
     this.pending = null;
@@ -339,6 +357,7 @@ export class PoseSlider {
 
   sendPose() {
     if (!this.enabled || this.puppet === null) return;
+    this.quietUntil = performance.now() + POSE_QUIET_MS;
     const { from, to, t } = this.elements;
     this.send(poseMessage(this.puppet, from.value, to.value, Number(t.value)));
   }

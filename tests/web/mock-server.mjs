@@ -1,14 +1,15 @@
 // A stand-in for `puppetry serve`, to develop and test clients/web without the
 // daemon: serves the page and a generated texture, and speaks docs/protocol.md
-// with one quad puppet that follows the first contact that grabs it. It
+// with one quad puppet that follows the contact that grabbed it and moved
+// last (any number may hold it: each handle is reported under its finger). It
 // carries a two-joint skeleton with key poses (for the pose slider), and a
 // replay input that does nothing but can be paused.
 // It also checks what the page sends and answers violations with "error".
 //
 // Access as the stage file's [access] would give it: MOCK_TOKEN (default T)
-// is an anonymous performer token; people with tokens "ana" (Ana, director),
-// "ben" (Ben, performer) and "cy" (Cy, performer). A wrong token gets
-// error bad_token and close 4001.
+// is an anonymous performer token; people with tokens "ana" (Ana,
+// performer), "ben" (Ben, performer) and "director" (Dora, director). A
+// wrong token gets error bad_token and close 4001.
 //
 //   PORT=8080 MOCK_TOKEN=T node mock-server.mjs   (PORT 0 or unset: any free port)
 // Prints one JSON line {"url": …} when listening.
@@ -31,9 +32,9 @@ const TRIANGLES = [0, 1, 2, 0, 2, 3];
 const JOINTS = [[400, 250], [400, 350]];
 const POSES = ['rest', 'cheer', 'crouch'];
 const PEOPLE = [
-  { token: 'ana', name: 'Ana', role: 'director' },
+  { token: 'ana', name: 'Ana', role: 'performer' },
   { token: 'ben', name: 'Ben', role: 'performer' },
-  { token: 'cy', name: 'Cy', role: 'performer' },
+  { token: 'director', name: 'Dora', role: 'director' },
 ];
 const PALETTE = ['#E69F00', '#56B4E9', '#009E73', '#F0E442', '#0072B2', '#D55E00', '#CC79A7'];
 const REPLAY = 'mock-play';
@@ -109,7 +110,7 @@ let nextClient = 1;
 let nextHandle = 1;
 let nextAnonymous = 1;
 let generation = 0;
-let grab = null; // {client, contact, handle, from: [x, y], start: positions}
+const grabs = new Map(); // "client:contact" -> {client, contact, handle, from, finger, start: positions}
 let pins = [];   // {id, owner, kind: 'pin', at, grip}
 let weights = [1, 1];
 let pose = { puppet: 0, from: 'rest', to: 'cheer', t: 0 };
@@ -121,7 +122,7 @@ let redo = [];
 let lastStroke = null; // {client, stroke} of the paint stroke being made
 const clients = new Set();
 
-const handles = () => [...(grab ? [grab.handle] : []), ...pins];
+const handles = () => [...[...grabs.values()].map((g) => g.handle), ...pins];
 const send = (c, message) => c.ws.send(JSON.stringify(message));
 const broadcast = (data) => { for (const c of clients) if (c.ready) c.ws.send(data); };
 const broadcastJson = (message) => broadcast(JSON.stringify(message));
@@ -161,20 +162,10 @@ function frame(kind, points, gen = 0) {
   return buf;
 }
 
-// Where the handles are now: the grabbed point moved with the quad (which
-// only translates), pins where they were put.
+// Where the handles are now: under their fingers (as if the solver met
+// every hand), pins where they were put.
 function handlePoints() {
-  const [dx, dy] = [positions[0] - REST[0], positions[1] - REST[1]];
-  const out = [];
-  for (const h of handles()) {
-    if (grab && h === grab.handle) {
-      const [gx, gy] = [grab.from[0] - (grab.start[0] - REST[0]), grab.from[1] - (grab.start[1] - REST[1])];
-      out.push(gx + dx, gy + dy);
-    } else {
-      out.push(...h.at);
-    }
-  }
-  return out;
+  return [...[...grabs.values()].flatMap((g) => g.finger), ...pins.flatMap((h) => h.at)];
 }
 
 function sendHandleFrame() {
@@ -251,21 +242,23 @@ function onInput(c, msg) {
       if (e.phase === 'down') {
         if (c.down.has(e.id)) return bad(`id ${e.id} down twice`);
         c.down.add(e.id);
-        if (!grab && inside(e.x, e.y)) {
+        if (inside(e.x, e.y)) {
           const handle = { id: nextHandle++, owner: c.person.owner, kind: 'contact', at: [e.x, e.y], grip: 'point' };
-          grab = { client: c, contact: e.id, handle, from: [e.x, e.y], start: positions.slice() };
+          grabs.set(`${c.id}:${e.id}`, { client: c, contact: e.id, handle, from: [e.x, e.y], finger: [e.x, e.y], start: positions.slice() });
           sendHandles();
         }
       } else if (e.phase === 'move') {
         if (!c.down.has(e.id)) return bad(`move of id ${e.id} that is not down`);
-        if (grab?.client === c && grab.contact === e.id) {
-          const [dx, dy] = [e.x - grab.from[0], e.y - grab.from[1]];
-          positions = grab.start.map((v, k) => v + (k % 2 ? dy : dx));
+        const g = grabs.get(`${c.id}:${e.id}`);
+        if (g) {
+          g.finger = [e.x, e.y];
+          const [dx, dy] = [e.x - g.from[0], e.y - g.from[1]];
+          positions = g.start.map((v, k) => v + (k % 2 ? dy : dx));
           sendFrame();
         }
       } else if (e.phase === 'up') {
         if (!c.down.delete(e.id)) return bad(`up of id ${e.id} that is not down`);
-        if (grab?.client === c && grab.contact === e.id) { grab = null; sendHandles(); }
+        if (grabs.delete(`${c.id}:${e.id}`)) sendHandles();
       } else {
         return bad('bad phase');
       }
@@ -418,7 +411,9 @@ wss.on('connection', (ws) => {
   ws.on('close', () => {
     const wasPerson = c.ready && c.role !== 'viewer';
     clients.delete(c);
-    if (grab?.client === c) { grab = null; sendHandles(); }
+    let held = false;
+    for (const [k, g] of grabs) if (g.client === c) { grabs.delete(k); held = true; }
+    if (held) sendHandles();
     if (wasPerson) broadcastJson(peopleMessage());
   });
 });
