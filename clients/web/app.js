@@ -595,7 +595,7 @@ function tick(now) {
 try {
   renderer.init();
   layout();
-  hud.setConnection(false, 'connecting…');
+  hud.setConnection(false, 'connecting…', { loud: false });
   connect();
   requestAnimationFrame(tick);
 } catch (err) {

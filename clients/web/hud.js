@@ -123,15 +123,16 @@ export class Hud {
 
   /**
    * The connection: `connected` (true/false) and what to say. Disconnected
-   * is loud: the red banner, whatever else is hidden.
+   * is loud (`loud`, but for the first connection of the page): the red
+   * banner, whatever else is hidden.
    */
-  setConnection(connected, text) {
+  setConnection(connected, text, { loud = true } = {}) {
     const c = this.el.connection;
     c.classList.toggle('up', connected);
     c.classList.toggle('down', !connected);
     c.title = text;
     c.textContent = connected ? '● live' : '● offline';
-    if (!connected) this.showBanner(text, 'down');
+    if (!connected && loud) this.showBanner(text, 'down');
     else if (this.notice) this.showBanner(this.notice.text, this.notice.kind);
     else this.el.banner.hidden = true;
   }
