@@ -156,6 +156,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     // Inputs are read now, so a bad file stops the start with its error.
     let size = DVec2::new(stage.width, stage.height);
     let resolved = resolve_inputs(config, size, extra_replay).await?;
+    let people = Arc::new(stream::People::new(config, resolved.source_names()));
     let description = StageDescription::of(&stage);
     let settings = TakeSettings {
         dir: takes_dir.clone(),
@@ -166,7 +167,9 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         stage_thread::spawn(stage, commands_rx, commands.downgrade(), settings);
     let shared = Arc::new(Shared {
         stage: description,
-        tokens: config.access.performer_tokens.clone(),
+        people,
+        log: Default::default(),
+        addresses: Default::default(),
         web_files,
         max_connections: config.stage.max_connections,
         commands: commands.clone(),
@@ -228,6 +231,23 @@ struct ResolvedInputs {
     )>,
     devices: Vec<DeviceInput>,
     hids: Vec<(hid::HidSelector, SourceId, Option<Calibration>)>,
+}
+
+impl ResolvedInputs {
+    /// The input sources' names, as handles name their owners (TUIO
+    /// sources are named by their senders, so are not known yet).
+    fn source_names(&self) -> Vec<String> {
+        let replays = self.replays.iter().map(|r| &r.0);
+        let serials = self.serials.iter().map(|s| &s.3);
+        let devices = self.devices.iter().map(|d| &d.source);
+        let hids = self.hids.iter().map(|h| &h.1);
+        replays
+            .chain(serials)
+            .chain(devices)
+            .chain(hids)
+            .map(|s| s.to_string())
+            .collect()
+    }
 }
 
 /// Reads and checks every input of `config` (and an extra replay), so a bad

@@ -52,6 +52,12 @@ pub enum Command {
     },
     /// A source went away: lift all its contacts.
     ReleaseSource(String),
+    /// A source may grab only these puppets (`None`: any), e.g. a
+    /// performer limited to named puppets.
+    Limit {
+        source: String,
+        puppets: Option<Vec<u32>>,
+    },
     /// A mouse's cursor moved (`None`: the mouse went away).
     Cursor {
         source: String,
@@ -700,6 +706,7 @@ impl Batch {
             Command::ReleaseSource(source) => {
                 self.apply(stage, taking, Change::Release { source }, None, wake)
             }
+            Command::Limit { source, puppets } => stage.limit_source(&source, puppets),
             Command::Paint {
                 puppet,
                 at,
