@@ -308,6 +308,17 @@ fn run(args: Args) -> anyhow::Result<()> {
                 if let Some(token) = stage.access.performer_tokens.first() {
                     println!("  perform: http://{address}/?role=performer&token={token}");
                 }
+                let director = stage
+                    .access
+                    .people
+                    .iter()
+                    .find(|p| p.role == puppetry_stage::config::AccessRole::Director);
+                if let Some(director) = director {
+                    println!(
+                        "  direct:  http://{address}/?role=director&token={}",
+                        director.token
+                    );
+                }
                 println!("  stop with Ctrl-C (or SIGTERM)");
                 // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
                 // either way a take being recorded is ended cleanly.

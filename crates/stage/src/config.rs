@@ -143,9 +143,7 @@ pub enum AccessRole {
 
 /// `#RRGGBB`.
 fn is_colour(text: &str) -> bool {
-    text.len() == 7
-        && text.starts_with('#')
-        && text[1..].chars().all(|c| c.is_ascii_hexdigit())
+    text.len() == 7 && text.starts_with('#') && text[1..].chars().all(|c| c.is_ascii_hexdigit())
 }
 
 /// `scheme://host[:port]` with no path, as browsers send `Origin`.
@@ -154,7 +152,9 @@ fn is_origin(text: &str) -> bool {
         return false;
     };
     !scheme.is_empty()
-        && scheme.chars().all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+        && scheme
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
         && !rest.is_empty()
         && !rest.contains(['/', '?', '#', ' ', '@'])
 }
@@ -177,7 +177,9 @@ fn check_access(config: &StageConfig) -> Result<(), (String, String)> {
         if !is_origin(origin) {
             return Err((
                 format!("access.allowed_origins[{i}]"),
-                format!("{origin:?} is not an origin like \"https://show.example\" (scheme://host[:port], no path)"),
+                format!(
+                    "{origin:?} is not an origin like \"https://show.example\" (scheme://host[:port], no path)"
+                ),
             ));
         }
     }
@@ -729,7 +731,10 @@ mod tests {
         assert_eq!(access.max_per_address, 64);
         assert_eq!(access.people.len(), 2);
         assert_eq!(access.people[0].role, AccessRole::Director);
-        assert_eq!(access.people[1].puppets.as_deref(), Some(&["gingerbread".to_string()][..]));
+        assert_eq!(
+            access.people[1].puppets.as_deref(),
+            Some(&["gingerbread".to_string()][..])
+        );
         // No [access] at all: nobody but viewers, the default cap.
         assert_eq!(parse("").unwrap().access.max_per_address, 64);
     }
@@ -778,11 +783,15 @@ mod tests {
                 "access.person[0].colour: \"orange\" is not #RRGGBB",
             ),
             (
-                person("name = \"Ana\"\nrole = \"performer\"\ntoken = \"t\"\npuppets = [\"ghost\"]"),
+                person(
+                    "name = \"Ana\"\nrole = \"performer\"\ntoken = \"t\"\npuppets = [\"ghost\"]",
+                ),
                 "access.person[0].puppets[0]: no puppet is named \"ghost\"",
             ),
             (
-                person("name = \"Ana\"\nrole = \"viewer\"\ntoken = \"t\"\npuppets = [\"gingerbread\"]"),
+                person(
+                    "name = \"Ana\"\nrole = \"viewer\"\ntoken = \"t\"\npuppets = [\"gingerbread\"]",
+                ),
                 "access.person[0].puppets: only a performer",
             ),
             (

@@ -120,13 +120,13 @@ async fn upgrade(
 /// origin's host and port are the request's `Host`), or one listed.
 fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
     let origin = origin.trim_end_matches('/');
-    if allowed.iter().any(|a| a.trim_end_matches('/').eq_ignore_ascii_case(origin)) {
+    if allowed
+        .iter()
+        .any(|a| a.trim_end_matches('/').eq_ignore_ascii_case(origin))
+    {
         return true;
     }
-    let authority = origin
-        .split_once("://")
-        .map(|(_, rest)| rest)
-        .unwrap_or("");
+    let authority = origin.split_once("://").map(|(_, rest)| rest).unwrap_or("");
     match host {
         Some(host) => !authority.is_empty() && authority.eq_ignore_ascii_case(host),
         None => false,

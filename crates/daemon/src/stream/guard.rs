@@ -270,8 +270,8 @@ impl RateLog {
             at: now,
             suppressed: 0,
         });
-        let refill = now.saturating_duration_since(bucket.at).as_secs_f64()
-            / Self::EVERY.as_secs_f64();
+        let refill =
+            now.saturating_duration_since(bucket.at).as_secs_f64() / Self::EVERY.as_secs_f64();
         bucket.tokens = (bucket.tokens + refill).min(Self::BURST);
         bucket.at = now;
         if bucket.tokens >= 1.0 {
@@ -299,7 +299,10 @@ mod tests {
         assert!(serde.len() > 3000);
         let clipped = Refusal::new(ErrorCode::BadMessage, serde).message;
         assert!(clipped.chars().count() <= 3 * MAX_ECHO + 1, "{clipped}");
-        assert!(clipped.contains(&format!("`{}…`", "x".repeat(MAX_ECHO))), "{clipped}");
+        assert!(
+            clipped.contains(&format!("`{}…`", "x".repeat(MAX_ECHO))),
+            "{clipped}"
+        );
         // The list of types after the echo survives.
         assert!(clipped.contains("expected one of"), "{clipped}");
         assert_eq!(clip("short", 200), "short");
@@ -339,7 +342,10 @@ mod tests {
         let cursor = |puppet| ClientMessage::Cursor { puppet, at: None };
         assert!(allowed(&performer, &cursor(1)).is_ok());
         assert_eq!(
-            allowed(&performer, &cursor(0)).unwrap_err().field.as_deref(),
+            allowed(&performer, &cursor(0))
+                .unwrap_err()
+                .field
+                .as_deref(),
             Some("puppet")
         );
         assert!(allowed(&viewer, &ClientMessage::ListTakes).is_ok());
@@ -372,7 +378,10 @@ mod tests {
             key: 0,
             at: [0.5, -2e6],
         };
-        assert_eq!(check_ranges(&key).unwrap_err().field.as_deref(), Some("at[1]"));
+        assert_eq!(
+            check_ranges(&key).unwrap_err().field.as_deref(),
+            Some("at[1]")
+        );
         assert!(check_ranges(&ClientMessage::Pin { x: -1e6, y: 1e6 }).is_ok());
     }
 

@@ -206,7 +206,8 @@ async fn close_with(ws: &mut Ws, code: u16, reason: &str) {
         code,
         reason: reason.into(),
     };
-    let _ = tokio::time::timeout(Duration::from_secs(2), ws.send(Message::Close(Some(frame)))).await;
+    let _ =
+        tokio::time::timeout(Duration::from_secs(2), ws.send(Message::Close(Some(frame)))).await;
 }
 
 /// Sends a refusal, logged (rate-limited) under the client's address.
@@ -502,7 +503,6 @@ async fn websocket(
     result
 }
 
-
 async fn send(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Result<()> {
     match tokio::time::timeout(timeout, ws.send(message)).await {
         Ok(result) => result.map_err(std::io::Error::other),
@@ -575,9 +575,8 @@ async fn handle_message(
     if text.len() > MAX_CLIENT_MESSAGE {
         return Err(too_large_refusal());
     }
-    let message: ClientMessage = serde_json::from_str(text).map_err(|e| {
-        guard::Refusal::new(ErrorCode::BadMessage, format!("bad message: {e}"))
-    })?;
+    let message: ClientMessage = serde_json::from_str(text)
+        .map_err(|e| guard::Refusal::new(ErrorCode::BadMessage, format!("bad message: {e}")))?;
     guard::allowed(who, &message)?;
     guard::check_ranges(&message)?;
     if let ClientMessage::Ping { t } = message {
@@ -618,7 +617,10 @@ async fn handle_message(
                     _ => {
                         return Err(guard::Refusal::new(
                             ErrorCode::BadMessage,
-                            format!("contact {}: needs x and y (only an up may leave them out)", c.id),
+                            format!(
+                                "contact {}: needs x and y (only an up may leave them out)",
+                                c.id
+                            ),
                         )
                         .at(format!("contacts[{i}]")));
                     }
@@ -697,7 +699,9 @@ async fn handle_message(
                 .to_text(),
             ));
         }
-        ClientMessage::ExportGrid { .. } | ClientMessage::ListTakes | ClientMessage::Ping { .. } => {
+        ClientMessage::ExportGrid { .. }
+        | ClientMessage::ListTakes
+        | ClientMessage::Ping { .. } => {
             unreachable!("answered above")
         }
         ClientMessage::Record { name } => {

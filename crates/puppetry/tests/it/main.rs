@@ -11,6 +11,7 @@ mod devices;
 mod edge;
 mod install;
 mod rigs;
+mod roles;
 mod serve;
 mod takes;
 mod web;
