@@ -132,9 +132,9 @@ pub fn allowed(who: &Permissions, message: &ClientMessage) -> Result<(), Refusal
     use ClientMessage as M;
     let forbidden = || {
         let role = match who.role {
-            Role::Viewer => "a viewer",
-            Role::Performer => "a performer",
-            Role::Director => "a director",
+            Role::Viewer => "viewers",
+            Role::Performer => "performers",
+            Role::Director => "directors",
         };
         Refusal::new(
             ErrorCode::Forbidden,

@@ -10,6 +10,7 @@ mod config;
 mod devices;
 mod edge;
 mod install;
+mod memory;
 mod rigs;
 mod roles;
 mod serve;

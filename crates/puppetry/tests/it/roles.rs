@@ -291,7 +291,7 @@ async fn a_performer_limited_to_a_puppet_grabs_nothing_on_another() {
             .map(|h| h["owner"].as_str().unwrap().to_string())
             .collect()
     };
-    assert_eq!(owners(0), [owner.clone()]);
+    assert_eq!(owners(0), [owner]);
     assert!(owners(1).is_empty(), "{:?}", owners(1));
     running.shutdown().await;
 }
