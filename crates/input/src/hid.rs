@@ -32,6 +32,7 @@ use std::ops::Range;
 use glam::DVec2;
 use hidreport::{CollectionType, Field, Report, ReportDescriptor, Usage, VariableField};
 
+use super::log_limit::{LogLimiter, MAX_ECHO, clip};
 use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceId};
 
 const PAGE_GENERIC_DESKTOP: u16 = 0x01;
@@ -99,6 +100,79 @@ fn report_name(id: Option<u8>) -> String {
         Some(id) => format!("report id {id}"),
         None => "report".to_string(),
     }
+}
+
+/// What hidreport (0.6) does not survive, refused before it sees the
+/// descriptor: a Usage without a Usage Page in effect (it panics) and a
+/// Usage Minimum..Maximum span past one page (it lists every usage in the
+/// span: up to 2³² of them). Descriptors come from devices and capture
+/// files, so either may be hostile.
+fn check_items(descriptor: &[u8]) -> Result<(), HidError> {
+    // Whether a Usage Page is set, per Push level.
+    let mut page_set = vec![false];
+    let mut needs_page = false;
+    let (mut minimum, mut maximum) = (None, None);
+    let mut at = 0;
+    while at < descriptor.len() {
+        let prefix = descriptor[at];
+        if prefix == 0xFE {
+            // A long item: size, tag, data; hidreport skips them too.
+            let size = descriptor.get(at + 1).copied().unwrap_or(0) as usize;
+            at += 3 + size;
+            continue;
+        }
+        let size = [0, 1, 2, 4][(prefix & 0x03) as usize];
+        let data = descriptor.get(at + 1..at + 1 + size).unwrap_or(&[]);
+        let value = data
+            .iter()
+            .rev()
+            .fold(0u32, |v, &b| (v << 8) | u32::from(b));
+        let (kind, tag) = ((prefix >> 2) & 0x03, prefix >> 4);
+        match (kind, tag) {
+            // Main items: the locals so far are used, then cleared.
+            (0, _) => {
+                if needs_page && !page_set.last().copied().unwrap_or(false) {
+                    return Err(layout(format!(
+                        "byte {at}: a Usage without a Usage Page before it"
+                    )));
+                }
+                if let (Some(min), Some(max)) = (minimum, maximum)
+                    && u32::saturating_sub(max, min) > 0xFFFF
+                {
+                    return Err(layout(format!(
+                        "byte {at}: Usage Minimum {min:#x} to Maximum {max:#x} spans more \
+                         than one usage page"
+                    )));
+                }
+                needs_page = false;
+                (minimum, maximum) = (None, None);
+            }
+            (1, 0x0) => {
+                if let Some(set) = page_set.last_mut() {
+                    *set = true;
+                }
+            }
+            (1, 0xA) => page_set.push(page_set.last().copied().unwrap_or(false)),
+            (1, 0xB) => {
+                // Too many pops is hidreport's own (clean) error.
+                if page_set.len() > 1 {
+                    page_set.pop();
+                }
+            }
+            (2, 0x0..=0x2) => {
+                // A four-byte usage carries its own page.
+                needs_page |= size < 4;
+                match tag {
+                    0x1 => minimum = Some(value),
+                    0x2 => maximum = Some(value),
+                    _ => {}
+                }
+            }
+            _ => {}
+        }
+        at += 1 + size;
+    }
+    Ok(())
 }
 
 fn layout(problem: impl Into<String>) -> HidError {
@@ -273,6 +347,7 @@ impl TouchLayout {
         if descriptor.is_empty() {
             return Err(layout("the descriptor is empty"));
         }
+        check_items(descriptor)?;
         let rdesc = ReportDescriptor::try_from(descriptor)?;
         let input_report_ids = rdesc
             .input_reports()
@@ -967,9 +1042,10 @@ impl InputMode {
 /// this wait, so no frame is dropped; being blocking, it belongs on its own
 /// thread (`std::thread` or `spawn_blocking`), never on an async task.
 ///
-/// Times are seconds since this call started. Malformed reports are logged
-/// and skipped. Returns `Ok` once `stop` is set (lifting whatever is still
-/// down first) or `frames` is closed. A failed read lifts every contact
+/// Times are seconds since this call started. Malformed reports are
+/// skipped, and logged through a [`LogLimiter`]: a few lines, then a
+/// count. Returns `Ok` once `stop` is set (lifting whatever is still down
+/// first) or `frames` is closed. A failed read lifts every contact
 /// still down and returns the error: the device went away, and the caller
 /// decides whether to reopen it.
 pub fn run_device(
@@ -990,12 +1066,24 @@ pub fn run_device(
         tracing::warn!(%source, error = %e, "hid: could not select multi-input mode; reading anyway");
     }
     let mut buffer = vec![0u8; READ_BUFFER];
-    let mut bad_reports: u64 = 0;
+    let mut complaints = LogLimiter::new(std::time::Instant::now());
+    let summary = |skipped: u64| {
+        tracing::warn!(%source, "hid: {skipped} more malformed reports were skipped unlogged");
+    };
     loop {
+        if let Some(skipped) = complaints.take_summary(std::time::Instant::now()) {
+            summary(skipped);
+        }
         if frames.is_closed() {
+            if let Some(skipped) = complaints.take_remaining() {
+                summary(skipped);
+            }
             return Ok(());
         }
         if stop.load(Ordering::Relaxed) {
+            if let Some(skipped) = complaints.take_remaining() {
+                summary(skipped);
+            }
             if let Some(frame) = decoder.lift_all(started.elapsed().as_secs_f64()) {
                 let _ = frames.blocking_send(frame);
             }
@@ -1004,6 +1092,9 @@ pub fn run_device(
         let len = match device.read(&mut buffer, READ_TIMEOUT_MS) {
             Ok(len) => len,
             Err(error) => {
+                if let Some(skipped) = complaints.take_remaining() {
+                    summary(skipped);
+                }
                 if let Some(frame) = decoder.lift_all(started.elapsed().as_secs_f64()) {
                     // A closed channel has nobody left to tell; the error
                     // still goes back.
@@ -1025,10 +1116,10 @@ pub fn run_device(
             Ok(None) => {}
             Err(e) => {
                 // A device stuck sending garbage would flood the log; the
-                // count still says how bad it is.
-                bad_reports += 1;
-                if bad_reports.is_power_of_two() {
-                    tracing::warn!(%source, error = %e, bad_reports, "hid: skipping a malformed report");
+                // summaries still say how bad it is.
+                if complaints.allow(std::time::Instant::now()) {
+                    let error = clip(&e.to_string(), MAX_ECHO);
+                    tracing::warn!(%source, %error, "hid: skipping a malformed report");
                 }
             }
         }
