@@ -102,16 +102,41 @@ fn report_name(id: Option<u8>) -> String {
     }
 }
 
+/// Linux's limit on a report descriptor (`HID_MAX_DESCRIPTOR_SIZE`).
+const MAX_DESCRIPTOR: usize = 4096;
+
+/// Budgets of what hidreport (0.6) allocates per descriptor: one field per
+/// Report Count of every variable main item (each with a copy of the
+/// collections around it), and every usage of a Usage Minimum..Maximum.
+/// Real digitizers use a few hundred fields and usages at most.
+const MAX_FIELDS: u64 = 8192;
+const MAX_RANGE_USAGES: u64 = 1 << 18;
+const MAX_COLLECTION_DEPTH: usize = 32;
+
+/// The global items [`check_items`] follows, per Push level.
+#[derive(Clone, Copy, Default)]
+struct ItemGlobals {
+    page_set: bool,
+    report_count: u32,
+}
+
 /// What hidreport (0.6) does not survive, refused before it sees the
-/// descriptor: a Usage without a Usage Page in effect (it panics) and a
-/// Usage Minimum..Maximum span past one page (it lists every usage in the
-/// span: up to 2³² of them). Descriptors come from devices and capture
-/// files, so either may be hostile.
+/// descriptor: a Usage without a Usage Page in effect (it panics), and
+/// descriptors that make it allocate without bound (it lists every usage of
+/// a Usage Minimum..Maximum span, up to 2³², and makes a field per Report
+/// Count, up to 2³², each holding the collections around it). Descriptors
+/// come from devices and capture files, so either may be hostile.
 fn check_items(descriptor: &[u8]) -> Result<(), HidError> {
-    // Whether a Usage Page is set, per Push level.
-    let mut page_set = vec![false];
+    if descriptor.len() > MAX_DESCRIPTOR {
+        return Err(layout(format!(
+            "{} bytes, more than the {MAX_DESCRIPTOR} a descriptor may have",
+            descriptor.len()
+        )));
+    }
+    let mut globals = vec![ItemGlobals::default()];
     let mut needs_page = false;
     let (mut minimum, mut maximum) = (None, None);
+    let (mut fields, mut range_usages, mut depth) = (0u64, 0u64, 0usize);
     let mut at = 0;
     while at < descriptor.len() {
         let prefix = descriptor[at];
@@ -127,39 +152,63 @@ fn check_items(descriptor: &[u8]) -> Result<(), HidError> {
             .iter()
             .rev()
             .fold(0u32, |v, &b| (v << 8) | u32::from(b));
-        let (kind, tag) = ((prefix >> 2) & 0x03, prefix >> 4);
-        match (kind, tag) {
+        let current = globals.last().copied().unwrap_or_default();
+        let refuse = |problem: String| Err(layout(format!("byte {at}: {problem}")));
+        match ((prefix >> 2) & 0x03, prefix >> 4) {
             // Main items: the locals so far are used, then cleared.
-            (0, _) => {
-                if needs_page && !page_set.last().copied().unwrap_or(false) {
-                    return Err(layout(format!(
-                        "byte {at}: a Usage without a Usage Page before it"
-                    )));
+            (0, tag) => {
+                if needs_page && !current.page_set {
+                    return refuse("a Usage without a Usage Page before it".into());
                 }
-                if let (Some(min), Some(max)) = (minimum, maximum)
-                    && u32::saturating_sub(max, min) > 0xFFFF
-                {
-                    return Err(layout(format!(
-                        "byte {at}: Usage Minimum {min:#x} to Maximum {max:#x} spans more \
-                         than one usage page"
-                    )));
+                if let (Some(min), Some(max)) = (minimum, maximum) {
+                    let span = u64::from(u32::saturating_sub(max, min)) + 1;
+                    if span > 0x1_0000 {
+                        return refuse(format!(
+                            "Usage Minimum {min:#x} to Maximum {max:#x} spans more than one \
+                             usage page"
+                        ));
+                    }
+                    range_usages += span;
+                }
+                match tag {
+                    // Input, Output, Feature.
+                    0x8 | 0x9 | 0xB => fields += u64::from(current.report_count),
+                    0xA => depth += 1,
+                    0xC => depth = depth.saturating_sub(1),
+                    _ => {}
+                }
+                if fields > MAX_FIELDS {
+                    return refuse(format!("more than {MAX_FIELDS} report fields"));
+                }
+                if range_usages > MAX_RANGE_USAGES {
+                    return refuse(format!("more than {MAX_RANGE_USAGES} usages in ranges"));
+                }
+                if depth > MAX_COLLECTION_DEPTH {
+                    return refuse(format!(
+                        "collections nested more than {MAX_COLLECTION_DEPTH} deep"
+                    ));
                 }
                 needs_page = false;
                 (minimum, maximum) = (None, None);
             }
             (1, 0x0) => {
-                if let Some(set) = page_set.last_mut() {
-                    *set = true;
+                if let Some(g) = globals.last_mut() {
+                    g.page_set = true;
                 }
             }
-            (1, 0xA) => page_set.push(page_set.last().copied().unwrap_or(false)),
+            (1, 0x9) => {
+                if let Some(g) = globals.last_mut() {
+                    g.report_count = value;
+                }
+            }
+            (1, 0xA) => globals.push(current),
             (1, 0xB) => {
                 // Too many pops is hidreport's own (clean) error.
-                if page_set.len() > 1 {
-                    page_set.pop();
+                if globals.len() > 1 {
+                    globals.pop();
                 }
             }
-            (2, 0x0..=0x2) => {
+            (2, tag @ 0x0..=0x2) => {
                 // A four-byte usage carries its own page.
                 needs_page |= size < 4;
                 match tag {

@@ -288,8 +288,9 @@ proptest! {
 // ---------------------------------------------------------- recordings
 
 fn recording_seeds() -> Vec<String> {
-    let wave = std::fs::read_to_string(puppetry_testkit::root().join("assets/gingerbread/wave.jsonl"))
-        .expect("the wave recording");
+    let wave =
+        std::fs::read_to_string(puppetry_testkit::root().join("assets/gingerbread/wave.jsonl"))
+            .expect("the wave recording");
     let head: String = wave.lines().take(6).map(|l| format!("{l}\n")).collect();
     vec![
         head,
@@ -310,8 +311,14 @@ fn check_recording(text: &str) {
             match e {
                 RecordingError::Line { file, line, .. } => {
                     assert_eq!(file, "fuzz.jsonl");
-                    assert!(line >= 1 && line <= text.lines().count().max(1), "{message}");
-                    assert!(message.starts_with(&format!("fuzz.jsonl:{line}: ")), "{message}");
+                    assert!(
+                        line >= 1 && line <= text.lines().count().max(1),
+                        "{message}"
+                    );
+                    assert!(
+                        message.starts_with(&format!("fuzz.jsonl:{line}: ")),
+                        "{message}"
+                    );
                 }
                 other => panic!("a parse error that names no line: {other}"),
             }
@@ -408,7 +415,10 @@ fn check_capture(text: &str) {
             assert!(message.starts_with("fuzz.capture"), "{message}");
             if let ReplayError::Evemu(puppetry_input::evemu::EvemuError::Line { line, .. }) = e {
                 assert!(line >= 1, "{message}");
-                assert!(message.starts_with(&format!("fuzz.capture:{line}: ")), "{message}");
+                assert!(
+                    message.starts_with(&format!("fuzz.capture:{line}: ")),
+                    "{message}"
+                );
             }
         }
     }
@@ -531,7 +541,7 @@ fn fuzz_regression_a_tuio_time_tag_before_1970_is_an_error_not_a_panic() {
 }
 
 #[test]
-fn fuzz_regression_hid_descriptors_hidreport_cannot_take_are_refused() {
+fn fuzz_regression_hid_descriptors_hidreport_cannot_survive_are_refused() {
     // A Usage with no Usage Page before it: hidreport 0.6 panics.
     let no_page = [0x09, 0x01, 0xA1, 0x01, 0xC0];
     let error = TouchLayout::parse(&no_page).unwrap_err().to_string();
@@ -543,6 +553,12 @@ fn fuzz_regression_hid_descriptors_hidreport_cannot_take_are_refused() {
     ];
     let error = TouchLayout::parse(&huge).unwrap_err().to_string();
     assert!(error.contains("spans more than one usage page"), "{error}");
+    // A Report Count of 2³¹: hidreport would make a field for each.
+    let many = [
+        0x05, 0x0D, 0x09, 0x01, 0x75, 0x08, 0x97, 0xFF, 0xFF, 0xFF, 0x7F, 0x81, 0x02,
+    ];
+    let error = TouchLayout::parse(&many).unwrap_err().to_string();
+    assert!(error.contains("more than 8192 report fields"), "{error}");
     // Real descriptors still pass.
     for descriptor in descriptors() {
         TouchLayout::parse(&descriptor).unwrap();
