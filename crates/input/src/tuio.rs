@@ -339,10 +339,9 @@ fn parse_packet(packet: &OscPacket) -> Result<Vec<Snapshot>, TuioError> {
                         });
                     }
                     other => {
-                        return Err(args.error(format!(
-                            "unknown 2Dcur command `{}`",
-                            fields::clip(other)
-                        )));
+                        return Err(
+                            args.error(format!("unknown 2Dcur command `{}`", fields::clip(other)))
+                        );
                     }
                 }
             }

@@ -54,9 +54,9 @@ fn key_seeds() -> Vec<String> {
 fn check_keys(text: &str, cursors: &[(f64, f64)]) {
     match KeyFile::parse(text, "fuzz.keys.json") {
         Ok(file) => {
-            let width = file.width().unwrap_or_else(|| {
-                file.keys.first().map_or(0, |k| k.values.len())
-            });
+            let width = file
+                .width()
+                .unwrap_or_else(|| file.keys.first().map_or(0, |k| k.values.len()));
             if let Ok(mut set) = KeySet::new(file.keys.clone(), width) {
                 let mut out = vec![0.0; set.width()];
                 for &(x, y) in cursors {
@@ -65,7 +65,8 @@ fn check_keys(text: &str, cursors: &[(f64, f64)]) {
                     let _ = set.blend_into(glam::DVec2::new(x, y), &mut out);
                 }
             }
-            let _ = KeyFile::parse(&file.to_json(), "again.keys.json").expect("a key file re-reads");
+            let _ =
+                KeyFile::parse(&file.to_json(), "again.keys.json").expect("a key file re-reads");
         }
         Err(e) => {
             let message = e.to_string();

@@ -72,7 +72,12 @@ fn framed_record() -> impl Strategy<Value = Vec<u8>> {
         fuzz::mutated_json(vec![HEADER.into()]).prop_map(|j| record(1, j.as_bytes())),
         fuzz::mutated_json(vec![STEP.into()]).prop_map(|j| record(2, j.as_bytes())),
         fuzz::mutated_json(vec![END.into()]).prop_map(|j| record(4, j.as_bytes())),
-        (any::<u32>(), any::<f64>(), prop_oneof![0u32..8, any::<u32>()], 0usize..8)
+        (
+            any::<u32>(),
+            any::<f64>(),
+            prop_oneof![0u32..8, any::<u32>()],
+            0usize..8
+        )
             .prop_map(|(p, t, c, n)| record(3, &frame_payload(p, t, c, n))),
         (any::<u8>(), fuzz::bytes(40)).prop_map(|(k, b)| record(k, &b)),
     ]
