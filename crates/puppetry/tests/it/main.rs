@@ -5,10 +5,12 @@
 
 mod common;
 
+mod bad_input;
 mod cli;
 mod config;
 mod devices;
 mod edge;
+mod fuzz;
 mod install;
 mod memory;
 mod rigs;
