@@ -155,9 +155,9 @@ impl LogLimit {
     pub fn warn(&mut self, line: impl std::fmt::Display) {
         if let Some(held) = self.allow(Instant::now()) {
             if held > 0 {
-                tracing::warn!("osc: {held} more like the next were not logged");
+                tracing::warn!("{held} more like the next were not logged");
             }
-            tracing::warn!("osc: {line}");
+            tracing::warn!("{line}");
         }
     }
 }
@@ -656,7 +656,7 @@ pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
                 .local_addr()
                 .map_err(|source| OscError::Listen { address, source })?,
         );
-        tracing::info!("osc: triggers on udp://{}", listen.expect("bound"));
+        tracing::info!("OSC triggers on udp://{}", listen.expect("bound"));
         let receiver = Receiver {
             space: space.clone(),
             links: links.clone(),
@@ -668,7 +668,7 @@ pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
     }
     if !config.send.is_empty() {
         let sender = Sender::new(space, links, &config.send).await?;
-        tracing::info!("osc: state to {}", config.send.join(", "));
+        tracing::info!("OSC state to {}", config.send.join(", "));
         tasks.push(tokio::spawn(sender.run(config.rate)));
     }
     Ok(Osc {
@@ -723,7 +723,7 @@ fn parse_text<T: for<'de> Deserialize<'de>>(text: &str) -> Option<T> {
         Ok(v) => Some(v),
         Err(e) => {
             // The stage thread made it: a mismatch is this build's bug.
-            tracing::error!("osc: cannot read a published message: {e}");
+            tracing::error!("cannot read a published message: {e}");
             None
         }
     }
@@ -805,7 +805,7 @@ impl Receiver {
                 .map_err(refused)?;
                 let name = answer.await.map_err(|_| refused(SHUTTING_DOWN.into()))?;
                 let name = name.map_err(refused)?;
-                tracing::info!("osc: take {name} started from {}", clip(address));
+                tracing::info!("take {name} started by OSC ({})", clip(address));
                 Ok(())
             }
             Trigger::StopTake => {
@@ -909,7 +909,12 @@ impl Receiver {
                     let mut tick = tokio::time::interval(period);
                     for k in 1..=steps {
                         tick.tick().await;
-                        let at = from.lerp(to, f64::from(k) / f64::from(steps));
+                        // The last step lands on the key exactly.
+                        let at = if k == steps {
+                            to
+                        } else {
+                            from.lerp(to, f64::from(k) / f64::from(steps))
+                        };
                         if let Err(e) = cursor(&commands, puppet, Some(at)).await {
                             lock(&log).warn(format_args!("key {name:?}: {e}"));
                             return;
@@ -1228,7 +1233,7 @@ fn bundles(messages: Vec<OscMessage>) -> Vec<Vec<u8>> {
         });
         match rosc::encoder::encode(&bundle) {
             Ok(bytes) => out.push(bytes),
-            Err(e) => tracing::error!("osc: cannot encode a bundle: {e}"),
+            Err(e) => tracing::error!("cannot encode a bundle: {e}"),
         }
     };
     for message in messages {
@@ -1236,7 +1241,7 @@ fn bundles(messages: Vec<OscMessage>) -> Vec<Vec<u8>> {
         let length = match rosc::encoder::encode(&packet) {
             Ok(bytes) => bytes.len() + 4,
             Err(e) => {
-                tracing::error!("osc: cannot encode a message: {e}");
+                tracing::error!("cannot encode a message: {e}");
                 continue;
             }
         };

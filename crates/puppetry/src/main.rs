@@ -308,6 +308,9 @@ fn run(args: Args) -> anyhow::Result<()> {
                 if let Some(token) = stage.access.performer_tokens.first() {
                     println!("  perform: http://{address}/?role=performer&token={token}");
                 }
+                if let Some(osc) = running.osc_address {
+                    println!("  OSC triggers: udp://{osc} (docs/osc.md)");
+                }
                 println!("  stop with Ctrl-C (or SIGTERM)");
                 // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
                 // either way a take being recorded is ended cleanly.
