@@ -1005,19 +1005,25 @@ struct Sender {
     /// newest take message.
     recording_since: Option<Instant>,
     take: TakeText,
+    /// Host names being looked up, off the tick: a slow resolver never
+    /// holds up the state to the other hosts.
+    resolving: Option<JoinHandle<Vec<Resolved>>>,
 }
+
+/// A host's lookup: its index and address, or why not.
+type Resolved = (usize, Result<SocketAddr, String>);
 
 impl Sender {
     async fn new(space: AddressSpace, links: Links, send: &[String]) -> Result<Sender, OscError> {
-        let mut hosts: Vec<Host> = send
+        let hosts: Vec<Host> = send
             .iter()
             .map(|name| Host {
                 name: name.clone(),
-                address: None,
+                // Literal addresses need no lookup.
+                address: name.parse().ok(),
                 log: limiter(),
             })
             .collect();
-        resolve(&mut hosts).await;
         let v4 = UdpSocket::bind("0.0.0.0:0")
             .await
             .map_err(OscError::Socket)?;
@@ -1034,6 +1040,7 @@ impl Sender {
             slots: vec![0; puppets],
             recording_since: None,
             take: TakeText::default(),
+            resolving: None,
         })
     }
 
@@ -1047,8 +1054,18 @@ impl Sender {
             let full = refreshed.is_none_or(|r| now.duration_since(r) >= FULL_REFRESH);
             if full {
                 refreshed = Some(now);
-                if self.hosts.iter().any(|h| h.address.is_none()) {
-                    resolve(&mut self.hosts).await;
+                self.resolve();
+            }
+            if let Some(lookup) = self.resolving.take_if(|r| r.is_finished()) {
+                for (i, result) in lookup.await.unwrap_or_default() {
+                    let host = &mut self.hosts[i];
+                    match result {
+                        Ok(address) => host.address = Some(address),
+                        Err(problem) => host.log.warn(OscError::Send {
+                            host: host.name.clone(),
+                            problem,
+                        }),
+                    }
                 }
             }
             let state = self.state(now, full);
@@ -1066,6 +1083,32 @@ impl Sender {
                 self.send_all(&datagram).await;
             }
         }
+    }
+
+    /// Starts looking up the hosts not resolved yet (unless a lookup is
+    /// under way); a name that does not resolve is logged and looked up
+    /// again at the next full refresh.
+    fn resolve(&mut self) {
+        let names: Vec<(usize, String)> = (self.hosts.iter().enumerate())
+            .filter(|(_, h)| h.address.is_none())
+            .map(|(i, h)| (i, h.name.clone()))
+            .collect();
+        if names.is_empty() || self.resolving.is_some() {
+            return;
+        }
+        self.resolving = Some(tokio::spawn(async move {
+            let mut resolved = Vec::new();
+            for (i, name) in names {
+                let found = match tokio::net::lookup_host(name.as_str()).await {
+                    Ok(mut found) => found
+                        .next()
+                        .ok_or_else(|| "resolves to no address".to_string()),
+                    Err(e) => Err(format!("cannot resolve: {e}")),
+                };
+                resolved.push((i, found));
+            }
+            resolved
+        }));
     }
 
     /// Sends one datagram to every host; a failing host is logged (a few
@@ -1187,23 +1230,6 @@ impl Sender {
             vec![s(&clip(take.error.as_deref().unwrap_or("")))],
         ));
         out
-    }
-}
-
-/// Resolves every host not resolved yet; a host that does not resolve
-/// is logged and tried again at the next full refresh.
-async fn resolve(hosts: &mut [Host]) {
-    for host in hosts.iter_mut().filter(|h| h.address.is_none()) {
-        match tokio::net::lookup_host(host.name.as_str()).await {
-            Ok(mut found) => host.address = found.next(),
-            Err(e) => {
-                let error = OscError::Send {
-                    host: host.name.clone(),
-                    problem: format!("cannot resolve: {e}"),
-                };
-                host.log.warn(error);
-            }
-        }
     }
 }
 
