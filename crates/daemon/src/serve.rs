@@ -34,6 +34,8 @@ pub enum ServeError {
     Stream(#[from] StreamError),
     #[error("{0}")]
     Input(String),
+    #[error(transparent)]
+    Osc(#[from] crate::osc::OscError),
 }
 
 /// One attempt of a source (see `sources::supervise`).
@@ -51,6 +53,9 @@ pub struct Running {
     pub tuio_addresses: Vec<SocketAddr>,
     /// The daemon's clock: frame timestamps are seconds since this.
     pub started: Instant,
+    /// Where OSC triggers are received (`[osc].listen`, port resolved).
+    pub osc_address: Option<SocketAddr>,
+    osc: Option<crate::osc::Osc>,
     commands: mpsc::Sender<Command>,
     shutdown: oneshot::Sender<()>,
     server: JoinHandle<()>,
@@ -81,6 +86,9 @@ impl Running {
 
     /// Stops accepting, ends the inputs and the stage thread, and waits.
     pub async fn shutdown(self) {
+        if let Some(osc) = &self.osc {
+            osc.stop();
+        }
         let _ = self.shutdown.send(());
         let _ = self.server.await;
         for input in &self.inputs {
@@ -188,6 +196,11 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         next_client: AtomicU64::new(1),
     });
 
+    // Before the sources, so a bad OSC address stops the start cleanly.
+    let osc = match &config.osc {
+        Some(osc) => Some(crate::osc::start(osc, crate::osc::Links::of(&shared)).await?),
+        None => None,
+    };
     let (inputs, tuio_addresses) = spawn_sources(resolved, &commands, started, size)?;
     if let Some((path, play_options)) = play {
         let player = crate::takes::play(
@@ -208,6 +221,8 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         address,
         tuio_addresses,
         started,
+        osc_address: osc.as_ref().and_then(|o| o.listen),
+        osc,
         commands,
         shutdown,
         server,

@@ -323,6 +323,9 @@ fn run(args: Args) -> anyhow::Result<()> {
                 for tuio in &running.tuio_addresses {
                     println!("  TUIO: receiving on udp {tuio}");
                 }
+                if let Some(osc) = running.osc_address {
+                    println!("  OSC triggers: udp://{osc} (docs/osc.md)");
+                }
                 println!("  stop with Ctrl-C (or SIGTERM)");
                 // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
                 // either way a take being recorded is ended cleanly.

@@ -39,6 +39,9 @@ pub struct StageConfig {
     /// Keyframing pads on input sources (spatial keyframing).
     #[serde(default, rename = "pad")]
     pub pads: Vec<PadConfig>,
+    /// Show control over OSC (`docs/osc.md`); off without the section.
+    #[serde(default)]
+    pub osc: Option<OscConfig>,
     /// Where the file was read from; relative paths are resolved against it.
     #[serde(skip)]
     pub folder: PathBuf,
@@ -543,6 +546,93 @@ pub enum PacingConfig {
     AsFastAsPossible,
 }
 
+/// `[osc]`: show control over OSC/UDP (`docs/osc.md`): triggers in on
+/// `listen`, the stage's state out to every `send` host `rate` times a
+/// second, all under `prefix`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OscConfig {
+    /// UDP address triggers are received on (none: no triggers).
+    #[serde(default)]
+    pub listen: Option<SocketAddr>,
+    /// `host:port` of each receiver of the stage's state (names are
+    /// resolved when the daemon starts, and again while they fail).
+    #[serde(default)]
+    pub send: Vec<String>,
+    /// State updates a second.
+    #[serde(default = "default_osc_rate")]
+    pub rate: f64,
+    /// What every address starts with.
+    #[serde(default = "default_osc_prefix")]
+    pub prefix: String,
+}
+
+/// Bounds of `[osc].rate`: below one a second a show desk looks frozen;
+/// above 120 the updates outrun any display and flood the network.
+pub const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
+
+fn default_osc_rate() -> f64 {
+    30.0
+}
+
+fn default_osc_prefix() -> String {
+    "/puppetry".into()
+}
+
+/// Checks `[osc]`; errors are `(field, problem)`.
+fn check_osc(osc: &OscConfig) -> Result<(), (String, String)> {
+    if osc.listen.is_none() && osc.send.is_empty() {
+        return Err((
+            "osc".into(),
+            "give `listen` (triggers in) or `send` (state out), or leave the section out".into(),
+        ));
+    }
+    if !(osc.rate.is_finite() && OSC_RATE.contains(&osc.rate)) {
+        return Err((
+            "osc.rate".into(),
+            format!(
+                "must be between {} and {} updates a second",
+                OSC_RATE.start(),
+                OSC_RATE.end()
+            ),
+        ));
+    }
+    // OSC 1.0 forbids these in address parts (they are pattern syntax).
+    let reserved = |c: char| " #*,?[]{}".contains(c) || !c.is_ascii_graphic();
+    let p = &osc.prefix;
+    if !p.starts_with('/') || p.ends_with('/') || p.contains("//") || p.chars().any(reserved) {
+        return Err((
+            "osc.prefix".into(),
+            "must be an OSC address like \"/puppetry\": starts with '/', no trailing '/', \
+             printable ASCII without space or any of # * , ? [ ] { }"
+                .into(),
+        ));
+    }
+    for (i, host) in osc.send.iter().enumerate() {
+        if let Err(problem) = check_host_port(host) {
+            return Err((format!("osc.send[{i}]"), problem));
+        }
+    }
+    Ok(())
+}
+
+/// Checks a `host:port` (`[v6]:port` for IPv6 literals) without resolving.
+pub fn check_host_port(text: &str) -> Result<(), String> {
+    let expected = || format!("{text:?}: expected host:port, like \"127.0.0.1:9001\"");
+    let (host, port) = text.rsplit_once(':').ok_or_else(expected)?;
+    let host = host
+        .strip_prefix('[')
+        .and_then(|h| h.strip_suffix(']'))
+        .unwrap_or(host);
+    if host.is_empty() || host.contains(':') && text.parse::<SocketAddr>().is_err() {
+        return Err(expected());
+    }
+    match port.parse::<u16>() {
+        Ok(p) if p > 0 => Ok(()),
+        _ => Err(format!("{text:?}: the port must be 1 to 65535")),
+    }
+}
+
 /// The rig sections' own checks (what the deformers check again on
 /// registration is left to them, so their errors name it precisely).
 fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
@@ -658,6 +748,9 @@ impl StageConfig {
                 "stage.max_connections".into(),
                 "must be at least 1",
             ));
+        }
+        if let Some(osc) = &config.osc {
+            check_osc(osc).map_err(|(field, problem)| invalid(field, &problem))?;
         }
         for (i, p) in config.puppets.iter().enumerate() {
             if !(p.scale.is_finite() && p.scale > 0.0) {

@@ -1,7 +1,7 @@
 //! End-to-end tests, one binary: the daemon on 127.0.0.1:0 driven over
 //! WebSocket, by device stand-ins, serial ptys, TUIO and replays; every
 //! stage file of `config/`; the rigs live; the web page in headless
-//! Chromium; and the command line.
+//! Chromium; show control over OSC; and the command line.
 
 mod common;
 
@@ -13,6 +13,7 @@ mod edge;
 mod fuzz;
 mod install;
 mod memory;
+mod osc;
 mod rigs;
 mod roles;
 mod serve;
