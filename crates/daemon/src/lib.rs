@@ -1,7 +1,8 @@
 //! The daemon: everything of `puppetry serve` that is not numeric. It runs
 //! the stage on a thread of its own ([`stage_thread`]), feeds it from the
 //! configured input sources ([`serve`]), and serves the web renderer and the
-//! WebSocket protocol ([`stream`]) to renderer and performer clients.
+//! WebSocket protocol ([`stream`]) to renderer and performer clients;
+//! show-control desks read its state and trigger it over OSC ([`osc`]).
 //!
 //! ```text
 //!   puppetry-input ──► stage_thread ──────────────► stream
@@ -11,6 +12,7 @@
 //!                       each frame once)
 //! ```
 
+pub mod osc;
 pub mod protocol;
 pub mod serve;
 pub mod sources;

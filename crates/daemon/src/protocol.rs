@@ -156,12 +156,76 @@ pub fn decode_frame(bytes: &[u8]) -> Result<Frame, FrameError> {
     Ok(Frame { header, points })
 }
 
-/// Who a client is.
+/// What a client may do (`docs/protocol.md`, "Roles").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Role {
+    /// Watches only.
+    Viewer,
+    /// Performs: contacts, pins, poses, cursors (maybe on some puppets).
+    Performer,
+    /// Everything a performer does, and takes, painting, saving, key poses.
+    Director,
+}
+
+/// A role in the `people` list: a client's, or `device` for the stage's
+/// own input sources.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PersonRole {
     Viewer,
     Performer,
+    Director,
+    Device,
+}
+
+impl From<Role> for PersonRole {
+    fn from(role: Role) -> PersonRole {
+        match role {
+            Role::Viewer => PersonRole::Viewer,
+            Role::Performer => PersonRole::Performer,
+            Role::Director => PersonRole::Director,
+        }
+    }
+}
+
+/// Someone on the stage: a connected client or an input source. Handle
+/// owners are looked up here for a name and colour.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Person {
+    /// `client:N` or the source's name, as handles' `owner`.
+    pub owner: String,
+    pub name: String,
+    pub role: PersonRole,
+    /// `#RRGGBB`.
+    pub colour: String,
+}
+
+/// Why something a client sent was refused (`error` messages' `code`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// Not JSON, or not a message of the protocol.
+    BadMessage,
+    /// Longer than 64 KiB.
+    TooLarge,
+    /// A binary message (clients send text).
+    Binary,
+    /// The client's role may not send this message (or not for this puppet).
+    Forbidden,
+    /// The hello's token is not one of the stage's.
+    BadToken,
+    /// A number is not finite or is too large (coordinates: |v| ≤ 1e6).
+    OutOfRange,
+    /// No such puppet, take, key, handle…
+    NotFound,
+    /// Something else is running (a take, an export).
+    Busy,
+    /// An action that failed (a file that could not be written, …).
+    Failed,
+    /// The first message was not a hello.
+    Hello,
 }
 
 /// What a client sends (text).
@@ -259,6 +323,10 @@ pub enum ClientMessage {
     SaveKeys {
         puppet: u32,
     },
+    /// Answered at once with a `pong` carrying the same `t` (latency).
+    Ping {
+        t: f64,
+    },
 }
 
 /// A key pose on the pad.
@@ -345,9 +413,16 @@ pub enum ServerMessage {
     Stage {
         client: u64,
         role: Role,
+        /// Who this client is on the stage (name and colour).
+        you: Person,
         stage: StageSize,
         puppets: Vec<PuppetDescription>,
     },
+    /// Who is on the stage: connected performers and directors, and the
+    /// stage's input sources (on connecting and on every change).
+    People { people: Vec<Person> },
+    /// The answer to `ping`.
+    Pong { t: f64 },
     /// A puppet's handle set changed.
     Handles {
         puppet: u32,
@@ -385,7 +460,13 @@ pub enum ServerMessage {
     /// files are left out and logged).
     Takes { takes: Vec<TakeView> },
     /// Something the client sent could not be done.
-    Error { message: String },
+    Error {
+        code: ErrorCode,
+        message: String,
+        /// The field at fault, e.g. `contacts[2].y`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        field: Option<String>,
+    },
 }
 
 impl ServerMessage {
@@ -394,10 +475,12 @@ impl ServerMessage {
         serde_json::to_string(self).expect("server messages serialise")
     }
 
-    /// An `error` message.
-    pub fn error(message: impl Into<String>) -> ServerMessage {
+    /// An `error` message with no field.
+    pub fn error(code: ErrorCode, message: impl Into<String>) -> ServerMessage {
         ServerMessage::Error {
+            code,
             message: message.into(),
+            field: None,
         }
     }
 }

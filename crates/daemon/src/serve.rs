@@ -34,6 +34,8 @@ pub enum ServeError {
     Stream(#[from] StreamError),
     #[error("{0}")]
     Input(String),
+    #[error(transparent)]
+    Osc(#[from] crate::osc::OscError),
 }
 
 /// One attempt of a source (see `sources::supervise`).
@@ -51,6 +53,9 @@ pub struct Running {
     pub tuio_addresses: Vec<SocketAddr>,
     /// The daemon's clock: frame timestamps are seconds since this.
     pub started: Instant,
+    /// Where OSC triggers are received (`[osc].listen`, port resolved).
+    pub osc_address: Option<SocketAddr>,
+    osc: Option<crate::osc::Osc>,
     commands: mpsc::Sender<Command>,
     shutdown: oneshot::Sender<()>,
     server: JoinHandle<()>,
@@ -81,6 +86,9 @@ impl Running {
 
     /// Stops accepting, ends the inputs and the stage thread, and waits.
     pub async fn shutdown(self) {
+        if let Some(osc) = &self.osc {
+            osc.stop();
+        }
         let _ = self.shutdown.send(());
         let _ = self.server.await;
         for input in &self.inputs {
@@ -156,6 +164,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     // Inputs are read now, so a bad file stops the start with its error.
     let size = DVec2::new(stage.width, stage.height);
     let resolved = resolve_inputs(config, size, extra_replay).await?;
+    let people = Arc::new(stream::People::new(config, resolved.source_names()));
     let description = StageDescription::of(&stage);
     let settings = TakeSettings {
         dir: takes_dir.clone(),
@@ -166,7 +175,9 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         stage_thread::spawn(stage, commands_rx, commands.downgrade(), settings);
     let shared = Arc::new(Shared {
         stage: description,
-        tokens: config.access.performer_tokens.clone(),
+        people,
+        log: Default::default(),
+        addresses: Default::default(),
         web_files,
         max_connections: config.stage.max_connections,
         commands: commands.clone(),
@@ -185,6 +196,11 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         next_client: AtomicU64::new(1),
     });
 
+    // Before the sources, so a bad OSC address stops the start cleanly.
+    let osc = match &config.osc {
+        Some(osc) => Some(crate::osc::start(osc, crate::osc::Links::of(&shared)).await?),
+        None => None,
+    };
     let (inputs, tuio_addresses) = spawn_sources(resolved, &commands, started, size)?;
     if let Some((path, play_options)) = play {
         let player = crate::takes::play(
@@ -205,6 +221,8 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         address,
         tuio_addresses,
         started,
+        osc_address: osc.as_ref().and_then(|o| o.listen),
+        osc,
         commands,
         shutdown,
         server,
@@ -228,6 +246,23 @@ struct ResolvedInputs {
     )>,
     devices: Vec<DeviceInput>,
     hids: Vec<(hid::HidSelector, SourceId, Option<Calibration>)>,
+}
+
+impl ResolvedInputs {
+    /// The input sources' names, as handles name their owners (TUIO
+    /// sources are named by their senders, so are not known yet).
+    fn source_names(&self) -> Vec<String> {
+        let replays = self.replays.iter().map(|r| &r.0);
+        let serials = self.serials.iter().map(|s| &s.3);
+        let devices = self.devices.iter().map(|d| &d.source);
+        let hids = self.hids.iter().map(|h| &h.1);
+        replays
+            .chain(serials)
+            .chain(devices)
+            .chain(hids)
+            .map(|s| s.to_string())
+            .collect()
+    }
 }
 
 /// Reads and checks every input of `config` (and an extra replay), so a bad

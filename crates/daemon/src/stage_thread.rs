@@ -52,6 +52,12 @@ pub enum Command {
     },
     /// A source went away: lift all its contacts.
     ReleaseSource(String),
+    /// A source may grab only these puppets (`None`: any), e.g. a
+    /// performer limited to named puppets.
+    Limit {
+        source: String,
+        puppets: Option<Vec<u32>>,
+    },
     /// A mouse's cursor moved (`None`: the mouse went away).
     Cursor {
         source: String,
@@ -251,6 +257,9 @@ pub struct PuppetOutput {
     pub weights: watch::Receiver<Arc<str>>,
     /// The newest "keys" message (key poses and the cursor).
     pub keys: watch::Receiver<Arc<str>>,
+    /// The newest key-pose blend of a skeleton, as `{"type":"pose",
+    /// "puppet","from","to","t"}` (empty until one is set).
+    pub pose: watch::Receiver<Arc<str>>,
 }
 
 /// What the stage thread publishes.
@@ -276,6 +285,7 @@ struct Publisher {
     weights_published: Vec<u64>,
     keys: Vec<watch::Sender<Arc<str>>>,
     keys_published: Vec<u64>,
+    poses: Vec<watch::Sender<Arc<str>>>,
     sequences: Vec<u64>,
     cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
@@ -531,6 +541,7 @@ pub fn spawn(
         weights_published: vec![0; stage.puppets().len()],
         keys: Vec::new(),
         keys_published: vec![0; stage.puppets().len()],
+        poses: Vec::new(),
         sequences: vec![0; stage.puppets().len()],
         cursors: cursors_tx,
         changes,
@@ -545,6 +556,8 @@ pub fn spawn(
         publisher.weights.push(weights_tx);
         let (keys_tx, keys_rx) = watch::channel(Arc::<str>::from(keys_message(&stage, p.id)));
         publisher.keys.push(keys_tx);
+        let (pose_tx, pose_rx) = watch::channel(Arc::<str>::from(""));
+        publisher.poses.push(pose_tx);
         let (handles_tx, handles_rx) = watch::channel(published_handles(&stage, p.id));
         publisher.frames.push(frame_tx);
         publisher.handles.push(handles_tx);
@@ -554,6 +567,7 @@ pub fn spawn(
             handles: handles_rx,
             weights: weights_rx,
             keys: keys_rx,
+            pose: pose_rx,
         });
     }
     let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
@@ -639,6 +653,8 @@ struct Batch {
     cursors_changed: bool,
     /// Something was applied since the last solve.
     dirty: bool,
+    /// Key-pose blends set since the last solve, to publish with it.
+    poses: Vec<(u32, String, String, f64)>,
 }
 
 impl Batch {
@@ -660,6 +676,16 @@ impl Batch {
             taking.announce = true;
         }
         let result = stage.apply_change(&change);
+        if result.is_ok()
+            && let Change::KeyPose {
+                puppet,
+                from,
+                to,
+                t,
+            } = &change
+        {
+            self.poses.push((*puppet, from.clone(), to.clone(), *t));
+        }
         taking.fresh = false;
         self.dirty = true;
         let result = result.map(|rebuild| {
@@ -700,6 +726,7 @@ impl Batch {
             Command::ReleaseSource(source) => {
                 self.apply(stage, taking, Change::Release { source }, None, wake)
             }
+            Command::Limit { source, puppets } => stage.limit_source(&source, puppets),
             Command::Paint {
                 puppet,
                 at,
@@ -810,6 +837,12 @@ impl Batch {
             let solved = stage.solve();
             publisher.publish(stage, &solved, self.newest);
             publisher.publish_weights(stage);
+            for (puppet, from, to, t) in self.poses.drain(..) {
+                let text = serde_json::json!({
+                    "type": "pose", "puppet": puppet, "from": from, "to": to, "t": t,
+                });
+                publisher.poses[puppet as usize].send_replace(Arc::from(text.to_string()));
+            }
             if taking.record(stage, &solved) || std::mem::take(&mut taking.announce) {
                 taking.publish(&publisher.changes);
             }

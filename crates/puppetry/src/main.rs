@@ -308,6 +308,24 @@ fn run(args: Args) -> anyhow::Result<()> {
                 if let Some(token) = stage.access.performer_tokens.first() {
                     println!("  perform: http://{address}/?role=performer&token={token}");
                 }
+                let director = stage
+                    .access
+                    .people
+                    .iter()
+                    .find(|p| p.role == puppetry_stage::config::AccessRole::Director);
+                if let Some(director) = director {
+                    println!(
+                        "  direct:  http://{address}/?role=director&token={}",
+                        director.token
+                    );
+                }
+                // Said, because a stage file may ask for port 0.
+                for tuio in &running.tuio_addresses {
+                    println!("  TUIO: receiving on udp {tuio}");
+                }
+                if let Some(osc) = running.osc_address {
+                    println!("  OSC triggers: udp://{osc} (docs/osc.md)");
+                }
                 println!("  stop with Ctrl-C (or SIGTERM)");
                 // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
                 // either way a take being recorded is ended cleanly.
@@ -428,7 +446,11 @@ fn run(args: Args) -> anyhow::Result<()> {
             output,
         } => {
             let vertices = vertices.map(|n| n as usize);
-            let mesh = cli::mesh_command(&input, vertices)?;
+            let meshed = cli::mesh_command(&input, vertices)?;
+            for warning in &meshed.warnings {
+                eprintln!("warning: {warning}");
+            }
+            let mesh = meshed.mesh;
             let got = mesh.vertices().len();
             if let Some(n) = vertices.filter(|&n| got * 100 < n * 85 || got * 100 > n * 115) {
                 eprintln!(

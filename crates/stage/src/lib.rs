@@ -385,6 +385,9 @@ pub struct Stage {
     /// Handle events since the last [`Stage::take_events`], kept only while
     /// a take records them.
     events: Option<Vec<StageEvent>>,
+    /// Sources that may grab only these puppets (by id): a performer
+    /// limited to named puppets. A grab landing on another grabs nothing.
+    limits: HashMap<String, Vec<u32>>,
 }
 
 impl Stage {
@@ -398,6 +401,7 @@ impl Stage {
             grabs: HashMap::new(),
             pads: Vec::new(),
             pad_contacts: HashMap::new(),
+            limits: HashMap::new(),
             next_handle: 1,
             events: None,
         };
@@ -582,6 +586,19 @@ impl Stage {
         }
     }
 
+    /// Limits what a source's contacts and pins may grab to these puppets
+    /// (by id), or lifts the limit (`None`).
+    pub fn limit_source(&mut self, source: &str, puppets: Option<Vec<u32>>) {
+        match puppets {
+            Some(puppets) => {
+                self.limits.insert(source.to_string(), puppets);
+            }
+            None => {
+                self.limits.remove(source);
+            }
+        }
+    }
+
     /// Lifts every contact of a source (it disconnected or vanished).
     pub fn release_source(&mut self, source: &str) {
         self.pad_contacts.retain(|k, _| k.0 != source);
@@ -630,6 +647,12 @@ impl Stage {
         for puppet in (0..self.puppets.len()).rev() {
             match self.puppets[puppet].reach(at, radius) {
                 Reach::Grip(grip, offset) => {
+                    if let Owner::Source(source) = &owner
+                        && let Some(puppets) = self.limits.get(source)
+                        && !puppets.contains(&self.puppets[puppet].id)
+                    {
+                        return None;
+                    }
                     let id = self.add_handle(puppet, owner, kind, grip, at, offset, contact)?;
                     return Some((puppet, id));
                 }

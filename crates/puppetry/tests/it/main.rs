@@ -1,16 +1,21 @@
 //! End-to-end tests, one binary: the daemon on 127.0.0.1:0 driven over
 //! WebSocket, by device stand-ins, serial ptys, TUIO and replays; every
 //! stage file of `config/`; the rigs live; the web page in headless
-//! Chromium; and the command line.
+//! Chromium; show control over OSC; and the command line.
 
 mod common;
 
+mod bad_input;
 mod cli;
 mod config;
 mod devices;
 mod edge;
+mod fuzz;
 mod install;
+mod memory;
+mod osc;
 mod rigs;
+mod roles;
 mod serve;
 mod takes;
 mod web;
