@@ -6,4 +6,5 @@ static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::C
 
 mod keyframing;
 mod keys;
+mod edits;
 mod rigs_no_alloc;
