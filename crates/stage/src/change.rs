@@ -117,11 +117,24 @@ pub struct PinRecord {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum GripRecord {
-    Vertex { index: u32 },
-    Point { triangle: u32, bary: [f64; 3] },
-    Grid { index: usize },
-    Joint { index: usize },
-    Bone { index: usize, along: f64, across: f64 },
+    Vertex {
+        index: u32,
+    },
+    Point {
+        triangle: u32,
+        bary: [f64; 3],
+    },
+    Grid {
+        index: usize,
+    },
+    Joint {
+        index: usize,
+    },
+    Bone {
+        index: usize,
+        along: f64,
+        across: f64,
+    },
 }
 
 /// A skeleton's pose: its FK state, its joints, and the key-pose blend it
@@ -151,12 +164,22 @@ pub struct KeyPoseState {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum GripEvent {
-    Point { rest: DVec2 },
-    Grid { index: usize },
-    Joint { index: usize },
+    Point {
+        rest: DVec2,
+    },
+    Grid {
+        index: usize,
+    },
+    Joint {
+        index: usize,
+    },
     /// A point on a skeleton's bone: `along` the bone (0 at its parent
     /// joint, 1 at its child) and `across` it (stage units, to the left).
-    Bone { index: usize, along: f64, across: f64 },
+    Bone {
+        index: usize,
+        along: f64,
+        across: f64,
+    },
 }
 
 /// One handle-level thing the stage did.

@@ -45,7 +45,10 @@ pub enum CommandError {
     /// A number outside its documented range; `field` names it as the
     /// message does (`radius`, `strength`).
     #[error("{field}: {problem}")]
-    OutOfRange { field: &'static str, problem: String },
+    OutOfRange {
+        field: &'static str,
+        problem: String,
+    },
     #[error("puppet {puppet}: cannot restore: {problem}")]
     Restore { puppet: u32, problem: String },
     #[error("{file}: {source}")]
@@ -275,12 +278,14 @@ impl Puppet {
     /// less the offset it was grabbed with (where the finger holds it).
     pub fn handle_points(&self, out: &mut Vec<DVec2>) {
         out.clear();
-        out.extend(self.handles.iter().map(|h| match h.grip {
-            Grip::Point(anchor) => self.posed(anchor),
-            grip => self
-                .rig
-                .grip_position(grip)
-                .map_or(h.target, |q| q - h.offset),
+        out.extend(self.handles.iter().map(|h| {
+            match h.grip {
+                Grip::Point(anchor) => self.posed(anchor),
+                grip => self
+                    .rig
+                    .grip_position(grip)
+                    .map_or(h.target, |q| q - h.offset),
+            }
         }));
     }
 
@@ -344,19 +349,17 @@ impl Puppet {
     fn grip_of(&self, record: GripRecord) -> Option<Grip> {
         let rig_points = self.rig.points().map_or(0, |p| p.len());
         let grip = match record {
-            GripRecord::Vertex { index } => {
-                ((index as usize) < self.mesh.vertices().len()).then_some(Grip::Point(Anchor::Vertex(index)))?
-            }
+            GripRecord::Vertex { index } => ((index as usize) < self.mesh.vertices().len())
+                .then_some(Grip::Point(Anchor::Vertex(index)))?,
             GripRecord::Point { triangle, bary } => ((triangle as usize)
                 < self.mesh.triangles().len()
                 && bary.iter().all(|b| b.is_finite()))
             .then_some(Grip::Point(Anchor::Point { triangle, bary }))?,
             GripRecord::Grid { index } => (matches!(self.rig, Rig::Grid(_)) && index < rig_points)
                 .then_some(Grip::GridHandle(index))?,
-            GripRecord::Joint { index } => {
-                (matches!(self.rig, Rig::Skeleton(_)) && index < rig_points)
-                    .then_some(Grip::Joint(index))?
-            }
+            GripRecord::Joint { index } => (matches!(self.rig, Rig::Skeleton(_))
+                && index < rig_points)
+                .then_some(Grip::Joint(index))?,
             GripRecord::Bone {
                 index,
                 along,
@@ -607,14 +610,18 @@ impl WeightsFile {
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
                 Err(e) => return Err(failed(&target)(e)),
             };
-            let written = file.write_all(text.as_bytes()).and_then(|()| file.sync_all());
+            let written = file
+                .write_all(text.as_bytes())
+                .and_then(|()| file.sync_all());
             if let Err(e) = written {
                 let _ = std::fs::remove_file(&target);
                 return Err(failed(&target)(e));
             }
             return Ok(target);
         }
-        Err(failed(&path)(std::io::Error::other("no free version number")))
+        Err(failed(&path)(std::io::Error::other(
+            "no free version number",
+        )))
     }
 }
 
@@ -634,9 +641,7 @@ pub fn versioned(path: &std::path::Path, n: u32) -> PathBuf {
         },
     };
     let stem = match stem.rfind(".v") {
-        Some(i)
-            if stem.len() > i + 2 && stem[i + 2..].bytes().all(|b| b.is_ascii_digit()) =>
-        {
+        Some(i) if stem.len() > i + 2 && stem[i + 2..].bytes().all(|b| b.is_ascii_digit()) => {
             &stem[..i]
         }
         _ => stem,
@@ -1420,7 +1425,11 @@ impl Stage {
                 self.remove_handle(index, id);
             }
             for (pin, grip) in pins {
-                if self.puppets[index].handles.iter().any(|h| h.id == pin.handle) {
+                if self.puppets[index]
+                    .handles
+                    .iter()
+                    .any(|h| h.id == pin.handle)
+                {
                     continue;
                 }
                 let owner = match pin.owner.as_str() {

@@ -349,7 +349,8 @@ impl Rig {
                                         continue;
                                     };
                                     let (from, to) = (r.joints[a], r.joints[c]);
-                                    let shift = h.rig_target() - bone_point(from, to, along, across);
+                                    let shift =
+                                        h.rig_target() - bone_point(from, to, along, across);
                                     r.joints[a] = from + shift;
                                     r.joints[c] = to + shift;
                                 }

@@ -12,6 +12,7 @@ mod edge;
 mod install;
 mod rigs;
 mod serve;
+mod stage_state;
 mod takes;
 mod web;
 mod web_protocol;

@@ -82,7 +82,10 @@ fn pins(stage: &Stage) -> Vec<(u64, DVec2)> {
 }
 
 fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
-    a.iter().zip(b).map(|(p, q)| p.distance(*q)).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| p.distance(*q))
+        .fold(0.0, f64::max)
 }
 
 #[test]
@@ -109,7 +112,9 @@ fn a_huge_brush_is_refused_naming_the_field_and_changes_nothing() {
     }
     assert_eq!(stage.puppets()[0].weights(), loaded);
     // The edges of the ranges are allowed.
-    stage.paint(0, DVec2::new(640.0, 400.0), 1280.0, 10.0).unwrap();
+    stage
+        .paint(0, DVec2::new(640.0, 400.0), 1280.0, 10.0)
+        .unwrap();
     stage.paint(0, DVec2::new(640.0, 400.0), 1.0, 0.1).unwrap();
 }
 
@@ -151,7 +156,11 @@ fn undo_redo_and_reset_put_weights_pins_and_cursor_back_exactly() {
     undo(&mut stage);
     assert_eq!(bits(stage.puppets()[0].weights()), bits(&stroke));
     undo(&mut stage);
-    assert_eq!(bits(stage.puppets()[0].weights()), bits(&loaded), "the whole stroke");
+    assert_eq!(
+        bits(stage.puppets()[0].weights()),
+        bits(&loaded),
+        "the whole stroke"
+    );
     assert_eq!(stage.puppets()[0].history(), (0, 3));
     assert!(stage.undo(0).unwrap().is_none(), "nothing more to undo");
     redo(&mut stage);
@@ -204,14 +213,26 @@ fn restored_states_replay_bit_for_bit_into_a_fresh_stage() {
         recorded.push(apply(stage, change));
         poses.push(stage.puppets()[0].pose().to_vec());
     };
-    step(&mut live, contact(1, Phase::Down, DVec2::new(640.0, 470.0)), &mut recorded);
+    step(
+        &mut live,
+        contact(1, Phase::Down, DVec2::new(640.0, 470.0)),
+        &mut recorded,
+    );
     step(&mut live, dab([600.0, 400.0], 4.0, Some(1)), &mut recorded);
     step(&mut live, dab([620.0, 400.0], 4.0, Some(1)), &mut recorded);
-    step(&mut live, contact(1, Phase::Move, DVec2::new(700.0, 480.0)), &mut recorded);
+    step(
+        &mut live,
+        contact(1, Phase::Move, DVec2::new(700.0, 480.0)),
+        &mut recorded,
+    );
     let undo = live.undo(0).unwrap().unwrap();
     assert!(matches!(undo, Change::Restore { .. }));
     step(&mut live, undo, &mut recorded);
-    step(&mut live, contact(1, Phase::Move, DVec2::new(720.0, 500.0)), &mut recorded);
+    step(
+        &mut live,
+        contact(1, Phase::Move, DVec2::new(720.0, 500.0)),
+        &mut recorded,
+    );
     let redo = live.redo(0).unwrap().unwrap();
     step(&mut live, redo, &mut recorded);
     for change in live.reset(0).unwrap() {
@@ -292,7 +313,11 @@ fn weights_are_saved_to_a_new_version_beside_the_mesh() {
     assert_eq!(v1, dir.path().join("gingerbread.v1.mesh.json"));
     let v2 = stage.weights_file(0).unwrap().save().unwrap();
     assert_eq!(v2, dir.path().join("gingerbread.v2.mesh.json"));
-    assert_eq!(std::fs::read(&mesh).unwrap(), original, "the original is untouched");
+    assert_eq!(
+        std::fs::read(&mesh).unwrap(),
+        original,
+        "the original is untouched"
+    );
     let saved = puppetry_mesh::Mesh::load(&v1).unwrap();
     assert_eq!(bits(saved.weights()), bits(stage.puppets()[0].weights()));
     // Saving from a version counts from the name's root.
@@ -325,7 +350,10 @@ fn handle_points_are_on_the_solved_puppet_under_the_finger() {
     let mut stage = Stage::from_config(&config("")).unwrap();
     stage.solve();
     let generation = stage.puppets()[0].handles_generation();
-    apply(&mut stage, contact(1, Phase::Down, DVec2::new(640.0, 470.0)));
+    apply(
+        &mut stage,
+        contact(1, Phase::Down, DVec2::new(640.0, 470.0)),
+    );
     assert_ne!(stage.puppets()[0].handles_generation(), generation);
     let finger = DVec2::new(700.0, 520.0);
     apply(&mut stage, contact(1, Phase::Move, finger));
@@ -378,7 +406,11 @@ fn a_skeleton_grabbed_mid_bone_turns_the_bone_in_fk() {
     // The dot: the grabbed point, on the ray to the finger.
     let mut points = Vec::new();
     stage.puppets()[0].handle_points(&mut points);
-    assert!(points[0].distance(finger) < 1e-6, "{} vs {finger}", points[0]);
+    assert!(
+        points[0].distance(finger) < 1e-6,
+        "{} vs {finger}",
+        points[0]
+    );
     assert!(after[4].distance(before[4]) < 1e-9, "the upper arm stays");
 }
 

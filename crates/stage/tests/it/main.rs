@@ -4,7 +4,7 @@
 #[global_allocator]
 static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
 
+mod edits;
 mod keyframing;
 mod keys;
-mod edits;
 mod rigs_no_alloc;
