@@ -592,8 +592,12 @@ impl Links {
                 },
                 handles: o.handles.clone(),
                 keys: o.keys.clone(),
-                pose: o.pose.clone(),
-                handle_frames: None,
+                // Puppets without key poses never publish one.
+                pose: o
+                    .pose
+                    .clone()
+                    .unwrap_or_else(|| watch::channel(Arc::<str>::from("")).1),
+                handle_frames: Some(o.handle_frame.clone()),
             })
             .collect();
         Links {
@@ -696,8 +700,11 @@ struct KeyText {
 /// The "pose" message's parts that show control reads.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 struct PoseText {
-    from: String,
-    to: String,
+    /// Left out at rest.
+    #[serde(default)]
+    from: Option<String>,
+    #[serde(default)]
+    to: Option<String>,
     t: f64,
 }
 
@@ -864,7 +871,7 @@ impl Receiver {
                 // A blend of two poses is not a pose to start from: start
                 // from the nearer of the two.
                 let start = now
-                    .map(|p| if p.t >= 0.5 { p.to } else { p.from })
+                    .and_then(|p| if p.t >= 0.5 { p.to } else { p.from })
                     .filter(|start| *start != name);
                 let Some(start) = start.filter(|_| steps > 1) else {
                     return key_pose(&commands, puppet, name.clone(), name, 0.0)
@@ -1193,7 +1200,11 @@ impl Sender {
             if let Some(p) = pose {
                 out.push((
                     self.space.puppet_address(i, "pose"),
-                    vec![s(&p.from), s(&p.to), f(p.t)],
+                    vec![
+                        s(p.from.as_deref().unwrap_or("")),
+                        s(p.to.as_deref().unwrap_or("")),
+                        f(p.t),
+                    ],
                 ));
             }
         }

@@ -21,6 +21,10 @@ pub enum FrameKind {
     Vertices,
     /// The deformed grid handles or posed joints of a rigged puppet (kind 2).
     Rig,
+    /// Where each handle of a puppet is on the solved puppet (kind 3), in
+    /// the order of the `handles` message whose generation the header
+    /// carries.
+    Handles,
     /// A kind this build does not know; clients skip it.
     Other(u32),
 }
@@ -30,6 +34,7 @@ impl FrameKind {
         match self {
             FrameKind::Vertices => 1,
             FrameKind::Rig => 2,
+            FrameKind::Handles => 3,
             FrameKind::Other(code) => code,
         }
     }
@@ -38,6 +43,7 @@ impl FrameKind {
         match code {
             1 => FrameKind::Vertices,
             2 => FrameKind::Rig,
+            3 => FrameKind::Handles,
             other => FrameKind::Other(other),
         }
     }
@@ -55,6 +61,9 @@ pub struct FrameHeader {
     pub input_time: f64,
     /// Points that follow the header (f32 x, y pairs).
     pub count: u32,
+    /// A handles frame: the generation of the handle set its points follow
+    /// (the `handles` message's); 0 in other frames.
+    pub generation: u32,
 }
 
 impl FrameHeader {
@@ -65,7 +74,7 @@ impl FrameHeader {
         out.put_u64_le(self.sequence);
         out.put_f64_le(self.input_time);
         out.put_u32_le(self.count);
-        out.put_u32_le(0);
+        out.put_u32_le(self.generation);
     }
 
     /// Reads a header from the start of `bytes`.
@@ -85,6 +94,7 @@ impl FrameHeader {
             sequence: u64::from_le_bytes(eight(8)),
             input_time: f64::from_le_bytes(eight(16)),
             count: u32_at(24),
+            generation: u32_at(28),
         })
     }
 }
@@ -111,6 +121,18 @@ pub fn encode_frame(
     input_time: f64,
     points: &[DVec2],
 ) -> Bytes {
+    encode_frame_of(kind, puppet, sequence, input_time, 0, points)
+}
+
+/// [`encode_frame`] with the header's `generation` (handles frames).
+pub fn encode_frame_of(
+    kind: FrameKind,
+    puppet: u32,
+    sequence: u64,
+    input_time: f64,
+    generation: u32,
+    points: &[DVec2],
+) -> Bytes {
     let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + points.len() * 8);
     FrameHeader {
         kind,
@@ -118,6 +140,7 @@ pub fn encode_frame(
         sequence,
         input_time,
         count: points.len() as u32,
+        generation,
     }
     .encode_into(&mut out);
     for p in points {
@@ -251,13 +274,34 @@ pub enum ClientMessage {
         puppet: u32,
         handle: u64,
     },
-    /// One dab of the stiffness brush.
+    /// One dab of the stiffness brush; the dabs of one `stroke` undo at
+    /// once.
     Paint {
         puppet: u32,
         x: f64,
         y: f64,
         radius: f64,
         strength: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stroke: Option<u64>,
+    },
+    /// Take back the puppet's last edit (paint stroke, pin, pose).
+    Undo {
+        puppet: u32,
+    },
+    /// Do again what the last undo took back.
+    Redo {
+        puppet: u32,
+    },
+    /// Weights as loaded, pins as in the stage file, the skeleton at rest,
+    /// the key cursor let go (one undo step).
+    Reset {
+        puppet: u32,
+    },
+    /// Play or pause one of the stage's replay inputs.
+    Replay {
+        source: String,
+        playing: bool,
     },
     SaveWeights {
         puppet: u32,
@@ -423,11 +467,32 @@ pub enum ServerMessage {
     People { people: Vec<Person> },
     /// The answer to `ping`.
     Pong { t: f64 },
-    /// A puppet's handle set changed.
+    /// A puppet's handle set changed; `generation` is the one handles
+    /// frames of this set carry.
     Handles {
         puppet: u32,
+        generation: u32,
         handles: Vec<HandleView>,
     },
+    /// Undo and redo steps a puppet has (on connecting and on change).
+    History {
+        puppet: u32,
+        undo: usize,
+        redo: usize,
+    },
+    /// A skeleton's key-pose blend (on connecting and on change); `from`
+    /// and `to` are left out at rest (never set, or reset).
+    Pose {
+        puppet: u32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        from: Option<String>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        to: Option<String>,
+        t: f64,
+    },
+    /// The stage's replay inputs and whether each is playing (on
+    /// connecting and on change).
+    Inputs { replays: Vec<ReplayView> },
     /// Every mouse cursor on the stage.
     Cursors { cursors: Vec<CursorView> },
     /// A puppet's per-triangle stiffness after painting.
@@ -483,6 +548,14 @@ impl ServerMessage {
             field: None,
         }
     }
+}
+
+/// A replay input of the stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayView {
+    pub name: String,
+    pub playing: bool,
 }
 
 /// The stage's size, in stage units.
@@ -564,7 +637,7 @@ pub struct HandleView {
     /// Where it was held when the handle set changed.
     pub at: [f64; 2],
     pub grip: GripKind,
-    /// The grid handle's or joint's index.
+    /// The grid handle's, joint's or bone's index.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub index: Option<usize>,
 }
@@ -588,6 +661,8 @@ pub enum GripKind {
     Grid,
     /// A joint of a skeleton puppet.
     Joint,
+    /// A point on a skeleton puppet's bone (`index`: the bone).
+    Bone,
 }
 
 /// A mouse cursor as clients draw it: where it is, and the pair of points
@@ -620,6 +695,12 @@ mod tests {
         assert_eq!(frame.header.sequence, 99);
         assert_eq!(frame.header.input_time, 1.25);
         assert_eq!(frame.points, points);
+        assert_eq!(frame.header.generation, 0);
+        let handles = encode_frame_of(FrameKind::Handles, 1, 5, 0.5, 7, &points);
+        let frame = decode_frame(&handles).unwrap();
+        assert_eq!(frame.header.kind, FrameKind::Handles);
+        assert_eq!(frame.header.generation, 7);
+        assert_eq!(u32::from_le_bytes(handles[28..32].try_into().unwrap()), 7);
         assert_eq!(
             decode_frame(&bytes[..40]),
             Err(FrameError::Length {

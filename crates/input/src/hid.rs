@@ -202,11 +202,9 @@ fn check_items(descriptor: &[u8]) -> Result<(), HidError> {
                 }
             }
             (1, 0xA) => globals.push(current),
-            (1, 0xB) => {
-                // Too many pops is hidreport's own (clean) error.
-                if globals.len() > 1 {
-                    globals.pop();
-                }
+            // Too many pops is hidreport's own (clean) error.
+            (1, 0xB) if globals.len() > 1 => {
+                globals.pop();
             }
             (2, tag @ 0x0..=0x2) => {
                 // A four-byte usage carries its own page.

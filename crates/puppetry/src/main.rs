@@ -55,6 +55,10 @@ enum Command {
         /// fast as the stage takes it).
         #[arg(long, value_name = "TAKE")]
         play: Option<PathBuf>,
+        /// Start the stage file's replay inputs paused: a director plays
+        /// them from the page (a `replay` message).
+        #[arg(long)]
+        no_replay: bool,
     },
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
@@ -262,6 +266,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             record,
             takes,
             play,
+            no_replay,
         } => {
             tracing_subscriber::fmt()
                 .with_env_filter(
@@ -292,6 +297,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 let mut options = puppetry_daemon::serve::Options::new(web_files);
                 options.extra_replay = replay.map(|file| (file, pacing));
                 options.record = record.is_some();
+                options.paused_replays = no_replay;
                 if let Some(dir) = record.or(takes) {
                     options.takes_dir = dir;
                 }

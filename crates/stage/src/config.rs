@@ -257,6 +257,22 @@ pub struct PuppetConfig {
     /// loaded if it exists, written by `save_keys`.
     #[serde(default)]
     pub keys: Option<PathBuf>,
+    /// Where `save_weights` writes: a new versioned file beside the mesh
+    /// (`NAME.v1.mesh.json`, v2, …; the default) or over the mesh file.
+    #[serde(default)]
+    pub save_weights: SaveWeights,
+}
+
+/// Where `save_weights` writes a puppet's painted weights.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SaveWeights {
+    /// A new file beside the mesh, the next free `NAME.vN.mesh.json`: the
+    /// shared asset is never overwritten.
+    #[default]
+    Version,
+    /// Over the mesh file itself.
+    Overwrite,
 }
 
 /// `[[pad]]`: a rectangle of the stage where contacts (of one source, or

@@ -155,7 +155,12 @@ pub fn allowed(who: &Permissions, message: &ClientMessage) -> Result<(), Refusal
             // Which puppet a contact or pin lands on is the stage's to say
             // (`Stage::limit_source`): one on another puppet grabs nothing.
             M::Contacts { .. } | M::Pin { .. } => Ok(()),
-            M::Unpin { puppet, .. } | M::Pose { puppet, .. } | M::Cursor { puppet, .. } => {
+            M::Unpin { puppet, .. }
+            | M::Pose { puppet, .. }
+            | M::Cursor { puppet, .. }
+            | M::Undo { puppet }
+            | M::Redo { puppet }
+            | M::Reset { puppet } => {
                 if who.may_play(*puppet) {
                     Ok(())
                 } else {
@@ -331,6 +336,7 @@ mod tests {
             y: 0.0,
             radius: 1.0,
             strength: 1.0,
+            stroke: None,
         };
         for m in [&save, &record, &paint] {
             assert!(allowed(&director, m).is_ok());

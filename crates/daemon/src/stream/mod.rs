@@ -29,7 +29,7 @@ use crate::protocol::{
     ClientMessage, GridBasis, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
     StageSize,
 };
-use crate::stage_thread::{Command, PuppetOutput};
+use crate::stage_thread::{Command, Edit, PuppetOutput};
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::{Change, Rig, Stage};
 
@@ -160,6 +160,8 @@ pub struct Shared {
     pub client_timeout: Duration,
     pub started: Instant,
     pub next_client: AtomicU64,
+    /// The stage's replay inputs, played and paused from the page.
+    pub replays: Arc<crate::sources::Replays>,
 }
 
 /// Binds the listener; `run` serves until `shutdown` resolves.
@@ -336,9 +338,24 @@ async fn websocket(
     let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
     // Key poses and cursors: everyone gets them on connecting.
     let mut keys: Vec<_> = shared.outputs.iter().map(|o| o.keys.clone()).collect();
-    for k in &mut keys {
-        k.mark_changed();
+    // Newcomers get the whole live state: painted weights, undo history,
+    // skeleton poses, the handle set (with its generation) and where each
+    // handle is, and which replays play.
+    let mut handle_frames: Vec<_> = shared
+        .outputs
+        .iter()
+        .map(|o| o.handle_frame.clone())
+        .collect();
+    let mut history: Vec<_> = shared.outputs.iter().map(|o| o.history.clone()).collect();
+    let mut poses: Vec<_> = shared.outputs.iter().map(|o| o.pose.clone()).collect();
+    let mut inputs = shared.replays.message();
+    for w in keys.iter_mut().chain(&mut weights).chain(&mut history) {
+        w.mark_changed();
     }
+    for p in poses.iter_mut().flatten() {
+        p.mark_changed();
+    }
+    inputs.mark_changed();
     let puppets = shared
         .stage
         .puppets
@@ -369,8 +386,11 @@ async fn websocket(
     let mut people = shared.people.subscribe();
     people.mark_changed();
     // Frames published before this client connected still count as new.
-    for f in frames.iter_mut().chain(&mut rigs) {
+    for f in frames.iter_mut().chain(&mut rigs).chain(&mut handle_frames) {
         f.mark_changed();
+    }
+    for h in &mut handles {
+        h.mark_changed();
     }
     cursors.mark_changed();
     take.mark_changed();
@@ -403,6 +423,27 @@ async fn websocket(
                     let text = handles[i].borrow_and_update().text.to_string();
                     send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
+                // After the handles message, so its generation is known.
+                if handle_frames[i].has_changed().unwrap_or(false) {
+                    let frame = handle_frames[i].borrow_and_update().clone();
+                    if let Some(bytes) = frame {
+                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
+                    }
+                }
+                if history[i].has_changed().unwrap_or(false) {
+                    let text = history[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                }
+                if let Some(pose) = &mut poses[i]
+                    && pose.has_changed().unwrap_or(false)
+                {
+                    let text = pose.borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                }
+            }
+            if inputs.has_changed().unwrap_or(false) {
+                let text = inputs.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
             }
             if cursors.has_changed().unwrap_or(false) {
                 let text = cursors.borrow_and_update().to_string();
@@ -431,6 +472,13 @@ async fn websocket(
                 changed = people.changed() => {
                     if changed.is_ok() {
                         let text = people.borrow_and_update().to_string();
+                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                    }
+                }
+                // `changed` marks the value seen: send it here.
+                changed = inputs.changed() => {
+                    if changed.is_ok() {
+                        let text = inputs.borrow_and_update().to_string();
                         send(&mut ws, Message::text(text), shared.client_timeout).await?;
                     }
                 }
@@ -542,27 +590,6 @@ async fn ask<T>(
         })
 }
 
-/// Writes `text` to `path` atomically: a temporary file beside it, synced,
-/// then renamed over it, so readers see the old file or the new, never half.
-fn write_atomically(path: &std::path::Path, text: &str) -> std::io::Result<()> {
-    use std::io::Write;
-    let name = path
-        .file_name()
-        .ok_or_else(|| std::io::Error::other("not a file path"))?
-        .to_string_lossy();
-    let temporary = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let result = (|| {
-        let mut file = std::fs::File::create(&temporary)?;
-        file.write_all(text.as_bytes())?;
-        file.sync_all()?;
-        std::fs::rename(&temporary, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temporary);
-    }
-    result
-}
-
 /// Acts on one text message of a connected client; `Ok` may carry an
 /// answer for this client, `Err` is the problem to report back.
 async fn handle_message(
@@ -644,10 +671,12 @@ async fn handle_message(
             y,
             radius,
             strength,
+            stroke,
         } => {
-            let ok = |v: f64| v.is_finite() && v > 0.0;
-            if !(x.is_finite() && y.is_finite() && ok(radius) && ok(strength)) {
-                return Err("paint needs finite x, y and positive radius and strength".into());
+            // The stage bounds the brush (`radius`, `strength`) and names
+            // the field it refuses.
+            if !(x.is_finite() && y.is_finite()) {
+                return Err("paint needs finite x and y".into());
             }
             let at = DVec2::new(x, y);
             ask(shared, |reply| Command::Paint {
@@ -655,9 +684,17 @@ async fn handle_message(
                 at,
                 radius,
                 strength,
+                stroke,
                 reply,
             })
             .await?;
+            return Ok(None);
+        }
+        ClientMessage::Undo { puppet } => return edit(shared, puppet, Edit::Undo).await,
+        ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
+        ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,
+        ClientMessage::Replay { source, playing } => {
+            shared.replays.set(&source, playing)?;
             return Ok(None);
         }
         ClientMessage::Pose {
@@ -681,13 +718,10 @@ async fn handle_message(
         }
         ClientMessage::SaveWeights { puppet } => {
             let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
-            let path = file.path.clone();
-            let written = tokio::task::spawn_blocking(move || {
-                let path = file.path.clone();
-                let text = file.text().map_err(|e| e.to_string())?;
-                write_atomically(&path, &text).map_err(|e| format!("{}: {e}", path.display()))
-            });
-            written
+            // A new versioned file beside the mesh, unless the stage file
+            // says to overwrite it (`WeightsFile::save`).
+            let written = tokio::task::spawn_blocking(move || file.save());
+            let path = written
                 .await
                 .map_err(|e| format!("save_weights: {e}"))?
                 .map_err(|e| format!("save_weights: {e}"))?;
@@ -798,6 +832,17 @@ async fn handle_message(
         .await
         .map(|()| None)
         .map_err(|_| "the stage is shutting down".into())
+}
+
+/// Undo, redo or reset a puppet's edits.
+async fn edit(shared: &Shared, puppet: u32, edit: Edit) -> Result<Option<String>, guard::Refusal> {
+    ask(shared, |reply| Command::Edit {
+        puppet,
+        edit,
+        reply,
+    })
+    .await
+    .map(|()| None)
 }
 
 async fn start_take(

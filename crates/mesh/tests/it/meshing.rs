@@ -496,7 +496,7 @@ fn picture_without_alpha_is_a_rectangle() {
         width: w,
         height: h,
     };
-    assert_eq!(traced.warnings, [expected.clone()]);
+    assert_eq!(traced.warnings, std::slice::from_ref(&expected));
     let meshed = mesh_picture(&path, &target(300)).unwrap();
     assert_eq!(meshed.warnings, [expected]);
     let message = meshed.warnings[0].to_string();

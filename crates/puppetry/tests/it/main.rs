@@ -17,6 +17,7 @@ mod osc;
 mod rigs;
 mod roles;
 mod serve;
+mod stage_state;
 mod takes;
 mod web;
 mod web_protocol;
