@@ -109,9 +109,10 @@ pub enum StageError {
 }
 
 /// The brush's `strength` range: a dab at most multiplies a weight by
-/// 10 or divides it by 10 (one order of magnitude per dab).
-pub const MIN_STRENGTH: f64 = 0.1;
-pub const MAX_STRENGTH: f64 = 10.0;
+/// 1000 or divides it by 1000 (three of the weight range's seven orders of
+/// magnitude per dab).
+pub const MIN_STRENGTH: f64 = 1e-3;
+pub const MAX_STRENGTH: f64 = 1e3;
 
 /// Undo steps kept per puppet; older ones are forgotten.
 pub const MAX_HISTORY: usize = 64;

@@ -265,7 +265,7 @@ impl Rig {
         let [a, c] = r.deformer.skeleton().bones()[index];
         let (from, d) = (joints[a], joints[c] - joints[a]);
         let length = d.length();
-        if !(length > 0.0) {
+        if length <= 0.0 || !length.is_finite() {
             return None;
         }
         let unit = d / length;

@@ -121,6 +121,10 @@ pub fn decode(bytes: &[u8]) -> Frame {
 pub async fn frame_until(ws: &mut Client, mut done: impl FnMut(&Frame) -> bool) -> Frame {
     loop {
         if let Message::Binary(bytes) = next_message(ws).await {
+            // Rig and handles frames share the socket: only vertex frames.
+            if decode_frame(&bytes).is_ok_and(|f| f.header.kind != FrameKind::Vertices) {
+                continue;
+            }
             let frame = decode(&bytes);
             if done(&frame) {
                 return frame;
