@@ -18,6 +18,10 @@ import { anchorPoint, keyHandleAnchor } from './overlay.js';
 // How near (CSS pixels) a click must be to a pin to remove it.
 const PIN_REACH = 12;
 
+// The brush strengths the server takes (docs/protocol.md, `paint`).
+const STRENGTH_MIN = 0.1;
+const STRENGTH_MAX = 10;
+
 // How long after the page's own change of the key pose slider the server's
 // pose messages wait (they echo earlier changes): longer than a round trip.
 const POSE_QUIET_MS = 400;
@@ -236,8 +240,8 @@ export class PaintTool {
     const brush = this.brush;
     if (!this.on || !brush?.down) return;
     const radius = Math.min(this.radius, this.maxRadius);
-    const strength = this.strength;
-    if (!(radius > 0 && strength > 0)) return this.reportError('paint radius and strength must be positive');
+    if (!(radius > 0 && this.strength > 0)) return this.reportError('paint radius and strength must be positive');
+    const strength = Math.min(STRENGTH_MAX, Math.max(STRENGTH_MIN, this.strength));
     for (const p of this.puppets()) {
       const v = p.positions;
       let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
@@ -342,10 +346,12 @@ export class PoseSlider {
     }
     this.pending = null;
     const { from, to, t } = this.elements;
+    // At rest the server leaves `from` and `to` out: the selects keep
+    // their poses and the slider sits at 0.
     for (const [select, name] of [[from, msg.from], [to, msg.to]]) {
-      if ([...select.options].some((o) => o.value === name)) select.value = name;
+      if (name !== undefined && [...select.options].some((o) => o.value === name)) select.value = name;
     }
-    t.value = String(msg.t);
+    t.value = String(msg.from === undefined ? 0 : msg.t ?? 0);
   }
 
   /** What the slider shows: {puppet, from, to, t}, or null without one. */
@@ -514,8 +520,8 @@ export class TakeControls {
     this.m = messages;
     this.state = { recording: null, playing: null, error: null };
     this.since = 0; // performance.now() when `elapsed` was 0
-    this.el.controls.hidden = false;
     for (const b of this.buttons()) b.hidden = true;
+    this.el.controls.hidden = true;
     this.exporting = null; // the newest `export` message while one runs
     setInterval(() => this.showElapsed(), 250);
     this.listen();
@@ -531,6 +537,13 @@ export class TakeControls {
     const e = this.el;
     for (const b of [e.list, e.format, e.download]) b.hidden = !perform;
     for (const b of [e.record, e.play, e.overdub, e.stop]) b.hidden = !direct;
+    this.fit();
+  }
+
+  // The box shows only with something in it (a viewer's, between takes, is empty).
+  fit() {
+    const e = this.el;
+    e.controls.hidden = this.buttons().every((b) => b.hidden) && !e.state.textContent;
   }
 
   listen() {
@@ -600,7 +613,10 @@ export class TakeControls {
       text += `${text ? ' · ' : ''}exporting ${x.take} (${x.format}) ${percent}%`;
     }
     if (!text && s.error) text = s.error;
-    this.el.state.textContent = text;
+    if (this.el.state.textContent !== text) {
+      this.el.state.textContent = text;
+      this.fit();
+    }
     this.el.state.classList.toggle('recording', !!s.recording);
     this.el.state.classList.toggle('error', !s.recording && !!s.error);
   }

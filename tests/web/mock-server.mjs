@@ -288,7 +288,7 @@ function onInput(c, msg) {
     if (!(finite(msg.radius) && msg.radius > 0 && msg.radius <= Math.max(STAGE.width, STAGE.height))) {
       return { code: 'out_of_range', message: 'radius out of range', field: 'radius' };
     }
-    if (!(finite(msg.strength) && msg.strength >= 0.01 && msg.strength <= 100)) {
+    if (!(finite(msg.strength) && msg.strength >= 0.1 && msg.strength <= 10)) {
       return { code: 'out_of_range', message: 'strength out of range', field: 'strength' };
     }
     // One undo step per stroke: a dab of a new stroke (or without one) starts a step.
