@@ -696,9 +696,19 @@ struct KeyText {
 /// The "pose" message's parts that show control reads.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 struct PoseText {
-    from: String,
-    to: String,
+    /// Both `None` (or the message empty) until a pose is set.
+    #[serde(default)]
+    from: Option<String>,
+    #[serde(default)]
+    to: Option<String>,
+    #[serde(default)]
     t: f64,
+}
+
+/// A skeleton's key-pose blend now, if one was set: `(from, to, t)`.
+fn pose_now(text: &str) -> Option<(String, String, f64)> {
+    let p: PoseText = parse_text(text)?;
+    Some((p.from?, p.to?, p.t))
 }
 
 /// The "take" message's parts that show control reads.
@@ -860,11 +870,11 @@ impl Receiver {
         };
         let blend: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> =
             if link.poses.contains(&name) {
-                let now: Option<PoseText> = parse_text(&link.pose.borrow());
+                let now = pose_now(&link.pose.borrow());
                 // A blend of two poses is not a pose to start from: start
                 // from the nearer of the two.
                 let start = now
-                    .map(|p| if p.t >= 0.5 { p.to } else { p.from })
+                    .map(|(from, to, t)| if t >= 0.5 { to } else { from })
                     .filter(|start| *start != name);
                 let Some(start) = start.filter(|_| steps > 1) else {
                     return key_pose(&commands, puppet, name.clone(), name, 0.0)
@@ -1189,11 +1199,10 @@ impl Sender {
                 None => vec![OscType::Int(0), f(0.0), f(0.0)],
             };
             out.push((self.space.puppet_address(i, "cursor"), cursor));
-            let pose: Option<PoseText> = parse_text(&link.pose.borrow_and_update());
-            if let Some(p) = pose {
+            if let Some((from, to, t)) = pose_now(&link.pose.borrow_and_update()) {
                 out.push((
                     self.space.puppet_address(i, "pose"),
-                    vec![s(&p.from), s(&p.to), f(p.t)],
+                    vec![s(&from), s(&to), f(t)],
                 ));
             }
         }
