@@ -592,8 +592,12 @@ impl Links {
                 },
                 handles: o.handles.clone(),
                 keys: o.keys.clone(),
-                pose: o.pose.clone(),
-                handle_frames: None,
+                // Puppets without key poses never publish one.
+                pose: o
+                    .pose
+                    .clone()
+                    .unwrap_or_else(|| watch::channel(Arc::<str>::from("")).1),
+                handle_frames: Some(o.handle_frame.clone()),
             })
             .collect();
         Links {
@@ -696,19 +700,12 @@ struct KeyText {
 /// The "pose" message's parts that show control reads.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 struct PoseText {
-    /// Both `None` (or the message empty) until a pose is set.
+    /// Left out at rest.
     #[serde(default)]
     from: Option<String>,
     #[serde(default)]
     to: Option<String>,
-    #[serde(default)]
     t: f64,
-}
-
-/// A skeleton's key-pose blend now, if one was set: `(from, to, t)`.
-fn pose_now(text: &str) -> Option<(String, String, f64)> {
-    let p: PoseText = parse_text(text)?;
-    Some((p.from?, p.to?, p.t))
 }
 
 /// The "take" message's parts that show control reads.
@@ -870,11 +867,11 @@ impl Receiver {
         };
         let blend: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> =
             if link.poses.contains(&name) {
-                let now = pose_now(&link.pose.borrow());
+                let now: Option<PoseText> = parse_text(&link.pose.borrow());
                 // A blend of two poses is not a pose to start from: start
                 // from the nearer of the two.
                 let start = now
-                    .map(|(from, to, t)| if t >= 0.5 { to } else { from })
+                    .and_then(|p| if p.t >= 0.5 { p.to } else { p.from })
                     .filter(|start| *start != name);
                 let Some(start) = start.filter(|_| steps > 1) else {
                     return key_pose(&commands, puppet, name.clone(), name, 0.0)
@@ -1199,10 +1196,15 @@ impl Sender {
                 None => vec![OscType::Int(0), f(0.0), f(0.0)],
             };
             out.push((self.space.puppet_address(i, "cursor"), cursor));
-            if let Some((from, to, t)) = pose_now(&link.pose.borrow_and_update()) {
+            let pose: Option<PoseText> = parse_text(&link.pose.borrow_and_update());
+            if let Some(p) = pose {
                 out.push((
                     self.space.puppet_address(i, "pose"),
-                    vec![s(&from), s(&to), f(t)],
+                    vec![
+                        s(p.from.as_deref().unwrap_or("")),
+                        s(p.to.as_deref().unwrap_or("")),
+                        f(p.t),
+                    ],
                 ));
             }
         }

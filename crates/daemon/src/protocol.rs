@@ -21,6 +21,10 @@ pub enum FrameKind {
     Vertices,
     /// The deformed grid handles or posed joints of a rigged puppet (kind 2).
     Rig,
+    /// Where each handle of a puppet is on the solved puppet (kind 3), in
+    /// the order of the `handles` message whose generation the header
+    /// carries.
+    Handles,
     /// A kind this build does not know; clients skip it.
     Other(u32),
 }
@@ -30,6 +34,7 @@ impl FrameKind {
         match self {
             FrameKind::Vertices => 1,
             FrameKind::Rig => 2,
+            FrameKind::Handles => 3,
             FrameKind::Other(code) => code,
         }
     }
@@ -38,6 +43,7 @@ impl FrameKind {
         match code {
             1 => FrameKind::Vertices,
             2 => FrameKind::Rig,
+            3 => FrameKind::Handles,
             other => FrameKind::Other(other),
         }
     }
@@ -55,6 +61,9 @@ pub struct FrameHeader {
     pub input_time: f64,
     /// Points that follow the header (f32 x, y pairs).
     pub count: u32,
+    /// A handles frame: the generation of the handle set its points follow
+    /// (the `handles` message's); 0 in other frames.
+    pub generation: u32,
 }
 
 impl FrameHeader {
@@ -65,7 +74,7 @@ impl FrameHeader {
         out.put_u64_le(self.sequence);
         out.put_f64_le(self.input_time);
         out.put_u32_le(self.count);
-        out.put_u32_le(0);
+        out.put_u32_le(self.generation);
     }
 
     /// Reads a header from the start of `bytes`.
@@ -85,6 +94,7 @@ impl FrameHeader {
             sequence: u64::from_le_bytes(eight(8)),
             input_time: f64::from_le_bytes(eight(16)),
             count: u32_at(24),
+            generation: u32_at(28),
         })
     }
 }
@@ -111,6 +121,18 @@ pub fn encode_frame(
     input_time: f64,
     points: &[DVec2],
 ) -> Bytes {
+    encode_frame_of(kind, puppet, sequence, input_time, 0, points)
+}
+
+/// [`encode_frame`] with the header's `generation` (handles frames).
+pub fn encode_frame_of(
+    kind: FrameKind,
+    puppet: u32,
+    sequence: u64,
+    input_time: f64,
+    generation: u32,
+    points: &[DVec2],
+) -> Bytes {
     let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + points.len() * 8);
     FrameHeader {
         kind,
@@ -118,6 +140,7 @@ pub fn encode_frame(
         sequence,
         input_time,
         count: points.len() as u32,
+        generation,
     }
     .encode_into(&mut out);
     for p in points {
@@ -156,12 +179,76 @@ pub fn decode_frame(bytes: &[u8]) -> Result<Frame, FrameError> {
     Ok(Frame { header, points })
 }
 
-/// Who a client is.
+/// What a client may do (`docs/protocol.md`, "Roles").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Role {
+    /// Watches only.
+    Viewer,
+    /// Performs: contacts, pins, poses, cursors (maybe on some puppets).
+    Performer,
+    /// Everything a performer does, and takes, painting, saving, key poses.
+    Director,
+}
+
+/// A role in the `people` list: a client's, or `device` for the stage's
+/// own input sources.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PersonRole {
     Viewer,
     Performer,
+    Director,
+    Device,
+}
+
+impl From<Role> for PersonRole {
+    fn from(role: Role) -> PersonRole {
+        match role {
+            Role::Viewer => PersonRole::Viewer,
+            Role::Performer => PersonRole::Performer,
+            Role::Director => PersonRole::Director,
+        }
+    }
+}
+
+/// Someone on the stage: a connected client or an input source. Handle
+/// owners are looked up here for a name and colour.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Person {
+    /// `client:N` or the source's name, as handles' `owner`.
+    pub owner: String,
+    pub name: String,
+    pub role: PersonRole,
+    /// `#RRGGBB`.
+    pub colour: String,
+}
+
+/// Why something a client sent was refused (`error` messages' `code`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// Not JSON, or not a message of the protocol.
+    BadMessage,
+    /// Longer than 64 KiB.
+    TooLarge,
+    /// A binary message (clients send text).
+    Binary,
+    /// The client's role may not send this message (or not for this puppet).
+    Forbidden,
+    /// The hello's token is not one of the stage's.
+    BadToken,
+    /// A number is not finite or is too large (coordinates: |v| ≤ 1e6).
+    OutOfRange,
+    /// No such puppet, take, key, handle…
+    NotFound,
+    /// Something else is running (a take, an export).
+    Busy,
+    /// An action that failed (a file that could not be written, …).
+    Failed,
+    /// The first message was not a hello.
+    Hello,
 }
 
 /// What a client sends (text).
@@ -187,13 +274,34 @@ pub enum ClientMessage {
         puppet: u32,
         handle: u64,
     },
-    /// One dab of the stiffness brush.
+    /// One dab of the stiffness brush; the dabs of one `stroke` undo at
+    /// once.
     Paint {
         puppet: u32,
         x: f64,
         y: f64,
         radius: f64,
         strength: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stroke: Option<u64>,
+    },
+    /// Take back the puppet's last edit (paint stroke, pin, pose).
+    Undo {
+        puppet: u32,
+    },
+    /// Do again what the last undo took back.
+    Redo {
+        puppet: u32,
+    },
+    /// Weights as loaded, pins as in the stage file, the skeleton at rest,
+    /// the key cursor let go (one undo step).
+    Reset {
+        puppet: u32,
+    },
+    /// Play or pause one of the stage's replay inputs.
+    Replay {
+        source: String,
+        playing: bool,
     },
     SaveWeights {
         puppet: u32,
@@ -258,6 +366,10 @@ pub enum ClientMessage {
     /// Write the puppet's key poses to its key file.
     SaveKeys {
         puppet: u32,
+    },
+    /// Answered at once with a `pong` carrying the same `t` (latency).
+    Ping {
+        t: f64,
     },
 }
 
@@ -345,14 +457,42 @@ pub enum ServerMessage {
     Stage {
         client: u64,
         role: Role,
+        /// Who this client is on the stage (name and colour).
+        you: Person,
         stage: StageSize,
         puppets: Vec<PuppetDescription>,
     },
-    /// A puppet's handle set changed.
+    /// Who is on the stage: connected performers and directors, and the
+    /// stage's input sources (on connecting and on every change).
+    People { people: Vec<Person> },
+    /// The answer to `ping`.
+    Pong { t: f64 },
+    /// A puppet's handle set changed; `generation` is the one handles
+    /// frames of this set carry.
     Handles {
         puppet: u32,
+        generation: u32,
         handles: Vec<HandleView>,
     },
+    /// Undo and redo steps a puppet has (on connecting and on change).
+    History {
+        puppet: u32,
+        undo: usize,
+        redo: usize,
+    },
+    /// A skeleton's key-pose blend (on connecting and on change); `from`
+    /// and `to` are left out at rest (never set, or reset).
+    Pose {
+        puppet: u32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        from: Option<String>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        to: Option<String>,
+        t: f64,
+    },
+    /// The stage's replay inputs and whether each is playing (on
+    /// connecting and on change).
+    Inputs { replays: Vec<ReplayView> },
     /// Every mouse cursor on the stage.
     Cursors { cursors: Vec<CursorView> },
     /// A puppet's per-triangle stiffness after painting.
@@ -385,7 +525,13 @@ pub enum ServerMessage {
     /// files are left out and logged).
     Takes { takes: Vec<TakeView> },
     /// Something the client sent could not be done.
-    Error { message: String },
+    Error {
+        code: ErrorCode,
+        message: String,
+        /// The field at fault, e.g. `contacts[2].y`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        field: Option<String>,
+    },
 }
 
 impl ServerMessage {
@@ -394,12 +540,22 @@ impl ServerMessage {
         serde_json::to_string(self).expect("server messages serialise")
     }
 
-    /// An `error` message.
-    pub fn error(message: impl Into<String>) -> ServerMessage {
+    /// An `error` message with no field.
+    pub fn error(code: ErrorCode, message: impl Into<String>) -> ServerMessage {
         ServerMessage::Error {
+            code,
             message: message.into(),
+            field: None,
         }
     }
+}
+
+/// A replay input of the stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayView {
+    pub name: String,
+    pub playing: bool,
 }
 
 /// The stage's size, in stage units.
@@ -481,7 +637,7 @@ pub struct HandleView {
     /// Where it was held when the handle set changed.
     pub at: [f64; 2],
     pub grip: GripKind,
-    /// The grid handle's or joint's index.
+    /// The grid handle's, joint's or bone's index.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub index: Option<usize>,
 }
@@ -505,6 +661,8 @@ pub enum GripKind {
     Grid,
     /// A joint of a skeleton puppet.
     Joint,
+    /// A point on a skeleton puppet's bone (`index`: the bone).
+    Bone,
 }
 
 /// A mouse cursor as clients draw it: where it is, and the pair of points
@@ -537,6 +695,12 @@ mod tests {
         assert_eq!(frame.header.sequence, 99);
         assert_eq!(frame.header.input_time, 1.25);
         assert_eq!(frame.points, points);
+        assert_eq!(frame.header.generation, 0);
+        let handles = encode_frame_of(FrameKind::Handles, 1, 5, 0.5, 7, &points);
+        let frame = decode_frame(&handles).unwrap();
+        assert_eq!(frame.header.kind, FrameKind::Handles);
+        assert_eq!(frame.header.generation, 7);
+        assert_eq!(u32::from_le_bytes(handles[28..32].try_into().unwrap()), 7);
         assert_eq!(
             decode_frame(&bytes[..40]),
             Err(FrameError::Length {

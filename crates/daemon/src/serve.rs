@@ -12,7 +12,9 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
-use crate::sources::{SOURCE_QUEUE, SourceError, WhenDone, forward, supervise};
+use crate::sources::{
+    Replays, SOURCE_QUEUE, SourceError, WhenDone, forward, run_replay, supervise,
+};
 use crate::stage_thread::{self, Command, CursorState, TakeSettings};
 use crate::stream::{self, Shared, StageDescription, StreamError, WebFiles};
 use crate::takes::PlayOptions;
@@ -60,15 +62,18 @@ pub struct Running {
     shutdown: oneshot::Sender<()>,
     server: JoinHandle<()>,
     inputs: Vec<JoinHandle<()>>,
+    replay_tasks: Vec<JoinHandle<()>>,
     stage_thread: std::thread::JoinHandle<()>,
     shared: Arc<Shared>,
 }
 
 impl Running {
-    /// Every input has ended (replays that do not repeat) and no take is
-    /// playing: what was fed is in the stage thread's queue.
+    /// Every input has ended (replays that do not repeat have played, or
+    /// are paused) and no take is playing: what was fed is in the stage
+    /// thread's queue.
     pub fn inputs_done(&self) -> bool {
         self.inputs.iter().all(|i| i.is_finished())
+            && self.shared.replays.idle()
             && self
                 .shared
                 .player
@@ -91,10 +96,10 @@ impl Running {
         }
         let _ = self.shutdown.send(());
         let _ = self.server.await;
-        for input in &self.inputs {
+        for input in self.inputs.iter().chain(&self.replay_tasks) {
             input.abort();
         }
-        for input in self.inputs {
+        for input in self.inputs.into_iter().chain(self.replay_tasks) {
             let _ = input.await;
         }
         // Stopping the stage thread closes every client connection.
@@ -115,6 +120,9 @@ pub struct Options {
     pub record: bool,
     /// A take to play into the stage at start.
     pub play: Option<(PathBuf, PlayOptions)>,
+    /// The stage file's replay inputs start paused (`serve --no-replay`);
+    /// a director plays them from the page.
+    pub paused_replays: bool,
 }
 
 impl Options {
@@ -125,6 +133,7 @@ impl Options {
             takes_dir: PathBuf::from("takes"),
             record: false,
             play: None,
+            paused_replays: false,
         }
     }
 }
@@ -149,6 +158,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         takes_dir,
         record,
         play,
+        paused_replays,
     } = options;
     let started = Instant::now();
     let stage = Stage::from_config(config)?;
@@ -164,6 +174,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     // Inputs are read now, so a bad file stops the start with its error.
     let size = DVec2::new(stage.width, stage.height);
     let resolved = resolve_inputs(config, size, extra_replay).await?;
+    let people = Arc::new(stream::People::new(config, resolved.source_names()));
     let description = StageDescription::of(&stage);
     let settings = TakeSettings {
         dir: takes_dir.clone(),
@@ -172,9 +183,18 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     };
     let (outputs, stage_thread) =
         stage_thread::spawn(stage, commands_rx, commands.downgrade(), settings);
+    let replays = Arc::new(Replays::new(
+        resolved
+            .replays
+            .iter()
+            .map(|r| (r.0.to_string(), !(paused_replays && r.4)))
+            .collect(),
+    ));
     let shared = Arc::new(Shared {
         stage: description,
-        tokens: config.access.performer_tokens.clone(),
+        people,
+        log: Default::default(),
+        addresses: Default::default(),
         web_files,
         max_connections: config.stage.max_connections,
         commands: commands.clone(),
@@ -191,6 +211,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
         started,
         next_client: AtomicU64::new(1),
+        replays: replays.clone(),
     });
 
     // Before the sources, so a bad OSC address stops the start cleanly.
@@ -198,7 +219,11 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         Some(osc) => Some(crate::osc::start(osc, crate::osc::Links::of(&shared)).await?),
         None => None,
     };
-    let (inputs, tuio_addresses) = spawn_sources(resolved, &commands, started, size)?;
+    let Spawned {
+        inputs,
+        replays: replay_tasks,
+        tuio_addresses,
+    } = spawn_sources(resolved, &commands, started, size, &replays)?;
     if let Some((path, play_options)) = play {
         let player = crate::takes::play(
             &path,
@@ -224,6 +249,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         shutdown,
         server,
         inputs,
+        replay_tasks,
         stage_thread,
         shared,
     })
@@ -232,7 +258,9 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
 /// The stage file's inputs, opened or checked: replays read, TUIO sockets
 /// bound, devices resolved.
 struct ResolvedInputs {
-    replays: Vec<(SourceId, ReplaySource, Pacing, bool)>,
+    /// Name, source, pacing, whether it repeats, whether the stage file
+    /// names it (`--no-replay` pauses those).
+    replays: Vec<(SourceId, ReplaySource, Pacing, bool, bool)>,
     tuio: Vec<(tokio::net::UdpSocket, Calibration)>,
     serials: Vec<(
         String,
@@ -243,6 +271,23 @@ struct ResolvedInputs {
     )>,
     devices: Vec<DeviceInput>,
     hids: Vec<(hid::HidSelector, SourceId, Option<Calibration>)>,
+}
+
+impl ResolvedInputs {
+    /// The input sources' names, as handles name their owners (TUIO
+    /// sources are named by their senders, so are not known yet).
+    fn source_names(&self) -> Vec<String> {
+        let replays = self.replays.iter().map(|r| &r.0);
+        let serials = self.serials.iter().map(|s| &s.3);
+        let devices = self.devices.iter().map(|d| &d.source);
+        let hids = self.hids.iter().map(|h| &h.1);
+        replays
+            .chain(serials)
+            .chain(devices)
+            .chain(hids)
+            .map(|s| s.to_string())
+            .collect()
+    }
 }
 
 /// Reads and checks every input of `config` (and an extra replay), so a bad
@@ -285,7 +330,7 @@ async fn resolve_inputs(
                     PacingConfig::RealTime => Pacing::RealTime,
                     PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
                 };
-                replays.push((source_id, source, pacing, *repeat));
+                replays.push((source_id, source, pacing, *repeat, true));
             }
             InputConfig::Tuio {
                 listen,
@@ -400,7 +445,7 @@ async fn resolve_inputs(
     if let Some((file, pacing)) = extra_replay {
         let source =
             ReplaySource::open(&file, size).map_err(|e| ServeError::Input(e.to_string()))?;
-        replays.push((SourceId::from("replay"), source, pacing, false));
+        replays.push((SourceId::from("replay"), source, pacing, false, false));
     }
     Ok(ResolvedInputs {
         replays,
@@ -411,14 +456,22 @@ async fn resolve_inputs(
     })
 }
 
-/// Starts every resolved input under the one supervision policy; returns
-/// their tasks and where each TUIO input listens.
+/// The tasks of the inputs, and where each TUIO input listens.
+struct Spawned {
+    inputs: Vec<JoinHandle<()>>,
+    /// Replay tasks: they wait while paused, so they never end by themselves.
+    replays: Vec<JoinHandle<()>>,
+    tuio_addresses: Vec<SocketAddr>,
+}
+
+/// Starts every resolved input under the one supervision policy.
 fn spawn_sources(
     resolved: ResolvedInputs,
     commands: &mpsc::Sender<Command>,
     started: Instant,
     size: DVec2,
-) -> Result<(Vec<JoinHandle<()>>, Vec<SocketAddr>), ServeError> {
+    replay_controls: &Arc<Replays>,
+) -> Result<Spawned, ServeError> {
     let ResolvedInputs {
         replays,
         tuio,
@@ -437,23 +490,23 @@ fn spawn_sources(
         ))
     };
     let mut inputs: Vec<JoinHandle<()>> = Vec::new();
-    for (name, source, pacing, repeat) in replays {
-        let when_done = if repeat {
-            WhenDone::Repeat
-        } else {
-            WhenDone::Stop
-        };
-        inputs.push(supervised(
-            name,
-            when_done,
-            Box::new(move |frames| {
+    // Replays run while they play (see `sources::run_replay`); they never
+    // end by themselves, so `inputs_done` asks whether any plays.
+    let mut replay_tasks = Vec::new();
+    for (index, (_, source, pacing, repeat, _)) in replays.into_iter().enumerate() {
+        replay_tasks.push(tokio::spawn(run_replay(
+            replay_controls.clone(),
+            index,
+            repeat,
+            commands.clone(),
+            started,
+            move |frames| {
                 let source = source.clone();
-                Box::pin(async move {
+                async move {
                     replay(source, pacing, frames).await;
-                    Ok(())
-                }) as Attempt
-            }),
-        ));
+                }
+            },
+        )));
     }
     let mut tuio_addresses = Vec::new();
     for (index, (socket, calibration)) in tuio.into_iter().enumerate() {
@@ -550,7 +603,11 @@ fn spawn_sources(
             }),
         ));
     }
-    Ok((inputs, tuio_addresses))
+    Ok(Spawned {
+        inputs,
+        replays: replay_tasks,
+        tuio_addresses,
+    })
 }
 
 /// Sets its flag when dropped: tells a device thread its task has ended.

@@ -6,11 +6,17 @@
 //! message (once per distinct message, not on every retry), the source's
 //! contacts are lifted, and it is tried again after a backoff. No source
 //! can take the daemon down, and a dead one never spins a core.
+//!
+//! Replay inputs can also be paused and played from the page
+//! ([`Replays`], [`run_replay`]): a paused replay lets go of what it held,
+//! so a performer can take the puppet over, and plays from its start again
+//! when it is played.
 
 use std::future::Future;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::stage_thread::Command;
 use puppetry_input::hid::HidError;
@@ -110,6 +116,124 @@ pub async fn supervise<F, Fut>(
                 tokio::time::sleep(backoff).await;
                 backoff = (backoff * 2).min(MAX_BACKOFF);
             }
+        }
+    }
+}
+
+/// The stage's replay inputs, each playing or paused: the replay tasks
+/// wait while theirs is paused, the stream toggles them, and every client
+/// gets the `inputs` message made here on every change.
+pub struct Replays {
+    names: Vec<String>,
+    playing: Vec<watch::Sender<bool>>,
+    message: watch::Sender<Arc<str>>,
+}
+
+impl Replays {
+    /// Replays by name, each playing or not at start.
+    pub fn new(replays: Vec<(String, bool)>) -> Replays {
+        let (names, playing): (Vec<_>, Vec<_>) = replays
+            .into_iter()
+            .map(|(name, playing)| (name, watch::channel(playing).0))
+            .unzip();
+        let replays = Replays {
+            names,
+            playing,
+            message: watch::channel(Arc::<str>::from("")).0,
+        };
+        replays.publish();
+        replays
+    }
+
+    /// The newest `inputs` message.
+    pub fn message(&self) -> watch::Receiver<Arc<str>> {
+        self.message.subscribe()
+    }
+
+    /// Plays or pauses the replay called `name`.
+    pub fn set(&self, name: &str, playing: bool) -> Result<(), String> {
+        let index = self
+            .names
+            .iter()
+            .position(|n| n == name)
+            .ok_or_else(|| format!("source: no replay input is called {name:?}"))?;
+        self.set_index(index, playing);
+        Ok(())
+    }
+
+    fn set_index(&self, index: usize, playing: bool) {
+        if self.playing[index].send_replace(playing) != playing {
+            self.publish();
+        }
+    }
+
+    /// No replay is playing.
+    pub fn idle(&self) -> bool {
+        self.playing.iter().all(|p| !*p.borrow())
+    }
+
+    fn publish(&self) {
+        let replays = self
+            .names
+            .iter()
+            .zip(&self.playing)
+            .map(|(name, playing)| crate::protocol::ReplayView {
+                name: name.clone(),
+                playing: *playing.borrow(),
+            })
+            .collect();
+        let text = crate::protocol::ServerMessage::Inputs { replays }.to_text();
+        self.message.send_replace(Arc::from(text));
+    }
+}
+
+/// Runs replay `index` of `replays` whenever it is playing: each run gets a
+/// fresh frame channel (from `attempt`) forwarded to the stage thread. A
+/// pause stops the run and lifts its contacts; playing again starts it
+/// from the beginning. A run that ends repeats (`repeat`) or pauses the
+/// replay. Returns when the stage stops.
+pub async fn run_replay<F, Fut>(
+    replays: Arc<Replays>,
+    index: usize,
+    repeat: bool,
+    commands: mpsc::Sender<Command>,
+    started: Instant,
+    mut attempt: F,
+) where
+    F: FnMut(mpsc::Sender<ContactFrame>) -> Fut,
+    Fut: Future<Output = ()> + Send + 'static,
+{
+    let name = replays.names[index].clone();
+    let mut playing = replays.playing[index].subscribe();
+    loop {
+        if playing.wait_for(|p| *p).await.is_err() {
+            return;
+        }
+        let (frames, frames_rx) = mpsc::channel(SOURCE_QUEUE);
+        // Spawned, so a panic in the source is contained.
+        let running = tokio::spawn(attempt(frames));
+        let paused = tokio::select! {
+            forwarded = forward(frames_rx, &commands, started) => {
+                tracing::info!("{name}: {forwarded} frames");
+                false
+            }
+            _ = playing.wait_for(|p| !*p) => true,
+        };
+        if paused {
+            running.abort();
+            let _ = running.await;
+            tracing::info!("{name}: paused");
+        } else {
+            let _ = running.await;
+        }
+        if commands.is_closed() {
+            return;
+        }
+        if paused {
+            // Whatever it held is let go: a run cut short never lifted it.
+            let _ = commands.send(Command::ReleaseSource(name.clone())).await;
+        } else if !repeat {
+            replays.set_index(index, false);
         }
     }
 }

@@ -28,6 +28,7 @@ use puppetry_take::{Frame, Header, Record, Step};
 
 use crate::protocol::{
     self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, TakeState, encode_frame,
+    encode_frame_of,
 };
 
 /// The stage thread's answer to a request.
@@ -52,6 +53,12 @@ pub enum Command {
     },
     /// A source went away: lift all its contacts.
     ReleaseSource(String),
+    /// A source may grab only these puppets (`None`: any), e.g. a
+    /// performer limited to named puppets.
+    Limit {
+        source: String,
+        puppets: Option<Vec<u32>>,
+    },
     /// A mouse's cursor moved (`None`: the mouse went away).
     Cursor {
         source: String,
@@ -63,6 +70,13 @@ pub enum Command {
         at: DVec2,
         radius: f64,
         strength: f64,
+        stroke: Option<u64>,
+        reply: Reply<()>,
+    },
+    /// Undo, redo or reset a puppet's edits.
+    Edit {
+        puppet: u32,
+        edit: Edit,
         reply: Reply<()>,
     },
     /// Set a skeleton to a pose between two key poses.
@@ -122,6 +136,14 @@ pub enum Command {
     Playing(Option<String>),
     /// End the thread (the daemon is shutting down).
     Stop,
+}
+
+/// What an [`Command::Edit`] does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Edit {
+    Undo,
+    Redo,
+    Reset,
 }
 
 /// Where takes go, and whether one starts by itself.
@@ -187,10 +209,11 @@ pub fn handle_views(stage: &Stage, puppet: u32) -> Vec<HandleView> {
                 Grip::Point(_) => GripKind::Point,
                 Grip::GridHandle(_) => GripKind::Grid,
                 Grip::Joint(_) => GripKind::Joint,
+                Grip::Bone { .. } => GripKind::Bone,
             },
             index: match h.grip {
                 Grip::Point(_) => None,
-                Grip::GridHandle(i) | Grip::Joint(i) => Some(i),
+                Grip::GridHandle(i) | Grip::Joint(i) | Grip::Bone { index: i, .. } => Some(i),
             },
         })
         .collect()
@@ -201,6 +224,7 @@ pub fn published_handles(stage: &Stage, puppet: u32) -> Arc<PublishedHandles> {
     let handles = handle_views(stage, puppet);
     let text = ServerMessage::Handles {
         puppet,
+        generation: stage.puppets()[puppet as usize].handles_generation(),
         handles: handles.clone(),
     }
     .to_text();
@@ -216,6 +240,24 @@ pub fn weights_message(stage: &Stage, puppet: u32) -> String {
     ServerMessage::Weights {
         puppet,
         weights: p.weights().to_vec(),
+    }
+    .to_text()
+}
+
+/// The "history" message of a puppet: its undo and redo steps.
+pub fn history_message(stage: &Stage, puppet: u32) -> String {
+    let (undo, redo) = stage.puppets()[puppet as usize].history();
+    ServerMessage::History { puppet, undo, redo }.to_text()
+}
+
+/// The "pose" message of a skeleton puppet: its key-pose blend now.
+pub fn pose_message(stage: &Stage, puppet: u32) -> String {
+    let (key, _) = stage.puppets()[puppet as usize].key_pose();
+    ServerMessage::Pose {
+        puppet,
+        from: key.map(|k| k.from.clone()),
+        to: key.map(|k| k.to.clone()),
+        t: key.map_or(0.0, |k| k.t),
     }
     .to_text()
 }
@@ -251,9 +293,13 @@ pub struct PuppetOutput {
     pub weights: watch::Receiver<Arc<str>>,
     /// The newest "keys" message (key poses and the cursor).
     pub keys: watch::Receiver<Arc<str>>,
-    /// The newest key-pose blend of a skeleton, as `{"type":"pose",
-    /// "puppet","from","to","t"}` (empty until one is set).
-    pub pose: watch::Receiver<Arc<str>>,
+    /// The newest handles frame: where each handle is on the solved
+    /// puppet (none before the first solve with handles).
+    pub handle_frame: watch::Receiver<Option<Bytes>>,
+    /// The newest "history" message (undo and redo steps).
+    pub history: watch::Receiver<Arc<str>>,
+    /// The newest "pose" message (skeleton puppets only).
+    pub pose: Option<watch::Receiver<Arc<str>>>,
 }
 
 /// What the stage thread publishes.
@@ -279,7 +325,13 @@ struct Publisher {
     weights_published: Vec<u64>,
     keys: Vec<watch::Sender<Arc<str>>>,
     keys_published: Vec<u64>,
-    poses: Vec<watch::Sender<Arc<str>>>,
+    handle_frames: Vec<watch::Sender<Option<Bytes>>>,
+    /// Scratch for handle positions, reused by every publish.
+    handle_points: Vec<DVec2>,
+    history: Vec<watch::Sender<Arc<str>>>,
+    history_published: Vec<(usize, usize)>,
+    poses: Vec<Option<watch::Sender<Arc<str>>>>,
+    poses_published: Vec<u64>,
     sequences: Vec<u64>,
     cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
@@ -310,6 +362,18 @@ impl Publisher {
             if handles_changed {
                 self.handles[i].send_replace(published_handles(stage, puppet));
             }
+            let p = &stage.puppets()[i];
+            if handles_changed || !p.handles().is_empty() {
+                p.handle_points(&mut self.handle_points);
+                self.handle_frames[i].send_replace(Some(encode_frame_of(
+                    FrameKind::Handles,
+                    puppet,
+                    self.sequences[i],
+                    input_time,
+                    p.handles_generation(),
+                    &self.handle_points,
+                )));
+            }
         }
         if !solved.is_empty() {
             self.changes.send_modify(|c| *c += 1);
@@ -331,6 +395,19 @@ impl Publisher {
         }
         for p in stage.puppets() {
             let i = p.id as usize;
+            if p.history() != self.history_published[i] {
+                self.history_published[i] = p.history();
+                self.history[i].send_replace(Arc::from(history_message(stage, p.id)));
+                any = true;
+            }
+            let (_, generation) = p.key_pose();
+            if generation != self.poses_published[i]
+                && let Some(pose) = &self.poses[i]
+            {
+                self.poses_published[i] = generation;
+                pose.send_replace(Arc::from(pose_message(stage, p.id)));
+                any = true;
+            }
             if p.weights_generation() != self.weights_published[i] {
                 self.weights_published[i] = p.weights_generation();
                 self.weights[i].send_replace(Arc::from(weights_message(stage, p.id)));
@@ -535,7 +612,12 @@ pub fn spawn(
         weights_published: vec![0; stage.puppets().len()],
         keys: Vec::new(),
         keys_published: vec![0; stage.puppets().len()],
+        handle_frames: Vec::new(),
+        handle_points: Vec::new(),
+        history: Vec::new(),
+        history_published: stage.puppets().iter().map(|p| p.history()).collect(),
         poses: Vec::new(),
+        poses_published: stage.puppets().iter().map(|p| p.key_pose().1).collect(),
         sequences: vec![0; stage.puppets().len()],
         cursors: cursors_tx,
         changes,
@@ -550,17 +632,26 @@ pub fn spawn(
         publisher.weights.push(weights_tx);
         let (keys_tx, keys_rx) = watch::channel(Arc::<str>::from(keys_message(&stage, p.id)));
         publisher.keys.push(keys_tx);
-        let (pose_tx, pose_rx) = watch::channel(Arc::<str>::from(""));
-        publisher.poses.push(pose_tx);
         let (handles_tx, handles_rx) = watch::channel(published_handles(&stage, p.id));
         publisher.frames.push(frame_tx);
         publisher.handles.push(handles_tx);
+        let (handle_frame_tx, handle_frame_rx) = watch::channel(None);
+        publisher.handle_frames.push(handle_frame_tx);
+        let (history_tx, history_rx) =
+            watch::channel(Arc::<str>::from(history_message(&stage, p.id)));
+        publisher.history.push(history_tx);
+        let pose = matches!(p.rig(), puppetry_stage::Rig::Skeleton(_))
+            .then(|| watch::channel(Arc::<str>::from(pose_message(&stage, p.id))));
+        let (pose_tx, pose_rx) = pose.unzip();
+        publisher.poses.push(pose_tx);
         outputs.push(PuppetOutput {
             frame: frame_rx,
             rig: rig_rx,
             handles: handles_rx,
             weights: weights_rx,
             keys: keys_rx,
+            handle_frame: handle_frame_rx,
+            history: history_rx,
             pose: pose_rx,
         });
     }
@@ -647,8 +738,6 @@ struct Batch {
     cursors_changed: bool,
     /// Something was applied since the last solve.
     dirty: bool,
-    /// Key-pose blends set since the last solve, to publish with it.
-    poses: Vec<(u32, String, String, f64)>,
 }
 
 impl Batch {
@@ -670,16 +759,6 @@ impl Batch {
             taking.announce = true;
         }
         let result = stage.apply_change(&change);
-        if result.is_ok()
-            && let Change::KeyPose {
-                puppet,
-                from,
-                to,
-                t,
-            } = &change
-        {
-            self.poses.push((*puppet, from.clone(), to.clone(), *t));
-        }
         taking.fresh = false;
         self.dirty = true;
         let result = result.map(|rebuild| {
@@ -720,11 +799,13 @@ impl Batch {
             Command::ReleaseSource(source) => {
                 self.apply(stage, taking, Change::Release { source }, None, wake)
             }
+            Command::Limit { source, puppets } => stage.limit_source(&source, puppets),
             Command::Paint {
                 puppet,
                 at,
                 radius,
                 strength,
+                stroke,
                 reply,
             } => {
                 let change = Change::Paint {
@@ -732,8 +813,44 @@ impl Batch {
                     at,
                     radius,
                     strength,
+                    stroke,
                 };
                 self.apply(stage, taking, change, Some(reply), wake);
+            }
+            Command::Edit {
+                puppet,
+                edit,
+                reply,
+            } => {
+                // The history decides what to put back; the take records
+                // the state put back (a `restore`), not the undo, so it
+                // replays the same whatever history it began with.
+                let changes = match edit {
+                    Edit::Undo => stage.undo(puppet).map(|c| c.into_iter().collect()),
+                    Edit::Redo => stage.redo(puppet).map(|c| c.into_iter().collect()),
+                    Edit::Reset => stage.reset(puppet),
+                };
+                match changes {
+                    Ok(changes) => {
+                        let mut result = Ok(());
+                        for change in changes {
+                            let (tx, mut rx) = oneshot::channel();
+                            self.apply(stage, taking, change, Some(tx), wake);
+                            if let Ok(Err(e)) = rx.try_recv()
+                                && result.is_ok()
+                            {
+                                result = Err(e);
+                            }
+                        }
+                        // An undo with nothing to undo still changes the
+                        // history's counts: publish them.
+                        self.dirty = true;
+                        let _ = reply.send(result);
+                    }
+                    Err(e) => {
+                        let _ = reply.send(Err(e));
+                    }
+                }
             }
             Command::KeyPose {
                 puppet,
@@ -830,12 +947,6 @@ impl Batch {
             let solved = stage.solve();
             publisher.publish(stage, &solved, self.newest);
             publisher.publish_weights(stage);
-            for (puppet, from, to, t) in self.poses.drain(..) {
-                let text = serde_json::json!({
-                    "type": "pose", "puppet": puppet, "from": from, "to": to, "t": t,
-                });
-                publisher.poses[puppet as usize].send_replace(Arc::from(text.to_string()));
-            }
             if taking.record(stage, &solved) || std::mem::take(&mut taking.announce) {
                 taking.publish(&publisher.changes);
             }

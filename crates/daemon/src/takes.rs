@@ -248,6 +248,15 @@ impl<'a> Filter<'a> {
                 }),
                 // The live daemon swaps in its own rebuilt solvers.
                 Change::Rebuilt { .. } => {}
+                // An undo, redo or reset puts weights and poses back as
+                // recorded; its pins are handles of the recorded stage
+                // (their ids mean other handles here), so they stay out.
+                Change::Restore { puppet, mut state } => {
+                    state.pins = None;
+                    if state != puppetry_stage::Snapshot::default() {
+                        out.push(Change::Restore { puppet, state });
+                    }
+                }
                 other => out.push(other),
             }
         }

@@ -2,7 +2,8 @@
 //! hexadecimal codes, decimal values and `seconds.microseconds` times, each
 //! parsed to a value or to the problem to report — the caller adds the file,
 //! line and field. Quoted input is clipped so a garbage line cannot flood a
-//! message.
+//! message; [`osc_arg`] quotes an OSC argument the same way for the network
+//! decoders.
 
 /// A hexadecimal number (an optional `0x`) that fits `T`.
 pub(crate) fn hex<T: TryFrom<u64>>(text: &str) -> Result<T, String> {
@@ -40,5 +41,16 @@ pub(crate) fn clip(text: &str) -> String {
     match text.char_indices().nth(MAX) {
         Some((cut, _)) => format!("{}…", &text[..cut]),
         None => text.to_string(),
+    }
+}
+
+/// An OSC argument as a message quotes it: its type tag and value, clipped.
+/// Not rosc's `Display`, which panics on a time tag before 1970 (any
+/// sender can put one in a packet).
+pub(crate) fn osc_arg(arg: &rosc::OscType) -> String {
+    match arg {
+        rosc::OscType::Time(t) => format!("(t) {}.{}", t.seconds, t.fractional),
+        rosc::OscType::Array(a) => format!("an array of {} arguments", a.content.len()),
+        other => clip(&other.to_string()),
     }
 }

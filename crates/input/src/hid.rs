@@ -32,6 +32,7 @@ use std::ops::Range;
 use glam::DVec2;
 use hidreport::{CollectionType, Field, Report, ReportDescriptor, Usage, VariableField};
 
+use super::log_limit::{LogLimiter, MAX_ECHO, clip};
 use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceId};
 
 const PAGE_GENERIC_DESKTOP: u16 = 0x01;
@@ -99,6 +100,126 @@ fn report_name(id: Option<u8>) -> String {
         Some(id) => format!("report id {id}"),
         None => "report".to_string(),
     }
+}
+
+/// Linux's limit on a report descriptor (`HID_MAX_DESCRIPTOR_SIZE`).
+const MAX_DESCRIPTOR: usize = 4096;
+
+/// Budgets of what hidreport (0.6) allocates per descriptor: one field per
+/// Report Count of every variable main item (each with a copy of the
+/// collections around it), and every usage of a Usage Minimum..Maximum.
+/// Real digitizers use a few hundred fields and usages at most.
+const MAX_FIELDS: u64 = 8192;
+const MAX_RANGE_USAGES: u64 = 1 << 18;
+const MAX_COLLECTION_DEPTH: usize = 32;
+
+/// The global items [`check_items`] follows, per Push level.
+#[derive(Clone, Copy, Default)]
+struct ItemGlobals {
+    page_set: bool,
+    report_count: u32,
+}
+
+/// What hidreport (0.6) does not survive, refused before it sees the
+/// descriptor: a Usage without a Usage Page in effect (it panics), and
+/// descriptors that make it allocate without bound (it lists every usage of
+/// a Usage Minimum..Maximum span, up to 2³², and makes a field per Report
+/// Count, up to 2³², each holding the collections around it). Descriptors
+/// come from devices and capture files, so either may be hostile.
+fn check_items(descriptor: &[u8]) -> Result<(), HidError> {
+    if descriptor.len() > MAX_DESCRIPTOR {
+        return Err(layout(format!(
+            "{} bytes, more than the {MAX_DESCRIPTOR} a descriptor may have",
+            descriptor.len()
+        )));
+    }
+    let mut globals = vec![ItemGlobals::default()];
+    let mut needs_page = false;
+    let (mut minimum, mut maximum) = (None, None);
+    let (mut fields, mut range_usages, mut depth) = (0u64, 0u64, 0usize);
+    let mut at = 0;
+    while at < descriptor.len() {
+        let prefix = descriptor[at];
+        if prefix == 0xFE {
+            // A long item: size, tag, data; hidreport skips them too.
+            let size = descriptor.get(at + 1).copied().unwrap_or(0) as usize;
+            at += 3 + size;
+            continue;
+        }
+        let size = [0, 1, 2, 4][(prefix & 0x03) as usize];
+        let data = descriptor.get(at + 1..at + 1 + size).unwrap_or(&[]);
+        let value = data
+            .iter()
+            .rev()
+            .fold(0u32, |v, &b| (v << 8) | u32::from(b));
+        let current = globals.last().copied().unwrap_or_default();
+        let refuse = |problem: String| Err(layout(format!("byte {at}: {problem}")));
+        match ((prefix >> 2) & 0x03, prefix >> 4) {
+            // Main items: the locals so far are used, then cleared.
+            (0, tag) => {
+                if needs_page && !current.page_set {
+                    return refuse("a Usage without a Usage Page before it".into());
+                }
+                if let (Some(min), Some(max)) = (minimum, maximum) {
+                    let span = u64::from(u32::saturating_sub(max, min)) + 1;
+                    if span > 0x1_0000 {
+                        return refuse(format!(
+                            "Usage Minimum {min:#x} to Maximum {max:#x} spans more than one \
+                             usage page"
+                        ));
+                    }
+                    range_usages += span;
+                }
+                match tag {
+                    // Input, Output, Feature.
+                    0x8 | 0x9 | 0xB => fields += u64::from(current.report_count),
+                    0xA => depth += 1,
+                    0xC => depth = depth.saturating_sub(1),
+                    _ => {}
+                }
+                if fields > MAX_FIELDS {
+                    return refuse(format!("more than {MAX_FIELDS} report fields"));
+                }
+                if range_usages > MAX_RANGE_USAGES {
+                    return refuse(format!("more than {MAX_RANGE_USAGES} usages in ranges"));
+                }
+                if depth > MAX_COLLECTION_DEPTH {
+                    return refuse(format!(
+                        "collections nested more than {MAX_COLLECTION_DEPTH} deep"
+                    ));
+                }
+                needs_page = false;
+                (minimum, maximum) = (None, None);
+            }
+            (1, 0x0) => {
+                if let Some(g) = globals.last_mut() {
+                    g.page_set = true;
+                }
+            }
+            (1, 0x9) => {
+                if let Some(g) = globals.last_mut() {
+                    g.report_count = value;
+                }
+            }
+            (1, 0xA) => globals.push(current),
+            // Too many pops is hidreport's own (clean) error.
+            (1, 0xB) if globals.len() > 1 => {
+                globals.pop();
+            }
+            (2, tag @ 0x0..=0x2) => {
+                // A four-byte usage carries its own page.
+                needs_page |= size < 4;
+                match tag {
+                    0x1 => minimum = Some(value),
+                    0x2 => maximum = Some(value),
+                    _ => {}
+                }
+            }
+            _ => {}
+        }
+        at += 1 + size;
+    }
+    Ok(())
 }
 
 fn layout(problem: impl Into<String>) -> HidError {
@@ -273,6 +394,7 @@ impl TouchLayout {
         if descriptor.is_empty() {
             return Err(layout("the descriptor is empty"));
         }
+        check_items(descriptor)?;
         let rdesc = ReportDescriptor::try_from(descriptor)?;
         let input_report_ids = rdesc
             .input_reports()
@@ -967,9 +1089,10 @@ impl InputMode {
 /// this wait, so no frame is dropped; being blocking, it belongs on its own
 /// thread (`std::thread` or `spawn_blocking`), never on an async task.
 ///
-/// Times are seconds since this call started. Malformed reports are logged
-/// and skipped. Returns `Ok` once `stop` is set (lifting whatever is still
-/// down first) or `frames` is closed. A failed read lifts every contact
+/// Times are seconds since this call started. Malformed reports are
+/// skipped, and logged through a [`LogLimiter`]: a few lines, then a
+/// count. Returns `Ok` once `stop` is set (lifting whatever is still down
+/// first) or `frames` is closed. A failed read lifts every contact
 /// still down and returns the error: the device went away, and the caller
 /// decides whether to reopen it.
 pub fn run_device(
@@ -990,12 +1113,24 @@ pub fn run_device(
         tracing::warn!(%source, error = %e, "hid: could not select multi-input mode; reading anyway");
     }
     let mut buffer = vec![0u8; READ_BUFFER];
-    let mut bad_reports: u64 = 0;
+    let mut complaints = LogLimiter::new(std::time::Instant::now());
+    let summary = |skipped: u64| {
+        tracing::warn!(%source, "hid: {skipped} more malformed reports were skipped unlogged");
+    };
     loop {
+        if let Some(skipped) = complaints.take_summary(std::time::Instant::now()) {
+            summary(skipped);
+        }
         if frames.is_closed() {
+            if let Some(skipped) = complaints.take_remaining() {
+                summary(skipped);
+            }
             return Ok(());
         }
         if stop.load(Ordering::Relaxed) {
+            if let Some(skipped) = complaints.take_remaining() {
+                summary(skipped);
+            }
             if let Some(frame) = decoder.lift_all(started.elapsed().as_secs_f64()) {
                 let _ = frames.blocking_send(frame);
             }
@@ -1004,6 +1139,9 @@ pub fn run_device(
         let len = match device.read(&mut buffer, READ_TIMEOUT_MS) {
             Ok(len) => len,
             Err(error) => {
+                if let Some(skipped) = complaints.take_remaining() {
+                    summary(skipped);
+                }
                 if let Some(frame) = decoder.lift_all(started.elapsed().as_secs_f64()) {
                     // A closed channel has nobody left to tell; the error
                     // still goes back.
@@ -1025,10 +1163,10 @@ pub fn run_device(
             Ok(None) => {}
             Err(e) => {
                 // A device stuck sending garbage would flood the log; the
-                // count still says how bad it is.
-                bad_reports += 1;
-                if bad_reports.is_power_of_two() {
-                    tracing::warn!(%source, error = %e, bad_reports, "hid: skipping a malformed report");
+                // summaries still say how bad it is.
+                if complaints.allow(std::time::Instant::now()) {
+                    let error = clip(&e.to_string(), MAX_ECHO);
+                    tracing::warn!(%source, %error, "hid: skipping a malformed report");
                 }
             }
         }

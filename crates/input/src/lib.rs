@@ -15,6 +15,8 @@
 //! [`hid_recording`] and [`recording`] read captures and the project's own
 //! frame log, which [`replay`] plays into the daemon. [`record`] writes
 //! captures and [`calibrate`] turns four taps into a calibration.
+//! [`log_limit`] keeps each source's warnings about bad input to a few
+//! lines and a count.
 
 pub mod calibrate;
 pub mod device;
@@ -24,6 +26,7 @@ mod fields;
 pub mod hid;
 pub mod hid_recording;
 pub mod hotplug;
+pub mod log_limit;
 pub mod mouse;
 pub mod record;
 pub mod recording;

@@ -64,6 +64,7 @@ use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio::sync::mpsc;
 
+use super::log_limit::{LogLimiter, MAX_ECHO, clip, summary_timer};
 use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceId};
 
 /// The longest line or SLIP packet accepted, in bytes (before SLIP escaping
@@ -393,7 +394,10 @@ impl SerialDecoder {
                 .ok_or_else(|| format!("argument {at} ({name}) is missing"))
         };
         let wrong = |at: usize, name: &str, expected: &str, got: &OscType| {
-            format!("argument {at} ({name}) should be {expected}, not {got:?}")
+            format!(
+                "argument {at} ({name}) should be {expected}, not {}",
+                super::fields::osc_arg(got)
+            )
         };
         let float = |at: usize, name: &str| -> Result<f64, String> {
             let value = match get(at, name)? {
@@ -535,7 +539,7 @@ fn flatten<'a>(packet: &'a OscPacket, out: &mut Vec<&'a OscMessage>) {
 /// to `sink`. A full sink makes this wait (the port's kernel buffer absorbs
 /// the burst; if it overflows, the decoder resynchronises at the next
 /// delimiter), so no decoded frame is discarded here. Bad records are
-/// logged and skipped.
+/// skipped, and logged through a [`LogLimiter`]: a few lines, then a count.
 ///
 /// Returns `Ok` once the sink is closed. When the stream ends or a read
 /// fails, sends a frame lifting every contact still down and returns
@@ -547,10 +551,25 @@ pub async fn run_stream<R: AsyncRead + Unpin>(
     sink: mpsc::Sender<ContactFrame>,
 ) -> Result<(), SerialError> {
     let mut buffer = vec![0u8; READ_CHUNK];
+    let mut complaints = LogLimiter::new(Instant::now());
+    let summary = |skipped: u64| {
+        tracing::warn!("serial: {skipped} more bad records were skipped unlogged");
+    };
     let error = loop {
         let read = tokio::select! {
             read = reader.read(&mut buffer) => read,
-            () = sink.closed() => return Ok(()),
+            () = sink.closed() => {
+                if let Some(skipped) = complaints.take_remaining() {
+                    summary(skipped);
+                }
+                return Ok(());
+            }
+            () = summary_timer(complaints.summary_due()) => {
+                if let Some(skipped) = complaints.take_summary(Instant::now()) {
+                    summary(skipped);
+                }
+                continue;
+            }
         };
         let len = match read {
             Ok(0) => break SerialError::Closed,
@@ -565,10 +584,18 @@ pub async fn run_stream<R: AsyncRead + Unpin>(
                         return Ok(());
                     }
                 }
-                Err(e) => tracing::warn!(error = %e, "serial: skipping bad input"),
+                Err(e) => {
+                    if complaints.allow(Instant::now()) {
+                        let error = clip(&e.to_string(), MAX_ECHO);
+                        tracing::warn!(%error, "serial: skipping bad input");
+                    }
+                }
             }
         }
     };
+    if let Some(skipped) = complaints.take_remaining() {
+        summary(skipped);
+    }
     if let Some(frame) = decoder.lift_all() {
         // A closed sink has nobody left to tell; the error still goes back.
         let _ = sink.send(frame).await;

@@ -20,6 +20,8 @@ use rosc::{OscMessage, OscPacket, OscType};
 use tokio::net::UdpSocket;
 use tokio::sync::mpsc;
 
+use super::fields;
+use super::log_limit::{LogLimiter, MAX_ECHO, clip, summary_timer};
 use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceId};
 
 /// The port TUIO trackers send to unless told otherwise.
@@ -182,7 +184,7 @@ impl TuioTracker {
             && let Some(name) = new_sources.into_iter().min()
         {
             return Err(TuioError::TooManySources {
-                name: name.to_string(),
+                name: fields::clip(name.as_str()),
             });
         }
         Ok(snapshots
@@ -336,7 +338,11 @@ fn parse_packet(packet: &OscPacket) -> Result<Vec<Snapshot>, TuioError> {
                             pointers: pending.pointers,
                         });
                     }
-                    other => return Err(args.error(format!("unknown 2Dcur command `{other}`"))),
+                    other => {
+                        return Err(
+                            args.error(format!("unknown 2Dcur command `{}`", fields::clip(other)))
+                        );
+                    }
                 }
             }
             "/tuio2/frm" => {
@@ -416,7 +422,8 @@ impl<'a> Args<'a> {
     fn error(&self, problem: impl Into<String>) -> TuioError {
         TuioError::Message {
             index: self.index,
-            address: self.message.addr.clone(),
+            // Off the network, so any length: quoted short.
+            address: fields::clip(&self.message.addr),
             problem: problem.into(),
         }
     }
@@ -430,7 +437,8 @@ impl<'a> Args<'a> {
 
     fn wrong(&self, at: usize, name: &str, expected: &str, got: &OscType) -> TuioError {
         self.error(format!(
-            "argument {at} ({name}) should be {expected}, not {got}"
+            "argument {at} ({name}) should be {expected}, not {}",
+            fields::osc_arg(got)
         ))
     }
 
@@ -478,7 +486,8 @@ impl<'a> Args<'a> {
 /// frame they complete. A full sink makes this wait (the socket's own buffer
 /// absorbs the burst; TUIO's restated state repairs whatever the kernel then
 /// drops), so no decoded frame is ever discarded here. Malformed datagrams
-/// are logged and skipped. Frames without a sender time are stamped with
+/// are skipped, and logged through a [`LogLimiter`]: a few lines, then a
+/// count. Frames without a sender time are stamped with
 /// seconds since this call started.
 ///
 /// Returns `Ok` once the sink is closed, or the socket's error if receiving
@@ -491,10 +500,22 @@ pub async fn run_udp(
     let mut tracker = TuioTracker::new(calibration);
     let start = std::time::Instant::now();
     let mut buffer = vec![0u8; MAX_DATAGRAM];
+    let mut complaints = LogLimiter::new(start);
     loop {
         let received: std::io::Result<(usize, SocketAddr)> = tokio::select! {
             received = socket.recv_from(&mut buffer) => received,
-            () = sink.closed() => return Ok(()),
+            () = sink.closed() => {
+                if let Some(skipped) = complaints.take_remaining() {
+                    tracing::warn!("tuio: {skipped} more malformed datagrams were skipped unlogged");
+                }
+                return Ok(());
+            }
+            () = summary_timer(complaints.summary_due()) => {
+                if let Some(skipped) = complaints.take_summary(std::time::Instant::now()) {
+                    tracing::warn!("tuio: {skipped} more malformed datagrams were skipped unlogged");
+                }
+                continue;
+            }
         };
         let (len, peer) = match received {
             Ok(received) => received,
@@ -509,7 +530,12 @@ pub async fn run_udp(
         let frames = match tracker.push(&buffer[..len], start.elapsed().as_secs_f64()) {
             Ok(frames) => frames,
             Err(e) => {
-                tracing::warn!(%peer, error = %e, "tuio: skipping a malformed datagram");
+                // A flood of garbage gets a few lines and a count, not a
+                // line per datagram.
+                if complaints.allow(std::time::Instant::now()) {
+                    let error = clip(&e.to_string(), MAX_ECHO);
+                    tracing::warn!(%peer, %error, "tuio: skipping a malformed datagram");
+                }
                 continue;
             }
         };

@@ -20,7 +20,7 @@ use spade::{
 
 use super::grid::BucketGrid;
 use super::polygon::{Shape, bounds, find_crossing, segment_distance, signed_area, simplify_keep};
-use super::trace::trace_png;
+use super::trace::{PictureWarning, trace_png};
 use super::{MIN_THICKNESS, Mesh, MeshError, cross, invalid, thickness};
 
 type Cdt = ConstrainedDelaunayTriangulation<Point2<f64>>;
@@ -80,7 +80,22 @@ pub fn triangulate(source: &str, shape: &Shape, options: &MeshOptions) -> Result
 
 /// Traces a PNG's alpha, meshes the outline and attaches uv (image
 /// convention: v down from the top) so the picture maps onto the mesh.
+/// Drops the [`PictureWarning`]s: where a person chose the picture, use
+/// [`mesh_picture`] and tell them.
 pub fn mesh_png(path: &Path, options: &MeshOptions) -> Result<Mesh, MeshError> {
+    mesh_picture(path, options).map(|meshed| meshed.mesh)
+}
+
+/// A mesh of a picture, and what its maker should hear about the picture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Meshed {
+    pub mesh: Mesh,
+    pub warnings: Vec<PictureWarning>,
+}
+
+/// [`mesh_png`], keeping the warnings (a fully opaque picture meshes as
+/// its rectangle, which is rarely what was meant).
+pub fn mesh_picture(path: &Path, options: &MeshOptions) -> Result<Meshed, MeshError> {
     let name = path.display().to_string();
     let traced = trace_png(path, TRACE_DETAIL)?;
     let (vertices, triangles) = build(&name, &traced.shape, options)?;
@@ -89,7 +104,10 @@ pub fn mesh_png(path: &Path, options: &MeshOptions) -> Result<Mesh, MeshError> {
         .iter()
         .map(|v| DVec2::new(v.x / w, (h - v.y) / h))
         .collect();
-    Mesh::new(&name, vertices, triangles, Some(uv), None)
+    Ok(Meshed {
+        mesh: Mesh::new(&name, vertices, triangles, Some(uv), None)?,
+        warnings: traced.warnings,
+    })
 }
 
 /// Shape statistics of a mesh, for tests and reports.

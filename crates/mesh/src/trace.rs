@@ -23,6 +23,28 @@ pub struct Traced {
     pub shape: Shape,
     pub width: u32,
     pub height: u32,
+    /// What the user should hear about the picture although it traced.
+    pub warnings: Vec<PictureWarning>,
+}
+
+/// Something about a picture worth telling the user, though it meshes: a
+/// value, not a log line, so the command line prints it and the daemon can
+/// send it to the page that uploaded the picture.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PictureWarning {
+    /// No pixel is transparent (no alpha channel, or a background that is
+    /// not see-through): the figure cannot be told from its background, so
+    /// the mesh is the whole picture's rectangle.
+    #[error(
+        "{file}: every pixel is opaque (no transparent background), so the puppet is the \
+         whole {width}×{height} rectangle; to mesh a figure's outline, cut it out onto a \
+         transparent background (PNG with alpha)"
+    )]
+    FullyOpaque {
+        file: String,
+        width: u32,
+        height: u32,
+    },
 }
 
 /// Rings enclosing less than this many square pixels are specks or pinholes:
@@ -211,6 +233,11 @@ fn trace_alpha(
             },
             width,
             height,
+            warnings: vec![PictureWarning::FullyOpaque {
+                file: source.to_string(),
+                width,
+                height,
+            }],
         });
     }
 
@@ -234,6 +261,7 @@ fn trace_alpha(
         shape,
         width,
         height,
+        warnings: Vec::new(),
     })
 }
 

@@ -12,7 +12,7 @@ use crate::compare::{self, CompareError, Comparison};
 use puppetry_deform::ffd::{Basis, FfdError, MAX_GRID_HANDLES};
 use puppetry_deform::skeleton::SkeletonError;
 use puppetry_deform::{Anchor, Arap, ArapError, Steps};
-use puppetry_mesh::build::{MeshOptions, mesh_png, triangulate};
+use puppetry_mesh::build::{MeshOptions, Meshed, mesh_picture, mesh_png, triangulate};
 use puppetry_mesh::polygon::Shape;
 use puppetry_mesh::{Locator, Mesh, MeshError, json};
 
@@ -45,8 +45,9 @@ pub enum CliError {
 }
 
 /// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
-/// a `.mesh.json`. Returns the mesh text.
-pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Mesh, CliError> {
+/// a `.mesh.json`. Returns the mesh and what to warn the user about the
+/// picture (a fully opaque one meshes as its rectangle).
+pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Meshed, CliError> {
     let options = MeshOptions {
         target_vertices: vertices,
     };
@@ -54,12 +55,15 @@ pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Mesh, CliEr
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if is_png {
-        return Ok(mesh_png(input, &options)?);
+        return Ok(mesh_picture(input, &options)?);
     }
     let name = input.display().to_string();
     let text = read(input)?;
     let shape = Shape::from_json(&name, &text)?;
-    Ok(triangulate(&name, &shape, &options)?)
+    Ok(Meshed {
+        mesh: triangulate(&name, &shape, &options)?,
+        warnings: Vec::new(),
+    })
 }
 
 fn read(path: &Path) -> Result<String, CliError> {

@@ -55,6 +55,10 @@ enum Command {
         /// fast as the stage takes it).
         #[arg(long, value_name = "TAKE")]
         play: Option<PathBuf>,
+        /// Start the stage file's replay inputs paused: a director plays
+        /// them from the page (a `replay` message).
+        #[arg(long)]
+        no_replay: bool,
     },
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
@@ -262,6 +266,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             record,
             takes,
             play,
+            no_replay,
         } => {
             tracing_subscriber::fmt()
                 .with_env_filter(
@@ -292,6 +297,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 let mut options = puppetry_daemon::serve::Options::new(web_files);
                 options.extra_replay = replay.map(|file| (file, pacing));
                 options.record = record.is_some();
+                options.paused_replays = no_replay;
                 if let Some(dir) = record.or(takes) {
                     options.takes_dir = dir;
                 }
@@ -307,6 +313,21 @@ fn run(args: Args) -> anyhow::Result<()> {
                 println!("puppetry: serving {} at http://{address}/", path.display());
                 if let Some(token) = stage.access.performer_tokens.first() {
                     println!("  perform: http://{address}/?role=performer&token={token}");
+                }
+                let director = stage
+                    .access
+                    .people
+                    .iter()
+                    .find(|p| p.role == puppetry_stage::config::AccessRole::Director);
+                if let Some(director) = director {
+                    println!(
+                        "  direct:  http://{address}/?role=director&token={}",
+                        director.token
+                    );
+                }
+                // Said, because a stage file may ask for port 0.
+                for tuio in &running.tuio_addresses {
+                    println!("  TUIO: receiving on udp {tuio}");
                 }
                 if let Some(osc) = running.osc_address {
                     println!("  OSC triggers: udp://{osc} (docs/osc.md)");
@@ -431,7 +452,11 @@ fn run(args: Args) -> anyhow::Result<()> {
             output,
         } => {
             let vertices = vertices.map(|n| n as usize);
-            let mesh = cli::mesh_command(&input, vertices)?;
+            let meshed = cli::mesh_command(&input, vertices)?;
+            for warning in &meshed.warnings {
+                eprintln!("warning: {warning}");
+            }
+            let mesh = meshed.mesh;
             let got = mesh.vertices().len();
             if let Some(n) = vertices.filter(|&n| got * 100 < n * 85 || got * 100 > n * 115) {
                 eprintln!(

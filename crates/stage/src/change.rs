@@ -34,12 +34,14 @@ pub enum Change {
         puppet: u32,
         handle: u64,
     },
-    /// One dab of the stiffness brush.
+    /// One dab of the stiffness brush; dabs of one `stroke` undo at once.
     Paint {
         puppet: u32,
         at: DVec2,
         radius: f64,
         strength: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stroke: Option<u64>,
     },
     /// A skeleton set between two of its stage-file key poses.
     KeyPose {
@@ -76,6 +78,85 @@ pub enum Change {
         puppet: u32,
         key: usize,
     },
+    /// A puppet's edits set wholesale: what an undo, redo or reset did.
+    /// Recorded as the state it restored rather than as the undo, so a take
+    /// replays the same whatever history the stage had when it began.
+    Restore {
+        puppet: u32,
+        state: Snapshot,
+    },
+}
+
+/// The part of a puppet's state that undo, redo and reset put back: its
+/// painted weights, its pins, its skeleton's pose (each only if present).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Snapshot {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pins: Option<Vec<PinRecord>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose: Option<PoseRecord>,
+}
+
+/// A pin, exactly: its handle id, owner, grip and where it holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PinRecord {
+    pub handle: u64,
+    /// An input source's id, or `config` for the stage file's pins.
+    pub owner: String,
+    pub grip: GripRecord,
+    pub at: DVec2,
+    pub offset: DVec2,
+}
+
+/// A grip, exactly (a material point by triangle and barycentric
+/// coordinates, not by position, so restoring it is bit for bit).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum GripRecord {
+    Vertex {
+        index: u32,
+    },
+    Point {
+        triangle: u32,
+        bary: [f64; 3],
+    },
+    Grid {
+        index: usize,
+    },
+    Joint {
+        index: usize,
+    },
+    Bone {
+        index: usize,
+        along: f64,
+        across: f64,
+    },
+}
+
+/// A skeleton's pose: its FK state, its joints, and the key-pose blend it
+/// was last set to (if any).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseRecord {
+    pub roots: Vec<DVec2>,
+    pub angles: Vec<f64>,
+    pub lengths: Vec<f64>,
+    pub joints: Vec<DVec2>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub key: Option<KeyPoseState>,
+}
+
+/// A skeleton's blend between two of its stage-file key poses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyPoseState {
+    pub from: String,
+    pub to: String,
+    pub t: f64,
 }
 
 /// What a handle holds, as events name it: a material point by its rest
@@ -83,9 +164,22 @@ pub enum Change {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum GripEvent {
-    Point { rest: DVec2 },
-    Grid { index: usize },
-    Joint { index: usize },
+    Point {
+        rest: DVec2,
+    },
+    Grid {
+        index: usize,
+    },
+    Joint {
+        index: usize,
+    },
+    /// A point on a skeleton's bone: `along` the bone (0 at its parent
+    /// joint, 1 at its child) and `across` it (stage units, to the left).
+    Bone {
+        index: usize,
+        along: f64,
+        across: f64,
+    },
 }
 
 /// One handle-level thing the stage did.

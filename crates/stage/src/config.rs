@@ -81,13 +81,154 @@ fn default_client_timeout() -> f64 {
     10.0
 }
 
-/// Who may perform: a WebSocket client that says `role: performer` must
-/// give one of these tokens.
-#[derive(Debug, Clone, Default, Deserialize)]
+/// Who may connect and what they may do (`[access]`): named people with
+/// roles and tokens, anonymous performer tokens, the WebSocket origins
+/// allowed besides the daemon's own, and a cap per client address.
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Access {
+    /// Tokens of anonymous performers ("performer 1", "performer 2", …).
     #[serde(default)]
     pub performer_tokens: Vec<String>,
+    /// Origins (`scheme://host[:port]`) whose pages may open the WebSocket
+    /// besides the daemon's own; a client sending no Origin (not a
+    /// browser) is always let in.
+    #[serde(default)]
+    pub allowed_origins: Vec<String>,
+    /// Open WebSocket connections per client IP address at most.
+    #[serde(default = "default_max_per_address")]
+    pub max_per_address: usize,
+    #[serde(default, rename = "person")]
+    pub people: Vec<PersonConfig>,
+}
+
+impl Default for Access {
+    fn default() -> Access {
+        Access {
+            performer_tokens: Vec::new(),
+            allowed_origins: Vec::new(),
+            max_per_address: default_max_per_address(),
+            people: Vec::new(),
+        }
+    }
+}
+
+fn default_max_per_address() -> usize {
+    64
+}
+
+/// `[[access.person]]`: someone who connects with their own token.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PersonConfig {
+    pub name: String,
+    pub role: AccessRole,
+    pub token: String,
+    /// `#RRGGBB`; default: the first palette colour no one connected has.
+    #[serde(default)]
+    pub colour: Option<String>,
+    /// A performer limited to these puppets (by name); default: all.
+    #[serde(default)]
+    pub puppets: Option<Vec<String>>,
+}
+
+/// What a person may do (see `docs/protocol.md`, "Roles").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AccessRole {
+    /// Everything: takes, painting, saving, key poses, performing.
+    Director,
+    /// Performing: contacts, pins, poses, cursors.
+    Performer,
+    /// Watching only.
+    Viewer,
+}
+
+/// `#RRGGBB`.
+fn is_colour(text: &str) -> bool {
+    text.len() == 7 && text.starts_with('#') && text[1..].chars().all(|c| c.is_ascii_hexdigit())
+}
+
+/// `scheme://host[:port]` with no path, as browsers send `Origin`.
+fn is_origin(text: &str) -> bool {
+    let Some((scheme, rest)) = text.split_once("://") else {
+        return false;
+    };
+    !scheme.is_empty()
+        && scheme
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
+        && !rest.is_empty()
+        && !rest.contains(['/', '?', '#', ' ', '@'])
+}
+
+/// The `[access]` section's checks: each problem names its field.
+fn check_access(config: &StageConfig) -> Result<(), (String, String)> {
+    let access = &config.access;
+    for (i, token) in access.performer_tokens.iter().enumerate() {
+        if token.is_empty() {
+            return Err((format!("access.performer_tokens[{i}]"), "empty".into()));
+        }
+        if access.performer_tokens[..i].contains(token) {
+            return Err((
+                format!("access.performer_tokens[{i}]"),
+                "the same token is listed twice".into(),
+            ));
+        }
+    }
+    for (i, origin) in access.allowed_origins.iter().enumerate() {
+        if !is_origin(origin) {
+            return Err((
+                format!("access.allowed_origins[{i}]"),
+                format!(
+                    "{origin:?} is not an origin like \"https://show.example\" (scheme://host[:port], no path)"
+                ),
+            ));
+        }
+    }
+    if access.max_per_address == 0 {
+        return Err(("access.max_per_address".into(), "must be at least 1".into()));
+    }
+    for (i, person) in access.people.iter().enumerate() {
+        let field = |f: &str| format!("access.person[{i}].{f}");
+        if person.name.trim().is_empty() {
+            return Err((field("name"), "empty".into()));
+        }
+        if access.people[..i].iter().any(|p| p.name == person.name) {
+            return Err((field("name"), "is used by another person".into()));
+        }
+        if person.token.is_empty() {
+            return Err((field("token"), "empty".into()));
+        }
+        if access.people[..i].iter().any(|p| p.token == person.token) {
+            return Err((field("token"), "is used by another person".into()));
+        }
+        if access.performer_tokens.contains(&person.token) {
+            return Err((field("token"), "is also in access.performer_tokens".into()));
+        }
+        if let Some(colour) = &person.colour
+            && !is_colour(colour)
+        {
+            return Err((field("colour"), format!("{colour:?} is not #RRGGBB")));
+        }
+        if let Some(puppets) = &person.puppets {
+            if person.role != AccessRole::Performer {
+                return Err((
+                    field("puppets"),
+                    "only a performer is limited to puppets".into(),
+                ));
+            }
+            for (k, name) in puppets.iter().enumerate() {
+                if !config.puppets.iter().any(|p| &p.name == name) {
+                    return Err((
+                        field(&format!("puppets[{k}]")),
+                        format!("no puppet is named {name:?}"),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// One puppet: its picture and rest mesh, and where it stands on the stage.
@@ -116,6 +257,22 @@ pub struct PuppetConfig {
     /// loaded if it exists, written by `save_keys`.
     #[serde(default)]
     pub keys: Option<PathBuf>,
+    /// Where `save_weights` writes: a new versioned file beside the mesh
+    /// (`NAME.v1.mesh.json`, v2, …; the default) or over the mesh file.
+    #[serde(default)]
+    pub save_weights: SaveWeights,
+}
+
+/// Where `save_weights` writes a puppet's painted weights.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SaveWeights {
+    /// A new file beside the mesh, the next free `NAME.vN.mesh.json`: the
+    /// shared asset is never overwritten.
+    #[default]
+    Version,
+    /// Over the mesh file itself.
+    Overwrite,
 }
 
 /// `[[pad]]`: a rectangle of the stage where contacts (of one source, or
@@ -644,12 +801,7 @@ impl StageConfig {
                 ));
             }
         }
-        if config.access.performer_tokens.iter().any(|t| t.is_empty()) {
-            return Err(invalid(
-                "access.performer_tokens".into(),
-                "a token must not be empty",
-            ));
-        }
+        check_access(&config).map_err(|(field, problem)| invalid(field, &problem))?;
         Ok(config)
     }
 
@@ -660,5 +812,110 @@ impl StageConfig {
         } else {
             self.folder.join(path)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const STAGE: &str = "[stage]\nwidth = 100\nheight = 100\n\
+        [[puppet]]\nname = \"gingerbread\"\nimage = \"g.png\"\nmesh = \"g.mesh.json\"\nat = [50, 50]\n";
+
+    fn parse(access: &str) -> Result<StageConfig, String> {
+        StageConfig::parse("a.toml", &format!("{STAGE}{access}"), Path::new("/"))
+            .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn people_roles_and_defaults_are_read() {
+        let config = parse(
+            "[access]\nperformer_tokens = [\"demo\"]\nallowed_origins = [\"https://show.example\"]\n\
+             [[access.person]]\nname = \"Ana\"\nrole = \"director\"\ntoken = \"a\"\ncolour = \"#E69F00\"\n\
+             [[access.person]]\nname = \"Ben\"\nrole = \"performer\"\ntoken = \"b\"\npuppets = [\"gingerbread\"]\n",
+        )
+        .unwrap();
+        let access = &config.access;
+        assert_eq!(access.performer_tokens, ["demo"]);
+        assert_eq!(access.max_per_address, 64);
+        assert_eq!(access.people.len(), 2);
+        assert_eq!(access.people[0].role, AccessRole::Director);
+        assert_eq!(
+            access.people[1].puppets.as_deref(),
+            Some(&["gingerbread".to_string()][..])
+        );
+        // No [access] at all: nobody but viewers, the default cap.
+        assert_eq!(parse("").unwrap().access.max_per_address, 64);
+    }
+
+    #[test]
+    fn bad_access_entries_name_their_field() {
+        let person = |fields: &str| format!("[[access.person]]\n{fields}\n");
+        for (text, expected) in [
+            (
+                "[access]\nperformer_tokens = [\"\"]\n".to_string(),
+                "access.performer_tokens[0]: empty",
+            ),
+            (
+                person("name = \"Ana\"\nrole = \"director\"\ntoken = \"\""),
+                "access.person[0].token: empty",
+            ),
+            (
+                person("name = \"\"\nrole = \"director\"\ntoken = \"t\""),
+                "access.person[0].name: empty",
+            ),
+            (
+                format!(
+                    "{}{}",
+                    person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\""),
+                    person("name = \"Ben\"\nrole = \"performer\"\ntoken = \"t\"")
+                ),
+                "access.person[1].token: is used by another person",
+            ),
+            (
+                format!(
+                    "{}{}",
+                    person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\""),
+                    person("name = \"Ana\"\nrole = \"performer\"\ntoken = \"u\"")
+                ),
+                "access.person[1].name: is used by another person",
+            ),
+            (
+                format!(
+                    "[access]\nperformer_tokens = [\"t\"]\n{}",
+                    person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\"")
+                ),
+                "access.person[0].token: is also in access.performer_tokens",
+            ),
+            (
+                person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\"\ncolour = \"orange\""),
+                "access.person[0].colour: \"orange\" is not #RRGGBB",
+            ),
+            (
+                person(
+                    "name = \"Ana\"\nrole = \"performer\"\ntoken = \"t\"\npuppets = [\"ghost\"]",
+                ),
+                "access.person[0].puppets[0]: no puppet is named \"ghost\"",
+            ),
+            (
+                person(
+                    "name = \"Ana\"\nrole = \"viewer\"\ntoken = \"t\"\npuppets = [\"gingerbread\"]",
+                ),
+                "access.person[0].puppets: only a performer",
+            ),
+            (
+                "[access]\nallowed_origins = [\"https://show.example/page\"]\n".to_string(),
+                "access.allowed_origins[0]:",
+            ),
+            (
+                "[access]\nmax_per_address = 0\n".to_string(),
+                "access.max_per_address: must be at least 1",
+            ),
+        ] {
+            let error = parse(&text).expect_err(&text);
+            assert!(error.contains(expected), "{error}\nwanted: {expected}");
+        }
+        let error = parse(&person("name = \"Ana\"\nrole = \"boss\"\ntoken = \"t\"")).unwrap_err();
+        assert!(error.contains("boss"), "{error}");
     }
 }

@@ -22,8 +22,10 @@ use std::path::PathBuf;
 
 use glam::DVec2;
 
-pub use change::{Change, GripEvent, StageEvent};
-use config::StageConfig;
+pub use change::{
+    Change, GripEvent, GripRecord, KeyPoseState, PinRecord, PoseRecord, Snapshot, StageEvent,
+};
+use config::{SaveWeights, StageConfig};
 use puppetry_deform::{Anchor, Arap};
 use puppetry_input::{ContactFrame, Phase};
 use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh, MeshError};
@@ -38,8 +40,22 @@ pub enum CommandError {
     NoGrid { puppet: u32 },
     #[error("puppet {puppet}: has no skeleton")]
     NoSkeleton { puppet: u32 },
-    #[error("paint needs finite x, y and positive radius and strength")]
+    #[error("paint needs finite x and y")]
     BadBrush,
+    /// A number outside its documented range; `field` names it as the
+    /// message does (`radius`, `strength`).
+    #[error("{field}: {problem}")]
+    OutOfRange {
+        field: &'static str,
+        problem: String,
+    },
+    #[error("puppet {puppet}: cannot restore: {problem}")]
+    Restore { puppet: u32, problem: String },
+    #[error("{file}: {source}")]
+    Write {
+        file: String,
+        source: std::io::Error,
+    },
     #[error("puppet {puppet}: {source}")]
     Rig { puppet: u32, source: rig::RigError },
     #[error("{file}: {source}")]
@@ -91,6 +107,14 @@ pub enum StageError {
         problem: String,
     },
 }
+
+/// The brush's `strength` range: a dab at most multiplies a weight by
+/// 10 or divides it by 10 (one order of magnitude per dab).
+pub const MIN_STRENGTH: f64 = 0.1;
+pub const MAX_STRENGTH: f64 = 10.0;
+
+/// Undo steps kept per puppet; older ones are forgotten.
+pub const MAX_HISTORY: usize = 64;
 
 /// A grid handle or joint within this fraction of the stage's smaller side
 /// from where a contact lands is what it grabs.
@@ -170,6 +194,52 @@ pub struct Puppet {
     placement: pad::Placement,
     /// Spatial keyframing: key poses and the cursor.
     keying: pad::Keying,
+    /// Bumped whenever the handle set changes (a handle made or removed):
+    /// handle-position frames say which set their points follow.
+    handles_generation: u32,
+    /// Undo and redo of painting, pins and poses.
+    history: History,
+    /// The weights, pins and pose as loaded: what reset puts back.
+    loaded: Snapshot,
+    /// The key-pose blend a `pose` request last set (none at rest).
+    key_pose: Option<KeyPoseState>,
+    /// Bumped whenever `key_pose` is set.
+    pose_generation: u64,
+    save_weights: SaveWeights,
+}
+
+/// A puppet's undo and redo stacks: each entry is the state an edit
+/// replaced (undo) or an undo replaced (redo).
+#[derive(Default)]
+struct History {
+    undo: Vec<Snapshot>,
+    redo: Vec<Snapshot>,
+    /// The edit that the next one of the same group joins (the dabs of one
+    /// stroke, a run of poses between the same key poses); any other edit,
+    /// undo or redo closes it.
+    open: Option<Group>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum Group {
+    Stroke(u64),
+    Pose(String, String),
+}
+
+impl History {
+    /// Records that an edit replaced `before` (unless it joins the open
+    /// group, whose entry already holds the state before it).
+    fn edit(&mut self, before: impl FnOnce() -> Snapshot, group: Option<Group>) {
+        if group.is_some() && self.open == group {
+            return;
+        }
+        self.undo.push(before());
+        if self.undo.len() > MAX_HISTORY {
+            self.undo.remove(0);
+        }
+        self.redo.clear();
+        self.open = group;
+    }
 }
 
 /// What a contact landing on a puppet finds.
@@ -203,7 +273,115 @@ impl Puppet {
         }
     }
 
-    /// Where a grip is now: a material point in the pose, a rig point.
+    /// Each handle's point on the puppet now, in handle order: a material
+    /// point where the solve put it; a grid handle, joint or bone point
+    /// less the offset it was grabbed with (where the finger holds it).
+    pub fn handle_points(&self, out: &mut Vec<DVec2>) {
+        out.clear();
+        out.extend(self.handles.iter().map(|h| {
+            match h.grip {
+                Grip::Point(anchor) => self.posed(anchor),
+                grip => self
+                    .rig
+                    .grip_position(grip)
+                    .map_or(h.target, |q| q - h.offset),
+            }
+        }));
+    }
+
+    /// Bumped whenever the handle set changes.
+    pub fn handles_generation(&self) -> u32 {
+        self.handles_generation
+    }
+
+    /// Undo and redo steps available.
+    pub fn history(&self) -> (usize, usize) {
+        (self.history.undo.len(), self.history.redo.len())
+    }
+
+    /// The key-pose blend a `pose` request last set (none at rest), and a
+    /// counter bumped whenever it is set.
+    pub fn key_pose(&self) -> (Option<&KeyPoseState>, u64) {
+        (self.key_pose.as_ref(), self.pose_generation)
+    }
+
+    /// The pins now, exactly.
+    fn pin_records(&self) -> Vec<PinRecord> {
+        self.handles
+            .iter()
+            .filter(|h| h.kind == HandleKind::Pin)
+            .map(|h| PinRecord {
+                handle: h.id,
+                owner: h.owner.to_string(),
+                grip: grip_record(h.grip),
+                at: h.target,
+                offset: h.offset,
+            })
+            .collect()
+    }
+
+    /// The skeleton's pose now (none for other rigs).
+    fn pose_record(&self) -> Option<PoseRecord> {
+        let Rig::Skeleton(r) = &self.rig else {
+            return None;
+        };
+        let (pose, joints) = r.pose_state();
+        Some(PoseRecord {
+            roots: pose.roots,
+            angles: pose.angles,
+            lengths: pose.lengths,
+            joints,
+            key: self.key_pose.clone(),
+        })
+    }
+
+    /// The state now of the parts `like` holds.
+    fn capture(&self, like: &Snapshot) -> Snapshot {
+        Snapshot {
+            weights: like.weights.as_ref().map(|_| self.weights.clone()),
+            pins: like.pins.as_ref().map(|_| self.pin_records()),
+            pose: like.pose.as_ref().and_then(|_| self.pose_record()),
+        }
+    }
+
+    /// A recorded grip as a grip of this puppet, if it fits its mesh and
+    /// rig.
+    fn grip_of(&self, record: GripRecord) -> Option<Grip> {
+        let rig_points = self.rig.points().map_or(0, |p| p.len());
+        let grip = match record {
+            GripRecord::Vertex { index } => ((index as usize) < self.mesh.vertices().len())
+                .then_some(Grip::Point(Anchor::Vertex(index)))?,
+            GripRecord::Point { triangle, bary } => ((triangle as usize)
+                < self.mesh.triangles().len()
+                && bary.iter().all(|b| b.is_finite()))
+            .then_some(Grip::Point(Anchor::Point { triangle, bary }))?,
+            GripRecord::Grid { index } => (matches!(self.rig, Rig::Grid(_)) && index < rig_points)
+                .then_some(Grip::GridHandle(index))?,
+            GripRecord::Joint { index } => (matches!(self.rig, Rig::Skeleton(_))
+                && index < rig_points)
+                .then_some(Grip::Joint(index))?,
+            GripRecord::Bone {
+                index,
+                along,
+                across,
+            } => {
+                let Rig::Skeleton(r) = &self.rig else {
+                    return None;
+                };
+                (index < r.deformer().skeleton().bones().len()
+                    && along.is_finite()
+                    && across.is_finite())
+                .then_some(Grip::Bone {
+                    index,
+                    along,
+                    across,
+                })?
+            }
+        };
+        Some(grip)
+    }
+
+    /// Where an anchor is in the current pose.
     fn grip_now(&self, grip: Grip) -> Option<DVec2> {
         match grip {
             Grip::Point(anchor) => Some(self.posed(anchor)),
@@ -268,6 +446,15 @@ impl Puppet {
             },
             Grip::GridHandle(index) => GripEvent::Grid { index },
             Grip::Joint(index) => GripEvent::Joint { index },
+            Grip::Bone {
+                index,
+                along,
+                across,
+            } => GripEvent::Bone {
+                index,
+                along,
+                across,
+            },
         }
     }
 
@@ -281,7 +468,12 @@ impl Puppet {
             Some(anchor) if self.rig.takes_points() => {
                 Reach::Grip(Grip::Point(anchor), DVec2::ZERO)
             }
-            Some(_) => Reach::Blocked,
+            // A skeleton is held by its bones: the nearest one, at the
+            // point under the finger.
+            Some(_) => match self.rig.bone_near(p) {
+                Some(grip) => Reach::Grip(grip, DVec2::ZERO),
+                None => Reach::Blocked,
+            },
             None => Reach::Miss,
         }
     }
@@ -321,6 +513,25 @@ fn anchor_position(mesh: &Mesh, anchor: Anchor) -> DVec2 {
     }
 }
 
+/// A grip, exactly, as a record.
+fn grip_record(grip: Grip) -> GripRecord {
+    match grip {
+        Grip::Point(Anchor::Vertex(index)) => GripRecord::Vertex { index },
+        Grip::Point(Anchor::Point { triangle, bary }) => GripRecord::Point { triangle, bary },
+        Grip::GridHandle(index) => GripRecord::Grid { index },
+        Grip::Joint(index) => GripRecord::Joint { index },
+        Grip::Bone {
+            index,
+            along,
+            across,
+        } => GripRecord::Bone {
+            index,
+            along,
+            across,
+        },
+    }
+}
+
 fn barycentric_in(a: DVec2, b: DVec2, c: DVec2, p: DVec2) -> [f64; 3] {
     let d = (b - a).perp_dot(c - a);
     let l1 = (p - a).perp_dot(c - a) / d;
@@ -351,10 +562,12 @@ pub struct GridExport {
 /// A puppet's mesh file with painted weights, not yet written.
 #[derive(Debug)]
 pub struct WeightsFile {
+    /// The puppet's mesh file.
     pub path: PathBuf,
     /// The mesh as loaded, in its own coordinates.
     mesh: Mesh,
     weights: Vec<f64>,
+    mode: SaveWeights,
 }
 
 impl WeightsFile {
@@ -368,6 +581,93 @@ impl WeightsFile {
             })?;
         Ok(mesh.to_json())
     }
+
+    /// Writes the file: over the mesh file (`save_weights = "overwrite"`)
+    /// atomically, else as the next free `NAME.vN.mesh.json` beside it,
+    /// created new so an existing file is never replaced. Returns the path
+    /// written.
+    pub fn save(self) -> Result<PathBuf, CommandError> {
+        use std::io::Write;
+        let path = self.path.clone();
+        let mode = self.mode;
+        let text = self.text()?;
+        let failed = |file: &std::path::Path| {
+            let file = file.display().to_string();
+            move |source| CommandError::Write { file, source }
+        };
+        if mode == SaveWeights::Overwrite {
+            write_atomically(&path, &text).map_err(failed(&path))?;
+            return Ok(path);
+        }
+        for n in 1..=u32::MAX {
+            let target = versioned(&path, n);
+            let mut file = match std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&target)
+            {
+                Ok(file) => file,
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(failed(&target)(e)),
+            };
+            let written = file
+                .write_all(text.as_bytes())
+                .and_then(|()| file.sync_all());
+            if let Err(e) = written {
+                let _ = std::fs::remove_file(&target);
+                return Err(failed(&target)(e));
+            }
+            return Ok(target);
+        }
+        Err(failed(&path)(std::io::Error::other(
+            "no free version number",
+        )))
+    }
+}
+
+/// Version `n` of a mesh file: `NAME.mesh.json` (or `NAME.vK.mesh.json`)
+/// becomes `NAME.vN.mesh.json`; another name gets `.vN` before its
+/// extension.
+pub fn versioned(path: &std::path::Path, n: u32) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let (stem, extension) = match name.strip_suffix(".mesh.json") {
+        Some(stem) => (stem, ".mesh.json"),
+        None => match name.rfind('.') {
+            Some(i) if i > 0 => name.split_at(i),
+            _ => (name.as_str(), ""),
+        },
+    };
+    let stem = match stem.rfind(".v") {
+        Some(i) if stem.len() > i + 2 && stem[i + 2..].bytes().all(|b| b.is_ascii_digit()) => {
+            &stem[..i]
+        }
+        _ => stem,
+    };
+    path.with_file_name(format!("{stem}.v{n}{extension}"))
+}
+
+/// Writes `text` to `path` atomically: a temporary file beside it, synced,
+/// then renamed over it, so readers see the old file or the new, never half.
+fn write_atomically(path: &std::path::Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("not a file path"))?
+        .to_string_lossy();
+    let temporary = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let result = (|| {
+        let mut file = std::fs::File::create(&temporary)?;
+        file.write_all(text.as_bytes())?;
+        file.sync_all()?;
+        std::fs::rename(&temporary, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    result
 }
 
 /// All puppets and the contacts holding them.
@@ -385,6 +685,9 @@ pub struct Stage {
     /// Handle events since the last [`Stage::take_events`], kept only while
     /// a take records them.
     events: Option<Vec<StageEvent>>,
+    /// Sources that may grab only these puppets (by id): a performer
+    /// limited to named puppets. A grab landing on another grabs nothing.
+    limits: HashMap<String, Vec<u32>>,
 }
 
 impl Stage {
@@ -398,6 +701,7 @@ impl Stage {
             grabs: HashMap::new(),
             pads: Vec::new(),
             pad_contacts: HashMap::new(),
+            limits: HashMap::new(),
             next_handle: 1,
             events: None,
         };
@@ -442,6 +746,12 @@ impl Stage {
                 handles_changed: false,
                 moved: false,
                 weights_pending: false,
+                handles_generation: 0,
+                history: History::default(),
+                loaded: Snapshot::default(),
+                key_pose: None,
+                pose_generation: 0,
+                save_weights: p.save_weights,
             });
             for (index, pin) in p.pins.iter().enumerate() {
                 let at = stage_point(&mesh, p.at.into(), p.scale, DVec2::from(*pin));
@@ -489,6 +799,12 @@ impl Stage {
                 };
                 stage.puppets[id].keying = keying;
             }
+            let puppet = &mut stage.puppets[id];
+            puppet.loaded = Snapshot {
+                weights: Some(puppet.weights.clone()),
+                pins: Some(puppet.pin_records()),
+                pose: puppet.pose_record(),
+            };
         }
         for pad in &config.pads {
             if let Some(puppet) = stage.puppets.iter().position(|p| p.name == pad.puppet) {
@@ -582,6 +898,19 @@ impl Stage {
         }
     }
 
+    /// Limits what a source's contacts and pins may grab to these puppets
+    /// (by id), or lifts the limit (`None`).
+    pub fn limit_source(&mut self, source: &str, puppets: Option<Vec<u32>>) {
+        match puppets {
+            Some(puppets) => {
+                self.limits.insert(source.to_string(), puppets);
+            }
+            None => {
+                self.limits.remove(source);
+            }
+        }
+    }
+
     /// Lifts every contact of a source (it disconnected or vanished).
     pub fn release_source(&mut self, source: &str) {
         self.pad_contacts.retain(|k, _| k.0 != source);
@@ -608,6 +937,9 @@ impl Stage {
         p.handles.retain(|h| h.id != handle);
         let removed = p.handles.len() != before;
         p.handles_changed |= removed;
+        if removed {
+            p.handles_generation = p.handles_generation.wrapping_add(1);
+        }
         if removed && let Some(events) = &mut self.events {
             events.push(StageEvent::Removed {
                 puppet: p.id,
@@ -630,6 +962,12 @@ impl Stage {
         for puppet in (0..self.puppets.len()).rev() {
             match self.puppets[puppet].reach(at, radius) {
                 Reach::Grip(grip, offset) => {
+                    if let Owner::Source(source) = &owner
+                        && let Some(puppets) = self.limits.get(source)
+                        && !puppets.contains(&self.puppets[puppet].id)
+                    {
+                        return None;
+                    }
                     let id = self.add_handle(puppet, owner, kind, grip, at, offset, contact)?;
                     return Some((puppet, id));
                 }
@@ -653,6 +991,22 @@ impl Stage {
     ) -> Option<u64> {
         let id = self.next_handle;
         self.next_handle += 1;
+        self.insert_handle(puppet, id, owner, kind, grip, at, offset, contact)
+    }
+
+    /// Adds a handle with a given id (a new one, or a pin put back).
+    #[allow(clippy::too_many_arguments)]
+    fn insert_handle(
+        &mut self,
+        puppet: usize,
+        id: u64,
+        owner: Owner,
+        kind: HandleKind,
+        grip: Grip,
+        at: DVec2,
+        offset: DVec2,
+        contact: Option<u32>,
+    ) -> Option<u64> {
         let p = &mut self.puppets[puppet];
         if let Some(events) = &mut self.events {
             events.push(StageEvent::Made {
@@ -679,6 +1033,7 @@ impl Stage {
             offset,
         });
         p.handles_changed = true;
+        p.handles_generation = p.handles_generation.wrapping_add(1);
         Some(id)
     }
 
@@ -703,23 +1058,59 @@ impl Stage {
             Change::Contacts { frame } => self.apply(frame),
             Change::Release { source } => self.release_source(source),
             Change::Pin { owner, at } => {
-                self.pin(Owner::Source(owner.clone()), *at);
+                if let Some((puppet, id)) = self.pin(Owner::Source(owner.clone()), *at) {
+                    let p = &mut self.puppets[puppet as usize];
+                    let mut pins = p.pin_records();
+                    pins.retain(|pin| pin.handle != id);
+                    p.history.edit(
+                        || Snapshot {
+                            pins: Some(pins),
+                            ..Snapshot::default()
+                        },
+                        None,
+                    );
+                }
             }
             Change::Unpin { puppet, handle } => {
-                self.unpin(*puppet, *handle);
+                let before = self.puppet(*puppet).ok().map(|p| p.pin_records());
+                if self.unpin(*puppet, *handle)
+                    && let Some(pins) = before
+                {
+                    self.puppets[*puppet as usize].history.edit(
+                        || Snapshot {
+                            pins: Some(pins),
+                            ..Snapshot::default()
+                        },
+                        None,
+                    );
+                }
             }
             Change::Paint {
                 puppet,
                 at,
                 radius,
                 strength,
-            } => return self.paint(*puppet, *at, *radius, *strength),
+                stroke,
+            } => return self.paint_stroke(*puppet, *at, *radius, *strength, *stroke),
+            Change::Restore { puppet, state } => return self.restore(*puppet, state),
             Change::KeyPose {
                 puppet,
                 from,
                 to,
                 t,
-            } => self.set_key_pose(*puppet, from, to, *t)?,
+            } => {
+                let p = self.puppet(*puppet)?;
+                let before = p.pose_record();
+                self.set_key_pose(*puppet, from, to, *t)?;
+                let p = &mut self.puppets[*puppet as usize];
+                p.history.edit(
+                    || Snapshot {
+                        pose: before,
+                        ..Snapshot::default()
+                    },
+                    Some(Group::Pose(from.clone(), to.clone())),
+                );
+            }
             Change::Rebuilt { puppet, .. } => {
                 return Err(CommandError::NeedsSolver { puppet: *puppet });
             }
@@ -809,14 +1200,56 @@ impl Stage {
         radius: f64,
         strength: f64,
     ) -> Result<Option<Rebuild>, CommandError> {
-        let ok = |v: f64| v.is_finite() && v > 0.0;
-        if !(at.is_finite() && ok(radius) && ok(strength)) {
+        self.paint_stroke(puppet, at, radius, strength, None)
+    }
+
+    /// The brush's bounds: `radius` in (0, the stage's larger side],
+    /// `strength` in [[`MIN_STRENGTH`], [`MAX_STRENGTH`]].
+    pub fn check_brush(&self, at: DVec2, radius: f64, strength: f64) -> Result<(), CommandError> {
+        if !at.is_finite() {
             return Err(CommandError::BadBrush);
         }
+        let largest = self.width.max(self.height);
+        if !(radius > 0.0 && radius <= largest) {
+            return Err(CommandError::OutOfRange {
+                field: "radius",
+                problem: format!("must be more than 0 and at most {largest}, got {radius}"),
+            });
+        }
+        if !(MIN_STRENGTH..=MAX_STRENGTH).contains(&strength) {
+            return Err(CommandError::OutOfRange {
+                field: "strength",
+                problem: format!("must be {MIN_STRENGTH} to {MAX_STRENGTH}, got {strength}"),
+            });
+        }
+        Ok(())
+    }
+
+    /// One dab of a stroke: as [`Stage::paint`]; the dabs of one `stroke`
+    /// are one undo step.
+    pub fn paint_stroke(
+        &mut self,
+        puppet: u32,
+        at: DVec2,
+        radius: f64,
+        strength: f64,
+        stroke: Option<u64>,
+    ) -> Result<Option<Rebuild>, CommandError> {
+        self.check_brush(at, radius, strength)?;
         let p = self.puppet_mut(puppet)?;
+        let group = stroke.map(Group::Stroke);
+        let joins = group.is_some() && p.history.open == group;
+        let before = (!joins).then(|| p.weights.clone());
         if !p.paint(at, radius, strength) {
             return Ok(None);
         }
+        p.history.edit(
+            || Snapshot {
+                weights: before,
+                ..Snapshot::default()
+            },
+            group,
+        );
         p.weights_generation += 1;
         if let Rig::Free(_) = p.rig {
             return Ok(self.rebuild(puppet));
@@ -896,7 +1329,161 @@ impl Stage {
         r.set_key_pose(from, to, t)
             .map_err(|source| CommandError::Rig { puppet, source })?;
         p.moved = true;
+        p.key_pose = Some(KeyPoseState {
+            from: from.to_string(),
+            to: to.to_string(),
+            t,
+        });
+        p.pose_generation += 1;
         Ok(())
+    }
+
+    /// Takes back the puppet's last edit (a paint stroke, a pin, a pose):
+    /// the change that puts back what it replaced, to apply and record like
+    /// any other (none when there is nothing to undo).
+    pub fn undo(&mut self, puppet: u32) -> Result<Option<Change>, CommandError> {
+        let p = self.puppet_mut(puppet)?;
+        let Some(state) = p.history.undo.pop() else {
+            return Ok(None);
+        };
+        let now = p.capture(&state);
+        p.history.redo.push(now);
+        p.history.open = None;
+        Ok(Some(Change::Restore { puppet, state }))
+    }
+
+    /// Does again the edit the last undo took back.
+    pub fn redo(&mut self, puppet: u32) -> Result<Option<Change>, CommandError> {
+        let p = self.puppet_mut(puppet)?;
+        let Some(state) = p.history.redo.pop() else {
+            return Ok(None);
+        };
+        let now = p.capture(&state);
+        p.history.undo.push(now);
+        p.history.open = None;
+        Ok(Some(Change::Restore { puppet, state }))
+    }
+
+    /// Puts the puppet back as loaded: weights from its mesh file, pins as
+    /// in the stage file, the skeleton at rest, the key cursor let go
+    /// (contacts keep their grip). One undo step. Returns the changes to
+    /// apply and record.
+    pub fn reset(&mut self, puppet: u32) -> Result<Vec<Change>, CommandError> {
+        let p = self.puppet_mut(puppet)?;
+        let loaded = p.loaded.clone();
+        let now = p.capture(&loaded);
+        if now != loaded {
+            p.history.edit(|| now, None);
+        }
+        p.history.open = None;
+        Ok(vec![
+            Change::Restore {
+                puppet,
+                state: loaded,
+            },
+            Change::Cursor { puppet, at: None },
+        ])
+    }
+
+    /// Sets a puppet's weights, pins and pose (those `state` holds) as they
+    /// were. Checked first, so a bad record (from a take file) changes
+    /// nothing. A free-form puppet whose weights changed returns the solver
+    /// rebuild to run (as [`Stage::paint`]).
+    fn restore(&mut self, puppet: u32, state: &Snapshot) -> Result<Option<Rebuild>, CommandError> {
+        let p = self.puppet(puppet)?;
+        let refuse = |problem: String| CommandError::Restore { puppet, problem };
+        if let Some(w) = &state.weights {
+            if w.len() != p.weights.len() {
+                return Err(refuse(format!(
+                    "{} weights for {} triangles",
+                    w.len(),
+                    p.weights.len()
+                )));
+            }
+            if !w.iter().all(|w| (MIN_WEIGHT..=MAX_WEIGHT).contains(w)) {
+                return Err(refuse(format!(
+                    "weights must be {MIN_WEIGHT} to {MAX_WEIGHT}"
+                )));
+            }
+        }
+        let mut pins = Vec::new();
+        for pin in state.pins.iter().flatten() {
+            let grip = p
+                .grip_of(pin.grip)
+                .ok_or_else(|| refuse(format!("pin {}: not a grip of this puppet", pin.handle)))?;
+            if !(pin.at.is_finite() && pin.offset.is_finite()) {
+                return Err(refuse(format!("pin {}: not a finite point", pin.handle)));
+            }
+            pins.push((pin, grip));
+        }
+        if state.pose.is_some() && !matches!(p.rig, Rig::Skeleton(_)) {
+            return Err(refuse("a pose, but the puppet has no skeleton".into()));
+        }
+        let index = puppet as usize;
+        if let Some(pose) = &state.pose {
+            let p = &mut self.puppets[index];
+            let Rig::Skeleton(r) = &mut p.rig else {
+                unreachable!("checked above")
+            };
+            let fk = puppetry_deform::skeleton::Pose {
+                roots: pose.roots.clone(),
+                angles: pose.angles.clone(),
+                lengths: pose.lengths.clone(),
+            };
+            r.restore_pose(fk, pose.joints.clone())
+                .map_err(|e| refuse(e.to_string()))?;
+            p.key_pose = pose.key.clone();
+            p.pose_generation += 1;
+            p.moved = true;
+        }
+        if state.pins.is_some() {
+            let keep: Vec<u64> = pins.iter().map(|(pin, _)| pin.handle).collect();
+            let gone: Vec<u64> = self.puppets[index]
+                .handles
+                .iter()
+                .filter(|h| h.kind == HandleKind::Pin && !keep.contains(&h.id))
+                .map(|h| h.id)
+                .collect();
+            for id in gone {
+                self.remove_handle(index, id);
+            }
+            for (pin, grip) in pins {
+                if self.puppets[index]
+                    .handles
+                    .iter()
+                    .any(|h| h.id == pin.handle)
+                {
+                    continue;
+                }
+                let owner = match pin.owner.as_str() {
+                    "config" => Owner::Config,
+                    other => Owner::Source(other.to_string()),
+                };
+                self.insert_handle(
+                    index,
+                    pin.handle,
+                    owner,
+                    HandleKind::Pin,
+                    grip,
+                    pin.at,
+                    pin.offset,
+                    None,
+                );
+            }
+        }
+        if let Some(w) = &state.weights {
+            let p = &mut self.puppets[index];
+            if *w != p.weights {
+                p.weights.clone_from(w);
+                p.weights_generation += 1;
+                if let Rig::Free(_) = p.rig {
+                    return Ok(self.rebuild(puppet));
+                }
+                p.weights_pending = true;
+                p.moved = true;
+            }
+        }
+        Ok(None)
     }
 
     /// The grid of a grid puppet for an export request: its size, rest
@@ -926,6 +1513,7 @@ impl Stage {
             path: p.mesh_file.clone(),
             mesh: p.source_mesh.clone(),
             weights: p.weights.clone(),
+            mode: p.save_weights,
         })
     }
 
@@ -959,7 +1547,7 @@ impl Stage {
             .filter_map(|h| match h.grip {
                 Grip::Point(anchor) => Some((h.grip, anchor_position(&p.mesh, anchor))),
                 Grip::GridHandle(i) => Some((h.grip, p.rig.grip_position(Grip::GridHandle(i))?)),
-                Grip::Joint(_) => None,
+                Grip::Joint(_) | Grip::Bone { .. } => None,
             })
             .collect();
         let now: Vec<Option<DVec2>> = p

@@ -23,6 +23,15 @@ pub enum Grip {
     GridHandle(usize),
     /// A joint of a skeleton puppet, by index.
     Joint(usize),
+    /// A point on a skeleton puppet's bone, in the bone's own frame:
+    /// `along` it (0 at the parent joint, 1 at the child) and `across` it
+    /// (stage units, to the left). FK turns the bone about its parent joint
+    /// so the point follows the finger; free mode moves both joints with it.
+    Bone {
+        index: usize,
+        along: f64,
+        across: f64,
+    },
 }
 
 /// A free-form puppet's solver.
@@ -227,7 +236,45 @@ impl Rig {
         match grip {
             Grip::Point(_) => None,
             Grip::GridHandle(i) | Grip::Joint(i) => self.points()?.get(i).copied(),
+            Grip::Bone {
+                index,
+                along,
+                across,
+            } => {
+                let Rig::Skeleton(r) = self else { return None };
+                let [a, c] = *r.deformer.skeleton().bones().get(index)?;
+                let joints = r.deformer.joints();
+                Some(bone_point(joints[a], joints[c], along, across))
+            }
         }
+    }
+
+    /// The bone of a skeleton puppet nearest to `p`, as a grip on the
+    /// point of the bone's frame that lies at `p`.
+    pub fn bone_near(&self, p: DVec2) -> Option<Grip> {
+        let Rig::Skeleton(r) = self else { return None };
+        let joints = r.deformer.joints();
+        let (index, _) = r
+            .deformer
+            .skeleton()
+            .bones()
+            .iter()
+            .enumerate()
+            .map(|(b, &[a, c])| (b, segment_distance(p, joints[a], joints[c])))
+            .min_by(|x, y| x.1.total_cmp(&y.1))?;
+        let [a, c] = r.deformer.skeleton().bones()[index];
+        let (from, d) = (joints[a], joints[c] - joints[a]);
+        let length = d.length();
+        if !(length > 0.0) {
+            return None;
+        }
+        let unit = d / length;
+        let local = p - from;
+        Some(Grip::Bone {
+            index,
+            along: local.dot(unit) / length,
+            across: unit.perp_dot(local),
+        })
     }
 
     /// Compiles (if `changed`) and solves for the handles' targets.
@@ -264,7 +311,7 @@ impl Rig {
                         match h.grip {
                             Grip::Point(a) => r.vertex_anchors.push(a),
                             Grip::GridHandle(i) => r.grid_indices.push(i),
-                            Grip::Joint(_) => {}
+                            Grip::Joint(_) | Grip::Bone { .. } => {}
                         }
                     }
                     r.ffd.compile(&r.vertex_anchors, &r.grid_indices)?;
@@ -275,7 +322,7 @@ impl Rig {
                     match h.grip {
                         Grip::Point(_) => r.vertex_targets.push(h.rig_target()),
                         Grip::GridHandle(_) => r.grid_targets.push(h.rig_target()),
-                        Grip::Joint(_) => {}
+                        Grip::Joint(_) | Grip::Bone { .. } => {}
                     }
                 }
                 r.ffd.update(&r.vertex_targets, &r.grid_targets)?;
@@ -284,10 +331,30 @@ impl Rig {
                 match r.mode {
                     SkeletonMode::Free => {
                         for h in handles {
-                            if let Grip::Joint(j) = h.grip
-                                && let Some(joint) = r.joints.get_mut(j)
-                            {
-                                *joint = h.rig_target();
+                            match h.grip {
+                                Grip::Joint(j) => {
+                                    if let Some(joint) = r.joints.get_mut(j) {
+                                        *joint = h.rig_target();
+                                    }
+                                }
+                                Grip::Bone {
+                                    index,
+                                    along,
+                                    across,
+                                } => {
+                                    // The bone keeps its shape and moves so
+                                    // its grabbed point is under the finger.
+                                    let Some(&[a, c]) = r.deformer.skeleton().bones().get(index)
+                                    else {
+                                        continue;
+                                    };
+                                    let (from, to) = (r.joints[a], r.joints[c]);
+                                    let shift =
+                                        h.rig_target() - bone_point(from, to, along, across);
+                                    r.joints[a] = from + shift;
+                                    r.joints[c] = to + shift;
+                                }
+                                _ => {}
                             }
                         }
                         r.deformer.update(&r.joints)?;
@@ -295,14 +362,42 @@ impl Rig {
                     SkeletonMode::Fk => {
                         let skeleton = r.deformer.skeleton();
                         for h in handles {
-                            let Grip::Joint(j) = h.grip else { continue };
-                            match r.bone_ending.get(j).copied().flatten() {
-                                Some(bone) => skeleton.aim(&mut r.pose, bone, h.rig_target())?,
-                                None => {
-                                    if let Some(k) = skeleton.roots().iter().position(|&x| x == j) {
-                                        r.pose.roots[k] = h.rig_target();
+                            match h.grip {
+                                Grip::Joint(j) => match r.bone_ending.get(j).copied().flatten() {
+                                    Some(bone) => {
+                                        skeleton.aim(&mut r.pose, bone, h.rig_target())?
                                     }
+                                    None => {
+                                        if let Some(k) =
+                                            skeleton.roots().iter().position(|&x| x == j)
+                                        {
+                                            r.pose.roots[k] = h.rig_target();
+                                        }
+                                    }
+                                },
+                                Grip::Bone {
+                                    index,
+                                    along,
+                                    across,
+                                } => {
+                                    let Some(&[a, _]) = skeleton.bones().get(index) else {
+                                        continue;
+                                    };
+                                    // The grabbed point lies `phi` off the
+                                    // bone's direction, seen from its parent
+                                    // joint: aim the bone that much short of
+                                    // the finger, and the point is on the ray
+                                    // to it. (`joints` is scratch here: it is
+                                    // set from the deformer below.)
+                                    skeleton.joints_into(&r.pose, &mut r.joints)?;
+                                    let pivot = r.joints[a];
+                                    let length = r.pose.lengths[index];
+                                    let phi = across.atan2(along * length);
+                                    let toward = pivot
+                                        + DVec2::from_angle(-phi).rotate(h.rig_target() - pivot);
+                                    skeleton.aim(&mut r.pose, index, toward)?;
                                 }
+                                _ => {}
                             }
                         }
                         r.deformer.update_pose(&r.pose)?;
@@ -375,9 +470,51 @@ impl SkeletonRig {
         Ok(())
     }
 
+    /// The pose state undo keeps: the FK pose and the joints.
+    pub(super) fn pose_state(&self) -> (Pose, Vec<DVec2>) {
+        (self.pose.clone(), self.joints.clone())
+    }
+
+    /// Puts back a pose state kept by [`SkeletonRig::pose_state`] (checked
+    /// against the skeleton, so a recorded one cannot break the solve).
+    pub(super) fn restore_pose(&mut self, pose: Pose, joints: Vec<DVec2>) -> Result<(), RigError> {
+        let skeleton = self.deformer.skeleton();
+        skeleton.joints_of(&pose)?;
+        if joints.len() != skeleton.joints().len() || !joints.iter().all(|j| j.is_finite()) {
+            return Err(RigError::Skeleton(
+                puppetry_deform::skeleton::SkeletonError::BadParameter {
+                    name: "joints",
+                    problem: "must be one finite point per joint",
+                    value: joints.len() as f64,
+                },
+            ));
+        }
+        self.pose = pose;
+        self.joints = joints;
+        Ok(())
+    }
+
     pub fn pose_names(&self) -> Vec<&str> {
         self.key_poses.iter().map(|(n, _)| n.as_str()).collect()
     }
+}
+
+/// The point of a bone's frame `along` it from `from` to `to` and
+/// `across` it (to the left).
+fn bone_point(from: DVec2, to: DVec2, along: f64, across: f64) -> DVec2 {
+    let d = to - from;
+    from + d * along + d.normalize_or_zero().perp() * across
+}
+
+/// Distance from `p` to the segment `a`–`b`.
+fn segment_distance(p: DVec2, a: DVec2, b: DVec2) -> f64 {
+    let d = b - a;
+    let t = if d.length_squared() > 0.0 {
+        ((p - a).dot(d) / d.length_squared()).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    p.distance(a + d * t)
 }
 
 /// A key pose of the stage file, in the mesh's coordinates.

@@ -2,11 +2,13 @@
 //! least-squares reference of the ARAP energies ([`fixtures`]), an
 //! allocation counter for the no-allocation tests ([`alloc`]), a
 //! pseudo-terminal standing in for a serial pad ([`pty`]), TUIO bundles as a
-//! table sends them ([`tuio`]), and where the checkout's files are
+//! table sends them ([`tuio`]), the fuzz tests' case count and input makers
+//! ([`fuzz`]), and where the checkout's files are
 //! ([`root`]). A dev-dependency only: nothing here ships.
 
 pub mod alloc;
 pub mod fixtures;
+pub mod fuzz;
 pub mod pty;
 pub mod tuio;
 

@@ -1,19 +1,21 @@
 //! The network edge: one port for HTTP and WebSocket, served by axum. It
 //! owns what a stranger can reach before any token is checked: the routes
 //! (the web client's files, puppet pictures, the WebSocket upgrade), the
-//! cap on open connections (past it a connection gets a 503 and is
-//! closed), request size limits, MIME types and 404s. Accept errors (a full
+//! WebSocket's Origin check, the cap on open connections (past it a
+//! connection gets a 503 and is closed) and on WebSockets per address,
+//! request size limits, MIME types and 404s. Accept errors (a full
 //! file table, say) back off inside axum's own accept loop instead of
 //! spinning.
 
+use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use axum::Router;
 use axum::body::Body;
 use axum::extract::ws::WebSocketUpgrade;
-use axum::extract::{Path, State};
-use axum::http::{HeaderValue, StatusCode, header};
+use axum::extract::{ConnectInfo, Path, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use include_dir::{Dir, include_dir};
@@ -59,19 +61,128 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .layer(RequestBodyLimitLayer::new(MAX_BODY))
 }
 
-async fn upgrade(State(shared): State<Arc<Shared>>, upgrade: WebSocketUpgrade) -> Response {
+/// The WebSocket upgrade. A page from a foreign origin is refused (403)
+/// before anything else, so a site a performer happens to visit cannot
+/// drive the stage with their token (cross-site WebSocket hijacking); past
+/// the per-address cap the socket is opened only to be closed with 1013
+/// and a reason a page can show.
+async fn upgrade(
+    State(shared): State<Arc<Shared>>,
+    ConnectInfo(PeerAddr(peer)): ConnectInfo<PeerAddr>,
+    headers: HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    if let Some(origin) = headers.get(header::ORIGIN) {
+        let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+        let allowed = &shared.people.access().allowed_origins;
+        if !origin_allowed(origin.to_str().unwrap_or(""), host, allowed) {
+            shared.log.warn(&peer.ip().to_string(), || {
+                format!(
+                    "WebSocket from origin {:?} refused (not the daemon's own nor in access.allowed_origins)",
+                    super::guard::clip(&String::from_utf8_lossy(origin.as_bytes()), 200)
+                )
+            });
+            return (
+                StatusCode::FORBIDDEN,
+                "this origin may not open the stage's WebSocket (see access.allowed_origins)\n",
+            )
+                .into_response();
+        }
+    }
+    let place = AddressPlace::take(&shared, peer.ip());
     // tungstenite zero-fills its whole read buffer before every read
     // attempt; clients send small messages, so a small buffer saves a
-    // 128 KiB memset per wake-up of every connection.
+    // 128 KiB memset per wake-up of every connection. Nothing is kept
+    // back for batching: each send goes out whole (frames are big).
     upgrade
         .max_message_size(MAX_CLIENT_MESSAGE)
         .max_frame_size(MAX_CLIENT_MESSAGE)
         .read_buffer_size(READ_BUFFER)
-        .on_upgrade(move |socket| async move {
-            if let Err(e) = websocket(socket, shared).await {
+        .write_buffer_size(0)
+        .on_upgrade(move |mut socket| async move {
+            let Some(place) = place else {
+                tracing::debug!(%peer, "WebSocket refused: too many from this address");
+                super::close_with(
+                    &mut socket,
+                    super::close::TRY_LATER,
+                    "too many connections from this address",
+                )
+                .await;
+                return;
+            };
+            if let Err(e) = websocket(socket, shared, peer.ip(), place).await {
                 tracing::debug!("websocket ended: {e}");
             }
         })
+}
+
+/// Whether a page of `origin` may open the WebSocket: its own page (the
+/// origin's host and port are the request's `Host`), or one listed.
+fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
+    let origin = origin.trim_end_matches('/');
+    if allowed
+        .iter()
+        .any(|a| a.trim_end_matches('/').eq_ignore_ascii_case(origin))
+    {
+        return true;
+    }
+    let authority = origin.split_once("://").map(|(_, rest)| rest).unwrap_or("");
+    match host {
+        Some(host) => !authority.is_empty() && authority.eq_ignore_ascii_case(host),
+        None => false,
+    }
+}
+
+/// The client's address, as axum's `ConnectInfo` carries it for the
+/// capped listener.
+#[derive(Debug, Clone, Copy)]
+pub struct PeerAddr(pub SocketAddr);
+
+impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, CappedListener>>
+    for PeerAddr
+{
+    fn connect_info(stream: axum::serve::IncomingStream<'_, CappedListener>) -> PeerAddr {
+        PeerAddr(*stream.remote_addr())
+    }
+}
+
+/// A WebSocket's place under its address's cap, given back when dropped.
+pub struct AddressPlace {
+    shared: Arc<Shared>,
+    ip: IpAddr,
+}
+
+impl AddressPlace {
+    /// A place for `ip`, or `None` if it has `max_per_address` already.
+    fn take(shared: &Arc<Shared>, ip: IpAddr) -> Option<AddressPlace> {
+        let cap = shared.people.access().max_per_address;
+        let mut open = shared.addresses.lock().unwrap_or_else(|p| p.into_inner());
+        let count = open.entry(ip).or_insert(0);
+        if *count >= cap {
+            return None;
+        }
+        *count += 1;
+        Some(AddressPlace {
+            shared: shared.clone(),
+            ip,
+        })
+    }
+}
+
+impl Drop for AddressPlace {
+    fn drop(&mut self) {
+        let mut open = self
+            .shared
+            .addresses
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
+        if let Some(count) = open.get_mut(&self.ip) {
+            *count -= 1;
+            if *count == 0 {
+                open.remove(&self.ip);
+            }
+        }
+    }
 }
 
 async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> Response {
@@ -228,5 +339,29 @@ impl tokio::io::AsyncWrite for CappedStream {
         cx: &mut std::task::Context<'_>,
     ) -> std::task::Poll<std::io::Result<()>> {
         std::pin::Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::origin_allowed;
+
+    #[test]
+    fn only_the_daemons_own_or_listed_origins_pass() {
+        let listed = vec!["https://show.example".to_string()];
+        let host = Some("127.0.0.1:8080");
+        assert!(origin_allowed("http://127.0.0.1:8080", host, &[]));
+        assert!(origin_allowed("https://show.example", host, &listed));
+        assert!(origin_allowed("https://SHOW.example/", host, &listed));
+        for foreign in [
+            "https://evil.example",
+            "http://127.0.0.1:8081",
+            "http://127.0.0.1:8080.evil.example",
+            "null",
+            "",
+        ] {
+            assert!(!origin_allowed(foreign, host, &listed), "{foreign}");
+        }
+        assert!(!origin_allowed("http://127.0.0.1:8080", None, &[]));
     }
 }

@@ -7,8 +7,11 @@
 
 mod edge;
 mod exports;
+pub mod guard;
+pub mod people;
 
 pub use edge::WebFiles;
+pub use people::People;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -26,7 +29,7 @@ use crate::protocol::{
     ClientMessage, GridBasis, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
     StageSize,
 };
-use crate::stage_thread::{Command, PuppetOutput};
+use crate::stage_thread::{Command, Edit, PuppetOutput};
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::{Change, Rig, Stage};
 
@@ -125,7 +128,12 @@ fn rig_description(rig: &Rig) -> RigDescription {
 /// What every connection task shares.
 pub struct Shared {
     pub stage: StageDescription,
-    pub tokens: Vec<String>,
+    /// Who may connect, and who is connected (`people`).
+    pub people: Arc<People>,
+    /// Client mistakes are logged through this, per client address.
+    pub log: guard::RateLog,
+    /// Open WebSocket connections per client address (`max_per_address`).
+    pub addresses: std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>,
     pub web_files: WebFiles,
     /// Open connections past which new ones are refused.
     pub max_connections: usize,
@@ -152,6 +160,8 @@ pub struct Shared {
     pub client_timeout: Duration,
     pub started: Instant,
     pub next_client: AtomicU64,
+    /// The stage's replay inputs, played and paused from the page.
+    pub replays: Arc<crate::sources::Replays>,
 }
 
 /// Binds the listener; `run` serves until `shutdown` resolves.
@@ -169,7 +179,7 @@ pub async fn run(
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) {
     let listener = edge::CappedListener::new(listener, shared.max_connections);
-    let app = edge::router(shared);
+    let app = edge::router(shared).into_make_service_with_connect_info::<edge::PeerAddr>();
     if let Err(e) = axum::serve(listener, app)
         .with_graceful_shutdown(shutdown)
         .await
@@ -178,47 +188,148 @@ pub async fn run(
     }
 }
 
-fn error_message(message: &str) -> Message {
-    Message::text(ServerMessage::error(message).to_text())
-}
-
 type Ws = WebSocket;
 
-async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
+/// Close codes the daemon sends (RFC 6455 and the application range).
+pub mod close {
+    /// A rule was broken: a foreign origin, no hello, too many bad messages.
+    pub const POLICY: u16 = 1008;
+    /// A message too large to read.
+    pub const TOO_LARGE: u16 = 1009;
+    /// Too many connections (from this address, or in total).
+    pub const TRY_LATER: u16 = 1013;
+    /// The hello's token was refused.
+    pub const TOKEN: u16 = 4001;
+}
+
+/// Sends a close frame with `code` and `reason`; the connection ends after.
+async fn close_with(ws: &mut Ws, code: u16, reason: &str) {
+    let frame = axum::extract::ws::CloseFrame {
+        code,
+        reason: reason.into(),
+    };
+    let _ =
+        tokio::time::timeout(Duration::from_secs(2), ws.send(Message::Close(Some(frame)))).await;
+}
+
+/// Sends a refusal, logged (rate-limited) under the client's address.
+async fn refuse(
+    ws: &mut Ws,
+    shared: &Shared,
+    peer: &str,
+    who: &str,
+    refusal: &guard::Refusal,
+) -> std::io::Result<()> {
+    shared.log.warn(peer, || {
+        format!("{who}: refused ({:?}): {}", refusal.code, refusal.message)
+    });
+    send(ws, Message::text(refusal.to_text()), shared.client_timeout).await
+}
+
+/// Whether a read error is a message over the size limit.
+fn too_large(error: &axum::Error) -> bool {
+    let text = error.to_string();
+    text.contains("too long") || text.contains("Space limit")
+}
+
+/// The too-large refusal (before closing with 1009).
+fn too_large_refusal() -> guard::Refusal {
+    guard::Refusal::new(
+        crate::protocol::ErrorCode::TooLarge,
+        format!("messages are at most {} KiB", MAX_CLIENT_MESSAGE / 1024),
+    )
+}
+
+/// Waits for the hello (skipping WebSocket pings): its role and token, or
+/// the connection is answered and closed.
+async fn read_hello(ws: &mut Ws, shared: &Shared, peer: &str) -> Option<(Role, Option<String>)> {
+    use crate::protocol::ErrorCode;
+    let deadline = tokio::time::Instant::now() + shared.client_timeout;
+    let first = loop {
+        match tokio::time::timeout_at(deadline, ws.next()).await {
+            Err(_) => {
+                close_with(ws, close::POLICY, "no hello in time").await;
+                return None;
+            }
+            Ok(None) | Ok(Some(Ok(Message::Close(_)))) => return None,
+            Ok(Some(Err(e))) if too_large(&e) => {
+                let _ = refuse(ws, shared, peer, "hello", &too_large_refusal()).await;
+                close_with(ws, close::TOO_LARGE, "message too large").await;
+                return None;
+            }
+            Ok(Some(Err(_))) => return None,
+            Ok(Some(Ok(Message::Ping(_) | Message::Pong(_)))) => continue,
+            Ok(Some(Ok(message))) => break message,
+        }
+    };
+    let refusal = match first {
+        Message::Text(text) => match serde_json::from_str::<ClientMessage>(&text) {
+            Ok(ClientMessage::Hello { role, token }) => return Some((role, token)),
+            Ok(other) => guard::Refusal::new(
+                ErrorCode::Hello,
+                format!(
+                    "the first message must be a hello, not {}",
+                    guard::type_name(&other)
+                ),
+            ),
+            Err(e) => guard::Refusal::new(
+                ErrorCode::Hello,
+                format!("the first message must be a hello: {e}"),
+            ),
+        },
+        _ => guard::Refusal::new(
+            ErrorCode::Binary,
+            "the first message must be a hello (text), not binary",
+        ),
+    };
+    let _ = refuse(ws, shared, peer, "hello", &refusal).await;
+    close_with(ws, close::POLICY, "the first message must be a hello").await;
+    None
+}
+
+/// Serves one WebSocket client from its hello to its end. `place` holds
+/// the client's place under its address's cap.
+async fn websocket(
+    mut ws: Ws,
+    shared: Arc<Shared>,
+    peer: std::net::IpAddr,
+    _place: edge::AddressPlace,
+) -> std::io::Result<()> {
+    use crate::protocol::ErrorCode;
     let io = std::io::Error::other;
+    let peer = peer.to_string();
     let client = shared.next_client.fetch_add(1, Ordering::Relaxed);
     let source = format!("client:{client}");
-    // The first message must be a hello, in time.
-    let hello = tokio::time::timeout(shared.client_timeout, ws.next()).await;
-    let role = match hello {
-        Ok(Some(Ok(Message::Text(text)))) => match serde_json::from_str::<ClientMessage>(&text) {
-            Ok(ClientMessage::Hello {
-                role: Role::Viewer, ..
-            }) => Role::Viewer,
-            Ok(ClientMessage::Hello {
-                role: Role::Performer,
-                token: Some(token),
-            }) if shared.tokens.contains(&token) => Role::Performer,
-            Ok(ClientMessage::Hello {
-                role: Role::Performer,
-                ..
-            }) => {
-                let _ = ws
-                    .send(error_message("performer needs a valid token"))
-                    .await;
-                let _ = ws.send(Message::Close(None)).await;
-                return Ok(());
-            }
-            _ => {
-                let _ = ws
-                    .send(error_message("the first message must be a hello"))
-                    .await;
-                let _ = ws.send(Message::Close(None)).await;
-                return Ok(());
-            }
-        },
-        _ => return Ok(()),
+    let Some((asked, token)) = read_hello(&mut ws, &shared, &peer).await else {
+        return Ok(());
     };
+    let credential = token
+        .as_deref()
+        .and_then(|t| people::credential(shared.people.access(), t));
+    if asked != Role::Viewer && credential.is_none() {
+        let refusal = guard::Refusal::new(
+            ErrorCode::BadToken,
+            "token refused: this connection may only view (say hello as a viewer)",
+        );
+        let _ = refuse(&mut ws, &shared, &peer, &source, &refusal).await;
+        close_with(&mut ws, close::TOKEN, "token refused").await;
+        return Ok(());
+    }
+    let (identity, _member) = shared.people.join(&source, asked, credential);
+    let role = identity.role;
+    let permissions = guard::Permissions {
+        role,
+        puppets: identity.puppets.clone(),
+    };
+    if let Some(puppets) = &identity.puppets {
+        // Before any of this client's input: the stage thread takes
+        // commands in order.
+        let limit = Command::Limit {
+            source: source.clone(),
+            puppets: Some(puppets.clone()),
+        };
+        let _ = shared.commands.send(limit).await;
+    }
     let mut handles: Vec<_> = shared.outputs.iter().map(|o| o.handles.clone()).collect();
     let mut frames: Vec<_> = shared.outputs.iter().map(|o| o.frame.clone()).collect();
     let mut rigs: Vec<_> = shared.outputs.iter().map(|o| o.rig.clone()).collect();
@@ -227,9 +338,24 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
     // Key poses and cursors: everyone gets them on connecting.
     let mut keys: Vec<_> = shared.outputs.iter().map(|o| o.keys.clone()).collect();
-    for k in &mut keys {
-        k.mark_changed();
+    // Newcomers get the whole live state: painted weights, undo history,
+    // skeleton poses, the handle set (with its generation) and where each
+    // handle is, and which replays play.
+    let mut handle_frames: Vec<_> = shared
+        .outputs
+        .iter()
+        .map(|o| o.handle_frame.clone())
+        .collect();
+    let mut history: Vec<_> = shared.outputs.iter().map(|o| o.history.clone()).collect();
+    let mut poses: Vec<_> = shared.outputs.iter().map(|o| o.pose.clone()).collect();
+    let mut inputs = shared.replays.message();
+    for w in keys.iter_mut().chain(&mut weights).chain(&mut history) {
+        w.mark_changed();
     }
+    for p in poses.iter_mut().flatten() {
+        p.mark_changed();
+    }
+    inputs.mark_changed();
     let puppets = shared
         .stage
         .puppets
@@ -243,6 +369,7 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let stage_message = ServerMessage::Stage {
         client,
         role,
+        you: identity.person.clone(),
         stage: shared.stage.size,
         puppets,
     };
@@ -256,9 +383,14 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
     let mut cursors = shared.cursors.clone();
     let mut take = shared.take.clone();
     let mut export = shared.export_state.subscribe();
+    let mut people = shared.people.subscribe();
+    people.mark_changed();
     // Frames published before this client connected still count as new.
-    for f in frames.iter_mut().chain(&mut rigs) {
+    for f in frames.iter_mut().chain(&mut rigs).chain(&mut handle_frames) {
         f.mark_changed();
+    }
+    for h in &mut handles {
+        h.mark_changed();
     }
     cursors.mark_changed();
     take.mark_changed();
@@ -291,6 +423,27 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                     let text = handles[i].borrow_and_update().text.to_string();
                     send(&mut ws, Message::text(text), shared.client_timeout).await?;
                 }
+                // After the handles message, so its generation is known.
+                if handle_frames[i].has_changed().unwrap_or(false) {
+                    let frame = handle_frames[i].borrow_and_update().clone();
+                    if let Some(bytes) = frame {
+                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
+                    }
+                }
+                if history[i].has_changed().unwrap_or(false) {
+                    let text = history[i].borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                }
+                if let Some(pose) = &mut poses[i]
+                    && pose.has_changed().unwrap_or(false)
+                {
+                    let text = pose.borrow_and_update().to_string();
+                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                }
+            }
+            if inputs.has_changed().unwrap_or(false) {
+                let text = inputs.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
             }
             if cursors.has_changed().unwrap_or(false) {
                 let text = cursors.borrow_and_update().to_string();
@@ -304,6 +457,10 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                 let text = export.borrow_and_update().to_string();
                 send(&mut ws, Message::text(text), shared.client_timeout).await?;
             }
+            if people.has_changed().unwrap_or(false) {
+                let text = people.borrow_and_update().to_string();
+                send(&mut ws, Message::text(text), shared.client_timeout).await?;
+            }
             tokio::select! {
                 // `changed` marks the value seen: send it here.
                 changed = export.changed() => {
@@ -312,56 +469,84 @@ async fn websocket(mut ws: Ws, shared: Arc<Shared>) -> std::io::Result<()> {
                         send(&mut ws, Message::text(text), shared.client_timeout).await?;
                     }
                 }
+                changed = people.changed() => {
+                    if changed.is_ok() {
+                        let text = people.borrow_and_update().to_string();
+                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                    }
+                }
+                // `changed` marks the value seen: send it here.
+                changed = inputs.changed() => {
+                    if changed.is_ok() {
+                        let text = inputs.borrow_and_update().to_string();
+                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                    }
+                }
                 changed = changes.changed() => {
                     if changed.is_err() {
                         // The stage thread stopped: the daemon is shutting down.
-                        let _ = ws.send(Message::Close(None)).await;
+                        close_with(&mut ws, 1001, "the daemon is shutting down").await;
                         return Ok(());
                     }
                 }
-                incoming = ws.next() => match incoming {
-                    None => return Ok(()),
-                    Some(Err(e)) => return Err(io(e)),
-                    Some(Ok(Message::Text(text))) => {
-                        match handle_message(text.as_str(), role, &source, &shared).await {
-                            Ok(answer) => {
-                                bad_in_a_row = 0;
-                                if let Some(answer) = answer {
-                                    send(&mut ws, Message::text(answer), shared.client_timeout).await?;
+                incoming = ws.next() => {
+                    let refusal = match incoming {
+                        None => return Ok(()),
+                        Some(Err(e)) if too_large(&e) => {
+                            let _ = refuse(&mut ws, &shared, &peer, &source, &too_large_refusal()).await;
+                            close_with(&mut ws, close::TOO_LARGE, "message too large").await;
+                            return Ok(());
+                        }
+                        Some(Err(e)) => return Err(io(e)),
+                        Some(Ok(Message::Text(text))) => {
+                            match handle_message(text.as_str(), &permissions, &source, &shared).await {
+                                Ok(answer) => {
+                                    bad_in_a_row = 0;
+                                    if let Some(answer) = answer {
+                                        send(&mut ws, Message::text(answer), shared.client_timeout).await?;
+                                    }
+                                    continue;
                                 }
-                            }
-                            Err(problem) => {
-                                bad_in_a_row += 1;
-                                send(&mut ws, error_message(&problem), shared.client_timeout).await?;
-                                if bad_in_a_row >= MAX_BAD_MESSAGES {
-                                    let _ = ws.send(Message::Close(None)).await;
-                                    return Ok(());
-                                }
+                                Err(refusal) => refusal,
                             }
                         }
-                    }
-                    Some(Ok(Message::Binary(_))) => {
-                        bad_in_a_row += 1;
-                        send(&mut ws, error_message("binary messages are not accepted"), shared.client_timeout).await?;
-                        if bad_in_a_row >= MAX_BAD_MESSAGES {
+                        Some(Ok(Message::Binary(_))) => guard::Refusal::new(
+                            ErrorCode::Binary,
+                            "binary messages are not accepted (send JSON text)",
+                        ),
+                        Some(Ok(Message::Close(_))) => {
+                            // Answer the close, so the client sees a clean 1000.
                             let _ = ws.send(Message::Close(None)).await;
                             return Ok(());
                         }
-                    }
-                    Some(Ok(Message::Close(_))) => {
-                        // Answer the close, so the client sees a clean 1000.
-                        let _ = ws.send(Message::Close(None)).await;
+                        Some(Ok(_)) => continue,
+                    };
+                    bad_in_a_row += 1;
+                    refuse(&mut ws, &shared, &peer, &source, &refusal).await?;
+                    if bad_in_a_row >= MAX_BAD_MESSAGES {
+                        close_with(&mut ws, close::POLICY, "too many bad messages").await;
                         return Ok(());
                     }
-                    Some(Ok(_)) => {}
-                },
+                }
             }
         }
     }
     .await;
-    if role == Role::Performer {
+    if role != Role::Viewer {
         // Whatever this client held is let go.
-        let _ = shared.commands.send(Command::ReleaseSource(source)).await;
+        let _ = shared
+            .commands
+            .send(Command::ReleaseSource(source.clone()))
+            .await;
+    }
+    if identity.puppets.is_some() {
+        let _ = shared
+            .commands
+            .send(Command::Limit {
+                source,
+                puppets: None,
+            })
+            .await;
     }
     result
 }
@@ -380,7 +565,9 @@ async fn send(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Resu
 async fn ask<T>(
     shared: &Shared,
     command: impl FnOnce(crate::stage_thread::Reply<T>) -> Command,
-) -> Result<T, String> {
+) -> Result<T, guard::Refusal> {
+    use crate::protocol::ErrorCode;
+    use puppetry_stage::CommandError as E;
     let (reply, answer) = tokio::sync::oneshot::channel();
     shared
         .commands
@@ -390,40 +577,38 @@ async fn ask<T>(
     answer
         .await
         .map_err(|_| "the stage is shutting down".to_string())?
-        .map_err(|e| e.to_string())
-}
-
-/// Writes `text` to `path` atomically: a temporary file beside it, synced,
-/// then renamed over it, so readers see the old file or the new, never half.
-fn write_atomically(path: &std::path::Path, text: &str) -> std::io::Result<()> {
-    use std::io::Write;
-    let name = path
-        .file_name()
-        .ok_or_else(|| std::io::Error::other("not a file path"))?
-        .to_string_lossy();
-    let temporary = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let result = (|| {
-        let mut file = std::fs::File::create(&temporary)?;
-        file.write_all(text.as_bytes())?;
-        file.sync_all()?;
-        std::fs::rename(&temporary, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temporary);
-    }
-    result
+        .map_err(|e| {
+            let code = match &e {
+                E::NoSuchPuppet { .. }
+                | E::NoGrid { .. }
+                | E::NoSkeleton { .. }
+                | E::NoKeyFile { .. } => ErrorCode::NotFound,
+                E::BadBrush | E::BadPadPoint { .. } => ErrorCode::OutOfRange,
+                _ => ErrorCode::Failed,
+            };
+            guard::Refusal::new(code, e.to_string())
+        })
 }
 
 /// Acts on one text message of a connected client; `Ok` may carry an
 /// answer for this client, `Err` is the problem to report back.
 async fn handle_message(
     text: &str,
-    role: Role,
+    who: &guard::Permissions,
     source: &str,
     shared: &Shared,
-) -> Result<Option<String>, String> {
-    let message: ClientMessage =
-        serde_json::from_str(text).map_err(|e| format!("bad message: {e}"))?;
+) -> Result<Option<String>, guard::Refusal> {
+    use crate::protocol::ErrorCode;
+    if text.len() > MAX_CLIENT_MESSAGE {
+        return Err(too_large_refusal());
+    }
+    let message: ClientMessage = serde_json::from_str(text)
+        .map_err(|e| guard::Refusal::new(ErrorCode::BadMessage, format!("bad message: {e}")))?;
+    guard::allowed(who, &message)?;
+    guard::check_ranges(&message)?;
+    if let ClientMessage::Ping { t } = message {
+        return Ok(Some(ServerMessage::Pong { t }.to_text()));
+    }
     if let ClientMessage::ExportGrid { puppet } = message {
         // Read-only: viewers may ask too.
         return ask(shared, |reply| Command::ExportGrid { puppet, reply })
@@ -442,10 +627,7 @@ async fn handle_message(
             });
     }
     if let ClientMessage::ListTakes = message {
-        return list_takes(shared).await.map(Some);
-    }
-    if role != Role::Performer && !matches!(message, ClientMessage::Hello { .. }) {
-        return Err("viewers cannot send input".into());
+        return Ok(Some(list_takes(shared).await?));
     }
     let command = match message {
         ClientMessage::Hello { .. } => return Err("already said hello".into()),
@@ -455,11 +637,20 @@ async fn handle_message(
                 time: shared.started.elapsed().as_secs_f64(),
                 contacts: Vec::with_capacity(contacts.len()),
             };
-            for c in contacts {
+            for (i, c) in contacts.into_iter().enumerate() {
                 let position = match (c.x, c.y) {
                     (Some(x), Some(y)) if x.is_finite() && y.is_finite() => DVec2::new(x, y),
                     (None, None) if c.phase == Phase::Up => DVec2::ZERO,
-                    _ => return Err(format!("contact {}: needs finite x and y", c.id)),
+                    _ => {
+                        return Err(guard::Refusal::new(
+                            ErrorCode::BadMessage,
+                            format!(
+                                "contact {}: needs x and y (only an up may leave them out)",
+                                c.id
+                            ),
+                        )
+                        .at(format!("contacts[{i}]")));
+                    }
                 };
                 frame.contacts.push(Contact::new(c.id, c.phase, position));
             }
@@ -480,10 +671,12 @@ async fn handle_message(
             y,
             radius,
             strength,
+            stroke,
         } => {
-            let ok = |v: f64| v.is_finite() && v > 0.0;
-            if !(x.is_finite() && y.is_finite() && ok(radius) && ok(strength)) {
-                return Err("paint needs finite x, y and positive radius and strength".into());
+            // The stage bounds the brush (`radius`, `strength`) and names
+            // the field it refuses.
+            if !(x.is_finite() && y.is_finite()) {
+                return Err("paint needs finite x and y".into());
             }
             let at = DVec2::new(x, y);
             ask(shared, |reply| Command::Paint {
@@ -491,9 +684,17 @@ async fn handle_message(
                 at,
                 radius,
                 strength,
+                stroke,
                 reply,
             })
             .await?;
+            return Ok(None);
+        }
+        ClientMessage::Undo { puppet } => return edit(shared, puppet, Edit::Undo).await,
+        ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
+        ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,
+        ClientMessage::Replay { source, playing } => {
+            shared.replays.set(&source, playing)?;
             return Ok(None);
         }
         ClientMessage::Pose {
@@ -517,13 +718,10 @@ async fn handle_message(
         }
         ClientMessage::SaveWeights { puppet } => {
             let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
-            let path = file.path.clone();
-            let written = tokio::task::spawn_blocking(move || {
-                let path = file.path.clone();
-                let text = file.text().map_err(|e| e.to_string())?;
-                write_atomically(&path, &text).map_err(|e| format!("{}: {e}", path.display()))
-            });
-            written
+            // A new versioned file beside the mesh, unless the stage file
+            // says to overwrite it (`WeightsFile::save`).
+            let written = tokio::task::spawn_blocking(move || file.save());
+            let path = written
                 .await
                 .map_err(|e| format!("save_weights: {e}"))?
                 .map_err(|e| format!("save_weights: {e}"))?;
@@ -535,7 +733,9 @@ async fn handle_message(
                 .to_text(),
             ));
         }
-        ClientMessage::ExportGrid { .. } | ClientMessage::ListTakes => {
+        ClientMessage::ExportGrid { .. }
+        | ClientMessage::ListTakes
+        | ClientMessage::Ping { .. } => {
             unreachable!("answered above")
         }
         ClientMessage::Record { name } => {
@@ -631,7 +831,18 @@ async fn handle_message(
         .send(command)
         .await
         .map(|()| None)
-        .map_err(|_| "the stage is shutting down".to_string())
+        .map_err(|_| "the stage is shutting down".into())
+}
+
+/// Undo, redo or reset a puppet's edits.
+async fn edit(shared: &Shared, puppet: u32, edit: Edit) -> Result<Option<String>, guard::Refusal> {
+    ask(shared, |reply| Command::Edit {
+        puppet,
+        edit,
+        reply,
+    })
+    .await
+    .map(|()| None)
 }
 
 async fn start_take(

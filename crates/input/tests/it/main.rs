@@ -6,6 +6,7 @@ mod common {
     pub use puppetry_testkit::*;
 }
 
+mod fuzz;
 mod hid;
 mod input;
 mod mouse;

@@ -10,9 +10,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::DVec2;
-use puppetry_mesh::build::{MeshOptions, mesh_png, quality, triangulate};
+use puppetry_mesh::build::{MeshOptions, mesh_picture, mesh_png, quality, triangulate};
 use puppetry_mesh::polygon::{Polygon, Shape, signed_area};
-use puppetry_mesh::trace::{trace_png, trace_rgba};
+use puppetry_mesh::trace::{PictureWarning, trace_png, trace_rgba};
 use puppetry_mesh::{Locator, Mesh, MeshError, cross};
 
 // ---------------------------------------------------------------- helpers
@@ -324,6 +324,13 @@ fn traced_disc_is_round_and_y_up() {
     let rgba = picture(100, 80, |x, y| disc_alpha(x, y, cx, cy, r));
     let traced = trace_rgba("disc", 100, 80, &rgba, 0.3).unwrap();
     assert_eq!((traced.width, traced.height), (100, 80));
+    assert_eq!(traced.warnings, [], "a cut-out figure is what is wanted");
+    let solid = trace_rgba("solid", 10, 10, &[255; 400], 0.3).unwrap();
+    assert!(
+        matches!(&solid.warnings[..], [PictureWarning::FullyOpaque { file, .. }] if file == "solid"),
+        "{:?}",
+        solid.warnings
+    );
     assert_eq!(traced.shape.polygons.len(), 1);
     let outer = &traced.shape.polygons[0].outer;
     let area = signed_area(outer);
@@ -483,7 +490,22 @@ fn picture_without_alpha_is_a_rectangle() {
     assert_eq!(traced.shape.polygons.len(), 1);
     let outer = &traced.shape.polygons[0].outer;
     assert!((signed_area(outer) - (w * h) as f64).abs() < 1e-9);
+    // Rarely what was meant, so said plainly, as a value to pass on.
+    let expected = PictureWarning::FullyOpaque {
+        file: path.display().to_string(),
+        width: w,
+        height: h,
+    };
+    assert_eq!(traced.warnings, std::slice::from_ref(&expected));
+    let meshed = mesh_picture(&path, &target(300)).unwrap();
+    assert_eq!(meshed.warnings, [expected]);
+    let message = meshed.warnings[0].to_string();
+    assert!(
+        message.contains("every pixel is opaque") && message.contains("64×40 rectangle"),
+        "{message}"
+    );
     let mesh = mesh_png(&path, &target(300)).unwrap();
+    assert_eq!(mesh, meshed.mesh);
     assert!((mesh_area(&mesh) - (w * h) as f64).abs() < 1e-6);
     let uv = mesh.uv().unwrap();
     for (v, t) in mesh.vertices().iter().zip(uv) {

@@ -684,3 +684,53 @@ fn the_lp_ffd_row_minimises_the_lp_ffd_energy() {
         }
     }
 }
+
+#[test]
+fn a_fully_opaque_picture_meshes_as_its_rectangle_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    // A photo-like picture: RGB, no alpha channel at all.
+    let mut png_bytes = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut png_bytes, 40, 30);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().unwrap();
+        writer.write_image_data(&[200u8; 40 * 30 * 3]).unwrap();
+    }
+    let photo = scratch(&dir, "photo.png", &png_bytes);
+    let out_path = dir.path().join("photo.mesh.json");
+    let out = puppetry(&[
+        "mesh",
+        photo.to_str().unwrap(),
+        "-o",
+        out_path.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let warning = stderr
+        .lines()
+        .find(|l| l.starts_with("warning: "))
+        .unwrap_or_else(|| panic!("no warning for an opaque picture:\n{stderr}"));
+    assert!(
+        warning.contains("photo.png")
+            && warning.contains("opaque")
+            && warning.contains("40×30 rectangle"),
+        "{warning}"
+    );
+    let mesh = Mesh::load(&out_path).unwrap();
+    assert!(mesh.vertices().len() > 4, "still meshed");
+
+    // The demo puppet has a transparent background: no warning.
+    let demo = puppetry_testkit::root().join("assets/gingerbread/gingerbread.png");
+    let out = puppetry(&[
+        "mesh",
+        demo.to_str().unwrap(),
+        "--vertices",
+        "200",
+        "-o",
+        dir.path().join("demo.mesh.json").to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("warning"), "{stderr}");
+}

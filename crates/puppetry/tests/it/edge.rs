@@ -177,3 +177,192 @@ async fn ten_times_the_connection_cap_is_refused_and_frames_keep_coming() {
         "the daemon panicked"
     );
 }
+
+/// Reads until the next `error` message.
+async fn next_error(ws: &mut Client) -> serde_json::Value {
+    loop {
+        let m = next_text(ws).await;
+        if m["type"] == "error" {
+            return m;
+        }
+    }
+}
+
+/// Opens a WebSocket and sends `first` before any hello.
+async fn open(running: &puppetry_daemon::serve::Running, first: Message) -> Client {
+    let url = format!("ws://{}/ws", running.address);
+    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    ws.send(first).await.unwrap();
+    ws
+}
+
+/// `[[[…]]]` nested `depth` deep, as a message's field.
+fn nested(depth: usize) -> String {
+    format!(
+        r#"{{"type": "contacts", "contacts": {}{}}}"#,
+        "[".repeat(depth),
+        "]".repeat(depth)
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_messages_get_typed_errors_and_closes_say_why() {
+    count_daemon_panics();
+    let panics_before = DAEMON_PANICS.load(Ordering::SeqCst);
+    let running = daemon("").await;
+    let performer = json!({"type": "hello", "role": "performer", "token": "secret"});
+
+    // Before the hello: a binary message, and a deeply nested text.
+    let mut ws = open(&running, Message::binary(vec![0u8; 64])).await;
+    let error = next_error(&mut ws).await;
+    assert_eq!(error["code"], "binary", "{error}");
+    assert_eq!(
+        crate::roles::until_close(&mut ws).await,
+        (1008, "the first message must be a hello".to_string())
+    );
+    let mut ws = open(&running, Message::text(nested(10_000))).await;
+    assert_eq!(next_error(&mut ws).await["code"], "hello");
+    assert_eq!(crate::roles::until_close(&mut ws).await.0, 1008);
+
+    // After it: deeply nested JSON is a bad message and the client goes on.
+    let (mut ws, _) = connect(&running, performer.clone()).await;
+    ws.send(Message::text(nested(10_000))).await.unwrap();
+    let error = next_error(&mut ws).await;
+    assert_eq!(error["code"], "bad_message", "{error}");
+    ws.send(Message::text(r#"{"type": "ping", "t": 7.5}"#))
+        .await
+        .unwrap();
+    loop {
+        let m = next_text(&mut ws).await;
+        if m["type"] == "pong" {
+            assert_eq!(m["t"], 7.5);
+            break;
+        }
+    }
+    // Coordinates out of range name their field (1e12 was silently
+    // ignored, 1e9 taken).
+    for (message, field) in [
+        (
+            json!({"type": "contacts", "contacts": [{"id": 1, "phase": "down", "x": 1e12, "y": 300.0}]}),
+            "contacts[0].x",
+        ),
+        (
+            json!({"type": "contacts", "contacts": [{"id": 1, "phase": "down", "x": 10.0, "y": 10.0},
+                                                    {"id": 2, "phase": "down", "x": 10.0, "y": -1e9}]}),
+            "contacts[1].y",
+        ),
+        (json!({"type": "pin", "x": 1e12, "y": 300.0}), "x"),
+        (
+            json!({"type": "cursor", "puppet": 0, "at": [0.5, 1e300]}),
+            "at[1]",
+        ),
+    ] {
+        ws.send(Message::text(message.to_string())).await.unwrap();
+        let error = next_error(&mut ws).await;
+        assert_eq!(error["code"], "out_of_range", "{error}");
+        assert_eq!(error["field"], field, "{error}");
+    }
+    // Over 64 KiB: too large, then a close frame saying so.
+    let big = format!(
+        r#"{{"type": "pin", "x": 1, "y": 1, "pad": "{}"}}"#,
+        "x".repeat(70 * 1024)
+    );
+    ws.send(Message::text(big)).await.unwrap();
+    assert_eq!(next_error(&mut ws).await["code"], "too_large");
+    assert_eq!(
+        crate::roles::until_close(&mut ws).await,
+        (1009, "message too large".to_string())
+    );
+
+    // Too many bad messages in a row: closed, saying why.
+    let (mut ws, _) = connect(&running, performer.clone()).await;
+    for _ in 0..puppetry_daemon::stream::MAX_BAD_MESSAGES {
+        ws.send(Message::binary(vec![1u8])).await.unwrap();
+    }
+    assert_eq!(
+        crate::roles::until_close(&mut ws).await,
+        (1008, "too many bad messages".to_string())
+    );
+
+    // The daemon is still serving.
+    let (_, stage) = connect(&running, performer).await;
+    assert_eq!(stage["type"], "stage");
+    running.shutdown().await;
+    assert_eq!(
+        DAEMON_PANICS.load(Ordering::SeqCst),
+        panics_before,
+        "the daemon panicked"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn errors_echo_at_most_200_characters_of_input() {
+    let running = daemon("").await;
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
+    let (mut ws, _) = connect(&running, hello).await;
+    let long = "q".repeat(3000);
+    for message in [
+        json!({"type": long}).to_string(),
+        json!({"type": "pin", "x": 1.0, "y": 1.0, long.clone(): 1}).to_string(),
+        json!({"type": "play", "take": long}).to_string(),
+        json!({"type": "record", "name": long}).to_string(),
+    ] {
+        ws.send(Message::text(message.clone())).await.unwrap();
+        let error = next_error(&mut ws).await;
+        let text = error["message"].as_str().unwrap();
+        assert!(
+            !text.contains(&"q".repeat(201)),
+            "{} characters echoed: {text:.300}",
+            text.matches('q').count()
+        );
+        assert!(text.chars().count() <= 620, "{text}");
+    }
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_past_the_per_address_cap_are_closed_saying_why() {
+    let mut config = stage_config("");
+    config.access.max_per_address = 3;
+    let running =
+        puppetry_daemon::serve::start(&config, puppetry_daemon::stream::WebFiles::Embedded, None)
+            .await
+            .unwrap();
+    let viewer = json!({"type": "hello", "role": "viewer"});
+    let mut open_ones = Vec::new();
+    for _ in 0..3 {
+        let (ws, stage) = connect(&running, viewer.clone()).await;
+        assert_eq!(stage["type"], "stage");
+        open_ones.push(ws);
+    }
+    // The fourth from this address is opened only to be closed.
+    let url = format!("ws://{}/ws", running.address);
+    for _ in 0..3 {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .unwrap();
+        assert_eq!(
+            crate::roles::until_close(&mut ws).await,
+            (1013, "too many connections from this address".to_string())
+        );
+    }
+    // A place given back is taken again (the server notices the close
+    // asynchronously: a bounded number of tries).
+    drop(open_ones.pop());
+    let mut served = false;
+    for _ in 0..200 {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .unwrap();
+        ws.send(Message::text(viewer.to_string())).await.unwrap();
+        match next_message(&mut ws).await {
+            Message::Text(_) => {
+                served = true;
+                break;
+            }
+            _ => tokio::time::sleep(std::time::Duration::from_millis(50)).await,
+        }
+    }
+    assert!(served, "a freed place is served");
+    running.shutdown().await;
+}

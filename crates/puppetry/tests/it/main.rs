@@ -5,14 +5,19 @@
 
 mod common;
 
+mod bad_input;
 mod cli;
 mod config;
 mod devices;
 mod edge;
+mod fuzz;
 mod install;
+mod memory;
 mod osc;
 mod rigs;
+mod roles;
 mod serve;
+mod stage_state;
 mod takes;
 mod web;
 mod web_protocol;

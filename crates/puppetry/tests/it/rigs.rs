@@ -110,6 +110,10 @@ client_timeout_s = 5
 
 [access]
 performer_tokens = ["secret"]
+[[access.person]]
+name = "Director"
+role = "director"
+token = "boss"
 
 [[puppet]]
 name = "gingerbread"
@@ -174,10 +178,11 @@ async fn run(config: &StageConfig) -> Running {
         .unwrap()
 }
 
-async fn performer(running: &Running) -> (Conn, Value) {
+/// A director's connection (directors paint and save as well as perform).
+async fn director(running: &Running) -> (Conn, Value) {
     let (ws, stage) = connect(
         running,
-        json!({"type": "hello", "role": "performer", "token": "secret"}),
+        json!({"type": "hello", "role": "director", "token": "boss"}),
     )
     .await;
     let conn = Conn {
@@ -272,7 +277,7 @@ async fn a_replay_drags_a_grid_handle_and_a_vertex_handle_like_a_direct_lp_ffd_s
     assert!(max_distance(&expected, mesh.vertices()) > 20.0, "it moved");
 
     let running = run(&config(&demo_mesh(), true, GRID, Some(&replay))).await;
-    let (mut ws, stage_message) = performer(&running).await;
+    let (mut ws, stage_message) = director(&running).await;
     let rig = &stage_message["puppets"][0]["rig"];
     assert_eq!(rig["kind"], "grid");
     assert_eq!(
@@ -310,7 +315,7 @@ async fn a_replay_drags_a_grid_handle_and_a_vertex_handle_like_a_direct_lp_ffd_s
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn contacts_grab_grid_handles_and_points_and_say_which() {
     let running = run(&config(&demo_mesh(), true, GRID, None)).await;
-    let (mut ws, stage_message) = performer(&running).await;
+    let (mut ws, stage_message) = director(&running).await;
     let rest = &stage_message["puppets"][0]["rig"]["rest"][95];
     let (x, y) = (rest[0].as_f64().unwrap() + 3.0, rest[1].as_f64().unwrap());
     ws.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "down", "x": x, "y": y}]}))
@@ -382,7 +387,7 @@ async fn a_replay_drags_a_joint_in_free_mode_like_a_direct_solve() {
     let expected = direct.update(&joints).unwrap().to_vec();
 
     let running = run(&config(&demo_mesh(), false, &rig, Some(&replay))).await;
-    let (mut ws, stage_message) = performer(&running).await;
+    let (mut ws, stage_message) = director(&running).await;
     assert_eq!(stage_message["puppets"][0]["rig"]["kind"], "skeleton");
     assert_eq!(stage_message["puppets"][0]["rig"]["mode"], "free");
     let seen = ws
@@ -424,7 +429,7 @@ async fn a_replay_turns_a_bone_in_fk_mode_like_a_direct_solve() {
     );
 
     let running = run(&config(&demo_mesh(), false, &rig, Some(&replay))).await;
-    let (mut ws, _) = performer(&running).await;
+    let (mut ws, _) = director(&running).await;
     ws.frame_until(1, |v| max_distance(v, &expected) < 1e-2)
         .await;
     ws.frame_until(2, |j| max_distance(j, &joints) < 1e-3).await;
@@ -493,7 +498,7 @@ async fn a_pose_message_sets_the_interpolated_key_pose() {
     let expected = direct.update_pose(&half).unwrap().to_vec();
 
     let running = run(&config).await;
-    let (mut ws, stage_message) = performer(&running).await;
+    let (mut ws, stage_message) = director(&running).await;
     assert_eq!(
         stage_message["puppets"][0]["rig"]["poses"],
         json!(["rest", "cheer"])
@@ -590,7 +595,7 @@ async fn painting_stiffens_a_free_form_puppet_and_saves_to_its_mesh_file() {
     let unpainted = direct_arap(&mesh, &holds);
 
     let running = run(&config).await;
-    let (mut ws, _) = performer(&running).await;
+    let (mut ws, _) = director(&running).await;
     ws.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "down", "x": hand.x, "y": hand.y}]}),
     )
     .await;
@@ -651,7 +656,7 @@ async fn painting_a_skeleton_puppet_refactors_it() {
     up.rotate_joint(7, 50f64.to_radians()).unwrap();
 
     let running = run(&config).await;
-    let (mut ws, _) = performer(&running).await;
+    let (mut ws, _) = director(&running).await;
     ws.send(json!({"type": "pose", "puppet": 0, "from": "up", "to": "up", "t": 0.0}))
         .await;
     let shoulder = skeleton.joints()[7];
@@ -722,7 +727,7 @@ async fn painting_a_grid_puppet_refactors_it() {
     let unpainted = solve(&mesh);
 
     let running = run(&config).await;
-    let (mut ws, _) = performer(&running).await;
+    let (mut ws, _) = director(&running).await;
     ws.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "down", "x": hand.x, "y": hand.y}]}))
         .await;
     ws.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "move", "x": hand_to.x, "y": hand_to.y}]}))

@@ -324,7 +324,7 @@ async fn performers_record_list_play_and_overdub_takes() {
     let running = start_with(&stage_config(""), options(dir.path()))
         .await
         .unwrap();
-    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
     let (mut ws, _) = connect(&running, hello.clone()).await;
     let (mut other, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
 
@@ -619,7 +619,7 @@ async fn performers_keyframe_over_the_wire_and_the_take_replays_it() {
     let config = stage_config(&format!("keys = \"{}\"", key_file.display()));
     let takes = dir.path().join("takes");
     let running = start_with(&config, options(&takes)).await.unwrap();
-    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
     let (mut ws, _) = connect(&running, hello).await;
     let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
     until(&mut viewer, "keys", |m| {
@@ -726,7 +726,7 @@ async fn the_page_downloads_takes_and_their_exports() {
     let running = start_with(&stage_config(""), options(&takes))
         .await
         .unwrap();
-    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
     let (mut ws, _) = connect(&running, hello).await;
     let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
     send(&mut ws, json!({"type": "record"})).await;
@@ -806,7 +806,7 @@ async fn a_take_started_by_the_first_input_is_announced_to_every_page() {
     o.record = true;
     let running = start_with(&stage_config(""), o).await.unwrap();
     let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
-    let hello = json!({"type": "hello", "role": "performer", "token": "secret"});
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
     let (mut ws, _) = connect(&running, hello).await;
     drag(&mut ws, 1, [640.0, 470.0], [600.0, 500.0]).await;
     take_state(&mut viewer, |m| m["recording"] == "take-001").await;

@@ -4,6 +4,8 @@
 #[global_allocator]
 static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
 
+mod edits;
+mod fuzz;
 mod keyframing;
 mod keys;
 mod rigs_no_alloc;

@@ -2,3 +2,4 @@
 //! skipped, and foreign files are refused by name.
 
 mod file;
+mod fuzz;

@@ -48,6 +48,10 @@ client_timeout_s = 10
 
 [access]
 performer_tokens = ["secret"]
+[[access.person]]
+name = "Director"
+role = "director"
+token = "boss"
 
 [[puppet]]
 name = "gingerbread"
