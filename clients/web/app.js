@@ -1,58 +1,100 @@
 // puppetry web renderer: a thin client of the stream protocol (docs/protocol.md).
-// Viewers draw the stage; performers also send their pointers as contacts.
-// This module wires the page together: the connection (with reconnects),
-// the state of the stage and its puppets, the status line, the main loop,
-// the keyframing pad, and the `window.puppetry` test and debugging surface.
+// Viewers draw the stage; performers also send their pointers as contacts;
+// directors get the tools that record, paint and save. `?view=show` is the
+// stage alone, for a projector or OBS's browser source.
+// This module wires the page together: the connection (with reconnects,
+// and the fall back to viewing when a token is refused), the state of the
+// stage and its puppets, the toolbar, the main loop, the keyframing pad,
+// and the `window.puppetry` test and debugging surface.
 
 import {
-  HANDLE_KIND, RIG_KIND, ROLE, SERVER_MESSAGE, FRAME_KIND_RIG, FRAME_KIND_VERTICES,
-  clientOwner, decodeFrameHeader, encodeClientMessage, framePoints, helloMessage, parseServerMessage,
-  listTakesMessage, playMessage, recordMessage, stopPlayingMessage, stopRecordingMessage,
+  ERROR_CODE, CLOSE_CODE, FRAME_KIND_HANDLES, FRAME_KIND_RIG, FRAME_KIND_VERTICES, HANDLE_KIND, RIG_KIND, ROLE,
+  SERVER_MESSAGE,
+  canDirect, canPerform, clientOwner, decodeFrameHeader, encodeClientMessage, framePoints, helloMessage,
+  listTakesMessage, parseServerMessage, pingMessage, playMessage, recordMessage, stopPlayingMessage,
+  stopRecordingMessage,
 } from './protocol.js';
 import { MeshRenderer } from './renderer.js';
-import { Overlay, keyHandleAnchor } from './overlay.js';
+import { Overlay, handleAt, keyHandleAnchor } from './overlay.js';
 import { KeyPad } from './keypad.js';
 import { PointerContacts, StageView } from './input.js';
-import { PaintTool, PinTool, PoseSlider, ReplaceTool, TakeControls, calibrationInset, calibrationMarks } from './tools.js';
+import {
+  EditControls, PaintTool, PinTool, PoseSlider, ReplaceTool, ReplayControls, TakeControls,
+  calibrationInset, calibrationMarks,
+} from './tools.js';
+import { forgetToken, takeAccess, viewOptions } from './session.js';
+import { People } from './people.js';
+import { FpsMeter, Hud, LatencyMeter } from './hud.js';
 
 const params = new URLSearchParams(location.search);
-const role = params.get('role') === ROLE.PERFORMER ? ROLE.PERFORMER : ROLE.VIEWER;
-const token = params.get('token') ?? '';
+const options = viewOptions(params);
 const calibrateInset = calibrationInset(params);
+// The role asked for and its token; the token leaves the address bar now.
+const access = takeAccess(location, sessionStorage, (url) => history.replaceState(history.state, '', url), options);
+let askedRole = access.role;  // the role the next hello asks for (viewer once a token was refused)
+let role = ROLE.VIEWER;       // the role the server gave this connection
+
+// How often the page measures its round trip to the daemon.
+const PING_MS = 2000;
+const TOKEN_REFUSED = 'token refused — viewing only';
 
 const byId = (id) => document.getElementById(id);
 const stageEl = byId('stage');
 const glCanvas = byId('gl');
 const overlayCanvas = byId('overlay');
 const statusEl = byId('status');
+const youSwatch = byId('you-swatch');
+const legendEl = byId('people');
 
-// Test and debugging surface (see tests/web/drag.mjs, rigs.mjs, record.mjs and keypad.mjs).
+// Test and debugging surface (see tests/web/*.mjs).
 const api = window.puppetry = {
   connected: false,
   framesReceived: 0,
   weightsReceived: 0,
+  weights: {},               // puppet id -> its per-triangle weights now
   lastSequence: {},          // puppet id -> newest sequence number received
   rigFrames: 0,              // rig frames (grid handles, joints) received
+  handleFrames: 0,           // handle frames (where the handles are) received
   errors: [],                // server "error" messages and client-side failures
   stage: null,               // the last stage message
+  you: null,                 // the stage message's `you`: {owner, name, role, colour}
+  role,                      // the role the server gave (viewer until it did)
+  people: [],                // the last people message's list
   keys: {},                  // puppet id -> the last "keys" message (key poses and the pad's cursor)
   handles: {},               // puppet id -> its handles now (stage message, then "handles" messages)
+  history: {},               // puppet id -> the last "history" message
+  pose: {},                  // puppet id -> the last "pose" message
+  inputs: null,              // the last "inputs" message
   ready: false,              // stage received and every texture settled
+  hellos: [],                // every hello sent: {role, token: bool}
+  tokenRefused: false,       // the server refused the token; the page views only
+  latency: null,             // median round trip of the last pings (ms), or null
+  fps: null,                 // animation frames per second, or null
+  view: options,
   stageToClient,
+  clientToStage,
   snapshot,
+  dots: () => overlay.drawn ?? [],   // what the overlay drew last: handles and cursors, in stage coordinates
+  poseShown: () => poseSlider.shown(),
+  drop: () => ws?.close(),           // closes the connection (it reconnects): for tests of the indicator
   // lastGrid: the last "grid" message, once one came
   // take, takes: the last "take" message and the last "takes" list
   // export: the last "export" message (a take's export progress)
 };
 
 let cursors = [];            // mouse cursors on the stage, from "cursors" messages
-let myOwner = '';            // "client:N", to tell our own handles apart
+let myOwner = '';            // our owner string ("client:N"), to tell our own handles apart
 let puppets = [];            // state per puppet, in stage order (drawn bottom to top)
 let needsDraw = true;
 let needsOverlay = true;
 let ws = null;               // the open (or opening) connection
 let backoff = 500;           // ms before reconnecting, doubled per failed attempt up to 10 s
 let lastError = '';          // the server's last "error" message on this connection
+let refusedNow = false;      // this connection's token was refused: reconnect as a viewer at once
+let pingTimer = null;
+const people = new People();
+const latency = new LatencyMeter(5);
+const fpsMeter = new FpsMeter();
 
 // ---------------------------------------------------------------- status
 
@@ -70,7 +112,25 @@ function reportError(message) {
 
 // ---------------------------------------------------------------- the page's parts
 
-const view = new StageView(stageEl, [glCanvas, overlayCanvas]);
+if (options.show) document.body.classList.add('show');
+if (options.transparent) document.documentElement.classList.add('transparent');
+
+const hud = new Hud({
+  bar: byId('bar'),
+  connection: byId('connection'),
+  banner: byId('banner'),
+  bannerText: byId('banner-text'),
+  bannerClose: byId('banner-close'),
+  readout: byId('readout'),
+  hideBar: byId('hide-bar'),
+  showBar: byId('show-bar'),
+  fullscreen: byId('fullscreen'),
+}, { onLayout: () => layout(), chrome: [byId('keypad')], keys: !options.show });
+
+const view = new StageView(stageEl, [glCanvas, overlayCanvas], {
+  fixedSize: options.size,
+  top: () => (options.show ? 0 : hud.barHeight()),
+});
 
 function stageToClient(x, y) {
   return view.stageToClient(x, y);
@@ -87,7 +147,7 @@ const renderer = new MeshRenderer(glCanvas, {
     needsDraw = true;
     setStatus('graphics context restored');
   },
-});
+}, { transparent: options.transparent });
 
 // Draws now and reads the result back in the same task. For tests: RGBA
 // bytes of the GL canvas alone, bottom row first.
@@ -100,7 +160,9 @@ const overlay = new Overlay(overlayCanvas, stageEl);
 const currentPuppets = () => puppets;
 const redrawOverlay = () => { needsOverlay = true; };
 
-const pinTool = new PinTool(byId('pin-tool'), { puppets: currentPuppets, stageToClient, send });
+const pinTool = new PinTool(byId('pin-tool'), {
+  puppets: currentPuppets, handleAt: (p, i) => handleAt(p, i, myOwner) ?? p.handles[i].at, stageToClient, send,
+});
 const paintTool = new PaintTool({
   controls: byId('paint-controls'),
   button: byId('paint-tool'),
@@ -114,6 +176,8 @@ const poseSlider = new PoseSlider({
   to: byId('pose-to'),
   t: byId('pose-t'),
 }, { send });
+const editControls = new EditControls(byId('edit-controls'), { send });
+const replayControls = new ReplayControls(byId('replay-controls'), { send });
 
 const takeControls = new TakeControls({
   controls: byId('take-controls'),
@@ -150,19 +214,32 @@ takeControls.replaceTool = replaceTool;
 api.replaceRegions = () => replaceTool.regions();
 
 const pointerContacts = new PointerContacts(stageEl, view, {
-  canStart: () => role === ROLE.PERFORMER && api.connected,
+  canStart: () => canPerform(role) && api.connected,
   tools: [replaceTool, paintTool, pinTool], // replace marking, then the brush, win over pinning
   onLifted: redrawOverlay,
 });
 
-if (role === ROLE.PERFORMER) {
-  pinTool.enable();
-  paintTool.enable();
-  poseSlider.enable();
-  takeControls.enable();
-  replaceTool.enable();
-  keyPad.enable();
+// Shows the tools of `newRole` (the server's word on it) and hides the rest.
+function applyRole(newRole) {
+  role = newRole;
+  api.role = newRole;
+  const perform = !options.show && canPerform(newRole);
+  const direct = !options.show && canDirect(newRole);
+  pinTool.setEnabled(perform);
+  poseSlider.setEnabled(perform);
+  editControls.setEnabled(perform);
+  keyPad.setMode({ perform, direct });
+  paintTool.setEnabled(direct);
+  replaceTool.setEnabled(direct);
+  replayControls.setEnabled(direct);
+  takeControls.setRole({ perform, direct });
+  document.body.dataset.role = newRole;
 }
+
+applyRole(ROLE.VIEWER);
+
+// The show view has no UI at all: not hidden, gone.
+if (options.show) for (const id of ['bar', 'show-bar', 'keypad', 'banner']) byId(id).remove();
 
 function layout() {
   view.layout();
@@ -184,6 +261,8 @@ function puppetState(src) {
     dirty: false,                           // positions not yet uploaded to the GPU
     texture: src.texture,
     handles: src.handles ?? [],
+    handlesGeneration: src.generation ?? null, // the handle set's generation (handles messages)
+    handleFrame: null,                      // {generation, sequence, points}: the newest handle frame
     // The rig as the stage describes it, and its newest points (deformed
     // grid handles or posed joints) from rig frames.
     rig: src.rig ?? { kind: RIG_KIND.FREE },
@@ -198,8 +277,9 @@ function puppetState(src) {
 
 // A puppet's new handle set. Key handles that stay keep their place on the
 // mesh; new ones are pinned to it where they are now (see anchorKeyHandles).
-function setHandles(p, handles) {
+function setHandles(p, handles, generation) {
   p.handles = handles;
+  p.handlesGeneration = generation ?? null;
   api.handles[p.id] = handles;
   const kept = new Map();
   for (const h of handles) {
@@ -212,8 +292,9 @@ function setHandles(p, handles) {
 }
 
 // Pins key handles without a place yet to the mesh, so the overlay draws them
-// moving with the cursor's blend. Not before the puppet's first frame: the
-// rest positions are not where a handle's `at` is.
+// moving with the cursor's blend until handle frames say where they are.
+// Not before the puppet's first frame: the rest positions are not where a
+// handle's `at` is.
 function anchorKeyHandles(p) {
   if (!p.framed) return;
   for (const h of p.handles) {
@@ -234,19 +315,60 @@ function send(message) {
 function connect() {
   const url = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`;
   setStatus(`connecting to ${url}…`);
-  ws = new WebSocket(url);
-  ws.binaryType = 'arraybuffer'; // frames are read in place as Float32Array views
-  ws.onopen = () => send(role === ROLE.PERFORMER ? helloMessage(role, token) : helloMessage(role));
-  ws.onmessage = (e) => (typeof e.data === 'string' ? onText(e.data) : onFrame(e.data));
-  ws.onclose = () => {
-    ws = null;
-    api.connected = false;
-    pointerContacts.reset(); // the server forgets our contacts with the connection
-    const delay = backoff * (0.75 + Math.random() / 2); // jitter: clients don't return in lockstep
-    backoff = Math.min(backoff * 2, 10000);
-    setStatus(`disconnected${lastError ? ` (${lastError})` : ''}; retrying in ${(delay / 1000).toFixed(1)} s`, !!lastError);
-    setTimeout(connect, delay);
+  refusedNow = false;
+  const socket = new WebSocket(url);
+  ws = socket;
+  socket.binaryType = 'arraybuffer'; // frames are read in place as Float32Array views
+  socket.onopen = () => {
+    // The token goes in the hello and nowhere else.
+    const withToken = askedRole !== ROLE.VIEWER;
+    api.hellos.push({ role: askedRole, token: withToken && !!access.token });
+    send(withToken ? helloMessage(askedRole, access.token) : helloMessage(askedRole));
   };
+  socket.onmessage = (e) => (typeof e.data === 'string' ? onText(e.data) : onFrame(e.data));
+  socket.onclose = (e) => onClose(e);
+}
+
+function onClose(e) {
+  ws = null;
+  api.connected = false;
+  clearInterval(pingTimer);
+  latency.clear();
+  pointerContacts.reset(); // the server forgets our contacts with the connection
+  if (refusedNow || e.code === CLOSE_CODE.TOKEN_REFUSED) {
+    // Asking again with the same token cannot help: view at once, say why.
+    refuseToken();
+    hud.setConnection(false, 'token refused — reconnecting as a viewer…');
+    connect();
+    return;
+  }
+  const delay = backoff * (0.75 + Math.random() / 2); // jitter: clients don't return in lockstep
+  backoff = Math.min(backoff * 2, 10000);
+  const why = lastError || e.reason || (e.code && e.code !== 1000 && e.code !== 1005 && e.code !== 1006 ? `code ${e.code}` : '');
+  const text = `disconnected${why ? ` (${why})` : ''}; retrying in ${(delay / 1000).toFixed(1)} s`;
+  setStatus(text, !!why);
+  hud.setConnection(false, text);
+  setTimeout(connect, delay);
+}
+
+// The server refused our token: from now on this page is a viewer, and the
+// token is forgotten and the role dropped from the address (a reload is a
+// viewer, and does not send it again).
+function refuseToken() {
+  if (askedRole !== ROLE.VIEWER) {
+    askedRole = ROLE.VIEWER;
+    access.token = '';
+    forgetToken(sessionStorage);
+    const url = new URL(location.href);
+    url.searchParams.delete('role');
+    history.replaceState(history.state, '', url);
+  }
+  api.tokenRefused = true;
+  applyRole(ROLE.VIEWER);
+
+// The show view has no UI at all: not hidden, gone.
+if (options.show) for (const id of ['bar', 'show-bar', 'keypad', 'banner']) byId(id).remove();
+  hud.setNotice(TOKEN_REFUSED, 'refused');
 }
 
 function onText(text) {
@@ -256,9 +378,35 @@ function onText(text) {
     case SERVER_MESSAGE.STAGE: return onStage(msg);
     case SERVER_MESSAGE.HANDLES: {
       const p = puppetById(msg.puppet);
-      if (p) setHandles(p, msg.handles);
+      if (p) setHandles(p, msg.handles, msg.generation);
       return;
     }
+    case SERVER_MESSAGE.PEOPLE:
+      people.update(msg.people);
+      api.people = people.list;
+      people.renderLegend(legendEl, myOwner);
+      showYou();
+      needsOverlay = true;
+      return;
+    case SERVER_MESSAGE.HISTORY:
+      api.history[msg.puppet] = msg;
+      editControls.onHistory(msg);
+      return;
+    case SERVER_MESSAGE.POSE:
+      api.pose[msg.puppet] = msg;
+      poseSlider.onPose(msg);
+      return;
+    case SERVER_MESSAGE.INPUTS:
+      api.inputs = msg;
+      replayControls.onInputs(msg);
+      return;
+    case SERVER_MESSAGE.PONG:
+      if (typeof msg.t === 'number') {
+        latency.add(performance.now() - msg.t);
+        api.latency = latency.ms;
+        hud.setReadout(api.latency, api.fps);
+      }
+      return;
     case SERVER_MESSAGE.KEYS:
       api.keys[msg.puppet] = msg;
       keyPad.onKeys(msg);
@@ -277,10 +425,12 @@ function onText(text) {
     case SERVER_MESSAGE.WEIGHTS: {
       const p = puppetById(msg.puppet);
       if (p) { p.weights = msg.weights; needsOverlay = true; }
+      api.weights[msg.puppet] = msg.weights;
       api.weightsReceived++;
       return;
     }
     case SERVER_MESSAGE.WEIGHTS_SAVED:
+      api.weightsSaved = msg;
       setStatus(`painted weights of puppet ${msg.puppet} saved to ${msg.file}`);
       return;
     case SERVER_MESSAGE.GRID:
@@ -295,32 +445,63 @@ function onText(text) {
       takeControls.onList(msg);
       return;
     case SERVER_MESSAGE.ERROR:
-      lastError = msg.message;
-      return reportError(msg.message);
+      if (msg.code === ERROR_CODE.BAD_TOKEN) {
+        // Not a fault of the page: the close (4001) that follows reconnects as a viewer.
+        refusedNow = true;
+        refuseToken();
+        return;
+      }
+      lastError = msg.field ? `${msg.message} (${msg.field})` : msg.message;
+      return reportError(lastError);
     default:
       return; // unknown kinds are for newer clients
   }
 }
 
+// "you" in the status line: name, role and colour swatch.
+function showYou() {
+  const s = api.stage;
+  if (!s) return;
+  const me = people.get(myOwner) ?? api.you;
+  const who = me?.name && me.name !== role ? `${me.name} · ${role}` : role;
+  setStatus(`${who} · ${s.puppets.length} puppet${s.puppets.length === 1 ? '' : 's'}`);
+  youSwatch.hidden = !me?.colour;
+  if (me?.colour) youSwatch.style.backgroundColor = me.colour;
+}
+
 function onStage(msg) {
   api.stage = msg;
+  api.you = msg.you ?? null;
   api.ready = false;
   api.lastSequence = {}; // a restarted daemon counts from the start again
   view.size = msg.stage;
-  myOwner = clientOwner(msg.client);
+  myOwner = msg.you?.owner ?? clientOwner(msg.client);
   backoff = 500;
   lastError = '';
+  applyRole(msg.you?.role ?? msg.role ?? ROLE.VIEWER);
   layout();
   puppets = msg.puppets.map(puppetState);
-  api.keys = {};             // this connection's "keys" messages follow
+  api.keys = {};             // this connection's "keys", "history", "pose" messages follow
   api.handles = {};
-  for (const p of puppets) setHandles(p, p.handles);
+  api.history = {};
+  api.pose = {};
+  api.weights = Object.fromEntries(puppets.map((p) => [p.id, p.weights]));
+  people.clear();
+  for (const p of puppets) setHandles(p, p.handles, p.handlesGeneration);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });
   poseSlider.setup(puppets);
   keyPad.setup(puppets);
-  if (role === ROLE.PERFORMER) send(listTakesMessage());
+  editControls.setup(puppets);
+  paintTool.setStage(msg.stage);
+  send(listTakesMessage());
   api.connected = true;
-  setStatus(`connected as ${msg.role} (client ${msg.client}) · ${msg.puppets.length} puppet(s)`);
+  showYou();
+  hud.setConnection(true, 'connected');
+  // The round trip, now and every few seconds.
+  clearInterval(pingTimer);
+  const ping = () => send(pingMessage(performance.now()));
+  ping();
+  pingTimer = setInterval(ping, PING_MS);
 }
 
 function onFrame(buf) {
@@ -328,6 +509,7 @@ function onFrame(buf) {
   const header = decodeFrameHeader(buf);
   if (!header) return reportError('short frame');
   if (header.kind === FRAME_KIND_RIG) return onRigFrame(header, buf);
+  if (header.kind === FRAME_KIND_HANDLES) return onHandleFrame(header, buf);
   if (header.kind !== FRAME_KIND_VERTICES) return; // a newer kind
   const id = header.puppet;
   const p = puppetById(id);
@@ -356,6 +538,21 @@ function onRigFrame(header, buf) {
   needsOverlay = true;
 }
 
+// A handle frame: where each handle of a generation of the puppet's handle
+// set is on the solved puppet. Drawn once the handles message of that
+// generation is here (see overlay.js handleAt).
+function onHandleFrame(header, buf) {
+  api.handleFrames++;
+  const p = puppetById(header.puppet);
+  if (!p) return reportError(`handle frame for unknown puppet ${header.puppet}`);
+  const points = framePoints(buf, header);
+  if (!points) return reportError(`bad handle frame for puppet ${header.puppet}`);
+  const old = p.handleFrame;
+  if (old && old.generation === header.generation && header.sequence < old.sequence) return; // older
+  p.handleFrame = { generation: header.generation, sequence: header.sequence, points };
+  needsOverlay = true;
+}
+
 // ---------------------------------------------------------------- main loop
 
 function drawOverlay() {
@@ -363,7 +560,10 @@ function drawOverlay() {
     puppets,
     cursors,
     myOwner,
-    ownContacts: pointerContacts.points(),
+    ownContacts: options.show ? [] : pointerContacts.points(),
+    colour: (owner, alpha) => people.css(owner, alpha),
+    rigs: !options.show,
+    handles: options.dots,
     showWeights: paintTool.on,
     brush: paintTool.outline(),
     replace: replaceTool.outlines(),
@@ -375,8 +575,12 @@ function drawOverlay() {
 // Per animation frame: at most one "contacts" message, one paint dab (on each
 // puppet under the brush), one cursor message of the keyframing pad, and a
 // redraw of what changed.
-function tick() {
+function tick(now) {
   requestAnimationFrame(tick);
+  if (fpsMeter.tick(now)) {
+    api.fps = fpsMeter.fps;
+    hud.setReadout(api.latency, api.fps);
+  }
   const message = pointerContacts.takeMessage();
   if (message) {
     send(message);
@@ -391,6 +595,7 @@ function tick() {
 try {
   renderer.init();
   layout();
+  hud.setConnection(false, 'connecting…', { loud: false });
   connect();
   requestAnimationFrame(tick);
 } catch (err) {

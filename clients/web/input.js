@@ -7,28 +7,40 @@
 import { CONTACT_PHASE, contactDown, contactMove, contactUp, contactsMessage } from './protocol.js';
 
 export class StageView {
-  /** element: the #stage box; canvases: the canvases inside it, sized to its device pixels. */
-  constructor(element, canvases) {
+  /**
+   * element: the #stage box; canvases: the canvases inside it, sized to its
+   * device pixels, or to fit `fixedSize` ({width, height} device pixels, the
+   * show view's `size=`) whatever the window. top(): CSS pixels at the top
+   * of the window the stage must leave free (the toolbar).
+   */
+  constructor(element, canvases, { fixedSize = null, top = () => 0 } = {}) {
     this.element = element;
     this.canvases = canvases;
+    this.fixedSize = fixedSize;
+    this.top = top;
     this.size = null; // {width, height} in stage units, once a stage message came
   }
 
-  /** Fits the stage into the window, centred, and sizes the canvases' drawing buffers. */
+  /** Fits the stage into the window below the toolbar, centred, and sizes the canvases' drawing buffers. */
   layout() {
     const w = this.size?.width ?? 16;
     const h = this.size?.height ?? 9;
-    const scale = Math.min(innerWidth / w, innerHeight / h);
+    const top = Math.min(this.top(), innerHeight - 1);
+    const areaH = innerHeight - top;
+    const scale = Math.min(innerWidth / w, areaH / h);
     const cssW = w * scale;
     const cssH = h * scale;
     Object.assign(this.element.style, {
       width: `${cssW}px`, height: `${cssH}px`,
-      left: `${(innerWidth - cssW) / 2}px`, top: `${(innerHeight - cssH) / 2}px`,
+      left: `${(innerWidth - cssW) / 2}px`, top: `${top + (areaH - cssH) / 2}px`,
     });
-    const dpr = devicePixelRatio || 1;
+    // A fixed size draws the stage as large as fits in it, at the stage's
+    // aspect (all of it when the aspects agree), scaled to the window by CSS.
+    const fixed = this.fixedSize;
+    const px = fixed ? Math.min(fixed.width / w, fixed.height / h) : scale * (devicePixelRatio || 1);
     for (const c of this.canvases) {
-      c.width = Math.max(1, Math.round(cssW * dpr));
-      c.height = Math.max(1, Math.round(cssH * dpr));
+      c.width = Math.max(1, Math.round(w * px));
+      c.height = Math.max(1, Math.round(h * px));
     }
   }
 

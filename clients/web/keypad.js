@@ -1,10 +1,11 @@
 // The keyframing pad (docs/protocol.md "Spatial keyframing"): a small square
 // panel where a puppet's key poses sit as dots and one cursor blends them.
-// Performers drag the cursor (the puppet follows live), add keys where it
-// is, move keys with Shift-drag, delete them with a right-click or Alt-click,
-// save them and let the cursor go. Viewers see the dots and the cursor of a
-// puppet that has keys, read-only. What is drawn is always the server's
-// state (its `keys` messages), so every page shows the same pad.
+// Performers drag the cursor (the puppet follows live) and let it go;
+// directors also add keys where it is, move keys with Shift-drag, delete
+// them with a right-click or Alt-click and save them. Viewers see the dots
+// and the cursor of a puppet that has keys, read-only. What is drawn is
+// always the server's state (its `keys` messages), so every page shows the
+// same pad.
 
 import {
   PAD_CENTRE, PAD_MAX, PAD_MIN,
@@ -29,7 +30,8 @@ export class KeyPad {
     this.el = elements;
     this.send = send;
     this.canSend = canSend;
-    this.editable = false;
+    this.editable = false;      // the cursor can be moved (performers, directors)
+    this.editsKeys = false;     // keys can be added, moved, deleted and saved (directors)
     this.puppets = [];          // [{id, name}] from the stage message, in stage order
     this.selected = null;       // puppet id the pad shows
     this.state = new Map();     // puppet id -> {keys: [{name, at}], cursor?}: the newest keys message
@@ -42,22 +44,17 @@ export class KeyPad {
       this.drag = null;
       this.dirty = true;
     });
-  }
-
-  /** Performers: the buttons and the pad's pointer input. */
-  enable() {
-    this.editable = true;
     const { canvas, add, save, letGo } = this.el;
-    for (const b of [add, save, letGo]) b.hidden = false;
-    canvas.classList.add('editable');
-    canvas.addEventListener('pointerdown', (e) => this.onDown(e));
+    canvas.addEventListener('pointerdown', (e) => this.editable && this.onDown(e));
     canvas.addEventListener('pointermove', (e) => this.onMove(e));
     canvas.addEventListener('pointerup', (e) => this.onUp(e, true));
     canvas.addEventListener('pointercancel', (e) => this.onUp(e, false));
     // A right-click (or a long press on a touch screen) deletes the key
     // under it; the browser's own menu never shows over the pad.
     canvas.addEventListener('contextmenu', (e) => {
+      if (!this.editable) return;
       e.preventDefault();
+      if (!this.editsKeys) return;
       const key = this.keyAt(e.clientX, e.clientY);
       if (key !== null) this.send(keyDeleteMessage(this.selected, key));
     });
@@ -67,10 +64,29 @@ export class KeyPad {
     // K adds a key too: a mouse performer's one pointer is busy holding the
     // puppet in the pose to key, so the button is out of its reach then.
     addEventListener('keydown', (e) => {
+      if (!this.editsKeys) return;
       if (e.repeat || e.ctrlKey || e.metaKey || e.altKey || (e.key !== 'k' && e.key !== 'K')) return;
       if (e.target instanceof HTMLElement && e.target.matches('input, select, textarea')) return;
       this.addKey();
     });
+  }
+
+  /**
+   * What the page may do on the pad: `perform` moves the cursor and lets
+   * it go, `direct` also adds, moves, deletes and saves keys.
+   */
+  setMode({ perform, direct }) {
+    this.editable = perform;
+    this.editsKeys = direct;
+    const { canvas, add, save, letGo } = this.el;
+    letGo.hidden = !perform;
+    add.hidden = save.hidden = !direct;
+    canvas.classList.toggle('editable', perform);
+    if (!perform) {
+      this.drag = null;
+      this.pendingCursor = null;
+    }
+    this.refresh();
   }
 
   /** A stage message: the puppets the pad can show (keys come in their own messages). */
@@ -91,11 +107,12 @@ export class KeyPad {
     this.refresh();
   }
 
-  // Which puppets the selector offers (viewers: only those with keys), whether
+  // Which puppets the selector offers (all to directors, who make keys;
+  // others only those with keys), whether
   // the panel shows, and the selection kept valid.
   refresh() {
     const { panel, puppet } = this.el;
-    const offered = this.editable ? this.puppets : this.puppets.filter((p) => this.state.get(p.id)?.keys.length);
+    const offered = this.editsKeys ? this.puppets : this.puppets.filter((p) => this.state.get(p.id)?.keys.length);
     if (offered.length && !offered.some((p) => p.id === this.selected)) this.selected = offered[0].id;
     const ids = offered.map((p) => String(p.id)).join();
     if (puppet.dataset.ids !== ids) {
@@ -139,7 +156,7 @@ export class KeyPad {
     if (this.selected === null || this.drag) return;
     if (e.pointerType === 'mouse' && e.button !== 0) return; // right-click: see contextmenu
     const key = this.keyAt(e.clientX, e.clientY);
-    if (key !== null && e.altKey) {
+    if (key !== null && e.altKey && this.editsKeys) {
       e.preventDefault();
       this.send(keyDeleteMessage(this.selected, key));
       return;
@@ -147,7 +164,7 @@ export class KeyPad {
     // Capture: the drag goes on when the pointer leaves the small pad.
     this.el.canvas.setPointerCapture(e.pointerId);
     const puppet = this.selected;
-    if (key !== null && e.shiftKey) {
+    if (key !== null && e.shiftKey && this.editsKeys) {
       this.drag = { pointerId: e.pointerId, puppet, mode: 'move', key, at: this.state.get(puppet).keys[key].at };
     } else {
       this.drag = { pointerId: e.pointerId, puppet, mode: 'cursor' };

@@ -1,18 +1,33 @@
 // The 2D overlay over the GL picture (#overlay): rigs (deformed grid,
 // skeleton bones and joints), the painted stiffness tint and brush, every
-// handle (pins, others' contacts, our own contacts where the pointers are
-// now, the keyframing cursor's key handles as diamonds), calibration marks
-// and mouse cursors. It only draws what it is given.
+// handle in its owner's colour (pins, contacts, the keyframing cursor's key
+// handles as diamonds) where it is on the solved puppet now, this page's
+// own pointers, calibration marks and mouse cursors. It only draws what it
+// is given, and keeps a list of the dots it drew (for tests).
 
-import { CONFIG_OWNER, HANDLE_GRIP, HANDLE_KIND, RIG_KIND } from './protocol.js';
+import { HANDLE_GRIP, HANDLE_KIND, RIG_KIND } from './protocol.js';
 import { KEY_COLOUR } from './keypad.js';
 
-// A stable colour per owner, so everyone sees whose hand is whose.
-export function ownerColour(owner, alpha = 1) {
-  if (owner === CONFIG_OWNER) return `rgb(158 158 158 / ${alpha})`;
-  let h = 0;
-  for (const ch of owner) h = (h * 31 + ch.charCodeAt(0)) >>> 0;
-  return `hsl(${h % 360} 85% 50% / ${alpha})`;
+/**
+ * Where handle `i` of puppet state `p` is now (stage point), or null when
+ * only the pointer knows (our own contact before its first handle frame).
+ * The newest handle frame of the handle set's generation says it; until one
+ * comes, key handles follow their anchor on the mesh and other handles
+ * stay where they were held when the set changed (`at`). Our own contacts
+ * are not drawn at `at`: it goes stale as the pointer moves on.
+ */
+export function handleAt(p, i, myOwner) {
+  const h = p.handles[i];
+  const f = p.handleFrame;
+  if (f && f.generation === p.handlesGeneration && f.points.length === 2 * p.handles.length) {
+    return [f.points[2 * i], f.points[2 * i + 1]];
+  }
+  if (h.kind === HANDLE_KIND.KEY) {
+    const anchor = p.keyAnchors?.get(h.id);
+    return (anchor && anchorPoint(anchor, p.positions, p.rigPoints)) ?? h.at;
+  }
+  if (h.kind === HANDLE_KIND.CONTACT && h.owner === myOwner) return null;
+  return h.at;
 }
 
 /**
@@ -83,10 +98,14 @@ export class Overlay {
    *   brush             {x, y, radius, stiffens} or null: the paint brush outline
    *   calibrationMarks  stage points to mark 1, 2, 3, 4, or null
    *   stageToClient     (x, y) -> [clientX, clientY]
+   *   colour            (owner, alpha) -> CSS colour of the owner's handles and cursors
+   *   rigs              draw rigs (not in the show view)
+   *   handles           draw handles, own pointers and cursors
    */
   draw(scene) {
     const { ctx, canvas } = this;
     const { stageToClient } = scene;
+    this.drawn = [];
     const dpr = canvas.width / this.stageElement.clientWidth || 1;
     const r = this.stageElement.getBoundingClientRect();
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
@@ -112,13 +131,13 @@ export class Overlay {
       ctx.lineTo(x1, y1);
     };
 
-    this.drawRigs(scene.puppets, dot, line);
+    if (scene.rigs !== false) this.drawRigs(scene.puppets, dot, line);
     if (scene.showWeights) this.drawWeights(scene.puppets, toOverlay);
     if (scene.brush) this.drawBrush(scene.brush, toOverlay);
     for (const disc of scene.replace ?? []) this.drawReplace(disc, toOverlay);
-    this.drawHandles(scene.puppets, scene.myOwner, scene.ownContacts, dot, toOverlay);
+    if (scene.handles !== false) this.drawHandles(scene, dot, toOverlay);
     if (scene.calibrationMarks) this.drawCalibrationMarks(scene.calibrationMarks, toOverlay);
-    this.drawCursors(scene.cursors, toOverlay, dot);
+    if (scene.handles !== false) this.drawCursors(scene.cursors, scene.colour, toOverlay, dot);
   }
 
   // Rigs under the handles: the deformed grid (lines and handle dots) and
@@ -207,21 +226,30 @@ export class Overlay {
     ctx.stroke();
   }
 
-  drawHandles(puppets, myOwner, ownContacts, dot, toOverlay) {
+  // Handles in their owners' colours where they are on the puppet now (see
+  // handleAt); then this page's pointers that hold contacts, as rings in
+  // our colour, where they are now.
+  drawHandles({ puppets, myOwner, ownContacts, colour }, dot, toOverlay) {
     for (const p of puppets) {
-      for (const h of p.handles) {
-        // Our own contacts are drawn where the pointer is now (below): "handles"
-        // messages come only when the set changes, so their `at` goes stale.
-        if (h.kind === HANDLE_KIND.CONTACT && h.owner === myOwner) continue;
-        if (h.kind === HANDLE_KIND.KEY) {
-          const anchor = p.keyAnchors?.get(h.id);
-          const at = (anchor && anchorPoint(anchor, p.positions, p.rigPoints)) ?? h.at;
-          this.drawDiamond(toOverlay(at[0], at[1]));
-        } else if (h.kind === HANDLE_KIND.PIN) dot(h.at[0], h.at[1], 6, ownerColour(h.owner), '#000');
-        else dot(h.at[0], h.at[1], 10, ownerColour(h.owner, 0.6), 'rgb(0 0 0 / 0.6)');
-      }
+      p.handles.forEach((h, i) => {
+        const at = handleAt(p, i, myOwner);
+        if (!at) return;
+        const fill = colour(h.owner, h.kind === HANDLE_KIND.CONTACT ? 0.75 : 1);
+        if (h.kind === HANDLE_KIND.KEY) this.drawDiamond(toOverlay(at[0], at[1]));
+        else if (h.kind === HANDLE_KIND.PIN) dot(at[0], at[1], 6, fill, '#000');
+        else dot(at[0], at[1], 10, fill, 'rgb(0 0 0 / 0.7)');
+        this.drawn.push({ puppet: p.id, handle: h.id, owner: h.owner, kind: h.kind, at: [at[0], at[1]], colour: colour(h.owner) });
+      });
     }
-    for (const { x, y } of ownContacts) dot(x, y, 10, ownerColour(myOwner, 0.6), 'rgb(0 0 0 / 0.6)');
+    for (const { x, y } of ownContacts) {
+      const [px, py] = toOverlay(x, y);
+      const ctx = this.ctx;
+      ctx.beginPath();
+      ctx.arc(px, py, 14, 0, 2 * Math.PI);
+      ctx.lineWidth = 2.5;
+      ctx.strokeStyle = colour(myOwner, 0.9);
+      ctx.stroke();
+    }
   }
 
   // A key handle: a small diamond in the pad's key colour, unlike the round
@@ -258,11 +286,12 @@ export class Overlay {
 
   // Mice on the stage: a cross at the cursor and the pair of points it
   // holds (filled while its button is down).
-  drawCursors(cursors, toOverlay, dot) {
+  drawCursors(cursors, ownerColour, toOverlay, dot) {
     const ctx = this.ctx;
     for (const c of cursors) {
       const [px, py] = toOverlay(c.at[0], c.at[1]);
       const colour = ownerColour(c.source);
+      this.drawn.push({ cursor: c.source, at: [c.at[0], c.at[1]], colour });
       ctx.lineWidth = 2;
       ctx.strokeStyle = colour;
       ctx.beginPath();

@@ -25,6 +25,11 @@ export const CLIENT_MESSAGE = Object.freeze({
   KEY_DELETE: 'key_delete',
   CURSOR: 'cursor',
   SAVE_KEYS: 'save_keys',
+  PING: 'ping',
+  UNDO: 'undo',
+  REDO: 'redo',
+  RESET: 'reset',
+  REPLAY: 'replay',
 });
 
 /** `type` of the text messages the server sends. */
@@ -41,17 +46,59 @@ export const SERVER_MESSAGE = Object.freeze({
   KEYS: 'keys',
   KEYS_SAVED: 'keys_saved',
   ERROR: 'error',
+  PEOPLE: 'people',
+  HISTORY: 'history',
+  POSE: 'pose',
+  INPUTS: 'inputs',
+  PONG: 'pong',
 });
 
-export const ROLE = Object.freeze({ VIEWER: 'viewer', PERFORMER: 'performer' });
+/**
+ * A connection's role (hello, stage and people messages): a `director` may
+ * do everything, a `performer` perform, a `viewer` only watch. `device` is
+ * the role of the stage's input sources in the people list.
+ */
+export const ROLE = Object.freeze({ VIEWER: 'viewer', PERFORMER: 'performer', DIRECTOR: 'director', DEVICE: 'device' });
+
+/** Whether a role may perform (send contacts, pins, poses, cursors, undo/redo/reset). */
+export function canPerform(role) {
+  return role === ROLE.PERFORMER || role === ROLE.DIRECTOR;
+}
+
+/** Whether a role may direct (record, play, paint, save, edit key poses, toggle replays). */
+export function canDirect(role) {
+  return role === ROLE.DIRECTOR;
+}
+
+/** `code` of an `error` message. */
+export const ERROR_CODE = Object.freeze({
+  BAD_MESSAGE: 'bad_message',
+  TOO_LARGE: 'too_large',
+  BINARY: 'binary',
+  FORBIDDEN: 'forbidden',
+  BAD_TOKEN: 'bad_token',
+  OUT_OF_RANGE: 'out_of_range',
+  NOT_FOUND: 'not_found',
+  BUSY: 'busy',
+  FAILED: 'failed',
+  HELLO: 'hello',
+});
+
+/** Close frame codes the server closes with. */
+export const CLOSE_CODE = Object.freeze({
+  POLICY: 1008,          // origin refused
+  TOO_LARGE: 1009,
+  TRY_AGAIN_LATER: 1013, // too many connections
+  TOKEN_REFUSED: 4001,
+});
 
 export const CONTACT_PHASE = Object.freeze({ DOWN: 'down', MOVE: 'move', UP: 'up' });
 
 /** A handle's `kind` (handles and stage messages). */
 export const HANDLE_KIND = Object.freeze({ CONTACT: 'contact', PIN: 'pin', KEY: 'key' });
 
-/** What a handle holds (`grip`, handles and stage messages); `grid` and `joint` come with an `index`. */
-export const HANDLE_GRIP = Object.freeze({ POINT: 'point', GRID: 'grid', JOINT: 'joint' });
+/** What a handle holds (`grip`, handles and stage messages); `grid`, `joint` and `bone` come with an `index`. */
+export const HANDLE_GRIP = Object.freeze({ POINT: 'point', GRID: 'grid', JOINT: 'joint', BONE: 'bone' });
 
 /** A puppet's `rig.kind` (stage message). */
 export const RIG_KIND = Object.freeze({ FREE: 'free', GRID: 'grid', SKELETON: 'skeleton' });
@@ -113,12 +160,18 @@ export function unpinMessage(puppet, handle) {
   return { type: CLIENT_MESSAGE.UNPIN, puppet, handle };
 }
 
-/** One dab of the stiffness brush: strength above 1 stiffens, below 1 softens. */
-export function paintMessage(puppet, x, y, radius, strength) {
-  return { type: CLIENT_MESSAGE.PAINT, puppet, x, y, radius, strength };
+/**
+ * One dab of the stiffness brush: strength above 1 stiffens, below 1
+ * softens. Dabs of one `stroke` (a number per press of the brush) undo
+ * together.
+ */
+export function paintMessage(puppet, x, y, radius, strength, stroke) {
+  const message = { type: CLIENT_MESSAGE.PAINT, puppet, x, y, radius, strength };
+  if (stroke !== undefined) message.stroke = stroke;
+  return message;
 }
 
-/** Writes the puppet's painted weights back to its mesh file. */
+/** Writes the puppet's painted weights to a new versioned file beside its mesh (director). */
 export function saveWeightsMessage(puppet) {
   return { type: CLIENT_MESSAGE.SAVE_WEIGHTS, puppet };
 }
@@ -203,6 +256,30 @@ export function saveKeysMessage(puppet) {
   return { type: CLIENT_MESSAGE.SAVE_KEYS, puppet };
 }
 
+/** Asks for a `pong` with the same `t` (any role): the page measures its round trip with it. */
+export function pingMessage(t) {
+  return { type: CLIENT_MESSAGE.PING, t };
+}
+
+/** Undoes the puppet's last edit (a paint stroke, a pin, a pose). */
+export function undoMessage(puppet) {
+  return { type: CLIENT_MESSAGE.UNDO, puppet };
+}
+
+export function redoMessage(puppet) {
+  return { type: CLIENT_MESSAGE.REDO, puppet };
+}
+
+/** The puppet as loaded: weights, the stage file's pins, pose at rest, key cursor off. */
+export function resetMessage(puppet) {
+  return { type: CLIENT_MESSAGE.RESET, puppet };
+}
+
+/** Plays or pauses replay input `source` (director). */
+export function replayMessage(source, playing) {
+  return { type: CLIENT_MESSAGE.REPLAY, source, playing };
+}
+
 export function encodeClientMessage(message) {
   return JSON.stringify(message);
 }
@@ -235,9 +312,18 @@ export const FRAME_KIND_VERTICES = 1;
 export const FRAME_KIND_RIG = 2;
 
 /**
+ * Frame kind: where a puppet's handles are on the solved puppet, one point
+ * per handle in the order of the `handles` message whose `generation` the
+ * header's `generation` names.
+ */
+export const FRAME_KIND_HANDLES = 3;
+
+/**
  * The 32-byte little-endian header at the start of `buffer` (an ArrayBuffer):
- * {kind, puppet, sequence, inputTime, count}, or null when the buffer is
- * shorter than a header. `kind` may be one this client does not know.
+ * {kind, puppet, sequence, inputTime, count, generation}, or null when the
+ * buffer is shorter than a header. `kind` may be one this client does not
+ * know. `generation` is the handle set's generation in handle frames (the
+ * reserved u32, 0 in other kinds).
  */
 export function decodeFrameHeader(buffer) {
   if (buffer.byteLength < FRAME_HEADER_BYTES) return null;
@@ -248,7 +334,7 @@ export function decodeFrameHeader(buffer) {
     sequence: Number(view.getBigUint64(8, true)),
     inputTime: view.getFloat64(16, true), // seconds since the daemon started
     count: view.getUint32(24, true),
-    // bytes 28..32 are reserved (0)
+    generation: view.getUint32(28, true),
   };
 }
 

@@ -21,17 +21,20 @@ uniform sampler2D u_tex;
 varying vec2 v_uv;
 void main() { gl_FragColor = texture2D(u_tex, v_uv); }`;
 
-const CONTEXT_OPTIONS = { alpha: false, antialias: true };
 const BACKGROUND = [0.96, 0.95, 0.92, 1];
+// A transparent page (OBS's browser source keys on alpha): clear to nothing.
+// The pictures are premultiplied, and so is what the canvas hands on.
+const CLEAR = [0, 0, 0, 0];
 const MAX_USHORT_VERTICES = 65535;
 
 // WebGL 2 if the browser has it, else WebGL 1; null if neither.
 // (Once a canvas has a context, asking for the other kind gives null, so a
 // restored canvas gets the kind it had.)
-function createContext(canvas) {
-  const gl2 = canvas.getContext('webgl2', CONTEXT_OPTIONS);
+function createContext(canvas, transparent) {
+  const options = { alpha: transparent, premultipliedAlpha: true, antialias: true };
+  const gl2 = canvas.getContext('webgl2', options);
   if (gl2) return { gl: gl2, version: 2 };
-  const gl1 = canvas.getContext('webgl', CONTEXT_OPTIONS);
+  const gl1 = canvas.getContext('webgl', options);
   return gl1 ? { gl: gl1, version: 1 } : null;
 }
 
@@ -39,10 +42,12 @@ export class MeshRenderer {
   /**
    * hooks: onError(message), onTextureLoaded() (the picture changed: draw
    * again), onRestored() (after a lost context was rebuilt).
+   * transparent: the stage's background is transparent, not paper.
    */
-  constructor(canvas, hooks) {
+  constructor(canvas, hooks, { transparent = false } = {}) {
     this.canvas = canvas;
     this.hooks = hooks;
+    this.transparent = transparent;
     this.gl = null;
     this.webglVersion = 0;      // 2 or 1 once init() succeeded
     this.program = null;
@@ -66,7 +71,7 @@ export class MeshRenderer {
 
   /** Creates the context and program; throws when there is no WebGL. */
   init() {
-    const context = createContext(this.canvas);
+    const context = createContext(this.canvas, this.transparent);
     if (!context) throw new Error('WebGL is not available');
     const { gl } = context;
     this.gl = gl;
@@ -178,7 +183,7 @@ export class MeshRenderer {
   draw() {
     const gl = this.gl;
     gl.viewport(0, 0, this.canvas.width, this.canvas.height);
-    gl.clearColor(...BACKGROUND);
+    gl.clearColor(...(this.transparent ? CLEAR : BACKGROUND));
     gl.clear(gl.COLOR_BUFFER_BIT);
     if (!this.stageSize) return;
     const loc = this.locations;

@@ -1,17 +1,26 @@
 // The performer's tools beside plain dragging, each with its controls in
 // the bar: the pin tool (click to pin, click a pin to remove it), the
 // stiffness paint brush (dabs, and saving the painted weights), the key pose
-// slider of a skeleton puppet, the takes' controls and overdub's replace
-// tool; and the calibration marks `?calibrate=` asks for. Tools take pointers before they become contacts (see input.js).
+// slider of a skeleton puppet, undo/redo/reset per puppet, the replays'
+// play/pause toggles, the takes' controls and overdub's replace tool; and
+// the calibration marks `?calibrate=` asks for. Tools take pointers before
+// they become contacts (see input.js). Each shows only to the roles the
+// server lets use it (`setEnabled`), since roles arrive with the stage
+// message and change when a refused token falls back to viewing.
 
 import {
   HANDLE_KIND, RIG_KIND,
-  paintMessage, pinMessage, poseMessage, replaceRegion, saveWeightsMessage, unpinMessage,
+  paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
+  saveWeightsMessage, undoMessage, unpinMessage,
 } from './protocol.js';
 import { anchorPoint, keyHandleAnchor } from './overlay.js';
 
 // How near (CSS pixels) a click must be to a pin to remove it.
 const PIN_REACH = 12;
+
+// How long after the page's own change of the key pose slider the server's
+// pose messages wait (they echo earlier changes): longer than a round trip.
+const POSE_QUIET_MS = 400;
 
 /**
  * Overdub's "replace": while on, a press on a puppet marks a disc of its
@@ -25,16 +34,24 @@ export class ReplaceTool {
     this.onChange = onChange;
     this.radius = radius;
     this.on = false;
+    this.enabled = false;
     this.discs = []; // {puppet, at (rest), anchor (to draw it on the pose)}
-  }
-
-  enable() {
-    this.button.hidden = false;
-    this.button.addEventListener('click', () => {
+    button.addEventListener('click', () => {
       this.on = !this.on;
       this.button.setAttribute('aria-pressed', String(this.on));
       if (!this.on) this.clear();
     });
+  }
+
+  /** Shows the toggle (directors: overdubs are theirs). */
+  setEnabled(on) {
+    this.enabled = on;
+    this.button.hidden = !on;
+    if (!on && this.on) {
+      this.on = false;
+      this.button.setAttribute('aria-pressed', 'false');
+      this.clear();
+    }
   }
 
   clear() {
@@ -79,28 +96,36 @@ export class ReplaceTool {
 export class PinTool {
   /**
    * button: the "pin" toggle. puppets(): the current puppet states;
+   * handleAt(puppet, i): where its handle i is drawn (stage point);
    * stageToClient(x, y): client coordinates; send(message).
    */
-  constructor(button, { puppets, stageToClient, send }) {
+  constructor(button, { puppets, handleAt, stageToClient, send }) {
     this.button = button;
     this.puppets = puppets;
+    this.handleAt = handleAt;
     this.stageToClient = stageToClient;
     this.send = send;
     this.on = false;
-  }
-
-  /** Shows the toggle (performers only). */
-  enable() {
-    this.button.hidden = false;
-    this.button.addEventListener('click', () => {
+    this.enabled = false;
+    button.addEventListener('click', () => {
       this.on = !this.on;
       this.button.setAttribute('aria-pressed', String(this.on));
     });
   }
 
+  /** Shows the toggle (performers and directors). */
+  setEnabled(on) {
+    this.enabled = on;
+    this.button.hidden = !on;
+    if (!on) {
+      this.on = false;
+      this.button.setAttribute('aria-pressed', 'false');
+    }
+  }
+
   // While the tool is on, or with Shift held, a press pins or unpins.
   pointerDown(e, x, y) {
-    if (!(e.shiftKey || this.on)) return false;
+    if (!this.enabled || !(e.shiftKey || this.on)) return false;
     this.pinOrUnpin(x, y, e.clientX, e.clientY);
     return true;
   }
@@ -110,12 +135,12 @@ export class PinTool {
     let best = null;
     let bestDist = PIN_REACH;
     for (const p of this.puppets()) {
-      for (const h of p.handles) {
-        if (h.kind !== HANDLE_KIND.PIN) continue;
-        const [hx, hy] = this.stageToClient(h.at[0], h.at[1]);
+      p.handles.forEach((h, i) => {
+        if (h.kind !== HANDLE_KIND.PIN) return;
+        const [hx, hy] = this.stageToClient(...this.handleAt(p, i));
         const d = Math.hypot(hx - cx, hy - cy);
         if (d < bestDist) { best = { puppet: p.id, handle: h.id }; bestDist = d; }
-      }
+      });
     }
     this.send(best ? unpinMessage(best.puppet, best.handle) : pinMessage(x, y));
   }
@@ -136,14 +161,12 @@ export class PaintTool {
     this.reportError = reportError;
     this.onChange = onChange;
     this.on = false;
+    this.enabled = false;
     this.brush = null;          // {x, y, down} where the brush is (stage coordinates)
     this.painted = new Set();   // puppet ids painted since the last save
-  }
-
-  /** Shows the controls (performers only). */
-  enable() {
-    const { controls, button, save } = this.elements;
-    controls.hidden = false;
+    this.stroke = 0;            // the current stroke's number: its dabs undo together
+    this.maxRadius = Infinity;  // the stage's larger side, once a stage came
+    const { button, save } = elements;
     button.addEventListener('click', () => {
       this.on = !this.on;
       button.setAttribute('aria-pressed', String(this.on));
@@ -151,6 +174,29 @@ export class PaintTool {
       this.onChange();
     });
     save.addEventListener('click', () => this.saveWeights());
+  }
+
+  /** Shows the controls (directors only). */
+  setEnabled(on) {
+    this.enabled = on;
+    this.elements.controls.hidden = !on;
+    if (!on && this.on) {
+      this.on = false;
+      this.brush = null;
+      this.elements.button.setAttribute('aria-pressed', 'false');
+      this.onChange();
+    }
+  }
+
+  /**
+   * A stage message: the brush's radius may not exceed the stage's larger
+   * side (the server refuses it beyond).
+   */
+  setStage(stageSize) {
+    const max = Math.max(stageSize.width, stageSize.height);
+    this.maxRadius = max;
+    this.elements.radius.max = String(max);
+    if (this.radius > max) this.elements.radius.value = String(max);
   }
 
   get radius() {
@@ -165,6 +211,7 @@ export class PaintTool {
     if (!this.on) return false;
     e.currentTarget.setPointerCapture(e.pointerId);
     this.brush = { x, y, down: true };
+    this.stroke++;
     this.onChange();
     return true;
   }
@@ -188,7 +235,7 @@ export class PaintTool {
   flush() {
     const brush = this.brush;
     if (!this.on || !brush?.down) return;
-    const radius = this.radius;
+    const radius = Math.min(this.radius, this.maxRadius);
     const strength = this.strength;
     if (!(radius > 0 && strength > 0)) return this.reportError('paint radius and strength must be positive');
     for (const p of this.puppets()) {
@@ -199,7 +246,7 @@ export class PaintTool {
         y0 = Math.min(y0, v[i + 1]); y1 = Math.max(y1, v[i + 1]);
       }
       if (brush.x + radius < x0 || brush.x - radius > x1 || brush.y + radius < y0 || brush.y - radius > y1) continue;
-      this.send(paintMessage(p.id, brush.x, brush.y, radius, strength));
+      this.send(paintMessage(p.id, brush.x, brush.y, radius, strength, this.stroke));
       this.painted.add(p.id);
     }
   }
@@ -218,39 +265,225 @@ export class PaintTool {
   }
 }
 
+/**
+ * The key pose slider of the first skeleton puppet with key poses: shows
+ * the puppet's live blend (the server's `pose` messages, so a page opened
+ * later shows where the puppet is, not rest→first pose at 0) to everyone;
+ * performers and directors move it.
+ */
 export class PoseSlider {
   /** elements: {controls, from, to, t} of the bar; send(message). */
   constructor(elements, { send }) {
     this.elements = elements;
     this.send = send;
     this.enabled = false;
-  }
-
-  /** Listens to the controls (performers only); they show once a stage has key poses. */
-  enable() {
-    const { from, to, t } = this.elements;
-    this.enabled = true;
+    this.puppet = null;   // the puppet id it shows, or null
+    this.held = false;    // the performer's pointer is on the slider
+    this.quietUntil = 0;  // performance.now() until which the page's own changes are in flight
+    this.pending = null;  // a pose message that came while held or quiet
+    this.timer = null;
+    const { from, to, t } = elements;
     t.addEventListener('input', () => this.sendPose());
     from.addEventListener('change', () => this.sendPose());
     to.addEventListener('change', () => this.sendPose());
+    // While a hand is on the slider, and shortly after the page changed
+    // it, the server's echoes of earlier changes would move the controls
+    // back under the hand: they wait, and the newest then shows.
+    t.addEventListener('pointerdown', () => { this.held = true; });
+    const release = () => {
+      this.held = false;
+      this.applyPending();
+    };
+    t.addEventListener('pointerup', release);
+    t.addEventListener('pointercancel', release);
+  }
+
+  applyPending() {
+    clearTimeout(this.timer);
+    const wait = this.quietUntil - performance.now();
+    if (wait > 0) {
+      this.timer = setTimeout(() => this.applyPending(), wait);
+      return;
+    }
+    if (this.pending && !this.held) this.onPose(this.pending);
+  }
+
+  /** Lets the page move the slider (performers and directors); viewers see it. */
+  setEnabled(on) {
+    this.enabled = on;
+    for (const e of [this.elements.from, this.elements.to, this.elements.t]) e.disabled = !on;
   }
 
   // Offers the key poses of the first skeleton puppet that has some.
   setup(puppets) {
-    const { controls, from, to } = this.elements;
+    const { controls, from, to, t } = this.elements;
     const p = puppets.find((q) => q.rig.kind === RIG_KIND.SKELETON && q.rig.poses?.length);
-    controls.hidden = !this.enabled || !p;
+    controls.hidden = !p;
+    this.puppet = p ? p.id : null;
+    this.pending = null;
+    this.quietUntil = 0;
     if (!p) return;
     for (const select of [from, to]) {
       select.replaceChildren(...p.rig.poses.map((name) => new Option(name, name)));
     }
-    if (p.rig.poses.length > 1) to.selectedIndex = 1;
+    from.selectedIndex = 0;
+    to.selectedIndex = p.rig.poses.length > 1 ? 1 : 0;
+    t.value = '0';
     controls.dataset.puppet = String(p.id);
   }
 
+  /** A `pose` message: the puppet's blend now. */
+  onPose(msg) {
+    if (msg.puppet !== this.puppet) return;
+    if (this.held || performance.now() < this.quietUntil) {
+      this.pending = msg;
+      this.applyPending();
+      return;
+    }
+    this.pending = null;
+    const { from, to, t } = this.elements;
+    for (const [select, name] of [[from, msg.from], [to, msg.to]]) {
+      if ([...select.options].some((o) => o.value === name)) select.value = name;
+    }
+    t.value = String(msg.t);
+  }
+
+  /** What the slider shows: {puppet, from, to, t}, or null without one. */
+  shown() {
+    if (this.puppet === null) return null;
+    const { from, to, t } = this.elements;
+    return { puppet: this.puppet, from: from.value, to: to.value, t: Number(t.value) };
+  }
+
   sendPose() {
-    const { controls, from, to, t } = this.elements;
-    this.send(poseMessage(Number(controls.dataset.puppet), from.value, to.value, Number(t.value)));
+    if (!this.enabled || this.puppet === null) return;
+    this.quietUntil = performance.now() + POSE_QUIET_MS;
+    const { from, to, t } = this.elements;
+    this.send(poseMessage(this.puppet, from.value, to.value, Number(t.value)));
+  }
+}
+
+/**
+ * Undo, redo and reset per puppet, enabled by the server's `history`
+ * messages (how many edits each way). Reset asks twice: the first press
+ * arms it for a few seconds, the second sends it.
+ */
+export class EditControls {
+  /** container: where the per-puppet groups go; send(message). */
+  constructor(container, { send }) {
+    this.container = container;
+    this.send = send;
+    this.enabled = false;
+    this.groups = new Map(); // puppet id -> {undo, redo, reset, history}
+  }
+
+  setEnabled(on) {
+    this.enabled = on;
+    this.container.hidden = !on || this.groups.size === 0;
+  }
+
+  /** A stage message: one group per puppet, disabled until its history comes. */
+  setup(puppets) {
+    this.groups.clear();
+    const named = puppets.length > 1;
+    this.container.replaceChildren(...puppets.map((p) => {
+      const group = document.createElement('span');
+      group.className = 'edit-group';
+      group.dataset.puppet = String(p.id);
+      const label = document.createElement('span');
+      label.className = 'edit-name';
+      label.textContent = p.src.name;
+      label.hidden = !named;
+      const button = (cls, text, title, onClick) => {
+        const b = document.createElement('button');
+        b.type = 'button';
+        b.className = cls;
+        b.textContent = text;
+        b.title = title;
+        b.disabled = true;
+        b.addEventListener('click', onClick);
+        return b;
+      };
+      const g = { history: null, armed: null };
+      g.undo = button('undo', '↶ undo', `Undo the last edit of ${p.src.name} (a paint stroke, a pin, a pose)`,
+        () => this.send(undoMessage(p.id)));
+      g.redo = button('redo', '↷ redo', `Redo the last undone edit of ${p.src.name}`, () => this.send(redoMessage(p.id)));
+      g.reset = button('reset', '⟲ reset', `Back to ${p.src.name} as loaded (press twice)`, () => this.pressReset(p.id, g));
+      group.append(label, g.undo, g.redo, g.reset);
+      this.groups.set(p.id, g);
+      return group;
+    }));
+    this.setEnabled(this.enabled);
+  }
+
+  pressReset(puppet, g) {
+    if (g.armed) {
+      clearTimeout(g.armed);
+      g.armed = null;
+      g.reset.textContent = '⟲ reset';
+      g.reset.classList.remove('armed');
+      this.send(resetMessage(puppet));
+      return;
+    }
+    g.reset.textContent = '⟲ reset?';
+    g.reset.classList.add('armed');
+    g.armed = setTimeout(() => {
+      g.armed = null;
+      g.reset.textContent = '⟲ reset';
+      g.reset.classList.remove('armed');
+    }, 3000);
+  }
+
+  /** A `history` message. */
+  onHistory(msg) {
+    const g = this.groups.get(msg.puppet);
+    if (!g) return;
+    g.history = msg;
+    g.undo.disabled = !(msg.undo > 0);
+    g.redo.disabled = !(msg.redo > 0);
+    g.reset.disabled = false;
+    g.undo.title = g.undo.title.replace(/ \(\d+\)$/, '') + (msg.undo > 0 ? ` (${msg.undo})` : '');
+    g.redo.title = g.redo.title.replace(/ \(\d+\)$/, '') + (msg.redo > 0 ? ` (${msg.redo})` : '');
+  }
+}
+
+/**
+ * Play/pause toggles of the stage's replay inputs (the server's `inputs`
+ * message), for directors: a rig stage's demo replay would otherwise fight
+ * the performer.
+ */
+export class ReplayControls {
+  constructor(container, { send }) {
+    this.container = container;
+    this.send = send;
+    this.enabled = false;
+    this.replays = [];
+  }
+
+  setEnabled(on) {
+    this.enabled = on;
+    this.render();
+  }
+
+  /** An `inputs` message. */
+  onInputs(msg) {
+    this.replays = Array.isArray(msg.replays) ? msg.replays : [];
+    this.render();
+  }
+
+  render() {
+    this.container.hidden = !this.enabled || this.replays.length === 0;
+    this.container.replaceChildren(...this.replays.map((r) => {
+      const b = document.createElement('button');
+      b.type = 'button';
+      b.className = 'replay';
+      b.dataset.source = r.name;
+      b.setAttribute('aria-pressed', String(!!r.playing));
+      b.textContent = `${r.name}: ${r.playing ? 'playing' : 'paused'}`;
+      b.title = r.playing ? `The replay ${r.name} plays: press to pause it` : `The replay ${r.name} is paused: press to play it`;
+      b.addEventListener('click', () => this.send(replayMessage(r.name, !r.playing)));
+      return b;
+    }));
   }
 }
 
@@ -271,7 +504,8 @@ export function calibrationMarks(inset, stageSize) {
 /**
  * Takes: the record button (red with the elapsed time on every page while
  * a take records), the take list, play and overdub. Everyone sees the
- * state; performers get the buttons.
+ * state; directors get the buttons that record and play, performers the
+ * list and the download.
  */
 export class TakeControls {
   constructor(elements, { send, messages }) {
@@ -284,6 +518,7 @@ export class TakeControls {
     for (const b of this.buttons()) b.hidden = true;
     this.exporting = null; // the newest `export` message while one runs
     setInterval(() => this.showElapsed(), 250);
+    this.listen();
   }
 
   buttons() {
@@ -291,9 +526,14 @@ export class TakeControls {
     return [e.record, e.play, e.overdub, e.stop, e.list, e.format, e.download];
   }
 
-  /** Performers get the buttons. */
-  enable() {
-    for (const b of this.buttons()) b.hidden = false;
+  /** Which buttons show: directors record and play, performers (and directors) list and download. */
+  setRole({ perform, direct }) {
+    const e = this.el;
+    for (const b of [e.list, e.format, e.download]) b.hidden = !perform;
+    for (const b of [e.record, e.play, e.overdub, e.stop]) b.hidden = !direct;
+  }
+
+  listen() {
     this.el.download.addEventListener('click', () => this.download());
     this.el.record.addEventListener('click', () => {
       this.send(this.state.recording ? this.m.stopRecording() : this.m.record());

@@ -1,7 +1,15 @@
 // A stand-in for `puppetry serve`, to develop and test clients/web without the
 // daemon: serves the page and a generated texture, and speaks docs/protocol.md
-// with one quad puppet that follows the first contact that grabs it.
+// with one quad puppet that follows the contact that grabbed it and moved
+// last (any number may hold it: each handle is reported under its finger). It
+// carries a two-joint skeleton with key poses (for the pose slider), and a
+// replay input that does nothing but can be paused.
 // It also checks what the page sends and answers violations with "error".
+//
+// Access as the stage file's [access] would give it: MOCK_TOKEN (default T)
+// is an anonymous performer token; people with tokens "ana" (Ana,
+// performer), "ben" (Ben, performer) and "director" (Dora, director). A
+// wrong token gets error bad_token and close 4001.
 //
 //   PORT=8080 MOCK_TOKEN=T node mock-server.mjs   (PORT 0 or unset: any free port)
 // Prints one JSON line {"url": …} when listening.
@@ -21,6 +29,15 @@ const STAGE = { width: 800, height: 600 };
 const REST = [300, 200, 500, 200, 500, 400, 300, 400];
 const UV = [0, 1, 1, 1, 1, 0, 0, 0]; // v down from the top of the picture
 const TRIANGLES = [0, 1, 2, 0, 2, 3];
+const JOINTS = [[400, 250], [400, 350]];
+const POSES = ['rest', 'cheer', 'crouch'];
+const PEOPLE = [
+  { token: 'ana', name: 'Ana', role: 'performer' },
+  { token: 'ben', name: 'Ben', role: 'performer' },
+  { token: 'director', name: 'Dora', role: 'director' },
+];
+const PALETTE = ['#E69F00', '#56B4E9', '#009E73', '#F0E442', '#0072B2', '#D55E00', '#CC79A7'];
+const REPLAY = 'mock-play';
 
 // ---------------------------------------------------------------- texture
 
@@ -91,127 +108,313 @@ let positions = REST.slice();
 let sequence = 0;
 let nextClient = 1;
 let nextHandle = 1;
-let grab = null; // {client, contact, handle, from: [x, y], start: positions}
-let pins = [];   // {id, owner, kind: 'pin', at}
+let nextAnonymous = 1;
+let generation = 0;
+const grabs = new Map(); // "client:contact" -> {client, contact, handle, from, finger, start: positions}
+let pins = [];   // {id, owner, kind: 'pin', at, grip}
+let weights = [1, 1];
+let pose = { puppet: 0, from: 'rest', to: 'cheer', t: 0 };
+let replayPlaying = true;
+// Edits that undo: snapshots of {pins, weights} before each edit (a paint
+// stroke is one edit).
+let undo = [];
+let redo = [];
+let lastStroke = null; // {client, stroke} of the paint stroke being made
 const clients = new Set();
 
-const handles = () => [...(grab ? [grab.handle] : []), ...pins];
+const handles = () => [...[...grabs.values()].map((g) => g.handle), ...pins];
+const send = (c, message) => c.ws.send(JSON.stringify(message));
 const broadcast = (data) => { for (const c of clients) if (c.ready) c.ws.send(data); };
-const sendHandles = () => broadcast(JSON.stringify({ type: 'handles', puppet: 0, handles: handles() }));
+const broadcastJson = (message) => broadcast(JSON.stringify(message));
+const handlesMessage = () => ({ type: 'handles', puppet: 0, generation, handles: handles() });
+const sendHandles = () => { generation++; broadcastJson(handlesMessage()); sendHandleFrame(); };
+const historyMessage = () => ({ type: 'history', puppet: 0, undo: undo.length, redo: redo.length });
+const inputsMessage = () => ({ type: 'inputs', replays: [{ name: REPLAY, playing: replayPlaying }] });
 const inside = (x, y) => {
   const xs = positions.filter((_, i) => i % 2 === 0);
   const ys = positions.filter((_, i) => i % 2 === 1);
   return x >= Math.min(...xs) && x <= Math.max(...xs) && y >= Math.min(...ys) && y <= Math.max(...ys);
 };
 
-function sendFrame() {
-  const n = positions.length / 2;
+// Connected performers and directors, then the replay as a device.
+function peopleMessage() {
+  const list = [...clients].filter((c) => c.ready && c.role !== 'viewer').map((c) => c.person);
+  list.push({ owner: REPLAY, name: REPLAY, role: 'device', colour: '#999999' });
+  return { type: 'people', people: list };
+}
+
+// The first palette colour no connected person has.
+function freeColour() {
+  const used = new Set([...clients].filter((c) => c.ready && c.person).map((c) => c.person.colour));
+  return PALETTE.find((c) => !used.has(c)) ?? PALETTE[clients.size % PALETTE.length];
+}
+
+function frame(kind, points, gen = 0) {
+  const n = points.length / 2;
   const buf = Buffer.alloc(32 + 8 * n);
-  buf.writeUInt32LE(1, 0);
+  buf.writeUInt32LE(kind, 0);
   buf.writeUInt32LE(0, 4);
-  buf.writeBigUInt64LE(BigInt(++sequence), 8);
+  buf.writeBigUInt64LE(BigInt(sequence), 8);
   buf.writeDoubleLE(Number(process.hrtime.bigint() - started) / 1e9, 16);
   buf.writeUInt32LE(n, 24);
-  positions.forEach((v, i) => buf.writeFloatLE(v, 32 + 4 * i));
-  broadcast(buf);
+  buf.writeUInt32LE(gen, 28);
+  points.forEach((v, i) => buf.writeFloatLE(v, 32 + 4 * i));
+  return buf;
+}
+
+// Where the handles are now: under their fingers (as if the solver met
+// every hand), pins where they were put.
+function handlePoints() {
+  return [...[...grabs.values()].flatMap((g) => g.finger), ...pins.flatMap((h) => h.at)];
+}
+
+function sendHandleFrame() {
+  if (handles().length) broadcast(frame(3, handlePoints(), generation));
+}
+
+function sendFrame() {
+  ++sequence;
+  broadcast(frame(1, positions));
+  const [dx, dy] = [positions[0] - REST[0], positions[1] - REST[1]];
+  broadcast(frame(2, JOINTS.flatMap(([x, y]) => [x + dx, y + dy])));
+  sendHandleFrame();
 }
 
 const finite = (v) => typeof v === 'number' && Number.isFinite(v);
+const COORD = (v) => finite(v) && Math.abs(v) <= 1e6;
 
-// Returns an error message, or null when the input was fine.
+// The edit about to happen can be undone: keep the state before it.
+function remember() {
+  undo.push({ pins: pins.slice(), weights: weights.slice() });
+  redo = [];
+}
+
+function restore(state) {
+  pins = state.pins.slice();
+  weights = state.weights.slice();
+  sendHandles();
+  broadcastJson({ type: 'weights', puppet: 0, weights });
+}
+
+// What each role may send; a role missing from the list gets `forbidden`.
+const ALLOWED = {
+  ping: ['viewer', 'performer', 'director'],
+  list_takes: ['viewer', 'performer', 'director'],
+  contacts: ['performer', 'director'],
+  pin: ['performer', 'director'],
+  unpin: ['performer', 'director'],
+  pose: ['performer', 'director'],
+  undo: ['performer', 'director'],
+  redo: ['performer', 'director'],
+  reset: ['performer', 'director'],
+  paint: ['director'],
+  save_weights: ['director'],
+  replay: ['director'],
+};
+
+// Returns an error {code, message, field?}, or null when the input was fine.
 function onInput(c, msg) {
-  // The page asks for the takes on connecting; the mock has none.
-  if (msg.type === 'list_takes') {
-    c.ws.send(JSON.stringify({ type: 'takes', takes: [] }));
+  const allowed = ALLOWED[msg.type];
+  if (!allowed) return { code: 'bad_message', message: `unknown message type ${JSON.stringify(msg.type)}` };
+  if (!allowed.includes(c.role)) return { code: 'forbidden', message: `a ${c.role} may not send ${msg.type}` };
+  if (msg.type === 'ping') {
+    send(c, { type: 'pong', t: msg.t });
     return null;
   }
-  if (c.role !== 'performer') return 'only performers may send input';
+  // The page asks for the takes on connecting; the mock has none.
+  if (msg.type === 'list_takes') {
+    send(c, { type: 'takes', takes: [] });
+    return null;
+  }
   if (msg.type === 'contacts') {
-    if (!Array.isArray(msg.contacts)) return 'contacts: not an array';
+    if (!Array.isArray(msg.contacts)) return { code: 'bad_message', message: 'contacts: not an array' };
     const seen = new Set();
-    for (const e of msg.contacts) {
-      if (!Number.isInteger(e?.id) || e.id < 0) return 'contacts: bad id';
-      if (seen.has(e.id)) return `contacts: id ${e.id} twice in one frame`;
+    for (const [i, e] of msg.contacts.entries()) {
+      const bad = (message) => ({ code: 'bad_message', message: `contacts: ${message}` });
+      if (!Number.isInteger(e?.id) || e.id < 0) return bad('bad id');
+      if (seen.has(e.id)) return bad(`id ${e.id} twice in one frame`);
       seen.add(e.id);
+      if (e.phase === 'down' || e.phase === 'move') {
+        for (const k of ['x', 'y']) {
+          if (!COORD(e[k])) return { code: 'out_of_range', message: 'coordinate out of range', field: `contacts[${i}].${k}` };
+        }
+      }
       if (e.phase === 'down') {
-        if (c.down.has(e.id)) return `contacts: id ${e.id} down twice`;
-        if (!finite(e.x) || !finite(e.y)) return 'contacts: bad point';
+        if (c.down.has(e.id)) return bad(`id ${e.id} down twice`);
         c.down.add(e.id);
-        if (!grab && inside(e.x, e.y)) {
-          const handle = { id: nextHandle++, owner: `client:${c.id}`, kind: 'contact', at: [e.x, e.y] };
-          grab = { client: c, contact: e.id, handle, from: [e.x, e.y], start: positions.slice() };
+        if (inside(e.x, e.y)) {
+          const handle = { id: nextHandle++, owner: c.person.owner, kind: 'contact', at: [e.x, e.y], grip: 'point' };
+          grabs.set(`${c.id}:${e.id}`, { client: c, contact: e.id, handle, from: [e.x, e.y], finger: [e.x, e.y], start: positions.slice() });
           sendHandles();
         }
       } else if (e.phase === 'move') {
-        if (!c.down.has(e.id)) return `contacts: move of id ${e.id} that is not down`;
-        if (!finite(e.x) || !finite(e.y)) return 'contacts: bad point';
-        if (grab?.client === c && grab.contact === e.id) {
-          const [dx, dy] = [e.x - grab.from[0], e.y - grab.from[1]];
-          positions = grab.start.map((v, i) => v + (i % 2 ? dy : dx));
+        if (!c.down.has(e.id)) return bad(`move of id ${e.id} that is not down`);
+        const g = grabs.get(`${c.id}:${e.id}`);
+        if (g) {
+          g.finger = [e.x, e.y];
+          const [dx, dy] = [e.x - g.from[0], e.y - g.from[1]];
+          positions = g.start.map((v, k) => v + (k % 2 ? dy : dx));
           sendFrame();
         }
       } else if (e.phase === 'up') {
-        if (!c.down.delete(e.id)) return `contacts: up of id ${e.id} that is not down`;
-        if (grab?.client === c && grab.contact === e.id) { grab = null; sendHandles(); }
+        if (!c.down.delete(e.id)) return bad(`up of id ${e.id} that is not down`);
+        if (grabs.delete(`${c.id}:${e.id}`)) sendHandles();
       } else {
-        return 'contacts: bad phase';
+        return bad('bad phase');
       }
     }
     return null;
   }
   if (msg.type === 'pin') {
-    if (!finite(msg.x) || !finite(msg.y)) return 'pin: bad point';
+    for (const k of ['x', 'y']) if (!COORD(msg[k])) return { code: 'out_of_range', message: 'out of range', field: k };
     if (!inside(msg.x, msg.y)) return null; // empty stage: nothing to pin
-    pins.push({ id: nextHandle++, owner: `client:${c.id}`, kind: 'pin', at: [msg.x, msg.y] });
+    remember();
+    pins.push({ id: nextHandle++, owner: c.person.owner, kind: 'pin', at: [msg.x, msg.y], grip: 'point' });
     sendHandles();
+    broadcastJson(historyMessage());
     return null;
   }
   if (msg.type === 'unpin') {
-    if (msg.puppet !== 0 || !pins.some((p) => p.id === msg.handle)) return 'unpin: no such pin';
+    if (msg.puppet !== 0 || !pins.some((p) => p.id === msg.handle)) return { code: 'not_found', message: 'unpin: no such pin' };
+    remember();
     pins = pins.filter((p) => p.id !== msg.handle);
     sendHandles();
+    broadcastJson(historyMessage());
     return null;
   }
-  return `unknown message type ${JSON.stringify(msg.type)}`;
+  if (msg.type === 'paint') {
+    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    for (const k of ['x', 'y']) if (!COORD(msg[k])) return { code: 'out_of_range', message: 'out of range', field: k };
+    if (!(finite(msg.radius) && msg.radius > 0 && msg.radius <= Math.max(STAGE.width, STAGE.height))) {
+      return { code: 'out_of_range', message: 'radius out of range', field: 'radius' };
+    }
+    if (!(finite(msg.strength) && msg.strength >= 0.01 && msg.strength <= 100)) {
+      return { code: 'out_of_range', message: 'strength out of range', field: 'strength' };
+    }
+    // One undo step per stroke: a dab of a new stroke (or without one) starts a step.
+    const same = msg.stroke !== undefined && lastStroke?.client === c && lastStroke.stroke === msg.stroke;
+    if (!same) remember();
+    lastStroke = msg.stroke === undefined ? null : { client: c, stroke: msg.stroke };
+    // Triangles whose centroid the brush covers.
+    weights = weights.map((w, t) => {
+      const [a, b, d] = TRIANGLES.slice(3 * t, 3 * t + 3);
+      const cx = (positions[2 * a] + positions[2 * b] + positions[2 * d]) / 3;
+      const cy = (positions[2 * a + 1] + positions[2 * b + 1] + positions[2 * d + 1]) / 3;
+      return Math.hypot(cx - msg.x, cy - msg.y) <= msg.radius ? w * msg.strength : w;
+    });
+    broadcastJson({ type: 'weights', puppet: 0, weights });
+    if (!same) broadcastJson(historyMessage());
+    return null;
+  }
+  if (msg.type === 'save_weights') {
+    send(c, { type: 'weights_saved', puppet: 0, file: 'quad.v1.mesh.json' });
+    return null;
+  }
+  if (msg.type === 'pose') {
+    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    if (!POSES.includes(msg.from) || !POSES.includes(msg.to)) return { code: 'not_found', message: 'no such key pose' };
+    if (!(finite(msg.t) && msg.t >= 0 && msg.t <= 1)) return { code: 'out_of_range', message: 't out of range', field: 't' };
+    pose = { puppet: 0, from: msg.from, to: msg.to, t: msg.t };
+    broadcastJson({ type: 'pose', ...pose });
+    return null;
+  }
+  if (msg.type === 'undo' || msg.type === 'redo') {
+    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    const [from, to] = msg.type === 'undo' ? [undo, redo] : [redo, undo];
+    if (!from.length) return null;
+    to.push({ pins: pins.slice(), weights: weights.slice() });
+    lastStroke = null;
+    restore(from.pop());
+    broadcastJson(historyMessage());
+    return null;
+  }
+  if (msg.type === 'reset') {
+    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    remember();
+    lastStroke = null;
+    restore({ pins: [], weights: [1, 1] });
+    pose = { puppet: 0, from: 'rest', to: 'cheer', t: 0 };
+    broadcastJson({ type: 'pose', ...pose });
+    broadcastJson(historyMessage());
+    return null;
+  }
+  if (msg.type === 'replay') {
+    if (msg.source !== REPLAY) return { code: 'not_found', message: `no replay ${msg.source}`, field: 'source' };
+    replayPlaying = !!msg.playing;
+    broadcastJson(inputsMessage());
+    return null;
+  }
+  return { code: 'bad_message', message: `unhandled ${msg.type}` };
+}
+
+// Who a hello is: {role, person} or null when its token is refused.
+function admit(c, msg) {
+  if (msg.role === 'viewer') return { role: 'viewer', person: { owner: `client:${c.id}`, name: 'viewer', role: 'viewer', colour: '#999999' } };
+  if (msg.role !== 'performer' && msg.role !== 'director') return null;
+  const known = PEOPLE.find((p) => p.token === msg.token);
+  if (known) return { role: known.role, person: { owner: `client:${c.id}`, name: known.name, role: known.role, colour: freeColour() } };
+  if (msg.token === TOKEN) {
+    return { role: 'performer', person: { owner: `client:${c.id}`, name: `performer ${nextAnonymous++}`, role: 'performer', colour: freeColour() } };
+  }
+  return null;
 }
 
 const wss = new WebSocketServer({ server, path: '/ws', maxPayload: 64 * 1024 });
 wss.on('connection', (ws) => {
-  const c = { ws, id: nextClient++, role: null, ready: false, down: new Set() };
-  const fail = (message, close = false) => {
-    ws.send(JSON.stringify({ type: 'error', message }));
-    if (close) ws.close();
+  const c = { ws, id: nextClient++, role: null, person: null, ready: false, down: new Set() };
+  const fail = (error, close) => {
+    ws.send(JSON.stringify({ type: 'error', ...error }));
+    if (close) ws.close(...close);
   };
   ws.on('message', (data, isBinary) => {
     let msg;
     try {
       msg = isBinary ? null : JSON.parse(data.toString());
     } catch { /* handled below */ }
-    if (!msg || typeof msg !== 'object') return fail('malformed message', !c.ready);
+    if (!msg || typeof msg !== 'object') return fail({ code: 'bad_message', message: 'malformed message' }, c.ready ? null : [1008, 'bad message']);
     if (!c.ready) {
-      if (msg.type !== 'hello') return fail('expected hello', true);
-      if (msg.role === 'performer' && msg.token !== TOKEN) return fail('wrong token', true);
-      if (msg.role !== 'performer' && msg.role !== 'viewer') return fail('bad role', true);
-      c.role = msg.role;
+      if (msg.type !== 'hello') return fail({ code: 'hello', message: 'expected hello' }, [1008, 'expected hello']);
+      const who = admit(c, msg);
+      if (!who) {
+        console.error(`mock: client ${c.id}: token refused (${msg.role})`);
+        return fail({ code: 'bad_token', message: 'token refused' }, [4001, 'token refused']);
+      }
+      c.role = who.role;
+      c.person = who.person;
       c.ready = true;
       clients.add(c);
-      ws.send(JSON.stringify({
-        type: 'stage', client: c.id, role: c.role, stage: STAGE,
+      const you = c.role === 'viewer' ? { owner: c.person.owner, role: 'viewer' } : c.person;
+      send(c, {
+        type: 'stage', client: c.id, role: c.role, you, stage: STAGE,
         puppets: [{ id: 0, name: 'quad', texture: '/puppets/0/texture.png',
-          rest: REST, uv: UV, triangles: TRIANGLES, handles: handles() }],
-      }));
-      if (positions.some((v, i) => v !== REST[i])) sendFrame(); // show the current pose
+          rest: REST, uv: UV, triangles: TRIANGLES, handles: handles(), weights: [1, 1],
+          rig: { kind: 'skeleton', mode: 'fk', bones: [[0, 1]], rest: JOINTS, poses: POSES } }],
+      });
+      // The full live state, as the daemon sends a newcomer.
+      send(c, handlesMessage());
+      send(c, { type: 'weights', puppet: 0, weights });
+      send(c, historyMessage());
+      send(c, { type: 'pose', ...pose });
+      send(c, inputsMessage());
+      if (c.role === 'viewer') send(c, peopleMessage());
+      else broadcastJson(peopleMessage());
+      if (positions.some((v, i) => v !== REST[i])) { sequence++; send(c, frame(1, positions)); }
+      if (handles().length) c.ws.send(frame(3, handlePoints(), generation));
       return;
     }
     const err = onInput(c, msg);
     if (err) {
-      console.error(`mock: client ${c.id}: ${err}`);
+      console.error(`mock: client ${c.id}: ${err.message}`);
       fail(err);
     }
   });
   ws.on('close', () => {
+    const wasPerson = c.ready && c.role !== 'viewer';
     clients.delete(c);
-    if (grab?.client === c) { grab = null; sendHandles(); }
+    let held = false;
+    for (const [k, g] of grabs) if (g.client === c) { grabs.delete(k); held = true; }
+    if (held) sendHandles();
+    if (wasPerson) broadcastJson(peopleMessage());
   });
 });
 

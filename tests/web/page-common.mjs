@@ -155,3 +155,42 @@ export async function pageState(page) {
   const errors = await page?.evaluate(() => window.puppetry?.errors ?? []).catch(() => []);
   return { status, errors: errors ?? [] };
 }
+
+/** `base` (any URL of the server) with its query replaced by `query` ("?role=…" or ""). */
+export function pageUrl(base, query) {
+  const u = new URL(base);
+  u.search = query;
+  u.hash = '';
+  return u.toString();
+}
+
+/** "x,y" (an environment variable) as [x, y], or `fallback` when unset. */
+export function pointEnv(name, fallback) {
+  const text = process.env[name];
+  if (text === undefined || text === '') return fallback;
+  const p = text.split(',').map(Number);
+  if (p.length !== 2 || p.some((v) => !Number.isFinite(v))) throw new Error(`${name} must be "x,y", not ${text}`);
+  return p;
+}
+
+/** Every error the pages and their own lists reported. */
+export async function allErrors(errors, pages) {
+  const own = [];
+  for (const p of pages) own.push(...(await p?.evaluate(() => window.puppetry?.errors ?? []).catch(() => []) ?? []));
+  return [...errors, ...own];
+}
+
+/** "#E69F00" or "rgb(230, 159, 0)" as [r, g, b]. */
+export function rgbOf(colour) {
+  const hex = /^#([0-9a-f]{6})$/i.exec(colour ?? '');
+  if (hex) {
+    const n = parseInt(hex[1], 16);
+    return [(n >> 16) & 255, (n >> 8) & 255, n & 255];
+  }
+  return (colour?.match(/\d+(\.\d+)?/g) ?? []).slice(0, 3).map(Number);
+}
+
+/** Sum of absolute channel differences of two [r, g, b]. */
+export function colourDistance(a, b) {
+  return Math.abs(a[0] - b[0]) + Math.abs(a[1] - b[1]) + Math.abs(a[2] - b[2]);
+}

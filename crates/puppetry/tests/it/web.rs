@@ -1,9 +1,11 @@
 //! The web renderer in headless Chromium against the real daemon: the page
 //! loads, draws the puppet, and a synthetic drag deforms it (pixels change).
-//! Also the record button and the keyframing pad. Runs only with
+//! Also the record button and the keyframing pad (a director's), two named
+//! performers and a viewer who see each other's hands, a refused token,
+//! and the show view and the performer view's chrome. Runs only with
 //! `PUPPETRY_BROWSER_TESTS=1` (see `tests/it/common/browser.rs`).
 
-use crate::common::browser;
+use crate::common::browser::{self, DIRECTOR, PERFORMER};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_browser_drag_deforms_the_puppet() {
@@ -27,7 +29,7 @@ async fn the_record_button_records_a_take_every_page_sees() {
     if !browser::enabled("the_record_button_records_a_take_every_page_sees") {
         return;
     }
-    let run = browser::run_page("demo", "record.mjs", "640,360", &[]).await;
+    let run = browser::run_page_as("demo", DIRECTOR, "record.mjs", "640,360", &[]).await;
     let summary = &run.summary;
     assert!(
         summary["changedPixels"].as_u64().unwrap() > 500,
@@ -74,11 +76,87 @@ async fn the_key_pad_blends_key_poses_made_on_the_page() {
     if !browser::enabled("the_key_pad_blends_key_poses_made_on_the_page") {
         return;
     }
-    // The demo puppet's head.
-    let summary = browser::run_page_script("demo", "keypad.mjs", "640,540").await;
+    // The demo puppet's head; key poses are the director's.
+    let summary = browser::run_page_as("demo", DIRECTOR, "keypad.mjs", "640,540", &[])
+        .await
+        .summary;
     assert!(
         summary["changedPixels"].as_u64().unwrap() > 500,
         "{summary}"
     );
     assert!(summary["keyHandles"].as_u64().unwrap() > 0, "{summary}");
+}
+
+/// Issue 12, observations 1 and 2: performers Ana and Ben (the demo stage's
+/// people) and a viewer, with a transparent show page to tell the puppet
+/// from the background. Every page's legend shows both in the colours the
+/// server gave them, far apart; while Ana holds the puppet's belly and Ben
+/// drags its head, every page draws each dot under its finger (within a
+/// few pixels), in its owner's colour, on the puppet. Before: the viewer's
+/// dots stayed where the fingers landed, and both hashed to nearly the
+/// same yellow-green.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_performers_and_a_viewer_see_every_hand_under_its_finger_in_its_colour() {
+    if !browser::enabled(
+        "two_performers_and_a_viewer_see_every_hand_under_its_finger_in_its_colour",
+    ) {
+        return;
+    }
+    let env = [
+        ("PUPPETRY_TOKENS", "ana,ben"),
+        ("PUPPETRY_HOLD", "640,360"),
+        ("PUPPETRY_DRAG", "40,0"),
+    ];
+    let summary = browser::run_page_as("demo", "", "people.mjs", "640,540", &env)
+        .await
+        .summary;
+    assert!(
+        summary["colourDistance"].as_u64().unwrap() >= 80,
+        "{summary}"
+    );
+    // Four pages, two fingers each, halfway and at the end.
+    assert_eq!(summary["end"].as_object().unwrap().len(), 8, "{summary}");
+}
+
+/// Issue 12, observation 3 (and 5, page side): a wrong token gets the
+/// banner "token refused — viewing only" and a viewer's page at once, and
+/// the token is never sent again (a dropped connection comes back as a
+/// viewer); a good token leaves the address bar and survives a reload.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_token_falls_back_to_viewing_without_retrying() {
+    if !browser::enabled("a_refused_token_falls_back_to_viewing_without_retrying") {
+        return;
+    }
+    let env = [("PUPPETRY_TOKEN", "ana")];
+    let summary = browser::run_page_as("demo", "", "token.mjs", "640,360", &env)
+        .await
+        .summary;
+    assert_eq!(summary["wrong"]["role"], "viewer", "{summary}");
+    assert_eq!(
+        summary["wrongAfterDrop"].as_array().unwrap().len(),
+        3,
+        "{summary}"
+    );
+}
+
+/// Issue 12, observation 9 (page side): `/?view=show` has no UI at all, no
+/// dots unless asked, a transparent background and a fixed drawing size
+/// when asked; the performer's toolbar sits above the stage, hides with
+/// `h` (the stage then fills the window), and the page has fullscreen, a
+/// loud connection indicator and a latency readout.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_show_view_is_only_the_puppets_and_the_toolbar_hides() {
+    if !browser::enabled("the_show_view_is_only_the_puppets_and_the_toolbar_hides") {
+        return;
+    }
+    let env = [("PUPPETRY_TOKEN", "ana")];
+    let summary = browser::run_page_as("demo", PERFORMER, "show.mjs", "640,360", &env)
+        .await
+        .summary;
+    assert_eq!(
+        summary["show"]["ui"].as_array().unwrap().len(),
+        0,
+        "{summary}"
+    );
+    assert_eq!(summary["transparent"]["alpha"]["corner"], 0, "{summary}");
 }

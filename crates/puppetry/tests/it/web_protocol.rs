@@ -43,3 +43,23 @@ fn the_web_protocol_mirror_names_every_documented_value() {
         missing.join(", ")
     );
 }
+
+/// The page's pure pieces (`tests/web/unit.test.mjs`: the address's view
+/// options and token handling, the latency median, owner colours, handle
+/// frames and where a handle is drawn) pass their unit tests under Node.
+/// No browser and no Node packages needed, only Node itself.
+#[test]
+fn the_pages_pure_pieces_pass_their_unit_tests() {
+    let root = puppetry_testkit::root();
+    let output = std::process::Command::new("node")
+        .arg("--test")
+        .arg(root.join("tests/web/unit.test.mjs"))
+        .output()
+        .expect("node runs (install Node.js: apt-get install nodejs)");
+    assert!(
+        output.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+}

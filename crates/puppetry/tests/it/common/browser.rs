@@ -1,6 +1,7 @@
 //! Headless-Chromium page tests against the real daemon: start it on a stage
 //! file from `config/`, run a script of `tests/web` against the page as a
-//! performer, and read the script's one-line JSON summary. They run only
+//! performer, a director or a viewer, and read the script's one-line JSON
+//! summary. They run only
 //! with `PUPPETRY_BROWSER_TESTS=1` (set by `.ci/run`, which installs
 //! Chromium and the Node packages), so `cargo test` works on a bare machine.
 
@@ -35,9 +36,17 @@ pub struct PageRun {
     pub takes: tempfile::TempDir,
 }
 
+/// The page's address (after the server's) for an anonymous performer of
+/// the bundled stages.
+pub const PERFORMER: &str = "?role=performer&token=demo";
+
+/// The page's address for the bundled stages' director (who records,
+/// paints, saves and edits key poses).
+pub const DIRECTOR: &str = "?role=director&token=director";
+
 /// Serves `config/<stage>.toml` on a free port, runs `tests/web/<script>`
-/// against it with the pointer at the stage point `point` ("x,y"), and
-/// returns the script's summary once it has succeeded.
+/// against it as a performer with the pointer at the stage point `point`
+/// ("x,y"), and returns the script's summary once it has succeeded.
 pub async fn run_page_script(stage: &str, script: &str, point: &str) -> serde_json::Value {
     run_page(stage, script, point, &[]).await.summary
 }
@@ -45,6 +54,18 @@ pub async fn run_page_script(stage: &str, script: &str, point: &str) -> serde_js
 /// As [`run_page_script`], with extra environment variables for the script,
 /// and the takes folder kept for the caller.
 pub async fn run_page(stage: &str, script: &str, point: &str, env: &[(&str, &str)]) -> PageRun {
+    run_page_as(stage, PERFORMER, script, point, env).await
+}
+
+/// As [`run_page`], with the page's address `query` (`PERFORMER`,
+/// `DIRECTOR`, `""` for a viewer) in the script's `PUPPETRY_URL`.
+pub async fn run_page_as(
+    stage: &str,
+    query: &str,
+    script: &str,
+    point: &str,
+    env: &[(&str, &str)],
+) -> PageRun {
     let root = puppetry_testkit::root();
     let node_modules = root.join("tests/web/node_modules");
     check_tools(&node_modules);
@@ -54,7 +75,7 @@ pub async fn run_page(stage: &str, script: &str, point: &str, env: &[(&str, &str
     let mut options = Options::new(WebFiles::Embedded);
     options.takes_dir = takes.path().to_path_buf();
     let running = start_with(&config, options).await.unwrap();
-    let url = format!("http://{}/?role=performer&token=demo", running.address);
+    let url = format!("http://{}/{query}", running.address);
     let script = root.join("tests/web").join(script);
     let point = point.to_string();
     let env: Vec<(String, String)> = env

@@ -1,0 +1,168 @@
+// Unit tests of the page's pure pieces (no browser): the address's view
+// options and token handling, the latency median, owner colours, the
+// handle frame header and where a handle is drawn.
+//
+//   node --test unit.test.mjs
+
+import test from 'node:test';
+import assert from 'node:assert/strict';
+
+import { FRAME_KIND_HANDLES, decodeFrameHeader, framePoints, paintMessage, pingMessage } from '../../clients/web/protocol.js';
+import { TOKEN_KEY, forgetToken, parseSize, takeAccess, viewOptions } from '../../clients/web/session.js';
+import { FpsMeter, LatencyMeter, median } from '../../clients/web/hud.js';
+import { CONFIG_COLOUR, People, UNKNOWN_COLOUR, parseHex, withAlpha } from '../../clients/web/people.js';
+import { handleAt } from '../../clients/web/overlay.js';
+
+// sessionStorage's interface over a Map.
+function storage(entries = {}) {
+  const m = new Map(Object.entries(entries));
+  return {
+    getItem: (k) => (m.has(k) ? m.get(k) : null),
+    setItem: (k, v) => m.set(k, String(v)),
+    removeItem: (k) => m.delete(k),
+    map: m,
+  };
+}
+
+test('view options: the show view, transparency, a fixed size, dots', () => {
+  const o = viewOptions(new URLSearchParams('view=show&background=transparent&size=1920x1080'));
+  assert.deepEqual(o, { show: true, transparent: true, size: { width: 1920, height: 1080 }, dots: false });
+  assert.equal(viewOptions(new URLSearchParams('view=show&dots=1')).dots, true);
+  const page = viewOptions(new URLSearchParams('role=performer'));
+  assert.deepEqual(page, { show: false, transparent: false, size: null, dots: true });
+});
+
+test('sizes: WxH within 1…16384, anything else is none', () => {
+  assert.deepEqual(parseSize('1280x720'), { width: 1280, height: 720 });
+  for (const bad of ['', null, '0x720', '1280', '1280x', 'x720', '99999x1', '-1x5', '12.5x3', '1280x720x3']) {
+    assert.equal(parseSize(bad), null, String(bad));
+  }
+});
+
+test('a token in the address moves to storage and out of the address', () => {
+  const s = storage();
+  const replaced = [];
+  const a = takeAccess({ href: 'http://h/?role=performer&token=s3cret&calibrate' }, s, (u) => replaced.push(u));
+  assert.deepEqual(a, { role: 'performer', token: 's3cret' });
+  assert.equal(s.getItem(TOKEN_KEY), 's3cret');
+  assert.deepEqual(replaced, ['http://h/?role=performer&calibrate=']);
+  // A reload: the address has the role only, the token comes from storage.
+  const again = takeAccess({ href: replaced[0] }, s, () => assert.fail('nothing to replace'));
+  assert.deepEqual(again, { role: 'performer', token: 's3cret' });
+});
+
+test('directors ask as directors; viewers and the show view never send a token', () => {
+  const s = storage({ [TOKEN_KEY]: 'kept' });
+  assert.deepEqual(takeAccess({ href: 'http://h/?role=director' }, s, () => {}), { role: 'director', token: 'kept' });
+  assert.deepEqual(takeAccess({ href: 'http://h/' }, s, () => {}), { role: 'viewer', token: '' });
+  assert.deepEqual(takeAccess({ href: 'http://h/?role=nonsense' }, s, () => {}), { role: 'viewer', token: '' });
+  const replaced = [];
+  const show = takeAccess({ href: 'http://h/?view=show&role=performer&token=t' }, s, (u) => replaced.push(u), { show: true });
+  assert.deepEqual(show, { role: 'viewer', token: '' });
+  assert.deepEqual(replaced, ['http://h/?view=show&role=performer'], 'the token leaves the address even so');
+});
+
+test('a refused token is forgotten', () => {
+  const s = storage({ [TOKEN_KEY]: 'wrong' });
+  forgetToken(s);
+  assert.deepEqual(takeAccess({ href: 'http://h/?role=performer' }, s, () => {}), { role: 'performer', token: '' });
+});
+
+test('storage that throws costs only the token across reloads', () => {
+  const broken = { getItem() { throw new Error('denied'); }, setItem() { throw new Error('denied'); }, removeItem() { throw new Error('denied'); } };
+  assert.deepEqual(takeAccess({ href: 'http://h/?role=performer&token=t' }, broken, () => {}), { role: 'performer', token: 't' });
+  assert.deepEqual(takeAccess({ href: 'http://h/?role=performer' }, broken, () => {}), { role: 'performer', token: '' });
+  forgetToken(broken);
+});
+
+test('latency: the median of the last few round trips', () => {
+  assert.equal(median([]), null);
+  assert.equal(median([5]), 5);
+  assert.equal(median([9, 1, 5]), 5);
+  assert.equal(median([4, 1, 3, 2]), 2.5);
+  const m = new LatencyMeter(3);
+  assert.equal(m.ms, null);
+  for (const v of [10, 500, 12]) m.add(v);
+  assert.equal(m.ms, 12, 'one slow answer does not move it');
+  m.add(14);
+  m.add(NaN);
+  m.add(-3);
+  assert.deepEqual(m.samples, [500, 12, 14]);
+  m.add(11);
+  assert.equal(m.ms, 12);
+});
+
+test('frames per second over the last whole second', () => {
+  const f = new FpsMeter();
+  let updated = false;
+  for (let i = 0; i <= 60; i++) updated = f.tick(i * (1000 / 60)) || updated;
+  assert.equal(updated, true);
+  assert.equal(f.fps, 60);
+});
+
+test('owner colours come from the people list; others are neutral', () => {
+  const p = new People();
+  p.update([
+    { owner: 'client:3', name: 'Ana', role: 'performer', colour: '#E69F00' },
+    { owner: 'grid-play', name: 'grid-play', role: 'device', colour: '#999999' },
+  ]);
+  assert.equal(p.colour('client:3'), '#E69F00');
+  assert.equal(p.colour('grid-play'), '#999999');
+  assert.equal(p.colour('config'), CONFIG_COLOUR);
+  assert.equal(p.colour('client:4'), UNKNOWN_COLOUR);
+  assert.equal(p.css('client:3', 0.5), 'rgb(230 159 0 / 0.5)');
+  assert.deepEqual(parseHex('#0af'), [0, 170, 255]);
+  assert.equal(parseHex('red'), null);
+  assert.equal(withAlpha('red', 0.5), 'red');
+  p.update(undefined);
+  assert.equal(p.colour('client:3'), UNKNOWN_COLOUR);
+});
+
+// A handle frame as the daemon writes it.
+function handleFrame(puppet, sequence, generation, points) {
+  const buf = new ArrayBuffer(32 + 4 * points.length);
+  const v = new DataView(buf);
+  v.setUint32(0, FRAME_KIND_HANDLES, true);
+  v.setUint32(4, puppet, true);
+  v.setBigUint64(8, BigInt(sequence), true);
+  v.setFloat64(16, 1.5, true);
+  v.setUint32(24, points.length / 2, true);
+  v.setUint32(28, generation, true);
+  points.forEach((x, i) => v.setFloat32(32 + 4 * i, x, true));
+  return buf;
+}
+
+test('a handle frame header carries the handle set generation', () => {
+  const buf = handleFrame(2, 77, 9, [1, 2, 3, 4]);
+  const h = decodeFrameHeader(buf);
+  assert.deepEqual(h, { kind: 3, puppet: 2, sequence: 77, inputTime: 1.5, count: 2, generation: 9 });
+  assert.deepEqual([...framePoints(buf, h)], [1, 2, 3, 4]);
+});
+
+test('handles are drawn at the handle frame of their generation, else where they were', () => {
+  const handles = [
+    { id: 1, owner: 'client:3', kind: 'contact', at: [10, 10], grip: 'point' },
+    { id: 2, owner: 'client:4', kind: 'contact', at: [20, 20], grip: 'point' },
+    { id: 3, owner: 'config', kind: 'pin', at: [30, 30], grip: 'point' },
+  ];
+  const p = { handles, handlesGeneration: 5, handleFrame: null, keyAnchors: new Map(), positions: [], rigPoints: null };
+  // No frame yet: others' handles where they were held; our own is the pointer's.
+  assert.equal(handleAt(p, 0, 'client:3'), null);
+  assert.deepEqual(handleAt(p, 1, 'client:3'), [20, 20]);
+  // A frame of this generation: everyone's handles where they are now.
+  p.handleFrame = { generation: 5, sequence: 1, points: new Float32Array([11, 12, 25, 26, 30, 30]) };
+  assert.deepEqual(handleAt(p, 0, 'client:3'), [11, 12]);
+  assert.deepEqual(handleAt(p, 1, 'client:3'), [25, 26]);
+  assert.deepEqual(handleAt(p, 2, 'client:3'), [30, 30]);
+  // A frame of another generation (or count) names other handles: not used.
+  p.handleFrame = { generation: 4, sequence: 2, points: new Float32Array([0, 0, 0, 0, 0, 0]) };
+  assert.deepEqual(handleAt(p, 1, 'client:3'), [20, 20]);
+  p.handleFrame = { generation: 5, sequence: 2, points: new Float32Array([0, 0]) };
+  assert.deepEqual(handleAt(p, 1, 'client:3'), [20, 20]);
+});
+
+test('messages: pings carry their time, paint dabs their stroke', () => {
+  assert.deepEqual(pingMessage(12.5), { type: 'ping', t: 12.5 });
+  assert.deepEqual(paintMessage(0, 1, 2, 3, 1.5, 7), { type: 'paint', puppet: 0, x: 1, y: 2, radius: 3, strength: 1.5, stroke: 7 });
+  assert.equal('stroke' in paintMessage(0, 1, 2, 3, 1.5), false);
+});
