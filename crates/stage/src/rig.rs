@@ -265,7 +265,8 @@ impl Rig {
         let [a, c] = r.deformer.skeleton().bones()[index];
         let (from, d) = (joints[a], joints[c] - joints[a]);
         let length = d.length();
-        if !(length > 0.0) {
+        // A bone of no length (or not finite) has no direction to grab.
+        if length.is_nan() || length <= 0.0 {
             return None;
         }
         let unit = d / length;
