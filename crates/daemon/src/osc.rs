@@ -983,11 +983,15 @@ async fn cursor(
     ask(commands, |reply| Command::Keys { change, reply }).await
 }
 
-/// Resets a puppet: every reset trigger comes through here.
-async fn reset(_commands: &mpsc::Sender<Command>, puppet: u32) -> Result<(), String> {
-    Err(format!(
-        "puppet {puppet}: reset is not available in this build yet"
-    ))
+/// Resets a puppet (as the page's reset button): every reset trigger
+/// comes through here.
+async fn reset(commands: &mpsc::Sender<Command>, puppet: u32) -> Result<(), String> {
+    ask(commands, |reply| Command::Edit {
+        puppet,
+        edit: crate::stage_thread::Edit::Reset,
+        reply,
+    })
+    .await
 }
 
 /// One `send` host: where it resolved to, and its own log window.
@@ -1245,11 +1249,13 @@ impl Sender {
 }
 
 /// Each handle's point from a handle frame (binary kind 3), if the frame
-/// is of this handle set (its count matches).
+/// follows this handle set (the two watches are read one after the other,
+/// so a set may be newer than the frame, or older, for a moment).
 fn handle_positions(frame: &[u8], handles: &PublishedHandles) -> Option<Vec<[f64; 2]>> {
     let decoded = crate::protocol::decode_frame(frame).ok()?;
-    (decoded.points.len() == handles.handles.len())
-        .then(|| decoded.points.iter().map(|p| [p.x, p.y]).collect())
+    (decoded.header.generation == handles.generation
+        && decoded.points.len() == handles.handles.len())
+    .then(|| decoded.points.iter().map(|p| [p.x, p.y]).collect())
 }
 
 /// Packs messages into as few bundles as fit a datagram each (a message

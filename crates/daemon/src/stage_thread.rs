@@ -174,6 +174,8 @@ pub struct CursorState {
 pub struct PublishedHandles {
     pub handles: Vec<HandleView>,
     pub text: Arc<str>,
+    /// The set's generation (handle frames name the one they follow).
+    pub generation: u32,
 }
 
 /// The "cursors" message: every mouse cursor on the stage.
@@ -222,15 +224,17 @@ pub fn handle_views(stage: &Stage, puppet: u32) -> Vec<HandleView> {
 /// The "handles" message of a puppet, with the list it was made from.
 pub fn published_handles(stage: &Stage, puppet: u32) -> Arc<PublishedHandles> {
     let handles = handle_views(stage, puppet);
+    let generation = stage.puppets()[puppet as usize].handles_generation();
     let text = ServerMessage::Handles {
         puppet,
-        generation: stage.puppets()[puppet as usize].handles_generation(),
+        generation,
         handles: handles.clone(),
     }
     .to_text();
     Arc::new(PublishedHandles {
         handles,
         text: Arc::from(text),
+        generation,
     })
 }
 
