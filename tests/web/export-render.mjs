@@ -59,7 +59,8 @@ run(async () => {
   const written = [];
   try {
     const { page } = browser;
-    await page.goto(`${url}/`);
+    // The show view: only the puppets, filling the window (no toolbar).
+    await page.goto(`${url}/?view=show`);
     await connected;
     await page.waitForFunction(() => window.puppetry?.connected && window.puppetry.ready);
     const canvas = await page.evaluate(() => [document.getElementById('gl').width, document.getElementById('gl').height]);

@@ -99,6 +99,18 @@ export async function waitFor(page, what, fn, arg, timeout = 15_000) {
   }
 }
 
+/**
+ * Resizes the page's window and waits until the page has laid itself out
+ * at the new size: the page maps stage to client coordinates from its last
+ * layout, so a click computed before the resize event lands elsewhere.
+ */
+export async function resizeTo(page, size) {
+  await page.setViewportSize(size);
+  await waitFor(page, `the page laid out at ${size.width}x${size.height}`,
+    ([w, h]) => window.innerWidth === w && window.innerHeight === h, [size.width, size.height]);
+  await settle(page);
+}
+
 /** Two animation frames: the newest state has been drawn and presented. */
 export function settle(page) {
   return page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));

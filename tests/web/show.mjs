@@ -22,7 +22,7 @@
 import fs from 'node:fs';
 import path from 'node:path';
 import {
-  startScript, allErrors, openPage, pageState, pageUrl, settle, stageToClient, waitFor,
+  startScript, allErrors, openPage, pageState, pageUrl, resizeTo, settle, stageToClient, waitFor,
 } from './page-common.mjs';
 
 const { url, point, shotDir, summary, finish, launch } = startScript();
@@ -89,7 +89,7 @@ try {
   step('a performer pins the puppet');
   pages.performer = await openPage(context, pageUrl(url, `?role=performer&token=${encodeURIComponent(token)}`), errors, 'performer');
   const performer = pages.performer;
-  await performer.setViewportSize(FULL_HD);
+  await resizeTo(performer, FULL_HD);
   const pinsBefore = await performer.evaluate(() => (window.puppetry.handles[0] ?? []).filter((h) => h.kind === 'pin').length);
   const [px, py] = await stageToClient(performer, point);
   await performer.keyboard.down('Shift');
@@ -100,7 +100,7 @@ try {
   step('the show view');
   pages.show = await openPage(context, pageUrl(url, '?view=show'), errors, 'show');
   const show = pages.show;
-  await show.setViewportSize(FULL_HD);
+  await resizeTo(show, FULL_HD);
   await waitFor(show, 'the pin in the show view', () => (window.puppetry.handles[0] ?? []).some((h) => h.kind === 'pin'));
   await settle(show);
   summary.show = {

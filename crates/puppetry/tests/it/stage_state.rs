@@ -22,6 +22,11 @@ use crate::common::daemon::{
 };
 
 const PERFORMER: &str = "secret";
+/// The test stage's director: painting, saving and undo are theirs.
+const DIRECTOR: &str = "boss";
+
+/// A text message's type and a test it must pass.
+type Wanted<'a> = (&'a str, &'a dyn Fn(&Value) -> bool);
 
 /// A connection that keeps what it has read: the newest text message of
 /// each type (and per puppet) and recent frames by kind and sequence.
@@ -84,6 +89,22 @@ impl Conn {
                 return m;
             }
         }
+    }
+
+    /// Reads until each `(kind, done)` pair has been met by a text message,
+    /// in whatever order they come (weights and history travel separately),
+    /// and returns the messages that met them, in the pairs' order.
+    async fn texts_until(&mut self, wanted: &[Wanted<'_>]) -> Vec<Value> {
+        let mut found: Vec<Option<Value>> = vec![None; wanted.len()];
+        while found.iter().any(Option::is_none) {
+            let Some(m) = self.read().await else { continue };
+            for ((kind, done), slot) in wanted.iter().zip(&mut found) {
+                if slot.is_none() && m["type"] == *kind && done(&m) {
+                    *slot = Some(m.clone());
+                }
+            }
+        }
+        found.into_iter().flatten().collect()
     }
 
     async fn send(&mut self, message: Value) {
@@ -196,7 +217,7 @@ async fn edits_are_bounded_saved_beside_the_mesh_and_undone_exactly() {
     let mut options = Options::new(WebFiles::Embedded);
     options.takes_dir = takes.clone();
     let running = start_with(&config, options).await.unwrap();
-    let (mut p, stage) = Conn::performer(&running, PERFORMER).await;
+    let (mut p, stage) = Conn::performer(&running, DIRECTOR).await;
     let loaded = weights(&stage["puppets"][0]);
     let original = std::fs::read(dir.path().join("gingerbread.mesh.json")).unwrap();
 
@@ -222,11 +243,16 @@ async fn edits_are_bounded_saved_beside_the_mesh_and_undone_exactly() {
             {"id": 1, "phase": "move", "x": 650.0 + 5.0 * i as f64, "y": 480.0}]}))
             .await;
     }
-    let painted = p
-        .text_until("history", |m| m["undo"] == 1 && m["redo"] == 0)
-        .await;
-    assert_eq!(painted["puppet"], 0);
-    let painted = weights(&p.text_until("weights", |m| weights(m) != loaded).await);
+    let [history, painted] = p
+        .texts_until(&[
+            ("history", &|m| m["undo"] == 1 && m["redo"] == 0),
+            ("weights", &|m| weights(m) != loaded),
+        ])
+        .await
+        .try_into()
+        .unwrap();
+    assert_eq!(history["puppet"], 0);
+    let painted = weights(&painted);
     // Every dab arrived before the history said 1: wait for the last one.
     p.send(json!({"type": "save_weights", "puppet": 0})).await;
     let v1 = p.text_until("weights_saved", |_| true).await;
@@ -254,17 +280,21 @@ async fn edits_are_bounded_saved_beside_the_mesh_and_undone_exactly() {
     );
 
     p.send(json!({"type": "undo", "puppet": 0})).await;
-    p.text_until("weights", |m| weights(m) == loaded).await;
-    p.text_until("history", |m| m["undo"] == 0 && m["redo"] == 1)
-        .await;
+    p.texts_until(&[
+        ("weights", &|m| weights(m) == loaded),
+        ("history", &|m| m["undo"] == 0 && m["redo"] == 1),
+    ])
+    .await;
     p.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "move", "x": 670.0, "y": 490.0}]}))
         .await;
     p.send(json!({"type": "redo", "puppet": 0})).await;
     p.text_until("weights", |m| weights(m) == painted).await;
     p.send(json!({"type": "reset", "puppet": 0})).await;
-    p.text_until("weights", |m| weights(m) == loaded).await;
-    p.text_until("history", |m| m["undo"] == 2 && m["redo"] == 0)
-        .await;
+    p.texts_until(&[
+        ("weights", &|m| weights(m) == loaded),
+        ("history", &|m| m["undo"] == 2 && m["redo"] == 0),
+    ])
+    .await;
     p.send(json!({"type": "contacts", "contacts": [{"id": 1, "phase": "up"}]}))
         .await;
     p.send(json!({"type": "stop_recording"})).await;
@@ -381,7 +411,7 @@ async fn a_paused_replay_leaves_the_puppet_until_it_is_played() {
     viewer.text_until("takes", |_| true).await;
     assert!(viewer.frames.is_empty(), "{:?}", viewer.frames.keys());
 
-    let (mut director, _) = Conn::performer(&running, "demo").await;
+    let (mut director, _) = Conn::performer(&running, "director").await;
     director
         .send(json!({"type": "replay", "source": "nothing", "playing": true}))
         .await;
