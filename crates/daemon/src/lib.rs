@@ -12,6 +12,7 @@
 //!                       each frame once)
 //! ```
 
+pub mod lineup;
 pub mod osc;
 pub mod protocol;
 pub mod serve;

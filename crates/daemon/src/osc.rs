@@ -579,12 +579,15 @@ pub struct Links {
 }
 
 impl Links {
+    /// The stage file's puppets (show control's address space is fixed at
+    /// start: puppets added at runtime are not in it).
     pub fn of(shared: &Shared) -> Links {
-        let puppets = shared
-            .stage
+        let lineup = shared.lineup.borrow().clone();
+        let puppets = lineup
+            .description
             .puppets
             .iter()
-            .zip(&shared.outputs)
+            .zip(&lineup.outputs)
             .map(|(p, o)| PuppetLink {
                 poses: match &p.rig {
                     RigDescription::Skeleton { poses, .. } => poses.clone(),
@@ -601,8 +604,8 @@ impl Links {
             })
             .collect();
         Links {
-            names: shared
-                .stage
+            names: lineup
+                .description
                 .puppets
                 .iter()
                 .map(|p| p.name.clone())

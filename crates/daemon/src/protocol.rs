@@ -249,6 +249,10 @@ pub enum ErrorCode {
     Failed,
     /// The first message was not a hello.
     Hello,
+    /// An uploaded picture is not a PNG, or cannot be made a puppet.
+    BadImage,
+    /// An HTTP request's parameters are missing or not well-formed.
+    BadRequest,
 }
 
 /// What a client sends (text).
@@ -340,6 +344,15 @@ pub enum ClientMessage {
     },
     /// Stop playing (and, if overdubbing, recording).
     StopPlaying,
+    /// Take a puppet off the stage (directors). Its id is not reused.
+    RemovePuppet {
+        puppet: u32,
+    },
+    /// The draw order: every puppet on stage once, bottom to top
+    /// (directors).
+    OrderPuppets {
+        order: Vec<u32>,
+    },
     /// Move a puppet's keyframing cursor (pad coordinates `[0, 1]²`), or
     /// let it go (`at` left out).
     Cursor {
@@ -517,6 +530,16 @@ pub enum ServerMessage {
     },
     /// The answer to `save_keys`.
     KeysSaved { puppet: u32, file: String },
+    /// The answer to `POST /puppets`: the puppet made from the picture (a
+    /// fresh `stage` message with it goes to everyone). `warnings` says
+    /// what about the picture may not be what was meant.
+    PuppetAdded {
+        puppet: u32,
+        name: String,
+        vertices: usize,
+        triangles: usize,
+        warnings: Vec<String>,
+    },
     /// Recording and playing now (sent to everyone on every change).
     Take(TakeState),
     /// How the export of a take downloading from the page is going.

@@ -16,7 +16,7 @@ use crate::sources::{
     Replays, SOURCE_QUEUE, SourceError, WhenDone, forward, run_replay, supervise,
 };
 use crate::stage_thread::{self, Command, CursorState, TakeSettings};
-use crate::stream::{self, Shared, StageDescription, StreamError, WebFiles};
+use crate::stream::{self, Shared, StreamError, WebFiles};
 use crate::takes::PlayOptions;
 use glam::DVec2;
 use puppetry_input::device::{DeviceKind, DeviceMatch};
@@ -116,6 +116,9 @@ pub struct Options {
     pub extra_replay: Option<(PathBuf, Pacing)>,
     /// Where takes are recorded and listed.
     pub takes_dir: PathBuf,
+    /// Where pictures a director adds at runtime are kept, with their
+    /// meshes.
+    pub puppets_dir: PathBuf,
     /// Record a take from the first input to shutdown.
     pub record: bool,
     /// A take to play into the stage at start.
@@ -131,6 +134,7 @@ impl Options {
             web_files,
             extra_replay: None,
             takes_dir: PathBuf::from("takes"),
+            puppets_dir: PathBuf::from("puppets"),
             record: false,
             play: None,
             paused_replays: false,
@@ -156,13 +160,13 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         web_files,
         extra_replay,
         takes_dir,
+        puppets_dir,
         record,
         play,
         paused_replays,
     } = options;
     let started = Instant::now();
     let stage = Stage::from_config(config)?;
-    let take_puppets = puppetry_take::Header::of_stage("", &config.file, &stage, true).puppets;
     let (commands, commands_rx) = mpsc::channel(COMMAND_QUEUE);
     let listener = stream::bind(config.stage.listen).await?;
     let address = listener
@@ -175,14 +179,18 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     let size = DVec2::new(stage.width, stage.height);
     let resolved = resolve_inputs(config, size, extra_replay).await?;
     let people = Arc::new(stream::People::new(config, resolved.source_names()));
-    let description = StageDescription::of(&stage);
     let settings = TakeSettings {
         dir: takes_dir.clone(),
         stage_file: config.file.clone(),
         record_from_first_input: record,
     };
-    let (outputs, stage_thread) =
-        stage_thread::spawn(stage, commands_rx, commands.downgrade(), settings);
+    let (outputs, stage_thread) = stage_thread::spawn(
+        config.clone(),
+        stage,
+        commands_rx,
+        commands.downgrade(),
+        settings,
+    );
     let replays = Arc::new(Replays::new(
         resolved
             .replays
@@ -191,21 +199,19 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
             .collect(),
     ));
     let shared = Arc::new(Shared {
-        stage: description,
+        lineup: outputs.lineup,
         people,
         log: Default::default(),
         addresses: Default::default(),
         web_files,
         max_connections: config.stage.max_connections,
         commands: commands.clone(),
-        outputs: outputs.puppets,
         cursors: outputs.cursors,
         take: outputs.take,
         changes: outputs.changes,
         takes_dir,
-        take_puppets,
+        puppets_dir,
         player: std::sync::Mutex::new(None),
-        config: config.clone(),
         exporting: std::sync::atomic::AtomicBool::new(false),
         export_state: watch::channel(Arc::<str>::from("")).0,
         client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
@@ -227,7 +233,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     if let Some((path, play_options)) = play {
         let player = crate::takes::play(
             &path,
-            &shared.take_puppets,
+            &shared.lineup.borrow().take_puppets.clone(),
             play_options,
             commands.clone(),
             started,

@@ -26,10 +26,12 @@ use puppetry_stage::{
 use puppetry_take::recorder::Recorder;
 use puppetry_take::{Frame, Header, Record, Step};
 
+use crate::lineup::{Lineup, LineupChange};
 use crate::protocol::{
     self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, TakeState, encode_frame,
     encode_frame_of,
 };
+use puppetry_stage::config::StageConfig;
 
 /// The stage thread's answer to a request.
 pub type Reply<T> = oneshot::Sender<Result<T, CommandError>>;
@@ -134,6 +136,12 @@ pub enum Command {
     },
     /// Which take is playing (`None`: playing stopped), for the take state.
     Playing(Option<String>),
+    /// Add, remove or reorder puppets (refused while a take records);
+    /// answers the puppet added or removed (0 for a new order).
+    Lineup {
+        change: LineupChange,
+        reply: Reply<u32>,
+    },
     /// End the thread (the daemon is shutting down).
     Stop,
 }
@@ -308,7 +316,8 @@ pub struct PuppetOutput {
 
 /// What the stage thread publishes.
 pub struct Outputs {
-    pub puppets: Vec<PuppetOutput>,
+    /// The puppets on stage and each one's outputs.
+    pub lineup: watch::Receiver<Arc<Lineup>>,
     /// The newest "cursors" message.
     pub cursors: watch::Receiver<Arc<str>>,
     /// The newest "take" message (recording and playing now).
@@ -422,6 +431,45 @@ impl Publisher {
             self.changes.send_modify(|c| *c += 1);
         }
         any
+    }
+
+    /// Channels for a puppet new to the stage (all of them at the start),
+    /// each holding its state now; returns the ends connections read.
+    fn add_puppet(&mut self, stage: &Stage, id: u32) -> PuppetOutput {
+        let p = &stage.puppets()[id as usize];
+        let (frame_tx, frame_rx) = watch::channel(None);
+        self.frames.push(frame_tx);
+        let (rig_tx, rig_rx) = watch::channel(None);
+        self.rigs.push(rig_tx);
+        let (weights_tx, weights_rx) = watch::channel(Arc::<str>::from(weights_message(stage, id)));
+        self.weights.push(weights_tx);
+        self.weights_published.push(p.weights_generation());
+        let (keys_tx, keys_rx) = watch::channel(Arc::<str>::from(keys_message(stage, id)));
+        self.keys.push(keys_tx);
+        self.keys_published.push(p.keying().generation);
+        let (handles_tx, handles_rx) = watch::channel(published_handles(stage, id));
+        self.handles.push(handles_tx);
+        let (handle_frame_tx, handle_frame_rx) = watch::channel(None);
+        self.handle_frames.push(handle_frame_tx);
+        let (history_tx, history_rx) = watch::channel(Arc::<str>::from(history_message(stage, id)));
+        self.history.push(history_tx);
+        self.history_published.push(p.history());
+        let pose = matches!(p.rig(), puppetry_stage::Rig::Skeleton(_))
+            .then(|| watch::channel(Arc::<str>::from(pose_message(stage, id))));
+        let (pose_tx, pose_rx) = pose.unzip();
+        self.poses.push(pose_tx);
+        self.poses_published.push(p.key_pose().1);
+        self.sequences.push(0);
+        PuppetOutput {
+            frame: frame_rx,
+            rig: rig_rx,
+            handles: handles_rx,
+            weights: weights_rx,
+            keys: keys_rx,
+            handle_frame: handle_frame_rx,
+            history: history_rx,
+            pose: pose_rx,
+        }
     }
 
     fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorState>) {
@@ -600,6 +648,7 @@ impl Taking {
 /// when every command sender is dropped; `wake` (a weak sender of the same
 /// channel) is how solver rebuilds come back.
 pub fn spawn(
+    config: StageConfig,
     mut stage: Stage,
     mut commands: mpsc::Receiver<Command>,
     wake: mpsc::WeakSender<Command>,
@@ -613,52 +662,25 @@ pub fn spawn(
         rigs: Vec::new(),
         handles: Vec::new(),
         weights: Vec::new(),
-        weights_published: vec![0; stage.puppets().len()],
+        weights_published: Vec::new(),
         keys: Vec::new(),
-        keys_published: vec![0; stage.puppets().len()],
+        keys_published: Vec::new(),
         handle_frames: Vec::new(),
         handle_points: Vec::new(),
         history: Vec::new(),
-        history_published: stage.puppets().iter().map(|p| p.history()).collect(),
+        history_published: Vec::new(),
         poses: Vec::new(),
-        poses_published: stage.puppets().iter().map(|p| p.key_pose().1).collect(),
-        sequences: vec![0; stage.puppets().len()],
+        poses_published: Vec::new(),
+        sequences: Vec::new(),
         cursors: cursors_tx,
         changes,
     };
-    let mut outputs = Vec::new();
-    for p in stage.puppets() {
-        let (frame_tx, frame_rx) = watch::channel(None);
-        let (rig_tx, rig_rx) = watch::channel(None);
-        publisher.rigs.push(rig_tx);
-        let (weights_tx, weights_rx) =
-            watch::channel(Arc::<str>::from(weights_message(&stage, p.id)));
-        publisher.weights.push(weights_tx);
-        let (keys_tx, keys_rx) = watch::channel(Arc::<str>::from(keys_message(&stage, p.id)));
-        publisher.keys.push(keys_tx);
-        let (handles_tx, handles_rx) = watch::channel(published_handles(&stage, p.id));
-        publisher.frames.push(frame_tx);
-        publisher.handles.push(handles_tx);
-        let (handle_frame_tx, handle_frame_rx) = watch::channel(None);
-        publisher.handle_frames.push(handle_frame_tx);
-        let (history_tx, history_rx) =
-            watch::channel(Arc::<str>::from(history_message(&stage, p.id)));
-        publisher.history.push(history_tx);
-        let pose = matches!(p.rig(), puppetry_stage::Rig::Skeleton(_))
-            .then(|| watch::channel(Arc::<str>::from(pose_message(&stage, p.id))));
-        let (pose_tx, pose_rx) = pose.unzip();
-        publisher.poses.push(pose_tx);
-        outputs.push(PuppetOutput {
-            frame: frame_rx,
-            rig: rig_rx,
-            handles: handles_rx,
-            weights: weights_rx,
-            keys: keys_rx,
-            handle_frame: handle_frame_rx,
-            history: history_rx,
-            pose: pose_rx,
-        });
-    }
+    // The first weights, keys, history and pose messages hold the state as
+    // loaded: connections send them at once, so nothing is published for them.
+    let outputs: Vec<PuppetOutput> = (0..stage.puppets().len() as u32)
+        .map(|id| publisher.add_puppet(&stage, id))
+        .collect();
+    let (lineup_tx, lineup_rx) = watch::channel(Lineup::of(&stage, outputs, 0, Arc::new(config)));
     let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
     let mut taking = Taking {
         settings: takes,
@@ -683,7 +705,15 @@ pub fn spawn(
             while let Some(first) = commands.blocking_recv() {
                 let mut next = Some(first);
                 while let Some(command) = next.take() {
-                    if let Command::Played { changes, received } = command {
+                    if let Command::Lineup { change, reply } = command {
+                        // What came before lands on the old lineup.
+                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                        let result =
+                            change_lineup(&mut stage, &mut publisher, &taking, &lineup_tx, change);
+                        let _ = reply.send(result);
+                        batch.dirty = true;
+                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                    } else if let Command::Played { changes, received } = command {
                         // A played step is solved on its own, as it was
                         // when it was recorded.
                         batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
@@ -724,13 +754,57 @@ pub fn spawn(
         .expect("spawn the stage thread");
     (
         Outputs {
-            puppets: outputs,
+            lineup: lineup_rx,
             cursors: cursors_rx,
             take: state_rx,
             changes: changes_rx,
         },
         thread,
     )
+}
+
+/// Adds, removes or reorders puppets and publishes the new lineup, which
+/// every connection follows. Refused while a take records: a take's puppets
+/// are fixed when it starts.
+fn change_lineup(
+    stage: &mut Stage,
+    publisher: &mut Publisher,
+    taking: &Taking,
+    lineup: &watch::Sender<Arc<Lineup>>,
+    change: LineupChange,
+) -> Result<u32, CommandError> {
+    if let Some(r) = &taking.recorder {
+        return Err(CommandError::Busy {
+            problem: format!("take {} is recording: stop it first", r.name()),
+        });
+    }
+    let mut config = lineup.borrow().config.clone();
+    let (answer, added) = match change {
+        LineupChange::Add(added) => {
+            let (puppet, entry) = *added;
+            let id = stage
+                .add_puppet(puppet, &entry)
+                .map_err(|e| CommandError::Load {
+                    problem: e.to_string(),
+                })?;
+            Arc::make_mut(&mut config).puppets.push(entry);
+            (id, Some(publisher.add_puppet(stage, id)))
+        }
+        LineupChange::Remove(id) => {
+            stage.remove_puppet(id)?;
+            (id, None)
+        }
+        LineupChange::Order(order) => {
+            stage.set_order(&order)?;
+            (0, None)
+        }
+    };
+    lineup.send_modify(|old| {
+        let mut outputs = old.outputs.clone();
+        outputs.extend(added);
+        *old = Lineup::of(stage, outputs, old.revision + 1, config);
+    });
+    Ok(answer)
 }
 
 /// What the stage thread gathered since its last solve.
@@ -793,7 +867,9 @@ impl Batch {
                 self.newest = received;
                 self.apply(stage, taking, Change::Contacts { frame }, None, wake);
             }
-            Command::Played { .. } => unreachable!("played steps are solved on their own"),
+            Command::Played { .. } | Command::Lineup { .. } => {
+                unreachable!("played steps and lineup changes are handled on their own")
+            }
             Command::Pin { owner, at } => {
                 self.apply(stage, taking, Change::Pin { owner, at }, None, wake)
             }

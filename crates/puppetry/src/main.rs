@@ -59,6 +59,10 @@ enum Command {
         /// them from the page (a `replay` message).
         #[arg(long)]
         no_replay: bool,
+        /// Where pictures a director adds from the page are kept, with
+        /// their meshes (default ./puppets).
+        #[arg(long, value_name = "DIR")]
+        puppets: Option<PathBuf>,
     },
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
@@ -267,6 +271,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             takes,
             play,
             no_replay,
+            puppets,
         } => {
             tracing_subscriber::fmt()
                 .with_env_filter(
@@ -298,6 +303,9 @@ fn run(args: Args) -> anyhow::Result<()> {
                 options.extra_replay = replay.map(|file| (file, pacing));
                 options.record = record.is_some();
                 options.paused_replays = no_replay;
+                if let Some(dir) = puppets {
+                    options.puppets_dir = dir;
+                }
                 if let Some(dir) = record.or(takes) {
                     options.takes_dir = dir;
                 }

@@ -25,7 +25,7 @@ use glam::DVec2;
 pub use change::{
     Change, GripEvent, GripRecord, KeyPoseState, PinRecord, PoseRecord, Snapshot, StageEvent,
 };
-use config::{SaveWeights, StageConfig};
+use config::{PuppetConfig, SaveWeights, StageConfig};
 use puppetry_deform::{Anchor, Arap};
 use puppetry_input::{ContactFrame, Phase};
 use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh, MeshError};
@@ -71,6 +71,15 @@ pub enum CommandError {
     NoKeyFile { puppet: u32 },
     #[error("pad point [{x}, {y}] is not finite")]
     BadPadPoint { x: f64, y: f64 },
+    /// Something else is under way (a take recording) that this would spoil.
+    #[error("{problem}")]
+    Busy { problem: String },
+    /// A puppet could not be put on the stage.
+    #[error("{problem}")]
+    Load { problem: String },
+    /// A draw order that is not every puppet on stage once.
+    #[error("order: {problem}")]
+    BadOrder { problem: String },
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -207,6 +216,9 @@ pub struct Puppet {
     /// Bumped whenever `key_pose` is set.
     pose_generation: u64,
     save_weights: SaveWeights,
+    /// Taken off the stage at runtime: not drawn, grabbed or solved; its id
+    /// is never reused, so frames already sent cannot land on another.
+    removed: bool,
 }
 
 /// A puppet's undo and redo stacks: each entry is the state an edit
@@ -253,6 +265,92 @@ enum Reach {
 }
 
 impl Puppet {
+    /// Loads the puppet `p` of the stage file `config` (its `index`-th):
+    /// mesh, placement, rig and key poses; pins are the stage's to add.
+    /// Pure work over files, so a running stage can have it done off its
+    /// thread before [`Stage::add_puppet`].
+    pub fn load(
+        config: &StageConfig,
+        index: usize,
+        p: &PuppetConfig,
+    ) -> Result<Puppet, StageError> {
+        let mesh_file = config.resolve(&p.mesh);
+        let mesh = Mesh::load(&mesh_file)?;
+        let placed = place(&mesh, p.at.into(), p.scale)?;
+        let rig = Rig::from_config(
+            &mesh,
+            &placed,
+            p.at.into(),
+            p.scale,
+            p.grid.as_ref(),
+            p.skeleton.as_ref(),
+        )
+        .map_err(|(field, problem)| StageError::Rig {
+            file: config.file.clone(),
+            index,
+            puppet: p.name.clone(),
+            field,
+            problem,
+        })?;
+        let (lo, hi) = bounds(mesh.vertices());
+        let placement = pad::Placement {
+            at: p.at.into(),
+            scale: p.scale,
+            centre: (lo + hi) / 2.0,
+        };
+        let mut puppet = Puppet {
+            placement,
+            keying: pad::Keying::empty(None),
+            id: index as u32,
+            name: p.name.clone(),
+            image: config.resolve(&p.image),
+            weights: placed.weights().to_vec(),
+            mesh: placed,
+            mesh_file,
+            source_mesh: mesh,
+            weights_generation: 0,
+            rig,
+            handles: Vec::new(),
+            handles_changed: false,
+            moved: false,
+            weights_pending: false,
+            handles_generation: 0,
+            history: History::default(),
+            loaded: Snapshot::default(),
+            key_pose: None,
+            pose_generation: 0,
+            save_weights: p.save_weights,
+            removed: false,
+        };
+        if let Some(keys) = &p.keys {
+            let file = config.resolve(keys);
+            if file.exists() {
+                let key_file = keys::KeyFile::load(&file)?;
+                puppet.keying = pad::Keying::load(
+                    file.clone(),
+                    key_file,
+                    &p.name,
+                    &puppet.rig,
+                    puppet.placement,
+                    |at| puppet.hit(at),
+                )
+                .map_err(|(field, problem)| StageError::Keys {
+                    file: file.display().to_string(),
+                    field,
+                    problem,
+                })?;
+            } else {
+                puppet.keying = pad::Keying::empty(Some(file));
+            }
+        }
+        Ok(puppet)
+    }
+
+    /// Taken off the stage at runtime ([`Stage::remove_puppet`]).
+    pub fn removed(&self) -> bool {
+        self.removed
+    }
+
     pub fn handles(&self) -> &[Handle] {
         &self.handles
     }
@@ -689,6 +787,9 @@ pub struct Stage {
     /// Sources that may grab only these puppets (by id): a performer
     /// limited to named puppets. A grab landing on another grabs nothing.
     limits: HashMap<String, Vec<u32>>,
+    /// The puppets on stage (indices), bottom to top: drawn in this order,
+    /// hit tested in reverse. Removed puppets are not in it.
+    order: Vec<usize>,
 }
 
 impl Stage {
@@ -705,107 +806,11 @@ impl Stage {
             limits: HashMap::new(),
             next_handle: 1,
             events: None,
+            order: Vec::new(),
         };
-        for (id, p) in config.puppets.iter().enumerate() {
-            let mesh_file = config.resolve(&p.mesh);
-            let mesh = Mesh::load(&mesh_file)?;
-            let placed = place(&mesh, p.at.into(), p.scale)?;
-            let rig = Rig::from_config(
-                &mesh,
-                &placed,
-                p.at.into(),
-                p.scale,
-                p.grid.as_ref(),
-                p.skeleton.as_ref(),
-            )
-            .map_err(|(field, problem)| StageError::Rig {
-                file: config.file.clone(),
-                index: id,
-                puppet: p.name.clone(),
-                field,
-                problem,
-            })?;
-            let (lo, hi) = bounds(mesh.vertices());
-            let placement = pad::Placement {
-                at: p.at.into(),
-                scale: p.scale,
-                centre: (lo + hi) / 2.0,
-            };
-            stage.puppets.push(Puppet {
-                placement,
-                keying: pad::Keying::empty(None),
-                id: id as u32,
-                name: p.name.clone(),
-                image: config.resolve(&p.image),
-                weights: placed.weights().to_vec(),
-                mesh: placed,
-                mesh_file,
-                source_mesh: mesh.clone(),
-                weights_generation: 0,
-                rig,
-                handles: Vec::new(),
-                handles_changed: false,
-                moved: false,
-                weights_pending: false,
-                handles_generation: 0,
-                history: History::default(),
-                loaded: Snapshot::default(),
-                key_pose: None,
-                pose_generation: 0,
-                save_weights: p.save_weights,
-            });
-            for (index, pin) in p.pins.iter().enumerate() {
-                let at = stage_point(&mesh, p.at.into(), p.scale, DVec2::from(*pin));
-                let anchor = stage.puppets[id].hit(at);
-                let pinned = anchor.and_then(|anchor| {
-                    stage.add_handle(
-                        id,
-                        Owner::Config,
-                        HandleKind::Pin,
-                        Grip::Point(anchor),
-                        at,
-                        DVec2::ZERO,
-                        None,
-                    )
-                });
-                if pinned.is_none() {
-                    return Err(StageError::PinOutside {
-                        puppet: p.name.clone(),
-                        index,
-                        x: pin[0],
-                        y: pin[1],
-                    });
-                }
-            }
-            if let Some(keys) = &p.keys {
-                let file = config.resolve(keys);
-                let puppet = &stage.puppets[id];
-                let keying = if file.exists() {
-                    let key_file = keys::KeyFile::load(&file)?;
-                    pad::Keying::load(
-                        file.clone(),
-                        key_file,
-                        &p.name,
-                        &puppet.rig,
-                        puppet.placement,
-                        |at| puppet.hit(at),
-                    )
-                    .map_err(|(field, problem)| StageError::Keys {
-                        file: file.display().to_string(),
-                        field,
-                        problem,
-                    })?
-                } else {
-                    pad::Keying::empty(Some(file))
-                };
-                stage.puppets[id].keying = keying;
-            }
-            let puppet = &mut stage.puppets[id];
-            puppet.loaded = Snapshot {
-                weights: Some(puppet.weights.clone()),
-                pins: Some(puppet.pin_records()),
-                pose: puppet.pose_record(),
-            };
+        for p in &config.puppets {
+            let puppet = Puppet::load(config, stage.puppets.len(), p)?;
+            stage.insert(puppet, p)?;
         }
         for pad in &config.pads {
             if let Some(puppet) = stage.puppets.iter().position(|p| p.name == pad.puppet) {
@@ -813,6 +818,110 @@ impl Stage {
             }
         }
         Ok(stage)
+    }
+
+    /// Puts a loaded puppet on top of the others, with its stage-file pins
+    /// (`p`'s), and returns its id: the next one, never a removed puppet's.
+    fn insert(&mut self, mut puppet: Puppet, p: &PuppetConfig) -> Result<u32, StageError> {
+        let id = self.puppets.len();
+        puppet.id = id as u32;
+        self.puppets.push(puppet);
+        self.order.push(id);
+        for (index, pin) in p.pins.iter().enumerate() {
+            let puppet = &self.puppets[id];
+            let at = stage_point(&puppet.source_mesh, p.at.into(), p.scale, DVec2::from(*pin));
+            let anchor = puppet.hit(at);
+            let pinned = anchor.and_then(|anchor| {
+                self.add_handle(
+                    id,
+                    Owner::Config,
+                    HandleKind::Pin,
+                    Grip::Point(anchor),
+                    at,
+                    DVec2::ZERO,
+                    None,
+                )
+            });
+            if pinned.is_none() {
+                self.puppets.pop();
+                self.order.pop();
+                return Err(StageError::PinOutside {
+                    puppet: p.name.clone(),
+                    index,
+                    x: pin[0],
+                    y: pin[1],
+                });
+            }
+        }
+        let puppet = &mut self.puppets[id];
+        puppet.loaded = Snapshot {
+            weights: Some(puppet.weights.clone()),
+            pins: Some(puppet.pin_records()),
+            pose: puppet.pose_record(),
+        };
+        Ok(id as u32)
+    }
+
+    /// Adds a puppet to the running stage on top of the others (a picture
+    /// a director brought in), loaded with [`Puppet::load`] off the stage
+    /// thread; returns its id.
+    pub fn add_puppet(&mut self, puppet: Puppet, p: &PuppetConfig) -> Result<u32, StageError> {
+        self.insert(puppet, p)
+    }
+
+    /// Takes a puppet off the stage: every handle on it is let go (contacts
+    /// holding it grab nothing until lifted), and it is no longer drawn,
+    /// hit or solved. Its id is not reused.
+    pub fn remove_puppet(&mut self, puppet: u32) -> Result<(), CommandError> {
+        self.puppet(puppet)?;
+        let index = puppet as usize;
+        self.grabs.retain(|_, (p, _)| *p != index);
+        let pads: Vec<usize> = (0..self.pads.len())
+            .filter(|&i| self.pads[i].puppet == index)
+            .collect();
+        self.pad_contacts.retain(|_, pad| !pads.contains(pad));
+        let ids: Vec<u64> = self.puppets[index].handles.iter().map(|h| h.id).collect();
+        for id in ids {
+            self.remove_handle(index, id);
+        }
+        let p = &mut self.puppets[index];
+        p.removed = true;
+        p.handles_changed = false;
+        p.moved = false;
+        self.order.retain(|&i| i != index);
+        Ok(())
+    }
+
+    /// Sets the draw order: every puppet on stage once, bottom to top.
+    pub fn set_order(&mut self, order: &[u32]) -> Result<(), CommandError> {
+        let mut seen = vec![false; self.puppets.len()];
+        for &id in order {
+            let p = self.puppet(id).map_err(|e| CommandError::BadOrder {
+                problem: e.to_string(),
+            })?;
+            let seen = &mut seen[p.id as usize];
+            if std::mem::replace(seen, true) {
+                return Err(CommandError::BadOrder {
+                    problem: format!("puppet {id} is listed twice"),
+                });
+            }
+        }
+        if order.len() != self.order.len() {
+            return Err(CommandError::BadOrder {
+                problem: format!(
+                    "lists {} puppets; the stage has {} (every puppet on stage, once)",
+                    order.len(),
+                    self.order.len()
+                ),
+            });
+        }
+        self.order = order.iter().map(|&id| id as usize).collect();
+        Ok(())
+    }
+
+    /// The puppets on stage, bottom to top.
+    pub fn on_stage(&self) -> impl Iterator<Item = &Puppet> {
+        self.order.iter().map(|&i| &self.puppets[i])
     }
 
     pub fn puppets(&self) -> &[Puppet] {
@@ -846,11 +955,9 @@ impl Stage {
                 Phase::Down => {
                     // A repeated down without an up: the old grab ends first.
                     self.release(&key);
-                    if let Some(pad) = self
-                        .pads
-                        .iter()
-                        .position(|p| p.takes(&source, contact.position))
-                    {
+                    if let Some(pad) = self.pads.iter().position(|p| {
+                        !self.puppets[p.puppet].removed && p.takes(&source, contact.position)
+                    }) {
                         self.pad_contacts.insert(key, pad);
                         self.move_cursor(pad, contact.position);
                         continue;
@@ -960,7 +1067,8 @@ impl Stage {
         contact: Option<u32>,
     ) -> Option<(usize, u64)> {
         let radius = self.grab_radius();
-        for puppet in (0..self.puppets.len()).rev() {
+        for place in (0..self.order.len()).rev() {
+            let puppet = self.order[place];
             match self.puppets[puppet].reach(at, radius) {
                 Reach::Grip(grip, offset) => {
                     if let Owner::Source(source) = &owner
@@ -1176,17 +1284,20 @@ impl Stage {
         self.remove_handle(puppet as usize, handle)
     }
 
+    /// A puppet on stage (a removed one is no such puppet).
     fn puppet(&self, puppet: u32) -> Result<&Puppet, CommandError> {
-        let count = self.puppets.len();
+        let count = self.order.len();
         self.puppets
             .get(puppet as usize)
+            .filter(|p| !p.removed)
             .ok_or(CommandError::NoSuchPuppet { puppet, count })
     }
 
     fn puppet_mut(&mut self, puppet: u32) -> Result<&mut Puppet, CommandError> {
-        let count = self.puppets.len();
+        let count = self.order.len();
         self.puppets
             .get_mut(puppet as usize)
+            .filter(|p| !p.removed)
             .ok_or(CommandError::NoSuchPuppet { puppet, count })
     }
 
@@ -1610,6 +1721,9 @@ impl Stage {
         for index in 0..self.puppets.len() {
             let p = &self.puppets[index];
             let k = &p.keying;
+            if p.removed {
+                continue;
+            }
             if !(k.dirty || (p.handles_changed && !k.targets.is_empty())) {
                 continue;
             }

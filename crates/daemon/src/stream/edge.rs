@@ -17,7 +17,7 @@ use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::{ConnectInfo, Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, post};
 use include_dir::{Dir, include_dir};
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
@@ -56,9 +56,16 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/puppets/{id}/texture.png", get(texture))
         .route("/takes/{file}", get(super::exports::take_file))
         .route("/takes/{name}/export", get(super::exports::export))
-        .with_state(shared)
+        .with_state(shared.clone())
         .merge(files)
         .layer(RequestBodyLimitLayer::new(MAX_BODY))
+        // Pictures are larger than any other request: the upload reads its
+        // body against its own limit and answers JSON past it.
+        .merge(
+            Router::new()
+                .route("/puppets", post(super::uploads::add))
+                .with_state(shared),
+        )
 }
 
 /// The WebSocket upgrade. A page from a foreign origin is refused (403)
@@ -118,7 +125,7 @@ async fn upgrade(
 
 /// Whether a page of `origin` may open the WebSocket: its own page (the
 /// origin's host and port are the request's `Host`), or one listed.
-fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
+pub(super) fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
     let origin = origin.trim_end_matches('/');
     if allowed
         .iter()
@@ -186,14 +193,14 @@ impl Drop for AddressPlace {
 }
 
 async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> Response {
-    let Some(path) = id
-        .parse::<usize>()
-        .ok()
-        .and_then(|i| shared.stage.images.get(i))
-    else {
+    let path = id.parse::<usize>().ok().and_then(|i| {
+        let lineup = shared.lineup.borrow();
+        lineup.description.images.get(i).cloned()
+    });
+    let Some(path) = path else {
         return not_found();
     };
-    match tokio::fs::read(path).await {
+    match tokio::fs::read(&path).await {
         Ok(bytes) => with_type(Body::from(bytes), "image/png"),
         Err(e) => {
             tracing::warn!("{}: {e}", path.display());

@@ -103,6 +103,8 @@ pub async fn export(
     };
     let (done, finished) = tokio::sync::oneshot::channel();
     let runner = shared.clone();
+    // The stage file with any puppets added since: the take may have them.
+    let config = shared.lineup.borrow().config.clone();
     let label = name.clone();
     let started = std::thread::Builder::new()
         .name(format!("export {name}"))
@@ -115,13 +117,12 @@ pub async fn export(
                 shown: usize::MAX,
             };
             // A flag error is the request's fault: a 400 naming the parameter.
-            let result =
-                export_take_with(&export, &runner.config, &mut progress).map_err(|e| match e {
-                    TakeExportError::Export(ExportError::Flag { flag, problem }) => {
-                        (true, format!("{}: {problem}", flag.trim_start_matches('-')))
-                    }
-                    other => (false, other.to_string()),
-                });
+            let result = export_take_with(&export, &config, &mut progress).map_err(|e| match e {
+                TakeExportError::Export(ExportError::Flag { flag, problem }) => {
+                    (true, format!("{}: {problem}", flag.trim_start_matches('-')))
+                }
+                other => (false, other.to_string()),
+            });
             runner.export_state.send_replace(Arc::from(
                 ServerMessage::Export(ExportState {
                     take: label,

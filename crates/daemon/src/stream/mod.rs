@@ -7,14 +7,15 @@
 
 mod edge;
 mod exports;
+mod following;
 pub mod guard;
 pub mod people;
+mod uploads;
 
 pub use edge::WebFiles;
 pub use people::People;
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -25,13 +26,12 @@ use glam::DVec2;
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::protocol::{
-    ClientMessage, GridBasis, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
-    StageSize,
-};
-use crate::stage_thread::{Command, Edit, PuppetOutput};
+use crate::lineup::{Lineup, LineupChange};
+use crate::protocol::{ClientMessage, Role, ServerMessage};
+use crate::stage_thread::{Command, Edit};
+use following::Following;
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
-use puppetry_stage::{Change, Rig, Stage};
+use puppetry_stage::Change;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
@@ -49,85 +49,10 @@ const READ_BUFFER: usize = 4 * 1024;
 /// Bad messages in a row before a client is disconnected.
 pub const MAX_BAD_MESSAGES: u32 = 20;
 
-/// What clients are told about the stage: fixed once the stage is loaded.
-pub struct StageDescription {
-    /// Per puppet, the "stage" message's entry without its handles.
-    pub puppets: Vec<PuppetDescription>,
-    pub size: StageSize,
-    pub images: Vec<PathBuf>,
-}
-
-impl StageDescription {
-    pub fn of(stage: &Stage) -> StageDescription {
-        let flat = |v: &[DVec2]| {
-            v.iter()
-                .flat_map(|q| [q.x as f32, q.y as f32])
-                .collect::<Vec<f32>>()
-        };
-        let puppets = stage
-            .puppets()
-            .iter()
-            .map(|p| PuppetDescription {
-                id: p.id,
-                name: p.name.clone(),
-                texture: format!("/puppets/{}/texture.png", p.id),
-                rest: flat(p.mesh.vertices()),
-                uv: p.mesh.uv().map(flat).unwrap_or_default(),
-                triangles: p.mesh.triangles().iter().flatten().copied().collect(),
-                handles: Vec::new(),
-                weights: p.mesh.weights().to_vec(),
-                rig: rig_description(p.rig()),
-            })
-            .collect();
-        StageDescription {
-            puppets,
-            size: StageSize {
-                width: stage.width,
-                height: stage.height,
-            },
-            images: stage.puppets().iter().map(|p| p.image.clone()).collect(),
-        }
-    }
-}
-
-/// The "rig" entry of a puppet in the "stage" message. Rest points are
-/// full-precision stage coordinates, row by row / joint by joint.
-fn rig_description(rig: &Rig) -> RigDescription {
-    let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
-    match rig {
-        Rig::Free(_) => RigDescription::Free,
-        Rig::Grid(r) => {
-            let spec = r.ffd().spec();
-            RigDescription::Grid {
-                columns: spec.columns,
-                rows: spec.rows,
-                basis: match spec.basis {
-                    puppetry_deform::ffd::Basis::Bernstein => GridBasis::Bernstein,
-                    puppetry_deform::ffd::Basis::Lattice => GridBasis::Lattice,
-                },
-                min: [spec.min.x, spec.min.y],
-                max: [spec.max.x, spec.max.y],
-                rest: points(r.ffd().rest_grid()),
-            }
-        }
-        Rig::Skeleton(r) => {
-            let skeleton = r.deformer().skeleton();
-            RigDescription::Skeleton {
-                mode: match r.mode() {
-                    puppetry_stage::config::SkeletonMode::Free => SkeletonMode::Free,
-                    puppetry_stage::config::SkeletonMode::Fk => SkeletonMode::Fk,
-                },
-                bones: skeleton.bones().to_vec(),
-                rest: points(skeleton.joints()),
-                poses: r.pose_names().into_iter().map(String::from).collect(),
-            }
-        }
-    }
-}
-
 /// What every connection task shares.
 pub struct Shared {
-    pub stage: StageDescription,
+    /// The puppets on stage and where each one's output is.
+    pub lineup: watch::Receiver<Arc<Lineup>>,
     /// Who may connect, and who is connected (`people`).
     pub people: Arc<People>,
     /// Client mistakes are logged through this, per client address.
@@ -138,19 +63,16 @@ pub struct Shared {
     /// Open connections past which new ones are refused.
     pub max_connections: usize,
     pub commands: mpsc::Sender<Command>,
-    pub outputs: Vec<PuppetOutput>,
     /// The newest "cursors" message (mouse cursors on the stage).
     pub cursors: watch::Receiver<Arc<str>>,
     /// The newest "take" message (recording and playing now).
     pub take: watch::Receiver<Arc<str>>,
     /// Where takes are recorded and listed.
     pub takes_dir: std::path::PathBuf,
-    /// The stage's puppets as takes name them (rest-mesh hashes).
-    pub take_puppets: Vec<puppetry_take::PuppetInfo>,
     /// The take playing, if any (never locked across an await).
     pub player: std::sync::Mutex<Option<crate::takes::Player>>,
-    /// The stage file, for exports of takes.
-    pub config: puppetry_stage::config::StageConfig,
+    /// Where pictures added at runtime are kept, with their meshes.
+    pub puppets_dir: std::path::PathBuf,
     /// An export is running (one at a time).
     pub exporting: std::sync::atomic::AtomicBool,
     /// The newest "export" message.
@@ -330,117 +252,26 @@ async fn websocket(
         };
         let _ = shared.commands.send(limit).await;
     }
-    let mut handles: Vec<_> = shared.outputs.iter().map(|o| o.handles.clone()).collect();
-    let mut frames: Vec<_> = shared.outputs.iter().map(|o| o.frame.clone()).collect();
-    let mut rigs: Vec<_> = shared.outputs.iter().map(|o| o.rig.clone()).collect();
-    // Weights are sent once painted (the stage message has none: the mesh
-    // file's are implied until then).
-    let mut weights: Vec<_> = shared.outputs.iter().map(|o| o.weights.clone()).collect();
-    // Key poses and cursors: everyone gets them on connecting.
-    let mut keys: Vec<_> = shared.outputs.iter().map(|o| o.keys.clone()).collect();
-    // Newcomers get the whole live state: painted weights, undo history,
-    // skeleton poses, the handle set (with its generation) and where each
-    // handle is, and which replays play.
-    let mut handle_frames: Vec<_> = shared
-        .outputs
-        .iter()
-        .map(|o| o.handle_frame.clone())
-        .collect();
-    let mut history: Vec<_> = shared.outputs.iter().map(|o| o.history.clone()).collect();
-    let mut poses: Vec<_> = shared.outputs.iter().map(|o| o.pose.clone()).collect();
     let mut inputs = shared.replays.message();
-    for w in keys.iter_mut().chain(&mut weights).chain(&mut history) {
-        w.mark_changed();
-    }
-    for p in poses.iter_mut().flatten() {
-        p.mark_changed();
-    }
     inputs.mark_changed();
-    let puppets = shared
-        .stage
-        .puppets
-        .iter()
-        .zip(&mut handles)
-        .map(|(p, h)| PuppetDescription {
-            handles: h.borrow_and_update().handles.clone(),
-            ..p.clone()
-        })
-        .collect();
-    let stage_message = ServerMessage::Stage {
-        client,
-        role,
-        you: identity.person.clone(),
-        stage: shared.stage.size,
-        puppets,
-    };
-    send(
-        &mut ws,
-        Message::text(stage_message.to_text()),
-        shared.client_timeout,
-    )
-    .await?;
+    let mut lineup = shared.lineup.clone();
+    let mut following = Following::of(lineup.borrow_and_update().clone());
+    let you = identity.person.clone();
+    let stage_message = following.stage_message(client, role, you.clone());
+    send(&mut ws, Message::text(stage_message), shared.client_timeout).await?;
     let mut changes = shared.changes.clone();
     let mut cursors = shared.cursors.clone();
     let mut take = shared.take.clone();
     let mut export = shared.export_state.subscribe();
     let mut people = shared.people.subscribe();
     people.mark_changed();
-    // Frames published before this client connected still count as new.
-    for f in frames.iter_mut().chain(&mut rigs).chain(&mut handle_frames) {
-        f.mark_changed();
-    }
-    for h in &mut handles {
-        h.mark_changed();
-    }
     cursors.mark_changed();
     take.mark_changed();
     let mut bad_in_a_row = 0u32;
     let result: std::io::Result<()> = async {
         loop {
             // Send what is newest before waiting again.
-            for (i, f) in frames.iter_mut().enumerate() {
-                if f.has_changed().unwrap_or(false) {
-                    let frame = f.borrow_and_update().clone();
-                    if let Some(bytes) = frame {
-                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
-                    }
-                }
-                if rigs[i].has_changed().unwrap_or(false) {
-                    let frame = rigs[i].borrow_and_update().clone();
-                    if let Some(bytes) = frame {
-                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
-                    }
-                }
-                if keys[i].has_changed().unwrap_or(false) {
-                    let text = keys[i].borrow_and_update().to_string();
-                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
-                }
-                if weights[i].has_changed().unwrap_or(false) {
-                    let text = weights[i].borrow_and_update().to_string();
-                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
-                }
-                if handles[i].has_changed().unwrap_or(false) {
-                    let text = handles[i].borrow_and_update().text.to_string();
-                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
-                }
-                // After the handles message, so its generation is known.
-                if handle_frames[i].has_changed().unwrap_or(false) {
-                    let frame = handle_frames[i].borrow_and_update().clone();
-                    if let Some(bytes) = frame {
-                        send(&mut ws, Message::binary(bytes), shared.client_timeout).await?;
-                    }
-                }
-                if history[i].has_changed().unwrap_or(false) {
-                    let text = history[i].borrow_and_update().to_string();
-                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
-                }
-                if let Some(pose) = &mut poses[i]
-                    && pose.has_changed().unwrap_or(false)
-                {
-                    let text = pose.borrow_and_update().to_string();
-                    send(&mut ws, Message::text(text), shared.client_timeout).await?;
-                }
-            }
+            following.send_changed(&mut ws, shared.client_timeout).await?;
             if inputs.has_changed().unwrap_or(false) {
                 let text = inputs.borrow_and_update().to_string();
                 send(&mut ws, Message::text(text), shared.client_timeout).await?;
@@ -479,6 +310,15 @@ async fn websocket(
                 changed = inputs.changed() => {
                     if changed.is_ok() {
                         let text = inputs.borrow_and_update().to_string();
+                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                    }
+                }
+                // Puppets added, removed or reordered: a fresh "stage"
+                // message, then everything of the new lineup.
+                changed = lineup.changed() => {
+                    if changed.is_ok() {
+                        following = Following::of(lineup.borrow_and_update().clone());
+                        let text = following.stage_message(client, role, you.clone());
                         send(&mut ws, Message::text(text), shared.client_timeout).await?;
                     }
                 }
@@ -583,7 +423,8 @@ async fn ask<T>(
                 | E::NoGrid { .. }
                 | E::NoSkeleton { .. }
                 | E::NoKeyFile { .. } => ErrorCode::NotFound,
-                E::BadBrush | E::BadPadPoint { .. } => ErrorCode::OutOfRange,
+                E::BadBrush | E::BadPadPoint { .. } | E::BadOrder { .. } => ErrorCode::OutOfRange,
+                E::Busy { .. } => ErrorCode::Busy,
                 _ => ErrorCode::Failed,
             };
             guard::Refusal::new(code, e.to_string())
@@ -810,6 +651,14 @@ async fn handle_message(
                 .to_text(),
             ));
         }
+        ClientMessage::RemovePuppet { puppet } => {
+            change_lineup(shared, LineupChange::Remove(puppet)).await?;
+            return Ok(None);
+        }
+        ClientMessage::OrderPuppets { order } => {
+            change_lineup(shared, LineupChange::Order(order)).await?;
+            return Ok(None);
+        }
         ClientMessage::StopPlaying => {
             let player = shared
                 .player
@@ -832,6 +681,25 @@ async fn handle_message(
         .await
         .map(|()| None)
         .map_err(|_| "the stage is shutting down".into())
+}
+
+/// Adds, removes or reorders puppets; answers the puppet's id. Refused
+/// while a take plays (its steps name puppets by id) or records.
+async fn change_lineup(shared: &Shared, change: LineupChange) -> Result<u32, guard::Refusal> {
+    let playing = shared
+        .player
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .as_ref()
+        .filter(|p| !p.is_finished())
+        .map(|p| p.name.clone());
+    if let Some(take) = playing {
+        return Err(guard::Refusal::new(
+            crate::protocol::ErrorCode::Busy,
+            format!("take {take} is playing: stop it first"),
+        ));
+    }
+    ask(shared, |reply| Command::Lineup { change, reply }).await
 }
 
 /// Undo, redo or reset a puppet's edits.
@@ -887,7 +755,7 @@ async fn play_take(
     replace_sources: Vec<String>,
 ) -> Result<(), String> {
     let path = crate::takes::take_path(&shared.takes_dir, take)?;
-    let puppets = shared.take_puppets.len();
+    let puppets = shared.lineup.borrow().take_puppets.len();
     for (i, r) in replace.iter().enumerate() {
         if r.puppet as usize >= puppets {
             return Err(format!(
@@ -918,7 +786,7 @@ async fn play_take(
         replace,
         replace_sources,
     };
-    let puppets = shared.take_puppets.clone();
+    let puppets = shared.lineup.borrow().take_puppets.clone();
     let commands = shared.commands.clone();
     let started = shared.started;
     let opened = tokio::task::spawn_blocking(move || {

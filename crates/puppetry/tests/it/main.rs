@@ -12,6 +12,7 @@ mod devices;
 mod edge;
 mod fuzz;
 mod install;
+mod lineup;
 mod memory;
 mod osc;
 mod rigs;

@@ -8,4 +8,5 @@ mod edits;
 mod fuzz;
 mod keyframing;
 mod keys;
+mod lineup;
 mod rigs_no_alloc;

@@ -1,0 +1,147 @@
+//! The lineup: which puppets are on the stage, in which order, and where
+//! connections find each one's output. It is fixed for the stage file's
+//! puppets until a director adds, removes or reorders puppets at runtime;
+//! then the stage thread publishes a new one and every connection sends its
+//! client a fresh `stage` message and follows the new outputs. Puppet ids
+//! never change: a removed puppet's id is not reused, so a frame already on
+//! its way cannot land on another puppet.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use glam::DVec2;
+
+use crate::protocol::{GridBasis, PuppetDescription, RigDescription, SkeletonMode, StageSize};
+use crate::stage_thread::PuppetOutput;
+use puppetry_stage::config::StageConfig;
+use puppetry_stage::{Puppet, Rig, Stage};
+
+/// The puppets on stage now, as connections see them.
+pub struct Lineup {
+    /// Counts lineup changes since the daemon started.
+    pub revision: u64,
+    pub description: StageDescription,
+    /// Every puppet's outputs, by id (a removed puppet's stay silent).
+    pub outputs: Vec<PuppetOutput>,
+    /// Every puppet as takes name them (rest-mesh hashes), by id.
+    pub take_puppets: Vec<puppetry_take::PuppetInfo>,
+    /// The stage file with the puppets added at runtime after its own, so
+    /// a take recorded with them exports.
+    pub config: Arc<StageConfig>,
+}
+
+/// A change to the lineup, asked of the stage thread.
+pub enum LineupChange {
+    /// A puppet loaded off the stage thread, and the stage-file entry it was
+    /// loaded from, put on top of the others.
+    Add(Box<(Puppet, puppetry_stage::config::PuppetConfig)>),
+    /// A puppet taken off the stage.
+    Remove(u32),
+    /// The puppets on stage, bottom to top.
+    Order(Vec<u32>),
+}
+
+impl std::fmt::Debug for LineupChange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LineupChange::Add(added) => write!(f, "Add({:?})", added.1.name),
+            LineupChange::Remove(id) => write!(f, "Remove({id})"),
+            LineupChange::Order(order) => write!(f, "Order({order:?})"),
+        }
+    }
+}
+
+impl Lineup {
+    pub fn of(
+        stage: &Stage,
+        outputs: Vec<PuppetOutput>,
+        revision: u64,
+        config: Arc<StageConfig>,
+    ) -> Arc<Lineup> {
+        Arc::new(Lineup {
+            revision,
+            config,
+            description: StageDescription::of(stage),
+            outputs,
+            take_puppets: puppetry_take::Header::of_stage("", "", stage, true).puppets,
+        })
+    }
+}
+
+/// What clients are told about the puppets on stage (a `stage` message
+/// without handles), made once per lineup.
+pub struct StageDescription {
+    /// The puppets on stage, bottom to top: the "stage" message's entries
+    /// without their handles.
+    pub puppets: Vec<PuppetDescription>,
+    pub size: StageSize,
+    /// Every puppet's picture, by id (removed puppets' too: ids stay).
+    pub images: Vec<PathBuf>,
+}
+
+impl StageDescription {
+    pub fn of(stage: &Stage) -> StageDescription {
+        let flat = |v: &[DVec2]| {
+            v.iter()
+                .flat_map(|q| [q.x as f32, q.y as f32])
+                .collect::<Vec<f32>>()
+        };
+        let puppets = stage
+            .on_stage()
+            .map(|p| PuppetDescription {
+                id: p.id,
+                name: p.name.clone(),
+                texture: format!("/puppets/{}/texture.png", p.id),
+                rest: flat(p.mesh.vertices()),
+                uv: p.mesh.uv().map(flat).unwrap_or_default(),
+                triangles: p.mesh.triangles().iter().flatten().copied().collect(),
+                handles: Vec::new(),
+                weights: p.mesh.weights().to_vec(),
+                rig: rig_description(p.rig()),
+            })
+            .collect();
+        StageDescription {
+            puppets,
+            size: StageSize {
+                width: stage.width,
+                height: stage.height,
+            },
+            images: stage.puppets().iter().map(|p| p.image.clone()).collect(),
+        }
+    }
+}
+
+/// The "rig" entry of a puppet in the "stage" message. Rest points are
+/// full-precision stage coordinates, row by row / joint by joint.
+fn rig_description(rig: &Rig) -> RigDescription {
+    let points = |v: &[DVec2]| v.iter().map(|q| [q.x, q.y]).collect::<Vec<_>>();
+    match rig {
+        Rig::Free(_) => RigDescription::Free,
+        Rig::Grid(r) => {
+            let spec = r.ffd().spec();
+            RigDescription::Grid {
+                columns: spec.columns,
+                rows: spec.rows,
+                basis: match spec.basis {
+                    puppetry_deform::ffd::Basis::Bernstein => GridBasis::Bernstein,
+                    puppetry_deform::ffd::Basis::Lattice => GridBasis::Lattice,
+                },
+                min: [spec.min.x, spec.min.y],
+                max: [spec.max.x, spec.max.y],
+                rest: points(r.ffd().rest_grid()),
+            }
+        }
+        Rig::Skeleton(r) => {
+            let skeleton = r.deformer().skeleton();
+            RigDescription::Skeleton {
+                mode: match r.mode() {
+                    puppetry_stage::config::SkeletonMode::Free => SkeletonMode::Free,
+                    puppetry_stage::config::SkeletonMode::Fk => SkeletonMode::Fk,
+                },
+                bones: skeleton.bones().to_vec(),
+                rest: points(skeleton.joints()),
+                poses: r.pose_names().into_iter().map(String::from).collect(),
+            }
+        }
+    }
+}

@@ -1,0 +1,157 @@
+//! What one connection follows of the puppets: its ends of every puppet's
+//! output channels in one lineup, and sending what changed since it last
+//! looked. A connection makes a new one, and tells its client with a fresh
+//! `stage` message, whenever the lineup changes.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::ws::Message;
+use bytes::Bytes;
+use tokio::sync::watch;
+
+use super::{Ws, send};
+use crate::lineup::Lineup;
+use crate::protocol::{Person, PuppetDescription, Role, ServerMessage};
+use crate::stage_thread::PublishedHandles;
+
+/// A connection's ends of one lineup's outputs, by puppet id.
+pub(super) struct Following {
+    lineup: Arc<Lineup>,
+    /// Ids of the puppets on stage: a removed puppet's channels are not
+    /// followed (its client no longer knows it).
+    on_stage: Vec<usize>,
+    frames: Vec<watch::Receiver<Option<Bytes>>>,
+    rigs: Vec<watch::Receiver<Option<Bytes>>>,
+    handles: Vec<watch::Receiver<Arc<PublishedHandles>>>,
+    weights: Vec<watch::Receiver<Arc<str>>>,
+    keys: Vec<watch::Receiver<Arc<str>>>,
+    handle_frames: Vec<watch::Receiver<Option<Bytes>>>,
+    history: Vec<watch::Receiver<Arc<str>>>,
+    poses: Vec<Option<watch::Receiver<Arc<str>>>>,
+}
+
+impl Following {
+    /// Follows `lineup` with everything in it counting as new: a newcomer,
+    /// or a client after a lineup change, gets the whole live state
+    /// (painted weights, key poses, undo history, skeleton poses, the handle
+    /// set with its generation and where each handle is, the newest frames).
+    pub(super) fn of(lineup: Arc<Lineup>) -> Following {
+        fn all<T>(
+            lineup: &Lineup,
+            end: impl Fn(&crate::stage_thread::PuppetOutput) -> watch::Receiver<T>,
+        ) -> Vec<watch::Receiver<T>> {
+            lineup
+                .outputs
+                .iter()
+                .map(|o| {
+                    let mut r = end(o);
+                    r.mark_changed();
+                    r
+                })
+                .collect()
+        }
+        Following {
+            frames: all(&lineup, |o| o.frame.clone()),
+            rigs: all(&lineup, |o| o.rig.clone()),
+            handles: all(&lineup, |o| o.handles.clone()),
+            weights: all(&lineup, |o| o.weights.clone()),
+            keys: all(&lineup, |o| o.keys.clone()),
+            handle_frames: all(&lineup, |o| o.handle_frame.clone()),
+            history: all(&lineup, |o| o.history.clone()),
+            poses: lineup
+                .outputs
+                .iter()
+                .map(|o| {
+                    o.pose.clone().map(|mut r| {
+                        r.mark_changed();
+                        r
+                    })
+                })
+                .collect(),
+            on_stage: lineup
+                .description
+                .puppets
+                .iter()
+                .map(|p| p.id as usize)
+                .collect(),
+            lineup,
+        }
+    }
+
+    /// The "stage" message of this lineup, with each puppet's handles now
+    /// (the "handles" messages that follow repeat them with their text).
+    pub(super) fn stage_message(&self, client: u64, role: Role, you: Person) -> String {
+        let description = &self.lineup.description;
+        let puppets = description
+            .puppets
+            .iter()
+            .map(|p| PuppetDescription {
+                handles: self.handles[p.id as usize].borrow().handles.clone(),
+                ..p.clone()
+            })
+            .collect();
+        ServerMessage::Stage {
+            client,
+            role,
+            you,
+            stage: description.size,
+            puppets,
+        }
+        .to_text()
+    }
+
+    /// Sends, puppet by puppet, whatever changed since the last call: the
+    /// newest of each, never a backlog.
+    pub(super) async fn send_changed(
+        &mut self,
+        ws: &mut Ws,
+        timeout: Duration,
+    ) -> std::io::Result<()> {
+        for &i in &self.on_stage {
+            if let Some(bytes) = newest(&mut self.frames[i]) {
+                send(ws, Message::binary(bytes), timeout).await?;
+            }
+            if let Some(bytes) = newest(&mut self.rigs[i]) {
+                send(ws, Message::binary(bytes), timeout).await?;
+            }
+            if let Some(text) = newest_text(&mut self.keys[i]) {
+                send(ws, Message::text(text), timeout).await?;
+            }
+            if let Some(text) = newest_text(&mut self.weights[i]) {
+                send(ws, Message::text(text), timeout).await?;
+            }
+            if self.handles[i].has_changed().unwrap_or(false) {
+                let text = self.handles[i].borrow_and_update().text.to_string();
+                send(ws, Message::text(text), timeout).await?;
+            }
+            // After the handles message, so its generation is known.
+            if let Some(bytes) = newest(&mut self.handle_frames[i]) {
+                send(ws, Message::binary(bytes), timeout).await?;
+            }
+            if let Some(text) = newest_text(&mut self.history[i]) {
+                send(ws, Message::text(text), timeout).await?;
+            }
+            if let Some(text) = self.poses[i].as_mut().and_then(newest_text) {
+                send(ws, Message::text(text), timeout).await?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The newest frame, if it changed since last seen (none before the first).
+fn newest(frame: &mut watch::Receiver<Option<Bytes>>) -> Option<Bytes> {
+    if frame.has_changed().unwrap_or(false) {
+        frame.borrow_and_update().clone()
+    } else {
+        None
+    }
+}
+
+/// The newest text message, if it changed since last seen.
+fn newest_text(text: &mut watch::Receiver<Arc<str>>) -> Option<String> {
+    text.has_changed()
+        .unwrap_or(false)
+        .then(|| text.borrow_and_update().to_string())
+}

@@ -1,0 +1,400 @@
+//! Puppets at runtime: a director adds a picture to the running stage
+//! (`POST /puppets`), removes and reorders puppets; every client follows
+//! with a fresh `stage` message, performers play the new puppet, and bad
+//! pictures and requests get typed errors that name what is wrong.
+
+use futures_util::SinkExt;
+use puppetry_daemon::serve::{Options, Running, start_with};
+use puppetry_daemon::stream::WebFiles;
+use serde_json::{Value, json};
+use tokio_tungstenite::tungstenite::Message;
+
+use crate::common::daemon::*;
+
+const DIRECTOR: &str = "boss";
+const PERFORMER: &str = "secret";
+
+/// A daemon of the test stage whose added pictures go to `dir`.
+async fn daemon_keeping_pictures_in(dir: &std::path::Path) -> Running {
+    let mut options = Options::new(WebFiles::Embedded);
+    options.puppets_dir = dir.join("puppets");
+    options.takes_dir = dir.join("takes");
+    start_with(&stage_config(""), options).await.unwrap()
+}
+
+/// A `width`×`height` RGBA PNG whose pixels `rgba` gives.
+fn png(width: u32, height: u32, rgba: impl Fn(u32, u32) -> [u8; 4]) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut bytes, width, height);
+        encoder.set_color(png::ColorType::Rgba);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().unwrap();
+        let pixels: Vec<u8> = (0..height)
+            .flat_map(|y| (0..width).map(move |x| (x, y)))
+            .flat_map(|(x, y)| rgba(x, y))
+            .collect();
+        writer.write_image_data(&pixels).unwrap();
+    }
+    bytes
+}
+
+/// A red disc on a transparent background.
+fn disc() -> Vec<u8> {
+    png(120, 100, |x, y| {
+        let (dx, dy) = (x as f64 - 60.0, y as f64 - 50.0);
+        if dx * dx + dy * dy < 40.0 * 40.0 {
+            [200, 30, 30, 255]
+        } else {
+            [0, 0, 0, 0]
+        }
+    })
+}
+
+/// POSTs `body` to `/puppets?query` with `headers`; the status and the
+/// JSON answer.
+async fn post(running: &Running, query: &str, headers: &[&str], body: &[u8]) -> (u16, Value) {
+    let mut request = format!(
+        "POST /puppets?{query} HTTP/1.1\r\nHost: {}\r\nContent-Type: image/png\r\nContent-Length: {}\r\nConnection: close\r\n",
+        running.address,
+        body.len()
+    );
+    for h in headers {
+        request.push_str(h);
+        request.push_str("\r\n");
+    }
+    request.push_str("\r\n");
+    let mut bytes = request.into_bytes();
+    bytes.extend_from_slice(body);
+    let answer = http_raw(running.address, &bytes).await;
+    let status = http_status(&answer);
+    let at = answer
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("a header end");
+    let json = serde_json::from_slice(&answer[at + 4..]).unwrap_or_else(|e| {
+        panic!(
+            "{status}: not JSON ({e}): {:?}",
+            String::from_utf8_lossy(&answer[at + 4..])
+        )
+    });
+    (status, json)
+}
+
+const AS_DIRECTOR: &str = "Authorization: Bearer boss";
+
+async fn send(ws: &mut Client, m: Value) {
+    ws.send(Message::text(m.to_string())).await.unwrap();
+}
+
+/// Reads until a text message of `kind` satisfies `done`.
+async fn until(ws: &mut Client, kind: &str, done: impl Fn(&Value) -> bool) -> Value {
+    loop {
+        let m = next_text(ws).await;
+        if m["type"] == kind && done(&m) {
+            return m;
+        }
+    }
+}
+
+fn ids(stage: &Value) -> Vec<u64> {
+    stage["puppets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["id"].as_u64().unwrap())
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_picture_a_director_adds_reaches_every_client_and_performers_play_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let (mut viewer, first) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    assert_eq!(ids(&first), [0]);
+    let (mut performer, _) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": PERFORMER}),
+    )
+    .await;
+
+    let picture = disc();
+    let (status, added) = post(
+        &running,
+        "name=ball&vertices=300&x=200&y=200",
+        &[AS_DIRECTOR],
+        &picture,
+    )
+    .await;
+    assert_eq!(status, 200, "{added}");
+    assert_eq!(added["type"], "puppet_added");
+    assert_eq!(added["puppet"], 1);
+    assert_eq!(added["name"], "ball");
+    assert_eq!(added["warnings"], json!([]));
+    let vertices = added["vertices"].as_u64().unwrap();
+    assert!((255..=345).contains(&vertices), "asked 300, got {vertices}");
+
+    // Every client gets the new lineup, the new puppet on top.
+    let stage = until(&mut viewer, "stage", |_| true).await;
+    assert_eq!(ids(&stage), [0, 1]);
+    let ball = &stage["puppets"][1];
+    assert_eq!(ball["name"], "ball");
+    assert_eq!(ball["rest"].as_array().unwrap().len() as u64, 2 * vertices);
+    let texture = http_get(running.address, "/puppets/1/texture.png").await;
+    assert!(
+        texture.ends_with(&picture),
+        "the picture is served as the texture"
+    );
+    for file in ["ball.png", "ball.mesh.json"] {
+        assert!(
+            dir.path().join("puppets").join(file).exists(),
+            "{file} kept"
+        );
+    }
+
+    // A performer grabs it and it moves.
+    until(&mut performer, "stage", |m| ids(m) == [0, 1]).await;
+    send(
+        &mut performer,
+        json!({"type": "contacts", "contacts": [{"id": 7, "phase": "down", "x": 200.0, "y": 200.0}]}),
+    )
+    .await;
+    until(&mut viewer, "handles", |m| {
+        m["puppet"] == 1 && contact_owners(m).len() == 1
+    })
+    .await;
+    send(
+        &mut performer,
+        json!({"type": "contacts", "contacts": [{"id": 7, "phase": "move", "x": 230.0, "y": 210.0}]}),
+    )
+    .await;
+    frame_until(&mut viewer, |f| f.puppet == 1).await;
+
+    // The same name again is made unique, files and all.
+    let (status, again) = post(&running, "name=ball&vertices=300", &[AS_DIRECTOR], &picture).await;
+    assert_eq!(status, 200, "{again}");
+    assert_eq!(again["puppet"], 2);
+    assert_eq!(again["name"], "ball-2");
+    assert!(dir.path().join("puppets/ball-2.png").exists());
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_pictures_and_requests_get_typed_errors_and_leave_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let picture = disc();
+    let refusals: Vec<(&str, Vec<&str>, Vec<u8>, u16, &str, Option<&str>)> = vec![
+        (
+            "name=notes",
+            vec![AS_DIRECTOR],
+            b"these are notes, not a picture".to_vec(),
+            400,
+            "bad_image",
+            None,
+        ),
+        (
+            "name=ball&vertices=5",
+            vec![AS_DIRECTOR],
+            picture.clone(),
+            400,
+            "out_of_range",
+            Some("vertices"),
+        ),
+        (
+            "name=ball&x=99999",
+            vec![AS_DIRECTOR],
+            picture.clone(),
+            400,
+            "out_of_range",
+            Some("x"),
+        ),
+        (
+            "name=ball&size=9",
+            vec![AS_DIRECTOR],
+            picture.clone(),
+            400,
+            "bad_request",
+            Some("size"),
+        ),
+        (
+            "name=../../escape",
+            vec![AS_DIRECTOR],
+            picture.clone(),
+            400,
+            "bad_request",
+            Some("name"),
+        ),
+        (
+            "name=ball",
+            vec!["Authorization: Bearer secret"],
+            picture.clone(),
+            403,
+            "forbidden",
+            None,
+        ),
+        ("name=ball", vec![], picture.clone(), 401, "bad_token", None),
+        (
+            "name=ball",
+            vec![AS_DIRECTOR, "Origin: http://elsewhere.example"],
+            picture.clone(),
+            403,
+            "forbidden",
+            None,
+        ),
+        (
+            "name=ball",
+            vec![AS_DIRECTOR],
+            {
+                let mut huge = picture.clone();
+                huge.resize((16 << 20) + 1, 0);
+                huge
+            },
+            413,
+            "too_large",
+            None,
+        ),
+        (
+            "name=blank",
+            vec![AS_DIRECTOR],
+            png(40, 30, |_, _| [0, 0, 0, 0]),
+            400,
+            "bad_image",
+            None,
+        ),
+    ];
+    for (query, headers, body, status, code, field) in refusals {
+        let (got, answer) = post(&running, query, &headers, &body).await;
+        assert_eq!(got, status, "{query} {headers:?}: {answer}");
+        assert_eq!(answer["type"], "error", "{answer}");
+        assert_eq!(answer["code"], code, "{query} {headers:?}: {answer}");
+        assert_eq!(answer["field"].as_str(), field, "{answer}");
+        assert!(!answer["message"].as_str().unwrap().is_empty());
+    }
+    let kept = |dir: &std::path::Path| {
+        std::fs::read_dir(dir.join("puppets"))
+            .map(|d| d.count())
+            .unwrap_or(0)
+    };
+    assert_eq!(kept(dir.path()), 0, "refused pictures leave no files");
+
+    // A fully opaque picture is the whole rectangle: accepted, with a warning.
+    let opaque = png(80, 60, |x, _| [x as u8, 90, 160, 255]);
+    let (status, added) = post(&running, "name=photo&vertices=100", &[AS_DIRECTOR], &opaque).await;
+    assert_eq!(status, 200, "{added}");
+    let warnings = added["warnings"].as_array().unwrap();
+    assert_eq!(warnings.len(), 1, "{added}");
+    let warning = warnings[0].as_str().unwrap();
+    assert!(
+        warning.contains("opaque") && warning.contains("80×60"),
+        "{warning}"
+    );
+    assert!(
+        !warning.contains(&dir.path().display().to_string()),
+        "{warning}"
+    );
+    assert_eq!(kept(dir.path()), 2);
+    running.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn directors_reorder_and_remove_puppets_and_performers_cannot() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let (status, added) = post(
+        &running,
+        "name=ball&vertices=200&x=200&y=200",
+        &[AS_DIRECTOR],
+        &disc(),
+    )
+    .await;
+    assert_eq!(status, 200, "{added}");
+    let (mut director, stage) = connect(
+        &running,
+        json!({"type": "hello", "role": "director", "token": DIRECTOR}),
+    )
+    .await;
+    assert_eq!(ids(&stage), [0, 1]);
+    let (mut performer, _) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": PERFORMER}),
+    )
+    .await;
+
+    send(
+        &mut performer,
+        json!({"type": "remove_puppet", "puppet": 1}),
+    )
+    .await;
+    let error = until(&mut performer, "error", |_| true).await;
+    assert_eq!(error["code"], "forbidden", "{error}");
+
+    send(
+        &mut director,
+        json!({"type": "order_puppets", "order": [1, 0]}),
+    )
+    .await;
+    let stage = until(&mut director, "stage", |_| true).await;
+    assert_eq!(ids(&stage), [1, 0], "the ball is now below the gingerbread");
+    for bad in [json!([1]), json!([1, 1]), json!([0, 1, 9])] {
+        send(
+            &mut director,
+            json!({"type": "order_puppets", "order": bad}),
+        )
+        .await;
+        let error = until(&mut director, "error", |_| true).await;
+        assert_eq!(error["code"], "out_of_range", "{bad}: {error}");
+        assert!(
+            error["message"].as_str().unwrap().starts_with("order:"),
+            "{error}"
+        );
+    }
+
+    // A take's puppets are fixed when it starts.
+    send(&mut director, json!({"type": "record", "name": "fixed"})).await;
+    until(&mut director, "take", |m| m["recording"] == "fixed").await;
+    send(&mut director, json!({"type": "remove_puppet", "puppet": 1})).await;
+    let error = until(&mut director, "error", |_| true).await;
+    assert_eq!(error["code"], "busy", "{error}");
+    let (status, busy) = post(&running, "name=late", &[AS_DIRECTOR], &disc()).await;
+    assert_eq!(
+        (status, busy["code"].as_str()),
+        (409, Some("busy")),
+        "{busy}"
+    );
+    send(&mut director, json!({"type": "stop_recording"})).await;
+    until(&mut director, "take", |m| m.get("recording").is_none()).await;
+
+    send(&mut director, json!({"type": "remove_puppet", "puppet": 1})).await;
+    let stage = until(&mut director, "stage", |_| true).await;
+    assert_eq!(ids(&stage), [0]);
+    until(&mut performer, "stage", |m| ids(m) == [0]).await;
+    // Nothing is left of it to grab or edit: a contact where it was grabs
+    // nothing, and the one after it lands on the gingerbread as usual.
+    let hand = hand(&placed_mesh(&stage));
+    send(
+        &mut performer,
+        json!({"type": "contacts", "contacts": [
+            {"id": 1, "phase": "down", "x": 200.0, "y": 200.0},
+            {"id": 2, "phase": "down", "x": hand.x, "y": hand.y}]}),
+    )
+    .await;
+    loop {
+        let m = next_text(&mut performer).await;
+        if m["type"] == "handles" {
+            assert_eq!(m["puppet"], 0, "no handle on the removed puppet: {m}");
+            if contact_owners(&m).len() == 1 {
+                break;
+            }
+        }
+    }
+    for message in [
+        json!({"type": "remove_puppet", "puppet": 1}),
+        json!({"type": "undo", "puppet": 1}),
+    ] {
+        send(&mut director, message.clone()).await;
+        let error = until(&mut director, "error", |_| true).await;
+        assert_eq!(error["code"], "not_found", "{message}: {error}");
+    }
+    running.shutdown().await;
+}
