@@ -1,11 +1,14 @@
 // puppetry web renderer: a thin client of the stream protocol (docs/protocol.md).
 // Viewers draw the stage; performers also send their pointers as contacts;
-// directors get the tools that record, paint and save. `?view=show` is the
-// stage alone, for a projector or OBS's browser source.
+// directors get the tools that record, paint and save, and add, reorder and
+// remove puppets. `?view=show` is the stage alone, for a projector or OBS's
+// browser source.
 // This module wires the page together: the connection (with reconnects,
 // and the fall back to viewing when a token is refused), the state of the
-// stage and its puppets, the toolbar, the main loop, the keyframing pad,
-// and the `window.puppetry` test and debugging surface.
+// stage and its puppets (a new lineup mid-session keeps what the
+// connection said about the puppets that stay), the toolbar, the main
+// loop, the keyframing pad, and the `window.puppetry` test and debugging
+// surface.
 
 import {
   ERROR_CODE, CLOSE_CODE, FRAME_KIND_HANDLES, FRAME_KIND_RIG, FRAME_KIND_VERTICES, HANDLE_KIND, RIG_KIND, ROLE,
@@ -25,6 +28,7 @@ import {
 import { forgetToken, takeAccess, viewOptions } from './session.js';
 import { People } from './people.js';
 import { FpsMeter, Hud, LatencyMeter } from './hud.js';
+import { PuppetsPanel } from './puppets.js';
 
 const params = new URLSearchParams(location.search);
 const options = viewOptions(params);
@@ -65,6 +69,8 @@ const api = window.puppetry = {
   history: {},               // puppet id -> the last "history" message
   pose: {},                  // puppet id -> the last "pose" message
   inputs: null,              // the last "inputs" message
+  lastUpload: null,          // the daemon's answer to this page's last picture upload (puppet_added or error)
+  uploads: 0,                // answers to picture uploads so far
   ready: false,              // stage received and every texture settled
   hellos: [],                // every hello sent: {role, token: bool}
   tokenRefused: false,       // the server refused the token; the page views only
@@ -76,6 +82,7 @@ const api = window.puppetry = {
   snapshot,
   dots: () => overlay.drawn ?? [],   // what the overlay drew last: handles and cursors, in stage coordinates
   poseShown: () => poseSlider.shown(),
+  positions: (id) => Array.from(puppetById(id)?.positions ?? []), // a puppet's vertices as drawn now
   drop: () => ws?.close(),           // closes the connection (it reconnects): for tests of the indicator
   // lastGrid: the last "grid" message, once one came
   // take, takes: the last "take" message and the last "takes" list
@@ -92,6 +99,7 @@ let backoff = 500;           // ms before reconnecting, doubled per failed attem
 let lastError = '';          // the server's last "error" message on this connection
 let refusedNow = false;      // this connection's token was refused: reconnect as a viewer at once
 let pingTimer = null;
+let stageSeen = false;       // this connection had its stage: a later one is a new lineup of puppets
 const people = new People();
 const latency = new LatencyMeter(5);
 const fpsMeter = new FpsMeter();
@@ -209,6 +217,28 @@ const keyPad = new KeyPad({
   letGo: byId('key-let-go'),
 }, { send, canSend: () => api.connected });
 
+const puppetsPanel = new PuppetsPanel({
+  panel: byId('puppets-panel'),
+  toggle: byId('puppets-toggle'),
+  body: byId('puppets-body'),
+  list: byId('puppet-list'),
+  file: byId('puppet-file'),
+  vertices: byId('puppet-vertices'),
+  name: byId('puppet-name'),
+  add: byId('puppet-add'),
+  notice: byId('puppet-notice'),
+  noticeText: byId('puppet-notice-text'),
+  noticeClose: byId('puppet-notice-close'),
+}, {
+  send,
+  token: () => access.token,
+  onAnswer: (answer) => {
+    api.lastUpload = answer;
+    api.uploads++;
+  },
+  confirm: (text) => window.confirm(text),
+});
+
 const replaceTool = new ReplaceTool(byId('take-replace'), { puppets: currentPuppets, onChange: redrawOverlay });
 takeControls.replaceTool = replaceTool;
 api.replaceRegions = () => replaceTool.regions();
@@ -233,6 +263,7 @@ function applyRole(newRole) {
   replaceTool.setEnabled(direct);
   replayControls.setEnabled(direct);
   takeControls.setRole({ perform, direct });
+  puppetsPanel.setEnabled(direct);
   document.body.dataset.role = newRole;
 }
 
@@ -316,6 +347,7 @@ function connect() {
   const url = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`;
   setStatus(`connecting to ${url}…`);
   refusedNow = false;
+  stageSeen = false;
   const socket = new WebSocket(url);
   ws = socket;
   socket.binaryType = 'arraybuffer'; // frames are read in place as Float32Array views
@@ -365,22 +397,25 @@ function refuseToken() {
   }
   api.tokenRefused = true;
   applyRole(ROLE.VIEWER);
-
-// The show view has no UI at all: not hidden, gone.
-if (options.show) for (const id of ['bar', 'show-bar', 'keypad', 'banner']) byId(id).remove();
   hud.setNotice(TOKEN_REFUSED, 'refused');
 }
+
+// The live state kept per puppet.
+const PER_PUPPET = new Set([
+  SERVER_MESSAGE.HANDLES, SERVER_MESSAGE.HISTORY, SERVER_MESSAGE.POSE, SERVER_MESSAGE.KEYS, SERVER_MESSAGE.WEIGHTS,
+]);
 
 function onText(text) {
   const msg = parseServerMessage(text);
   if (!msg) return reportError('unreadable message from server');
+  // A message about one puppet that is not on stage was sent before a
+  // director removed it: it says nothing about the stage now.
+  if (PER_PUPPET.has(msg.type) && !puppetById(msg.puppet)) return;
   switch (msg.type) {
     case SERVER_MESSAGE.STAGE: return onStage(msg);
-    case SERVER_MESSAGE.HANDLES: {
-      const p = puppetById(msg.puppet);
-      if (p) setHandles(p, msg.handles, msg.generation);
+    case SERVER_MESSAGE.HANDLES:
+      setHandles(puppetById(msg.puppet), msg.handles, msg.generation);
       return;
-    }
     case SERVER_MESSAGE.PEOPLE:
       people.update(msg.people);
       api.people = people.list;
@@ -423,8 +458,8 @@ function onText(text) {
       needsOverlay = true;
       return;
     case SERVER_MESSAGE.WEIGHTS: {
-      const p = puppetById(msg.puppet);
-      if (p) { p.weights = msg.weights; needsOverlay = true; }
+      puppetById(msg.puppet).weights = msg.weights;
+      needsOverlay = true;
       api.weights[msg.puppet] = msg.weights;
       api.weightsReceived++;
       return;
@@ -469,30 +504,56 @@ function showYou() {
   if (me?.colour) youSwatch.style.backgroundColor = me.colour;
 }
 
+// The first stage message of a connection sets everything up; a later one
+// (a director added, removed or reordered puppets) is a new lineup on the
+// same connection. Either way every part of the page is set up again from
+// it, once: nothing here adds listeners or timers of its own.
 function onStage(msg) {
+  const lineup = stageSeen;
+  stageSeen = true;
   api.stage = msg;
   api.you = msg.you ?? null;
   api.ready = false;
-  api.lastSequence = {}; // a restarted daemon counts from the start again
   view.size = msg.stage;
   myOwner = msg.you?.owner ?? clientOwner(msg.client);
-  backoff = 500;
-  lastError = '';
   applyRole(msg.you?.role ?? msg.role ?? ROLE.VIEWER);
   layout();
-  puppets = msg.puppets.map(puppetState);
-  api.keys = {};             // this connection's "keys", "history", "pose" messages follow
-  api.handles = {};
-  api.history = {};
-  api.pose = {};
-  api.weights = Object.fromEntries(puppets.map((p) => [p.id, p.weights]));
-  people.clear();
+  const before = new Map(puppets.map((p) => [p.id, p]));
+  puppets = msg.puppets.map((src) => (lineup ? keptPuppet(before.get(src.id), src) : null) ?? puppetState(src));
+  if (lineup) {
+    // What this connection heard about the puppets that stay is still
+    // true and is not sent again; what it heard about the ones gone goes.
+    const shown = new Set(puppets.map((p) => String(p.id)));
+    for (const table of [api.lastSequence, api.keys, api.handles, api.history, api.pose, api.weights]) {
+      for (const id of Object.keys(table)) if (!shown.has(id)) delete table[id];
+    }
+    for (const p of puppets) if (!before.has(p.id)) api.weights[p.id] = p.weights;
+  } else {
+    api.lastSequence = {}; // a restarted daemon counts from the start again
+    api.keys = {};         // this connection's "keys", "history", "pose" and "people" messages follow
+    api.handles = {};
+    api.history = {};
+    api.pose = {};
+    api.weights = Object.fromEntries(puppets.map((p) => [p.id, p.weights]));
+    people.clear();
+  }
   for (const p of puppets) setHandles(p, p.handles, p.handlesGeneration);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });
   poseSlider.setup(puppets);
-  keyPad.setup(puppets);
+  keyPad.setup(puppets, { sameConnection: lineup });
   editControls.setup(puppets);
+  puppetsPanel.setup(puppets);
   paintTool.setStage(msg.stage);
+  if (lineup) {
+    const pose = api.pose[poseSlider.puppet];
+    if (pose) poseSlider.onPose(pose);
+    // A puppet added just now has no edits yet (a history message, if one comes, says so too).
+    for (const p of puppets) editControls.onHistory(api.history[p.id] ?? { puppet: p.id, undo: 0, redo: 0 });
+    showYou();
+    return;
+  }
+  backoff = 500;
+  lastError = '';
   send(listTakesMessage());
   api.connected = true;
   showYou();
@@ -504,6 +565,16 @@ function onStage(msg) {
   pingTimer = setInterval(ping, PING_MS);
 }
 
+// A puppet of the previous lineup that is still on stage, brought over
+// with its pose, handles and painted weights (the stage message describes
+// it as loaded); null when it is new, or not the same mesh after all.
+function keptPuppet(p, src) {
+  if (!p || p.n !== src.rest.length / 2) return null;
+  p.src = src;
+  p.texture = src.texture;
+  return p;
+}
+
 function onFrame(buf) {
   api.framesReceived++;
   const header = decodeFrameHeader(buf);
@@ -513,7 +584,9 @@ function onFrame(buf) {
   if (header.kind !== FRAME_KIND_VERTICES) return; // a newer kind
   const id = header.puppet;
   const p = puppetById(id);
-  if (!p) return reportError(`frame for unknown puppet ${id}`);
+  // Puppet ids are never reused: a frame of a puppet not on stage was on its
+  // way when a director removed it. Nothing to draw, nothing wrong.
+  if (!p) return;
   const points = header.count === p.n ? framePoints(buf, header) : null;
   if (!points) return reportError(`bad frame for puppet ${id}`);
   if (header.sequence <= (api.lastSequence[id] ?? -1)) return; // older than what we have
@@ -531,7 +604,7 @@ function onRigFrame(header, buf) {
   api.rigFrames++;
   const id = header.puppet;
   const p = puppetById(id);
-  if (!p) return reportError(`rig frame for unknown puppet ${id}`);
+  if (!p) return; // a removed puppet's (see onFrame)
   const points = framePoints(buf, header);
   if (!points) return reportError(`bad rig frame for puppet ${id}`);
   p.rigPoints = points;
@@ -544,7 +617,7 @@ function onRigFrame(header, buf) {
 function onHandleFrame(header, buf) {
   api.handleFrames++;
   const p = puppetById(header.puppet);
-  if (!p) return reportError(`handle frame for unknown puppet ${header.puppet}`);
+  if (!p) return; // a removed puppet's (see onFrame)
   const points = framePoints(buf, header);
   if (!points) return reportError(`bad handle frame for puppet ${header.puppet}`);
   const old = p.handleFrame;

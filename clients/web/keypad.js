@@ -89,12 +89,18 @@ export class KeyPad {
     this.refresh();
   }
 
-  /** A stage message: the puppets the pad can show (keys come in their own messages). */
-  setup(puppets) {
+  /**
+   * A stage message: the puppets the pad can show (keys come in their own
+   * messages). On a new connection its keys messages follow; a new lineup
+   * on the same one (`sameConnection`) keeps the keys of the puppets that
+   * stay, which are not sent again.
+   */
+  setup(puppets, { sameConnection = false } = {}) {
     this.puppets = puppets.map((p) => ({ id: p.id, name: p.src.name }));
-    this.state.clear(); // a new connection: its keys messages follow
-    this.drag = null;
-    this.pendingCursor = null;
+    const stays = (id) => sameConnection && this.puppets.some((p) => p.id === id);
+    for (const id of [...this.state.keys()]) if (!stays(id)) this.state.delete(id);
+    if (!stays(this.drag?.puppet)) this.drag = null;
+    if (!stays(this.pendingCursor?.puppet)) this.pendingCursor = null;
     if (!this.puppets.some((p) => p.id === this.selected)) this.selected = this.puppets[0]?.id ?? null;
     this.refresh();
   }

@@ -30,6 +30,8 @@ export const CLIENT_MESSAGE = Object.freeze({
   REDO: 'redo',
   RESET: 'reset',
   REPLAY: 'replay',
+  REMOVE_PUPPET: 'remove_puppet',
+  ORDER_PUPPETS: 'order_puppets',
 });
 
 /** `type` of the text messages the server sends. */
@@ -65,7 +67,7 @@ export function canPerform(role) {
   return role === ROLE.PERFORMER || role === ROLE.DIRECTOR;
 }
 
-/** Whether a role may direct (record, play, paint, save, edit key poses, toggle replays). */
+/** Whether a role may direct (record, play, paint, save, edit key poses, toggle replays, add, reorder and remove puppets). */
 export function canDirect(role) {
   return role === ROLE.DIRECTOR;
 }
@@ -82,6 +84,9 @@ export const ERROR_CODE = Object.freeze({
   BUSY: 'busy',
   FAILED: 'failed',
   HELLO: 'hello',
+  // Answers of `POST /puppets` (adding a puppet) also use these:
+  BAD_IMAGE: 'bad_image',
+  BAD_REQUEST: 'bad_request',
 });
 
 /** Close frame codes the server closes with. */
@@ -280,6 +285,16 @@ export function replayMessage(source, playing) {
   return { type: CLIENT_MESSAGE.REPLAY, source, playing };
 }
 
+/** Takes puppet `puppet` off the stage (director); its id is never used again. */
+export function removePuppetMessage(puppet) {
+  return { type: CLIENT_MESSAGE.REMOVE_PUPPET, puppet };
+}
+
+/** The stage's drawing order (director): every shown puppet's id once, bottom to top. */
+export function orderPuppetsMessage(order) {
+  return { type: CLIENT_MESSAGE.ORDER_PUPPETS, order };
+}
+
 export function encodeClientMessage(message) {
   return JSON.stringify(message);
 }
@@ -298,6 +313,39 @@ export function parseServerMessage(text) {
   }
   if (message === null || typeof message !== 'object') return null;
   return message;
+}
+
+// ---------------------------------------------------------------- adding a puppet (HTTP)
+
+// A director adds a picture to the running stage with `POST /puppets?…`:
+// the PNG's bytes as the body, the director's token as a bearer token. The
+// answer is JSON: `puppet_added` (its `warnings` may say why the mesh is
+// not what was hoped for) or an `error` as on the socket. Every page then
+// gets a new `stage` message with the puppet in it.
+
+/** The path puppets are added at. */
+export const PUPPETS_PATH = '/puppets';
+
+/** `type` of the answer to a puppet that was added. */
+export const PUPPET_ADDED = 'puppet_added';
+
+/** The vertex counts a new puppet's mesh may ask for, and the page's default. */
+export const PUPPET_VERTICES = Object.freeze({ MIN: 50, MAX: 20000, DEFAULT: 1000 });
+
+/** The largest picture the daemon takes (bytes). */
+export const MAX_PICTURE_BYTES = 16 * 1024 * 1024;
+
+/**
+ * The address to POST a picture to: `name` and `vertices` always; `x`, `y`
+ * (stage coordinates) and `scale` only when given (the daemon's default:
+ * the stage's centre, and a scale that fits the picture in half the stage).
+ */
+export function addPuppetPath({ name, vertices, x, y, scale }) {
+  const query = new URLSearchParams({ name, vertices: String(vertices) });
+  for (const [key, value] of Object.entries({ x, y, scale })) {
+    if (value !== undefined && value !== null) query.set(key, String(value));
+  }
+  return `${PUPPETS_PATH}?${query}`;
 }
 
 // ---------------------------------------------------------------- binary frames

@@ -153,6 +153,14 @@ export class MeshRenderer {
       gl.deleteBuffer(m.uvBuf);
       gl.deleteBuffer(m.idxBuf);
     }
+    // Pictures no puppet shows any more go: a removed puppet's id, and so
+    // its picture's address, never comes back.
+    const shown = new Set(puppets.map((p) => p.texture));
+    for (const [url, tex] of this.textures) {
+      if (shown.has(url)) continue;
+      gl.deleteTexture(tex);
+      this.textures.delete(url);
+    }
     this.stageSize = stageSize;
     this.puppets = puppets;
     this.meshes = puppets.map((p) => {

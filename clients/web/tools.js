@@ -79,9 +79,10 @@ export class ReplaceTool {
     return true; // off the puppets: nothing to mark, and not a contact either
   }
 
-  /** The discs as playMessage's `replace`. */
+  /** The discs as playMessage's `replace` (on puppets still on stage). */
   regions() {
-    return this.discs.map((d) => replaceRegion(d.puppet, d.at, this.radius));
+    const shown = new Set(this.puppets().map((p) => p.id));
+    return this.discs.filter((d) => shown.has(d.puppet)).map((d) => replaceRegion(d.puppet, d.at, this.radius));
   }
 
   /** The discs where they are now, for the overlay. */
@@ -255,9 +256,11 @@ export class PaintTool {
     }
   }
 
-  // The puppets painted since the last save, or every puppet if none was.
+  // The puppets painted since the last save (and still on stage), or every puppet if none was.
   saveWeights() {
-    const ids = this.painted.size ? [...this.painted] : this.puppets().map((p) => p.id);
+    const shown = this.puppets().map((p) => p.id);
+    const painted = shown.filter((id) => this.painted.has(id));
+    const ids = painted.length ? painted : shown;
     for (const puppet of ids) this.send(saveWeightsMessage(puppet));
     this.painted.clear();
   }

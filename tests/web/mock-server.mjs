@@ -4,6 +4,10 @@
 // last (any number may hold it: each handle is reported under its finger). It
 // carries a two-joint skeleton with key poses (for the pose slider), and a
 // replay input that does nothing but can be paused.
+// A director adds puppets with `POST /puppets` (a PNG: checked for its
+// signature and size, and warned about when every pixel is opaque) and
+// removes or reorders them; added puppets are still pictures on a grid of
+// about the vertices asked for, sized like the picture.
 // It also checks what the page sends and answers violations with "error".
 //
 // Access as the stage file's [access] would give it: MOCK_TOKEN (default T)
@@ -17,9 +21,9 @@
 import http from 'node:http';
 import fs from 'node:fs';
 import path from 'node:path';
-import zlib from 'node:zlib';
 import { fileURLToPath } from 'node:url';
 import { WebSocketServer } from 'ws';
+import { describePng, encodePng } from './png.mjs';
 
 const WEB = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../../clients/web');
 const TOKEN = process.env.MOCK_TOKEN ?? 'T';
@@ -41,45 +45,14 @@ const REPLAY = 'mock-play';
 
 // ---------------------------------------------------------------- texture
 
-const CRC = Array.from({ length: 256 }, (_, n) => {
-  let c = n;
-  for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
-  return c >>> 0;
-});
-const crc32 = (buf) => {
-  let c = 0xffffffff;
-  for (const b of buf) c = CRC[(c ^ b) & 0xff] ^ (c >>> 8);
-  return (c ^ 0xffffffff) >>> 0;
-};
-function chunk(type, data) {
-  const out = Buffer.alloc(12 + data.length);
-  out.writeUInt32BE(data.length, 0);
-  out.write(type, 4, 'latin1');
-  data.copy(out, 8);
-  out.writeUInt32BE(crc32(out.subarray(4, 8 + data.length)), 8 + data.length);
-  return out;
-}
 // Quadrants red (top left), green, blue, yellow, so a flipped or mirrored
 // texture is obvious in a screenshot.
 function texturePng(size = 64) {
-  const raw = Buffer.alloc(size * (1 + 4 * size));
-  for (let y = 0; y < size; y++) {
-    const row = y * (1 + 4 * size); // filter byte 0, then RGBA
-    for (let x = 0; x < size; x++) {
-      const q = (y < size / 2 ? 0 : 2) + (x < size / 2 ? 0 : 1);
-      const border = x < 3 || y < 3 || x >= size - 3 || y >= size - 3;
-      const rgb = border ? [0, 0, 0] : [[230, 40, 40], [40, 180, 60], [40, 80, 230], [240, 210, 30]][q];
-      raw.set([...rgb, 255], row + 1 + 4 * x);
-    }
-  }
-  const ihdr = Buffer.alloc(13);
-  ihdr.writeUInt32BE(size, 0);
-  ihdr.writeUInt32BE(size, 4);
-  ihdr.set([8, 6, 0, 0, 0], 8); // 8-bit RGBA
-  return Buffer.concat([
-    Buffer.from([137, 80, 78, 71, 13, 10, 26, 10]),
-    chunk('IHDR', ihdr), chunk('IDAT', zlib.deflateSync(raw)), chunk('IEND', Buffer.alloc(0)),
-  ]);
+  return encodePng(size, size, (x, y) => {
+    const q = (y < size / 2 ? 0 : 2) + (x < size / 2 ? 0 : 1);
+    const border = x < 3 || y < 3 || x >= size - 3 || y >= size - 3;
+    return [...(border ? [0, 0, 0] : [[230, 40, 40], [40, 180, 60], [40, 80, 230], [240, 210, 30]][q]), 255];
+  });
 }
 const TEXTURE = texturePng();
 
@@ -88,9 +61,17 @@ const TEXTURE = texturePng();
 const TYPES = { '.html': 'text/html', '.js': 'text/javascript', '.css': 'text/css' };
 const server = http.createServer((req, res) => {
   const url = new URL(req.url, 'http://x');
-  if (url.pathname === '/puppets/0/texture.png') {
-    res.writeHead(200, { 'content-type': 'image/png' });
-    return res.end(TEXTURE);
+  const texture = /^\/puppets\/(\d+)\/texture\.png$/.exec(url.pathname);
+  if (texture) {
+    const id = Number(texture[1]);
+    const png = id === 0 ? TEXTURE : added.get(id)?.png;
+    res.writeHead(png ? 200 : 404, png ? { 'content-type': 'image/png' } : {});
+    return res.end(png);
+  }
+  if (url.pathname === '/puppets') {
+    if (req.method === 'POST') return addPuppet(req, res, url.searchParams);
+    res.writeHead(405, { allow: 'POST' });
+    return res.end();
   }
   const name = url.pathname === '/' ? 'index.html' : url.pathname.slice(1);
   const file = path.join(WEB, name);
@@ -101,6 +82,120 @@ const server = http.createServer((req, res) => {
   res.writeHead(200, { 'content-type': TYPES[path.extname(name)], 'cache-control': 'no-store' });
   res.end(fs.readFileSync(file));
 });
+
+// ---------------------------------------------------------------- puppets from the page
+
+const MAX_PICTURE_BYTES = 16 * 1024 * 1024;
+const VERTICES = { min: 50, max: 20000 };
+const added = new Map(); // id -> {name, png, rest, uv, triangles, weights}: puppets added from the page
+let lineup = [0];        // the ids on stage, bottom to top
+let nextPuppet = 1;      // ids are never reused
+const quadShown = () => lineup.includes(0);
+const isQuad = (id) => id === 0 && quadShown();
+const STILL_EDITS = ['paint', 'undo', 'redo', 'reset', 'pose'];
+
+// `POST /puppets?name=…&vertices=…[&x=…&y=…&scale=…]`, the director's token
+// as a bearer token, the PNG as the body.
+function addPuppet(req, res, query) {
+  const answer = (status, body) => {
+    res.writeHead(status, { 'content-type': 'application/json' });
+    res.end(JSON.stringify(body));
+  };
+  const refuse = (status, code, message, field) => {
+    req.resume(); // the rest of the body is not wanted, but must not stall the answer
+    answer(status, { type: 'error', code, message, ...(field ? { field } : {}) });
+  };
+  const token = /^Bearer (.*)$/.exec(req.headers.authorization ?? '')?.[1];
+  const person = PEOPLE.find((p) => p.token === token) ?? (token === TOKEN ? { role: 'performer' } : null);
+  if (!person) return refuse(401, 'bad_token', 'adding a puppet: token refused');
+  if (person.role !== 'director') return refuse(403, 'forbidden', 'adding a puppet: not allowed for performers');
+  const name = query.get('name')?.trim() ?? '';
+  if (!name) return refuse(400, 'bad_request', 'name: a puppet needs a name', 'name');
+  const vertices = Number(query.get('vertices'));
+  if (!Number.isInteger(vertices) || vertices < VERTICES.min || vertices > VERTICES.max) {
+    return refuse(400, 'out_of_range', `vertices: ${query.get('vertices')} is out of range (${VERTICES.min} to ${VERTICES.max})`, 'vertices');
+  }
+  const place = {};
+  for (const key of ['x', 'y', 'scale']) {
+    if (!query.has(key)) continue;
+    const v = Number(query.get(key));
+    if (!COORD(v) || (key === 'scale' && v <= 0)) return refuse(400, 'out_of_range', `${key}: ${query.get(key)} is out of range`, key);
+    place[key] = v;
+  }
+  if ((req.headers['content-type'] ?? '').split(';')[0].trim() !== 'image/png') {
+    return refuse(400, 'bad_request', 'the body must be a PNG (Content-Type: image/png)');
+  }
+  const chunks = [];
+  let size = 0;
+  let tooLarge = false;
+  req.on('data', (data) => {
+    size += data.length;
+    if (size > MAX_PICTURE_BYTES) tooLarge = true;
+    else chunks.push(data);
+  });
+  req.on('end', () => {
+    if (tooLarge) return answer(413, { type: 'error', code: 'too_large', message: `the picture is over ${MAX_PICTURE_BYTES} bytes` });
+    const png = Buffer.concat(chunks);
+    const info = describePng(png);
+    if (info.error) return answer(400, { type: 'error', code: 'bad_image', message: `${name}: ${info.error}` });
+    const id = nextPuppet++;
+    const puppet = { name, png, ...gridMesh(info, vertices, place) };
+    added.set(id, puppet);
+    lineup.push(id);
+    const warnings = info.opaque
+      ? [`${name}: every pixel is opaque (no transparent background), so the puppet is the whole ${info.width}×${info.height} rectangle; to mesh a figure's outline, cut it out onto a transparent background (PNG with alpha)`]
+      : [];
+    answer(200, {
+      type: 'puppet_added', puppet: id, name, vertices: puppet.rest.length / 2, triangles: puppet.triangles.length / 3, warnings,
+    });
+    broadcastStage();
+  });
+}
+
+// The picture's rectangle as a grid of about `vertices` points, centred at
+// x, y (default: the stage's centre), scaled to fit half the stage unless
+// `scale` (stage units per pixel) says otherwise.
+function gridMesh({ width, height }, vertices, { x = STAGE.width / 2, y = STAGE.height / 2, scale } = {}) {
+  const s = scale ?? Math.min(STAGE.width / 2 / width, STAGE.height / 2 / height);
+  const columns = Math.max(2, Math.round(Math.sqrt((vertices * width) / height)));
+  const rows = Math.max(2, Math.round(vertices / columns));
+  const rest = [];
+  const uv = [];
+  const triangles = [];
+  for (let r = 0; r < rows; r++) {
+    for (let c = 0; c < columns; c++) {
+      const [u, v] = [c / (columns - 1), r / (rows - 1)];
+      rest.push(x + (u - 0.5) * width * s, y + (v - 0.5) * height * s);
+      uv.push(u, 1 - v); // v of the picture runs down from its top
+      if (r && c) {
+        const i = r * columns + c;
+        triangles.push(i - columns - 1, i - columns, i, i - columns - 1, i, i - 1);
+      }
+    }
+  }
+  return { rest, uv, triangles, weights: new Array(triangles.length / 3).fill(1) };
+}
+
+// The stage as a client sees it, puppets bottom to top.
+function stageMessage(c) {
+  const you = c.role === 'viewer' ? { owner: c.person.owner, role: 'viewer' } : c.person;
+  const puppets = lineup.map((id) => {
+    if (id === 0) {
+      return { id: 0, name: 'quad', texture: '/puppets/0/texture.png',
+        rest: REST, uv: UV, triangles: TRIANGLES, handles: handles(), weights: [1, 1],
+        rig: { kind: 'skeleton', mode: 'fk', bones: [[0, 1]], rest: JOINTS, poses: POSES } };
+    }
+    const { name, rest, uv, triangles, weights } = added.get(id);
+    return { id, name, texture: `/puppets/${id}/texture.png`, rest, uv, triangles, handles: [], weights, rig: { kind: 'free' } };
+  });
+  return { type: 'stage', client: c.id, role: c.role, you, stage: STAGE, puppets };
+}
+
+// A new lineup: only the stage message, as the live state of the puppets
+// that stay has not changed.
+function broadcastStage() {
+  for (const c of clients) if (c.ready) send(c, stageMessage(c));
+}
 
 // ---------------------------------------------------------------- stream
 
@@ -131,6 +226,7 @@ const sendHandles = () => { generation++; broadcastJson(handlesMessage()); sendH
 const historyMessage = () => ({ type: 'history', puppet: 0, undo: undo.length, redo: redo.length });
 const inputsMessage = () => ({ type: 'inputs', replays: [{ name: REPLAY, playing: replayPlaying }] });
 const inside = (x, y) => {
+  if (!quadShown()) return false;
   const xs = positions.filter((_, i) => i % 2 === 0);
   const ys = positions.filter((_, i) => i % 2 === 1);
   return x >= Math.min(...xs) && x <= Math.max(...xs) && y >= Math.min(...ys) && y <= Math.max(...ys);
@@ -149,11 +245,11 @@ function freeColour() {
   return PALETTE.find((c) => !used.has(c)) ?? PALETTE[clients.size % PALETTE.length];
 }
 
-function frame(kind, points, gen = 0) {
+function frame(kind, points, gen = 0, puppet = 0) {
   const n = points.length / 2;
   const buf = Buffer.alloc(32 + 8 * n);
   buf.writeUInt32LE(kind, 0);
-  buf.writeUInt32LE(0, 4);
+  buf.writeUInt32LE(puppet, 4);
   buf.writeBigUInt64LE(BigInt(sequence), 8);
   buf.writeDoubleLE(Number(process.hrtime.bigint() - started) / 1e9, 16);
   buf.writeUInt32LE(n, 24);
@@ -210,6 +306,8 @@ const ALLOWED = {
   paint: ['director'],
   save_weights: ['director'],
   replay: ['director'],
+  remove_puppet: ['director'],
+  order_puppets: ['director'],
 };
 
 // Returns an error {code, message, field?}, or null when the input was fine.
@@ -217,6 +315,8 @@ function onInput(c, msg) {
   const allowed = ALLOWED[msg.type];
   if (!allowed) return { code: 'bad_message', message: `unknown message type ${JSON.stringify(msg.type)}` };
   if (!allowed.includes(c.role)) return { code: 'forbidden', message: `a ${c.role} may not send ${msg.type}` };
+  // Puppets added from the page are still pictures: their edits change nothing.
+  if (STILL_EDITS.includes(msg.type) && msg.puppet !== 0 && lineup.includes(msg.puppet)) return null;
   if (msg.type === 'ping') {
     send(c, { type: 'pong', t: msg.t });
     return null;
@@ -275,7 +375,7 @@ function onInput(c, msg) {
     return null;
   }
   if (msg.type === 'unpin') {
-    if (msg.puppet !== 0 || !pins.some((p) => p.id === msg.handle)) return { code: 'not_found', message: 'unpin: no such pin' };
+    if (!isQuad(msg.puppet) || !pins.some((p) => p.id === msg.handle)) return { code: 'not_found', message: 'unpin: no such pin' };
     remember();
     pins = pins.filter((p) => p.id !== msg.handle);
     sendHandles();
@@ -283,7 +383,7 @@ function onInput(c, msg) {
     return null;
   }
   if (msg.type === 'paint') {
-    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    if (!isQuad(msg.puppet)) return { code: 'not_found', message: 'no such puppet' };
     for (const k of ['x', 'y']) if (!COORD(msg[k])) return { code: 'out_of_range', message: 'out of range', field: k };
     if (!(finite(msg.radius) && msg.radius > 0 && msg.radius <= Math.max(STAGE.width, STAGE.height))) {
       return { code: 'out_of_range', message: 'radius out of range', field: 'radius' };
@@ -311,7 +411,7 @@ function onInput(c, msg) {
     return null;
   }
   if (msg.type === 'pose') {
-    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    if (!isQuad(msg.puppet)) return { code: 'not_found', message: 'no such puppet' };
     if (!POSES.includes(msg.from) || !POSES.includes(msg.to)) return { code: 'not_found', message: 'no such key pose' };
     if (!(finite(msg.t) && msg.t >= 0 && msg.t <= 1)) return { code: 'out_of_range', message: 't out of range', field: 't' };
     pose = { puppet: 0, from: msg.from, to: msg.to, t: msg.t };
@@ -319,7 +419,7 @@ function onInput(c, msg) {
     return null;
   }
   if (msg.type === 'undo' || msg.type === 'redo') {
-    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    if (!isQuad(msg.puppet)) return { code: 'not_found', message: 'no such puppet' };
     const [from, to] = msg.type === 'undo' ? [undo, redo] : [redo, undo];
     if (!from.length) return null;
     to.push({ pins: pins.slice(), weights: weights.slice() });
@@ -329,13 +429,34 @@ function onInput(c, msg) {
     return null;
   }
   if (msg.type === 'reset') {
-    if (msg.puppet !== 0) return { code: 'not_found', message: 'no such puppet' };
+    if (!isQuad(msg.puppet)) return { code: 'not_found', message: 'no such puppet' };
     remember();
     lastStroke = null;
     restore({ pins: [], weights: [1, 1] });
     pose = { puppet: 0, from: 'rest', to: 'cheer', t: 0 };
     broadcastJson({ type: 'pose', ...pose });
     broadcastJson(historyMessage());
+    return null;
+  }
+  if (msg.type === 'remove_puppet') {
+    if (!lineup.includes(msg.puppet)) return { code: 'not_found', message: `remove_puppet: no puppet ${msg.puppet} on stage`, field: 'puppet' };
+    const gone = added.get(msg.puppet);
+    lineup = lineup.filter((id) => id !== msg.puppet);
+    added.delete(msg.puppet);
+    if (msg.puppet === 0) grabs.clear();
+    broadcastStage();
+    // A frame of it that was already on its way, as the daemon's may be:
+    // pages drop it without a fuss.
+    broadcast(frame(1, gone?.rest ?? positions, 0, msg.puppet));
+    return null;
+  }
+  if (msg.type === 'order_puppets') {
+    const order = msg.order;
+    const everyOnce = Array.isArray(order) && order.length === lineup.length && new Set(order).size === order.length
+      && order.every((id) => lineup.includes(id));
+    if (!everyOnce) return { code: 'bad_message', message: `order_puppets: list every puppet on stage once (${lineup.join(', ')})`, field: 'order' };
+    lineup = order.slice();
+    broadcastStage();
     return null;
   }
   if (msg.type === 'replay') {
@@ -383,23 +504,20 @@ wss.on('connection', (ws) => {
       c.person = who.person;
       c.ready = true;
       clients.add(c);
-      const you = c.role === 'viewer' ? { owner: c.person.owner, role: 'viewer' } : c.person;
-      send(c, {
-        type: 'stage', client: c.id, role: c.role, you, stage: STAGE,
-        puppets: [{ id: 0, name: 'quad', texture: '/puppets/0/texture.png',
-          rest: REST, uv: UV, triangles: TRIANGLES, handles: handles(), weights: [1, 1],
-          rig: { kind: 'skeleton', mode: 'fk', bones: [[0, 1]], rest: JOINTS, poses: POSES } }],
-      });
+      send(c, stageMessage(c));
       // The full live state, as the daemon sends a newcomer.
-      send(c, handlesMessage());
-      send(c, { type: 'weights', puppet: 0, weights });
-      send(c, historyMessage());
-      send(c, { type: 'pose', ...pose });
+      if (quadShown()) {
+        send(c, handlesMessage());
+        send(c, { type: 'weights', puppet: 0, weights });
+        send(c, historyMessage());
+        send(c, { type: 'pose', ...pose });
+      }
+      for (const id of lineup) if (id !== 0) send(c, { type: 'history', puppet: id, undo: 0, redo: 0 });
       send(c, inputsMessage());
       if (c.role === 'viewer') send(c, peopleMessage());
       else broadcastJson(peopleMessage());
-      if (positions.some((v, i) => v !== REST[i])) { sequence++; send(c, frame(1, positions)); }
-      if (handles().length) c.ws.send(frame(3, handlePoints(), generation));
+      if (quadShown() && positions.some((v, i) => v !== REST[i])) { sequence++; c.ws.send(frame(1, positions)); }
+      if (quadShown() && handles().length) c.ws.send(frame(3, handlePoints(), generation));
       return;
     }
     const err = onInput(c, msg);

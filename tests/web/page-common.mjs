@@ -116,10 +116,47 @@ export function settle(page) {
   return page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 }
 
-/** Keeps the GL canvas's pixels now as the "before" picture (see changedPixels). */
+/** Keeps the GL canvas's pixels now as the "before" picture (see changedPixels, changesIn). */
 export async function keepSnapshot(page) {
   await settle(page);
-  await page.evaluate(() => { window.__before = window.puppetry.snapshot(); });
+  await page.evaluate(() => {
+    window.__before = window.puppetry.snapshot();
+    window.__beforeSize = [document.getElementById('gl').width, document.getElementById('gl').height];
+  });
+}
+
+/**
+ * A grid of `n` × `n` stage points over the stage rectangle [x0, y0, x1,
+ * y1], each read in keepSnapshot's picture and in the canvas now (each at
+ * its own size, so a layout in between does not matter): {samples,
+ * changed (beyond rounding noise), near (within 60 of `colour` [r, g, b]
+ * now)}.
+ */
+export async function changesIn(page, rect, colour, n = 40) {
+  await settle(page);
+  return page.evaluate(([[x0, y0, x1, y1], rgb, count]) => {
+    const { width: W, height: H } = window.puppetry.stage.stage;
+    const canvas = document.getElementById('gl');
+    const pictures = [[window.__before, ...window.__beforeSize], [window.puppetry.snapshot(), canvas.width, canvas.height]];
+    // Snapshots are bottom row first, as stage coordinates are y-up.
+    const at = ([px, w, h], x, y) => {
+      const i = 4 * (Math.min(h - 1, Math.floor((y / H) * h)) * w + Math.min(w - 1, Math.floor((x / W) * w)));
+      return [px[i], px[i + 1], px[i + 2]];
+    };
+    const distance = (a, b) => Math.abs(a[0] - b[0]) + Math.abs(a[1] - b[1]) + Math.abs(a[2] - b[2]);
+    let changed = 0;
+    let near = 0;
+    for (let i = 0; i < count; i++) {
+      for (let j = 0; j < count; j++) {
+        const x = x0 + ((i + 0.5) / count) * (x1 - x0);
+        const y = y0 + ((j + 0.5) / count) * (y1 - y0);
+        const now = at(pictures[1], x, y);
+        if (distance(at(pictures[0], x, y), now) > 24) changed++;
+        if (distance(now, rgb) <= 60) near++;
+      }
+    }
+    return { samples: count * count, changed, near };
+  }, [rect, colour, n]);
 }
 
 /**

@@ -1,7 +1,7 @@
 #!/bin/sh
 # Runs the page scripts against mock-server.mjs on a free port: drag.mjs
 # (mouse, then touch) and the scripts of issue 12's page (people, token,
-# show view, pose, edits). A fresh mock per script, so none sees another's
+# show view, pose, edits) and the director's puppets panel. A fresh mock per script, so none sees another's
 # state. Needs: npm install (in this folder), /usr/bin/chromium.
 #   sh run-against-mock.sh [SCRIPT…]   (default: all)
 set -eu
@@ -28,7 +28,7 @@ run() {
   env "$@" node "$script.mjs" || { echo "mock log:"; cat "$log"; exit 1; }
 }
 
-scripts=${*:-drag people token show pose edits}
+scripts=${*:-drag people token show pose edits puppets}
 for s in $scripts; do
   start_mock
   case $s in
@@ -41,6 +41,7 @@ for s in $scripts; do
     show) run show PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben ;;
     pose) run pose PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben ;;
     edits) run edits PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben PUPPETRY_DIRECTOR=director PUPPETRY_SAVE=1 ;;
+    puppets) run puppets PUPPETRY_URL="$base?role=director&token=director" PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ana ;;
     *) echo "unknown script $s"; exit 2 ;;
   esac
 done

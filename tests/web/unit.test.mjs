@@ -1,6 +1,8 @@
 // Unit tests of the page's pure pieces (no browser): the address's view
 // options and token handling, the latency median, owner colours, the
-// handle frame header and where a handle is drawn.
+// handle frame header and where a handle is drawn, the puppets panel's
+// names, vertex counts, orders and reading of the daemon's answers; and
+// the tests' own PNG writer and reader (the mock checks uploads with it).
 //
 //   node --test unit.test.mjs
 
@@ -12,6 +14,9 @@ import { TOKEN_KEY, forgetToken, parseSize, takeAccess, viewOptions } from '../.
 import { FpsMeter, LatencyMeter, median } from '../../clients/web/hud.js';
 import { CONFIG_COLOUR, People, UNKNOWN_COLOUR, parseHex, withAlpha } from '../../clients/web/people.js';
 import { handleAt } from '../../clients/web/overlay.js';
+import { addPuppetPath, orderPuppetsMessage, removePuppetMessage } from '../../clients/web/protocol.js';
+import { checkVertices, movedOrder, nameFromFile, readUploadAnswer } from '../../clients/web/puppets.js';
+import { describePng, encodePng } from './png.mjs';
 
 // sessionStorage's interface over a Map.
 function storage(entries = {}) {
@@ -165,4 +170,90 @@ test('messages: pings carry their time, paint dabs their stroke', () => {
   assert.deepEqual(pingMessage(12.5), { type: 'ping', t: 12.5 });
   assert.deepEqual(paintMessage(0, 1, 2, 3, 1.5, 7), { type: 'paint', puppet: 0, x: 1, y: 2, radius: 3, strength: 1.5, stroke: 7 });
   assert.equal('stroke' in paintMessage(0, 1, 2, 3, 1.5), false);
+});
+
+test('a new puppet is named after its picture', () => {
+  assert.equal(nameFromFile('figure.png'), 'figure');
+  assert.equal(nameFromFile('C:\\pictures\\Hans im Glück.PNG'), 'Hans im Glück');
+  assert.equal(nameFromFile('/tmp/a.b.png'), 'a.b');
+  assert.equal(nameFromFile('noextension'), 'noextension');
+  for (const nothing of ['.png', '', undefined, '  .png']) assert.equal(nameFromFile(nothing), 'puppet', String(nothing));
+});
+
+test('vertex counts: whole numbers from 50 to 20000', () => {
+  assert.deepEqual(checkVertices('300'), { vertices: 300 });
+  assert.deepEqual(checkVertices(' 50 '), { vertices: 50 });
+  assert.deepEqual(checkVertices(20000), { vertices: 20000 });
+  for (const bad of ['49', '20001', '300.5', '', 'many', '-300', null]) {
+    const r = checkVertices(bad);
+    assert.equal(r.field, 'vertices', String(bad));
+    assert.ok(r.error, String(bad));
+  }
+});
+
+test('moving a puppet swaps it with its neighbour in the drawing order', () => {
+  assert.deepEqual(movedOrder([0, 4, 7], 4, +1), [0, 7, 4]);
+  assert.deepEqual(movedOrder([0, 4, 7], 4, -1), [4, 0, 7]);
+  assert.equal(movedOrder([0, 4, 7], 7, +1), null, 'the top one cannot go higher');
+  assert.equal(movedOrder([0, 4, 7], 0, -1), null, 'the bottom one cannot go lower');
+  assert.equal(movedOrder([0, 4, 7], 5, +1), null, 'not on stage');
+  const order = [0, 4, 7];
+  movedOrder(order, 4, 1);
+  assert.deepEqual(order, [0, 4, 7], 'the order given is left alone');
+});
+
+test('messages and the address that add, remove and reorder puppets', () => {
+  assert.deepEqual(removePuppetMessage(3), { type: 'remove_puppet', puppet: 3 });
+  assert.deepEqual(orderPuppetsMessage([3, 0]), { type: 'order_puppets', order: [3, 0] });
+  assert.equal(addPuppetPath({ name: 'Hans & Grete', vertices: 300 }), '/puppets?name=Hans+%26+Grete&vertices=300');
+  assert.equal(addPuppetPath({ name: 'a', vertices: 50, x: 640, y: 0, scale: 0.5 }), '/puppets?name=a&vertices=50&x=640&y=0&scale=0.5');
+});
+
+test('the daemon\'s answers to an upload, as the panel shows them', () => {
+  const added = { type: 'puppet_added', puppet: 3, name: 'figure', vertices: 297, triangles: 520, warnings: [] };
+  let r = readUploadAnswer(200, JSON.stringify(added));
+  assert.deepEqual(r.answer, added);
+  assert.equal(r.notice.kind, 'added');
+  assert.deepEqual(r.notice.lines, ['added figure (puppet 3): 297 vertices, 520 triangles']);
+
+  const opaque = 'every pixel is opaque (no transparent background), so the puppet is the whole 200×100 rectangle';
+  r = readUploadAnswer(200, JSON.stringify({ ...added, warnings: [opaque] }));
+  assert.equal(r.notice.kind, 'warning');
+  assert.equal(r.notice.lines[1], `warning: ${opaque}`);
+
+  const refused = { type: 'error', code: 'out_of_range', message: 'vertices: 10 is out of range', field: 'vertices' };
+  r = readUploadAnswer(400, JSON.stringify(refused));
+  assert.deepEqual(r.answer, refused);
+  assert.equal(r.notice.kind, 'error');
+  assert.deepEqual(r.notice.lines, ['not added: vertices: 10 is out of range (field: vertices) [out_of_range]']);
+  r = readUploadAnswer(400, JSON.stringify({ type: 'error', code: 'bad_image', message: 'not a PNG' }));
+  assert.deepEqual(r.notice.lines, ['not added: not a PNG [bad_image]']);
+
+  // Not the daemon's JSON: said plainly, as an error of code "http".
+  r = readUploadAnswer(404, '');
+  assert.equal(r.answer.code, 'http');
+  assert.match(r.notice.lines[0], /HTTP 404: this daemon cannot add puppets/);
+  r = readUploadAnswer(502, '<html>Bad Gateway</html>');
+  assert.match(r.answer.message, /HTTP 502: <html>Bad Gateway/);
+  r = readUploadAnswer(0, '');
+  assert.match(r.answer.message, /no answer from the daemon/);
+  r = readUploadAnswer(200, '{"type":"something_else"}');
+  assert.equal(r.notice.kind, 'error', 'a 200 that is not puppet_added did not add anything');
+  r = readUploadAnswer(200, '[1, 2]');
+  assert.equal(r.answer.type, 'error');
+});
+
+test('the tests\' PNGs: written, then read back as the mock reads uploads', () => {
+  const cutOut = encodePng(30, 20, (x) => (x < 10 ? [0, 0, 0, 0] : [200, 30, 30, 255]));
+  assert.deepEqual(describePng(cutOut), { width: 30, height: 20, opaque: false });
+  const opaque = encodePng(200, 100, () => [20, 150, 160, 255]);
+  assert.deepEqual(describePng(opaque), { width: 200, height: 100, opaque: true });
+  // One pixel short of opaque, at the very end.
+  const almost = encodePng(5, 5, (x, y) => [1, 2, 3, x === 4 && y === 4 ? 254 : 255]);
+  assert.equal(describePng(almost).opaque, false);
+  assert.match(describePng(Buffer.from('This is a text file.\n')).error, /not a PNG/);
+  assert.match(describePng(cutOut.subarray(0, 40)).error, /cut short|no image data/);
+  const corrupt = Buffer.from(opaque);
+  corrupt.fill(0, 41, 60); // inside the image data
+  assert.ok(describePng(corrupt).error);
 });

@@ -1,0 +1,265 @@
+// The director's Puppets panel: the stage's puppets in drawing order, each
+// with up, down and remove, and adding a picture to the running stage (a
+// PNG the daemon meshes with about the vertex count asked for). Whatever
+// the daemon answers an upload (the new puppet's mesh and its warnings, or
+// why it refused the picture) stays in the panel's notice until dismissed
+// or the next upload: a director must see that a picture became a plain
+// rectangle, not find it in the console. The panel never changes the
+// stage itself: every page, this one too, redraws from the `stage` message
+// the daemon sends after each change. The pure pieces (names, vertex
+// counts, orders, reading an answer) are exported for the unit tests.
+
+import {
+  MAX_PICTURE_BYTES, PUPPET_ADDED, PUPPET_VERTICES,
+  addPuppetPath, orderPuppetsMessage, removePuppetMessage,
+} from './protocol.js';
+
+/** A puppet's default name: the picture's file name without folder or extension ("puppet" when that leaves nothing). */
+export function nameFromFile(fileName) {
+  const base = String(fileName ?? '').replace(/^.*[\\/]/, '');
+  return base.replace(/\.[^.]*$/, '').trim() || 'puppet';
+}
+
+/**
+ * The vertex count as typed: {vertices} for a whole number the daemon
+ * takes, else {error, field} saying why (the daemon would refuse it too,
+ * after the whole picture had been sent).
+ */
+export function checkVertices(text) {
+  const typed = String(text ?? '').trim();
+  const v = Number(typed);
+  if (typed === '' || !Number.isInteger(v)) return { error: `"${typed}" is not a whole number of vertices`, field: 'vertices' };
+  if (v < PUPPET_VERTICES.MIN || v > PUPPET_VERTICES.MAX) {
+    return { error: `${v} vertices is out of range (${PUPPET_VERTICES.MIN} to ${PUPPET_VERTICES.MAX})`, field: 'vertices' };
+  }
+  return { vertices: v };
+}
+
+/**
+ * `order` (puppet ids, bottom to top) with `id` moved one place: `step` +1
+ * draws it over the puppet above it, −1 under the one below. Null when it
+ * is not there or already at that end.
+ */
+export function movedOrder(order, id, step) {
+  const from = order.indexOf(id);
+  const to = from + step;
+  if (from < 0 || to < 0 || to >= order.length) return null;
+  const moved = order.slice();
+  [moved[from], moved[to]] = [moved[to], moved[from]];
+  return moved;
+}
+
+/**
+ * What the daemon answered an upload: `status` (0: no answer at all) and
+ * the body's text, as {answer, notice}. `answer` is the daemon's JSON; an
+ * answer that is not JSON (an older daemon's 404, a proxy's page) becomes
+ * an `error` of code `http` saying what came. `notice` is what the panel
+ * shows: {kind: 'added' | 'warning' | 'error', lines}.
+ */
+export function readUploadAnswer(status, text) {
+  let answer = null;
+  try {
+    answer = JSON.parse(text);
+  } catch { /* not JSON: said below */ }
+  if (answer === null || typeof answer !== 'object' || Array.isArray(answer)) {
+    answer = { type: 'error', code: 'http', message: httpTrouble(status, text) };
+  }
+  const ok = status >= 200 && status < 300;
+  if (ok && answer.type === PUPPET_ADDED) {
+    const warnings = Array.isArray(answer.warnings) ? answer.warnings.map(String) : [];
+    const added = `added ${answer.name} (puppet ${answer.puppet}): ${answer.vertices} vertices, ${answer.triangles} triangles`;
+    return { answer, notice: { kind: warnings.length ? 'warning' : 'added', lines: [added, ...warnings.map((w) => `warning: ${w}`)] } };
+  }
+  if (answer.type !== 'error') {
+    answer = { type: 'error', code: 'http', message: `unexpected answer (${status}): ${String(text).slice(0, 200)}` };
+  }
+  return { answer, notice: { kind: 'error', lines: [refusal(answer)] } };
+}
+
+/** An `error` answer as one line: the message, the field at fault, the code. */
+export function refusal(error) {
+  const field = error.field ? ` (field: ${error.field})` : '';
+  return `not added: ${error.message ?? 'no reason given'}${field} [${error.code ?? 'error'}]`;
+}
+
+// A non-JSON answer, said so a director knows where to look.
+function httpTrouble(status, text) {
+  if (!status) return 'no answer from the daemon (is it running? is the page on its address?)';
+  const body = String(text ?? '').trim().slice(0, 200);
+  const older = status === 404 || status === 405 ? ': this daemon cannot add puppets (older than the page?)' : '';
+  return `the daemon answered HTTP ${status}${older}${body && !older ? `: ${body}` : ''}`;
+}
+
+/**
+ * POSTs the picture `file` (a Blob) to `path` as the director (`token`);
+ * settles with {status, text} (status 0 when nothing answered). XHR rather
+ * than fetch for the upload's progress: onProgress(fraction sent).
+ */
+export function postPicture(path, token, file, onProgress) {
+  return new Promise((resolve) => {
+    const xhr = new XMLHttpRequest();
+    xhr.open('POST', path);
+    xhr.setRequestHeader('Authorization', `Bearer ${token}`);
+    xhr.setRequestHeader('Content-Type', 'image/png');
+    xhr.upload.onprogress = (e) => { if (e.lengthComputable && e.total) onProgress(e.loaded / e.total); };
+    xhr.upload.onload = () => onProgress(1);
+    xhr.onload = () => resolve({ status: xhr.status, text: xhr.responseText });
+    xhr.onerror = xhr.onabort = xhr.ontimeout = () => resolve({ status: 0, text: '' });
+    xhr.send(file);
+  });
+}
+
+export class PuppetsPanel {
+  /**
+   * elements: {panel (its place in the bar), toggle (opens the rest),
+   * body, list, file, vertices, name, add, notice, noticeText,
+   * noticeClose}. send(message); token(): the director's token;
+   * onAnswer(answer): the daemon's answer to an upload; confirm(text):
+   * whether to go ahead (window.confirm).
+   */
+  constructor(elements, { send, token, onAnswer, confirm }) {
+    this.el = elements;
+    this.send = send;
+    this.token = token;
+    this.onAnswer = onAnswer;
+    this.confirm = confirm;
+    this.enabled = false;
+    this.puppets = [];        // [{id, name, vertices}] bottom to top, from the stage message
+    this.uploading = false;
+    const { toggle, file, vertices, add, noticeClose } = elements;
+    vertices.min = String(PUPPET_VERTICES.MIN);
+    vertices.max = String(PUPPET_VERTICES.MAX);
+    vertices.value = String(PUPPET_VERTICES.DEFAULT);
+    toggle.addEventListener('click', () => this.setOpen(this.el.body.hidden));
+    file.addEventListener('change', () => {
+      this.el.name.placeholder = file.files[0] ? nameFromFile(file.files[0].name) : 'name';
+    });
+    add.addEventListener('click', () => this.upload());
+    noticeClose.addEventListener('click', () => this.clearNotice());
+    this.setOpen(false);
+    this.clearNotice();
+  }
+
+  /** Shows the panel (directors, not the show view). */
+  setEnabled(on) {
+    this.enabled = on;
+    this.el.panel.hidden = !on;
+  }
+
+  setOpen(open) {
+    const { body, toggle } = this.el;
+    body.hidden = !open;
+    toggle.setAttribute('aria-expanded', String(open));
+    this.label();
+    // Hangs from its button, but never past the window's right edge (the bar wraps).
+    body.style.left = '0px';
+    if (!open) return;
+    const right = body.getBoundingClientRect().right;
+    if (right > innerWidth - 6) body.style.left = `${innerWidth - 6 - right}px`;
+  }
+
+  // The toggle says how many puppets there are, and flags a notice left unread behind it.
+  label() {
+    const n = this.puppets.length;
+    const unread = this.el.body.hidden && !this.el.notice.hidden ? ' ⚠' : '';
+    this.el.toggle.textContent = `puppets (${n})${unread} ${this.el.body.hidden ? '▾' : '▴'}`;
+  }
+
+  /** A stage message: the puppets, bottom to top. */
+  setup(puppets) {
+    this.puppets = puppets.map((p) => ({ id: p.id, name: p.src.name, vertices: p.n }));
+    const ids = this.puppets.map((p) => p.id);
+    // Listed bottom to top as the stage draws them; the stylesheet shows the
+    // top one first, so "up" moves an entry up the list.
+    this.el.list.replaceChildren(...this.puppets.map((p, i) => {
+      const item = document.createElement('li');
+      item.dataset.puppet = String(p.id);
+      const name = document.createElement('span');
+      name.className = 'puppet-name';
+      name.textContent = p.name;
+      name.title = `puppet ${p.id}, ${p.vertices} vertices`;
+      const button = (cls, text, title, disabled, onClick) => {
+        const b = document.createElement('button');
+        b.type = 'button';
+        b.className = cls;
+        b.textContent = text;
+        b.title = title;
+        b.disabled = disabled;
+        b.addEventListener('click', onClick);
+        return b;
+      };
+      item.append(
+        name,
+        button('puppet-up', 'up', `Draw ${p.name} over the puppet above it`, i === ids.length - 1, () => this.move(p.id, +1)),
+        button('puppet-down', 'down', `Draw ${p.name} under the puppet below it`, i === 0, () => this.move(p.id, -1)),
+        button('puppet-remove', 'remove', `Take ${p.name} off the stage (asks first)`, false, () => this.remove(p)),
+      );
+      return item;
+    }));
+    this.label();
+  }
+
+  move(id, step) {
+    const order = movedOrder(this.puppets.map((p) => p.id), id, step);
+    if (order) this.send(orderPuppetsMessage(order));
+  }
+
+  remove(p) {
+    const sure = this.confirm(`Remove ${p.name} (puppet ${p.id}) from the stage, on every page? Only adding its picture again brings it back, as a new puppet.`);
+    if (sure) this.send(removePuppetMessage(p.id));
+  }
+
+  /** The notice: `kind` 'added', 'warning' or 'error'; it stays until dismissed or the next upload. */
+  showNotice(kind, lines) {
+    const { notice, noticeText } = this.el;
+    notice.dataset.kind = kind;
+    noticeText.replaceChildren(...lines.map((line) => {
+      const p = document.createElement('p');
+      p.textContent = line;
+      return p;
+    }));
+    notice.hidden = false;
+    this.label();
+  }
+
+  clearNotice() {
+    this.el.notice.hidden = true;
+    this.el.notice.dataset.kind = '';
+    this.el.noticeText.replaceChildren();
+    this.label();
+  }
+
+  // Sends the chosen picture. What can be told before sending it (no file,
+  // too large, a vertex count out of range) is told at once.
+  async upload() {
+    if (this.uploading) return;
+    this.clearNotice();
+    const { file, vertices, name, add } = this.el;
+    const picture = file.files[0];
+    if (!picture) return this.showNotice('error', ['choose a PNG picture first']);
+    if (picture.size > MAX_PICTURE_BYTES) {
+      const mib = (n) => (n / 1024 / 1024).toFixed(1);
+      return this.showNotice('error', [`${picture.name} is ${mib(picture.size)} MiB; the daemon takes at most ${mib(MAX_PICTURE_BYTES)} MiB`]);
+    }
+    const count = checkVertices(vertices.value);
+    if (count.error) return this.showNotice('error', [`${count.error} (field: ${count.field})`]);
+    const puppetName = name.value.trim() || nameFromFile(picture.name);
+    this.uploading = true;
+    add.disabled = true;
+    add.textContent = 'uploading…';
+    try {
+      const path = addPuppetPath({ name: puppetName, vertices: count.vertices });
+      const { status, text } = await postPicture(path, this.token(), picture, (sent) => {
+        // Once every byte is out, the daemon is meshing.
+        add.textContent = sent < 1 ? `uploading ${Math.floor(100 * sent)}%` : 'meshing…';
+      });
+      const { answer, notice } = readUploadAnswer(status, text);
+      this.showNotice(notice.kind, notice.lines);
+      this.onAnswer(answer);
+    } finally {
+      this.uploading = false;
+      add.disabled = false;
+      add.textContent = 'add';
+    }
+  }
+}
