@@ -138,6 +138,7 @@ export class PuppetsPanel {
     noticeClose.addEventListener('click', () => this.clearNotice());
     this.setOpen(false);
     this.clearNotice();
+    addEventListener('resize', () => this.place());
   }
 
   /** Shows the panel (directors, not the show view). */
@@ -151,9 +152,16 @@ export class PuppetsPanel {
     body.hidden = !open;
     toggle.setAttribute('aria-expanded', String(open));
     this.label();
-    // Hangs from its button, but never past the window's right edge (the bar wraps).
+    this.place();
+  }
+
+  // Hangs from its button, but never past the window's right edge: the bar
+  // wraps and reflows (a new puppet adds its undo group), so this runs on
+  // every open, stage message and resize.
+  place() {
+    const { body } = this.el;
     body.style.left = '0px';
-    if (!open) return;
+    if (body.hidden) return;
     const right = body.getBoundingClientRect().right;
     if (right > innerWidth - 6) body.style.left = `${innerWidth - 6 - right}px`;
   }
@@ -197,6 +205,8 @@ export class PuppetsPanel {
       return item;
     }));
     this.label();
+    // After the page has rebuilt the rest of the bar for this stage.
+    requestAnimationFrame(() => this.place());
   }
 
   move(id, step) {

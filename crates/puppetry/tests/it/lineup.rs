@@ -179,12 +179,23 @@ async fn a_picture_a_director_adds_reaches_every_client_and_performers_play_it()
     running.shutdown().await;
 }
 
+/// A request that must be refused: query, headers, body, and the HTTP
+/// status, error code and field it gets.
+type Refused<'a> = (
+    &'a str,
+    Vec<&'a str>,
+    Vec<u8>,
+    u16,
+    &'a str,
+    Option<&'a str>,
+);
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_pictures_and_requests_get_typed_errors_and_leave_nothing_behind() {
     let dir = tempfile::tempdir().unwrap();
     let running = daemon_keeping_pictures_in(dir.path()).await;
     let picture = disc();
-    let refusals: Vec<(&str, Vec<&str>, Vec<u8>, u16, &str, Option<&str>)> = vec![
+    let refusals: Vec<Refused> = vec![
         (
             "name=notes",
             vec![AS_DIRECTOR],

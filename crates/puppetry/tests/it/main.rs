@@ -22,4 +22,5 @@ mod stage_state;
 mod takes;
 mod web;
 mod web_protocol;
+mod web_puppets;
 mod web_rigs;

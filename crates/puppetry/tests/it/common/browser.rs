@@ -74,6 +74,7 @@ pub async fn run_page_as(
     let takes = tempfile::tempdir().unwrap();
     let mut options = Options::new(WebFiles::Embedded);
     options.takes_dir = takes.path().to_path_buf();
+    options.puppets_dir = takes.path().join("puppets");
     let running = start_with(&config, options).await.unwrap();
     let url = format!("http://{}/{query}", running.address);
     let script = root.join("tests/web").join(script);
