@@ -3,6 +3,9 @@
 //! configured input sources ([`serve`]), and serves the web renderer and the
 //! WebSocket protocol ([`stream`]) to renderer and performer clients;
 //! show-control desks read its state and trigger it over OSC ([`osc`]).
+//! Which puppets are on stage, and where each one's output is, is the
+//! [`lineup`]: fixed by the stage file until a director adds, removes or
+//! reorders puppets at runtime.
 //!
 //! ```text
 //!   puppetry-input ──► stage_thread ──────────────► stream

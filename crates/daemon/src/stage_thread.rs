@@ -792,6 +792,9 @@ fn change_lineup(
         }
         LineupChange::Remove(id) => {
             stage.remove_puppet(id)?;
+            // Its handles let go: show control, which keeps following the
+            // stage file's puppets, sees the set empty.
+            publisher.handles[id as usize].send_replace(published_handles(stage, id));
             (id, None)
         }
         LineupChange::Order(order) => {

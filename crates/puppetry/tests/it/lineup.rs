@@ -409,3 +409,85 @@ async fn directors_reorder_and_remove_puppets_and_performers_cannot() {
     }
     running.shutdown().await;
 }
+
+/// A query of `POST /puppets`: known and unknown parameters with values
+/// from plain to hostile (NaN, huge, negative, empty, path tricks, bytes
+/// that need escaping).
+fn upload_query() -> impl proptest::strategy::Strategy<Value = String> {
+    use proptest::prelude::*;
+    let key = prop_oneof![
+        Just("name".to_string()),
+        Just("vertices".to_string()),
+        Just("x".to_string()),
+        Just("y".to_string()),
+        Just("scale".to_string()),
+        "[a-z]{1,8}",
+    ];
+    let value = prop_oneof![
+        Just("1000".to_string()),
+        Just("NaN".to_string()),
+        Just("inf".to_string()),
+        Just("-1".to_string()),
+        Just("1e308".to_string()),
+        Just("".to_string()),
+        Just("..%2F..%2Fetc".to_string()),
+        Just("%00".to_string()),
+        "[0-9]{1,6}",
+        "[ -~]{0,80}".prop_map(|s| {
+            s.bytes()
+                .map(|b| {
+                    if b.is_ascii_alphanumeric() {
+                        (b as char).to_string()
+                    } else {
+                        format!("%{b:02X}")
+                    }
+                })
+                .collect()
+        }),
+    ];
+    proptest::collection::vec((key, value), 0..6).prop_map(|pairs| {
+        pairs
+            .into_iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join("&")
+    })
+}
+
+#[test]
+fn fuzz_upload_requests_get_an_answer_never_a_failure() {
+    // Whatever a director's page (or a script with the token) posts, the
+    // answer is JSON: the puppet or a typed 4xx error, never a 5xx or a cut
+    // connection.
+    use proptest::prelude::*;
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let running = runtime.block_on(daemon_keeping_pictures_in(dir.path()));
+    let picture = disc();
+    let mut config = puppetry_testkit::fuzz::config();
+    // Each accepted case meshes a picture and puts a puppet on stage.
+    config.cases = config.cases.min(64);
+    let mut runner = proptest::test_runner::TestRunner::new(config);
+    let body = prop_oneof![
+        Just(picture.clone()),
+        puppetry_testkit::fuzz::mutated_bytes(vec![picture.clone()]),
+        proptest::collection::vec(any::<u8>(), 0..64),
+    ];
+    runner
+        .run(&(upload_query(), body), |(query, body)| {
+            let (status, answer) = runtime.block_on(post(&running, &query, &[AS_DIRECTOR], &body));
+            prop_assert!(
+                status == 200 || (400..500).contains(&status),
+                "{query}: {status} {answer}"
+            );
+            let kind = if status == 200 {
+                "puppet_added"
+            } else {
+                "error"
+            };
+            prop_assert_eq!(&answer["type"], kind, "{}: {}", query, answer);
+            Ok(())
+        })
+        .unwrap();
+    runtime.block_on(running.shutdown());
+}
