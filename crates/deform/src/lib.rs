@@ -6,11 +6,13 @@
 //! the locality-preserving FFD grid rig, [`skeleton`] the shape-aware
 //! skeletal deformer (Wang et al. 2013); [`sparse`] holds their
 //! factorisations and [`measure`] the distortion measures they are compared
-//! by.
+//! by. [`depth`] orders the triangles front to back per frame, so parts
+//! that fold over each other overlap cleanly instead of interpenetrating.
 //!
 //! Plain synchronous numeric code: the daemon runs it on a thread of its own.
 
 pub mod arap;
+pub mod depth;
 pub mod ffd;
 pub mod measure;
 pub mod rbf;
@@ -18,4 +20,5 @@ pub mod skeleton;
 pub mod sparse;
 
 pub use arap::{Anchor, Arap, ArapError, Steps};
+pub use depth::{DepthError, DepthOrder};
 pub use rbf::{RbfBlend, RbfError};

@@ -1,0 +1,1042 @@
+//! Automatic depth adjustment on self-overlap ("As-rigid-as-possible shape
+//! manipulation", Igarashi, Moscovich & Hughes 2005, §5.1): given a rest mesh
+//! and each frame's deformed vertex positions, this module owns the depth of
+//! every triangle — the static order a caller configures (a layer per
+//! triangle, by default the piece), the detection of overlapping regions, the
+//! front/back decision per pair of regions with frame-to-frame coherence and
+//! performer pins, and per-triangle depths consistent with every decision.
+//!
+//! Phases as in the deformers: [`DepthOrder::register`] precomputes the
+//! topology (edge neighbours, boundary edges per piece) and sizes the
+//! scratch; [`DepthOrder::update`] runs per frame and does not allocate in
+//! steady state. A frame first tries the cheap reject — no inverted triangle,
+//! no two boundary edges crossing (a uniform grid of boundary edges), no
+//! piece inside another — and then the answer is the static order. Otherwise
+//! overlapping triangle pairs are grown from the triangles at boundary
+//! crossings through edge neighbours, like hidden-line removal (Hornung
+//! 1984); inverted triangles or a piece inside another fall back to a grid
+//! over all triangles. See `docs/depth.md`.
+
+use std::collections::HashMap;
+
+use glam::DVec2;
+use puppetry_mesh::Mesh;
+
+/// The highest static layer a caller may give: depths above it are left for
+/// raising the front side of overlaps.
+pub const MAX_LAYER: u16 = 0x7fff;
+
+/// Pins remembered at once; a new pin beyond this forgets the oldest.
+pub const MAX_PINS: usize = 32;
+
+const NONE: u32 = u32::MAX;
+const FRONT: u8 = 1;
+const BACK: u8 = 2;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DepthError {
+    #[error("layers: has {got} entries, expected one per triangle ({expected})")]
+    LayerCount { expected: usize, got: usize },
+    #[error("layers[{triangle}]: {layer} is above the highest layer, {max}", max = MAX_LAYER)]
+    LayerTooHigh { triangle: usize, layer: u16 },
+    #[error(
+        "the mesh has {count} pieces, but the default order (one layer per piece) allows at most {max}; give layers explicitly",
+        max = MAX_LAYER as usize + 1
+    )]
+    TooManyPieces { count: usize },
+    #[error("expected {expected} positions (one per vertex), got {got}")]
+    PositionCount { expected: usize, got: usize },
+    #[error("position {vertex} is not a finite point")]
+    PositionNotFinite { vertex: usize },
+    #[error("triangle {triangle} is out of range (the mesh has {count} triangles)")]
+    TriangleOutOfRange { triangle: u32, count: usize },
+    #[error(
+        "triangle {triangle} overlaps nothing in the last frame: only an overlapping region can be pinned in front"
+    )]
+    NotOverlapping { triangle: u32 },
+}
+
+/// A mesh edge used by one triangle only, directed as in that triangle.
+#[derive(Debug, Clone, Copy)]
+struct BoundaryEdge {
+    a: u32,
+    b: u32,
+    triangle: u32,
+}
+
+/// The per-frame depth order of one puppet's triangles.
+#[derive(Debug)]
+pub struct DepthOrder {
+    triangles: Vec<[u32; 3]>,
+    rest: Vec<DVec2>,
+    piece_of: Vec<u32>,
+    layers: Vec<u16>,
+    /// Across edge `k` (corners `k`, `k+1`), or `NONE` on the boundary.
+    neighbours: Vec<[u32; 3]>,
+    /// Grouped by piece: piece `p` owns `boundary[piece_boundary[p]..piece_boundary[p + 1]]`.
+    boundary: Vec<BoundaryEdge>,
+    piece_boundary: Vec<u32>,
+    depth: Vec<u16>,
+    changed: bool,
+    overlapped: bool,
+    pair_count: usize,
+    dropped: usize,
+    /// Oldest first; the newest pin of a region wins.
+    pins: Vec<u32>,
+    /// Last frame's role of each triangle (`FRONT | BACK` bits), the memory
+    /// that keeps decisions while an overlap persists.
+    role: Vec<u8>,
+    involved: Vec<u32>,
+    scratch: Scratch,
+}
+
+/// Everything a frame writes, sized at registration.
+#[derive(Debug)]
+struct Scratch {
+    grid: FrameGrid,
+    piece_lo: Vec<DVec2>,
+    piece_hi: Vec<DVec2>,
+    /// Triangle pairs at boundary crossings, where growing starts.
+    seeds: Vec<(u32, u32)>,
+    crossing_pieces: Vec<(u32, u32)>,
+    /// Overlapping pairs `(smaller, larger)`; after the decisions, `(back, front)`.
+    pairs: Vec<(u32, u32)>,
+    tested: PairTable,
+    stack: Vec<u32>,
+    parent: Vec<u32>,
+    parity: Vec<u8>,
+    patch_of_root: Vec<u32>,
+    patches: Vec<Patch>,
+    new_role: Vec<u8>,
+    new_involved: Vec<u32>,
+    edge_start: Vec<u32>,
+    edge_end: Vec<u32>,
+    indegree: Vec<u32>,
+    level: Vec<u16>,
+    edges: Vec<u32>,
+    queue: Vec<u32>,
+}
+
+/// One connected patch of overlapping pairs: two sides, one goes in front.
+#[derive(Debug, Clone, Copy, Default)]
+struct Patch {
+    /// Last frame's roles of this frame's triangles, as votes for each side.
+    votes: [u32; 2],
+    /// (pin index + 1, side) of the newest pin inside, or 0.
+    pin: (usize, u8),
+    layer: [u16; 2],
+    displacement: [f64; 2],
+    count: [u32; 2],
+    lowest: [u32; 2],
+    front: u8,
+}
+
+impl DepthOrder {
+    /// Registration: the static order is `layers` (one per triangle, larger =
+    /// nearer, at most [`MAX_LAYER`]) or, without it, the piece index in
+    /// [`Mesh::pieces`] order. `mesh`'s vertices are the rest positions the
+    /// tie rule measures movement from.
+    pub fn register(mesh: &Mesh, layers: Option<&[u16]>) -> Result<DepthOrder, DepthError> {
+        let triangles = mesh.triangles().to_vec();
+        let count = triangles.len();
+        let pieces = mesh.pieces();
+        let mut piece_of = vec![0u32; count];
+        for (p, piece) in pieces.iter().enumerate() {
+            for &t in &piece.triangles {
+                piece_of[t as usize] = p as u32;
+            }
+        }
+        let layers = match layers {
+            Some(given) => {
+                if given.len() != count {
+                    return Err(DepthError::LayerCount {
+                        expected: count,
+                        got: given.len(),
+                    });
+                }
+                if let Some(t) = given.iter().position(|&l| l > MAX_LAYER) {
+                    return Err(DepthError::LayerTooHigh {
+                        triangle: t,
+                        layer: given[t],
+                    });
+                }
+                given.to_vec()
+            }
+            None => {
+                if pieces.len() > MAX_LAYER as usize + 1 {
+                    return Err(DepthError::TooManyPieces {
+                        count: pieces.len(),
+                    });
+                }
+                piece_of.iter().map(|&p| p as u16).collect()
+            }
+        };
+
+        let mut directed: HashMap<(u32, u32), u32> = HashMap::with_capacity(count * 3);
+        for (t, tri) in triangles.iter().enumerate() {
+            for k in 0..3 {
+                directed.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+            }
+        }
+        let mut neighbours = vec![[NONE; 3]; count];
+        let mut boundary = Vec::new();
+        for (t, tri) in triangles.iter().enumerate() {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                match directed.get(&(b, a)) {
+                    Some(&other) => neighbours[t][k] = other,
+                    None => boundary.push(BoundaryEdge {
+                        a,
+                        b,
+                        triangle: t as u32,
+                    }),
+                }
+            }
+        }
+        boundary.sort_by_key(|e| (piece_of[e.triangle as usize], e.triangle));
+        let mut piece_boundary = vec![0u32; pieces.len() + 1];
+        for e in &boundary {
+            piece_boundary[piece_of[e.triangle as usize] as usize + 1] += 1;
+        }
+        for p in 1..piece_boundary.len() {
+            piece_boundary[p] += piece_boundary[p - 1];
+        }
+
+        let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
+        let most = count.max(boundary.len());
+        let scratch = Scratch {
+            grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most),
+            piece_lo: vec![DVec2::ZERO; pieces.len()],
+            piece_hi: vec![DVec2::ZERO; pieces.len()],
+            seeds: Vec::with_capacity(boundary.len()),
+            crossing_pieces: Vec::with_capacity(boundary.len()),
+            pairs: Vec::with_capacity(count),
+            tested: PairTable::with_capacity(8 * count),
+            stack: Vec::with_capacity(count),
+            parent: Vec::with_capacity(count),
+            parity: Vec::with_capacity(count),
+            patch_of_root: Vec::with_capacity(count),
+            patches: Vec::with_capacity(16),
+            new_role: vec![0; count],
+            new_involved: Vec::with_capacity(count),
+            edge_start: vec![0; count],
+            edge_end: vec![0; count],
+            indegree: vec![0; count],
+            level: vec![0; count],
+            edges: Vec::with_capacity(count),
+            queue: Vec::with_capacity(count),
+        };
+        Ok(DepthOrder {
+            rest: mesh.vertices().to_vec(),
+            depth: layers.clone(),
+            role: vec![0; count],
+            involved: Vec::with_capacity(count),
+            triangles,
+            piece_of,
+            layers,
+            neighbours,
+            boundary,
+            piece_boundary,
+            changed: false,
+            overlapped: false,
+            pair_count: 0,
+            dropped: 0,
+            pins: Vec::with_capacity(MAX_PINS),
+            scratch,
+        })
+    }
+
+    /// The static order: each triangle's layer.
+    pub fn static_depth(&self) -> &[u16] {
+        &self.layers
+    }
+
+    /// The depth of each triangle after the last update (larger = nearer);
+    /// the static order before the first.
+    pub fn depth(&self) -> &[u16] {
+        &self.depth
+    }
+
+    /// Whether any two triangles overlapped in the last update.
+    pub fn overlapped(&self) -> bool {
+        self.overlapped
+    }
+
+    /// Whether the last update changed any depth (so a server sends depth
+    /// only then).
+    pub fn changed(&self) -> bool {
+        self.changed
+    }
+
+    /// Overlapping triangle pairs found by the last update.
+    pub fn overlap_pairs(&self) -> usize {
+        self.pair_count
+    }
+
+    /// Front-over-back constraints the last update had to drop to break
+    /// cycles (see `docs/depth.md`); zero unless decisions contradict.
+    pub fn dropped_constraints(&self) -> usize {
+        self.dropped
+    }
+
+    /// A performer's choice: the overlapping region holding `triangle` goes
+    /// in front of what it overlaps, from the next update until the triangle
+    /// overlaps nothing any more. The triangle must overlap something in the
+    /// last update.
+    pub fn pin_front(&mut self, triangle: u32) -> Result<(), DepthError> {
+        let count = self.triangles.len();
+        if triangle as usize >= count {
+            return Err(DepthError::TriangleOutOfRange { triangle, count });
+        }
+        if self.role[triangle as usize] == 0 {
+            return Err(DepthError::NotOverlapping { triangle });
+        }
+        self.pins.retain(|&p| p != triangle);
+        if self.pins.len() == MAX_PINS {
+            self.pins.remove(0);
+        }
+        self.pins.push(triangle);
+        Ok(())
+    }
+
+    /// Forgets every pin.
+    pub fn clear_pins(&mut self) {
+        self.pins.clear();
+    }
+
+    /// One frame: the depth of each triangle for these vertex positions.
+    pub fn update(&mut self, positions: &[DVec2]) -> Result<&[u16], DepthError> {
+        if positions.len() != self.rest.len() {
+            return Err(DepthError::PositionCount {
+                expected: self.rest.len(),
+                got: positions.len(),
+            });
+        }
+        if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(DepthError::PositionNotFinite { vertex });
+        }
+        let inverted = self.triangles.iter().any(|tri| {
+            let [a, b, c] = tri.map(|i| positions[i as usize]);
+            (b - a).perp_dot(c - a) <= 0.0
+        });
+        self.find_boundary_crossings(positions);
+        let contained = self.piece_inside_another(positions);
+        let s = &mut self.scratch;
+        s.pairs.clear();
+        s.tested.clear();
+        if inverted || contained {
+            self.all_overlaps(positions);
+        } else if !self.scratch.seeds.is_empty() {
+            self.grow_overlaps(positions);
+        }
+        self.pair_count = self.scratch.pairs.len();
+        self.overlapped = self.pair_count > 0;
+        self.dropped = 0;
+        if self.overlapped {
+            self.decide(positions);
+            self.order();
+        }
+        self.write_depth();
+        Ok(&self.depth)
+    }
+
+    /// Fills `seeds` with the triangle pairs of crossing, non-adjacent
+    /// boundary edges, and the piece bounds.
+    fn find_boundary_crossings(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        s.seeds.clear();
+        s.crossing_pieces.clear();
+        let edges = &self.boundary;
+        if edges.is_empty() {
+            return;
+        }
+        let mut lo = DVec2::splat(f64::INFINITY);
+        let mut hi = DVec2::splat(f64::NEG_INFINITY);
+        let mut longest = 0.0f64;
+        for p in 0..self.piece_boundary.len() - 1 {
+            let mut plo = DVec2::splat(f64::INFINITY);
+            let mut phi = DVec2::splat(f64::NEG_INFINITY);
+            for e in &edges[self.piece_boundary[p] as usize..self.piece_boundary[p + 1] as usize] {
+                // Every boundary vertex starts exactly one boundary edge (the
+                // mesh has no bowties), so these are the boundary's bounds.
+                let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
+                plo = plo.min(a);
+                phi = phi.max(a);
+                longest = longest.max((b - a).abs().max_element());
+            }
+            s.piece_lo[p] = plo;
+            s.piece_hi[p] = phi;
+            lo = lo.min(plo);
+            hi = hi.max(phi);
+        }
+        let ends = |i: usize| {
+            let e = edges[i];
+            (positions[e.a as usize], positions[e.b as usize])
+        };
+        s.grid.fill(lo, hi, longest, edges.len(), |i| {
+            let (a, b) = ends(i);
+            (a.min(b), a.max(b))
+        });
+        let grid = &s.grid;
+        for cell in 0..grid.cell_count() {
+            let members = grid.members(cell);
+            for (n, &i) in members.iter().enumerate() {
+                let ei = edges[i as usize];
+                let (a, b) = ends(i as usize);
+                for &j in &members[n + 1..] {
+                    let ej = edges[j as usize];
+                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
+                        continue;
+                    }
+                    let (c, d) = ends(j as usize);
+                    let meet_lo = a.min(b).max(c.min(d));
+                    let meet_hi = a.max(b).min(c.max(d));
+                    if meet_lo.x > meet_hi.x || meet_lo.y > meet_hi.y {
+                        continue;
+                    }
+                    // Each pair is judged in one cell only: the one holding
+                    // the low corner of the boxes' intersection.
+                    if grid.cell_of(meet_lo) != cell || !segments_meet(a, b, c, d) {
+                        continue;
+                    }
+                    s.seeds.push((ei.triangle, ej.triangle));
+                    let (pi, pj) = (
+                        self.piece_of[ei.triangle as usize],
+                        self.piece_of[ej.triangle as usize],
+                    );
+                    if pi != pj {
+                        s.crossing_pieces.push((pi.min(pj), pi.max(pj)));
+                    }
+                }
+            }
+        }
+        s.crossing_pieces.sort_unstable();
+        s.crossing_pieces.dedup();
+    }
+
+    /// Whether a piece lies inside another with no boundary crossing between
+    /// them (their overlap has no crossing to grow from).
+    fn piece_inside_another(&self, positions: &[DVec2]) -> bool {
+        let s = &self.scratch;
+        let pieces = self.piece_boundary.len() - 1;
+        for p in 0..pieces {
+            for q in p + 1..pieces {
+                let apart = s.piece_lo[p].cmpgt(s.piece_hi[q]).any()
+                    || s.piece_lo[q].cmpgt(s.piece_hi[p]).any();
+                if apart
+                    || s
+                        .crossing_pieces
+                        .binary_search(&(p as u32, q as u32))
+                        .is_ok()
+                {
+                    continue;
+                }
+                let corner_of = |piece: usize| {
+                    positions[self.boundary[self.piece_boundary[piece] as usize].a as usize]
+                };
+                if self.inside_piece(positions, corner_of(p), q)
+                    || self.inside_piece(positions, corner_of(q), p)
+                {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    /// Even-odd test of `point` against every boundary loop of `piece`.
+    fn inside_piece(&self, positions: &[DVec2], point: DVec2, piece: usize) -> bool {
+        let range = self.piece_boundary[piece] as usize..self.piece_boundary[piece + 1] as usize;
+        let mut inside = false;
+        for e in &self.boundary[range] {
+            let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
+            if (a.y > point.y) != (b.y > point.y) {
+                let x = a.x + (point.y - a.y) / (b.y - a.y) * (b.x - a.x);
+                if point.x < x {
+                    inside = !inside;
+                }
+            }
+        }
+        inside
+    }
+
+    fn corners(&self, positions: &[DVec2], t: u32) -> [DVec2; 3] {
+        self.triangles[t as usize].map(|i| positions[i as usize])
+    }
+
+    fn share_vertex(&self, t: u32, u: u32) -> bool {
+        let (a, b) = (self.triangles[t as usize], self.triangles[u as usize]);
+        a.iter().any(|v| b.contains(v))
+    }
+
+    /// Tests `(t, u)` once per frame; a new overlapping pair is recorded and
+    /// queued for growing.
+    fn try_pair(&mut self, positions: &[DVec2], t: u32, u: u32) {
+        if t == u {
+            return;
+        }
+        let key = (t.min(u), t.max(u));
+        if !self.scratch.tested.insert(key) || self.share_vertex(t, u) {
+            return;
+        }
+        if triangles_overlap(self.corners(positions, t), self.corners(positions, u)) {
+            let s = &mut self.scratch;
+            s.tested.set_value(key, s.pairs.len() as u32);
+            s.stack.push(s.pairs.len() as u32);
+            s.pairs.push(key);
+        }
+    }
+
+    /// Grows the overlapping pairs from the boundary crossings: a pair's
+    /// neighbours are the pairs that step one triangle across an edge.
+    fn grow_overlaps(&mut self, positions: &[DVec2]) {
+        self.scratch.stack.clear();
+        for n in 0..self.scratch.seeds.len() {
+            let (t, u) = self.scratch.seeds[n];
+            self.try_pair(positions, t, u);
+            // A seed whose triangles share a vertex (a tight crease) is not
+            // a pair itself, but its neighbours may be.
+            self.try_neighbours(positions, t, u);
+        }
+        while let Some(i) = self.scratch.stack.pop() {
+            let (t, u) = self.scratch.pairs[i as usize];
+            self.try_neighbours(positions, t, u);
+        }
+    }
+
+    fn try_neighbours(&mut self, positions: &[DVec2], t: u32, u: u32) {
+        for k in 0..3 {
+            let n = self.neighbours[t as usize][k];
+            if n != NONE {
+                self.try_pair(positions, n, u);
+            }
+            let n = self.neighbours[u as usize][k];
+            if n != NONE {
+                self.try_pair(positions, t, n);
+            }
+        }
+    }
+
+    /// Every overlapping pair, through a uniform grid over all triangles: for
+    /// frames where growing from the boundary could miss some.
+    fn all_overlaps(&mut self, positions: &[DVec2]) {
+        let mut lo = DVec2::splat(f64::INFINITY);
+        let mut hi = DVec2::splat(f64::NEG_INFINITY);
+        let mut largest = 0.0f64;
+        for tri in &self.triangles {
+            let [a, b, c] = tri.map(|i| positions[i as usize]);
+            let (tlo, thi) = (a.min(b).min(c), a.max(b).max(c));
+            lo = lo.min(tlo);
+            hi = hi.max(thi);
+            largest = largest.max((thi - tlo).max_element());
+        }
+        let bounds = |t: usize| {
+            let [a, b, c] = self.triangles[t].map(|i| positions[i as usize]);
+            (a.min(b).min(c), a.max(b).max(c))
+        };
+        let s = &mut self.scratch;
+        s.grid.fill(lo, hi, largest, self.triangles.len(), bounds);
+        for cell in 0..s.grid.cell_count() {
+            let members = s.grid.members(cell);
+            for (n, &t) in members.iter().enumerate() {
+                let (tlo, thi) = bounds(t as usize);
+                for &u in &members[n + 1..] {
+                    let (ulo, uhi) = bounds(u as usize);
+                    let meet_lo = tlo.max(ulo);
+                    let meet_hi = thi.min(uhi);
+                    if meet_lo.x >= meet_hi.x || meet_lo.y >= meet_hi.y {
+                        continue;
+                    }
+                    if s.grid.cell_of(meet_lo) != cell {
+                        continue;
+                    }
+                    let (a, b) = (self.triangles[t as usize], self.triangles[u as usize]);
+                    if a.iter().any(|v| b.contains(v)) {
+                        continue;
+                    }
+                    let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
+                    if triangles_overlap(corners(a), corners(b)) {
+                        let key = (t.min(u), t.max(u));
+                        s.tested.insert(key);
+                        s.tested.set_value(key, s.pairs.len() as u32);
+                        s.pairs.push(key);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Groups the pairs into patches (two sides each) and decides which side
+    /// of each goes in front; rewrites `pairs` as `(back, front)` and sets
+    /// the new roles.
+    fn decide(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        let n = s.pairs.len();
+        s.parent.clear();
+        s.parent.extend(0..n as u32);
+        s.parity.clear();
+        s.parity.resize(n, 0);
+        // Two pairs are neighbours when one triangle steps across an edge
+        // and the other stays: the stepping triangles lie on the same side.
+        for i in 0..n {
+            let pair = s.pairs[i];
+            for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
+                for &step in &self.neighbours[own as usize] {
+                    if step == NONE || step == other {
+                        continue;
+                    }
+                    let key = (step.min(other), step.max(other));
+                    let j = s.tested.value(key);
+                    if j == NONE {
+                        continue;
+                    }
+                    let step_position = u8::from(step > other);
+                    s.union(i as u32, j, own_position ^ step_position);
+                }
+            }
+        }
+        s.patch_of_root.clear();
+        s.patch_of_root.resize(n, NONE);
+        s.patches.clear();
+        for i in 0..n {
+            let (root, side) = s.find(i as u32);
+            if s.patch_of_root[root as usize] == NONE {
+                s.patch_of_root[root as usize] = s.patches.len() as u32;
+                s.patches.push(Patch {
+                    lowest: [NONE; 2],
+                    ..Patch::default()
+                });
+            }
+            let patch = &mut s.patches[s.patch_of_root[root as usize] as usize];
+            let (first, second) = s.pairs[i];
+            for (t, side) in [(first, side), (second, side ^ 1)] {
+                let k = side as usize;
+                let role = self.role[t as usize];
+                if role == FRONT {
+                    patch.votes[k] += 1;
+                } else if role == BACK {
+                    patch.votes[k ^ 1] += 1;
+                }
+                if let Some(p) = self.pins.iter().rposition(|&p| p == t)
+                    && p + 1 > patch.pin.0
+                {
+                    patch.pin = (p + 1, side);
+                }
+                patch.layer[k] = patch.layer[k].max(self.layers[t as usize]);
+                let tri = self.triangles[t as usize];
+                let moved = tri
+                    .iter()
+                    .map(|&v| positions[v as usize] - self.rest[v as usize])
+                    .sum::<DVec2>();
+                patch.displacement[k] += moved.length() / 3.0;
+                patch.count[k] += 1;
+                patch.lowest[k] = patch.lowest[k].min(t);
+            }
+        }
+        for patch in &mut s.patches {
+            patch.front = front_side(patch);
+        }
+        for i in 0..n {
+            let (root, side) = s.find(i as u32);
+            let front = s.patches[s.patch_of_root[root as usize] as usize].front;
+            let (first, second) = s.pairs[i];
+            let (back, front) = if side == front {
+                (second, first)
+            } else {
+                (first, second)
+            };
+            s.pairs[i] = (back, front);
+            for (t, role) in [(back, BACK), (front, FRONT)] {
+                if s.new_role[t as usize] == 0 {
+                    s.new_involved.push(t);
+                }
+                s.new_role[t as usize] |= role;
+            }
+        }
+    }
+
+    /// Orders the involved triangles so every front triangle lies above its
+    /// back triangle: a topological sort from the back, each front raised to
+    /// one above the highest triangle it covers.
+    fn order(&mut self) {
+        let s = &mut self.scratch;
+        s.new_involved.sort_unstable();
+        for &t in &s.new_involved {
+            let t = t as usize;
+            s.edge_end[t] = 0;
+            s.indegree[t] = 0;
+            s.level[t] = self.layers[t];
+        }
+        for &(back, front) in &s.pairs {
+            s.edge_end[back as usize] += 1;
+            s.indegree[front as usize] += 1;
+        }
+        let mut next = 0u32;
+        for &t in &s.new_involved {
+            let t = t as usize;
+            s.edge_start[t] = next;
+            next += s.edge_end[t];
+            s.edge_end[t] = s.edge_start[t];
+        }
+        s.edges.clear();
+        s.edges.resize(s.pairs.len(), 0);
+        for &(back, front) in &s.pairs {
+            let slot = &mut s.edge_end[back as usize];
+            s.edges[*slot as usize] = front;
+            *slot += 1;
+        }
+        s.queue.clear();
+        s.queue
+            .extend(s.new_involved.iter().filter(|&&t| s.indegree[t as usize] == 0));
+        let mut head = 0;
+        while s.queue.len() < s.new_involved.len() || head < s.queue.len() {
+            if head == s.queue.len() {
+                // A cycle: the remaining triangle lowest in the static order
+                // (then by index) forgets what should have been below it.
+                let stuck = s
+                    .new_involved
+                    .iter()
+                    .copied()
+                    .filter(|&t| s.indegree[t as usize] > 0)
+                    .min_by_key(|&t| (self.layers[t as usize], t))
+                    .expect("fewer queued than involved leaves one waiting");
+                self.dropped += s.indegree[stuck as usize] as usize;
+                s.indegree[stuck as usize] = 0;
+                s.queue.push(stuck);
+            }
+            let t = s.queue[head] as usize;
+            head += 1;
+            for e in s.edge_start[t]..s.edge_end[t] {
+                let front = s.edges[e as usize] as usize;
+                // Zero: already placed (a cycle dropped this edge).
+                if s.indegree[front] == 0 {
+                    continue;
+                }
+                s.level[front] = s.level[front].max(s.level[t].saturating_add(1));
+                s.indegree[front] -= 1;
+                if s.indegree[front] == 0 {
+                    s.queue.push(front as u32);
+                }
+            }
+        }
+    }
+
+    /// Writes this frame's depths, noting any change, and moves the new roles
+    /// in as next frame's memory.
+    fn write_depth(&mut self) {
+        let s = &mut self.scratch;
+        let mut changed = false;
+        for &t in &self.involved {
+            let t = t as usize;
+            if s.new_role[t] == 0 && self.depth[t] != self.layers[t] {
+                self.depth[t] = self.layers[t];
+                changed = true;
+            }
+            self.role[t] = 0;
+        }
+        for &t in &s.new_involved {
+            let t = t as usize;
+            if self.depth[t] != s.level[t] {
+                self.depth[t] = s.level[t];
+                changed = true;
+            }
+            self.role[t] = s.new_role[t];
+            s.new_role[t] = 0;
+        }
+        self.changed = changed;
+        std::mem::swap(&mut self.involved, &mut s.new_involved);
+        s.new_involved.clear();
+        let role = &self.role;
+        self.pins.retain(|&p| role[p as usize] != 0);
+    }
+}
+
+/// The side of a patch that goes in front: a pin, else last frame's roles,
+/// else the higher static layer, else the side that moved further from rest,
+/// else the side whose lowest triangle index is higher.
+fn front_side(patch: &Patch) -> u8 {
+    if patch.pin.0 > 0 {
+        return patch.pin.1;
+    }
+    if patch.votes[0] != patch.votes[1] {
+        return u8::from(patch.votes[1] > patch.votes[0]);
+    }
+    if patch.layer[0] != patch.layer[1] {
+        return u8::from(patch.layer[1] > patch.layer[0]);
+    }
+    let moved = [0, 1].map(|k| patch.displacement[k] / patch.count[k].max(1) as f64);
+    let scale = moved[0].abs().max(moved[1].abs());
+    if (moved[0] - moved[1]).abs() > 1e-9 * scale {
+        return u8::from(moved[1] > moved[0]);
+    }
+    u8::from(patch.lowest[1] > patch.lowest[0])
+}
+
+impl Scratch {
+    /// The root of pair `i`'s patch and `i`'s parity (the side of its first
+    /// triangle) relative to the root.
+    fn find(&mut self, i: u32) -> (u32, u8) {
+        let (mut root, mut parity) = (i, 0u8);
+        while self.parent[root as usize] != root {
+            parity ^= self.parity[root as usize];
+            root = self.parent[root as usize];
+        }
+        let (mut at, mut at_parity) = (i, parity);
+        while self.parent[at as usize] != at {
+            let next = self.parent[at as usize];
+            let next_parity = at_parity ^ self.parity[at as usize];
+            self.parent[at as usize] = root;
+            self.parity[at as usize] = at_parity;
+            at = next;
+            at_parity = next_parity;
+        }
+        (root, parity)
+    }
+
+    /// Joins the patches of pairs `i` and `j`, whose first triangles lie on
+    /// sides differing by `relation`. A link contradicting the sides already
+    /// known (a patch wrapping onto itself round a tight crease) is ignored:
+    /// the patch is decided as one, and any cycle that leaves among its
+    /// triangles is broken by the ordering.
+    fn union(&mut self, i: u32, j: u32, relation: u8) {
+        let (ri, pi) = self.find(i);
+        let (rj, pj) = self.find(j);
+        if ri != rj {
+            self.parent[rj as usize] = ri;
+            self.parity[rj as usize] = pi ^ pj ^ relation;
+        }
+    }
+}
+
+/// Whether two triangles' interiors intersect (separating axes over the six
+/// edge normals; touching does not count). Either winding; a degenerate
+/// triangle overlaps nothing.
+pub fn triangles_overlap(a: [DVec2; 3], b: [DVec2; 3]) -> bool {
+    let (alo, ahi) = (a[0].min(a[1]).min(a[2]), a[0].max(a[1]).max(a[2]));
+    let (blo, bhi) = (b[0].min(b[1]).min(b[2]), b[0].max(b[1]).max(b[2]));
+    if alo.x >= bhi.x || blo.x >= ahi.x || alo.y >= bhi.y || blo.y >= ahi.y {
+        return false;
+    }
+    for tri in [&a, &b] {
+        for k in 0..3 {
+            let axis = (tri[(k + 1) % 3] - tri[k]).perp();
+            let project = |t: &[DVec2; 3]| {
+                let d = [axis.dot(t[0]), axis.dot(t[1]), axis.dot(t[2])];
+                (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+            };
+            let ((amin, amax), (bmin, bmax)) = (project(&a), project(&b));
+            if amax <= bmin || bmax <= amin {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Whether segments `ab` and `cd` cross or touch (conservative: a touch
+/// sends the frame down the exact path).
+fn segments_meet(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
+    let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
+    side(a, b, c) * side(a, b, d) <= 0.0 && side(c, d, a) * side(c, d, b) <= 0.0
+}
+
+/// A uniform grid rebuilt every frame into buffers sized at registration:
+/// cells are at least as large as the largest item, so an item touches at
+/// most four, and there are at most about as many cells as items.
+#[derive(Debug)]
+struct FrameGrid {
+    lo: DVec2,
+    cell: f64,
+    columns: usize,
+    rows: usize,
+    start: Vec<u32>,
+    members: Vec<u32>,
+    fill: Vec<u32>,
+}
+
+impl FrameGrid {
+    fn with_capacity(cells: usize, members: usize) -> FrameGrid {
+        FrameGrid {
+            lo: DVec2::ZERO,
+            cell: 1.0,
+            columns: 1,
+            rows: 1,
+            start: Vec::with_capacity(cells + 1),
+            members: Vec::with_capacity(members),
+            fill: Vec::with_capacity(cells + 1),
+        }
+    }
+
+    fn fill(
+        &mut self,
+        lo: DVec2,
+        hi: DVec2,
+        largest_item: f64,
+        count: usize,
+        bounds: impl Fn(usize) -> (DVec2, DVec2),
+    ) {
+        let extent = (hi - lo).max_element();
+        let per_side = ((count as f64).sqrt().ceil()).max(1.0);
+        let mut cell = largest_item.max(extent / per_side);
+        if cell.is_nan() || cell <= 0.0 {
+            cell = 1.0;
+        }
+        // Rounding at the edges: never more cells per side than planned.
+        let cells_along = |length: f64| ((length / cell).floor() as usize + 1).min(per_side as usize + 1);
+        self.lo = lo;
+        self.cell = cell;
+        self.columns = cells_along(hi.x - lo.x);
+        self.rows = cells_along(hi.y - lo.y);
+        let cells = self.columns * self.rows;
+        self.start.clear();
+        self.start.resize(cells + 1, 0);
+        for i in 0..count {
+            let (a, b) = bounds(i);
+            self.visit(a, b, |k, grid| grid.start[k + 1] += 1);
+        }
+        for k in 1..=cells {
+            self.start[k] += self.start[k - 1];
+        }
+        self.fill.clear();
+        self.fill.extend_from_slice(&self.start);
+        self.members.clear();
+        self.members.resize(self.start[cells] as usize, 0);
+        for i in 0..count {
+            let (a, b) = bounds(i);
+            self.visit(a, b, |k, grid| {
+                grid.members[grid.fill[k] as usize] = i as u32;
+                grid.fill[k] += 1;
+            });
+        }
+    }
+
+    fn visit(&mut self, a: DVec2, b: DVec2, mut each: impl FnMut(usize, &mut FrameGrid)) {
+        let (c0, r0) = self.column_row(a);
+        let (c1, r1) = self.column_row(b);
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                each(r * self.columns + c, self);
+            }
+        }
+    }
+
+    fn column_row(&self, p: DVec2) -> (usize, usize) {
+        let rel = (p - self.lo) / self.cell;
+        let at = |x: f64, n: usize| (x.floor().max(0.0) as usize).min(n - 1);
+        (at(rel.x, self.columns), at(rel.y, self.rows))
+    }
+
+    fn cell_of(&self, p: DVec2) -> usize {
+        let (c, r) = self.column_row(p);
+        r * self.columns + c
+    }
+
+    fn cell_count(&self) -> usize {
+        self.columns * self.rows
+    }
+
+    fn members(&self, cell: usize) -> &[u32] {
+        &self.members[self.start[cell] as usize..self.start[cell + 1] as usize]
+    }
+}
+
+/// The pairs tested this frame and, for overlapping ones, their index:
+/// open addressing with a frame stamp, so clearing costs nothing.
+#[derive(Debug)]
+struct PairTable {
+    keys: Vec<u64>,
+    values: Vec<u32>,
+    stamps: Vec<u32>,
+    stamp: u32,
+    len: usize,
+}
+
+impl PairTable {
+    fn with_capacity(entries: usize) -> PairTable {
+        let size = (entries * 2).next_power_of_two().max(64);
+        PairTable {
+            keys: vec![0; size],
+            values: vec![NONE; size],
+            stamps: vec![0; size],
+            stamp: 1,
+            len: 0,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.len = 0;
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            self.stamps.fill(0);
+            self.stamp = 1;
+        }
+    }
+
+    fn slot(&self, key: u64) -> (usize, bool) {
+        let mask = self.keys.len() - 1;
+        let mut at = (key.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 32) as usize & mask;
+        loop {
+            if self.stamps[at] != self.stamp {
+                return (at, false);
+            }
+            if self.keys[at] == key {
+                return (at, true);
+            }
+            at = (at + 1) & mask;
+        }
+    }
+
+    /// Records `pair`; false if it was already recorded this frame.
+    fn insert(&mut self, pair: (u32, u32)) -> bool {
+        if (self.len + 1) * 2 > self.keys.len() {
+            self.grow();
+        }
+        let key = (u64::from(pair.0) << 32) | u64::from(pair.1);
+        let (at, found) = self.slot(key);
+        if found {
+            return false;
+        }
+        self.keys[at] = key;
+        self.values[at] = NONE;
+        self.stamps[at] = self.stamp;
+        self.len += 1;
+        true
+    }
+
+    fn set_value(&mut self, pair: (u32, u32), value: u32) {
+        let key = (u64::from(pair.0) << 32) | u64::from(pair.1);
+        let (at, found) = self.slot(key);
+        if found {
+            self.values[at] = value;
+        }
+    }
+
+    /// The value of a recorded pair, `NONE` if unrecorded.
+    fn value(&self, pair: (u32, u32)) -> u32 {
+        let key = (u64::from(pair.0) << 32) | u64::from(pair.1);
+        match self.slot(key) {
+            (at, true) => self.values[at],
+            _ => NONE,
+        }
+    }
+
+    /// Doubles the table: allocates, only when a frame tests more pairs than
+    /// any frame before.
+    fn grow(&mut self) {
+        let old_keys = std::mem::take(&mut self.keys);
+        let old_values = std::mem::take(&mut self.values);
+        let old_stamps = std::mem::take(&mut self.stamps);
+        let size = old_keys.len() * 2;
+        self.keys = vec![0; size];
+        self.values = vec![NONE; size];
+        self.stamps = vec![0; size];
+        for i in 0..old_keys.len() {
+            if old_stamps[i] == self.stamp {
+                let (at, _) = self.slot(old_keys[i]);
+                self.keys[at] = old_keys[i];
+                self.values[at] = old_values[i];
+                self.stamps[at] = self.stamp;
+            }
+        }
+    }
+}
