@@ -81,6 +81,7 @@ pub struct DepthOrder {
     overlapped: bool,
     pair_count: usize,
     dropped: usize,
+    scanned_all: bool,
     /// Oldest first; the newest pin of a region wins.
     pins: Vec<u32>,
     /// Last frame's role of each triangle (`FRONT | BACK` bits), the memory
@@ -241,6 +242,7 @@ impl DepthOrder {
             overlapped: false,
             pair_count: 0,
             dropped: 0,
+            scanned_all: false,
             pins: Vec::with_capacity(MAX_PINS),
             scratch,
         })
@@ -271,6 +273,12 @@ impl DepthOrder {
     /// Overlapping triangle pairs found by the last update.
     pub fn overlap_pairs(&self) -> usize {
         self.pair_count
+    }
+
+    /// Whether the last update had to test all triangles (inverted triangles
+    /// or a piece inside another) instead of growing from boundary crossings.
+    pub fn scanned_all(&self) -> bool {
+        self.scanned_all
     }
 
     /// Front-over-back constraints the last update had to drop to break
@@ -324,7 +332,8 @@ impl DepthOrder {
         let s = &mut self.scratch;
         s.pairs.clear();
         s.tested.clear();
-        if inverted || contained {
+        self.scanned_all = inverted || contained;
+        if self.scanned_all {
             self.all_overlaps(positions);
         } else if !self.scratch.seeds.is_empty() {
             self.grow_overlaps(positions);
@@ -424,8 +433,7 @@ impl DepthOrder {
                 let apart = s.piece_lo[p].cmpgt(s.piece_hi[q]).any()
                     || s.piece_lo[q].cmpgt(s.piece_hi[p]).any();
                 if apart
-                    || s
-                        .crossing_pieces
+                    || s.crossing_pieces
                         .binary_search(&(p as u32, q as u32))
                         .is_ok()
                 {
@@ -522,20 +530,25 @@ impl DepthOrder {
     fn all_overlaps(&mut self, positions: &[DVec2]) {
         let mut lo = DVec2::splat(f64::INFINITY);
         let mut hi = DVec2::splat(f64::NEG_INFINITY);
-        let mut largest = 0.0f64;
+        let mut total = 0.0f64;
         for tri in &self.triangles {
             let [a, b, c] = tri.map(|i| positions[i as usize]);
             let (tlo, thi) = (a.min(b).min(c), a.max(b).max(c));
             lo = lo.min(tlo);
             hi = hi.max(thi);
-            largest = largest.max((thi - tlo).max_element());
+            total += (thi - tlo).max_element();
         }
+        // Cells sized by the mean triangle, not the largest: one triangle
+        // stretched across the fold must not put everything in one cell.
+        // The few larger triangles span more cells, so the member list may
+        // outgrow its registration size (and allocate) on such a frame.
+        let typical = total / self.triangles.len().max(1) as f64;
         let bounds = |t: usize| {
             let [a, b, c] = self.triangles[t].map(|i| positions[i as usize]);
             (a.min(b).min(c), a.max(b).max(c))
         };
         let s = &mut self.scratch;
-        s.grid.fill(lo, hi, largest, self.triangles.len(), bounds);
+        s.grid.fill(lo, hi, typical, self.triangles.len(), bounds);
         for cell in 0..s.grid.cell_count() {
             let members = s.grid.members(cell);
             for (n, &t) in members.iter().enumerate() {
@@ -686,8 +699,11 @@ impl DepthOrder {
             *slot += 1;
         }
         s.queue.clear();
-        s.queue
-            .extend(s.new_involved.iter().filter(|&&t| s.indegree[t as usize] == 0));
+        s.queue.extend(
+            s.new_involved
+                .iter()
+                .filter(|&&t| s.indegree[t as usize] == 0),
+        );
         let mut head = 0;
         while s.queue.len() < s.new_involved.len() || head < s.queue.len() {
             if head == s.queue.len() {
@@ -841,8 +857,9 @@ fn segments_meet(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
 }
 
 /// A uniform grid rebuilt every frame into buffers sized at registration:
-/// cells are at least as large as the largest item, so an item touches at
-/// most four, and there are at most about as many cells as items.
+/// there are at most about as many cells as items, and with cells at least
+/// as large as the largest item (the boundary edges) an item touches at most
+/// four.
 #[derive(Debug)]
 struct FrameGrid {
     lo: DVec2,
@@ -882,7 +899,8 @@ impl FrameGrid {
             cell = 1.0;
         }
         // Rounding at the edges: never more cells per side than planned.
-        let cells_along = |length: f64| ((length / cell).floor() as usize + 1).min(per_side as usize + 1);
+        let cells_along =
+            |length: f64| ((length / cell).floor() as usize + 1).min(per_side as usize + 1);
         self.lo = lo;
         self.cell = cell;
         self.columns = cells_along(hi.x - lo.x);

@@ -49,7 +49,10 @@ fn bent(mesh: &Mesh, angle: f64, left: bool) -> Vec<DVec2> {
 
 fn rotated(points: &[DVec2], centre: DVec2, angle: f64) -> Vec<DVec2> {
     let turn = DVec2::from_angle(angle);
-    points.iter().map(|&p| centre + turn.rotate(p - centre)).collect()
+    points
+        .iter()
+        .map(|&p| centre + turn.rotate(p - centre))
+        .collect()
 }
 
 fn corners(mesh: &Mesh, positions: &[DVec2], t: usize) -> [DVec2; 3] {
@@ -344,7 +347,13 @@ fn frames_do_not_allocate_once_warmed_up() {
     let mesh = folding_bar();
     let mut order = DepthOrder::register(&mesh, None).unwrap();
     let poses: Vec<Vec<DVec2>> = (0..20)
-        .map(|f| bent(&mesh, (200.0 + 50.0 * (f as f64 * 0.4).sin().abs()).to_radians(), false))
+        .map(|f| {
+            bent(
+                &mesh,
+                (200.0 + 50.0 * (f as f64 * 0.4).sin().abs()).to_radians(),
+                false,
+            )
+        })
         .collect();
     let flat: Vec<Vec<DVec2>> = (0..5)
         .map(|f| bent(&mesh, (30.0 * f as f64).to_radians(), false))
@@ -395,7 +404,11 @@ fn write_fold_picture() {
         size.x, size.y
     );
     for t in tris {
-        let shade = if top > 0.0 { depth[t] as f64 / top } else { 0.0 };
+        let shade = if top > 0.0 {
+            depth[t] as f64 / top
+        } else {
+            0.0
+        };
         let colour = format!(
             "rgb({},{},{})",
             (70.0 + 185.0 * shade) as u8,
