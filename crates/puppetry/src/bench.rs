@@ -6,6 +6,10 @@
 //! bench functions: lp-FFD on a 10×10 grid (both bases) with four vertex
 //! handles wandering, and the 15-bone gingerbread skeleton animated in
 //! forward kinematics (bone transforms and every propagation round).
+//!
+//! The depth cases time the depth order's frames (overlap detection and
+//! front/back assignment) beside the ARAP updates that posed them, without
+//! overlap and with a foot folded over the body.
 
 use std::time::{Duration, Instant};
 
@@ -14,7 +18,7 @@ use serde::Serialize;
 
 use puppetry_deform::ffd::{Basis, FfdError, GridSpec, LpFfd, LpParams};
 use puppetry_deform::skeleton::{ShapeAware, Skeleton, SkeletonError, SkeletonParams};
-use puppetry_deform::{Anchor, Arap, ArapError, Steps};
+use puppetry_deform::{Anchor, Arap, ArapError, DepthError, DepthOrder, Steps};
 use puppetry_mesh::Mesh;
 
 /// One measured case, as printed by `puppetry bench --json`.
@@ -642,4 +646,193 @@ pub fn skeleton_bench(
         update_us_min: times[0],
         frames: times.len(),
     })
+}
+
+/// One depth case, as printed by `puppetry bench --depth --json`: the depth
+/// order's frames beside the ARAP updates that produced the same poses.
+#[derive(Debug, Clone, Serialize)]
+pub struct DepthResult {
+    pub mesh: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub register_ms: f64,
+    /// ARAP updates of every timed frame (3 handles).
+    pub arap_us_median: f64,
+    pub arap_us_mean: f64,
+    pub arap_us_p99: f64,
+    /// Depth frames while the handles wander without any overlap.
+    pub flat_us_median: f64,
+    pub flat_us_p99: f64,
+    /// Depth frames while a foot is held folded over the body.
+    pub fold_us_median: f64,
+    pub fold_us_mean: f64,
+    pub fold_us_p99: f64,
+    /// Of the fold frames, how many overlapped, and the median pair count.
+    pub fold_frames_overlapping: usize,
+    pub fold_pairs_median: usize,
+    /// Frames that tested all triangles (inverted triangles or nested
+    /// pieces), without and with the fold.
+    pub flat_frames_scanning_all: usize,
+    pub fold_frames_scanning_all: usize,
+    pub flat_frames_overlapping: usize,
+    pub frames: usize,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DepthBenchError {
+    #[error(transparent)]
+    Solve(#[from] ArapError),
+    #[error(transparent)]
+    Depth(#[from] DepthError),
+}
+
+/// Times the depth order on `mesh` posed by ARAP with three handles: the
+/// top (held), the middle (held) and the lowest vertex right of the middle
+/// (a foot). First `frames` frames wander without overlap, then the foot is
+/// dragged up over the body and `frames` frames wiggle it there.
+pub fn run_depth_case(
+    name: &str,
+    mesh: &Mesh,
+    frames: usize,
+) -> Result<DepthResult, DepthBenchError> {
+    let rest = mesh.vertices();
+    let centre = rest.iter().sum::<DVec2>() / rest.len() as f64;
+    let nearest = |p: DVec2| {
+        (0..rest.len())
+            .min_by(|&a, &b| rest[a].distance(p).total_cmp(&rest[b].distance(p)))
+            .unwrap_or(0)
+    };
+    let top = (0..rest.len())
+        .max_by(|&a, &b| rest[a].y.total_cmp(&rest[b].y))
+        .unwrap_or(0);
+    let middle = nearest(centre);
+    let foot = (0..rest.len())
+        .filter(|&v| rest[v].x > centre.x)
+        .min_by(|&a, &b| rest[a].y.total_cmp(&rest[b].y))
+        .unwrap_or(0);
+    let chosen = [top, middle, foot];
+    let anchors: Vec<Anchor> = chosen.iter().map(|&v| Anchor::Vertex(v as u32)).collect();
+    let held: Vec<DVec2> = chosen.iter().map(|&v| rest[v]).collect();
+    let mut arap = Arap::register(mesh)?;
+    arap.compile(&anchors)?;
+    let start = Instant::now();
+    let mut depth = DepthOrder::register(mesh, None)?;
+    let register_ms = start.elapsed().as_secs_f64() * 1e3;
+    let size = mesh.size();
+
+    let mut arap_times = Vec::with_capacity(2 * frames);
+    let mut frame = |targets: &[DVec2],
+                     arap: &mut Arap,
+                     depth: &mut DepthOrder|
+     -> Result<(f64, bool, usize, bool), DepthBenchError> {
+        let start = Instant::now();
+        arap.update(targets, Steps::Both)?;
+        arap_times.push(micros(start.elapsed()));
+        let start = Instant::now();
+        depth.update(arap.pose())?;
+        let took = micros(start.elapsed());
+        Ok((
+            took,
+            depth.overlapped(),
+            depth.overlap_pairs(),
+            depth.scanned_all(),
+        ))
+    };
+    let mut targets = held.clone();
+    let mut flat = Vec::with_capacity(frames);
+    let (mut flat_scanning, mut flat_overlapping) = (0, 0);
+    for f in 0..frames {
+        animate(&held, size * 0.3, f, &mut targets);
+        let (took, overlapped, _, scanned) = frame(&targets, &mut arap, &mut depth)?;
+        flat.push(took);
+        flat_overlapping += usize::from(overlapped);
+        flat_scanning += usize::from(scanned);
+    }
+    // The foot dragged up to the body's middle, a little above it.
+    let over = centre + DVec2::new(-0.05, 0.1) * size;
+    let ramp = 60;
+    for f in 0..ramp {
+        let along = (f + 1) as f64 / ramp as f64;
+        targets = held.clone();
+        targets[2] = held[2].lerp(over, along);
+        frame(&targets, &mut arap, &mut depth)?;
+    }
+    let mut fold = Vec::with_capacity(frames);
+    let mut pairs = Vec::with_capacity(frames);
+    let (mut overlapping, mut fold_scanning) = (0, 0);
+    for f in 0..frames {
+        let t = f as f64 * 0.05;
+        targets[2] = over + DVec2::new(t.cos(), t.sin()) * (0.02 * size);
+        let (took, overlapped, count, scanned) = frame(&targets, &mut arap, &mut depth)?;
+        fold.push(took);
+        pairs.push(count);
+        overlapping += usize::from(overlapped);
+        fold_scanning += usize::from(scanned);
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (arap_mean, fold_mean) = (mean(&arap_times), mean(&fold));
+    for v in [&mut arap_times, &mut flat, &mut fold] {
+        v.sort_by(f64::total_cmp);
+    }
+    pairs.sort_unstable();
+    Ok(DepthResult {
+        mesh: name.to_string(),
+        vertices: rest.len(),
+        triangles: mesh.triangles().len(),
+        register_ms,
+        arap_us_median: percentile(&arap_times, 0.5),
+        arap_us_mean: arap_mean,
+        arap_us_p99: percentile(&arap_times, 0.99),
+        flat_us_median: percentile(&flat, 0.5),
+        flat_us_p99: percentile(&flat, 0.99),
+        fold_us_median: percentile(&fold, 0.5),
+        fold_us_mean: fold_mean,
+        fold_us_p99: percentile(&fold, 0.99),
+        fold_frames_overlapping: overlapping,
+        fold_pairs_median: pairs[pairs.len() / 2],
+        flat_frames_scanning_all: flat_scanning,
+        fold_frames_scanning_all: fold_scanning,
+        flat_frames_overlapping: flat_overlapping,
+        frames,
+    })
+}
+
+/// The header of the depth table.
+pub fn depth_table_header() -> String {
+    format!(
+        "{:<20} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11} {:>10} {:>9}",
+        "mesh",
+        "vertices",
+        "arap p50",
+        "arap p99",
+        "flat p50",
+        "flat p99",
+        "fold p50",
+        "fold mean",
+        "fold p99",
+        "mean/arap",
+        "p99/arap",
+        "overlaps"
+    )
+}
+
+/// One row of the depth table (µs; ratios to the ARAP update's mean and
+/// median).
+pub fn depth_table_row(r: &DepthResult) -> String {
+    format!(
+        "{:<20} {:>8} {:>9.1} {:>9.1} {:>9.2} {:>9.2} {:>9.1} {:>9.1} {:>9.1} {:>10.0}% {:>9.0}% {:>4}/{:<4}",
+        r.mesh,
+        r.vertices,
+        r.arap_us_median,
+        r.arap_us_p99,
+        r.flat_us_median,
+        r.flat_us_p99,
+        r.fold_us_median,
+        r.fold_us_mean,
+        r.fold_us_p99,
+        100.0 * r.fold_us_mean / r.arap_us_mean,
+        100.0 * r.fold_us_p99 / r.arap_us_median,
+        r.fold_frames_overlapping,
+        r.frames
+    )
 }

@@ -38,6 +38,8 @@ pub enum CliError {
         file: String,
         source: std::io::Error,
     },
+    #[error("{file}: depth: {0}", file = .1)]
+    Depth(bench::DepthBenchError, String),
     #[error(transparent)]
     Bundle(#[from] crate::bundled::BundleError),
     #[error("the bundled demo: {0}")]
@@ -412,6 +414,30 @@ pub fn rig_bench_command(
                 .map_err(|e| CliError::Skeleton(e, name.clone()))?;
             show(result, &mut results);
         }
+    }
+    Ok(results)
+}
+
+/// Runs the depth cases, printing each as it completes.
+pub fn depth_bench_command(
+    meshes: &[(String, Mesh)],
+    json: bool,
+    mut print: impl FnMut(&str),
+) -> Result<Vec<bench::DepthResult>, CliError> {
+    if !json {
+        print(&bench::depth_table_header());
+    }
+    let mut results = Vec::new();
+    for (name, mesh) in meshes {
+        let frames = bench::frames_for(mesh.vertices().len()).max(500);
+        let result = bench::run_depth_case(name, mesh, frames)
+            .map_err(|e| CliError::Depth(e, name.clone()))?;
+        if json {
+            print(&serde_json::to_string(&result).expect("plain numbers serialise"));
+        } else {
+            print(&bench::depth_table_row(&result));
+        }
+        results.push(result);
     }
     Ok(results)
 }

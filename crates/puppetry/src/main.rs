@@ -206,13 +206,18 @@ enum Command {
         /// Only the rig cases (lp-FFD and skeleton).
         #[arg(long, conflicts_with = "e2e")]
         rigs: bool,
+        /// Only the depth order: per-frame overlap detection and front/back
+        /// assignment without overlap and with a fold, beside the ARAP update
+        /// of the same mesh [default sizes: 1000,10000].
+        #[arg(long, conflicts_with_all = ["e2e", "rigs"])]
+        depth: bool,
         /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
         /// as possible into it, with 1 and 16 WebSocket clients on loopback.
         #[arg(long)]
         e2e: bool,
         /// Bench takes instead: what recording costs the live path, and
         /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
-        #[arg(long, conflicts_with_all = ["e2e", "rigs"])]
+        #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
         takes: bool,
         /// Handle counts to bench (at most 200: each handle change inverts a
         /// dense system of about that size).
@@ -587,6 +592,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             sizes,
             handles,
             rigs,
+            depth,
             e2e: false,
             ..
         } => {
@@ -596,6 +602,13 @@ fn run(args: Args) -> anyhow::Result<()> {
                 let _ = writeln!(out, "{line}");
                 let _ = out.flush();
             };
+            if depth {
+                let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
+                let meshes =
+                    cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+                cli::depth_bench_command(&meshes, json, print)?;
+                return Ok(());
+            }
             if !rigs {
                 let sizes = sizes.clone().unwrap_or_else(|| vec![1000, 10_000, 100_000]);
                 let meshes =
