@@ -11,9 +11,10 @@
 // surface.
 
 import {
-  ERROR_CODE, CLOSE_CODE, FRAME_KIND_HANDLES, FRAME_KIND_RIG, FRAME_KIND_VERTICES, HANDLE_KIND, RIG_KIND, ROLE,
-  SERVER_MESSAGE,
-  canDirect, canPerform, clientOwner, decodeFrameHeader, encodeClientMessage, framePoints, helloMessage,
+  ERROR_CODE, CLOSE_CODE, FRAME_KIND_DEPTH, FRAME_KIND_HANDLES, FRAME_KIND_RIG, FRAME_KIND_VERTICES, HANDLE_KIND,
+  RIG_KIND, ROLE, SERVER_MESSAGE,
+  canDirect, canPerform, clientOwner, decodeFrameHeader, depthOrder, encodeClientMessage, frameDepths, framePoints,
+  helloMessage,
   listTakesMessage, parseServerMessage, pingMessage, playMessage, recordMessage, stopPlayingMessage,
   stopRecordingMessage,
 } from './protocol.js';
@@ -52,6 +53,7 @@ const legendEl = byId('people');
 
 // Test and debugging surface (see tests/web/*.mjs).
 const api = window.puppetry = {
+  depth: {},
   connected: false,
   framesReceived: 0,
   weightsReceived: 0,
@@ -524,7 +526,7 @@ function onStage(msg) {
     // What this connection heard about the puppets that stay is still
     // true and is not sent again; what it heard about the ones gone goes.
     const shown = new Set(puppets.map((p) => String(p.id)));
-    for (const table of [api.lastSequence, api.keys, api.handles, api.history, api.pose, api.weights]) {
+    for (const table of [api.lastSequence, api.keys, api.handles, api.history, api.pose, api.weights, api.depth]) {
       for (const id of Object.keys(table)) if (!shown.has(id)) delete table[id];
     }
     for (const p of puppets) if (!before.has(p.id)) api.weights[p.id] = p.weights;
@@ -534,6 +536,7 @@ function onStage(msg) {
     api.handles = {};
     api.history = {};
     api.pose = {};
+    api.depth = {};        // per puppet: the newest depth frame's generation and depths
     api.weights = Object.fromEntries(puppets.map((p) => [p.id, p.weights]));
     people.clear();
   }
@@ -581,6 +584,7 @@ function onFrame(buf) {
   if (!header) return reportError('short frame');
   if (header.kind === FRAME_KIND_RIG) return onRigFrame(header, buf);
   if (header.kind === FRAME_KIND_HANDLES) return onHandleFrame(header, buf);
+  if (header.kind === FRAME_KIND_DEPTH) return onDepthFrame(header, buf);
   if (header.kind !== FRAME_KIND_VERTICES) return; // a newer kind
   const id = header.puppet;
   const p = puppetById(id);
@@ -624,6 +628,18 @@ function onHandleFrame(header, buf) {
   if (old && old.generation === header.generation && header.sequence < old.sequence) return; // older
   p.handleFrame = { generation: header.generation, sequence: header.sequence, points };
   needsOverlay = true;
+}
+
+// A depth frame: the puppet's triangles are drawn back to front in this
+// order from now on, so a part folded over another covers it whole.
+function onDepthFrame(header, buf) {
+  const p = puppetById(header.puppet);
+  if (!p) return; // a removed puppet's (see onFrame)
+  const depths = header.count === p.src.triangles.length / 3 ? frameDepths(buf, header) : null;
+  if (!depths) return reportError(`bad depth frame for puppet ${header.puppet}`);
+  p.drawOrder = depthOrder(p.src.triangles, depths);
+  api.depth[header.puppet] = { generation: header.generation, depths: Array.from(depths) };
+  needsDraw = true;
 }
 
 // ---------------------------------------------------------------- main loop

@@ -367,6 +367,13 @@ export const FRAME_KIND_RIG = 2;
 export const FRAME_KIND_HANDLES = 3;
 
 /**
+ * Frame kind: the depth of each triangle of a puppet (u16, larger is
+ * nearer), `count` of them, padded to whole 4-byte words; sent when the
+ * depth changes (a part folded over another).
+ */
+export const FRAME_KIND_DEPTH = 4;
+
+/**
  * The 32-byte little-endian header at the start of `buffer` (an ArrayBuffer):
  * {kind, puppet, sequence, inputTime, count, generation}, or null when the
  * buffer is shorter than a header. `kind` may be one this client does not
@@ -394,4 +401,32 @@ export function decodeFrameHeader(buffer) {
 export function framePoints(buffer, header) {
   if (buffer.byteLength < FRAME_HEADER_BYTES + 8 * header.count) return null;
   return new Float32Array(buffer, FRAME_HEADER_BYTES, 2 * header.count);
+}
+
+/**
+ * A depth frame's `header.count` depths (a view into `buffer`), or null
+ * when the buffer is too short for them.
+ */
+export function frameDepths(buffer, header) {
+  if (buffer.byteLength < FRAME_HEADER_BYTES + 2 * header.count) return null;
+  return new Uint16Array(buffer, FRAME_HEADER_BYTES, header.count);
+}
+
+/**
+ * The triangle list `triangles` (flat vertex indices, three per triangle)
+ * reordered back to front by `depths` (one per triangle), ties in mesh
+ * order: drawn in this order, a part folded over another covers it whole.
+ */
+export function depthOrder(triangles, depths) {
+  const n = depths.length;
+  const order = Array.from({ length: n }, (_, i) => i);
+  order.sort((a, b) => depths[a] - depths[b] || a - b);
+  const out = new Array(3 * n);
+  for (let k = 0; k < n; k++) {
+    const t = order[k];
+    out[3 * k] = triangles[3 * t];
+    out[3 * k + 1] = triangles[3 * t + 1];
+    out[3 * k + 2] = triangles[3 * t + 2];
+  }
+  return out;
 }

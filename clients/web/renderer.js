@@ -210,6 +210,12 @@ export class MeshRenderer {
       gl.vertexAttribPointer(loc.uv, 2, gl.FLOAT, false, 0, 0);
       gl.bindTexture(gl.TEXTURE_2D, this.textures.get(p.texture) ?? this.placeholder);
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, m.idxBuf);
+      if (p.drawOrder) {
+        // A new depth: the triangles, back to front (see depthOrder).
+        const typed = m.idxType === gl.UNSIGNED_INT ? Uint32Array : Uint16Array;
+        gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new typed(p.drawOrder), gl.DYNAMIC_DRAW);
+        p.drawOrder = null;
+      }
       gl.drawElements(gl.TRIANGLES, m.count, m.idxType, 0);
     }
   }

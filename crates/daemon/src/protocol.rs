@@ -25,6 +25,10 @@ pub enum FrameKind {
     /// the order of the `handles` message whose generation the header
     /// carries.
     Handles,
+    /// The depth of each triangle of a puppet (kind 4): `count` u16 values,
+    /// larger is nearer, padded to a multiple of 4 bytes; the header's
+    /// generation says which depth it is. Sent when the depth changes.
+    Depth,
     /// A kind this build does not know; clients skip it.
     Other(u32),
 }
@@ -35,6 +39,7 @@ impl FrameKind {
             FrameKind::Vertices => 1,
             FrameKind::Rig => 2,
             FrameKind::Handles => 3,
+            FrameKind::Depth => 4,
             FrameKind::Other(code) => code,
         }
     }
@@ -44,6 +49,7 @@ impl FrameKind {
             1 => FrameKind::Vertices,
             2 => FrameKind::Rig,
             3 => FrameKind::Handles,
+            4 => FrameKind::Depth,
             other => FrameKind::Other(other),
         }
     }
@@ -150,22 +156,68 @@ pub fn encode_frame_of(
     out.freeze()
 }
 
-/// A decoded frame: its header and its points.
+/// A depth frame (kind 4) of a puppet: the depth of each triangle.
+pub fn encode_depth_frame(puppet: u32, sequence: u64, generation: u32, depth: &[u16]) -> Bytes {
+    let payload = depth_payload_bytes(depth.len());
+    let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + payload);
+    FrameHeader {
+        kind: FrameKind::Depth,
+        puppet,
+        sequence,
+        input_time: 0.0,
+        count: depth.len() as u32,
+        generation,
+    }
+    .encode_into(&mut out);
+    for &d in depth {
+        out.put_u16_le(d);
+    }
+    // Padding keeps every frame a whole number of 4-byte words.
+    out.put_bytes(0, payload - depth.len() * 2);
+    out.freeze()
+}
+
+fn depth_payload_bytes(count: usize) -> usize {
+    (count * 2).div_ceil(4) * 4
+}
+
+/// A decoded frame: its header and its points (or, for a depth frame, its
+/// depths).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
     pub header: FrameHeader,
     pub points: Vec<DVec2>,
+    pub depths: Vec<u16>,
 }
 
 /// Decodes a whole frame, checking that its length matches its count.
 pub fn decode_frame(bytes: &[u8]) -> Result<Frame, FrameError> {
     let header = FrameHeader::decode(bytes)?;
-    let expected = FRAME_HEADER_BYTES + header.count as usize * 8;
+    let depth = header.kind == FrameKind::Depth;
+    let expected = FRAME_HEADER_BYTES
+        + if depth {
+            depth_payload_bytes(header.count as usize)
+        } else {
+            header.count as usize * 8
+        };
     if bytes.len() != expected {
         return Err(FrameError::Length {
             count: header.count,
             expected,
             length: bytes.len(),
+        });
+    }
+    if depth {
+        let depths = (0..header.count as usize)
+            .map(|i| {
+                let o = FRAME_HEADER_BYTES + 2 * i;
+                u16::from_le_bytes([bytes[o], bytes[o + 1]])
+            })
+            .collect();
+        return Ok(Frame {
+            header,
+            points: Vec::new(),
+            depths,
         });
     }
     let f32_at =
@@ -176,7 +228,11 @@ pub fn decode_frame(bytes: &[u8]) -> Result<Frame, FrameError> {
             DVec2::new(f64::from(f32_at(o)), f64::from(f32_at(o + 4)))
         })
         .collect();
-    Ok(Frame { header, points })
+    Ok(Frame {
+        header,
+        points,
+        depths: Vec::new(),
+    })
 }
 
 /// What a client may do (`docs/protocol.md`, "Roles").

@@ -28,8 +28,8 @@ use puppetry_take::{Frame, Header, Record, Step};
 
 use crate::lineup::{Lineup, LineupChange};
 use crate::protocol::{
-    self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, TakeState, encode_frame,
-    encode_frame_of,
+    self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, TakeState,
+    encode_depth_frame, encode_frame, encode_frame_of,
 };
 use puppetry_stage::config::StageConfig;
 
@@ -312,6 +312,9 @@ pub struct PuppetOutput {
     pub history: watch::Receiver<Arc<str>>,
     /// The newest "pose" message (skeleton puppets only).
     pub pose: Option<watch::Receiver<Arc<str>>>,
+    /// The newest depth frame (none until the depth first differs from
+    /// the mesh's order, or with `depth = "off"`).
+    pub depth: watch::Receiver<Option<Bytes>>,
 }
 
 /// What the stage thread publishes.
@@ -345,6 +348,9 @@ struct Publisher {
     history_published: Vec<(usize, usize)>,
     poses: Vec<Option<watch::Sender<Arc<str>>>>,
     poses_published: Vec<u64>,
+    depths: Vec<watch::Sender<Option<Bytes>>>,
+    /// Per puppet, the depth generation last published.
+    depths_published: Vec<u32>,
     sequences: Vec<u64>,
     cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
@@ -376,6 +382,17 @@ impl Publisher {
                 self.handles[i].send_replace(published_handles(stage, puppet));
             }
             let p = &stage.puppets()[i];
+            if let Some((depth, generation)) = p.depth()
+                && generation != self.depths_published[i]
+            {
+                self.depths_published[i] = generation;
+                self.depths[i].send_replace(Some(encode_depth_frame(
+                    puppet,
+                    self.sequences[i],
+                    generation,
+                    depth,
+                )));
+            }
             if handles_changed || !p.handles().is_empty() {
                 p.handle_points(&mut self.handle_points);
                 self.handle_frames[i].send_replace(Some(encode_frame_of(
@@ -459,6 +476,10 @@ impl Publisher {
         let (pose_tx, pose_rx) = pose.unzip();
         self.poses.push(pose_tx);
         self.poses_published.push(p.key_pose().1);
+        let (depth_tx, depth_rx) = watch::channel(None);
+        self.depths.push(depth_tx);
+        self.depths_published
+            .push(p.depth().map_or(0, |(_, generation)| generation));
         self.sequences.push(0);
         PuppetOutput {
             frame: frame_rx,
@@ -469,6 +490,7 @@ impl Publisher {
             handle_frame: handle_frame_rx,
             history: history_rx,
             pose: pose_rx,
+            depth: depth_rx,
         }
     }
 
@@ -671,6 +693,8 @@ pub fn spawn(
         history_published: Vec::new(),
         poses: Vec::new(),
         poses_published: Vec::new(),
+        depths: Vec::new(),
+        depths_published: Vec::new(),
         sequences: Vec::new(),
         cursors: cursors_tx,
         changes,

@@ -261,6 +261,22 @@ pub struct PuppetConfig {
     /// (`NAME.v1.mesh.json`, v2, …; the default) or over the mesh file.
     #[serde(default)]
     pub save_weights: SaveWeights,
+    /// Depth where the puppet overlaps itself (`docs/depth.md`): `pieces`
+    /// (the default) starts from the static order of its pieces and puts
+    /// the part folded over in front; `off` draws triangles in mesh order.
+    #[serde(default)]
+    pub depth: DepthMode,
+}
+
+/// `depth` of a puppet.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DepthMode {
+    /// Static order by piece, adjusted on overlap every frame.
+    #[default]
+    Pieces,
+    /// No depth adjustment.
+    Off,
 }
 
 /// Where `save_weights` writes a puppet's painted weights.

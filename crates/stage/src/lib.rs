@@ -219,6 +219,11 @@ pub struct Puppet {
     /// Taken off the stage at runtime: not drawn, grabbed or solved; its id
     /// is never reused, so frames already sent cannot land on another.
     removed: bool,
+    /// Per-triangle depth, adjusted where the pose overlaps itself (none
+    /// with `depth = "off"`).
+    depth: Option<puppetry_deform::depth::DepthOrder>,
+    /// Bumped whenever the depth changes, so it is sent only then.
+    depth_generation: u32,
 }
 
 /// A puppet's undo and redo stacks: each entry is the state an edit
@@ -321,7 +326,25 @@ impl Puppet {
             pose_generation: 0,
             save_weights: p.save_weights,
             removed: false,
+            depth: None,
+            depth_generation: 0,
         };
+        if p.depth == config::DepthMode::Pieces {
+            // Registered on the mesh as placed, so "moved further from rest"
+            // (which side of a fold goes in front) measures the bend, not
+            // where the puppet stands.
+            let order =
+                puppetry_deform::depth::DepthOrder::register(&puppet.mesh, None).map_err(|e| {
+                    StageError::Rig {
+                        file: config.file.clone(),
+                        index,
+                        puppet: p.name.clone(),
+                        field: "depth".into(),
+                        problem: e.to_string(),
+                    }
+                })?;
+            puppet.depth = Some(order);
+        }
         if let Some(keys) = &p.keys {
             let file = config.resolve(keys);
             if file.exists() {
@@ -344,6 +367,14 @@ impl Puppet {
             }
         }
         Ok(puppet)
+    }
+
+    /// The depth of each triangle (larger is nearer) and its generation,
+    /// which changes only when a depth does; `None` with `depth = "off"`.
+    pub fn depth(&self) -> Option<(&[u16], u32)> {
+        self.depth
+            .as_ref()
+            .map(|d| (d.depth(), self.depth_generation))
     }
 
     /// Taken off the stage at runtime ([`Stage::remove_puppet`]).
@@ -1831,6 +1862,15 @@ impl Stage {
                 // Grips come from hit tests on this rig, so only a
                 // non-finite target can fail here; keep the last pose.
                 tracing::warn!(puppet = %p.name, "ignored a frame: {problem}");
+            }
+            if let Some(depth) = &mut p.depth {
+                // Poses are finite (the rig refuses others), so an error
+                // is not expected; the last depth stays.
+                if let Err(problem) = depth.update(p.rig.pose()) {
+                    tracing::warn!(puppet = %p.name, "depth: {problem}");
+                } else if depth.changed() {
+                    p.depth_generation = p.depth_generation.wrapping_add(1);
+                }
             }
             solved.push((p.id, p.handles_changed));
             p.handles_changed = false;

@@ -29,6 +29,7 @@ pub(super) struct Following {
     handle_frames: Vec<watch::Receiver<Option<Bytes>>>,
     history: Vec<watch::Receiver<Arc<str>>>,
     poses: Vec<Option<watch::Receiver<Arc<str>>>>,
+    depths: Vec<watch::Receiver<Option<Bytes>>>,
 }
 
 impl Following {
@@ -59,6 +60,7 @@ impl Following {
             keys: all(&lineup, |o| o.keys.clone()),
             handle_frames: all(&lineup, |o| o.handle_frame.clone()),
             history: all(&lineup, |o| o.history.clone()),
+            depths: all(&lineup, |o| o.depth.clone()),
             poses: lineup
                 .outputs
                 .iter()
@@ -110,6 +112,10 @@ impl Following {
     ) -> std::io::Result<()> {
         for &i in &self.on_stage {
             if let Some(bytes) = newest(&mut self.frames[i]) {
+                send(ws, Message::binary(bytes), timeout).await?;
+            }
+            // The depth to draw the vertices with.
+            if let Some(bytes) = newest(&mut self.depths[i]) {
                 send(ws, Message::binary(bytes), timeout).await?;
             }
             if let Some(bytes) = newest(&mut self.rigs[i]) {

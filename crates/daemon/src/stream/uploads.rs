@@ -387,6 +387,7 @@ fn mesh_and_load(
         skeleton: None,
         keys: None,
         save_weights: SaveWeights::Version,
+        depth: Default::default(),
     };
     let puppet = Puppet::load(config, config.puppets.len(), &entry)
         .map_err(|e| bad_image(format!("the picture's mesh: {e}")))?;

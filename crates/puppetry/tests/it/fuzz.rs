@@ -6,7 +6,7 @@
 //! survive a round trip. See `docs/fuzzing.md`.
 
 use proptest::prelude::*;
-use puppetry_daemon::protocol::{ClientMessage, FRAME_HEADER_BYTES, decode_frame};
+use puppetry_daemon::protocol::{ClientMessage, FRAME_HEADER_BYTES, FrameKind, decode_frame};
 use puppetry_testkit::fuzz::{self, config};
 
 /// The client messages documented in `docs/protocol.md` (every JSON value
@@ -46,9 +46,15 @@ fn check_message(text: &str) {
 
 fn check_frame(bytes: &[u8]) {
     if let Ok(frame) = decode_frame(bytes) {
+        let payload = if frame.header.kind == FrameKind::Depth {
+            // u16 depths, padded to whole 4-byte words.
+            (frame.depths.len() * 2).div_ceil(4) * 4
+        } else {
+            frame.points.len() * 8
+        };
         assert_eq!(
             bytes.len(),
-            FRAME_HEADER_BYTES + frame.points.len() * 8,
+            FRAME_HEADER_BYTES + payload,
             "a frame decoded from bytes of another length"
         );
     }

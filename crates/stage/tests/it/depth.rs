@@ -1,0 +1,133 @@
+//! Depth on the stage: the demo figure's arm dragged across its body is
+//! drawn wholly over it (every arm triangle that overlaps a body triangle
+//! is nearer), the depth's generation changes only when the depth does, and
+//! `depth = "off"` keeps the mesh's order.
+
+use std::path::Path;
+
+use glam::DVec2;
+use puppetry_deform::depth::triangles_overlap;
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_stage::config::StageConfig;
+use puppetry_stage::{Change, Stage};
+
+fn demo(extra: &str) -> StageConfig {
+    let assets = puppetry_testkit::root().join("assets/gingerbread");
+    let text = format!(
+        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"gingerbread\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\npins = [[168, 58], [344, 58], [256, 250]]\n{extra}\n",
+        assets.join("gingerbread.png").display(),
+        assets.join("gingerbread.mesh.json").display(),
+    );
+    StageConfig::parse("depth-test.toml", &text, Path::new("/")).unwrap()
+}
+
+fn touch(stage: &mut Stage, phase: Phase, at: DVec2) {
+    let change = Change::Contacts {
+        frame: ContactFrame {
+            source: SourceId::new("finger"),
+            time: 0.0,
+            contacts: vec![Contact::new(1, phase, at)],
+        },
+    };
+    stage.apply_change(&change).unwrap();
+    stage.solve();
+}
+
+/// The right hand (a little in from the right-most vertex).
+fn hand(stage: &Stage) -> DVec2 {
+    let right = stage.puppets()[0]
+        .mesh
+        .vertices()
+        .iter()
+        .copied()
+        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+            if b.x > a.x { b } else { a }
+        });
+    right - DVec2::new(15.0, 0.0)
+}
+
+/// Drags the right hand across the chest, solving every step (the feet
+/// and the chest are pinned, so the arm folds over the body rather than
+/// pulling the figure over).
+fn fold_the_arm(stage: &mut Stage) {
+    let from = hand(stage);
+    let to = DVec2::new(610.0, 350.0);
+    touch(stage, Phase::Down, from);
+    for step in 1..=12 {
+        touch(stage, Phase::Move, from.lerp(to, step as f64 / 12.0));
+    }
+}
+
+fn corners(positions: &[DVec2], t: [u32; 3]) -> [DVec2; 3] {
+    t.map(|v| positions[v as usize])
+}
+
+#[test]
+fn an_arm_dragged_across_the_body_is_drawn_wholly_over_it() {
+    let mut stage = Stage::from_config(&demo("")).unwrap();
+    let (rest_depth, first) = {
+        let (d, g) = stage.puppets()[0].depth().expect("depth is on by default");
+        (d.to_vec(), g)
+    };
+    let rest: Vec<DVec2> = stage.puppets()[0].mesh.vertices().to_vec();
+    let triangles: Vec<[u32; 3]> = stage.puppets()[0].mesh.triangles().to_vec();
+    let centroid = |t: [u32; 3]| corners(&rest, t).iter().sum::<DVec2>() / 3.0;
+    let hand_x = hand(&stage).x;
+    // At rest: the forearm and hand reach right of the shoulder (the
+    // shoulder's crease, where either side may be in front, is left out);
+    // the chest is the middle of the figure.
+    let arm: Vec<usize> = (0..triangles.len())
+        .filter(|&t| centroid(triangles[t]).x > hand_x - 80.0)
+        .collect();
+    let body: Vec<usize> = (0..triangles.len())
+        .filter(|&t| (centroid(triangles[t]) - DVec2::new(640.0, 350.0)).length() < 90.0)
+        .collect();
+    assert!(
+        arm.len() > 20 && body.len() > 20,
+        "{} {}",
+        arm.len(),
+        body.len()
+    );
+
+    fold_the_arm(&mut stage);
+    let puppet = &stage.puppets()[0];
+    let (depth, generation) = puppet.depth().unwrap();
+    assert_ne!(generation, first, "the fold changed the depth");
+    let pose = puppet.pose();
+    let mut overlapping = 0;
+    for &a in &arm {
+        for &b in &body {
+            let (ta, tb) = (triangles[a], triangles[b]);
+            if ta.iter().any(|v| tb.contains(v)) {
+                continue;
+            }
+            if triangles_overlap(corners(pose, ta), corners(pose, tb)) {
+                overlapping += 1;
+                assert!(
+                    depth[a] > depth[b],
+                    "arm triangle {a} (depth {}) under body triangle {b} (depth {})",
+                    depth[a],
+                    depth[b]
+                );
+            }
+        }
+    }
+    assert!(
+        overlapping > 50,
+        "the arm lies over the chest: {overlapping} pairs"
+    );
+
+    // Let go: the arm springs back, the overlap is undone, the depth is the
+    // static order again.
+    touch(&mut stage, Phase::Up, DVec2::ZERO);
+    let (depth, _) = stage.puppets()[0].depth().unwrap();
+    assert_eq!(depth, rest_depth.as_slice());
+}
+
+#[test]
+fn depth_off_keeps_the_mesh_order() {
+    let mut stage = Stage::from_config(&demo("depth = \"off\"")).unwrap();
+    assert!(stage.puppets()[0].depth().is_none());
+    fold_the_arm(&mut stage);
+    assert!(stage.puppets()[0].depth().is_none());
+}
