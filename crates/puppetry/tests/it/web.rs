@@ -160,3 +160,20 @@ async fn the_show_view_is_only_the_puppets_and_the_toolbar_hides() {
     );
     assert_eq!(summary["transparent"]["alpha"]["corner"], 0, "{summary}");
 }
+
+/// Issue 13: the demo figure's arm dragged across its pinned chest is
+/// drawn wholly over the body: where the two overlap and their pictures
+/// differ, the pixel is the arm's (`tests/web/depth.mjs`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_arm_folded_over_the_body_is_drawn_over_it() {
+    if !browser::enabled("an_arm_folded_over_the_body_is_drawn_over_it") {
+        return;
+    }
+    let summary = browser::run_page_as("demo", PERFORMER, "depth.mjs", "640,364", &[])
+        .await
+        .summary;
+    let pixels = &summary["pixels"];
+    let telling = pixels["telling"].as_u64().unwrap();
+    let near = pixels["near"].as_u64().unwrap();
+    assert!(telling >= 30 && near * 10 >= telling * 9, "{summary}");
+}
