@@ -4,13 +4,15 @@
 //! update (handles moved) — and the update phase never allocates.
 //! [`arap`] is the free-form two-step solver (Igarashi et al. 2005), [`ffd`]
 //! the locality-preserving FFD grid rig, [`skeleton`] the shape-aware
-//! skeletal deformer (Wang et al. 2013); [`sparse`] holds their
+//! skeletal deformer (Wang et al. 2013), [`curve`] the same paper's
+//! as-rigid-as-possible curve editing with peeling; [`sparse`] holds their
 //! factorisations and [`measure`] the distortion measures they are compared
 //! by.
 //!
 //! Plain synchronous numeric code: the daemon runs it on a thread of its own.
 
 pub mod arap;
+pub mod curve;
 pub mod ffd;
 pub mod measure;
 pub mod rbf;
@@ -18,4 +20,5 @@ pub mod skeleton;
 pub mod sparse;
 
 pub use arap::{Anchor, Arap, ArapError, Steps};
+pub use curve::{Curve, CurveAnchor, CurveError, Peel, PeelParams};
 pub use rbf::{RbfBlend, RbfError};
