@@ -63,9 +63,7 @@ pub enum CurveError {
         point: u32,
         count: usize,
     },
-    #[error(
-        "handle {handle}: segment {segment} is out of range (the curve has {count} segments)"
-    )]
+    #[error("handle {handle}: segment {segment} is out of range (the curve has {count} segments)")]
     SegmentOutOfRange {
         handle: usize,
         segment: u32,
@@ -85,9 +83,7 @@ pub enum CurveError {
         end: usize,
         count: usize,
     },
-    #[error(
-        "step {step}: the handles and fixed points do not determine the curve (add a handle)"
-    )]
+    #[error("step {step}: the handles and fixed points do not determine the curve (add a handle)")]
     Underdetermined { step: u8 },
     #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
     TargetCount { expected: usize, got: usize },
@@ -749,9 +745,8 @@ impl Curve {
         self.placement = Placement::Solved;
         self.scale_free.copy_from_slice(&self.pose);
 
-        let slot = |p: usize| -> Option<usize> {
-            (lo..=hi).contains(&p).then(|| self.point_slot[p - lo])
-        };
+        let slot =
+            |p: usize| -> Option<usize> { (lo..=hi).contains(&p).then(|| self.point_slot[p - lo]) };
         // Bandwidths from the couplings: step 1 couples points two apart,
         // step 2 neighbours; both couple each multiplier with its points.
         let mut width1 = 0;

@@ -10,6 +10,7 @@ mod common {
 }
 
 mod arap;
+mod curve;
 mod ffd;
 mod measure;
 mod no_alloc;
