@@ -19,7 +19,8 @@
 //! system only spans the free interval. Unknowns are numbered along the
 //! curve with each handle's multiplier right after its points, which keeps
 //! the system banded: compile factors it by banded LU with partial pivoting
-//! (the KKT matrix is indefinite) in O(n), an update is two banded solves.
+//! (the KKT matrix is indefinite) in O(n), an update is two banded solves
+//! (complex for step 1; real for step 2, whose x and y share the matrix).
 //!
 //! Phases: [`Curve::register`] (rest curve: validation, local frames),
 //! [`Curve::compile`] / [`Curve::compile_within`] (handle set or free
@@ -121,30 +122,84 @@ fn div(a: DVec2, b: DVec2) -> DVec2 {
     mul(a, conj(b)) / b.length_squared()
 }
 
-/// A square banded matrix of complex numbers and its LU factors with partial
-/// pivoting, in LAPACK's band layout (`gbtrf`): column `j` holds rows
+/// An entry of a banded system: a complex number as a (re, im) pair for
+/// step 1, a real for step 2. Right-hand sides are always pairs: a complex
+/// number, or for a real matrix the x and y of one point solved together.
+trait Entry:
+    Copy + Default + PartialEq + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self>
+{
+    fn times(self, other: Self) -> Self;
+    /// `self · x` for a right-hand-side pair.
+    fn apply(self, x: DVec2) -> DVec2;
+    fn magnitude_squared(self) -> f64;
+    fn reciprocal(self) -> Self;
+}
+
+impl Entry for DVec2 {
+    #[inline]
+    fn times(self, other: Self) -> Self {
+        mul(self, other)
+    }
+    #[inline]
+    fn apply(self, x: DVec2) -> DVec2 {
+        mul(self, x)
+    }
+    #[inline]
+    fn magnitude_squared(self) -> f64 {
+        self.length_squared()
+    }
+    #[inline]
+    fn reciprocal(self) -> Self {
+        conj(self) / self.length_squared()
+    }
+}
+
+impl Entry for f64 {
+    #[inline]
+    fn times(self, other: Self) -> Self {
+        self * other
+    }
+    #[inline]
+    fn apply(self, x: DVec2) -> DVec2 {
+        x * self
+    }
+    #[inline]
+    fn magnitude_squared(self) -> f64 {
+        self * self
+    }
+    #[inline]
+    fn reciprocal(self) -> Self {
+        1.0 / self
+    }
+}
+
+/// A square banded matrix and its LU factors with partial pivoting, in
+/// LAPACK's band layout (`gbtrf`): column `j` holds rows
 /// `j − ku − kl ..= j + kl`, the extra `kl` above for the pivoting's fill.
-/// Real systems are stored with zero imaginary parts: a real matrix solves
-/// the x and y of a right-hand side `x + iy` in one pass.
+/// After factoring, each column remembers how far its non-zeros reach, so
+/// the solves skip the band's empty corners (most columns never pivot).
 #[derive(Debug, Default)]
-struct BandLu {
+struct BandLu<T> {
     n: usize,
     kl: usize,
     ku: usize,
-    band: Vec<DVec2>,
+    band: Vec<T>,
     pivots: Vec<u32>,
+    /// Per column: reciprocal of U's diagonal, and how many rows of L below
+    /// and of U above the diagonal are non-zero.
+    inverse_diagonal: Vec<T>,
+    below: Vec<u32>,
+    above: Vec<u32>,
 }
 
-impl BandLu {
+impl<T: Entry> BandLu<T> {
     /// Zeroes an `n`×`n` matrix with the given bandwidths, reusing storage.
     fn reset(&mut self, n: usize, kl: usize, ku: usize) {
         self.n = n;
         self.kl = kl;
         self.ku = ku;
         self.band.clear();
-        self.band.resize(n * self.stride(), DVec2::ZERO);
-        self.pivots.clear();
-        self.pivots.resize(n, 0);
+        self.band.resize(n * self.stride(), T::default());
     }
 
     #[inline]
@@ -159,9 +214,9 @@ impl BandLu {
     }
 
     #[inline]
-    fn add(&mut self, i: usize, j: usize, value: DVec2) {
+    fn add(&mut self, i: usize, j: usize, value: T) {
         let s = self.slot(i, j);
-        self.band[s] += value;
+        self.band[s] = self.band[s] + value;
     }
 
     /// In-place LU with row pivoting. False when a pivot vanishes relative
@@ -172,15 +227,17 @@ impl BandLu {
         let scale = self
             .band
             .iter()
-            .map(|z| z.length_squared())
+            .map(|z| z.magnitude_squared())
             .fold(0.0, f64::max);
         let tiny = scale * 1e-26;
+        self.pivots.clear();
+        self.inverse_diagonal.clear();
         for j in 0..n {
             let last_row = (j + kl).min(n - 1);
             let mut pivot = j;
-            let mut best = self.band[self.slot(j, j)].length_squared();
+            let mut best = self.band[self.slot(j, j)].magnitude_squared();
             for i in j + 1..=last_row {
-                let m = self.band[self.slot(i, j)].length_squared();
+                let m = self.band[self.slot(i, j)].magnitude_squared();
                 if m > best {
                     best = m;
                     pivot = i;
@@ -189,7 +246,7 @@ impl BandLu {
             if best.is_nan() || best <= tiny {
                 return false;
             }
-            self.pivots[j] = pivot as u32;
+            self.pivots.push(pivot as u32);
             let last_col = (j + ku + kl).min(n - 1);
             if pivot != j {
                 for c in j..=last_col {
@@ -197,22 +254,40 @@ impl BandLu {
                     self.band.swap(a, b);
                 }
             }
-            let diagonal = self.band[self.slot(j, j)];
+            let inverse = self.band[self.slot(j, j)].reciprocal();
+            self.inverse_diagonal.push(inverse);
             for i in j + 1..=last_row {
                 let s = self.slot(i, j);
-                self.band[s] = div(self.band[s], diagonal);
+                self.band[s] = self.band[s].times(inverse);
             }
             for c in j + 1..=last_col {
                 let top = self.band[self.slot(j, c)];
-                if top == DVec2::ZERO {
+                if top == T::default() {
                     continue;
                 }
                 for i in j + 1..=last_row {
                     let factor = self.band[self.slot(i, j)];
                     let s = self.slot(i, c);
-                    self.band[s] -= mul(factor, top);
+                    self.band[s] = self.band[s] - factor.times(top);
                 }
             }
+        }
+        let zero = T::default();
+        self.below.clear();
+        self.above.clear();
+        for j in 0..n {
+            let column = &self.band[j * self.stride()..(j + 1) * self.stride()];
+            let diagonal = kl + ku;
+            let below = (1..=kl.min(n - 1 - j))
+                .rev()
+                .find(|&k| column[diagonal + k] != zero)
+                .unwrap_or(0);
+            let above = (1..=(ku + kl).min(j))
+                .rev()
+                .find(|&k| column[diagonal - k] != zero)
+                .unwrap_or(0);
+            self.below.push(below as u32);
+            self.above.push(above as u32);
         }
         true
     }
@@ -220,30 +295,27 @@ impl BandLu {
     /// Solves `A x = b` in place with the factors.
     fn solve(&self, b: &mut [DVec2]) {
         let n = self.n;
-        let (kl, ku) = (self.kl, self.ku);
         let stride = self.stride();
+        let diagonal = self.kl + self.ku;
         for j in 0..n {
             let p = self.pivots[j] as usize;
             if p != j {
                 b.swap(j, p);
             }
             let x = b[j];
-            if x == DVec2::ZERO {
-                continue;
-            }
-            let column = &self.band[j * stride + kl + ku..];
-            let last_row = (j + kl).min(n - 1);
-            for (i, factor) in (j + 1..=last_row).zip(&column[1..]) {
-                b[i] -= mul(*factor, x);
+            let below = self.below[j] as usize;
+            let column = &self.band[j * stride + diagonal + 1..][..below];
+            for (out, factor) in b[j + 1..j + 1 + below].iter_mut().zip(column) {
+                *out -= factor.apply(x);
             }
         }
         for j in (0..n).rev() {
-            let base = j * stride + kl + ku;
-            let x = div(b[j], self.band[base]);
+            let x = self.inverse_diagonal[j].apply(b[j]);
             b[j] = x;
-            let first_row = j.saturating_sub(ku + kl);
-            for i in first_row..j {
-                b[i] -= mul(self.band[base + i - j], x);
+            let above = self.above[j] as usize;
+            let column = &self.band[j * stride + diagonal - above..][..above];
+            for (out, factor) in b[j - above..j].iter_mut().zip(column) {
+                *out -= factor.apply(x);
             }
         }
     }
@@ -295,8 +367,8 @@ pub struct Curve {
     hi: usize,
     /// KKT row of free point `lo + k`.
     point_slot: Vec<usize>,
-    step1: BandLu,
-    step2: BandLu,
+    step1: BandLu<DVec2>,
+    step2: BandLu<f64>,
     /// Right-hand sides' parts fixed at compile time (the fixed points'
     /// pull), copied into `rhs` every frame.
     step1_base: Vec<DVec2>,
@@ -800,9 +872,9 @@ impl Curve {
             for r in 0..2 {
                 let Some(row) = slot(ends[r]) else { continue };
                 for k in 0..2 {
-                    let value = coefficient[r] * coefficient[k];
+                    let value: f64 = coefficient[r] * coefficient[k];
                     match slot(ends[k]) {
-                        Some(col) => self.step2.add(row, col, DVec2::new(value, 0.0)),
+                        Some(col) => self.step2.add(row, col, value),
                         None => self.step2_base[row] -= self.pose[ends[k]] * value,
                     }
                 }
@@ -815,11 +887,11 @@ impl Curve {
                 }
                 match slot(p) {
                     Some(s) => {
+                        self.step2.add(con.slot, s, w);
+                        self.step2.add(s, con.slot, w);
                         let w = DVec2::new(w, 0.0);
                         self.step1.add(con.slot, s, w);
                         self.step1.add(s, con.slot, w);
-                        self.step2.add(con.slot, s, w);
-                        self.step2.add(s, con.slot, w);
                     }
                     None => {
                         self.step1_base[con.slot] -= self.pose[p] * w;
