@@ -63,13 +63,15 @@ fn dense_solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Vec<f64> {
         a.swap(j, p);
         b.swap(j, p);
         assert!(a[j][j].abs() > 1e-14, "reference system is singular");
-        for i in j + 1..n {
-            let f = a[i][j] / a[j][j];
+        let (above, below) = a.split_at_mut(j + 1);
+        let pivot_row = &above[j];
+        for (k, row) in below.iter_mut().enumerate() {
+            let f = row[j] / pivot_row[j];
             if f != 0.0 {
-                for c in j..n {
-                    a[i][c] -= f * a[j][c];
+                for (x, y) in row[j..].iter_mut().zip(&pivot_row[j..]) {
+                    *x -= f * y;
                 }
-                b[i] -= f * b[j];
+                b[j + 1 + k] -= f * b[j];
             }
         }
     }
@@ -136,8 +138,8 @@ fn dense_reference(
         }
     }
     for &p in fixed {
-        for axis in 0..2 {
-            constraints.push((vec![(2 * p + axis, 1.0)], pose[p][axis]));
+        for (axis, value) in pose[p].to_array().into_iter().enumerate() {
+            constraints.push((vec![(2 * p + axis, 1.0)], value));
         }
     }
     let mut rows1 = Vec::new();
@@ -398,13 +400,9 @@ fn peeling_drag_moves_only_the_region() {
     }
     assert!(recompiles > 3, "the region grew {recompiles} times");
     let free = peel.free_points();
-    for p in 0..curve.len() {
+    for (p, (now, was)) in curve.pose().iter().zip(&rest).enumerate() {
         if !free.contains(&p) {
-            assert_eq!(
-                curve.pose()[p],
-                rest[p],
-                "point {p} outside the region moved"
-            );
+            assert_eq!(now, was, "point {p} outside the region moved");
         }
     }
     // The pushpin's side stays put beyond it.
