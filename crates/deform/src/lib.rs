@@ -4,7 +4,8 @@
 //! update (handles moved) — and the update phase never allocates.
 //! [`arap`] is the free-form two-step solver (Igarashi et al. 2005), [`ffd`]
 //! the locality-preserving FFD grid rig, [`skeleton`] the shape-aware
-//! skeletal deformer (Wang et al. 2013); [`sparse`] holds their
+//! skeletal deformer (Wang et al. 2013), [`curve`] the same paper's
+//! as-rigid-as-possible curve editing with peeling; [`sparse`] holds their
 //! factorisations and [`measure`] the distortion measures they are compared
 //! by. [`depth`] orders the triangles front to back per frame, so parts
 //! that fold over each other overlap cleanly instead of interpenetrating.
@@ -12,6 +13,7 @@
 //! Plain synchronous numeric code: the daemon runs it on a thread of its own.
 
 pub mod arap;
+pub mod curve;
 pub mod depth;
 pub mod ffd;
 pub mod measure;
@@ -20,5 +22,6 @@ pub mod skeleton;
 pub mod sparse;
 
 pub use arap::{Anchor, Arap, ArapError, Steps};
+pub use curve::{Curve, CurveAnchor, CurveError, Peel, PeelParams};
 pub use depth::{DepthError, DepthOrder};
 pub use rbf::{RbfBlend, RbfError};

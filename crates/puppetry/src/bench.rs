@@ -10,6 +10,10 @@
 //! The depth cases time the depth order's frames (overlap detection and
 //! front/back assignment) beside the ARAP updates that posed them, without
 //! overlap and with a foot folded over the body.
+//!
+//! The curve cases (`--curves`) time as-rigid-as-possible curve editing: a
+//! wavy curve of 1k and 10k points held at its ends and middle, and peeling
+//! drags whose growing region recompiles the system.
 
 use std::time::{Duration, Instant};
 
@@ -18,7 +22,10 @@ use serde::Serialize;
 
 use puppetry_deform::ffd::{Basis, FfdError, GridSpec, LpFfd, LpParams};
 use puppetry_deform::skeleton::{ShapeAware, Skeleton, SkeletonError, SkeletonParams};
-use puppetry_deform::{Anchor, Arap, ArapError, DepthError, DepthOrder, Steps};
+use puppetry_deform::{
+    Anchor, Arap, ArapError, Curve, CurveAnchor, CurveError, DepthError, DepthOrder, Peel,
+    PeelParams, Steps,
+};
 use puppetry_mesh::Mesh;
 
 /// One measured case, as printed by `puppetry bench --json`.
@@ -834,5 +841,166 @@ pub fn depth_table_row(r: &DepthResult) -> String {
         100.0 * r.fold_us_p99 / r.arap_us_median,
         r.fold_frames_overlapping,
         r.frames
+    )
+}
+
+/// One measured curve case, as printed by `puppetry bench --curves --json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct CurveBench {
+    pub points: usize,
+    pub handles: usize,
+    pub register_ms: f64,
+    /// Whole curve free, both steps.
+    pub compile_us_median: f64,
+    pub update_us_median: f64,
+    pub update_us_p99: f64,
+    /// A peeling drag: recompiling for a grown region (all sizes up to the
+    /// whole curve), and the frames in between.
+    pub peel_change_us_median: f64,
+    pub peel_change_us_p99: f64,
+    pub peel_update_us_median: f64,
+    /// Recompiles timed, updates timed.
+    pub peel_changes: usize,
+    pub frames: usize,
+}
+
+/// A wavy curve of `points` points, evenly spaced (about 1 apart).
+pub fn bench_curve(points: usize) -> Vec<DVec2> {
+    (0..points)
+        .map(|i| {
+            let x = i as f64 * 0.8;
+            DVec2::new(x, 8.0 * (x * 0.05).sin())
+        })
+        .collect()
+}
+
+/// Times a curve of `points` points with `handles` (2 or 3: the ends, and
+/// the middle) over `frames` frames, then `drags` peeling drags from the
+/// middle until the region covers the curve.
+pub fn curve_bench(
+    points: usize,
+    handles: usize,
+    frames: usize,
+    drags: usize,
+) -> Result<CurveBench, CurveError> {
+    let rest = bench_curve(points);
+    let mut register = Vec::new();
+    let mut curve = None;
+    for _ in 0..5 {
+        let start = Instant::now();
+        curve = Some(Curve::register(&rest)?);
+        register.push(start.elapsed().as_secs_f64() * 1e3);
+    }
+    register.sort_by(f64::total_cmp);
+    let mut curve = curve.expect("registered");
+    let last = points as u32 - 1;
+    let mut anchors = vec![CurveAnchor::Point(0), CurveAnchor::Point(last)];
+    if handles >= 3 {
+        anchors.insert(
+            1,
+            CurveAnchor::Along {
+                segment: last / 2,
+                t: 0.5,
+            },
+        );
+    }
+    let rest_targets: Vec<DVec2> = anchors
+        .iter()
+        .map(|a| curve.rest_point(*a).expect("anchors on the curve"))
+        .collect();
+    let mut targets = rest_targets.clone();
+
+    let mut compile = Vec::new();
+    for _ in 0..20 {
+        let start = Instant::now();
+        curve.compile(&anchors)?;
+        compile.push(micros(start.elapsed()));
+    }
+    compile.sort_by(f64::total_cmp);
+    let mut update = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let phase = f as f64 * 0.05;
+        for (h, (t, r)) in targets.iter_mut().zip(&rest_targets).enumerate() {
+            *t = *r + DVec2::new((phase + h as f64).cos(), (phase + h as f64).sin()) * 3.0;
+        }
+        let start = Instant::now();
+        curve.update(&targets, Steps::Both)?;
+        update.push(micros(start.elapsed()));
+    }
+    update.sort_by(f64::total_cmp);
+
+    // Peeling: grab the middle and pull sideways until the region covers
+    // the curve; each drag starts again from rest.
+    let (mut changes, mut peel_updates) = (Vec::new(), Vec::new());
+    let params = PeelParams {
+        initial_radius: 5.0,
+        growth_rate: 2.0,
+    };
+    for _ in 0..drags {
+        let mut curve = Curve::register(&rest)?;
+        let mut peel = Peel::new(&curve, curve.length() / 2.0, &[], params)?;
+        let grab = [peel.grab_anchor()];
+        let from = curve.rest_point(grab[0]).expect("on the curve");
+        curve.compile_within(&grab, peel.free_points())?;
+        let reach = curve.length() / 2.0 / params.growth_rate;
+        let steps = 200;
+        for s in 1..=steps {
+            let target = from + DVec2::new(0.0, reach * s as f64 / steps as f64);
+            if peel.drag(&curve, target.distance(from))? {
+                let start = Instant::now();
+                curve.compile_within(&grab, peel.free_points())?;
+                changes.push(micros(start.elapsed()));
+            }
+            let start = Instant::now();
+            curve.update(&[target], Steps::Both)?;
+            peel_updates.push(micros(start.elapsed()));
+        }
+    }
+    changes.sort_by(f64::total_cmp);
+    peel_updates.sort_by(f64::total_cmp);
+    Ok(CurveBench {
+        points,
+        handles: anchors.len(),
+        register_ms: percentile(&register, 0.5),
+        compile_us_median: percentile(&compile, 0.5),
+        update_us_median: percentile(&update, 0.5),
+        update_us_p99: percentile(&update, 0.99),
+        peel_change_us_median: percentile(&changes, 0.5),
+        peel_change_us_p99: percentile(&changes, 0.99),
+        peel_update_us_median: percentile(&peel_updates, 0.5),
+        peel_changes: changes.len(),
+        frames,
+    })
+}
+
+/// The header of the curve table.
+pub fn curve_table_header() -> String {
+    format!(
+        "{:>7} {:>7} {:>11} {:>12} {:>13} {:>13} {:>15} {:>15} {:>14}",
+        "points",
+        "handles",
+        "register ms",
+        "compile µs",
+        "update µs p50",
+        "update µs p99",
+        "peel change p50",
+        "peel change p99",
+        "peel update p50"
+    )
+}
+
+/// One row of the curve table.
+pub fn curve_table_row(r: &CurveBench) -> String {
+    format!(
+        "{:>7} {:>7} {:>11.3} {:>12.1} {:>13.1} {:>13.1} {:>15.1} {:>15.1} {:>14.1}",
+        r.points,
+        r.handles,
+        r.register_ms,
+        r.compile_us_median,
+        r.update_us_median,
+        r.update_us_p99,
+        r.peel_change_us_median,
+        r.peel_change_us_p99,
+        r.peel_update_us_median
     )
 }

@@ -211,6 +211,10 @@ enum Command {
         /// of the same mesh [default sizes: 1000,10000].
         #[arg(long, conflicts_with_all = ["e2e", "rigs"])]
         depth: bool,
+        /// Bench as-rigid-as-possible curve editing instead: updates of
+        /// curves of 1k and 10k points, and peeling drags' recompiles.
+        #[arg(long, conflicts_with_all = ["e2e", "rigs", "takes", "depth"])]
+        curves: bool,
         /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
         /// as possible into it, with 1 and 16 WebSocket clients on loopback.
         #[arg(long)]
@@ -517,6 +521,25 @@ fn run(args: Args) -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string(&comparison)?);
             } else {
                 print!("{}", compare::table(&comparison));
+            }
+        }
+        Command::Bench {
+            curves: true, json, ..
+        } => {
+            if !json {
+                println!("{}", bench::curve_table_header());
+            }
+            for points in [1000, 10_000] {
+                for handles in [2, 3] {
+                    let frames = if points > 5000 { 3000 } else { 10_000 };
+                    let drags = if points > 5000 { 10 } else { 50 };
+                    let result = bench::curve_bench(points, handles, frames, drags)?;
+                    if json {
+                        println!("{}", serde_json::to_string(&result)?);
+                    } else {
+                        println!("{}", bench::curve_table_row(&result));
+                    }
+                }
             }
         }
         Command::Bench { takes: true, .. } => {

@@ -309,3 +309,35 @@ pub fn gingerbread_skeleton() -> puppetry_deform::skeleton::Skeleton {
         .collect();
     puppetry_deform::skeleton::Skeleton::new(joints, bones).expect("the demo skeleton is valid")
 }
+
+/// Points along a circular arc of length 99 turning `angle` radians
+/// (straight when 0), centred on the origin's x.
+fn arc_point(angle: f64, s: f64) -> DVec2 {
+    if angle == 0.0 {
+        return DVec2::new(s - 49.5, 0.0);
+    }
+    let radius = 99.0 / angle;
+    let a = s / radius - angle / 2.0;
+    DVec2::new(radius * a.sin(), radius * (1.0 - a.cos()))
+}
+
+/// The curve bend of the scale-adjustment test and `docs/curve-bend.svg`: a
+/// 100-point arc turning 2.5 rad, held at its ends and middle, bent the other
+/// way onto an arc of the same length turning −1 rad. Rest, anchors,
+/// targets.
+pub fn curve_bend() -> (Vec<DVec2>, Vec<puppetry_deform::CurveAnchor>, Vec<DVec2>) {
+    use puppetry_deform::CurveAnchor;
+    let rest = (0..100).map(|i| arc_point(2.5, i as f64)).collect();
+    let anchors = vec![
+        CurveAnchor::Point(0),
+        CurveAnchor::Along {
+            segment: 49,
+            t: 0.5,
+        },
+        CurveAnchor::Point(99),
+    ];
+    let targets = [0.0, 49.5, 99.0]
+        .map(|s| arc_point(-1.0, s) + DVec2::new(0.0, 40.0))
+        .to_vec();
+    (rest, anchors, targets)
+}

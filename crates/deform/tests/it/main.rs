@@ -10,6 +10,7 @@ mod common {
 }
 
 mod arap;
+mod curve;
 mod depth;
 mod ffd;
 mod measure;

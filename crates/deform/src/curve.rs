@@ -1,0 +1,1158 @@
+//! As-rigid-as-possible curve editing (Igarashi, Moscovich & Hughes 2005,
+//! §5.4): an open polyline deformed by handles in two steps, and the peeling
+//! interface that grows the edited region as a drag goes further.
+//!
+//! Step 1 is Laplacian curve editing ("Laplacian surface editing", Sorkine et
+//! al. 2004) in rotation-invariant form: each interior rest point is written
+//! in the frame of its two neighbours, `v̄ᵢ = v̄ᵢ₋₁ + xᵢ dᵢ + yᵢ R dᵢ` with
+//! `dᵢ = v̄ᵢ₊₁ − v̄ᵢ₋₁`, and the deformed curve minimises the squared error of
+//! the same expression. In complex numbers (a point is `x + iy`) the pair
+//! `(xᵢ, yᵢ)` with the fixed quarter turn `R` is a single complex ratio
+//! `zᵢ = (v̄ᵢ − v̄ᵢ₋₁)/(v̄ᵢ₊₁ − v̄ᵢ₋₁)`, so the energy is a complex Hermitian
+//! form and one complex solve gives both coordinates. Step 2 (scale
+//! adjustment) gives every segment the step-1 direction and its rest length
+//! and fits the curve to those segments in least squares.
+//!
+//! Handles are linear constraints — a point, or a point along a segment — so
+//! each step solves the constrained minimum through its KKT system. Points
+//! outside a chosen interval are fixed where they are (peeling), so the
+//! system only spans the free interval. Unknowns are numbered along the
+//! curve with each handle's multiplier right after its points, which keeps
+//! the system banded: compile factors it by banded LU with partial pivoting
+//! (the KKT matrix is indefinite) in O(n), an update is two banded solves
+//! (complex for step 1; real for step 2, whose x and y share the matrix).
+//!
+//! Phases: [`Curve::register`] (rest curve: validation, local frames),
+//! [`Curve::compile`] / [`Curve::compile_within`] (handle set or free
+//! interval changed: assembly and factorisation), [`Curve::update`] (handles
+//! moved; does not allocate). [`Peel`] turns a drag into the free interval.
+
+use std::ops::RangeInclusive;
+
+use glam::DVec2;
+use puppetry_mesh::json::MAX_COORDINATE;
+
+pub use super::arap::Steps;
+
+/// Where a handle holds the curve, in rest terms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CurveAnchor {
+    /// A point of the polyline.
+    Point(u32),
+    /// A point along segment `segment` (from point `segment` to
+    /// `segment + 1`), at parameter `t` in `[0, 1]`.
+    Along { segment: u32, t: f64 },
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum CurveError {
+    #[error("a curve needs at least 3 points, got {count}")]
+    TooFewPoints { count: usize },
+    #[error("point {point} is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
+    PointNotFinite { point: usize },
+    #[error("point {point} repeats point {previous}: segment {previous} has zero length")]
+    RepeatedPoint { point: usize, previous: usize },
+    #[error("the curve folds back on itself at point {point}: segments {} and {point} overlap", point - 1)]
+    FoldsBack { point: usize },
+    #[error("segments {first} and {second} cross or touch: the curve intersects itself")]
+    SelfIntersection { first: usize, second: usize },
+    #[error("resampling spacing {spacing} must be finite and positive")]
+    BadSpacing { spacing: f64 },
+    #[error("handle {handle}: point {point} is out of range (the curve has {count} points)")]
+    PointOutOfRange {
+        handle: usize,
+        point: u32,
+        count: usize,
+    },
+    #[error("handle {handle}: segment {segment} is out of range (the curve has {count} segments)")]
+    SegmentOutOfRange {
+        handle: usize,
+        segment: u32,
+        count: usize,
+    },
+    #[error("handle {handle}: parameter t = {t} must be finite and within [0, 1]")]
+    BadParameter { handle: usize, t: f64 },
+    #[error("handle {handle} lies outside the free points {start}..={end}: it cannot move")]
+    HandleFixed {
+        handle: usize,
+        start: usize,
+        end: usize,
+    },
+    #[error("free points {start}..={end} are not within the curve's {count} points")]
+    BadFreeRange {
+        start: usize,
+        end: usize,
+        count: usize,
+    },
+    #[error("step {step}: the handles and fixed points do not determine the curve (add a handle)")]
+    Underdetermined { step: u8 },
+    #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
+    TargetCount { expected: usize, got: usize },
+    #[error("handle {handle}: target is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
+    TargetNotFinite { handle: usize },
+    #[error("grab at arc length {at} is not on the curve (0..={length})")]
+    GrabOffCurve { at: f64, length: f64 },
+    #[error("pushpin {pushpin} at arc length {at} is not on the curve (0..={length})")]
+    PushpinOffCurve {
+        pushpin: usize,
+        at: f64,
+        length: f64,
+    },
+    #[error("pushpin {pushpin} sits at the grab point: nothing could move")]
+    PushpinAtGrab { pushpin: usize },
+    #[error("peel {field} = {value} must be finite and non-negative")]
+    BadPeelParameter { field: &'static str, value: f64 },
+    #[error("drag distance {distance} must be finite and non-negative")]
+    BadDragDistance { distance: f64 },
+}
+
+/// Complex multiplication on (re, im) pairs.
+#[inline]
+fn mul(a: DVec2, b: DVec2) -> DVec2 {
+    a.rotate(b)
+}
+
+#[inline]
+fn conj(a: DVec2) -> DVec2 {
+    DVec2::new(a.x, -a.y)
+}
+
+#[inline]
+fn div(a: DVec2, b: DVec2) -> DVec2 {
+    mul(a, conj(b)) / b.length_squared()
+}
+
+/// An entry of a banded system: a complex number as a (re, im) pair for
+/// step 1, a real for step 2. Right-hand sides are always pairs: a complex
+/// number, or for a real matrix the x and y of one point solved together.
+trait Entry:
+    Copy + Default + PartialEq + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self>
+{
+    fn times(self, other: Self) -> Self;
+    /// `self · x` for a right-hand-side pair.
+    fn apply(self, x: DVec2) -> DVec2;
+    fn magnitude_squared(self) -> f64;
+    fn reciprocal(self) -> Self;
+}
+
+impl Entry for DVec2 {
+    #[inline]
+    fn times(self, other: Self) -> Self {
+        mul(self, other)
+    }
+    #[inline]
+    fn apply(self, x: DVec2) -> DVec2 {
+        mul(self, x)
+    }
+    #[inline]
+    fn magnitude_squared(self) -> f64 {
+        self.length_squared()
+    }
+    #[inline]
+    fn reciprocal(self) -> Self {
+        conj(self) / self.length_squared()
+    }
+}
+
+impl Entry for f64 {
+    #[inline]
+    fn times(self, other: Self) -> Self {
+        self * other
+    }
+    #[inline]
+    fn apply(self, x: DVec2) -> DVec2 {
+        x * self
+    }
+    #[inline]
+    fn magnitude_squared(self) -> f64 {
+        self * self
+    }
+    #[inline]
+    fn reciprocal(self) -> Self {
+        1.0 / self
+    }
+}
+
+/// A square banded matrix and its LU factors with partial pivoting, in
+/// LAPACK's band layout (`gbtrf`): column `j` holds rows
+/// `j − ku − kl ..= j + kl`, the extra `kl` above for the pivoting's fill.
+/// After factoring, each column remembers how far its non-zeros reach, so
+/// the solves skip the band's empty corners (most columns never pivot).
+#[derive(Debug, Default)]
+struct BandLu<T> {
+    n: usize,
+    kl: usize,
+    ku: usize,
+    band: Vec<T>,
+    pivots: Vec<u32>,
+    /// Per column: reciprocal of U's diagonal, and how many rows of L below
+    /// and of U above the diagonal are non-zero.
+    inverse_diagonal: Vec<T>,
+    below: Vec<u32>,
+    above: Vec<u32>,
+}
+
+impl<T: Entry> BandLu<T> {
+    /// Zeroes an `n`×`n` matrix with the given bandwidths, reusing storage.
+    fn reset(&mut self, n: usize, kl: usize, ku: usize) {
+        self.n = n;
+        self.kl = kl;
+        self.ku = ku;
+        self.band.clear();
+        self.band.resize(n * self.stride(), T::default());
+    }
+
+    #[inline]
+    fn stride(&self) -> usize {
+        2 * self.kl + self.ku + 1
+    }
+
+    #[inline]
+    fn slot(&self, i: usize, j: usize) -> usize {
+        debug_assert!(i <= j + self.kl && j <= i + self.ku + self.kl);
+        j * self.stride() + self.kl + self.ku + i - j
+    }
+
+    #[inline]
+    fn add(&mut self, i: usize, j: usize, value: T) {
+        let s = self.slot(i, j);
+        self.band[s] = self.band[s] + value;
+    }
+
+    /// In-place LU with row pivoting. False when a pivot vanishes relative
+    /// to the matrix's scale: the system is singular.
+    fn factor(&mut self) -> bool {
+        let n = self.n;
+        let (kl, ku) = (self.kl, self.ku);
+        let scale = self
+            .band
+            .iter()
+            .map(|z| z.magnitude_squared())
+            .fold(0.0, f64::max);
+        let tiny = scale * 1e-26;
+        self.pivots.clear();
+        self.inverse_diagonal.clear();
+        for j in 0..n {
+            let last_row = (j + kl).min(n - 1);
+            let mut pivot = j;
+            let mut best = self.band[self.slot(j, j)].magnitude_squared();
+            for i in j + 1..=last_row {
+                let m = self.band[self.slot(i, j)].magnitude_squared();
+                if m > best {
+                    best = m;
+                    pivot = i;
+                }
+            }
+            if best.is_nan() || best <= tiny {
+                return false;
+            }
+            self.pivots.push(pivot as u32);
+            let last_col = (j + ku + kl).min(n - 1);
+            if pivot != j {
+                for c in j..=last_col {
+                    let (a, b) = (self.slot(j, c), self.slot(pivot, c));
+                    self.band.swap(a, b);
+                }
+            }
+            let inverse = self.band[self.slot(j, j)].reciprocal();
+            self.inverse_diagonal.push(inverse);
+            for i in j + 1..=last_row {
+                let s = self.slot(i, j);
+                self.band[s] = self.band[s].times(inverse);
+            }
+            for c in j + 1..=last_col {
+                let top = self.band[self.slot(j, c)];
+                if top == T::default() {
+                    continue;
+                }
+                for i in j + 1..=last_row {
+                    let factor = self.band[self.slot(i, j)];
+                    let s = self.slot(i, c);
+                    self.band[s] = self.band[s] - factor.times(top);
+                }
+            }
+        }
+        let zero = T::default();
+        self.below.clear();
+        self.above.clear();
+        for j in 0..n {
+            let column = &self.band[j * self.stride()..(j + 1) * self.stride()];
+            let diagonal = kl + ku;
+            let below = (1..=kl.min(n - 1 - j))
+                .rev()
+                .find(|&k| column[diagonal + k] != zero)
+                .unwrap_or(0);
+            let above = (1..=(ku + kl).min(j))
+                .rev()
+                .find(|&k| column[diagonal - k] != zero)
+                .unwrap_or(0);
+            self.below.push(below as u32);
+            self.above.push(above as u32);
+        }
+        true
+    }
+
+    /// Solves `A x = b` in place with the factors.
+    fn solve(&self, b: &mut [DVec2]) {
+        let n = self.n;
+        let stride = self.stride();
+        let diagonal = self.kl + self.ku;
+        for j in 0..n {
+            let p = self.pivots[j] as usize;
+            if p != j {
+                b.swap(j, p);
+            }
+            let x = b[j];
+            let below = self.below[j] as usize;
+            let column = &self.band[j * stride + diagonal + 1..][..below];
+            for (out, factor) in b[j + 1..j + 1 + below].iter_mut().zip(column) {
+                *out -= factor.apply(x);
+            }
+        }
+        for j in (0..n).rev() {
+            let x = self.inverse_diagonal[j].apply(b[j]);
+            b[j] = x;
+            let above = self.above[j] as usize;
+            let column = &self.band[j * stride + diagonal - above..][..above];
+            for (out, factor) in b[j - above..j].iter_mut().zip(column) {
+                *out -= factor.apply(x);
+            }
+        }
+    }
+}
+
+/// A handle as a constraint row `w₀ v[p₀] + w₁ v[p₁] = q`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Constraint {
+    anchor: CurveAnchor,
+    points: [usize; 2],
+    weights: [f64; 2],
+    rest_point: DVec2,
+    /// Index into the caller's targets.
+    target: usize,
+    /// Row of its multiplier in the KKT systems.
+    slot: usize,
+}
+
+/// How the curve is placed for its current handle set.
+#[derive(Debug, Clone, Copy)]
+enum Placement {
+    /// No handle and nothing fixed: the rigid placement written at compile.
+    Still,
+    /// One handle and nothing fixed: the rest curve rotated by `rotation`
+    /// (cos, sin), carried by the handle.
+    Carried { rotation: DVec2 },
+    /// Solved through the KKT systems.
+    Solved,
+}
+
+/// A registered rest curve and its compiled handle set. See the module docs
+/// for the phases.
+#[derive(Debug)]
+pub struct Curve {
+    rest: Vec<DVec2>,
+    /// Arc length of every rest point from point 0.
+    arc: Vec<f64>,
+    /// `zᵢ` for interior points (index `i`; entries 0 and n−1 unused).
+    frames: Vec<DVec2>,
+    rest_lengths: Vec<f64>,
+    pose: Vec<DVec2>,
+    /// Two handles closer than this in rest space are the same handle.
+    same_point: f64,
+    placement: Placement,
+    handle_count: usize,
+    constraints: Vec<Constraint>,
+    /// The free points, `lo..=hi`; the rest stay where compile found them.
+    lo: usize,
+    hi: usize,
+    /// KKT row of free point `lo + k`.
+    point_slot: Vec<usize>,
+    step1: BandLu<DVec2>,
+    step2: BandLu<f64>,
+    /// Right-hand sides' parts fixed at compile time (the fixed points'
+    /// pull), copied into `rhs` every frame.
+    step1_base: Vec<DVec2>,
+    step2_base: Vec<DVec2>,
+    rhs: Vec<DVec2>,
+    /// The step-1 curve, fixed points included.
+    scale_free: Vec<DVec2>,
+}
+
+/// Validates a rest polyline: enough points, finite, no zero-length
+/// segment, no fold-back, no self-intersection.
+pub fn validate(points: &[DVec2]) -> Result<(), CurveError> {
+    if points.len() < 3 {
+        return Err(CurveError::TooFewPoints {
+            count: points.len(),
+        });
+    }
+    if let Some(point) = points
+        .iter()
+        .position(|p| !(p.is_finite() && p.abs().max_element() <= MAX_COORDINATE))
+    {
+        return Err(CurveError::PointNotFinite { point });
+    }
+    if let Some(w) = points.windows(2).position(|w| w[0] == w[1]) {
+        return Err(CurveError::RepeatedPoint {
+            point: w + 1,
+            previous: w,
+        });
+    }
+    for i in 1..points.len() - 1 {
+        let (a, b) = (points[i] - points[i - 1], points[i + 1] - points[i]);
+        // Segments meeting at i overlap when they turn back along one line.
+        if a.perp_dot(b).abs() <= 1e-12 * a.length() * b.length() && a.dot(b) < 0.0 {
+            return Err(CurveError::FoldsBack { point: i });
+        }
+    }
+    if let Some((first, second)) = first_crossing(points) {
+        return Err(CurveError::SelfIntersection { first, second });
+    }
+    Ok(())
+}
+
+/// Sign of the turn `a → b → c`, exactly zero when collinear.
+#[inline]
+fn orientation(a: DVec2, b: DVec2, c: DVec2) -> f64 {
+    (b - a).perp_dot(c - a)
+}
+
+/// Whether closed segments `a–b` and `c–d` share a point.
+fn segments_meet(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
+    let within = |p: DVec2, q: DVec2, r: DVec2| {
+        r.x >= p.x.min(q.x) && r.x <= p.x.max(q.x) && r.y >= p.y.min(q.y) && r.y <= p.y.max(q.y)
+    };
+    let (o1, o2) = (orientation(a, b, c), orientation(a, b, d));
+    let (o3, o4) = (orientation(c, d, a), orientation(c, d, b));
+    if o1 * o2 < 0.0 && o3 * o4 < 0.0 {
+        return true;
+    }
+    (o1 == 0.0 && within(a, b, c))
+        || (o2 == 0.0 && within(a, b, d))
+        || (o3 == 0.0 && within(c, d, a))
+        || (o4 == 0.0 && within(c, d, b))
+}
+
+/// The lowest pair of non-adjacent segments that meet, if any. Segments are
+/// binned in a uniform grid of about the mean segment length (capped at
+/// ~4n cells), so only segments sharing a cell are tested.
+fn first_crossing(points: &[DVec2]) -> Option<(usize, usize)> {
+    let segments = points.len() - 1;
+    let (mut min, mut max) = (points[0], points[0]);
+    for p in points {
+        min = min.min(*p);
+        max = max.max(*p);
+    }
+    let total: f64 = points.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let extent = (max - min).max(DVec2::splat(f64::MIN_POSITIVE));
+    let cap = (2.0 * (segments as f64).sqrt()).ceil() + 1.0;
+    let cell = (total / segments as f64).max(extent.max_element() / cap);
+    let columns = ((extent.x / cell).floor() as usize + 1).max(1);
+    let rows = ((extent.y / cell).floor() as usize + 1).max(1);
+    let cell_of = |p: DVec2| -> (usize, usize) {
+        let c = ((p - min) / cell).floor();
+        (
+            (c.x.max(0.0) as usize).min(columns - 1),
+            (c.y.max(0.0) as usize).min(rows - 1),
+        )
+    };
+    let covered = |s: usize| {
+        let (a, b) = (cell_of(points[s]), cell_of(points[s + 1]));
+        let (x0, x1) = (a.0.min(b.0), a.0.max(b.0));
+        let (y0, y1) = (a.1.min(b.1), a.1.max(b.1));
+        (y0..=y1).flat_map(move |y| (x0..=x1).map(move |x| y * columns + x))
+    };
+    // Counting sort of (cell, segment) pairs.
+    let mut starts = vec![0u32; columns * rows + 1];
+    for s in 0..segments {
+        for c in covered(s) {
+            starts[c + 1] += 1;
+        }
+    }
+    for c in 0..columns * rows {
+        starts[c + 1] += starts[c];
+    }
+    let mut fill = starts.clone();
+    let mut members = vec![0u32; starts[columns * rows] as usize];
+    for s in 0..segments {
+        for c in covered(s) {
+            members[fill[c] as usize] = s as u32;
+            fill[c] += 1;
+        }
+    }
+    let mut found: Option<(usize, usize)> = None;
+    for c in 0..columns * rows {
+        let bin = &members[starts[c] as usize..starts[c + 1] as usize];
+        for (k, &i) in bin.iter().enumerate() {
+            for &j in &bin[k + 1..] {
+                let (i, j) = (i.min(j) as usize, i.max(j) as usize);
+                if j < i + 2 || found.is_some_and(|f| f <= (i, j)) {
+                    continue;
+                }
+                if segments_meet(points[i], points[i + 1], points[j], points[j + 1]) {
+                    found = Some((i, j));
+                }
+            }
+        }
+    }
+    found
+}
+
+/// The polyline resampled to evenly spaced points along its length, as the
+/// paper recommends (§6: with uneven spacing dense regions come out softer).
+/// Keeps both ends; the spacing is adjusted down so every segment has the
+/// same length, at most `spacing`.
+pub fn resample_evenly(points: &[DVec2], spacing: f64) -> Result<Vec<DVec2>, CurveError> {
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(CurveError::BadSpacing { spacing });
+    }
+    if points.len() < 2 {
+        return Err(CurveError::TooFewPoints {
+            count: points.len(),
+        });
+    }
+    if let Some(point) = points.iter().position(|p| !p.is_finite()) {
+        return Err(CurveError::PointNotFinite { point });
+    }
+    let total: f64 = points.windows(2).map(|w| w[0].distance(w[1])).sum();
+    if total == 0.0 {
+        return Err(CurveError::RepeatedPoint {
+            point: 1,
+            previous: 0,
+        });
+    }
+    let count = (total / spacing).ceil().max(1.0) as usize;
+    let step = total / count as f64;
+    let mut out = Vec::with_capacity(count + 1);
+    out.push(points[0]);
+    let mut segment = 0;
+    let mut start_arc = 0.0;
+    for k in 1..count {
+        let want = step * k as f64;
+        loop {
+            let length = points[segment].distance(points[segment + 1]);
+            if start_arc + length >= want || segment + 2 == points.len() {
+                let t = if length > 0.0 {
+                    ((want - start_arc) / length).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                out.push(points[segment].lerp(points[segment + 1], t));
+                break;
+            }
+            start_arc += length;
+            segment += 1;
+        }
+    }
+    out.push(*points.last().expect("at least two points"));
+    Ok(out)
+}
+
+/// Best rotation (cos, sin) taking `rest` onto `pose` about their centroids,
+/// and the two centroids; identity when undetermined.
+fn fit_rotation(rest: &[DVec2], pose: &[DVec2]) -> (DVec2, DVec2, DVec2) {
+    let count = rest.len() as f64;
+    let rest_mean = rest.iter().copied().sum::<DVec2>() / count;
+    let pose_mean = pose.iter().copied().sum::<DVec2>() / count;
+    let (mut dot, mut crs) = (0.0, 0.0);
+    for (r, p) in rest.iter().zip(pose) {
+        let (r, p) = (*r - rest_mean, *p - pose_mean);
+        dot += r.dot(p);
+        crs += r.perp_dot(p);
+    }
+    let norm = (dot * dot + crs * crs).sqrt();
+    let rotation = if norm > 0.0 && norm.is_finite() {
+        DVec2::new(dot, crs) / norm
+    } else {
+        DVec2::X
+    };
+    (rotation, rest_mean, pose_mean)
+}
+
+impl Curve {
+    /// Registration: validates the rest polyline and computes its local
+    /// frames and lengths. No handles; [`Curve::pose`] is the rest curve.
+    pub fn register(points: &[DVec2]) -> Result<Curve, CurveError> {
+        validate(points)?;
+        let n = points.len();
+        let mut frames = vec![DVec2::ZERO; n];
+        for i in 1..n - 1 {
+            frames[i] = div(points[i] - points[i - 1], points[i + 1] - points[i - 1]);
+        }
+        let rest_lengths: Vec<f64> = points.windows(2).map(|w| w[0].distance(w[1])).collect();
+        let mut arc = Vec::with_capacity(n);
+        arc.push(0.0);
+        for l in &rest_lengths {
+            arc.push(arc.last().expect("non-empty") + l);
+        }
+        let (min, max) = points.iter().fold((points[0], points[0]), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        });
+        Ok(Curve {
+            rest: points.to_vec(),
+            same_point: (max - min).length() * 1e-9,
+            arc,
+            frames,
+            rest_lengths,
+            pose: points.to_vec(),
+            placement: Placement::Still,
+            handle_count: 0,
+            constraints: Vec::new(),
+            lo: 0,
+            hi: n - 1,
+            point_slot: Vec::new(),
+            step1: BandLu::default(),
+            step2: BandLu::default(),
+            step1_base: Vec::new(),
+            step2_base: Vec::new(),
+            rhs: Vec::new(),
+            scale_free: points.to_vec(),
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.rest.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rest.is_empty()
+    }
+
+    pub fn rest(&self) -> &[DVec2] {
+        &self.rest
+    }
+
+    /// The current deformed points.
+    pub fn pose(&self) -> &[DVec2] {
+        &self.pose
+    }
+
+    /// The rest curve's arc length at each point (0 at point 0).
+    pub fn arc_lengths(&self) -> &[f64] {
+        &self.arc
+    }
+
+    /// The rest curve's total length.
+    pub fn length(&self) -> f64 {
+        *self.arc.last().expect("a curve has points")
+    }
+
+    /// The anchor at arc length `s` along the rest curve (clamped to the
+    /// curve).
+    pub fn anchor_at(&self, s: f64) -> CurveAnchor {
+        let s = s.clamp(0.0, self.length());
+        let segment = self
+            .arc
+            .partition_point(|&a| a <= s)
+            .clamp(1, self.len() - 1)
+            - 1;
+        let t = ((s - self.arc[segment]) / self.rest_lengths[segment]).clamp(0.0, 1.0);
+        CurveAnchor::Along {
+            segment: segment as u32,
+            t,
+        }
+    }
+
+    /// Where `anchor` is on the current pose (`None` when out of range).
+    pub fn pose_point(&self, anchor: CurveAnchor) -> Option<DVec2> {
+        Self::point_on(&self.pose, anchor)
+    }
+
+    /// Where `anchor` is on the rest curve (`None` when out of range).
+    pub fn rest_point(&self, anchor: CurveAnchor) -> Option<DVec2> {
+        Self::point_on(&self.rest, anchor)
+    }
+
+    fn point_on(points: &[DVec2], anchor: CurveAnchor) -> Option<DVec2> {
+        match anchor {
+            CurveAnchor::Point(p) => points.get(p as usize).copied(),
+            CurveAnchor::Along { segment, t } => {
+                let s = segment as usize;
+                Some(points.get(s)?.lerp(*points.get(s + 1)?, t))
+            }
+        }
+    }
+
+    /// Compilation with every point free: sets the handle set. Two handles on
+    /// the same rest point: the later wins. With fewer than two handles the
+    /// curve cannot be solved (rotation and scale are free): with one it
+    /// takes its rest shape, rotated as its current pose best fits, and
+    /// follows the handle; with none it stays in that rigid placement.
+    pub fn compile(&mut self, anchors: &[CurveAnchor]) -> Result<(), CurveError> {
+        self.compile_within(anchors, 0..=self.len() - 1)
+    }
+
+    /// Compilation with only the points `free` movable: the others stay
+    /// where the current pose has them and act as handles. Every handle must
+    /// hold at least one free point. The systems span only the free points,
+    /// so a small interval compiles and updates in proportion.
+    pub fn compile_within(
+        &mut self,
+        anchors: &[CurveAnchor],
+        free: RangeInclusive<usize>,
+    ) -> Result<(), CurveError> {
+        let n = self.len();
+        let (lo, hi) = (*free.start(), *free.end());
+        if lo > hi || hi >= n {
+            return Err(CurveError::BadFreeRange {
+                start: lo,
+                end: hi,
+                count: n,
+            });
+        }
+        let mut constraints = Vec::with_capacity(anchors.len());
+        for (h, anchor) in anchors.iter().enumerate() {
+            let (points, weights) = match *anchor {
+                CurveAnchor::Point(p) => {
+                    if p as usize >= n {
+                        return Err(CurveError::PointOutOfRange {
+                            handle: h,
+                            point: p,
+                            count: n,
+                        });
+                    }
+                    ([p as usize; 2], [1.0, 0.0])
+                }
+                CurveAnchor::Along { segment, t } => {
+                    if segment as usize >= n - 1 {
+                        return Err(CurveError::SegmentOutOfRange {
+                            handle: h,
+                            segment,
+                            count: n - 1,
+                        });
+                    }
+                    if !(t.is_finite() && (0.0..=1.0).contains(&t)) {
+                        return Err(CurveError::BadParameter { handle: h, t });
+                    }
+                    let s = segment as usize;
+                    ([s, s + 1], [1.0 - t, t])
+                }
+            };
+            let holds_free = points
+                .iter()
+                .zip(weights)
+                .any(|(&p, w)| w != 0.0 && (lo..=hi).contains(&p));
+            if !holds_free {
+                return Err(CurveError::HandleFixed {
+                    handle: h,
+                    start: lo,
+                    end: hi,
+                });
+            }
+            let rest_point = self.rest[points[0]] * weights[0] + self.rest[points[1]] * weights[1];
+            constraints.push(Constraint {
+                anchor: *anchor,
+                points,
+                weights,
+                rest_point,
+                target: h,
+                slot: 0,
+            });
+        }
+        // The later of two handles on one rest point wins.
+        let mut live = vec![true; constraints.len()];
+        for later in (0..constraints.len()).rev() {
+            if !live[later] {
+                continue;
+            }
+            for earlier in 0..later {
+                if live[earlier]
+                    && constraints[earlier]
+                        .rest_point
+                        .distance(constraints[later].rest_point)
+                        <= self.same_point
+                {
+                    live[earlier] = false;
+                }
+            }
+        }
+        let mut kept = live.iter();
+        constraints.retain(|_| *kept.next().expect("one flag per constraint"));
+        // Multipliers go right after the last free point they hold.
+        let last_free = |c: &Constraint| {
+            c.points
+                .iter()
+                .zip(c.weights)
+                .filter(|&(&p, w)| w != 0.0 && (lo..=hi).contains(&p))
+                .map(|(&p, _)| p)
+                .max()
+                .expect("checked: holds a free point")
+        };
+        constraints.sort_by_key(|c| (last_free(c), c.target));
+
+        self.handle_count = anchors.len();
+        self.lo = lo;
+        self.hi = hi;
+        let everything_free = lo == 0 && hi == n - 1;
+        if everything_free && constraints.len() < 2 {
+            let (rotation, rest_mean, pose_mean) = fit_rotation(&self.rest, &self.pose);
+            self.placement = match constraints.first() {
+                None => {
+                    for (p, r) in self.pose.iter_mut().zip(&self.rest) {
+                        *p = pose_mean + rotation.rotate(*r - rest_mean);
+                    }
+                    Placement::Still
+                }
+                Some(_) => Placement::Carried { rotation },
+            };
+            self.constraints = constraints;
+            return Ok(());
+        }
+
+        // Number the unknowns.
+        self.point_slot.clear();
+        let mut next = 0;
+        let mut c = 0;
+        for p in lo..=hi {
+            self.point_slot.push(next);
+            next += 1;
+            while c < constraints.len() && last_free(&constraints[c]) == p {
+                constraints[c].slot = next;
+                next += 1;
+                c += 1;
+            }
+        }
+        let size = next;
+        self.constraints = constraints;
+        self.placement = Placement::Solved;
+        self.scale_free.copy_from_slice(&self.pose);
+
+        let slot =
+            |p: usize| -> Option<usize> { (lo..=hi).contains(&p).then(|| self.point_slot[p - lo]) };
+        // Bandwidths from the couplings: step 1 couples points two apart,
+        // step 2 neighbours; both couple each multiplier with its points.
+        let mut width1 = 0;
+        let mut width2 = 0;
+        for p in lo..=hi {
+            for q in p + 1..=(p + 2).min(hi) {
+                let d = self.point_slot[q - lo] - self.point_slot[p - lo];
+                width1 = width1.max(d);
+                if q == p + 1 {
+                    width2 = width2.max(d);
+                }
+            }
+        }
+        for con in &self.constraints {
+            for (&p, w) in con.points.iter().zip(con.weights) {
+                if let (Some(s), true) = (slot(p), w != 0.0) {
+                    width1 = width1.max(s.abs_diff(con.slot));
+                    width2 = width2.max(s.abs_diff(con.slot));
+                }
+            }
+        }
+
+        // Step 1: Σᵢ |γᵢ·(vᵢ₋₁, vᵢ, vᵢ₊₁)|² with γ = (z − 1, 1, −z).
+        self.step1.reset(size, width1, width1);
+        self.step1_base.clear();
+        self.step1_base.resize(size, DVec2::ZERO);
+        let first_term = lo.saturating_sub(1).max(1);
+        let last_term = (hi + 1).min(n - 2);
+        for i in first_term..=last_term {
+            let z = self.frames[i];
+            let gamma = [z - DVec2::X, DVec2::X, -z];
+            let points = [i - 1, i, i + 1];
+            for r in 0..3 {
+                let Some(row) = slot(points[r]) else { continue };
+                for s in 0..3 {
+                    let value = mul(conj(gamma[r]), gamma[s]);
+                    match slot(points[s]) {
+                        Some(col) => self.step1.add(row, col, value),
+                        None => self.step1_base[row] -= mul(value, self.pose[points[s]]),
+                    }
+                }
+            }
+        }
+        // Step 2: Σₛ |vₛ₊₁ − vₛ − fₛ|² over segments with a free end.
+        self.step2.reset(size, width2, width2);
+        self.step2_base.clear();
+        self.step2_base.resize(size, DVec2::ZERO);
+        for s in lo.saturating_sub(1)..=hi.min(n - 2) {
+            let ends = [s, s + 1];
+            let coefficient = [-1.0, 1.0];
+            for r in 0..2 {
+                let Some(row) = slot(ends[r]) else { continue };
+                for k in 0..2 {
+                    let value: f64 = coefficient[r] * coefficient[k];
+                    match slot(ends[k]) {
+                        Some(col) => self.step2.add(row, col, value),
+                        None => self.step2_base[row] -= self.pose[ends[k]] * value,
+                    }
+                }
+            }
+        }
+        for con in &self.constraints {
+            for (&p, w) in con.points.iter().zip(con.weights) {
+                if w == 0.0 {
+                    continue;
+                }
+                match slot(p) {
+                    Some(s) => {
+                        self.step2.add(con.slot, s, w);
+                        self.step2.add(s, con.slot, w);
+                        let w = DVec2::new(w, 0.0);
+                        self.step1.add(con.slot, s, w);
+                        self.step1.add(s, con.slot, w);
+                    }
+                    None => {
+                        self.step1_base[con.slot] -= self.pose[p] * w;
+                        self.step2_base[con.slot] -= self.pose[p] * w;
+                    }
+                }
+            }
+        }
+        self.rhs.clear();
+        self.rhs.resize(size, DVec2::ZERO);
+        let factored = if !self.step1.factor() {
+            Err(CurveError::Underdetermined { step: 1 })
+        } else if !self.step2.factor() {
+            Err(CurveError::Underdetermined { step: 2 })
+        } else {
+            Ok(())
+        };
+        if let Err(e) = factored {
+            // Keep the curve where it is rather than half-compiled.
+            self.constraints.clear();
+            self.placement = Placement::Still;
+            self.handle_count = anchors.len();
+            return Err(e);
+        }
+        Ok(())
+    }
+
+    /// Update: moves the compiled handles to `targets` (same order as the
+    /// anchors given to compile) and recomputes the pose. Does not allocate.
+    pub fn update(&mut self, targets: &[DVec2], steps: Steps) -> Result<&[DVec2], CurveError> {
+        if targets.len() != self.handle_count {
+            return Err(CurveError::TargetCount {
+                expected: self.handle_count,
+                got: targets.len(),
+            });
+        }
+        if let Some(handle) = targets
+            .iter()
+            .position(|t| !(t.is_finite() && t.abs().max_element() <= MAX_COORDINATE))
+        {
+            return Err(CurveError::TargetNotFinite { handle });
+        }
+        match self.placement {
+            Placement::Still => {}
+            Placement::Carried { rotation } => {
+                let handle = &self.constraints[0];
+                let to = targets[handle.target];
+                for (p, r) in self.pose.iter_mut().zip(&self.rest) {
+                    *p = to + rotation.rotate(*r - handle.rest_point);
+                }
+            }
+            Placement::Solved => self.solve(targets, steps),
+        }
+        Ok(&self.pose)
+    }
+
+    fn solve(&mut self, targets: &[DVec2], steps: Steps) {
+        let (lo, hi, n) = (self.lo, self.hi, self.len());
+        self.rhs.copy_from_slice(&self.step1_base);
+        for con in &self.constraints {
+            self.rhs[con.slot] += targets[con.target];
+        }
+        self.step1.solve(&mut self.rhs);
+        for (p, &s) in (lo..=hi).zip(&self.point_slot) {
+            self.scale_free[p] = self.rhs[s];
+        }
+        if steps == Steps::ScaleFree {
+            self.pose[lo..=hi].copy_from_slice(&self.scale_free[lo..=hi]);
+            return;
+        }
+        self.rhs.copy_from_slice(&self.step2_base);
+        for con in &self.constraints {
+            self.rhs[con.slot] += targets[con.target];
+        }
+        // fₛ: the step-1 segment's direction at the rest segment's length.
+        for s in lo.saturating_sub(1)..=hi.min(n - 2) {
+            let d = self.scale_free[s + 1] - self.scale_free[s];
+            let length = d.length();
+            let f = if length > 0.0 {
+                d * (self.rest_lengths[s] / length)
+            } else {
+                // A collapsed step-1 segment has no direction: keep rest.
+                self.rest[s + 1] - self.rest[s]
+            };
+            if (lo..=hi).contains(&s) {
+                self.rhs[self.point_slot[s - lo]] -= f;
+            }
+            if (lo..=hi).contains(&(s + 1)) {
+                self.rhs[self.point_slot[s + 1 - lo]] += f;
+            }
+        }
+        self.step2.solve(&mut self.rhs);
+        for (p, &s) in (lo..=hi).zip(&self.point_slot) {
+            self.pose[p] = self.rhs[s];
+        }
+    }
+
+    /// The free points of the compiled system.
+    pub fn free_points(&self) -> RangeInclusive<usize> {
+        self.lo..=self.hi
+    }
+
+    /// The compiled handles that are in effect, in the caller's numbering.
+    pub fn live_handles(&self) -> impl Iterator<Item = (usize, CurveAnchor)> + '_ {
+        self.constraints.iter().map(|c| (c.target, c.anchor))
+    }
+}
+
+/// How the peeled region grows: radius `initial_radius + growth_rate · d`
+/// (arc length) for drag distance `d`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PeelParams {
+    pub initial_radius: f64,
+    pub growth_rate: f64,
+}
+
+impl Default for PeelParams {
+    /// The region starts with the grabbed segment and reaches a little
+    /// further than the finger has travelled.
+    fn default() -> Self {
+        PeelParams {
+            initial_radius: 0.0,
+            growth_rate: 1.5,
+        }
+    }
+}
+
+/// The peeling interface (the paper's Figure 12): one drag's influence
+/// region along the rest curve. It grows with the largest drag distance so
+/// far (never shrinks during a drag), stops at the nearest virtual pushpin on
+/// either side and at the curve's ends. Points outside it stay put.
+#[derive(Debug, Clone)]
+pub struct Peel {
+    params: PeelParams,
+    grab: f64,
+    grab_anchor: CurveAnchor,
+    /// The region may not pass these arc lengths (pushpins or the ends).
+    limits: (f64, f64),
+    /// Whether each limit is an end of the curve (which then moves too).
+    open_ends: (bool, bool),
+    largest_drag: f64,
+    region: (f64, f64),
+    free: RangeInclusive<usize>,
+}
+
+impl Peel {
+    /// A drag grabbing `curve` at arc length `grab` (rest curve), with
+    /// pushpins at the given arc lengths. Allocates nothing afterwards.
+    pub fn new(
+        curve: &Curve,
+        grab: f64,
+        pushpins: &[f64],
+        params: PeelParams,
+    ) -> Result<Peel, CurveError> {
+        for (field, value) in [
+            ("initial_radius", params.initial_radius),
+            ("growth_rate", params.growth_rate),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(CurveError::BadPeelParameter { field, value });
+            }
+        }
+        let length = curve.length();
+        if !(grab.is_finite() && (0.0..=length).contains(&grab)) {
+            return Err(CurveError::GrabOffCurve { at: grab, length });
+        }
+        let (mut below, mut above) = (0.0, length);
+        let (mut open_below, mut open_above) = (true, true);
+        for (pushpin, &at) in pushpins.iter().enumerate() {
+            if !(at.is_finite() && (0.0..=length).contains(&at)) {
+                return Err(CurveError::PushpinOffCurve {
+                    pushpin,
+                    at,
+                    length,
+                });
+            }
+            if at == grab {
+                return Err(CurveError::PushpinAtGrab { pushpin });
+            }
+            if at < grab && (at > below || open_below) {
+                below = at;
+                open_below = false;
+            }
+            if at > grab && (at < above || open_above) {
+                above = at;
+                open_above = false;
+            }
+        }
+        let mut peel = Peel {
+            params,
+            grab,
+            grab_anchor: curve.anchor_at(grab),
+            limits: (below, above),
+            open_ends: (open_below, open_above),
+            largest_drag: 0.0,
+            region: (grab, grab),
+            free: 0..=0,
+        };
+        peel.free = peel.free_for(curve, peel.region_for(0.0));
+        peel.region = peel.region_for(0.0);
+        Ok(peel)
+    }
+
+    /// The grabbed point, as a handle for [`Curve::compile_within`].
+    pub fn grab_anchor(&self) -> CurveAnchor {
+        self.grab_anchor
+    }
+
+    /// The drag moved `distance` from the grab point. Returns whether the
+    /// free points changed (then compile again with [`Peel::free_points`]).
+    pub fn drag(&mut self, curve: &Curve, distance: f64) -> Result<bool, CurveError> {
+        if !(distance.is_finite() && distance >= 0.0) {
+            return Err(CurveError::BadDragDistance { distance });
+        }
+        if distance <= self.largest_drag {
+            return Ok(false);
+        }
+        self.largest_drag = distance;
+        self.region = self.region_for(distance);
+        let free = self.free_for(curve, self.region);
+        let changed = free != self.free;
+        self.free = free;
+        Ok(changed)
+    }
+
+    /// The influence region as arc lengths along the rest curve.
+    pub fn region(&self) -> (f64, f64) {
+        self.region
+    }
+
+    /// The points the region frees.
+    pub fn free_points(&self) -> RangeInclusive<usize> {
+        self.free.clone()
+    }
+
+    fn region_for(&self, distance: f64) -> (f64, f64) {
+        let radius = self.params.initial_radius + self.params.growth_rate * distance;
+        (
+            (self.grab - radius).max(self.limits.0),
+            (self.grab + radius).min(self.limits.1),
+        )
+    }
+
+    /// Points strictly inside the region, the curve's ends once the region
+    /// reaches them, and always the grabbed segment's ends, so the grab can
+    /// move.
+    fn free_for(&self, curve: &Curve, (below, above): (f64, f64)) -> RangeInclusive<usize> {
+        let arc = curve.arc_lengths();
+        let last = arc.len() - 1;
+        let mut start = arc.partition_point(|&a| a <= below);
+        if self.open_ends.0 && below <= 0.0 {
+            start = 0;
+        }
+        let mut end = arc.partition_point(|&a| a < above).saturating_sub(1);
+        if self.open_ends.1 && above >= arc[last] {
+            end = last;
+        }
+        let (grab_first, grab_last) = match self.grab_anchor {
+            CurveAnchor::Point(p) => (p as usize, p as usize),
+            CurveAnchor::Along { segment, .. } => (segment as usize, segment as usize + 1),
+        };
+        start.min(grab_first)..=end.max(grab_last)
+    }
+}
