@@ -35,14 +35,12 @@ fn touch(stage: &mut Stage, phase: Phase, at: DVec2) {
 
 /// The right hand (a little in from the right-most vertex).
 fn hand(stage: &Stage) -> DVec2 {
-    let right = stage.puppets()[0]
-        .mesh
-        .vertices()
-        .iter()
-        .copied()
-        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+    let right = stage.puppets()[0].mesh.vertices().iter().copied().fold(
+        DVec2::splat(f64::NEG_INFINITY),
+        |a, b| {
             if b.x > a.x { b } else { a }
-        });
+        },
+    );
     right - DVec2::new(15.0, 0.0)
 }
 
