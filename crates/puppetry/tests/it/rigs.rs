@@ -20,7 +20,8 @@ use puppetry_stage::{Rig, Stage};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
-/// A frame of either kind: 1 = vertices, 2 = rig points.
+/// A frame of any kind: 1 = vertices, 2 = rig points, 3 = handle points,
+/// 4 = depth (no points).
 struct Frame {
     kind: u32,
     puppet: u32,
@@ -50,7 +51,8 @@ impl Conn {
         if let Message::Binary(bytes) = &m {
             let frame = decode(bytes);
             assert_eq!(frame.puppet, 0);
-            assert!((1..=3).contains(&frame.kind), "known frame kinds");
+            // 1 vertices, 2 rig points, 3 handle points, 4 depth.
+            assert!((1..=4).contains(&frame.kind), "known frame kinds");
             self.newest.insert(frame.kind, frame.points);
         }
         m
