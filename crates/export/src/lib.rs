@@ -120,12 +120,25 @@ pub struct AnimatedPuppet {
     pub image: RgbaImage,
     /// Frame k: the deformed vertex positions in stage coordinates (y up).
     pub frames: Vec<Vec<[f32; 2]>>,
+    /// Frame k's drawing order of the triangles, back to front, where the
+    /// puppet overlaps itself (`docs/depth.md`); frames that share an order
+    /// share it. Empty: mesh order throughout.
+    pub draw_orders: Vec<std::sync::Arc<[u32]>>,
 }
 
 impl AnimatedPuppet {
     /// The number of vertices: one per texture coordinate.
     pub fn vertex_count(&self) -> usize {
         self.uv.len()
+    }
+
+    /// Frame k's triangles in drawing order, back to front.
+    pub fn triangles_drawn(&self, frame: usize) -> impl DoubleEndedIterator<Item = &[u32; 3]> {
+        let order = self.draw_orders.get(frame);
+        (0..self.triangles.len()).map(move |i| {
+            let t = order.map_or(i, |o| o[i] as usize);
+            &self.triangles[t]
+        })
     }
 }
 

@@ -203,6 +203,9 @@ pub struct Rasterizer<'a> {
     layer: Vec<[f32; 4]>,
     /// Everything drawn so far (premultiplied 0..=1), over `dirty`.
     canvas: Vec<[f32; 4]>,
+    /// For a puppet drawn in depth order: which of each pixel's 4 samples
+    /// a nearer triangle already took (bit s: sample s).
+    taken: Vec<u8>,
 }
 
 /// Premultiplies every puppet's picture once, for [`Rasterizer::new`].
@@ -230,6 +233,7 @@ impl<'a> Rasterizer<'a> {
             points: Vec::new(),
             layer: Vec::new(),
             canvas: Vec::new(),
+            taken: Vec::new(),
         }
     }
 
@@ -283,16 +287,38 @@ impl<'a> Rasterizer<'a> {
             } else {
                 (&mut self.layer, r)
             };
-            for tri in &p.triangles {
-                let [a, b, c] = tri.map(|v| v as usize);
-                draw_triangle(
-                    [self.points[a], self.points[b], self.points[c]],
-                    [p.uv[a], p.uv[b], p.uv[c]],
-                    texture,
-                    area,
-                    (w, h),
-                    target,
-                );
+            if p.draw_orders.is_empty() {
+                for tri in &p.triangles {
+                    let [a, b, c] = tri.map(|v| v as usize);
+                    draw_triangle(
+                        [self.points[a], self.points[b], self.points[c]],
+                        [p.uv[a], p.uv[b], p.uv[c]],
+                        texture,
+                        area,
+                        (w, h),
+                        target,
+                        None,
+                    );
+                }
+            } else {
+                // A puppet that overlaps itself: front to back, each sample
+                // to the nearest triangle over it, so a part folded over
+                // another covers it whole (as the page's back-to-front
+                // drawing of opaque texels does).
+                self.taken.clear();
+                self.taken.resize(area.width() * (area.y1 - area.y0), 0);
+                for tri in p.triangles_drawn(frame).rev() {
+                    let [a, b, c] = tri.map(|v| v as usize);
+                    draw_triangle(
+                        [self.points[a], self.points[b], self.points[c]],
+                        [p.uv[a], p.uv[b], p.uv[c]],
+                        texture,
+                        area,
+                        (w, h),
+                        target,
+                        Some(&mut self.taken),
+                    );
+                }
             }
             if direct {
                 continue;
@@ -380,6 +406,7 @@ fn draw_triangle(
     region: Rect,
     size: (usize, usize),
     layer: &mut [[f32; 4]],
+    mut taken: Option<&mut [u8]>,
 ) {
     let edge = |a: [f64; 2], b: [f64; 2], c: [f64; 2]| {
         (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
@@ -471,19 +498,25 @@ fn draw_triangle(
         let row = &mut layer[(y - region.y0) * rw..][..rw];
         for x in r.x0 + lo..=r.x0 + hi {
             // Inside every edge at the least favourable sample: all 4 in
-            // (most pixels); else count them.
-            let covered = if e[0] + least[0] > 0.0 && e[1] + least[1] > 0.0 && e[2] + least[2] > 0.0
-            {
-                4
-            } else {
-                (0..4)
-                    .filter(|&s| {
-                        e[0] + offsets[0][s] > 0.0
-                            && e[1] + offsets[1][s] > 0.0
-                            && e[2] + offsets[2][s] > 0.0
-                    })
-                    .count() as u32
-            };
+            // (most pixels); else test each.
+            let mut inside: u8 =
+                if e[0] + least[0] > 0.0 && e[1] + least[1] > 0.0 && e[2] + least[2] > 0.0 {
+                    0b1111
+                } else {
+                    (0..4)
+                        .filter(|&s| {
+                            e[0] + offsets[0][s] > 0.0
+                                && e[1] + offsets[1][s] > 0.0
+                                && e[2] + offsets[2][s] > 0.0
+                        })
+                        .fold(0, |m, s| m | 1 << s)
+                };
+            if let Some(taken) = taken.as_deref_mut() {
+                let cell = &mut taken[(y - region.y0) * rw + (x - region.x0)];
+                inside &= !*cell;
+                *cell |= inside;
+            }
+            let covered = inside.count_ones();
             if covered > 0 {
                 // Barycentric weights at the pixel's centre (extrapolated
                 // when the centre is outside, as a GPU does).

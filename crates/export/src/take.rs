@@ -141,7 +141,13 @@ pub fn animation_of_take(
     let mut puppets = Vec::new();
     for (p, motion) in stage.puppets().iter().zip(frames) {
         let image = crate::load_png(&p.image)?;
+        let draw_orders = if p.depth().is_some() {
+            draw_orders(&p.mesh, &motion)
+        } else {
+            Vec::new()
+        };
         puppets.push(AnimatedPuppet {
+            draw_orders,
             name: p.name.clone(),
             triangles: p.mesh.triangles().to_vec(),
             uv: p
@@ -228,4 +234,47 @@ pub fn export_take_with(
         animation.duration(),
         animation.puppets.len()
     ))
+}
+
+/// Each frame's triangle order, back to front, as the live stage draws it
+/// (`docs/depth.md`): the depth order run over the frames in turn, so its
+/// frame-to-frame coherence holds. It runs at the export's frame rate, not
+/// the live solve rate, so where the live decision depended on the path
+/// between two exported frames the export may decide otherwise.
+fn draw_orders(mesh: &puppetry_mesh::Mesh, frames: &[Vec<[f32; 2]>]) -> Vec<std::sync::Arc<[u32]>> {
+    let Ok(mut depth) = puppetry_deform::depth::DepthOrder::register(mesh, None) else {
+        return Vec::new();
+    };
+    let mesh_order: std::sync::Arc<[u32]> = (0..mesh.triangles().len() as u32).collect();
+    let mut last = mesh_order.clone();
+    let mut positions = Vec::new();
+    let orders: Vec<std::sync::Arc<[u32]>> = frames
+        .iter()
+        .map(|frame| {
+            positions.clear();
+            positions.extend(
+                frame
+                    .iter()
+                    .map(|q| glam::DVec2::new(f64::from(q[0]), f64::from(q[1]))),
+            );
+            // A pose that cannot be ordered keeps the last order.
+            if depth.update(&positions).is_ok() && depth.changed() {
+                let d = depth.depth();
+                let mut order: Vec<u32> = (0..d.len() as u32).collect();
+                // Stable: ties keep the mesh's order, as the page does.
+                order.sort_by_key(|&t| d[t as usize]);
+                last = order.into();
+            }
+            last.clone()
+        })
+        .collect();
+    // Never folded: mesh order throughout, drawn the plain way.
+    if orders
+        .iter()
+        .all(|o| std::sync::Arc::ptr_eq(o, &mesh_order))
+    {
+        Vec::new()
+    } else {
+        orders
+    }
 }

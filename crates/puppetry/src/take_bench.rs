@@ -141,6 +141,8 @@ pub fn take_bench(config: &StageConfig, print: &dyn Fn(&str)) -> Result<(), Stri
                 .unwrap_or_default(),
             image: puppetry_export::load_png(&p.image).map_err(|e| e.to_string())?,
             frames,
+            // Mesh order: the bench's drag does not fold the puppet.
+            draw_orders: Vec::new(),
         }],
         frame_count,
     };

@@ -76,6 +76,7 @@ pub fn bending_puppet(
             .collect(),
         image,
         frames,
+        draw_orders: Vec::new(),
     }
 }
 

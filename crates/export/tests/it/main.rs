@@ -5,6 +5,7 @@
 //! workspace's other browser tests; the video checks need ffmpeg.
 
 mod common;
+mod depth;
 mod errors;
 mod fixture;
 mod frames;
