@@ -10,6 +10,7 @@ export const CLIENT_MESSAGE = Object.freeze({
   HELLO: 'hello',
   CONTACTS: 'contacts',
   PIN: 'pin',
+  DEPTH_FLIP: 'depth_flip',
   UNPIN: 'unpin',
   PAINT: 'paint',
   SAVE_WEIGHTS: 'save_weights',
@@ -158,6 +159,14 @@ export function contactUp(id) {
 /** A pin at a stage point, on the topmost puppet there. */
 export function pinMessage(x, y) {
   return { type: CLIENT_MESSAGE.PIN, x, y };
+}
+
+/**
+ * "This part in front": where a puppet overlaps itself at the stage point,
+ * the part behind comes in front until the overlap is undone.
+ */
+export function depthFlipMessage(x, y) {
+  return { type: CLIENT_MESSAGE.DEPTH_FLIP, x, y };
 }
 
 /** Removes pin `handle` of `puppet` (the stage file's pins too). */

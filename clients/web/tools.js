@@ -10,7 +10,7 @@
 
 import {
   HANDLE_KIND, RIG_KIND,
-  paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
+  depthFlipMessage, paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
   saveWeightsMessage, undoMessage, unpinMessage,
 } from './protocol.js';
 import { anchorPoint, keyHandleAnchor } from './overlay.js';
@@ -128,8 +128,13 @@ export class PinTool {
     }
   }
 
-  // While the tool is on, or with Shift held, a press pins or unpins.
+  // While the tool is on, or with Shift held, a press pins or unpins; with
+  // Alt held it brings the part behind there in front (a fold).
   pointerDown(e, x, y) {
+    if (this.enabled && e.altKey) {
+      this.send(depthFlipMessage(x, y));
+      return true;
+    }
     if (!this.enabled || !(e.shiftKey || this.on)) return false;
     this.pinOrUnpin(x, y, e.clientX, e.clientY);
     return true;

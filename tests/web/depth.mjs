@@ -8,7 +8,7 @@
 //
 // PUPPETRY_POINT is the chest, where the pin goes. Optional:
 // PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium. Prints one JSON
-// line; exits 0 only on success, and within 60 s either way.
+// line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

@@ -7,7 +7,7 @@
 // Optional: PUPPETRY_INPUT=mouse|touch (default mouse), PUPPETRY_MIN_CHANGED
 // (pixels that must change, default 500), PUPPETRY_SCREENSHOTS=DIR (keep the
 // before/after PNGs there), CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import os from 'node:os';

@@ -18,7 +18,7 @@
 //
 // PUPPETRY_POINT: a stage point on puppet 0 to paint at. The stage needs a
 // replay input. Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

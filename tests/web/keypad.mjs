@@ -19,7 +19,7 @@
 // PUPPETRY_POINT is a stage point of the part to key (the demo puppet's head);
 // PUPPETRY_SHIFT (stage units, default 100) how far it is dragged each way.
 // Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

@@ -16,7 +16,7 @@
 //
 // PUPPETRY_TOLERANCE: how far (CSS pixels of the page) a dot may be from
 // the finger (default 8). Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

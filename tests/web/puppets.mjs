@@ -26,7 +26,7 @@
 // (default ana); PUPPETRY_POINT a stage point on the stage's first puppet,
 // where the performer holds it.
 // Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import os from 'node:os';

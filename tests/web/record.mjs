@@ -9,7 +9,7 @@
 // The daemon must record into an empty takes folder (the take is take-001).
 // PUPPETRY_POINT is a stage point on the puppet to drag. Optional:
 // PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

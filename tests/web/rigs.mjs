@@ -7,7 +7,7 @@
 //   PUPPETRY_POINT='640,360' node rigs.mjs
 //
 // Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import os from 'node:os';

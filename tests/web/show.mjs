@@ -17,7 +17,7 @@
 //
 // PUPPETRY_POINT: a stage point on the puppet (pinned there by the performer).
 // Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

@@ -12,7 +12,7 @@
 //   PUPPETRY_URL='http://127.0.0.1:PORT/' PUPPETRY_POINT='640,360' PUPPETRY_TOKEN=ana node token.mjs
 //
 // Optional: PUPPETRY_SCREENSHOTS=DIR, CHROMIUM=/path/to/chromium.
-// Prints one JSON line; exits 0 only on success, and within 60 s either way.
+// Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
 import path from 'node:path';

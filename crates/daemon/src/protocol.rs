@@ -330,6 +330,12 @@ pub enum ClientMessage {
         x: f64,
         y: f64,
     },
+    /// "This part in front": where a puppet overlaps itself at the point,
+    /// the part behind comes in front until the overlap is undone.
+    DepthFlip {
+        x: f64,
+        y: f64,
+    },
     Unpin {
         puppet: u32,
         handle: u64,

@@ -53,6 +53,10 @@ pub enum Command {
         puppet: u32,
         handle: u64,
     },
+    /// The part behind comes in front where a puppet overlaps itself.
+    DepthFlip {
+        at: DVec2,
+    },
     /// A source went away: lift all its contacts.
     ReleaseSource(String),
     /// A source may grab only these puppets (`None`: any), e.g. a
@@ -899,6 +903,9 @@ impl Batch {
             }
             Command::Pin { owner, at } => {
                 self.apply(stage, taking, Change::Pin { owner, at }, None, wake)
+            }
+            Command::DepthFlip { at } => {
+                self.apply(stage, taking, Change::DepthFlip { at }, None, wake)
             }
             Command::Unpin { puppet, handle } => {
                 self.apply(stage, taking, Change::Unpin { puppet, handle }, None, wake)

@@ -78,6 +78,11 @@ pub enum Change {
         puppet: u32,
         key: usize,
     },
+    /// "This part in front": where a puppet overlaps itself at `at`, the
+    /// part behind comes in front until the overlap is undone.
+    DepthFlip {
+        at: DVec2,
+    },
     /// A puppet's edits set wholesale: what an undo, redo or reset did.
     /// Recorded as the state it restored rather than as the undo, so a take
     /// replays the same whatever history the stage had when it began.

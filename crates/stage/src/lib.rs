@@ -542,7 +542,7 @@ impl Puppet {
     /// coordinates there: what a finger landing at `p` touches.
     pub fn hit(&self, p: DVec2) -> Option<Anchor> {
         let pose = self.pose();
-        let mut best: Option<(f64, u32, [f64; 3])> = None;
+        let mut best: Option<(f64, u16, u32, [f64; 3])> = None;
         for (t, tri) in self.mesh.triangles().iter().enumerate() {
             let [a, b, c] = tri.map(|i| pose[i as usize]);
             let lo = a.min(b).min(c);
@@ -552,13 +552,15 @@ impl Puppet {
             }
             let bary = barycentric_in(a, b, c, p);
             let worst = bary[0].min(bary[1]).min(bary[2]);
-            // Deformed meshes may fold over: prefer the triangle containing
-            // the point most deeply.
-            if worst >= -1e-9 && best.is_none_or(|(w, _, _)| worst > w) {
-                best = Some((worst, t as u32, bary));
+            // Deformed meshes may fold over: the part drawn in front is the
+            // one under the finger; then the triangle containing the point
+            // most deeply.
+            let near = self.depth.as_ref().map_or(0, |d| d.depth()[t]);
+            if worst >= -1e-9 && best.is_none_or(|(w, n, _, _)| (near, worst) > (n, w)) {
+                best = Some((worst, near, t as u32, bary));
             }
         }
-        best.map(|(_, triangle, bary)| {
+        best.map(|(_, _, triangle, bary)| {
             let clamped = bary.map(|b| b.max(0.0));
             let sum: f64 = clamped.iter().sum();
             Anchor::Point {
@@ -923,6 +925,44 @@ impl Stage {
         Ok(())
     }
 
+    /// "This part in front": on the topmost puppet that overlaps itself at
+    /// `at`, the part behind there comes in front (until the overlap is
+    /// undone; see `docs/depth.md`). Returns whether something flipped.
+    pub fn depth_flip(&mut self, at: DVec2) -> bool {
+        for place in (0..self.order.len()).rev() {
+            let p = &mut self.puppets[self.order[place]];
+            let Some(depth) = &p.depth else { continue };
+            let pose = p.rig.pose();
+            let mut under: Option<(u16, u32)> = None;
+            let mut any = false;
+            for (t, tri) in p.mesh.triangles().iter().enumerate() {
+                let [a, b, c] = tri.map(|i| pose[i as usize]);
+                let bary = barycentric_in(a, b, c, at);
+                if bary.iter().all(|&w| w >= 0.0) {
+                    any = true;
+                    let d = depth.depth()[t];
+                    if under.is_none_or(|(u, _)| d < u) {
+                        under = Some((d, t as u32));
+                    }
+                }
+            }
+            if !any {
+                continue;
+            }
+            let Some((_, triangle)) = under else {
+                return false;
+            };
+            let flipped = p
+                .depth
+                .as_mut()
+                .is_some_and(|d| d.pin_front(triangle).is_ok());
+            // The next solve reorders with the pin.
+            p.moved |= flipped;
+            return flipped;
+        }
+        false
+    }
+
     /// Sets the draw order: every puppet on stage once, bottom to top.
     pub fn set_order(&mut self, order: &[u32]) -> Result<(), CommandError> {
         let mut seen = vec![false; self.puppets.len()];
@@ -1273,6 +1313,9 @@ impl Stage {
                         source,
                     })?;
                 p.keying.touch();
+            }
+            Change::DepthFlip { at } => {
+                self.depth_flip(*at);
             }
             Change::KeyDelete { puppet, key } => {
                 let p = self.puppet_mut(*puppet)?;

@@ -154,7 +154,7 @@ pub fn allowed(who: &Permissions, message: &ClientMessage) -> Result<(), Refusal
         Role::Performer => match message {
             // Which puppet a contact or pin lands on is the stage's to say
             // (`Stage::limit_source`): one on another puppet grabs nothing.
-            M::Contacts { .. } | M::Pin { .. } => Ok(()),
+            M::Contacts { .. } | M::Pin { .. } | M::DepthFlip { .. } => Ok(()),
             M::Unpin { puppet, .. }
             | M::Pose { puppet, .. }
             | M::Cursor { puppet, .. }
@@ -213,7 +213,7 @@ pub fn check_ranges(message: &ClientMessage) -> Result<(), Refusal> {
             }
             Ok(())
         }
-        M::Pin { x, y } | M::Paint { x, y, .. } => {
+        M::Pin { x, y } | M::DepthFlip { x, y } | M::Paint { x, y, .. } => {
             coordinate(|| "x".into(), *x)?;
             coordinate(|| "y".into(), *y)
         }

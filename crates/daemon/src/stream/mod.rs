@@ -505,6 +505,10 @@ async fn handle_message(
             at: DVec2::new(x, y),
         },
         ClientMessage::Pin { .. } => return Err("pin needs finite x and y".into()),
+        ClientMessage::DepthFlip { x, y } if x.is_finite() && y.is_finite() => Command::DepthFlip {
+            at: DVec2::new(x, y),
+        },
+        ClientMessage::DepthFlip { .. } => return Err("depth_flip needs finite x and y".into()),
         ClientMessage::Unpin { puppet, handle } => Command::Unpin { puppet, handle },
         ClientMessage::Paint {
             puppet,

@@ -31,14 +31,12 @@ fn config(depth: &str) -> StageConfig {
 fn record_fold(path: &Path, config: &StageConfig) {
     let mut stage = Stage::from_config(config).unwrap();
     stage.solve();
-    let right = stage.puppets()[0]
-        .mesh
-        .vertices()
-        .iter()
-        .copied()
-        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+    let right = stage.puppets()[0].mesh.vertices().iter().copied().fold(
+        DVec2::splat(f64::NEG_INFINITY),
+        |a, b| {
             if b.x > a.x { b } else { a }
-        });
+        },
+    );
     let from = right - DVec2::new(15.0, 0.0);
     let to = DVec2::new(610.0, 350.0);
     let mut writer = TakeWriter::create(

@@ -129,3 +129,56 @@ fn depth_off_keeps_the_mesh_order() {
     fold_the_arm(&mut stage);
     assert!(stage.puppets()[0].depth().is_none());
 }
+
+#[test]
+fn a_flip_brings_the_body_over_the_arm_and_a_touch_grabs_what_is_in_front() {
+    let mut stage = Stage::from_config(&demo("")).unwrap();
+    let rest: Vec<DVec2> = stage.puppets()[0].mesh.vertices().to_vec();
+    let triangles: Vec<[u32; 3]> = stage.puppets()[0].mesh.triangles().to_vec();
+    let hand_x = hand(&stage).x;
+    let centroid =
+        |pose: &[DVec2], t: usize| corners(pose, triangles[t]).iter().sum::<DVec2>() / 3.0;
+    let forearm = |t: usize| centroid(&rest, t).x > hand_x - 80.0;
+    let chest = |t: usize| (centroid(&rest, t) - DVec2::new(640.0, 350.0)).length() < 90.0;
+    fold_the_arm(&mut stage);
+    let pose = stage.puppets()[0].pose().to_vec();
+    let inside = |t: usize, at: DVec2| {
+        let [p, q, r] = corners(&pose, triangles[t]);
+        let d = (q - r).perp_dot(p - r);
+        let l1 = (q - r).perp_dot(at - r) / d;
+        let l2 = (r - p).perp_dot(at - r) / d;
+        l1 > 0.05 && l2 > 0.05 && 1.0 - l1 - l2 > 0.05
+    };
+    // A point where the forearm lies over the chest.
+    let at = (0..triangles.len())
+        .filter(|&a| forearm(a))
+        .map(|a| centroid(&pose, a))
+        .find(|&at| (0..triangles.len()).any(|b| chest(b) && inside(b, at)))
+        .expect("the forearm over the chest");
+    let on_top = |stage: &Stage| {
+        let (depth, _) = stage.puppets()[0].depth().unwrap();
+        (0..triangles.len())
+            .filter(|&t| inside(t, at))
+            .max_by_key(|&t| depth[t])
+            .unwrap()
+    };
+    assert!(forearm(on_top(&stage)));
+    // A touch there grabs the part in front.
+    let grabbed = |stage: &Stage| match stage.puppets()[0].hit(at) {
+        Some(puppetry_deform::Anchor::Point { triangle, .. }) => triangle as usize,
+        other => panic!("{other:?}"),
+    };
+    assert!(
+        forearm(grabbed(&stage)),
+        "a touch on the fold grabs the arm"
+    );
+
+    // "The body in front": the flip is a change, so takes replay it.
+    stage.apply_change(&Change::DepthFlip { at }).unwrap();
+    stage.solve();
+    assert!(
+        !forearm(on_top(&stage)),
+        "after the flip the body is on top"
+    );
+    assert!(!forearm(grabbed(&stage)), "and a touch grabs the body");
+}
