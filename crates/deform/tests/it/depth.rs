@@ -300,7 +300,78 @@ fn a_paper_fold_with_inverted_triangles_is_ordered() {
         .collect();
     let mut order = DepthOrder::register(&mesh, None).unwrap();
     let depth = order.update(&folded).unwrap().to_vec();
+    assert!(order.scanned_all());
+    assert_eq!(
+        order.overlap_pairs(),
+        overlapping_pairs(&mesh, &folded).len()
+    );
     assert!(assert_order(&mesh, &folded, &depth, right, true) > 0);
+}
+
+/// `positions` with the interior vertex nearest `at` moved by `by`.
+fn pushed(mesh: &Mesh, positions: &[DVec2], at: DVec2, by: DVec2) -> Vec<DVec2> {
+    let v = (0..positions.len())
+        .min_by(|&a, &b| {
+            mesh.vertices()[a]
+                .distance(at)
+                .total_cmp(&mesh.vertices()[b].distance(at))
+        })
+        .unwrap();
+    let mut moved = positions.to_vec();
+    moved[v] += by;
+    moved
+}
+
+fn inverted_count(mesh: &Mesh, positions: &[DVec2]) -> usize {
+    (0..mesh.triangles().len())
+        .filter(|&t| {
+            let [a, b, c] = corners(mesh, positions, t);
+            (b - a).perp_dot(c - a) <= 0.0
+        })
+        .count()
+}
+
+#[test]
+fn a_few_inverted_triangles_grow_from_themselves_and_find_every_pair() {
+    let mesh = folding_bar();
+    let right = |t: usize| rest_centroid(&mesh, t).x > HINGE;
+    let mut order = DepthOrder::register(&mesh, None).unwrap();
+
+    // Straight, one interior vertex pushed through its neighbours: its fan
+    // inverts and overlaps the triangles beyond, with no boundary crossing.
+    let crease = pushed(
+        &mesh,
+        mesh.vertices(),
+        DVec2::new(5.0, 1.0),
+        DVec2::new(0.8, 0.1),
+    );
+    assert!((1..=32).contains(&inverted_count(&mesh, &crease)));
+    let depth = order.update(&crease).unwrap().to_vec();
+    let pairs = overlapping_pairs(&mesh, &crease);
+    assert!(!pairs.is_empty());
+    assert!(order.overlapped() && !order.scanned_all());
+    assert_eq!(order.overlap_pairs(), pairs.len());
+    assert_order(&mesh, &crease, &depth, right, true);
+
+    // Folded, with a crease squeezed inside the overlap: every pair is
+    // still found without the all-triangle grid, and the bent limb is in
+    // front.
+    let folded = bent(&mesh, 220f64.to_radians(), false);
+    let under: Vec<usize> = overlapping_pairs(&mesh, &folded)
+        .iter()
+        .flat_map(|&(a, b)| [a, b])
+        .filter(|&t| !right(t))
+        .collect();
+    let at = rest_centroid(&mesh, under[under.len() / 2]);
+    for by in [DVec2::new(0.7, 0.0), DVec2::new(-0.6, 0.2)] {
+        let pose = pushed(&mesh, &folded, at, by);
+        assert!((1..=32).contains(&inverted_count(&mesh, &pose)));
+        let mut fresh = DepthOrder::register(&mesh, None).unwrap();
+        let depth = fresh.update(&pose).unwrap().to_vec();
+        assert!(!fresh.scanned_all());
+        assert_eq!(fresh.overlap_pairs(), overlapping_pairs(&mesh, &pose).len());
+        assert!(assert_order(&mesh, &pose, &depth, right, true) > 0);
+    }
 }
 
 #[test]
