@@ -117,6 +117,11 @@ struct Scratch {
     patch_of_root: Vec<u32>,
     patches: Vec<Patch>,
     new_role: Vec<u8>,
+    /// Each triangle's mean corner movement from rest, valid where
+    /// `moved_frame` equals `frame`.
+    moved: Vec<f64>,
+    moved_frame: Vec<u32>,
+    frame: u32,
     new_involved: Vec<u32>,
     edge_start: Vec<u32>,
     edge_end: Vec<u32>,
@@ -230,6 +235,9 @@ impl DepthOrder {
             patch_of_root: Vec::with_capacity(count),
             patches: Vec::with_capacity(16),
             new_role: vec![0; count],
+            moved: vec![0.0; count],
+            moved_frame: vec![0; count],
+            frame: 0,
             new_involved: Vec::with_capacity(count),
             edge_start: vec![0; count],
             edge_end: vec![0; count],
@@ -697,6 +705,11 @@ impl DepthOrder {
                 }
             }
         }
+        s.frame = s.frame.wrapping_add(1);
+        if s.frame == 0 {
+            s.moved_frame.fill(0);
+            s.frame = 1;
+        }
         s.patch_of_root.clear();
         s.patch_of_root.resize(n, NONE);
         s.patches.clear();
@@ -725,12 +738,18 @@ impl DepthOrder {
                     patch.pin = (p + 1, side);
                 }
                 patch.layer[k] = patch.layer[k].max(self.layers[t as usize]);
-                let tri = self.triangles[t as usize];
-                let moved = tri
-                    .iter()
-                    .map(|&v| positions[v as usize] - self.rest[v as usize])
-                    .sum::<DVec2>();
-                patch.displacement[k] += moved.length() / 3.0;
+                // Each triangle's movement once a frame, however many
+                // pairs it is in.
+                if s.moved_frame[t as usize] != s.frame {
+                    s.moved_frame[t as usize] = s.frame;
+                    let tri = self.triangles[t as usize];
+                    let moved = tri
+                        .iter()
+                        .map(|&v| positions[v as usize] - self.rest[v as usize])
+                        .sum::<DVec2>();
+                    s.moved[t as usize] = moved.length() / 3.0;
+                }
+                patch.displacement[k] += s.moved[t as usize];
                 patch.count[k] += 1;
                 patch.lowest[k] = patch.lowest[k].min(t);
             }
