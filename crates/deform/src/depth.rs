@@ -228,7 +228,8 @@ impl DepthOrder {
             inverted_box: Vec::with_capacity(MAX_INVERTED_SEEDS),
             crossing_pieces: Vec::with_capacity(boundary.len()),
             pairs: Vec::with_capacity(count),
-            tested: PairTable::with_capacity(8 * count),
+            // Small enough to stay in cache; doubles on a frame testing more.
+            tested: PairTable::with_capacity(2 * count),
             stack: Vec::with_capacity(count),
             parent: Vec::with_capacity(count),
             parity: Vec::with_capacity(count),
