@@ -34,6 +34,8 @@ pub const MAX_PINS: usize = 32;
 const MAX_INVERTED_SEEDS: usize = 32;
 
 const NONE: u32 = u32::MAX;
+/// A neighbour that can never make a pair (none, or sharing a vertex).
+const INVALID: u32 = u32::MAX - 1;
 const FRONT: u8 = 1;
 const BACK: u8 = 2;
 
@@ -111,6 +113,15 @@ struct Scratch {
     /// Overlapping pairs `(smaller, larger)`; after the decisions, `(back, front)`.
     pairs: Vec<(u32, u32)>,
     tested: PairTable,
+    /// Per pair, what each of its six neighbours is (corner `k` of the
+    /// first triangle stepped is `2k`, of the second `2k + 1`): a pair's
+    /// index, `NONE` (tested, no overlap) or `INVALID`.
+    links: Vec<[u32; 6]>,
+    /// Last frame's pairs `(smaller, larger)` and links, and where each
+    /// pair went this frame.
+    last_pairs: Vec<(u32, u32)>,
+    last_links: Vec<[u32; 6]>,
+    remap: Vec<u32>,
     stack: Vec<u32>,
     parent: Vec<u32>,
     parity: Vec<u8>,
@@ -230,6 +241,10 @@ impl DepthOrder {
             pairs: Vec::with_capacity(count),
             // Small enough to stay in cache; doubles on a frame testing more.
             tested: PairTable::with_capacity(2 * count),
+            links: Vec::with_capacity(count),
+            last_pairs: Vec::with_capacity(count),
+            last_links: Vec::with_capacity(count),
+            remap: Vec::with_capacity(count),
             stack: Vec::with_capacity(count),
             parent: Vec::with_capacity(count),
             parity: Vec::with_capacity(count),
@@ -357,6 +372,7 @@ impl DepthOrder {
         s.pairs.clear();
         s.parent.clear();
         s.parity.clear();
+        s.links.clear();
         s.tested.clear();
         self.scanned_all = contained || s.inverted.len() > MAX_INVERTED_SEEDS;
         if self.scanned_all {
@@ -378,6 +394,15 @@ impl DepthOrder {
             if !self.scratch.seeds.is_empty() {
                 self.grow_overlaps(positions);
             }
+        }
+        // Next frame starts from these pairs and their links, unless this
+        // frame took the grid (which links nothing).
+        let s = &mut self.scratch;
+        s.last_pairs.clear();
+        s.last_links.clear();
+        if !self.scanned_all {
+            s.last_pairs.extend_from_slice(&s.pairs);
+            std::mem::swap(&mut s.links, &mut s.last_links);
         }
         self.pair_count = self.scratch.pairs.len();
         self.overlapped = self.pair_count > 0;
@@ -519,11 +544,12 @@ impl DepthOrder {
     }
 
     /// Tests `(t, u)` once per frame; a new overlapping pair is recorded and
-    /// queued for growing. Returns the pair's index if it overlaps, else
-    /// `NONE`.
+    /// queued for growing. Returns the pair's index if it overlaps, `NONE`
+    /// if not, `INVALID` if the two can never be a pair (the same triangle,
+    /// or sharing a vertex).
     fn try_pair(&mut self, positions: &[DVec2], t: u32, u: u32) -> u32 {
         if t == u || self.share_vertex(t, u) {
-            return NONE;
+            return INVALID;
         }
         let key = (t.min(u), t.max(u));
         let slot = match self.scratch.tested.insert(key) {
@@ -536,10 +562,8 @@ impl DepthOrder {
         let s = &mut self.scratch;
         let index = s.pairs.len() as u32;
         s.tested.set_at(slot, index);
+        s.push_pair(key);
         s.stack.push(index);
-        s.pairs.push(key);
-        s.parent.push(index);
-        s.parity.push(0);
         index
     }
 
@@ -547,8 +571,17 @@ impl DepthOrder {
     /// inverted triangles with what their boxes touch): a pair's neighbours
     /// are the pairs that step one triangle across an edge. Neighbouring
     /// pairs are joined into patches as they are found.
+    ///
+    /// Last frame's pairs come first: each is tested again, and one that
+    /// still overlaps and whose every neighbour was a pair last frame that
+    /// still overlaps takes its links from last frame instead of testing its
+    /// neighbours. The others (the frontier) are grown from as usual. A
+    /// component of this frame's pairs holding a seed is still found whole:
+    /// growing reaches each of its pairs through a chain of neighbours, and a
+    /// pair skipped as inside has all its neighbours found already.
     fn grow_overlaps(&mut self, positions: &[DVec2]) {
         self.scratch.stack.clear();
+        self.reuse_last_pairs(positions);
         for n in 0..self.scratch.seeds.len() {
             let (t, u) = self.scratch.seeds[n];
             self.try_pair(positions, t, u);
@@ -562,23 +595,88 @@ impl DepthOrder {
         }
     }
 
+    /// Tests last frame's pairs again, links those inside and queues the
+    /// frontier (see [`DepthOrder::grow_overlaps`]).
+    fn reuse_last_pairs(&mut self, positions: &[DVec2]) {
+        let last = self.scratch.last_pairs.len();
+        self.scratch.remap.clear();
+        for n in 0..last {
+            let key = self.scratch.last_pairs[n];
+            let overlaps = triangles_overlap(
+                self.corners(positions, key.0),
+                self.corners(positions, key.1),
+            );
+            let s = &mut self.scratch;
+            let Ok(slot) = s.tested.insert(key) else {
+                s.remap.push(NONE);
+                continue;
+            };
+            if overlaps {
+                let index = s.pairs.len() as u32;
+                s.tested.set_at(slot, index);
+                s.push_pair(key);
+                s.remap.push(index);
+            } else {
+                s.remap.push(NONE);
+            }
+        }
+        for n in 0..last {
+            let s = &mut self.scratch;
+            let i = s.remap[n];
+            if i == NONE {
+                continue;
+            }
+            let (t, u) = s.last_pairs[n];
+            let mut frontier = false;
+            for c in 0..6 {
+                let link = s.last_links[n][c];
+                let j = if link < INVALID {
+                    s.remap[link as usize]
+                } else {
+                    link
+                };
+                if j == NONE {
+                    frontier = true;
+                    break;
+                }
+                s.links[i as usize][c] = j;
+            }
+            if frontier {
+                s.stack.push(i);
+                continue;
+            }
+            for c in 0..6 {
+                let j = s.links[i as usize][c];
+                if j == INVALID {
+                    continue;
+                }
+                let (own, other) = if c % 2 == 0 { (t, u) } else { (u, t) };
+                let step = self.neighbours[own as usize][c / 2];
+                s.union(i, j, u8::from(own > other) ^ u8::from(step > other));
+            }
+        }
+    }
+
     /// Tests the six pairs stepping `t` or `u` across an edge and, when `i`
-    /// is the pair `(t, u)`, joins it with those that overlap: the stepping
-    /// triangles lie on the same side.
+    /// is the pair `(t, u)` (`t < u`), records them as its links and joins
+    /// it with those that overlap: the stepping triangles lie on the same
+    /// side.
     fn try_neighbours(&mut self, positions: &[DVec2], i: u32, t: u32, u: u32) {
         for k in 0..3 {
-            let n = self.neighbours[t as usize][k];
-            if n != NONE {
-                let j = self.try_pair(positions, n, u);
-                if i != NONE && j != NONE {
-                    self.scratch.union(i, j, u8::from(t > u) ^ u8::from(n > u));
+            for (c, own, other) in [(2 * k, t, u), (2 * k + 1, u, t)] {
+                let step = self.neighbours[own as usize][k];
+                let j = if step == NONE {
+                    INVALID
+                } else {
+                    self.try_pair(positions, step, other)
+                };
+                if i == NONE {
+                    continue;
                 }
-            }
-            let n = self.neighbours[u as usize][k];
-            if n != NONE {
-                let j = self.try_pair(positions, t, n);
-                if i != NONE && j != NONE {
-                    self.scratch.union(i, j, u8::from(u > t) ^ u8::from(n > t));
+                let s = &mut self.scratch;
+                s.links[i as usize][c] = j;
+                if j < INVALID {
+                    s.union(i, j, u8::from(own > other) ^ u8::from(step > other));
                 }
             }
         }
@@ -898,6 +996,15 @@ fn front_side(patch: &Patch) -> u8 {
 }
 
 impl Scratch {
+    /// Appends an overlapping pair: its own patch, links unknown.
+    fn push_pair(&mut self, key: (u32, u32)) {
+        let index = self.pairs.len() as u32;
+        self.pairs.push(key);
+        self.parent.push(index);
+        self.parity.push(0);
+        self.links.push([NONE; 6]);
+    }
+
     /// The root of pair `i`'s patch and `i`'s parity (the side of its first
     /// triangle) relative to the root.
     fn find(&mut self, i: u32) -> (u32, u8) {

@@ -375,6 +375,45 @@ fn a_few_inverted_triangles_grow_from_themselves_and_find_every_pair() {
 }
 
 #[test]
+fn frame_after_frame_every_pair_is_found_from_the_last_frames_pairs() {
+    let mesh = folding_bar();
+    let right = |t: usize| rest_centroid(&mesh, t).x > HINGE;
+    let mut order = DepthOrder::register(&mesh, None).unwrap();
+    let centre = DVec2::new(HINGE, HEIGHT + RADIUS);
+    let mut poses = Vec::new();
+    // A fold opening and closing in small steps, then large ones, a crease
+    // squeezed into it and out again, and the whole carried and turned.
+    for degrees in (200..=260).step_by(2).chain((200..=260).rev().step_by(15)) {
+        poses.push(bent(&mesh, f64::from(degrees).to_radians(), false));
+    }
+    let folded = bent(&mesh, 230f64.to_radians(), false);
+    let under = overlapping_pairs(&mesh, &folded)
+        .iter()
+        .flat_map(|&(a, b)| [a, b])
+        .find(|&t| !right(t))
+        .unwrap();
+    let at = rest_centroid(&mesh, under);
+    for by in [0.2, 0.5, 0.7, 0.5, 0.2] {
+        poses.push(pushed(&mesh, &folded, at, DVec2::new(by, 0.05)));
+    }
+    for step in 0..10 {
+        let turned = rotated(&folded, centre, 0.05 * f64::from(step));
+        poses.push(
+            turned
+                .iter()
+                .map(|&p| p + DVec2::new(0.3, 0.1) * f64::from(step))
+                .collect(),
+        );
+    }
+    for pose in &poses {
+        let depth = order.update(pose).unwrap().to_vec();
+        assert_eq!(order.overlap_pairs(), overlapping_pairs(&mesh, pose).len());
+        assert!(!order.scanned_all());
+        assert!(assert_order(&mesh, pose, &depth, right, true) > 0);
+    }
+}
+
+#[test]
 fn bad_input_is_an_error() {
     let mesh = folding_bar();
     let tris = mesh.triangles().len();
