@@ -573,12 +573,13 @@ impl DepthOrder {
     /// pairs are joined into patches as they are found.
     ///
     /// Last frame's pairs come first: each is tested again, and one that
-    /// still overlaps and whose every neighbour was a pair last frame that
-    /// still overlaps takes its links from last frame instead of testing its
-    /// neighbours. The others (the frontier) are grown from as usual. A
+    /// still overlaps learns its six neighbours from last frame's links
+    /// without the table of tested pairs: a neighbour that was a pair was
+    /// just tested again, one that was apart is tested directly and only
+    /// when it now overlaps is it looked up (and grown from, if new). A
     /// component of this frame's pairs holding a seed is still found whole:
-    /// growing reaches each of its pairs through a chain of neighbours, and a
-    /// pair skipped as inside has all its neighbours found already.
+    /// growing reaches each of its pairs through a chain of neighbours, and
+    /// every neighbour of a reused pair is known.
     fn grow_overlaps(&mut self, positions: &[DVec2]) {
         self.scratch.stack.clear();
         self.reuse_last_pairs(positions);
@@ -595,8 +596,8 @@ impl DepthOrder {
         }
     }
 
-    /// Tests last frame's pairs again, links those inside and queues the
-    /// frontier (see [`DepthOrder::grow_overlaps`]).
+    /// Tests last frame's pairs again and links those still overlapping to
+    /// their neighbours (see [`DepthOrder::grow_overlaps`]).
     fn reuse_last_pairs(&mut self, positions: &[DVec2]) {
         let last = self.scratch.last_pairs.len();
         self.scratch.remap.clear();
@@ -621,38 +622,34 @@ impl DepthOrder {
             }
         }
         for n in 0..last {
-            let s = &mut self.scratch;
-            let i = s.remap[n];
+            let i = self.scratch.remap[n];
             if i == NONE {
                 continue;
             }
-            let (t, u) = s.last_pairs[n];
-            let mut frontier = false;
+            let (t, u) = self.scratch.last_pairs[n];
             for c in 0..6 {
-                let link = s.last_links[n][c];
-                let j = if link < INVALID {
-                    s.remap[link as usize]
-                } else {
-                    link
-                };
-                if j == NONE {
-                    frontier = true;
-                    break;
-                }
-                s.links[i as usize][c] = j;
-            }
-            if frontier {
-                s.stack.push(i);
-                continue;
-            }
-            for c in 0..6 {
-                let j = s.links[i as usize][c];
-                if j == INVALID {
-                    continue;
-                }
                 let (own, other) = if c % 2 == 0 { (t, u) } else { (u, t) };
                 let step = self.neighbours[own as usize][c / 2];
-                s.union(i, j, u8::from(own > other) ^ u8::from(step > other));
+                let link = self.scratch.last_links[n][c];
+                let j = if link < INVALID {
+                    // A pair last frame: tested again above.
+                    self.scratch.remap[link as usize]
+                } else if link == INVALID
+                    || !triangles_overlap(
+                        self.corners(positions, step),
+                        self.corners(positions, other),
+                    )
+                {
+                    link
+                } else {
+                    // Apart last frame, overlapping now: new, or found already.
+                    self.try_pair(positions, step, other)
+                };
+                let s = &mut self.scratch;
+                s.links[i as usize][c] = j;
+                if j < INVALID {
+                    s.union(i, j, u8::from(own > other) ^ u8::from(step > other));
+                }
             }
         }
     }
