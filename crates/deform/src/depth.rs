@@ -13,8 +13,9 @@
 //! no two boundary edges crossing (a uniform grid of boundary edges), no
 //! piece inside another — and then the answer is the static order. Otherwise
 //! overlapping triangle pairs are grown from the triangles at boundary
-//! crossings through edge neighbours, like hidden-line removal (Hornung
-//! 1984); inverted triangles or a piece inside another fall back to a grid
+//! crossings and at inverted triangles through edge neighbours, like
+//! hidden-line removal (Hornung 1984), starting from last frame's pairs;
+//! many inverted triangles or a piece inside another fall back to a grid
 //! over all triangles. See `docs/depth.md`.
 
 use std::collections::HashMap;
@@ -310,8 +311,9 @@ impl DepthOrder {
         self.pair_count
     }
 
-    /// Whether the last update had to test all triangles (inverted triangles
-    /// or a piece inside another) instead of growing from boundary crossings.
+    /// Whether the last update had to test all triangles (more than 32
+    /// inverted triangles, or a piece inside another) instead of growing
+    /// from boundary crossings and inverted triangles.
     pub fn scanned_all(&self) -> bool {
         self.scanned_all
     }
