@@ -13,8 +13,9 @@
 //! no two boundary edges crossing (a uniform grid of boundary edges), no
 //! piece inside another — and then the answer is the static order. Otherwise
 //! overlapping triangle pairs are grown from the triangles at boundary
-//! crossings through edge neighbours, like hidden-line removal (Hornung
-//! 1984); inverted triangles or a piece inside another fall back to a grid
+//! crossings and at inverted triangles through edge neighbours, like
+//! hidden-line removal (Hornung 1984), starting from last frame's pairs;
+//! many inverted triangles or a piece inside another fall back to a grid
 //! over all triangles. See `docs/depth.md`.
 
 use std::collections::HashMap;
@@ -29,7 +30,13 @@ pub const MAX_LAYER: u16 = 0x7fff;
 /// Pins remembered at once; a new pin beyond this forgets the oldest.
 pub const MAX_PINS: usize = 32;
 
+/// Frames with at most this many inverted triangles grow the overlaps from
+/// them; more send the frame to the grid over all triangles.
+const MAX_INVERTED_SEEDS: usize = 32;
+
 const NONE: u32 = u32::MAX;
+/// A neighbour that can never make a pair (none, or sharing a vertex).
+const INVALID: u32 = u32::MAX - 1;
 const FRONT: u8 = 1;
 const BACK: u8 = 2;
 
@@ -97,18 +104,36 @@ struct Scratch {
     grid: FrameGrid,
     piece_lo: Vec<DVec2>,
     piece_hi: Vec<DVec2>,
-    /// Triangle pairs at boundary crossings, where growing starts.
+    /// Triangle pairs at boundary crossings and at inverted triangles, where
+    /// growing starts.
     seeds: Vec<(u32, u32)>,
+    inverted: Vec<u32>,
+    inverted_flag: Vec<bool>,
+    inverted_box: Vec<(DVec2, DVec2)>,
     crossing_pieces: Vec<(u32, u32)>,
     /// Overlapping pairs `(smaller, larger)`; after the decisions, `(back, front)`.
     pairs: Vec<(u32, u32)>,
     tested: PairTable,
+    /// Per pair, what each of its six neighbours is (corner `k` of the
+    /// first triangle stepped is `2k`, of the second `2k + 1`): a pair's
+    /// index, `NONE` (tested, no overlap) or `INVALID`.
+    links: Vec<[u32; 6]>,
+    /// Last frame's pairs `(smaller, larger)` and links, and where each
+    /// pair went this frame.
+    last_pairs: Vec<(u32, u32)>,
+    last_links: Vec<[u32; 6]>,
+    remap: Vec<u32>,
     stack: Vec<u32>,
     parent: Vec<u32>,
     parity: Vec<u8>,
     patch_of_root: Vec<u32>,
     patches: Vec<Patch>,
     new_role: Vec<u8>,
+    /// Each triangle's mean corner movement from rest, valid where
+    /// `moved_frame` equals `frame`.
+    moved: Vec<f64>,
+    moved_frame: Vec<u32>,
+    frame: u32,
     new_involved: Vec<u32>,
     edge_start: Vec<u32>,
     edge_end: Vec<u32>,
@@ -209,16 +234,27 @@ impl DepthOrder {
             grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most),
             piece_lo: vec![DVec2::ZERO; pieces.len()],
             piece_hi: vec![DVec2::ZERO; pieces.len()],
-            seeds: Vec::with_capacity(boundary.len()),
+            seeds: Vec::with_capacity(boundary.len() + 16 * MAX_INVERTED_SEEDS),
+            inverted: Vec::with_capacity(count),
+            inverted_flag: vec![false; count],
+            inverted_box: Vec::with_capacity(MAX_INVERTED_SEEDS),
             crossing_pieces: Vec::with_capacity(boundary.len()),
             pairs: Vec::with_capacity(count),
-            tested: PairTable::with_capacity(8 * count),
+            // Small enough to stay in cache; doubles on a frame testing more.
+            tested: PairTable::with_capacity(2 * count),
+            links: Vec::with_capacity(count),
+            last_pairs: Vec::with_capacity(count),
+            last_links: Vec::with_capacity(count),
+            remap: Vec::with_capacity(count),
             stack: Vec::with_capacity(count),
             parent: Vec::with_capacity(count),
             parity: Vec::with_capacity(count),
             patch_of_root: Vec::with_capacity(count),
             patches: Vec::with_capacity(16),
             new_role: vec![0; count],
+            moved: vec![0.0; count],
+            moved_frame: vec![0; count],
+            frame: 0,
             new_involved: Vec::with_capacity(count),
             edge_start: vec![0; count],
             edge_end: vec![0; count],
@@ -275,8 +311,9 @@ impl DepthOrder {
         self.pair_count
     }
 
-    /// Whether the last update had to test all triangles (inverted triangles
-    /// or a piece inside another) instead of growing from boundary crossings.
+    /// Whether the last update had to test all triangles (more than 32
+    /// inverted triangles, or a piece inside another) instead of growing
+    /// from boundary crossings and inverted triangles.
     pub fn scanned_all(&self) -> bool {
         self.scanned_all
     }
@@ -323,20 +360,51 @@ impl DepthOrder {
         if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
             return Err(DepthError::PositionNotFinite { vertex });
         }
-        let inverted = self.triangles.iter().any(|tri| {
+        let s = &mut self.scratch;
+        s.inverted.clear();
+        for (t, tri) in self.triangles.iter().enumerate() {
             let [a, b, c] = tri.map(|i| positions[i as usize]);
-            (b - a).perp_dot(c - a) <= 0.0
-        });
+            if (b - a).perp_dot(c - a) <= 0.0 {
+                s.inverted.push(t as u32);
+            }
+        }
         self.find_boundary_crossings(positions);
         let contained = self.piece_inside_another(positions);
         let s = &mut self.scratch;
         s.pairs.clear();
+        s.parent.clear();
+        s.parity.clear();
+        s.links.clear();
         s.tested.clear();
-        self.scanned_all = inverted || contained;
+        self.scanned_all = contained || s.inverted.len() > MAX_INVERTED_SEEDS;
         if self.scanned_all {
             self.all_overlaps(positions);
-        } else if !self.scratch.seeds.is_empty() {
-            self.grow_overlaps(positions);
+            let s = &mut self.scratch;
+            s.parent.extend(0..s.pairs.len() as u32);
+            s.parity.resize(s.pairs.len(), 0);
+        } else {
+            if !s.inverted.is_empty() {
+                for &t in &s.inverted {
+                    s.inverted_flag[t as usize] = true;
+                }
+                self.seed_from_inverted(positions);
+                let s = &mut self.scratch;
+                for &t in &s.inverted {
+                    s.inverted_flag[t as usize] = false;
+                }
+            }
+            if !self.scratch.seeds.is_empty() {
+                self.grow_overlaps(positions);
+            }
+        }
+        // Next frame starts from these pairs and their links, unless this
+        // frame took the grid (which links nothing).
+        let s = &mut self.scratch;
+        s.last_pairs.clear();
+        s.last_links.clear();
+        if !self.scanned_all {
+            s.last_pairs.extend_from_slice(&s.pairs);
+            std::mem::swap(&mut s.links, &mut s.last_links);
         }
         self.pair_count = self.scratch.pairs.len();
         self.overlapped = self.pair_count > 0;
@@ -478,49 +546,176 @@ impl DepthOrder {
     }
 
     /// Tests `(t, u)` once per frame; a new overlapping pair is recorded and
-    /// queued for growing.
-    fn try_pair(&mut self, positions: &[DVec2], t: u32, u: u32) {
-        if t == u {
-            return;
+    /// queued for growing. Returns the pair's index if it overlaps, `NONE`
+    /// if not, `INVALID` if the two can never be a pair (the same triangle,
+    /// or sharing a vertex).
+    fn try_pair(&mut self, positions: &[DVec2], t: u32, u: u32) -> u32 {
+        if t == u || self.share_vertex(t, u) {
+            return INVALID;
         }
         let key = (t.min(u), t.max(u));
-        if !self.scratch.tested.insert(key) || self.share_vertex(t, u) {
-            return;
+        let slot = match self.scratch.tested.insert(key) {
+            Ok(slot) => slot,
+            Err(index) => return index,
+        };
+        if !triangles_overlap(self.corners(positions, t), self.corners(positions, u)) {
+            return NONE;
         }
-        if triangles_overlap(self.corners(positions, t), self.corners(positions, u)) {
-            let s = &mut self.scratch;
-            s.tested.set_value(key, s.pairs.len() as u32);
-            s.stack.push(s.pairs.len() as u32);
-            s.pairs.push(key);
-        }
+        let s = &mut self.scratch;
+        let index = s.pairs.len() as u32;
+        s.tested.set_at(slot, index);
+        s.push_pair(key);
+        s.stack.push(index);
+        index
     }
 
-    /// Grows the overlapping pairs from the boundary crossings: a pair's
-    /// neighbours are the pairs that step one triangle across an edge.
+    /// Grows the overlapping pairs from the seeds (boundary crossings, and
+    /// inverted triangles with what their boxes touch): a pair's neighbours
+    /// are the pairs that step one triangle across an edge. Neighbouring
+    /// pairs are joined into patches as they are found.
+    ///
+    /// Last frame's pairs come first: each is tested again, and one that
+    /// still overlaps learns its six neighbours from last frame's links
+    /// without the table of tested pairs: a neighbour that was a pair was
+    /// just tested again, one that was apart is tested directly and only
+    /// when it now overlaps is it looked up (and grown from, if new). A
+    /// component of this frame's pairs holding a seed is still found whole:
+    /// growing reaches each of its pairs through a chain of neighbours, and
+    /// every neighbour of a reused pair is known.
     fn grow_overlaps(&mut self, positions: &[DVec2]) {
         self.scratch.stack.clear();
+        self.reuse_last_pairs(positions);
         for n in 0..self.scratch.seeds.len() {
             let (t, u) = self.scratch.seeds[n];
             self.try_pair(positions, t, u);
             // A seed whose triangles share a vertex (a tight crease) is not
             // a pair itself, but its neighbours may be.
-            self.try_neighbours(positions, t, u);
+            self.try_neighbours(positions, NONE, t, u);
         }
         while let Some(i) = self.scratch.stack.pop() {
             let (t, u) = self.scratch.pairs[i as usize];
-            self.try_neighbours(positions, t, u);
+            self.try_neighbours(positions, i, t, u);
         }
     }
 
-    fn try_neighbours(&mut self, positions: &[DVec2], t: u32, u: u32) {
-        for k in 0..3 {
-            let n = self.neighbours[t as usize][k];
-            if n != NONE {
-                self.try_pair(positions, n, u);
+    /// Tests last frame's pairs again and links those still overlapping to
+    /// their neighbours (see [`DepthOrder::grow_overlaps`]).
+    fn reuse_last_pairs(&mut self, positions: &[DVec2]) {
+        let last = self.scratch.last_pairs.len();
+        self.scratch.remap.clear();
+        for n in 0..last {
+            let key = self.scratch.last_pairs[n];
+            let overlaps = triangles_overlap(
+                self.corners(positions, key.0),
+                self.corners(positions, key.1),
+            );
+            let s = &mut self.scratch;
+            let Ok(slot) = s.tested.insert(key) else {
+                s.remap.push(NONE);
+                continue;
+            };
+            if overlaps {
+                let index = s.pairs.len() as u32;
+                s.tested.set_at(slot, index);
+                s.push_pair(key);
+                s.remap.push(index);
+            } else {
+                s.remap.push(NONE);
             }
-            let n = self.neighbours[u as usize][k];
-            if n != NONE {
-                self.try_pair(positions, t, n);
+        }
+        for n in 0..last {
+            let i = self.scratch.remap[n];
+            if i == NONE {
+                continue;
+            }
+            let (t, u) = self.scratch.last_pairs[n];
+            for c in 0..6 {
+                let (own, other) = if c % 2 == 0 { (t, u) } else { (u, t) };
+                let step = self.neighbours[own as usize][c / 2];
+                let link = self.scratch.last_links[n][c];
+                let j = if link < INVALID {
+                    // A pair last frame: tested again above.
+                    self.scratch.remap[link as usize]
+                } else if link == INVALID
+                    || !triangles_overlap(
+                        self.corners(positions, step),
+                        self.corners(positions, other),
+                    )
+                {
+                    link
+                } else {
+                    // Apart last frame, overlapping now: new, or found already.
+                    self.try_pair(positions, step, other)
+                };
+                let s = &mut self.scratch;
+                s.links[i as usize][c] = j;
+                if j < INVALID {
+                    s.union(i, j, u8::from(own > other) ^ u8::from(step > other));
+                }
+            }
+        }
+    }
+
+    /// Tests the six pairs stepping `t` or `u` across an edge and, when `i`
+    /// is the pair `(t, u)` (`t < u`), records them as its links and joins
+    /// it with those that overlap: the stepping triangles lie on the same
+    /// side.
+    fn try_neighbours(&mut self, positions: &[DVec2], i: u32, t: u32, u: u32) {
+        for k in 0..3 {
+            for (c, own, other) in [(2 * k, t, u), (2 * k + 1, u, t)] {
+                let step = self.neighbours[own as usize][k];
+                let j = if step == NONE {
+                    INVALID
+                } else {
+                    self.try_pair(positions, step, other)
+                };
+                if i == NONE {
+                    continue;
+                }
+                let s = &mut self.scratch;
+                s.links[i as usize][c] = j;
+                if j < INVALID {
+                    s.union(i, j, u8::from(own > other) ^ u8::from(step > other));
+                }
+            }
+        }
+    }
+
+    /// Seeds growing from the inverted triangles: each with every triangle
+    /// whose box meets its own. Any overlap whose region is bounded by a
+    /// fold (where triangles invert) rather than by a boundary crossing
+    /// holds such a pair.
+    fn seed_from_inverted(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        s.inverted_box.clear();
+        let mut lo = DVec2::splat(f64::INFINITY);
+        let mut hi = DVec2::splat(f64::NEG_INFINITY);
+        for &t in &s.inverted {
+            let [a, b, c] = self.triangles[t as usize].map(|i| positions[i as usize]);
+            let (tlo, thi) = (a.min(b).min(c), a.max(b).max(c));
+            lo = lo.min(tlo);
+            hi = hi.max(thi);
+            s.inverted_box.push((tlo, thi));
+        }
+        for (u, tri) in self.triangles.iter().enumerate() {
+            let [a, b, c] = tri.map(|i| positions[i as usize]);
+            let (ulo, uhi) = (a.min(b).min(c), a.max(b).max(c));
+            if ulo.x > hi.x || ulo.y > hi.y || lo.x > uhi.x || lo.y > uhi.y {
+                continue;
+            }
+            for (n, &(tlo, thi)) in s.inverted_box.iter().enumerate() {
+                let t = s.inverted[n];
+                // Two inverted triangles: seeded once.
+                if t == u as u32
+                    || ulo.x > thi.x
+                    || ulo.y > thi.y
+                    || tlo.x > uhi.x
+                    || tlo.y > uhi.y
+                    || (s.inverted_flag[u] && (u as u32) < t)
+                {
+                    continue;
+                }
+                s.seeds.push((t, u as u32));
             }
         }
     }
@@ -570,9 +765,10 @@ impl DepthOrder {
                     let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
                     if triangles_overlap(corners(a), corners(b)) {
                         let key = (t.min(u), t.max(u));
-                        s.tested.insert(key);
-                        s.tested.set_value(key, s.pairs.len() as u32);
-                        s.pairs.push(key);
+                        if let Ok(slot) = s.tested.insert(key) {
+                            s.tested.set_at(slot, s.pairs.len() as u32);
+                            s.pairs.push(key);
+                        }
                     }
                 }
             }
@@ -585,13 +781,12 @@ impl DepthOrder {
     fn decide(&mut self, positions: &[DVec2]) {
         let s = &mut self.scratch;
         let n = s.pairs.len();
-        s.parent.clear();
-        s.parent.extend(0..n as u32);
-        s.parity.clear();
-        s.parity.resize(n, 0);
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
-        for i in 0..n {
+        // Growing joined them as it found them; the all-triangle grid did
+        // not.
+        let link = if self.scanned_all { n } else { 0 };
+        for i in 0..link {
             let pair = s.pairs[i];
             for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
                 for &step in &self.neighbours[own as usize] {
@@ -607,6 +802,11 @@ impl DepthOrder {
                     s.union(i as u32, j, own_position ^ step_position);
                 }
             }
+        }
+        s.frame = s.frame.wrapping_add(1);
+        if s.frame == 0 {
+            s.moved_frame.fill(0);
+            s.frame = 1;
         }
         s.patch_of_root.clear();
         s.patch_of_root.resize(n, NONE);
@@ -636,12 +836,18 @@ impl DepthOrder {
                     patch.pin = (p + 1, side);
                 }
                 patch.layer[k] = patch.layer[k].max(self.layers[t as usize]);
-                let tri = self.triangles[t as usize];
-                let moved = tri
-                    .iter()
-                    .map(|&v| positions[v as usize] - self.rest[v as usize])
-                    .sum::<DVec2>();
-                patch.displacement[k] += moved.length() / 3.0;
+                // Each triangle's movement once a frame, however many
+                // pairs it is in.
+                if s.moved_frame[t as usize] != s.frame {
+                    s.moved_frame[t as usize] = s.frame;
+                    let tri = self.triangles[t as usize];
+                    let moved = tri
+                        .iter()
+                        .map(|&v| positions[v as usize] - self.rest[v as usize])
+                        .sum::<DVec2>();
+                    s.moved[t as usize] = moved.length() / 3.0;
+                }
+                patch.displacement[k] += s.moved[t as usize];
                 patch.count[k] += 1;
                 patch.lowest[k] = patch.lowest[k].min(t);
             }
@@ -789,6 +995,15 @@ fn front_side(patch: &Patch) -> u8 {
 }
 
 impl Scratch {
+    /// Appends an overlapping pair: its own patch, links unknown.
+    fn push_pair(&mut self, key: (u32, u32)) {
+        let index = self.pairs.len() as u32;
+        self.pairs.push(key);
+        self.parent.push(index);
+        self.parity.push(0);
+        self.links.push([NONE; 6]);
+    }
+
     /// The root of pair `i`'s patch and `i`'s parity (the side of its first
     /// triangle) relative to the root.
     fn find(&mut self, i: u32) -> (u32, u8) {
@@ -900,7 +1115,7 @@ impl FrameGrid {
         }
         // Rounding at the edges: never more cells per side than planned.
         let cells_along =
-            |length: f64| ((length / cell).floor() as usize + 1).min(per_side as usize + 1);
+            |length: f64| ((length / cell).max(0.0) as usize + 1).min(per_side as usize + 1);
         self.lo = lo;
         self.cell = cell;
         self.columns = cells_along(hi.x - lo.x);
@@ -940,7 +1155,9 @@ impl FrameGrid {
 
     fn column_row(&self, p: DVec2) -> (usize, usize) {
         let rel = (p - self.lo) / self.cell;
-        let at = |x: f64, n: usize| (x.floor().max(0.0) as usize).min(n - 1);
+        // Truncation is the floor here (clamped at zero first), without a
+        // libm call on targets lacking a rounding instruction.
+        let at = |x: f64, n: usize| (x.max(0.0) as usize).min(n - 1);
         (at(rel.x, self.columns), at(rel.y, self.rows))
     }
 
@@ -959,23 +1176,37 @@ impl FrameGrid {
 }
 
 /// The pairs tested this frame and, for overlapping ones, their index:
-/// open addressing with a frame stamp, so clearing costs nothing.
+/// open addressing with a frame stamp, so clearing costs nothing. Key,
+/// value and stamp share a slot, so a probe touches one cache line.
 #[derive(Debug)]
 struct PairTable {
-    keys: Vec<u64>,
-    values: Vec<u32>,
-    stamps: Vec<u32>,
+    slots: Vec<Slot>,
     stamp: u32,
     len: usize,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Slot {
+    key: u64,
+    value: u32,
+    stamp: u32,
+}
+
+const EMPTY_SLOT: Slot = Slot {
+    key: 0,
+    value: NONE,
+    stamp: 0,
+};
+
+fn pair_key(pair: (u32, u32)) -> u64 {
+    (u64::from(pair.0) << 32) | u64::from(pair.1)
 }
 
 impl PairTable {
     fn with_capacity(entries: usize) -> PairTable {
         let size = (entries * 2).next_power_of_two().max(64);
         PairTable {
-            keys: vec![0; size],
-            values: vec![NONE; size],
-            stamps: vec![0; size],
+            slots: vec![EMPTY_SLOT; size],
             stamp: 1,
             len: 0,
         }
@@ -985,55 +1216,55 @@ impl PairTable {
         self.len = 0;
         self.stamp = self.stamp.wrapping_add(1);
         if self.stamp == 0 {
-            self.stamps.fill(0);
+            self.slots.fill(EMPTY_SLOT);
             self.stamp = 1;
         }
     }
 
     fn slot(&self, key: u64) -> (usize, bool) {
-        let mask = self.keys.len() - 1;
+        let mask = self.slots.len() - 1;
         let mut at = (key.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 32) as usize & mask;
         loop {
-            if self.stamps[at] != self.stamp {
+            let slot = &self.slots[at];
+            if slot.stamp != self.stamp {
                 return (at, false);
             }
-            if self.keys[at] == key {
+            if slot.key == key {
                 return (at, true);
             }
             at = (at + 1) & mask;
         }
     }
 
-    /// Records `pair`; false if it was already recorded this frame.
-    fn insert(&mut self, pair: (u32, u32)) -> bool {
-        if (self.len + 1) * 2 > self.keys.len() {
+    /// Records `pair` (value `NONE`) unless it was already recorded this
+    /// frame: `Ok(slot)` for a new pair, for [`PairTable::set_at`]; else
+    /// `Err(value)`, the value recorded before.
+    fn insert(&mut self, pair: (u32, u32)) -> Result<usize, u32> {
+        if (self.len + 1) * 2 > self.slots.len() {
             self.grow();
         }
-        let key = (u64::from(pair.0) << 32) | u64::from(pair.1);
+        let key = pair_key(pair);
         let (at, found) = self.slot(key);
         if found {
-            return false;
+            return Err(self.slots[at].value);
         }
-        self.keys[at] = key;
-        self.values[at] = NONE;
-        self.stamps[at] = self.stamp;
+        self.slots[at] = Slot {
+            key,
+            value: NONE,
+            stamp: self.stamp,
+        };
         self.len += 1;
-        true
+        Ok(at)
     }
 
-    fn set_value(&mut self, pair: (u32, u32), value: u32) {
-        let key = (u64::from(pair.0) << 32) | u64::from(pair.1);
-        let (at, found) = self.slot(key);
-        if found {
-            self.values[at] = value;
-        }
+    fn set_at(&mut self, slot: usize, value: u32) {
+        self.slots[slot].value = value;
     }
 
     /// The value of a recorded pair, `NONE` if unrecorded.
     fn value(&self, pair: (u32, u32)) -> u32 {
-        let key = (u64::from(pair.0) << 32) | u64::from(pair.1);
-        match self.slot(key) {
-            (at, true) => self.values[at],
+        match self.slot(pair_key(pair)) {
+            (at, true) => self.slots[at].value,
             _ => NONE,
         }
     }
@@ -1041,19 +1272,12 @@ impl PairTable {
     /// Doubles the table: allocates, only when a frame tests more pairs than
     /// any frame before.
     fn grow(&mut self) {
-        let old_keys = std::mem::take(&mut self.keys);
-        let old_values = std::mem::take(&mut self.values);
-        let old_stamps = std::mem::take(&mut self.stamps);
-        let size = old_keys.len() * 2;
-        self.keys = vec![0; size];
-        self.values = vec![NONE; size];
-        self.stamps = vec![0; size];
-        for i in 0..old_keys.len() {
-            if old_stamps[i] == self.stamp {
-                let (at, _) = self.slot(old_keys[i]);
-                self.keys[at] = old_keys[i];
-                self.values[at] = old_values[i];
-                self.stamps[at] = self.stamp;
+        let old = std::mem::take(&mut self.slots);
+        self.slots = vec![EMPTY_SLOT; old.len() * 2];
+        for slot in old {
+            if slot.stamp == self.stamp {
+                let (at, _) = self.slot(slot.key);
+                self.slots[at] = slot;
             }
         }
     }

@@ -300,7 +300,117 @@ fn a_paper_fold_with_inverted_triangles_is_ordered() {
         .collect();
     let mut order = DepthOrder::register(&mesh, None).unwrap();
     let depth = order.update(&folded).unwrap().to_vec();
+    assert!(order.scanned_all());
+    assert_eq!(
+        order.overlap_pairs(),
+        overlapping_pairs(&mesh, &folded).len()
+    );
     assert!(assert_order(&mesh, &folded, &depth, right, true) > 0);
+}
+
+/// `positions` with the interior vertex nearest `at` moved by `by`.
+fn pushed(mesh: &Mesh, positions: &[DVec2], at: DVec2, by: DVec2) -> Vec<DVec2> {
+    let v = (0..positions.len())
+        .min_by(|&a, &b| {
+            mesh.vertices()[a]
+                .distance(at)
+                .total_cmp(&mesh.vertices()[b].distance(at))
+        })
+        .unwrap();
+    let mut moved = positions.to_vec();
+    moved[v] += by;
+    moved
+}
+
+fn inverted_count(mesh: &Mesh, positions: &[DVec2]) -> usize {
+    (0..mesh.triangles().len())
+        .filter(|&t| {
+            let [a, b, c] = corners(mesh, positions, t);
+            (b - a).perp_dot(c - a) <= 0.0
+        })
+        .count()
+}
+
+#[test]
+fn a_few_inverted_triangles_grow_from_themselves_and_find_every_pair() {
+    let mesh = folding_bar();
+    let right = |t: usize| rest_centroid(&mesh, t).x > HINGE;
+    let mut order = DepthOrder::register(&mesh, None).unwrap();
+
+    // Straight, one interior vertex pushed through its neighbours: its fan
+    // inverts and overlaps the triangles beyond, with no boundary crossing.
+    let crease = pushed(
+        &mesh,
+        mesh.vertices(),
+        DVec2::new(5.0, 1.0),
+        DVec2::new(0.8, 0.1),
+    );
+    assert!((1..=32).contains(&inverted_count(&mesh, &crease)));
+    let depth = order.update(&crease).unwrap().to_vec();
+    let pairs = overlapping_pairs(&mesh, &crease);
+    assert!(!pairs.is_empty());
+    assert!(order.overlapped() && !order.scanned_all());
+    assert_eq!(order.overlap_pairs(), pairs.len());
+    assert_order(&mesh, &crease, &depth, right, true);
+
+    // Folded, with a crease squeezed inside the overlap: every pair is
+    // still found without the all-triangle grid, and the bent limb is in
+    // front.
+    let folded = bent(&mesh, 220f64.to_radians(), false);
+    let under: Vec<usize> = overlapping_pairs(&mesh, &folded)
+        .iter()
+        .flat_map(|&(a, b)| [a, b])
+        .filter(|&t| !right(t))
+        .collect();
+    let at = rest_centroid(&mesh, under[under.len() / 2]);
+    for by in [DVec2::new(0.7, 0.0), DVec2::new(-0.6, 0.2)] {
+        let pose = pushed(&mesh, &folded, at, by);
+        assert!((1..=32).contains(&inverted_count(&mesh, &pose)));
+        let mut fresh = DepthOrder::register(&mesh, None).unwrap();
+        let depth = fresh.update(&pose).unwrap().to_vec();
+        assert!(!fresh.scanned_all());
+        assert_eq!(fresh.overlap_pairs(), overlapping_pairs(&mesh, &pose).len());
+        assert!(assert_order(&mesh, &pose, &depth, right, true) > 0);
+    }
+}
+
+#[test]
+fn frame_after_frame_every_pair_is_found_from_the_last_frames_pairs() {
+    let mesh = folding_bar();
+    let right = |t: usize| rest_centroid(&mesh, t).x > HINGE;
+    let mut order = DepthOrder::register(&mesh, None).unwrap();
+    let centre = DVec2::new(HINGE, HEIGHT + RADIUS);
+    let mut poses = Vec::new();
+    // A fold opening and closing in small steps, then large ones, a crease
+    // squeezed into it and out again, and the whole carried and turned.
+    for degrees in (200..=260).step_by(2).chain((200..=260).rev().step_by(15)) {
+        poses.push(bent(&mesh, f64::from(degrees).to_radians(), false));
+    }
+    let folded = bent(&mesh, 230f64.to_radians(), false);
+    let under = overlapping_pairs(&mesh, &folded)
+        .iter()
+        .flat_map(|&(a, b)| [a, b])
+        .find(|&t| !right(t))
+        .unwrap();
+    let at = rest_centroid(&mesh, under);
+    for by in [0.2, 0.5, 0.7, 0.5, 0.2] {
+        poses.push(pushed(&mesh, &folded, at, DVec2::new(by, 0.05)));
+    }
+    for step in 0..10 {
+        let turned = rotated(&folded, centre, 0.05 * f64::from(step));
+        poses.push(
+            turned
+                .iter()
+                .map(|&p| p + DVec2::new(0.3, 0.1) * f64::from(step))
+                .collect(),
+        );
+    }
+    for pose in &poses {
+        let depth = order.update(pose).unwrap().to_vec();
+        assert_eq!(order.overlap_pairs(), overlapping_pairs(&mesh, pose).len());
+        assert!(!order.scanned_all());
+        assert!(assert_order(&mesh, pose, &depth, right, true) > 0);
+    }
 }
 
 #[test]
