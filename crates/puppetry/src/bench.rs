@@ -677,8 +677,8 @@ pub struct DepthResult {
     /// Of the fold frames, how many overlapped, and the median pair count.
     pub fold_frames_overlapping: usize,
     pub fold_pairs_median: usize,
-    /// Frames that tested all triangles (inverted triangles or nested
-    /// pieces), without and with the fold.
+    /// Frames that tested all triangles (more than 32 inverted triangles,
+    /// or a piece inside another), without and with the fold.
     pub flat_frames_scanning_all: usize,
     pub fold_frames_scanning_all: usize,
     pub flat_frames_overlapping: usize,
