@@ -3,7 +3,7 @@
 //! Also the record button and the keyframing pad (a director's), two named
 //! performers and a viewer who see each other's hands, a refused token,
 //! and the show view and the performer view's chrome. Runs only with
-//! `PUPPETRY_BROWSER_TESTS=1` (see `tests/it/common/browser.rs`).
+//! Chromium (off only with `PUPPETRY_BROWSER_TESTS=0`) (see `tests/it/common/browser.rs`).
 
 use crate::common::browser::{self, DIRECTOR, PERFORMER};
 

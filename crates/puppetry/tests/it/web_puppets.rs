@@ -3,7 +3,7 @@
 //! Puppets panel uploads a PNG that every page then shows, warns about a
 //! fully opaque picture, says why a file that is not a PNG was refused,
 //! and moves and removes puppets for every page. Like `web.rs` it runs
-//! only with `PUPPETRY_BROWSER_TESTS=1` (see `common/browser.rs`).
+//! only with Chromium (off only with `PUPPETRY_BROWSER_TESTS=0`) (see `common/browser.rs`).
 
 use crate::common::browser::{self, DIRECTOR};
 

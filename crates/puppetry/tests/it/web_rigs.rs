@@ -3,7 +3,7 @@
 //! play the rigs) and takes a director's paint strokes; pages opened later
 //! show the skeleton's live key pose; roles, undo/redo/reset and the
 //! replay toggle from the page. Like `tests/web.rs` it runs only with
-//! `PUPPETRY_BROWSER_TESTS=1` (see `tests/common/browser.rs`).
+//! Chromium (off only with `PUPPETRY_BROWSER_TESTS=0`) (see `tests/common/browser.rs`).
 
 use crate::common::browser::{self, DIRECTOR, PERFORMER};
 

@@ -1,9 +1,9 @@
 //! Headless-Chromium page tests against the real daemon: start it on a stage
 //! file from `config/`, run a script of `tests/web` against the page as a
 //! performer, a director or a viewer, and read the script's one-line JSON
-//! summary. They run only
-//! with `PUPPETRY_BROWSER_TESTS=1` (set by `.ci/run`, which installs
-//! Chromium and the Node packages), so `cargo test` works on a bare machine.
+//! summary. They need Debian's Chromium, Node and `tests/web`'s packages
+//! (`.ci/run` installs them) and fail saying what to install when one is
+//! missing; `PUPPETRY_BROWSER_TESTS=0` turns them off on purpose.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -12,19 +12,21 @@ use puppetry_daemon::serve::{Options, start_with};
 use puppetry_daemon::stream::WebFiles;
 use puppetry_stage::config::StageConfig;
 
-/// Whether browser tests are on. When they are not, says so where it is
-/// seen: libtest hides a passing test's `eprintln!`, so this writes to the
-/// process's stderr directly.
+/// Whether browser tests are on (always, unless `PUPPETRY_BROWSER_TESTS=0`).
+/// When they are not, says so where it is seen: libtest hides a passing
+/// test's `eprintln!`, so this writes to the process's stderr directly.
 pub fn enabled(test: &str) -> bool {
     use std::io::Write;
-    let on = std::env::var_os("PUPPETRY_BROWSER_TESTS").is_some();
-    if !on {
+    // On unless turned off on purpose: a machine without Chromium or Node
+    // fails these tests saying what to install, it does not pass them.
+    let off = std::env::var_os("PUPPETRY_BROWSER_TESTS").is_some_and(|v| v == "0");
+    if off {
         let _ = writeln!(
             std::io::stderr(),
-            "browser test {test}: NOT RUN (set PUPPETRY_BROWSER_TESTS=1 with Chromium, Node and tests/web's packages installed; .ci/run does)"
+            "browser test {test}: NOT RUN (PUPPETRY_BROWSER_TESTS=0 turns the headless-Chromium tests off)"
         );
     }
-    on
+    !off
 }
 
 /// What a page script ran against, kept for the test to look at.
@@ -104,25 +106,25 @@ pub async fn run_page_as(
     PageRun { summary, takes }
 }
 
-/// With browser tests on, what they need missing is a failure that says
+/// What browser tests need, missing, is a failure that says
 /// what to install (rather than a launch error deep in a script).
 fn check_tools(node_modules: &Path) {
     let node = Command::new("node").arg("--version").output();
     assert!(
         node.as_ref().is_ok_and(|o| o.status.success()),
-        "PUPPETRY_BROWSER_TESTS is set but Node.js does not run ({node:?}): install it (apt-get install nodejs npm)"
+        "browser tests need Node.js, which does not run ({node:?}): install it (apt-get install nodejs npm)"
     );
     let chromium = std::env::var_os("CHROMIUM")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
     assert!(
         chromium.is_file(),
-        "PUPPETRY_BROWSER_TESTS is set but there is no Chromium at {}: install it (apt-get install chromium) or set CHROMIUM to its path",
+        "browser tests need Chromium, and there is none at {}: install it (apt-get install chromium), set CHROMIUM to its path, or turn them off with PUPPETRY_BROWSER_TESTS=0",
         chromium.display()
     );
     assert!(
         node_modules.join("playwright-core").is_dir(),
-        "PUPPETRY_BROWSER_TESTS is set but {} has no playwright-core: run `npm install` in tests/web",
+        "browser tests need playwright-core, and {} has none: run `npm install` in tests/web",
         node_modules.display()
     );
 }
