@@ -6,7 +6,6 @@
 //! never change: a removed puppet's id is not reused, so a frame already on
 //! its way cannot land on another puppet.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use glam::DVec2;
@@ -14,7 +13,7 @@ use glam::DVec2;
 use crate::protocol::{GridBasis, PuppetDescription, RigDescription, SkeletonMode, StageSize};
 use crate::stage_thread::PuppetOutput;
 use puppetry_stage::config::StageConfig;
-use puppetry_stage::{Puppet, Rig, Stage};
+use puppetry_stage::{Picture, Puppet, Rig, Stage};
 
 /// The puppets on stage now, as connections see them.
 pub struct Lineup {
@@ -76,7 +75,7 @@ pub struct StageDescription {
     pub puppets: Vec<PuppetDescription>,
     pub size: StageSize,
     /// Every puppet's picture, by id (removed puppets' too: ids stay).
-    pub images: Vec<PathBuf>,
+    pub images: Vec<Picture>,
 }
 
 impl StageDescription {
@@ -106,7 +105,7 @@ impl StageDescription {
                 width: stage.width,
                 height: stage.height,
             },
-            images: stage.puppets().iter().map(|p| p.image.clone()).collect(),
+            images: stage.puppets().iter().map(|p| p.picture.clone()).collect(),
         }
     }
 }
@@ -143,5 +142,9 @@ fn rig_description(rig: &Rig) -> RigDescription {
                 poses: r.pose_names().into_iter().map(String::from).collect(),
             }
         }
+        Rig::Curve(r) => RigDescription::Curve {
+            width: 2.0 * r.half_width(),
+            rest: points(r.curve().rest()),
+        },
     }
 }

@@ -694,6 +694,13 @@ pub enum RigDescription {
         /// The key poses a `pose` message may name.
         poses: Vec<String>,
     },
+    /// A curve puppet: a stroke `width` wide along a centre line; its mesh
+    /// is the ribbon along it (vertices `2i`, `2i + 1` beside point `i`).
+    Curve {
+        width: f64,
+        /// The centre line at rest.
+        rest: Vec<[f64; 2]>,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -627,6 +627,29 @@ impl Curve {
         &self.pose
     }
 
+    /// Puts the curve in a pose (undo, reset): one finite point per rest
+    /// point. The compiled handles are dropped, since the points they fix
+    /// have moved: compile again before the next update.
+    pub fn set_pose(&mut self, points: &[DVec2]) -> Result<(), CurveError> {
+        if points.len() != self.rest.len() {
+            return Err(CurveError::TargetCount {
+                expected: self.rest.len(),
+                got: points.len(),
+            });
+        }
+        if let Some(point) = points
+            .iter()
+            .position(|p| !(p.is_finite() && p.abs().max_element() <= MAX_COORDINATE))
+        {
+            return Err(CurveError::PointNotFinite { point });
+        }
+        self.pose.copy_from_slice(points);
+        self.constraints.clear();
+        self.placement = Placement::Still;
+        self.handle_count = 0;
+        Ok(())
+    }
+
     /// The rest curve's arc length at each point (0 at point 0).
     pub fn arc_lengths(&self) -> &[f64] {
         &self.arc

@@ -272,6 +272,22 @@ pub(crate) fn check_fps(fps: f64, name: &str) -> Result<(), ExportError> {
     }
 }
 
+/// A puppet's picture as straight RGBA8: its PNG file, or the texture of a
+/// plain-coloured stroke.
+pub fn load_picture(picture: &puppetry_stage::Picture) -> Result<RgbaImage, ExportError> {
+    match picture {
+        puppetry_stage::Picture::File(path) => load_png(path),
+        puppetry_stage::Picture::Stroke(colour) => {
+            let (width, height, pixels) = puppetry_mesh::stroke::stroke_texture(*colour);
+            Ok(RgbaImage {
+                width,
+                height,
+                pixels,
+            })
+        }
+    }
+}
+
 /// Reads a PNG into straight RGBA8: palette, grey and grey+alpha, RGB and
 /// RGBA at any bit depth (16-bit keeps its high byte; tRNS becomes alpha).
 pub fn load_png(path: &Path) -> Result<RgbaImage, ExportError> {

@@ -140,7 +140,7 @@ pub fn animation_of_take(
     }
     let mut puppets = Vec::new();
     for (p, motion) in stage.puppets().iter().zip(frames) {
-        let image = crate::load_png(&p.image)?;
+        let image = crate::load_picture(&p.picture)?;
         let draw_orders = if p.depth().is_some() {
             draw_orders(&p.mesh, &motion)
         } else {

@@ -9,6 +9,7 @@ pub mod build;
 pub mod grid;
 pub mod json;
 pub mod polygon;
+pub mod stroke;
 pub mod trace;
 
 use std::collections::HashMap;

@@ -139,7 +139,7 @@ pub fn take_bench(config: &StageConfig, print: &dyn Fn(&str)) -> Result<(), Stri
                 .uv()
                 .map(|uv| uv.iter().map(|t| [t.x as f32, t.y as f32]).collect())
                 .unwrap_or_default(),
-            image: puppetry_export::load_png(&p.image).map_err(|e| e.to_string())?,
+            image: puppetry_export::load_picture(&p.picture).map_err(|e| e.to_string())?,
             frames,
             // Mesh order: the bench's drag does not fold the puppet.
             draw_orders: Vec::new(),

@@ -142,6 +142,8 @@ pub enum GripRecord {
     },
 }
 
+/// A curve puppet's pose is its centre line, in `joints` (the rest empty).
+///
 /// A skeleton's pose: its FK state, its joints, and the key-pose blend it
 /// was last set to (if any).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -231,13 +231,23 @@ fn check_access(config: &StageConfig) -> Result<(), (String, String)> {
     Ok(())
 }
 
-/// One puppet: its picture and rest mesh, and where it stands on the stage.
+/// One puppet: its picture and rest mesh (or, for a curve puppet, its
+/// centre line), and where it stands on the stage.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PuppetConfig {
     pub name: String,
+    /// The picture (PNG). A curve puppet's is optional: a texture run along
+    /// its length (u along, v across), else the stroke is drawn in `colour`.
+    #[serde(default)]
     pub image: PathBuf,
+    /// The rest mesh file; none for a curve puppet.
+    #[serde(default)]
     pub mesh: PathBuf,
+    /// A curve puppet (`docs/curves.md`): a stroke along a centre line,
+    /// deformed by as-rigid-as-possible curve editing with peeling.
+    #[serde(default)]
+    pub curve: Option<CurveConfig>,
     /// Stage position of the centre of the mesh's bounding box.
     pub at: [f64; 2],
     /// Stage units per mesh unit.
@@ -266,6 +276,109 @@ pub struct PuppetConfig {
     /// the part folded over in front; `off` draws triangles in mesh order.
     #[serde(default)]
     pub depth: DepthMode,
+}
+
+/// `[puppet.curve]`: a curve puppet's centre line, in its own coordinates
+/// (y up; an SVG path's y-down coordinates are flipped), and its stroke.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CurveConfig {
+    /// The centre line as points…
+    #[serde(default)]
+    pub points: Option<Vec<[f64; 2]>>,
+    /// …or as an SVG path's `d` (one open subpath: M, L, H, V, C, S, Q, T).
+    #[serde(default)]
+    pub svg: Option<String>,
+    /// Stroke width (own units, scaled with the puppet).
+    #[serde(default = "default_stroke_width")]
+    pub width: f64,
+    /// Stroke colour `#RRGGBB` when there is no `image`.
+    #[serde(default = "default_stroke_colour")]
+    pub colour: String,
+    /// The centre line is resampled to evenly spaced points this far apart
+    /// (own units; default: a third of the width, at least 1/2000 of the
+    /// length).
+    #[serde(default)]
+    pub spacing: Option<f64>,
+    /// Peeling: how fast the edited region grows along the curve with the
+    /// drag distance (arc length per unit dragged).
+    #[serde(default = "default_peel_rate")]
+    pub peel_rate: f64,
+    /// Peeling: the region's half-length (arc length) as the drag starts.
+    #[serde(default)]
+    pub peel_radius: f64,
+}
+
+fn default_stroke_width() -> f64 {
+    12.0
+}
+
+fn default_stroke_colour() -> String {
+    "#2b2b2b".into()
+}
+
+fn default_peel_rate() -> f64 {
+    1.5
+}
+
+impl CurveConfig {
+    /// The colour as RGB (checked when the stage file was read).
+    pub fn rgb(&self) -> [u8; 3] {
+        let channel = |k: usize| u8::from_str_radix(&self.colour[1 + 2 * k..3 + 2 * k], 16);
+        [0, 1, 2].map(|k| channel(k).unwrap_or(0))
+    }
+}
+
+/// Checks what can be checked of a puppet's curve without building it.
+fn check_curve(p: &PuppetConfig) -> Result<(), (String, String)> {
+    let Some(c) = &p.curve else {
+        if p.image.as_os_str().is_empty() {
+            return Err(("image".into(), "missing: a puppet needs a picture".into()));
+        }
+        if p.mesh.as_os_str().is_empty() {
+            return Err((
+                "mesh".into(),
+                "missing: a puppet needs a mesh (or a [puppet.curve])".into(),
+            ));
+        }
+        return Ok(());
+    };
+    let err = |field: &str, problem: &str| Err((format!("curve.{field}"), problem.to_string()));
+    if !p.mesh.as_os_str().is_empty() {
+        return Err((
+            "mesh".into(),
+            "a curve puppet's mesh is built from its curve: leave mesh out".into(),
+        ));
+    }
+    if p.grid.is_some() || p.skeleton.is_some() {
+        return Err((
+            "curve".into(),
+            "a puppet is a curve, a grid or a skeleton, not several".into(),
+        ));
+    }
+    match (&c.points, &c.svg) {
+        (Some(_), Some(_)) => return err("points", "give points or svg, not both"),
+        (None, None) => return err("points", "missing: give points or svg"),
+        _ => {}
+    }
+    if !(c.width.is_finite() && c.width > 0.0) {
+        return err("width", "must be a positive number");
+    }
+    if !is_colour(&c.colour) {
+        return err("colour", &format!("{:?} is not #RRGGBB", c.colour));
+    }
+    if let Some(spacing) = c.spacing
+        && !(spacing.is_finite() && spacing > 0.0)
+    {
+        return err("spacing", "must be a positive number");
+    }
+    if !(c.peel_rate.is_finite() && c.peel_rate >= 0.0) {
+        return err("peel_rate", "must be a non-negative number");
+    }
+    if !(c.peel_radius.is_finite() && c.peel_radius >= 0.0) {
+        return err("peel_radius", "must be a non-negative number");
+    }
+    Ok(())
 }
 
 /// `depth` of a puppet.
@@ -800,6 +913,8 @@ impl StageConfig {
                     "is used by another puppet",
                 ));
             }
+            check_curve(p)
+                .map_err(|(field, problem)| invalid(format!("puppet[{i}].{field}"), &problem))?;
             check_rigs(i, p).map_err(|(field, problem)| invalid(field, &problem))?;
         }
         for (i, pad) in config.pads.iter().enumerate() {

@@ -4,8 +4,10 @@
 //! lands on a puppet grabs the material point under it (a point handle in
 //! the triangle it touched, topmost puppet first; skeleton puppets ignore
 //! it); moving the contact drags what it holds; lifting it lets go. Painted
-//! per-triangle weights live here too. Pins are handles that stay. Every handle knows its owner, so
-//! contacts from different devices and clients never get confused.
+//! per-triangle weights live here too. Pins are handles that stay. Every
+//! handle knows its owner, so contacts from different devices and clients
+//! never get confused. A curve puppet is a mesh puppet too: its mesh is the
+//! ribbon built along its centre line, which its rig deforms.
 //!
 //! Plain synchronous state, with no tokio and no wire format in reach: the
 //! daemon's stage thread runs it, with the solvers, on a thread of its own,
@@ -40,6 +42,10 @@ pub enum CommandError {
     NoGrid { puppet: u32 },
     #[error("puppet {puppet}: has no skeleton")]
     NoSkeleton { puppet: u32 },
+    #[error(
+        "puppet {puppet}: a curve puppet has no weights to save (its mesh is built from its curve)"
+    )]
+    NoWeights { puppet: u32 },
     #[error("paint needs finite x and y")]
     BadBrush,
     /// A number outside its documented range; `field` names it as the
@@ -156,6 +162,33 @@ pub enum HandleKind {
     Key,
 }
 
+/// A puppet's picture: a PNG file, or the small texture a plain-coloured
+/// stroke (a curve puppet without an image) is drawn with.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Picture {
+    File(PathBuf),
+    Stroke([u8; 3]),
+}
+
+impl Picture {
+    /// The picture as PNG bytes (reads the file).
+    pub fn png(&self) -> std::io::Result<Vec<u8>> {
+        match self {
+            Picture::File(path) => std::fs::read(path),
+            Picture::Stroke(colour) => Ok(puppetry_mesh::stroke::stroke_texture_png(*colour)),
+        }
+    }
+}
+
+impl std::fmt::Display for Picture {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Picture::File(path) => write!(f, "{}", path.display()),
+            Picture::Stroke([r, g, b]) => write!(f, "stroke #{r:02x}{g:02x}{b:02x}"),
+        }
+    }
+}
+
 /// A handle on a puppet.
 #[derive(Debug, Clone)]
 pub struct Handle {
@@ -181,11 +214,11 @@ impl Handle {
 pub struct Puppet {
     pub id: u32,
     pub name: String,
-    pub image: PathBuf,
+    pub picture: Picture,
     /// The rest mesh, placed on the stage (with the stage file's weights).
     pub mesh: Mesh,
     /// The mesh file, and its mesh in its own coordinates: painted weights
-    /// are saved there.
+    /// are saved there (a curve puppet has no file: its mesh is built).
     pub mesh_file: PathBuf,
     source_mesh: Mesh,
     /// The per-triangle weights now (painted ones included).
@@ -279,8 +312,30 @@ impl Puppet {
         index: usize,
         p: &PuppetConfig,
     ) -> Result<Puppet, StageError> {
-        let mesh_file = config.resolve(&p.mesh);
-        let mesh = Mesh::load(&mesh_file)?;
+        let rig_error = |(field, problem): (String, String)| StageError::Rig {
+            file: config.file.clone(),
+            index,
+            puppet: p.name.clone(),
+            field,
+            problem,
+        };
+        let (mesh_file, mesh, picture) = match &p.curve {
+            Some(c) => {
+                let source = format!("{} puppet[{index}].curve", config.file);
+                let mesh = curve_mesh(&source, c).map_err(rig_error)?;
+                let picture = if p.image.as_os_str().is_empty() {
+                    Picture::Stroke(c.rgb())
+                } else {
+                    Picture::File(config.resolve(&p.image))
+                };
+                (PathBuf::new(), mesh, picture)
+            }
+            None => {
+                let mesh_file = config.resolve(&p.mesh);
+                let mesh = Mesh::load(&mesh_file)?;
+                (mesh_file, mesh, Picture::File(config.resolve(&p.image)))
+            }
+        };
         let placed = place(&mesh, p.at.into(), p.scale)?;
         let rig = Rig::from_config(
             &mesh,
@@ -289,14 +344,9 @@ impl Puppet {
             p.scale,
             p.grid.as_ref(),
             p.skeleton.as_ref(),
+            p.curve.as_ref(),
         )
-        .map_err(|(field, problem)| StageError::Rig {
-            file: config.file.clone(),
-            index,
-            puppet: p.name.clone(),
-            field,
-            problem,
-        })?;
+        .map_err(rig_error)?;
         let (lo, hi) = bounds(mesh.vertices());
         let placement = pad::Placement {
             at: p.at.into(),
@@ -308,7 +358,7 @@ impl Puppet {
             keying: pad::Keying::empty(None),
             id: index as u32,
             name: p.name.clone(),
-            image: config.resolve(&p.image),
+            picture,
             weights: placed.weights().to_vec(),
             mesh: placed,
             mesh_file,
@@ -452,6 +502,15 @@ impl Puppet {
 
     /// The skeleton's pose now (none for other rigs).
     fn pose_record(&self) -> Option<PoseRecord> {
+        if let Rig::Curve(r) = &self.rig {
+            return Some(PoseRecord {
+                roots: Vec::new(),
+                angles: Vec::new(),
+                lengths: Vec::new(),
+                joints: r.curve().pose().to_vec(),
+                key: None,
+            });
+        }
         let Rig::Skeleton(r) = &self.rig else {
             return None;
         };
@@ -631,6 +690,39 @@ impl Puppet {
         }
         changed
     }
+}
+
+/// A curve puppet's ribbon mesh, in its own coordinates: the centre line
+/// (points or SVG path) checked, resampled evenly (the paper's §7) and
+/// widened. Errors are `(field, problem)`.
+fn curve_mesh(source: &str, c: &config::CurveConfig) -> Result<Mesh, (String, String)> {
+    use puppetry_deform::curve::{resample_evenly, validate};
+    use puppetry_mesh::stroke::{parse_svg_path, ribbon_mesh};
+    let (field, given) = match (&c.points, &c.svg) {
+        (Some(points), _) => (
+            "curve.points",
+            points.iter().map(|&p| DVec2::from(p)).collect::<Vec<_>>(),
+        ),
+        (None, Some(d)) => {
+            let step = c.spacing.unwrap_or(c.width / 3.0) / 4.0;
+            let mut points =
+                parse_svg_path(d, step).map_err(|e| ("curve.svg".to_string(), e.to_string()))?;
+            // Béziers with a control point on an end repeat it: not the
+            // author's doing, so not an error.
+            points.dedup();
+            ("curve.svg", points)
+        }
+        (None, None) => {
+            return Err(("curve.points".into(), "missing: give points or svg".into()));
+        }
+    };
+    validate(&given).map_err(|e| (field.to_string(), e.to_string()))?;
+    let length: f64 = given.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let spacing = c.spacing.unwrap_or((c.width / 3.0).max(length / 2000.0));
+    let centre = resample_evenly(&given, spacing)
+        .map_err(|e| ("curve.spacing".to_string(), e.to_string()))?;
+    validate(&centre).map_err(|e| ("curve.spacing".to_string(), format!("resampled: {e}")))?;
+    ribbon_mesh(source, &centre, c.width).map_err(|e| ("curve.width".to_string(), e.to_string()))
 }
 
 /// Where an anchor lies on a mesh.
@@ -1602,11 +1694,19 @@ impl Stage {
             }
             pins.push((pin, grip));
         }
-        if state.pose.is_some() && !matches!(p.rig, Rig::Skeleton(_)) {
-            return Err(refuse("a pose, but the puppet has no skeleton".into()));
+        if state.pose.is_some() && !matches!(p.rig, Rig::Skeleton(_) | Rig::Curve(_)) {
+            return Err(refuse(
+                "a pose, but the puppet has no skeleton or curve".into(),
+            ));
         }
         let index = puppet as usize;
-        if let Some(pose) = &state.pose {
+        if let Some(pose) = &state.pose
+            && let Rig::Curve(r) = &mut self.puppets[index].rig
+        {
+            r.set_pose(&pose.joints)
+                .map_err(|e| refuse(e.to_string()))?;
+            self.puppets[index].moved = true;
+        } else if let Some(pose) = &state.pose {
             let p = &mut self.puppets[index];
             let Rig::Skeleton(r) = &mut p.rig else {
                 unreachable!("checked above")
@@ -1695,6 +1795,9 @@ impl Stage {
     /// text off the stage thread ([`WeightsFile::text`]).
     pub fn weights_file(&self, puppet: u32) -> Result<WeightsFile, CommandError> {
         let p = self.puppet(puppet)?;
+        if let Rig::Curve(_) = p.rig {
+            return Err(CommandError::NoWeights { puppet });
+        }
         Ok(WeightsFile {
             path: p.mesh_file.clone(),
             mesh: p.source_mesh.clone(),

@@ -2,17 +2,25 @@
 //! (a material point, a grid handle, a joint) becomes that deformer's
 //! handles. Free-form puppets run the ARAP solver, grid puppets lp-FFD and
 //! skeleton puppets the shape-aware skeletal deformer; all three honour the
-//! puppet's per-triangle weights. Built from the stage file by
-//! [`Rig::from_config`], in stage coordinates.
+//! puppet's per-triangle weights. Curve puppets run as-rigid-as-possible
+//! curve editing on their centre line, with peeling, and lay their ribbon
+//! mesh along it. Built from the stage file by [`Rig::from_config`], in
+//! stage coordinates.
 
 use glam::DVec2;
 
-use super::config::{BasisConfig, GridConfig, KeyPoseConfig, SkeletonConfig, SkeletonMode};
-use super::{Handle, stage_point};
+use std::ops::RangeInclusive;
+
+use super::config::{
+    BasisConfig, CurveConfig, GridConfig, KeyPoseConfig, SkeletonConfig, SkeletonMode,
+};
+use super::{Handle, HandleKind, stage_point};
+use puppetry_deform::curve::{Curve, CurveAnchor, Peel, PeelParams};
 use puppetry_deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
 use puppetry_deform::skeleton::{Pose, ShapeAware, Skeleton, SkeletonParams};
 use puppetry_deform::{Anchor, Arap, Steps};
 use puppetry_mesh::Mesh;
+use puppetry_mesh::stroke::{ribbon_triangle, ribbon_vertices};
 
 /// What a handle holds.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -65,6 +73,35 @@ pub struct SkeletonRig {
     pub(super) key_poses: Vec<(String, Pose)>,
 }
 
+/// A curve puppet's rig: the centre line's solver and the drags peeling
+/// it. Its mesh is the ribbon along the centre line (vertices `2i` and
+/// `2i + 1` beside point `i`), so a contact grips a point of the ribbon as
+/// on any mesh puppet, and the rig reads that grip as a point of the centre
+/// line (arc length along it) and a distance across it.
+pub struct CurveRig {
+    pub(super) curve: Curve,
+    half_width: f64,
+    peel: PeelParams,
+    /// One per contact holding the curve: its peeled region.
+    drags: Vec<Drag>,
+    /// The free points compiled now (none while nothing drags).
+    free: Option<RangeInclusive<usize>>,
+    /// Per compiled curve handle, the stage handle (index) it follows.
+    held_by: Vec<usize>,
+    anchors: Vec<CurveAnchor>,
+    targets: Vec<DVec2>,
+    pushpins: Vec<f64>,
+    ribbon: Vec<DVec2>,
+}
+
+/// A contact's drag along a curve: its peel, and where the finger was
+/// when it took hold (the drag distance is measured from there).
+struct Drag {
+    handle: u64,
+    peel: Peel,
+    from: DVec2,
+}
+
 /// Why a rig could not solve, take weights or take a pose.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {
@@ -74,6 +111,8 @@ pub enum RigError {
     Ffd(#[from] puppetry_deform::ffd::FfdError),
     #[error("skeleton: {0}")]
     Skeleton(#[from] puppetry_deform::skeleton::SkeletonError),
+    #[error("curve: {0}")]
+    Curve(#[from] puppetry_deform::curve::CurveError),
     #[error("no key pose named {name:?}")]
     UnknownPose { name: String },
 }
@@ -82,6 +121,7 @@ pub enum Rig {
     Free(FreeRig),
     Grid(Box<GridRig>),
     Skeleton(Box<SkeletonRig>),
+    Curve(Box<CurveRig>),
 }
 
 impl Rig {
@@ -95,7 +135,33 @@ impl Rig {
         scale: f64,
         grid: Option<&GridConfig>,
         skeleton: Option<&SkeletonConfig>,
+        curve: Option<&CurveConfig>,
     ) -> Result<Rig, (String, String)> {
+        if let Some(c) = curve {
+            // The ribbon's vertex pairs sit either side of the centre line.
+            let centre: Vec<DVec2> = placed
+                .vertices()
+                .chunks_exact(2)
+                .map(|pair| (pair[0] + pair[1]) / 2.0)
+                .collect();
+            let curve =
+                Curve::register(&centre).map_err(|e| ("curve".to_string(), e.to_string()))?;
+            return Ok(Rig::Curve(Box::new(CurveRig {
+                curve,
+                half_width: c.width * scale / 2.0,
+                peel: PeelParams {
+                    initial_radius: c.peel_radius * scale,
+                    growth_rate: c.peel_rate,
+                },
+                drags: Vec::new(),
+                free: None,
+                held_by: Vec::new(),
+                anchors: Vec::new(),
+                targets: Vec::new(),
+                pushpins: Vec::new(),
+                ribbon: placed.vertices().to_vec(),
+            })));
+        }
         if let Some(g) = grid {
             let basis = match g.basis {
                 BasisConfig::Bernstein => Basis::Bernstein,
@@ -187,6 +253,7 @@ impl Rig {
             Rig::Free(_) => "free",
             Rig::Grid(_) => "grid",
             Rig::Skeleton(_) => "skeleton",
+            Rig::Curve(_) => "curve",
         }
     }
 
@@ -196,6 +263,7 @@ impl Rig {
             Rig::Free(r) => r.arap.pose(),
             Rig::Grid(r) => r.ffd.pose(),
             Rig::Skeleton(r) => r.deformer.pose(),
+            Rig::Curve(r) => &r.ribbon,
         }
     }
 
@@ -203,7 +271,7 @@ impl Rig {
     /// handles, or the posed joints; none for free-form puppets.
     pub fn points(&self) -> Option<&[DVec2]> {
         match self {
-            Rig::Free(_) => None,
+            Rig::Free(_) | Rig::Curve(_) => None,
             Rig::Grid(r) => Some(r.ffd.grid()),
             Rig::Skeleton(r) => Some(r.deformer.joints()),
         }
@@ -407,6 +475,7 @@ impl Rig {
                 // next frame starts from what is on stage.
                 r.joints.copy_from_slice(r.deformer.joints());
             }
+            Rig::Curve(r) => r.solve(handles, changed)?,
         }
         Ok(())
     }
@@ -415,7 +484,8 @@ impl Rig {
     /// free-form puppet's solver is rebuilt elsewhere (see `thread`).
     pub fn set_weights(&mut self, weights: &[f64]) -> Result<(), RigError> {
         match self {
-            Rig::Free(_) => Ok(()),
+            // A stroke is as stiff as its curve: weights do not apply.
+            Rig::Free(_) | Rig::Curve(_) => Ok(()),
             Rig::Grid(r) => Ok(r.ffd.set_weights(weights)?),
             Rig::Skeleton(r) => Ok(r.deformer.set_weights(weights)?),
         }
@@ -496,6 +566,159 @@ impl SkeletonRig {
 
     pub fn pose_names(&self) -> Vec<&str> {
         self.key_poses.iter().map(|(n, _)| n.as_str()).collect()
+    }
+}
+
+impl CurveRig {
+    /// The curve solver (its rest and posed centre line).
+    pub fn curve(&self) -> &Curve {
+        &self.curve
+    }
+
+    /// The stroke's half-width (stage units).
+    pub fn half_width(&self) -> f64 {
+        self.half_width
+    }
+
+    /// How the drags peel.
+    pub fn peel(&self) -> PeelParams {
+        self.peel
+    }
+
+    /// The free points of the drags now (none while nothing drags).
+    pub fn free_points(&self) -> Option<RangeInclusive<usize>> {
+        self.free.clone()
+    }
+
+    /// Puts the centre line in a pose (undo, reset); the drags go on from
+    /// there (the next solve compiles again).
+    pub(super) fn set_pose(&mut self, points: &[DVec2]) -> Result<(), RigError> {
+        self.curve.set_pose(points)?;
+        self.free = None;
+        self.held_by.clear();
+        ribbon_vertices(self.curve.pose(), self.half_width, &mut self.ribbon);
+        Ok(())
+    }
+
+    /// A grip on the ribbon as a point of the centre line: its arc length
+    /// along the rest curve and its distance across (left positive).
+    fn on_centre_line(&self, anchor: Anchor) -> (f64, f64) {
+        let arc = self.curve.arc_lengths();
+        let side = |v: u32| if v.is_multiple_of(2) { 1.0 } else { -1.0 };
+        match anchor {
+            Anchor::Vertex(v) => (arc[(v / 2) as usize], side(v) * self.half_width),
+            Anchor::Point { triangle, bary } => {
+                let tri = ribbon_triangle(triangle as usize);
+                let (mut s, mut across) = (0.0, 0.0);
+                for k in 0..3 {
+                    s += bary[k] * arc[(tri[k] / 2) as usize];
+                    across += bary[k] * side(tri[k]);
+                }
+                (s, across * self.half_width)
+            }
+        }
+    }
+
+    /// Where the centre line is asked to go for a handle: the finger less
+    /// the grip's offset across the curve, along the curve's normal now.
+    fn centre_target(&self, handle: &Handle, anchor: Anchor) -> DVec2 {
+        let (s, across) = self.on_centre_line(anchor);
+        let CurveAnchor::Along { segment, .. } = self.curve.anchor_at(s) else {
+            return handle.rig_target();
+        };
+        let pose = self.curve.pose();
+        let s = segment as usize;
+        let normal = (pose[s + 1] - pose[s]).normalize_or_zero().perp();
+        handle.rig_target() - normal * across
+    }
+
+    /// Follows the drags (peeling: each contact's region grows with how
+    /// far it has dragged), recompiling when the handles or the freed
+    /// points change; pins are the pushpins that bound the regions.
+    fn solve(&mut self, handles: &[Handle], changed: bool) -> Result<(), RigError> {
+        let grip_of = |h: &Handle| match h.grip {
+            Grip::Point(anchor) => Some(anchor),
+            _ => None,
+        };
+        let mut recompile = changed;
+        if changed {
+            self.pushpins.clear();
+            for h in handles.iter().filter(|h| h.kind == HandleKind::Pin) {
+                if let Some(anchor) = grip_of(h) {
+                    self.pushpins.push(self.on_centre_line(anchor).0);
+                }
+            }
+            self.drags.retain(|d| {
+                handles
+                    .iter()
+                    .any(|h| h.id == d.handle && h.kind != HandleKind::Pin)
+            });
+            for h in handles.iter().filter(|h| h.kind != HandleKind::Pin) {
+                let Some(anchor) = grip_of(h) else { continue };
+                if self.drags.iter().any(|d| d.handle == h.id) {
+                    continue;
+                }
+                let (s, _) = self.on_centre_line(anchor);
+                // A pin exactly under the grab cannot bound it.
+                let pins: Vec<f64> = self.pushpins.iter().copied().filter(|&p| p != s).collect();
+                let peel = Peel::new(&self.curve, s, &pins, self.peel)?;
+                self.drags.push(Drag {
+                    handle: h.id,
+                    peel,
+                    from: h.target,
+                });
+            }
+        }
+        let mut hull: Option<(usize, usize)> = None;
+        for d in &mut self.drags {
+            let Some(h) = handles.iter().find(|h| h.id == d.handle) else {
+                continue;
+            };
+            recompile |= d.peel.drag(&self.curve, (h.target - d.from).length())?;
+            let free = d.peel.free_points();
+            hull = Some(hull.map_or((*free.start(), *free.end()), |(lo, hi)| {
+                (lo.min(*free.start()), hi.max(*free.end()))
+            }));
+        }
+        let Some((lo, hi)) = hull else {
+            // Nothing drags: the curve stays as it was left.
+            self.free = None;
+            return Ok(());
+        };
+        if recompile || self.free != Some(lo..=hi) {
+            self.anchors.clear();
+            self.held_by.clear();
+            for (i, h) in handles.iter().enumerate() {
+                let Some(anchor) = grip_of(h) else { continue };
+                let curve_anchor = self.curve.anchor_at(self.on_centre_line(anchor).0);
+                let holds_free = match curve_anchor {
+                    CurveAnchor::Point(p) => (lo..=hi).contains(&(p as usize)),
+                    CurveAnchor::Along { segment, t } => {
+                        let s = segment as usize;
+                        ((lo..=hi).contains(&s) && t < 1.0)
+                            || ((lo..=hi).contains(&(s + 1)) && t > 0.0)
+                    }
+                };
+                // Pins outside the freed points hold nothing that moves.
+                if h.kind == HandleKind::Pin && !holds_free {
+                    continue;
+                }
+                self.anchors.push(curve_anchor);
+                self.held_by.push(i);
+            }
+            self.curve.compile_within(&self.anchors, lo..=hi)?;
+            self.free = Some(lo..=hi);
+        }
+        self.targets.clear();
+        for &i in &self.held_by {
+            let h = &handles[i];
+            let Some(anchor) = grip_of(h) else { continue };
+            let target = self.centre_target(h, anchor);
+            self.targets.push(target);
+        }
+        self.curve.update(&self.targets, Steps::Both)?;
+        ribbon_vertices(self.curve.pose(), self.half_width, &mut self.ribbon);
+        Ok(())
     }
 }
 

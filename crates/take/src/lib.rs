@@ -202,6 +202,14 @@ pub fn setup_hash(puppet: &puppetry_stage::Puppet) -> String {
                 h.eat(&j.y.to_bits().to_le_bytes());
             }
         }
+        Rig::Curve(r) => {
+            // The centre line is in the rest mesh's hash; how it peels is not.
+            h.eat(b"curve");
+            let peel = r.peel();
+            for v in [r.half_width(), peel.initial_radius, peel.growth_rate] {
+                h.eat(&v.to_bits().to_le_bytes());
+            }
+        }
     }
     for pin in puppet
         .handles()

@@ -26,6 +26,7 @@ use tower_http::limit::RequestBodyLimitLayer;
 use tower_http::services::ServeDir;
 
 use super::{MAX_CLIENT_MESSAGE, READ_BUFFER, Shared, websocket};
+use puppetry_stage::Picture;
 
 /// The web client, compiled in.
 static WEB_CLIENT: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../clients/web");
@@ -197,13 +198,17 @@ async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> R
         let lineup = shared.lineup.borrow();
         lineup.description.images.get(i).cloned()
     });
-    let Some(path) = path else {
+    let Some(picture) = path else {
         return not_found();
     };
-    match tokio::fs::read(&path).await {
+    let read = match &picture {
+        Picture::File(path) => tokio::fs::read(path).await,
+        stroke => stroke.png(),
+    };
+    match read {
         Ok(bytes) => with_type(Body::from(bytes), "image/png"),
         Err(e) => {
-            tracing::warn!("{}: {e}", path.display());
+            tracing::warn!("{picture}: {e}");
             not_found()
         }
     }

@@ -377,6 +377,7 @@ fn mesh_and_load(
         .min(FIT * config.stage.height / size.y)
         .min(1.0);
     let entry = PuppetConfig {
+        curve: None,
         name: name.to_string(),
         image: image.to_path_buf(),
         mesh: mesh_file.to_path_buf(),

@@ -8,6 +8,7 @@ mod common;
 mod bad_input;
 mod cli;
 mod config;
+mod curves;
 mod depth;
 mod devices;
 mod edge;

@@ -4,6 +4,7 @@
 #[global_allocator]
 static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
 
+mod curve;
 mod depth;
 mod edits;
 mod fuzz;

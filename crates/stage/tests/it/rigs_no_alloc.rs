@@ -69,7 +69,7 @@ fn rig_frames_do_not_allocate() {
         regular: None,
         iterations: None,
     };
-    let mut rig = Rig::from_config(&source, &placed, at, 1.2, Some(&grid), None).unwrap();
+    let mut rig = Rig::from_config(&source, &placed, at, 1.2, Some(&grid), None, None).unwrap();
     let grid_handle = rig.points().unwrap()[95];
     let point = stage.puppets()[0].hit(at).unwrap();
     let mut handles = [
@@ -86,7 +86,8 @@ fn rig_frames_do_not_allocate() {
     for mode in [SkeletonMode::Free, SkeletonMode::Fk] {
         let mut skeleton = demo_skeleton();
         skeleton.mode = mode;
-        let mut rig = Rig::from_config(&source, &placed, at, 1.2, None, Some(&skeleton)).unwrap();
+        let mut rig =
+            Rig::from_config(&source, &placed, at, 1.2, None, Some(&skeleton), None).unwrap();
         let joints = rig.points().unwrap().to_vec();
         let mut handles = [
             handle(1, Grip::Joint(9), joints[9]),
@@ -104,7 +105,7 @@ fn rig_frames_do_not_allocate() {
     }
 
     // The counter works: a compile does allocate.
-    let mut rig = Rig::from_config(&source, &placed, at, 1.2, Some(&grid), None).unwrap();
+    let mut rig = Rig::from_config(&source, &placed, at, 1.2, Some(&grid), None, None).unwrap();
     alloc::start();
     rig.solve(&[handle(1, Grip::GridHandle(3), DVec2::ZERO)], true)
         .unwrap();
