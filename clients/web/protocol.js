@@ -107,7 +107,7 @@ export const HANDLE_KIND = Object.freeze({ CONTACT: 'contact', PIN: 'pin', KEY: 
 export const HANDLE_GRIP = Object.freeze({ POINT: 'point', GRID: 'grid', JOINT: 'joint', BONE: 'bone' });
 
 /** A puppet's `rig.kind` (stage message). */
-export const RIG_KIND = Object.freeze({ FREE: 'free', GRID: 'grid', SKELETON: 'skeleton' });
+export const RIG_KIND = Object.freeze({ FREE: 'free', GRID: 'grid', SKELETON: 'skeleton', CURVE: 'curve' });
 
 /** The `owner` of the stage file's pins. */
 export const CONFIG_OWNER = 'config';

@@ -1,6 +1,6 @@
 //! The web renderer draws both rigs (headless Chromium against the real
 //! daemon on `config/grid.toml` and `config/skeleton.toml`, whose replays
-//! play the rigs) and takes a director's paint strokes; pages opened later
+//! play the rigs) and curve puppets (`config/curve.toml`), and takes a director's paint strokes; pages opened later
 //! show the skeleton's live key pose; roles, undo/redo/reset and the
 //! replay toggle from the page. Like `tests/web.rs` it runs only with
 //! Chromium (off only with `PUPPETRY_BROWSER_TESTS=0`) (see `tests/common/browser.rs`).
@@ -18,6 +18,20 @@ async fn the_browser_draws_grids_and_skeletons() {
             .summary;
         assert_eq!(summary["kind"], stage, "{summary}");
     }
+}
+
+/// Issue 13: the curve stage's rope and ribbon are drawn as strokes of
+/// their colours, and a mouse drag near the ribbon's end moves the stroke
+/// under the pointer while its far end stays (`tests/web/curve.mjs`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_browser_draws_curve_puppets_and_a_drag_peels_one() {
+    if !browser::enabled("the_browser_draws_curve_puppets_and_a_drag_peels_one") {
+        return;
+    }
+    let summary = browser::run_page_as("curve", PERFORMER, "curve.mjs", "1110,300", &[])
+        .await
+        .summary;
+    assert!(summary["farEndMoved"].as_f64().unwrap() <= 0.5, "{summary}");
 }
 
 /// Issue 12, observation 8 (page side): a performer sets the skeleton's
