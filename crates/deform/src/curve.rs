@@ -176,8 +176,10 @@ impl Entry for f64 {
 /// A square banded matrix and its LU factors with partial pivoting, in
 /// LAPACK's band layout (`gbtrf`): column `j` holds rows
 /// `j − ku − kl ..= j + kl`, the extra `kl` above for the pivoting's fill.
-/// After factoring, each column remembers how far its non-zeros reach, so
-/// the solves skip the band's empty corners (most columns never pivot).
+/// After factoring, the non-zeros of each column of L and U are packed
+/// one column after another in the order the solves read them, so a solve
+/// streams through about half the memory of the band (whose corners are
+/// mostly empty: most columns never pivot) and never tests a zero.
 #[derive(Debug, Default)]
 struct BandLu<T> {
     n: usize,
@@ -185,11 +187,16 @@ struct BandLu<T> {
     ku: usize,
     band: Vec<T>,
     pivots: Vec<u32>,
-    /// Per column: reciprocal of U's diagonal, and how many rows of L below
-    /// and of U above the diagonal are non-zero.
+    /// Per column: reciprocal of U's diagonal.
     inverse_diagonal: Vec<T>,
-    below: Vec<u32>,
-    above: Vec<u32>,
+    /// L's non-zeros below the diagonal, column by column; column `j` is
+    /// `lower[lower_start[j]..lower_start[j + 1]]`, rows `j + 1 ..`.
+    lower: Vec<T>,
+    lower_start: Vec<u32>,
+    /// U's non-zeros above the diagonal, column by column; column `j` is
+    /// `upper[upper_start[j]..upper_start[j + 1]]`, ending at row `j − 1`.
+    upper: Vec<T>,
+    upper_start: Vec<u32>,
 }
 
 impl<T: Entry> BandLu<T> {
@@ -273,8 +280,12 @@ impl<T: Entry> BandLu<T> {
             }
         }
         let zero = T::default();
-        self.below.clear();
-        self.above.clear();
+        self.lower.clear();
+        self.upper.clear();
+        self.lower_start.clear();
+        self.upper_start.clear();
+        self.lower_start.push(0);
+        self.upper_start.push(0);
         for j in 0..n {
             let column = &self.band[j * self.stride()..(j + 1) * self.stride()];
             let diagonal = kl + ku;
@@ -286,8 +297,12 @@ impl<T: Entry> BandLu<T> {
                 .rev()
                 .find(|&k| column[diagonal - k] != zero)
                 .unwrap_or(0);
-            self.below.push(below as u32);
-            self.above.push(above as u32);
+            self.lower
+                .extend_from_slice(&column[diagonal + 1..diagonal + 1 + below]);
+            self.upper
+                .extend_from_slice(&column[diagonal - above..diagonal]);
+            self.lower_start.push(self.lower.len() as u32);
+            self.upper_start.push(self.upper.len() as u32);
         }
         true
     }
@@ -295,26 +310,24 @@ impl<T: Entry> BandLu<T> {
     /// Solves `A x = b` in place with the factors.
     fn solve(&self, b: &mut [DVec2]) {
         let n = self.n;
-        let stride = self.stride();
-        let diagonal = self.kl + self.ku;
         for j in 0..n {
             let p = self.pivots[j] as usize;
             if p != j {
                 b.swap(j, p);
             }
             let x = b[j];
-            let below = self.below[j] as usize;
-            let column = &self.band[j * stride + diagonal + 1..][..below];
-            for (out, factor) in b[j + 1..j + 1 + below].iter_mut().zip(column) {
+            let column =
+                &self.lower[self.lower_start[j] as usize..self.lower_start[j + 1] as usize];
+            for (out, factor) in b[j + 1..].iter_mut().zip(column) {
                 *out -= factor.apply(x);
             }
         }
         for j in (0..n).rev() {
             let x = self.inverse_diagonal[j].apply(b[j]);
             b[j] = x;
-            let above = self.above[j] as usize;
-            let column = &self.band[j * stride + diagonal - above..][..above];
-            for (out, factor) in b[j - above..j].iter_mut().zip(column) {
+            let column =
+                &self.upper[self.upper_start[j] as usize..self.upper_start[j + 1] as usize];
+            for (out, factor) in b[j - column.len()..j].iter_mut().zip(column) {
                 *out -= factor.apply(x);
             }
         }
