@@ -178,6 +178,8 @@ const paintTool = new PaintTool({
   button: byId('paint-tool'),
   radius: byId('paint-radius'),
   strength: byId('paint-strength'),
+  mode: byId('paint-mode'),
+  layer: byId('paint-layer'),
   save: byId('save-weights'),
 }, { puppets: currentPuppets, clientToStage, send, reportError, onChange: redrawOverlay });
 const poseSlider = new PoseSlider({

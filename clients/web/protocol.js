@@ -13,6 +13,7 @@ export const CLIENT_MESSAGE = Object.freeze({
   DEPTH_FLIP: 'depth_flip',
   UNPIN: 'unpin',
   PAINT: 'paint',
+  PAINT_DEPTH: 'paint_depth',
   SAVE_WEIGHTS: 'save_weights',
   EXPORT_GRID: 'export_grid',
   POSE: 'pose',
@@ -181,6 +182,13 @@ export function unpinMessage(puppet, handle) {
  */
 export function paintMessage(puppet, x, y, radius, strength, stroke) {
   const message = { type: CLIENT_MESSAGE.PAINT, puppet, x, y, radius, strength };
+  if (stroke !== undefined) message.stroke = stroke;
+  return message;
+}
+
+/** One dab of the depth-layer brush (director): triangles under it take `layer`, larger nearer. */
+export function paintDepthMessage(puppet, x, y, radius, layer, stroke) {
+  const message = { type: CLIENT_MESSAGE.PAINT_DEPTH, puppet, x, y, radius, layer };
   if (stroke !== undefined) message.stroke = stroke;
   return message;
 }

@@ -10,7 +10,7 @@
 
 import {
   HANDLE_KIND, RIG_KIND,
-  depthFlipMessage, paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
+  depthFlipMessage, paintDepthMessage, paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
   saveWeightsMessage, undoMessage, unpinMessage,
 } from './protocol.js';
 import { anchorPoint, keyHandleAnchor } from './overlay.js';
@@ -158,7 +158,8 @@ export class PinTool {
 
 export class PaintTool {
   /**
-   * elements: {controls, button, radius, strength, save} of the bar.
+   * elements: {controls, button, radius, strength, mode, layer, save} of
+   * the bar (mode: "stiffness" or "depth", the depth layer to paint).
    * puppets(): the current puppet states; clientToStage(cx, cy);
    * send(message); reportError(message); onChange(): the brush moved or the
    * tool turned on or off (the overlay should redraw).
@@ -217,6 +218,14 @@ export class PaintTool {
     return Number(this.elements.strength.value);
   }
 
+  get paintsDepth() {
+    return this.elements.mode?.value === 'depth';
+  }
+
+  get layer() {
+    return Math.min(32767, Math.max(0, Math.round(Number(this.elements.layer?.value ?? 0))));
+  }
+
   pointerDown(e, x, y) {
     if (!this.on) return false;
     e.currentTarget.setPointerCapture(e.pointerId);
@@ -256,7 +265,8 @@ export class PaintTool {
         y0 = Math.min(y0, v[i + 1]); y1 = Math.max(y1, v[i + 1]);
       }
       if (brush.x + radius < x0 || brush.x - radius > x1 || brush.y + radius < y0 || brush.y - radius > y1) continue;
-      this.send(paintMessage(p.id, brush.x, brush.y, radius, strength, this.stroke));
+      if (this.paintsDepth) this.send(paintDepthMessage(p.id, brush.x, brush.y, radius, this.layer, this.stroke));
+      else this.send(paintMessage(p.id, brush.x, brush.y, radius, strength, this.stroke));
       this.painted.add(p.id);
     }
   }

@@ -351,6 +351,18 @@ pub enum ClientMessage {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
     },
+    /// One dab of the depth-layer brush (directors): the triangles under
+    /// it take `layer` as their static depth, larger nearer; the dabs of
+    /// one `stroke` undo at once.
+    PaintDepth {
+        puppet: u32,
+        x: f64,
+        y: f64,
+        radius: f64,
+        layer: u16,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stroke: Option<u64>,
+    },
     /// Take back the puppet's last edit (paint stroke, pin, pose).
     Undo {
         puppet: u32,

@@ -79,6 +79,12 @@ pub enum Command {
         stroke: Option<u64>,
         reply: Reply<()>,
     },
+    /// A change a client asked for that the stage checks and records as
+    /// it is (the depth-layer brush).
+    Apply {
+        change: Change,
+        reply: Reply<()>,
+    },
     /// Undo, redo or reset a puppet's edits.
     Edit {
         puppet: u32,
@@ -929,6 +935,9 @@ impl Batch {
                     strength,
                     stroke,
                 };
+                self.apply(stage, taking, change, Some(reply), wake);
+            }
+            Command::Apply { change, reply } => {
                 self.apply(stage, taking, change, Some(reply), wake);
             }
             Command::Edit {

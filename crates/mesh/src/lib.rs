@@ -53,6 +53,9 @@ pub struct Mesh {
     triangles: Vec<[u32; 3]>,
     uv: Option<Vec<DVec2>>,
     weights: Vec<f64>,
+    /// Painted depth layers, one per triangle (larger is nearer), if any:
+    /// the static order depth adjustment starts from (`docs/depth.md`).
+    layers: Option<Vec<u16>>,
 }
 
 /// The on-disk shape of a mesh; see `docs/mesh-format.md`.
@@ -68,6 +71,8 @@ struct MeshFile {
     uv: Option<Vec<json::Point>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     weights: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    layers: Option<Vec<u16>>,
 }
 
 pub(crate) fn invalid(
@@ -87,6 +92,9 @@ pub(crate) fn invalid(
 /// keeps its precision.
 pub const MIN_WEIGHT: f64 = 1e-2;
 pub const MAX_WEIGHT: f64 = 1e5;
+
+/// The highest depth layer a triangle may be painted with.
+pub const MAX_LAYER: u16 = 0x7fff;
 
 /// The thinnest triangle a mesh may hold, as height over longest edge: the
 /// step-1 matrix's entries grow like its inverse, and far below this the
@@ -257,6 +265,7 @@ impl Mesh {
             triangles,
             uv,
             weights,
+            layers: None,
         })
     }
 
@@ -270,7 +279,44 @@ impl Mesh {
             file.triangles.into_iter().map(|t| t.0).collect(),
             file.uv.map(|uv| uv.into_iter().map(to_vec).collect()),
             file.weights,
-        )
+        )?
+        .with_layers(source, file.layers)
+    }
+
+    /// The mesh with painted depth layers (one per triangle, at most
+    /// [`MAX_LAYER`]), or none.
+    pub fn with_layers(
+        mut self,
+        source: &str,
+        layers: Option<Vec<u16>>,
+    ) -> Result<Mesh, MeshError> {
+        if let Some(layers) = &layers {
+            if layers.len() != self.triangles.len() {
+                return Err(invalid(
+                    source,
+                    "layers",
+                    format!(
+                        "has {} entries for {} triangles",
+                        layers.len(),
+                        self.triangles.len()
+                    ),
+                ));
+            }
+            if let Some(t) = layers.iter().position(|&l| l > MAX_LAYER) {
+                return Err(invalid(
+                    source,
+                    format!("layers[{t}]"),
+                    format!("{} is above the highest layer, {MAX_LAYER}", layers[t]),
+                ));
+            }
+        }
+        self.layers = layers;
+        Ok(self)
+    }
+
+    /// The painted depth layers, one per triangle, if any.
+    pub fn layers(&self) -> Option<&[u16]> {
+        self.layers.as_deref()
     }
 
     /// Reads and validates a `.mesh.json` file.
@@ -302,6 +348,7 @@ impl Mesh {
             } else {
                 Some(self.weights.clone())
             },
+            layers: self.layers.clone(),
         };
         serde_json::to_string(&file).expect("a validated mesh serialises")
     }
@@ -321,6 +368,7 @@ impl Mesh {
 
     /// Replaces the per-triangle rigidity weights (e.g. painted stiffness).
     pub fn set_weights(&mut self, weights: Vec<f64>) -> Result<(), MeshError> {
+        let layers = self.layers.take();
         let checked = Mesh::new(
             "weights",
             std::mem::take(&mut self.vertices),
@@ -329,7 +377,8 @@ impl Mesh {
             Some(weights),
         );
         match checked {
-            Ok(mesh) => {
+            Ok(mut mesh) => {
+                mesh.layers = layers;
                 *self = mesh;
                 Ok(())
             }

@@ -43,6 +43,16 @@ pub enum Change {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
     },
+    /// One dab of the depth-layer brush: triangles under it take `layer`
+    /// as their static depth; the dabs of one `stroke` undo at once.
+    PaintDepth {
+        puppet: u32,
+        at: DVec2,
+        radius: f64,
+        layer: u16,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        stroke: Option<u64>,
+    },
     /// A skeleton set between two of its stage-file key poses.
     KeyPose {
         puppet: u32,
@@ -103,6 +113,9 @@ pub struct Snapshot {
     pub pins: Option<Vec<PinRecord>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pose: Option<PoseRecord>,
+    /// The static depth layers, one per triangle.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub layers: Option<Vec<u16>>,
 }
 
 /// A pin, exactly: its handle id, owner, grip and where it holds.

@@ -46,6 +46,8 @@ pub enum CommandError {
         "puppet {puppet}: a curve puppet has no weights to save (its mesh is built from its curve)"
     )]
     NoWeights { puppet: u32 },
+    #[error("puppet {puppet}: has no depth to paint (depth = \"off\")")]
+    NoDepth { puppet: u32 },
     #[error("paint needs finite x and y")]
     BadBrush,
     /// A number outside its documented range; `field` names it as the
@@ -257,6 +259,9 @@ pub struct Puppet {
     depth: Option<puppetry_deform::depth::DepthOrder>,
     /// Bumped whenever the depth changes, so it is sent only then.
     depth_generation: u32,
+    /// The static depth layers as painted (one per triangle), or none: the
+    /// order of the mesh's pieces.
+    layers: Option<Vec<u16>>,
 }
 
 /// A puppet's undo and redo stacks: each entry is the state an edit
@@ -378,21 +383,24 @@ impl Puppet {
             removed: false,
             depth: None,
             depth_generation: 0,
+            layers: None,
         };
         if p.depth == config::DepthMode::Pieces {
             // Registered on the mesh as placed, so "moved further from rest"
             // (which side of a fold goes in front) measures the bend, not
             // where the puppet stands.
-            let order =
-                puppetry_deform::depth::DepthOrder::register(&puppet.mesh, None).map_err(|e| {
-                    StageError::Rig {
-                        file: config.file.clone(),
-                        index,
-                        puppet: p.name.clone(),
-                        field: "depth".into(),
-                        problem: e.to_string(),
-                    }
-                })?;
+            puppet.layers = puppet.mesh.layers().map(|l| l.to_vec());
+            let order = puppetry_deform::depth::DepthOrder::register(
+                &puppet.mesh,
+                puppet.layers.as_deref(),
+            )
+            .map_err(|e| StageError::Rig {
+                file: config.file.clone(),
+                index,
+                puppet: p.name.clone(),
+                field: "depth".into(),
+                problem: e.to_string(),
+            })?;
             puppet.depth = Some(order);
         }
         if let Some(keys) = &p.keys {
@@ -530,7 +538,31 @@ impl Puppet {
             weights: like.weights.as_ref().map(|_| self.weights.clone()),
             pins: like.pins.as_ref().map(|_| self.pin_records()),
             pose: like.pose.as_ref().and_then(|_| self.pose_record()),
+            layers: like.layers.as_ref().and_then(|_| self.static_layers()),
         }
+    }
+
+    /// The static depth layers now: as painted, else the pieces' order
+    /// (none with `depth = "off"`).
+    fn static_layers(&self) -> Option<Vec<u16>> {
+        let depth = self.depth.as_ref()?;
+        Some(
+            self.layers
+                .clone()
+                .unwrap_or_else(|| depth.static_depth().to_vec()),
+        )
+    }
+
+    /// Takes `layers` as the static depth order (painted or put back),
+    /// starting the adjustment afresh from it.
+    fn set_layers(&mut self, layers: Vec<u16>) -> Result<(), String> {
+        let order = puppetry_deform::depth::DepthOrder::register(&self.mesh, Some(&layers))
+            .map_err(|e| e.to_string())?;
+        self.depth = Some(order);
+        self.layers = Some(layers);
+        self.depth_generation = self.depth_generation.wrapping_add(1);
+        self.moved = true;
+        Ok(())
     }
 
     /// A recorded grip as a grip of this puppet, if it fits its mesh and
@@ -791,18 +823,25 @@ pub struct WeightsFile {
     /// The mesh as loaded, in its own coordinates.
     mesh: Mesh,
     weights: Vec<f64>,
+    layers: Option<Vec<u16>>,
     mode: SaveWeights,
 }
 
 impl WeightsFile {
-    /// The `.mesh.json` text: the loaded mesh with the painted weights.
+    /// The `.mesh.json` text: the loaded mesh with the painted weights
+    /// and depth layers.
     pub fn text(self) -> Result<String, CommandError> {
+        let file = self.path.display().to_string();
+        let fail = |source| CommandError::Weights {
+            file: file.clone(),
+            source,
+        };
         let mut mesh = self.mesh;
-        mesh.set_weights(self.weights)
-            .map_err(|source| CommandError::Weights {
-                file: self.path.display().to_string(),
-                source,
-            })?;
+        mesh.set_weights(self.weights).map_err(fail)?;
+        let mesh = match self.layers {
+            Some(layers) => mesh.with_layers(&file, Some(layers)).map_err(fail)?,
+            None => mesh,
+        };
         Ok(mesh.to_json())
     }
 
@@ -983,6 +1022,7 @@ impl Stage {
             weights: Some(puppet.weights.clone()),
             pins: Some(puppet.pin_records()),
             pose: puppet.pose_record(),
+            layers: puppet.static_layers(),
         };
         Ok(id as u32)
     }
@@ -1364,6 +1404,13 @@ impl Stage {
                 strength,
                 stroke,
             } => return self.paint_stroke(*puppet, *at, *radius, *strength, *stroke),
+            Change::PaintDepth {
+                puppet,
+                at,
+                radius,
+                layer,
+                stroke,
+            } => self.paint_depth_stroke(*puppet, *at, *radius, *layer, *stroke)?,
             Change::Restore { puppet, state } => return self.restore(*puppet, state),
             Change::KeyPose {
                 puppet,
@@ -1537,6 +1584,54 @@ impl Stage {
         p.weights_pending = true;
         p.moved = true;
         Ok(None)
+    }
+
+    /// One dab of the depth-layer brush: the triangles whose deformed
+    /// centroid lies within `radius` of `at` take `layer` (at most
+    /// [`puppetry_mesh::MAX_LAYER`]) as their static depth, larger nearer;
+    /// the depth adjustment starts afresh from the new order. Dabs of one
+    /// `stroke` undo together.
+    pub fn paint_depth_stroke(
+        &mut self,
+        puppet: u32,
+        at: DVec2,
+        radius: f64,
+        layer: u16,
+        stroke: Option<u64>,
+    ) -> Result<(), CommandError> {
+        self.check_brush(at, radius, 1.0)?;
+        if layer > puppetry_mesh::MAX_LAYER {
+            return Err(CommandError::OutOfRange {
+                field: "layer",
+                problem: format!("must be 0 to {}", puppetry_mesh::MAX_LAYER),
+            });
+        }
+        let p = self.puppet_mut(puppet)?;
+        let Some(mut layers) = p.static_layers() else {
+            return Err(CommandError::NoDepth { puppet });
+        };
+        let before = layers.clone();
+        let pose = p.rig.pose();
+        let mut changed = false;
+        for (tri, l) in p.mesh.triangles().iter().zip(&mut layers) {
+            let [a, b, c] = tri.map(|i| pose[i as usize]);
+            if ((a + b + c) / 3.0).distance(at) < radius && *l != layer {
+                *l = layer;
+                changed = true;
+            }
+        }
+        if !changed {
+            return Ok(());
+        }
+        p.history.edit(
+            || Snapshot {
+                layers: Some(before),
+                ..Snapshot::default()
+            },
+            stroke.map(Group::Stroke),
+        );
+        p.set_layers(layers)
+            .map_err(|problem| CommandError::Restore { puppet, problem })
     }
 
     /// The rebuild a free-form puppet needs, if its weights are newer than
@@ -1757,6 +1852,19 @@ impl Stage {
                 );
             }
         }
+        if let Some(layers) = &state.layers {
+            let p = &mut self.puppets[index];
+            if p.depth.is_none() || layers.len() != p.mesh.triangles().len() {
+                return Err(refuse(format!(
+                    "{} depth layers for {} triangles (or depth is off)",
+                    layers.len(),
+                    p.mesh.triangles().len()
+                )));
+            }
+            if p.static_layers().as_ref() != Some(layers) {
+                p.set_layers(layers.clone()).map_err(refuse)?;
+            }
+        }
         if let Some(w) = &state.weights {
             let p = &mut self.puppets[index];
             if *w != p.weights {
@@ -1802,6 +1910,7 @@ impl Stage {
             path: p.mesh_file.clone(),
             mesh: p.source_mesh.clone(),
             weights: p.weights.clone(),
+            layers: p.layers.clone(),
             mode: p.save_weights,
         })
     }
@@ -2053,5 +2162,6 @@ fn place(mesh: &Mesh, at: DVec2, scale: f64) -> Result<Mesh, MeshError> {
         mesh.triangles().to_vec(),
         mesh.uv().map(|uv| uv.to_vec()),
         Some(mesh.weights().to_vec()),
-    )
+    )?
+    .with_layers("placed mesh", mesh.layers().map(|l| l.to_vec()))
 }

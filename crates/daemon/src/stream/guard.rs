@@ -213,7 +213,10 @@ pub fn check_ranges(message: &ClientMessage) -> Result<(), Refusal> {
             }
             Ok(())
         }
-        M::Pin { x, y } | M::DepthFlip { x, y } | M::Paint { x, y, .. } => {
+        M::Pin { x, y }
+        | M::DepthFlip { x, y }
+        | M::Paint { x, y, .. }
+        | M::PaintDepth { x, y, .. } => {
             coordinate(|| "x".into(), *x)?;
             coordinate(|| "y".into(), *y)
         }

@@ -535,6 +535,31 @@ async fn handle_message(
             .await?;
             return Ok(None);
         }
+        ClientMessage::PaintDepth {
+            puppet,
+            x,
+            y,
+            radius,
+            layer,
+            stroke,
+        } => {
+            if !(x.is_finite() && y.is_finite()) {
+                return Err("paint_depth needs finite x and y".into());
+            }
+            let at = DVec2::new(x, y);
+            ask(shared, |reply| Command::Apply {
+                change: Change::PaintDepth {
+                    puppet,
+                    at,
+                    radius,
+                    layer,
+                    stroke,
+                },
+                reply,
+            })
+            .await?;
+            return Ok(None);
+        }
         ClientMessage::Undo { puppet } => return edit(shared, puppet, Edit::Undo).await,
         ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
         ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,

@@ -66,3 +66,50 @@ async fn a_fold_sends_depth_frames_to_every_client() {
     assert_eq!(rest.len(), triangles);
     running.shutdown().await;
 }
+
+/// The depth-layer brush over the wire: a performer may not paint depth, a
+/// director's dab sends every client a depth frame with the layer under
+/// the brush, and a bad layer is refused naming the field.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_director_paints_depth_layers_and_every_client_sees_them() {
+    let running = daemon("").await;
+    let (mut director, _) = connect(
+        &running,
+        json!({"type": "hello", "role": "director", "token": "boss"}),
+    )
+    .await;
+    let (mut performer, _) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": "secret"}),
+    )
+    .await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let dab = |layer: u32| {
+        Message::text(
+            json!({"type": "paint_depth", "puppet": 0, "x": 640.0, "y": 350.0,
+                   "radius": 60.0, "layer": layer, "stroke": 1})
+            .to_string(),
+        )
+    };
+    performer.send(dab(3)).await.unwrap();
+    loop {
+        let m = next_text(&mut performer).await;
+        if m["type"] == "error" {
+            assert_eq!(m["code"], "forbidden", "{m}");
+            break;
+        }
+    }
+    director.send(dab(3)).await.unwrap();
+    let painted = depth_until(&mut viewer, |d| d.contains(&3)).await;
+    let threes = painted.iter().filter(|&&d| d == 3).count();
+    assert!(threes > 10 && threes < painted.len() / 2, "{threes}");
+    director.send(dab(40000)).await.unwrap();
+    loop {
+        let m = next_text(&mut director).await;
+        if m["type"] == "error" {
+            assert!(m["message"].as_str().unwrap().contains("layer"), "{m}");
+            break;
+        }
+    }
+    running.shutdown().await;
+}

@@ -182,3 +182,107 @@ fn a_flip_brings_the_body_over_the_arm_and_a_touch_grabs_what_is_in_front() {
     );
     assert!(!forearm(grabbed(&stage)), "and a touch grabs the body");
 }
+
+/// Two pieces, one dragged over the other: unpainted, the later piece is
+/// drawn in front (the pieces' order); with the first piece painted a layer
+/// above (the brush, one stroke), the first is. Undo puts the pieces' order
+/// back; the saved mesh keeps the painted layers for the next load.
+#[test]
+fn painted_layers_decide_which_piece_is_in_front_and_are_saved() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh_file = dir.path().join("two.mesh.json");
+    std::fs::write(&mesh_file, puppetry_testkit::fixtures::islands(2).to_json()).unwrap();
+    let text = |mesh: &Path| {
+        format!(
+            "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"two\"\nimage = \"two.png\"\nmesh = \"{}\"\nat = [640, 360]\nscale = 20\n",
+            mesh.display(),
+        )
+    };
+    let config = StageConfig::parse("layers.toml", &text(&mesh_file), Path::new("/")).unwrap();
+    // Pieces at rest: the first over x 500..580, the second 700..780.
+    let (first, second) = (DVec2::new(540.0, 360.0), DVec2::new(740.0, 360.0));
+    let triangles = stage_triangles(&config);
+    let piece = |t: usize| usize::from(t >= triangles / 2);
+    // Drags the second piece over the first and says which piece is in
+    // front where they overlap.
+    let front_after_drag = |stage: &mut Stage| {
+        touch(stage, Phase::Down, second);
+        for step in 1..=10 {
+            touch(stage, Phase::Move, second.lerp(first, step as f64 / 10.0));
+        }
+        let p = &stage.puppets()[0];
+        let (depth, _) = p.depth().unwrap();
+        let pose = p.pose();
+        let tris = p.mesh.triangles();
+        let mut fronts = Vec::new();
+        for a in 0..triangles / 2 {
+            for b in triangles / 2..triangles {
+                if triangles_overlap(corners(pose, tris[a]), corners(pose, tris[b])) {
+                    fronts.push(if depth[a] > depth[b] {
+                        piece(a)
+                    } else {
+                        piece(b)
+                    });
+                }
+            }
+        }
+        touch(stage, Phase::Up, first);
+        assert!(fronts.len() > 10, "the pieces overlap: {}", fronts.len());
+        fronts.dedup();
+        assert_eq!(fronts.len(), 1, "one piece wholly in front");
+        fronts[0]
+    };
+
+    let mut stage = Stage::from_config(&config).unwrap();
+    assert_eq!(
+        front_after_drag(&mut stage),
+        1,
+        "unpainted: the later piece"
+    );
+
+    let mut stage = Stage::from_config(&config).unwrap();
+    let paint = Change::PaintDepth {
+        puppet: 0,
+        at: first,
+        radius: 60.0,
+        layer: 5,
+        stroke: Some(1),
+    };
+    stage.apply_change(&paint).unwrap();
+    stage.solve();
+    let (depth, _) = stage.puppets()[0].depth().unwrap();
+    assert!((0..triangles).all(|t| depth[t] == if piece(t) == 0 { 5 } else { 1 }));
+    // Saved beside the mesh before the drag, and loaded again from there.
+    let saved = stage.weights_file(0).unwrap().save().unwrap();
+    assert_eq!(front_after_drag(&mut stage), 0, "painted: the first piece");
+    let again = StageConfig::parse("layers.toml", &text(&saved), Path::new("/")).unwrap();
+    let mut reloaded = Stage::from_config(&again).unwrap();
+    assert_eq!(front_after_drag(&mut reloaded), 0, "as saved");
+
+    // Undo the stroke: the pieces' order again.
+    let mut stage = Stage::from_config(&config).unwrap();
+    stage.apply_change(&paint).unwrap();
+    let undo = stage.undo(0).unwrap().expect("the stroke can be undone");
+    stage.apply_change(&undo).unwrap();
+    stage.solve();
+    assert_eq!(front_after_drag(&mut stage), 1, "undone: the later piece");
+    // A layer past the highest is refused, naming the field.
+    let too_high = Change::PaintDepth {
+        puppet: 0,
+        at: first,
+        radius: 60.0,
+        layer: u16::MAX,
+        stroke: None,
+    };
+    match stage.apply_change(&too_high) {
+        Err(e) => assert!(e.to_string().contains("layer"), "{e}"),
+        Ok(_) => panic!("a layer past the highest was taken"),
+    }
+}
+
+fn stage_triangles(config: &StageConfig) -> usize {
+    Stage::from_config(config).unwrap().puppets()[0]
+        .mesh
+        .triangles()
+        .len()
+}
