@@ -23,7 +23,7 @@ import { Overlay, handleAt, keyHandleAnchor } from './overlay.js';
 import { KeyPad } from './keypad.js';
 import { PointerContacts, StageView } from './input.js';
 import {
-  EditControls, PaintTool, PinTool, PoseSlider, ReplaceTool, ReplayControls, TakeControls,
+  CurveTool, EditControls, PaintTool, PinTool, PoseSlider, ReplaceTool, ReplayControls, TakeControls,
   calibrationInset, calibrationMarks,
 } from './tools.js';
 import { forgetToken, takeAccess, viewOptions } from './session.js';
@@ -182,6 +182,11 @@ const paintTool = new PaintTool({
   layer: byId('paint-layer'),
   save: byId('save-weights'),
 }, { puppets: currentPuppets, clientToStage, send, reportError, onChange: redrawOverlay });
+const curveTool = new CurveTool({
+  button: byId('curve-tool'),
+  width: byId('curve-width'),
+  colour: byId('curve-colour'),
+}, { clientToStage, send, reportError, onChange: redrawOverlay });
 const poseSlider = new PoseSlider({
   controls: byId('pose-controls'),
   from: byId('pose-from'),
@@ -249,7 +254,7 @@ api.replaceRegions = () => replaceTool.regions();
 
 const pointerContacts = new PointerContacts(stageEl, view, {
   canStart: () => canPerform(role) && api.connected,
-  tools: [replaceTool, paintTool, pinTool], // replace marking, then the brush, win over pinning
+  tools: [replaceTool, curveTool, paintTool, pinTool], // replace marking, drawing, then the brush, win over pinning
   onLifted: redrawOverlay,
 });
 
@@ -264,6 +269,7 @@ function applyRole(newRole) {
   editControls.setEnabled(perform);
   keyPad.setMode({ perform, direct });
   paintTool.setEnabled(direct);
+  curveTool.setEnabled(direct);
   replaceTool.setEnabled(direct);
   replayControls.setEnabled(direct);
   takeControls.setRole({ perform, direct });
@@ -658,6 +664,7 @@ function drawOverlay() {
     handles: options.dots,
     showWeights: paintTool.on,
     brush: paintTool.outline(),
+    sketch: curveTool.sketch(),
     replace: replaceTool.outlines(),
     calibrationMarks: calibrateInset !== null && api.stage ? calibrationMarks(calibrateInset, api.stage.stage) : null,
     stageToClient,

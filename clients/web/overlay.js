@@ -96,6 +96,7 @@ export class Overlay {
    *   ownContacts       stage points {x, y} of our pointers that hold contacts
    *   showWeights       tint triangles by painted stiffness (while the paint tool is on)
    *   brush             {x, y, radius, stiffens} or null: the paint brush outline
+   *   sketch            {points, width, colour} or null: the curve being drawn
    *   calibrationMarks  stage points to mark 1, 2, 3, 4, or null
    *   stageToClient     (x, y) -> [clientX, clientY]
    *   colour            (owner, alpha) -> CSS colour of the owner's handles and cursors
@@ -134,6 +135,7 @@ export class Overlay {
     if (scene.rigs !== false) this.drawRigs(scene.puppets, dot, line);
     if (scene.showWeights) this.drawWeights(scene.puppets, toOverlay);
     if (scene.brush) this.drawBrush(scene.brush, toOverlay);
+    if (scene.sketch) this.drawSketch(scene.sketch, toOverlay);
     for (const disc of scene.replace ?? []) this.drawReplace(disc, toOverlay);
     if (scene.handles !== false) this.drawHandles(scene, dot, toOverlay);
     if (scene.calibrationMarks) this.drawCalibrationMarks(scene.calibrationMarks, toOverlay);
@@ -212,6 +214,25 @@ export class Overlay {
     ctx.arc(cx, cy, Math.abs(ex - cx), 0, 2 * Math.PI);
     ctx.stroke();
     ctx.restore();
+  }
+
+  // The stroke being drawn with the curve tool, at its width and colour.
+  drawSketch({ points, width, colour }, toOverlay) {
+    const ctx = this.ctx;
+    const [x0] = toOverlay(0, 0);
+    const [x1] = toOverlay(width, 0);
+    ctx.beginPath();
+    points.forEach(([x, y], i) => {
+      const [px, py] = toOverlay(x, y);
+      if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
+    });
+    ctx.lineWidth = Math.max(1, Math.abs(x1 - x0));
+    ctx.lineCap = 'round';
+    ctx.lineJoin = 'round';
+    ctx.strokeStyle = colour;
+    ctx.globalAlpha = 0.6;
+    ctx.stroke();
+    ctx.globalAlpha = 1;
   }
 
   // The brush's reach: blue while it stiffens, red while it softens.

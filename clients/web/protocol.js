@@ -14,6 +14,7 @@ export const CLIENT_MESSAGE = Object.freeze({
   UNPIN: 'unpin',
   PAINT: 'paint',
   PAINT_DEPTH: 'paint_depth',
+  ADD_CURVE: 'add_curve',
   SAVE_WEIGHTS: 'save_weights',
   EXPORT_GRID: 'export_grid',
   POSE: 'pose',
@@ -184,6 +185,11 @@ export function paintMessage(puppet, x, y, radius, strength, stroke) {
   const message = { type: CLIENT_MESSAGE.PAINT, puppet, x, y, radius, strength };
   if (stroke !== undefined) message.stroke = stroke;
   return message;
+}
+
+/** A curve puppet from a stroke drawn on the page (director): stage points, width, "#RRGGBB". */
+export function addCurveMessage(name, points, width, colour) {
+  return { type: CLIENT_MESSAGE.ADD_CURVE, name, points, width, colour };
 }
 
 /** One dab of the depth-layer brush (director): triangles under it take `layer`, larger nearer. */

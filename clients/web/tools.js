@@ -1,6 +1,7 @@
 // The performer's tools beside plain dragging, each with its controls in
 // the bar: the pin tool (click to pin, click a pin to remove it), the
-// stiffness paint brush (dabs, and saving the painted weights), the key pose
+// stiffness and depth-layer paint brush (dabs, and saving the painted
+// weights), the curve tool (draw a stroke: it becomes a curve puppet), the key pose
 // slider of a skeleton puppet, undo/redo/reset per puppet, the replays'
 // play/pause toggles, the takes' controls and overdub's replace tool; and
 // the calibration marks `?calibrate=` asks for. Tools take pointers before
@@ -10,7 +11,7 @@
 
 import {
   HANDLE_KIND, RIG_KIND,
-  depthFlipMessage, paintDepthMessage, paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
+  addCurveMessage, depthFlipMessage, paintDepthMessage, paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
   saveWeightsMessage, undoMessage, unpinMessage,
 } from './protocol.js';
 import { anchorPoint, keyHandleAnchor } from './overlay.js';
@@ -284,6 +285,85 @@ export class PaintTool {
   outline() {
     if (!this.on || !this.brush) return null;
     return { x: this.brush.x, y: this.brush.y, radius: this.radius, stiffens: this.strength >= 1 };
+  }
+}
+
+// A drawn stroke keeps a point only this far (stage units) from the last:
+// evenly enough for the server's resampling, few enough for one message.
+const CURVE_STEP = 3;
+
+/**
+ * The curve tool (directors): while on, a drag draws a stroke, and letting
+ * go asks the server to make it a curve puppet of the width and colour in
+ * the bar (`add_curve`), which then appears on every page.
+ */
+export class CurveTool {
+  /** elements: {button, width, colour}; clientToStage(cx, cy); send(message); onChange(): redraw the overlay. */
+  constructor(elements, { clientToStage, send, reportError, onChange }) {
+    this.elements = elements;
+    this.clientToStage = clientToStage;
+    this.send = send;
+    this.reportError = reportError;
+    this.onChange = onChange;
+    this.on = false;
+    this.points = null;   // the stroke being drawn (stage points), or null
+    this.count = 0;       // curves drawn by this page, for their names
+    elements.button.addEventListener('click', () => {
+      this.on = !this.on;
+      elements.button.setAttribute('aria-pressed', String(this.on));
+      this.points = null;
+      this.onChange();
+    });
+  }
+
+  setEnabled(on) {
+    this.elements.button.hidden = !on;
+    this.elements.width.parentElement.hidden = !on;
+    this.elements.colour.parentElement.hidden = !on;
+    if (!on && this.on) {
+      this.on = false;
+      this.points = null;
+      this.elements.button.setAttribute('aria-pressed', 'false');
+      this.onChange();
+    }
+  }
+
+  pointerDown(e, x, y) {
+    if (!this.on) return false;
+    e.currentTarget.setPointerCapture(e.pointerId);
+    this.points = [[x, y]];
+    this.onChange();
+    return true;
+  }
+
+  pointerMove(e) {
+    if (!this.on) return false;
+    if (this.points) {
+      const [x, y] = this.clientToStage(e.clientX, e.clientY);
+      const [lx, ly] = this.points[this.points.length - 1];
+      if (Math.hypot(x - lx, y - ly) >= CURVE_STEP) {
+        this.points.push([x, y]);
+        this.onChange();
+      }
+    }
+    return true;
+  }
+
+  pointerUp() {
+    const points = this.points;
+    this.points = null;
+    if (!this.on || !points) return;
+    this.onChange();
+    if (points.length < 3) return this.reportError('draw a longer stroke for a curve');
+    const width = Number(this.elements.width.value);
+    this.count += 1;
+    this.send(addCurveMessage(`curve ${this.count}`, points, width, this.elements.colour.value));
+  }
+
+  /** The stroke being drawn, for the overlay: {points, width, colour}, or null. */
+  sketch() {
+    if (!this.points) return null;
+    return { points: this.points, width: Number(this.elements.width.value), colour: this.elements.colour.value };
   }
 }
 

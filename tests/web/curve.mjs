@@ -2,7 +2,9 @@
 // stage: the rope and the ribbon are drawn as strokes of their colours
 // along their centre lines, and a performer's mouse drag near one end of
 // the ribbon moves the stroke on the page: the grabbed point is drawn where
-// the pointer went, and the far end stays where it was (peeling).
+// the pointer went, and the far end stays where it was (peeling). Then a
+// director draws a stroke with the page's curve tool: it becomes a fourth
+// puppet on every page, drawn where it was drawn.
 //
 //   PUPPETRY_URL='http://127.0.0.1:PORT/?role=performer&token=demo' PUPPETRY_POINT='1110,300' node curve.mjs
 //
@@ -11,7 +13,7 @@
 
 import fs from 'node:fs';
 import path from 'node:path';
-import { startScript, allErrors, openPage, pageState, settle, stageToClient, waitFor, rgbOf, colourDistance } from './page-common.mjs';
+import { startScript, allErrors, openPage, pageState, pageUrl, settle, stageToClient, waitFor, rgbOf, colourDistance } from './page-common.mjs';
 
 const { url, shotDir, summary, finish, launch } = startScript();
 const errors = [];
@@ -118,6 +120,40 @@ try {
     fs.writeFileSync(path.join(shotDir, 'curve-drag.png'), await page.screenshot());
   }
   await page.mouse.up();
+
+  step('a director draws a curve');
+  pages.director = await openPage(context, pageUrl(url, '?role=director&token=director'), errors, 'director');
+  const director = pages.director;
+  await waitFor(director, 'the stage', () => (window.puppetry.stage?.puppets ?? []).length === 3);
+  await director.click('#curve-tool');
+  await director.fill('#curve-colour', '#2e7d32');
+  const drawn = [];
+  for (let s = 0; s <= 40; s++) drawn.push([420 + 11 * s, 80 + 25 * Math.sin(s / 6)]);
+  const [dx, dy] = await stageToClient(director, drawn[0]);
+  await director.mouse.move(dx, dy);
+  await director.mouse.down();
+  for (const at of drawn.slice(1)) {
+    const [x, y] = await stageToClient(director, at);
+    await director.mouse.move(x, y);
+  }
+  await director.mouse.up();
+  for (const [name, p] of [['director', director], ['performer', page]]) {
+    await waitFor(p, `the drawn curve on the ${name}'s page`, () => {
+      const ps = window.puppetry.stage?.puppets ?? [];
+      return ps.length === 4 && ps[3].rig.kind === 'curve' && ps[3].name === 'curve 1' && window.puppetry.positions(ps[3].id).length > 0;
+    });
+  }
+  summary.drawn = await strokeCoverage(page, 3, rgbOf('#2e7d32'));
+  if (summary.drawn.on < 0.9 * summary.drawn.total) throw new Error(`the drawn curve is not drawn along its line: ${JSON.stringify(summary.drawn)}`);
+  // Where it was drawn: its centre line starts and ends at the stroke's ends.
+  const ends = await page.evaluate(() => {
+    const pos = window.puppetry.positions(3);
+    const n = pos.length;
+    return [[(pos[0] + pos[2]) / 2, (pos[1] + pos[3]) / 2], [(pos[n - 4] + pos[n - 2]) / 2, (pos[n - 3] + pos[n - 1]) / 2]];
+  });
+  summary.drawnEnds = ends;
+  const near = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1]) < 4;
+  if (!near(ends[0], drawn[0]) || !near(ends[1], drawn[drawn.length - 1])) throw new Error(`the curve is not where it was drawn: ${JSON.stringify(ends)}`);
 
   step('done');
   const all = await allErrors(errors, Object.values(pages));

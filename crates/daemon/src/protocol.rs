@@ -363,6 +363,14 @@ pub enum ClientMessage {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
     },
+    /// A curve puppet drawn on the page (directors): its centre line in
+    /// stage coordinates, a stroke `width` wide in `colour` (`#RRGGBB`).
+    AddCurve {
+        name: String,
+        points: Vec<[f64; 2]>,
+        width: f64,
+        colour: String,
+    },
     /// Take back the puppet's last edit (paint stroke, pin, pose).
     Undo {
         puppet: u32,

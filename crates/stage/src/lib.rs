@@ -327,7 +327,7 @@ impl Puppet {
         let (mesh_file, mesh, picture) = match &p.curve {
             Some(c) => {
                 let source = format!("{} puppet[{index}].curve", config.file);
-                let mesh = curve_mesh(&source, c).map_err(rig_error)?;
+                let mesh = curve_rest_mesh(&source, c).map_err(rig_error)?;
                 let picture = if p.image.as_os_str().is_empty() {
                     Picture::Stroke(c.rgb())
                 } else {
@@ -727,7 +727,7 @@ impl Puppet {
 /// A curve puppet's ribbon mesh, in its own coordinates: the centre line
 /// (points or SVG path) checked, resampled evenly (the paper's §7) and
 /// widened. Errors are `(field, problem)`.
-fn curve_mesh(source: &str, c: &config::CurveConfig) -> Result<Mesh, (String, String)> {
+pub fn curve_rest_mesh(source: &str, c: &config::CurveConfig) -> Result<Mesh, (String, String)> {
     use puppetry_deform::curve::{resample_evenly, validate};
     use puppetry_mesh::stroke::{parse_svg_path, ribbon_mesh};
     let (field, given) = match (&c.points, &c.svg) {

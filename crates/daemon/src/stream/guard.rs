@@ -223,6 +223,12 @@ pub fn check_ranges(message: &ClientMessage) -> Result<(), Refusal> {
         M::Cursor { at: Some(at), .. } | M::KeyAdd { at, .. } | M::KeyMove { at, .. } => {
             pair("at", at)
         }
+        M::AddCurve { points, .. } => {
+            for (i, p) in points.iter().enumerate() {
+                pair(&format!("points[{i}]"), p)?;
+            }
+            Ok(())
+        }
         M::Play { replace, .. } => {
             for (i, r) in replace.iter().enumerate() {
                 pair(&format!("replace[{i}].at"), &r.at)?;

@@ -680,6 +680,15 @@ async fn handle_message(
                 .to_text(),
             ));
         }
+        ClientMessage::AddCurve {
+            name,
+            points,
+            width,
+            colour,
+        } => {
+            let added = uploads::add_curve(shared, name, points, width, colour).await?;
+            return Ok(Some(added.to_text()));
+        }
         ClientMessage::RemovePuppet { puppet } => {
             change_lineup(shared, LineupChange::Remove(puppet)).await?;
             return Ok(None);

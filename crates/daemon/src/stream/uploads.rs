@@ -1,9 +1,11 @@
 //! Puppets brought in at runtime: `POST /puppets` takes a director's PNG,
 //! meshes it and loads the puppet on a blocking worker (never on the stage
 //! thread or an async worker), keeps the picture and its mesh in the
-//! puppets folder, and asks the stage thread to put it on top. Every answer
-//! is JSON: the puppet made, with warnings about the picture, or a typed
-//! `error` naming the parameter at fault.
+//! puppets folder, and asks the stage thread to put it on top; an
+//! `add_curve` message makes a curve puppet of a stroke a director drew on
+//! the page, the same way. Every answer is JSON: the puppet made, with
+//! warnings about the picture, or a typed `error` naming the parameter at
+//! fault.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -15,7 +17,7 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use puppetry_mesh::build::{MeshOptions, mesh_picture};
 use puppetry_stage::Puppet;
-use puppetry_stage::config::{AccessRole, PuppetConfig, SaveWeights, StageConfig};
+use puppetry_stage::config::{AccessRole, CurveConfig, PuppetConfig, SaveWeights, StageConfig};
 
 use super::edge::{PeerAddr, origin_allowed};
 use super::guard::Refusal;
@@ -267,6 +269,120 @@ impl Wanted {
             scale,
         })
     }
+}
+
+/// The most points a drawn curve may have (the page thins a stroke to a
+/// few units between points, and a message holds at most 64 KiB anyway).
+pub const MAX_CURVE_POINTS: usize = 4000;
+
+/// A curve puppet from a stroke drawn on the page (stage coordinates),
+/// checked, built and loaded on a blocking worker, then put on top.
+pub(super) async fn add_curve(
+    shared: &Shared,
+    name: String,
+    points: Vec<[f64; 2]>,
+    width: f64,
+    colour: String,
+) -> Result<ServerMessage, Refusal> {
+    let bad = |field: &str, message: String| Refusal::new(ErrorCode::BadRequest, message).at(field);
+    let name = name.trim().to_string();
+    if !valid_name(&name) {
+        return Err(bad(
+            "name",
+            format!(
+                "name {name:?}: use 1 to 64 letters, digits, spaces, '-', '_' or '.' (not starting with '.')"
+            ),
+        ));
+    }
+    if points.len() > MAX_CURVE_POINTS {
+        return Err(Refusal::new(
+            ErrorCode::OutOfRange,
+            format!(
+                "points: {} points, at most {MAX_CURVE_POINTS}",
+                points.len()
+            ),
+        )
+        .at("points"));
+    }
+    if !(width.is_finite() && width > 0.0 && width <= 200.0) {
+        return Err(Refusal::new(
+            ErrorCode::OutOfRange,
+            format!("width: {width} must be above 0 and at most 200"),
+        )
+        .at("width"));
+    }
+    let is_colour = colour.len() == 7
+        && colour.starts_with('#')
+        && colour[1..].chars().all(|c| c.is_ascii_hexdigit());
+    if !is_colour {
+        return Err(bad("colour", format!("colour {colour:?} is not #RRGGBB")));
+    }
+    let lineup = shared.lineup.borrow().clone();
+    let config = lineup.config.clone();
+    let names: Vec<String> = config.puppets.iter().map(|p| p.name.clone()).collect();
+    let name = (1..)
+        .map(|n| {
+            if n == 1 {
+                name.clone()
+            } else {
+                format!("{name}-{n}")
+            }
+        })
+        .find(|n| !names.contains(n))
+        .expect("a free name");
+    let curve = CurveConfig {
+        points: Some(points),
+        svg: None,
+        width,
+        colour,
+        spacing: None,
+        peel_rate: 1.5,
+        peel_radius: 0.0,
+    };
+    let made = tokio::task::spawn_blocking(move || -> Result<(Puppet, PuppetConfig), Refusal> {
+        // The stroke stays where it was drawn: the puppet's placement puts
+        // its ribbon's box centre at `at`, in its own (= stage) units.
+        let ribbon = puppetry_stage::curve_rest_mesh("drawn curve", &curve)
+            .map_err(|(field, problem)| bad(field.trim_start_matches("curve."), problem))?;
+        let (lo, hi) = ribbon
+            .vertices()
+            .iter()
+            .fold((glam::DVec2::MAX, glam::DVec2::MIN), |(lo, hi), &p| {
+                (lo.min(p), hi.max(p))
+            });
+        let at = (lo + hi) / 2.0;
+        let entry = PuppetConfig {
+            curve: Some(curve),
+            name,
+            image: Default::default(),
+            mesh: Default::default(),
+            at: at.into(),
+            scale: 1.0,
+            pins: Vec::new(),
+            grid: None,
+            skeleton: None,
+            keys: None,
+            save_weights: SaveWeights::Version,
+            depth: Default::default(),
+        };
+        let puppet = Puppet::load(&config, config.puppets.len(), &entry)
+            .map_err(|e| bad("points", e.to_string()))?;
+        Ok((puppet, entry))
+    })
+    .await
+    .map_err(|e| Refusal::new(ErrorCode::Failed, e.to_string()))??;
+    let (puppet, entry) = made;
+    let (vertices, triangles) = (puppet.mesh.vertices().len(), puppet.mesh.triangles().len());
+    let name = entry.name.clone();
+    let id = change_lineup(shared, LineupChange::Add(Box::new((puppet, entry)))).await?;
+    tracing::info!(puppet = id, %name, vertices, "a director drew a curve puppet");
+    Ok(ServerMessage::PuppetAdded {
+        puppet: id,
+        name,
+        vertices,
+        triangles,
+        warnings: Vec::new(),
+    })
 }
 
 fn valid_name(name: &str) -> bool {

@@ -176,3 +176,89 @@ async fn finish(running: Running) {
     }
     running.shutdown().await;
 }
+
+/// `add_curve`: a director's drawn stroke becomes a curve puppet on every
+/// client where it was drawn; performers may not; bad strokes are refused
+/// naming the field.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_director_draws_a_curve_puppet_and_bad_strokes_are_refused() {
+    let config = curve_stage(false);
+    let running = start_with(&config, Options::new(WebFiles::Embedded))
+        .await
+        .unwrap();
+    let (mut director, _) = connect(
+        &running,
+        json!({"type": "hello", "role": "director", "token": "director"}),
+    )
+    .await;
+    let (mut performer, _) = connect(
+        &running,
+        json!({"type": "hello", "role": "performer", "token": "demo"}),
+    )
+    .await;
+    let stroke: Vec<[f64; 2]> = (0..30)
+        .map(|i| {
+            [
+                400.0 + 10.0 * i as f64,
+                650.0 + 20.0 * (i as f64 / 5.0).sin(),
+            ]
+        })
+        .collect();
+    let add = |points: &Vec<[f64; 2]>, width: f64, colour: &str| {
+        Message::text(
+            json!({"type": "add_curve", "name": "drawn", "points": points,
+                   "width": width, "colour": colour})
+            .to_string(),
+        )
+    };
+    performer.send(add(&stroke, 8.0, "#336699")).await.unwrap();
+    assert_eq!(next_error(&mut performer).await["code"], "forbidden");
+    for (points, width, colour, field) in [
+        (stroke[..2].to_vec(), 8.0, "#336699", "points"),
+        (stroke.clone(), 0.0, "#336699", "width"),
+        (stroke.clone(), 8.0, "blue", "colour"),
+    ] {
+        director.send(add(&points, width, colour)).await.unwrap();
+        let m = next_error(&mut director).await;
+        assert_eq!(m["field"], field, "{m}");
+    }
+    director.send(add(&stroke, 8.0, "#336699")).await.unwrap();
+    let added = loop {
+        let m = next_text(&mut director).await;
+        if m["type"] == "puppet_added" {
+            break m;
+        }
+    };
+    assert_eq!(added["name"], "drawn");
+    let id = added["puppet"].as_u64().unwrap();
+    // Every client gets the new stage, the stroke where it was drawn.
+    let stage = loop {
+        let m = next_text(&mut performer).await;
+        if m["type"] == "stage" && m["puppets"].as_array().unwrap().len() == 4 {
+            break m;
+        }
+    };
+    let puppet = &stage["puppets"][3];
+    assert_eq!(puppet["id"].as_u64().unwrap(), id);
+    assert_eq!(puppet["rig"]["kind"], "curve");
+    let line = centre_line(&points(&puppet["rest"]));
+    // (The stage message's rest positions are single precision.)
+    let first = DVec2::from(stroke[0]);
+    let last = DVec2::from(stroke[29]);
+    assert!(line[0].distance(first) < 1e-3, "{}", line[0]);
+    assert!(
+        line.last().unwrap().distance(last) < 1e-3,
+        "{} {last}",
+        line.last().unwrap()
+    );
+    running.shutdown().await;
+}
+
+async fn next_error(ws: &mut Client) -> Value {
+    loop {
+        let m = next_text(ws).await;
+        if m["type"] == "error" {
+            return m;
+        }
+    }
+}
