@@ -231,7 +231,7 @@ impl DepthOrder {
         let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
         let most = count.max(boundary.len());
         let scratch = Scratch {
-            grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most),
+            grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most, most),
             piece_lo: vec![DVec2::ZERO; pieces.len()],
             piece_hi: vec![DVec2::ZERO; pieces.len()],
             seeds: Vec::with_capacity(boundary.len() + 16 * MAX_INVERTED_SEEDS),
@@ -1084,10 +1084,12 @@ struct FrameGrid {
     start: Vec<u32>,
     members: Vec<u32>,
     fill: Vec<u32>,
+    /// Per item, its cells' columns and rows `[c0, r0, c1, r1]`.
+    ranges: Vec<[u32; 4]>,
 }
 
 impl FrameGrid {
-    fn with_capacity(cells: usize, members: usize) -> FrameGrid {
+    fn with_capacity(cells: usize, members: usize, items: usize) -> FrameGrid {
         FrameGrid {
             lo: DVec2::ZERO,
             cell: 1.0,
@@ -1096,6 +1098,7 @@ impl FrameGrid {
             start: Vec::with_capacity(cells + 1),
             members: Vec::with_capacity(members),
             fill: Vec::with_capacity(cells + 1),
+            ranges: Vec::with_capacity(items),
         }
     }
 
@@ -1123,9 +1126,19 @@ impl FrameGrid {
         let cells = self.columns * self.rows;
         self.start.clear();
         self.start.resize(cells + 1, 0);
+        // Each item's cell range once, kept for the second pass.
+        self.ranges.clear();
         for i in 0..count {
             let (a, b) = bounds(i);
-            self.visit(a, b, |k, grid| grid.start[k + 1] += 1);
+            let (c0, r0) = self.column_row(a);
+            let (c1, r1) = self.column_row(b);
+            let range = [c0 as u32, r0 as u32, c1 as u32, r1 as u32];
+            self.ranges.push(range);
+            for r in r0..=r1 {
+                for c in c0..=c1 {
+                    self.start[r * self.columns + c + 1] += 1;
+                }
+            }
         }
         for k in 1..=cells {
             self.start[k] += self.start[k - 1];
@@ -1134,21 +1147,13 @@ impl FrameGrid {
         self.fill.extend_from_slice(&self.start);
         self.members.clear();
         self.members.resize(self.start[cells] as usize, 0);
-        for i in 0..count {
-            let (a, b) = bounds(i);
-            self.visit(a, b, |k, grid| {
-                grid.members[grid.fill[k] as usize] = i as u32;
-                grid.fill[k] += 1;
-            });
-        }
-    }
-
-    fn visit(&mut self, a: DVec2, b: DVec2, mut each: impl FnMut(usize, &mut FrameGrid)) {
-        let (c0, r0) = self.column_row(a);
-        let (c1, r1) = self.column_row(b);
-        for r in r0..=r1 {
-            for c in c0..=c1 {
-                each(r * self.columns + c, self);
+        for (i, &[c0, r0, c1, r1]) in self.ranges.iter().enumerate() {
+            for r in r0 as usize..=r1 as usize {
+                for c in c0 as usize..=c1 as usize {
+                    let k = r * self.columns + c;
+                    self.members[self.fill[k] as usize] = i as u32;
+                    self.fill[k] += 1;
+                }
             }
         }
     }
