@@ -193,7 +193,8 @@ struct BandLu<T> {
     /// `lower[lower_start[j]..lower_start[j + 1]]`, rows `j + 1 ..`.
     lower: Vec<T>,
     lower_start: Vec<u32>,
-    /// U's non-zeros above the diagonal, column by column; column `j` is
+    /// U's non-zeros above the diagonal, each row scaled by the reciprocal
+    /// of its diagonal, column by column; column `j` is
     /// `upper[upper_start[j]..upper_start[j + 1]]`, ending at row `j − 1`.
     upper: Vec<T>,
     upper_start: Vec<u32>,
@@ -299,8 +300,13 @@ impl<T: Entry> BandLu<T> {
                 .unwrap_or(0);
             self.lower
                 .extend_from_slice(&column[diagonal + 1..diagonal + 1 + below]);
-            self.upper
-                .extend_from_slice(&column[diagonal - above..diagonal]);
+            // U's rows are scaled by their diagonal's reciprocal (D⁻¹U has a
+            // unit diagonal), so the back substitution's chain from one
+            // unknown to the next is one multiply-subtract, not two.
+            for (k, &entry) in column[diagonal - above..diagonal].iter().enumerate() {
+                let row = j - above + k;
+                self.upper.push(self.inverse_diagonal[row].times(entry));
+            }
             self.lower_start.push(self.lower.len() as u32);
             self.upper_start.push(self.upper.len() as u32);
         }
@@ -321,10 +327,12 @@ impl<T: Entry> BandLu<T> {
             for (out, factor) in b[j + 1..].iter_mut().zip(column) {
                 *out -= factor.apply(x);
             }
+            // Ready for D⁻¹U x = D⁻¹y (off the forward chain: b[j] is not
+            // read again here).
+            b[j] = self.inverse_diagonal[j].apply(x);
         }
         for j in (0..n).rev() {
-            let x = self.inverse_diagonal[j].apply(b[j]);
-            b[j] = x;
+            let x = b[j];
             let column =
                 &self.upper[self.upper_start[j] as usize..self.upper_start[j + 1] as usize];
             for (out, factor) in b[j - column.len()..j].iter_mut().zip(column) {
