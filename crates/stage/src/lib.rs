@@ -2154,7 +2154,12 @@ fn place(mesh: &Mesh, at: DVec2, scale: f64) -> Result<Mesh, MeshError> {
     let vertices = mesh
         .vertices()
         .iter()
-        .map(|&p| stage_point(mesh, at, scale, p))
+        // The box's centre once, not per vertex (that was quadratic).
+        .map({
+            let (lo, hi) = bounds(mesh.vertices());
+            let centre = (lo + hi) / 2.0;
+            move |&p| at + (p - centre) * scale
+        })
         .collect();
     Mesh::new(
         "placed mesh",
