@@ -940,7 +940,7 @@ mod tests {
         }
         assert_eq!(
             rigs.into_iter().collect::<Vec<_>>(),
-            ["free", "grid", "skeleton"],
+            ["curve", "free", "grid", "skeleton"],
             "every rig kind is shown"
         );
         // The frame table ends its header where the code does.
