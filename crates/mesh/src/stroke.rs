@@ -24,6 +24,8 @@ pub enum StrokeError {
         "width {width} is too wide for the curve's bend near point {point}: the stroke's inner edge folds over itself (use a narrower width or a gentler curve)"
     )]
     TooWide { width: f64, point: usize },
+    #[error("the stroke's ribbon: {problem}")]
+    Ribbon { problem: String },
 }
 
 /// The centre line of an SVG path `d`: one open subpath of `M`/`L`/`H`/`V`/
@@ -324,9 +326,10 @@ pub fn ribbon_mesh(source: &str, centre: &[DVec2], width: f64) -> Result<Mesh, S
         }
     }
     Mesh::new(source, vertices, triangles, Some(uv), None).map_err(|e| match e {
-        MeshError::Invalid { problem, .. } => StrokeError::Path { at: 0, problem },
-        other => StrokeError::Path {
-            at: 0,
+        MeshError::Invalid { field, problem, .. } => StrokeError::Ribbon {
+            problem: format!("{field}: {problem}"),
+        },
+        other => StrokeError::Ribbon {
             problem: other.to_string(),
         },
     })
