@@ -189,15 +189,18 @@ struct BandLu<T> {
     pivots: Vec<u32>,
     /// Per column: reciprocal of U's diagonal.
     inverse_diagonal: Vec<T>,
-    /// L's non-zeros below the diagonal, column by column; column `j` is
-    /// `lower[lower_start[j]..lower_start[j + 1]]`, rows `j + 1 ..`.
+    /// L below the diagonal, `lower_width` entries per column (rows
+    /// `j + 1 ..`, zero-padded): as wide as the longest column or the
+    /// farthest row swap, whichever is more.
     lower: Vec<T>,
-    lower_start: Vec<u32>,
-    /// U's non-zeros above the diagonal, each row scaled by the reciprocal
-    /// of its diagonal, column by column; column `j` is
-    /// `upper[upper_start[j]..upper_start[j + 1]]`, ending at row `j − 1`.
+    lower_width: usize,
+    /// Whether any row was swapped (the factorisation had to pivot).
+    swaps: bool,
+    /// U above the diagonal with each row scaled by the reciprocal of its
+    /// diagonal, `upper_width` entries per column, nearest row first (rows
+    /// `j − 1, j − 2, …`, zero-padded).
     upper: Vec<T>,
-    upper_start: Vec<u32>,
+    upper_width: usize,
 }
 
 impl<T: Entry> BandLu<T> {
@@ -229,7 +232,23 @@ impl<T: Entry> BandLu<T> {
 
     /// In-place LU with row pivoting. False when a pivot vanishes relative
     /// to the matrix's scale: the system is singular.
+    ///
+    /// First without pivoting: with each handle's multiplier after its
+    /// points, the leading blocks are nonsingular (the energy is definite
+    /// on any proper subset of the points), and without row swaps the
+    /// factors keep the matrix's own bandwidths — the fewest operations on
+    /// the solves' chains. A pivot small against the matrix, or growth in
+    /// the factors, falls back to partial pivoting.
     fn factor(&mut self) -> bool {
+        let original = self.band.clone();
+        if self.factor_with(false) {
+            return true;
+        }
+        self.band = original;
+        self.factor_with(true)
+    }
+
+    fn factor_with(&mut self, pivoting: bool) -> bool {
         let n = self.n;
         let (kl, ku) = (self.kl, self.ku);
         let scale = self
@@ -237,18 +256,22 @@ impl<T: Entry> BandLu<T> {
             .iter()
             .map(|z| z.magnitude_squared())
             .fold(0.0, f64::max);
-        let tiny = scale * 1e-26;
+        // Squared magnitudes: a pivot below 1e-13 (pivoting) or 1e-6
+        // (not) of the largest entry is too small to divide by.
+        let tiny = scale * if pivoting { 1e-26 } else { 1e-12 };
         self.pivots.clear();
         self.inverse_diagonal.clear();
         for j in 0..n {
             let last_row = (j + kl).min(n - 1);
             let mut pivot = j;
             let mut best = self.band[self.slot(j, j)].magnitude_squared();
-            for i in j + 1..=last_row {
-                let m = self.band[self.slot(i, j)].magnitude_squared();
-                if m > best {
-                    best = m;
-                    pivot = i;
+            if pivoting {
+                for i in j + 1..=last_row {
+                    let m = self.band[self.slot(i, j)].magnitude_squared();
+                    if m > best {
+                        best = m;
+                        pivot = i;
+                    }
                 }
             }
             if best.is_nan() || best <= tiny {
@@ -280,67 +303,194 @@ impl<T: Entry> BandLu<T> {
                 }
             }
         }
+        if !pivoting {
+            let largest = self
+                .band
+                .iter()
+                .map(|z| z.magnitude_squared())
+                .fold(0.0, f64::max);
+            // NaN growth fails too.
+            if largest.is_nan() || largest > scale * 1e12 {
+                return false;
+            }
+        }
         let zero = T::default();
-        self.lower.clear();
-        self.upper.clear();
-        self.lower_start.clear();
-        self.upper_start.clear();
-        self.lower_start.push(0);
-        self.upper_start.push(0);
+        let stride = self.stride();
+        let diagonal = kl + ku;
+        let column = |j: usize| &self.band[j * stride..(j + 1) * stride];
+        let mut lower_width = 0;
+        let mut upper_width = 0;
         for j in 0..n {
-            let column = &self.band[j * self.stride()..(j + 1) * self.stride()];
-            let diagonal = kl + ku;
+            let c = column(j);
             let below = (1..=kl.min(n - 1 - j))
                 .rev()
-                .find(|&k| column[diagonal + k] != zero)
+                .find(|&k| c[diagonal + k] != zero)
                 .unwrap_or(0);
             let above = (1..=(ku + kl).min(j))
                 .rev()
-                .find(|&k| column[diagonal - k] != zero)
+                .find(|&k| c[diagonal - k] != zero)
                 .unwrap_or(0);
-            self.lower
-                .extend_from_slice(&column[diagonal + 1..diagonal + 1 + below]);
+            let swap = self.pivots[j] as usize - j;
+            lower_width = lower_width.max(below).max(swap);
+            upper_width = upper_width.max(above);
+        }
+        let (lower_width, upper_width) = (lower_width.max(1), upper_width.max(1));
+        let mut lower = std::mem::take(&mut self.lower);
+        let mut upper = std::mem::take(&mut self.upper);
+        lower.clear();
+        upper.clear();
+        for j in 0..n {
+            let c = column(j);
+            for k in 1..=lower_width {
+                lower.push(if j + k < n && k <= kl {
+                    c[diagonal + k]
+                } else {
+                    zero
+                });
+            }
             // U's rows are scaled by their diagonal's reciprocal (D⁻¹U has a
             // unit diagonal), so the back substitution's chain from one
             // unknown to the next is one multiply-subtract, not two.
-            for (k, &entry) in column[diagonal - above..diagonal].iter().enumerate() {
-                let row = j - above + k;
-                self.upper.push(self.inverse_diagonal[row].times(entry));
+            for k in 1..=upper_width {
+                upper.push(if k <= j && k <= kl + ku {
+                    self.inverse_diagonal[j - k].times(c[diagonal - k])
+                } else {
+                    zero
+                });
             }
-            self.lower_start.push(self.lower.len() as u32);
-            self.upper_start.push(self.upper.len() as u32);
         }
+        self.lower = lower;
+        self.upper = upper;
+        self.lower_width = lower_width;
+        self.upper_width = upper_width;
+        self.swaps = self
+            .pivots
+            .iter()
+            .enumerate()
+            .any(|(j, &p)| p as usize != j);
         true
     }
 
-    /// Solves `A x = b` in place with the factors.
+    /// Solves `A x = b` in place with the factors. Each sweep carries the
+    /// next unknowns in a window of registers (as wide as the factors'
+    /// columns), so the chain from one unknown to the next is one
+    /// multiply-subtract with no store and load between.
     fn solve(&self, b: &mut [DVec2]) {
+        macro_rules! sweep {
+            ($f:ident, $width:expr) => {
+                match $width {
+                    1 => self.$f::<1>(b),
+                    2 => self.$f::<2>(b),
+                    3 => self.$f::<3>(b),
+                    4 => self.$f::<4>(b),
+                    5 => self.$f::<5>(b),
+                    6 => self.$f::<6>(b),
+                    7 => self.$f::<7>(b),
+                    _ => self.$f::<WIDEST>(b),
+                }
+            };
+        }
+        if self.lower_width > WIDEST || self.upper_width > WIDEST {
+            return self.solve_wide(b);
+        }
+        sweep!(forward, self.lower_width);
+        sweep!(backward, self.upper_width);
+    }
+
+    /// Forward substitution with L (and the row swaps), leaving `D⁻¹y`.
+    fn forward<const W: usize>(&self, b: &mut [DVec2]) {
+        if self.swaps {
+            self.forward_swapping::<W>(b)
+        } else {
+            self.forward_straight::<W>(b)
+        }
+    }
+
+    /// As [`BandLu::forward`] when no row was swapped: the window is only
+    /// indexed by constants, so it stays in registers.
+    fn forward_straight<const W: usize>(&self, b: &mut [DVec2]) {
         let n = self.n;
+        let mut w = [DVec2::ZERO; WIDEST + 1];
+        for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
+            *slot = b.get(k).copied().unwrap_or(DVec2::ZERO);
+        }
+        for j in 0..n {
+            let x = w[0];
+            let column = &self.lower[j * W..j * W + W];
+            for k in 0..W {
+                w[k] = w[k + 1] - column[k].apply(x);
+            }
+            w[W] = b.get(j + W + 1).copied().unwrap_or(DVec2::ZERO);
+            b[j] = self.inverse_diagonal[j].apply(x);
+        }
+    }
+
+    fn forward_swapping<const W: usize>(&self, b: &mut [DVec2]) {
+        let n = self.n;
+        let mut w = [DVec2::ZERO; WIDEST + 1];
+        for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
+            *slot = b.get(k).copied().unwrap_or(DVec2::ZERO);
+        }
+        for j in 0..n {
+            let p = self.pivots[j] as usize;
+            if p != j {
+                w.swap(0, p - j);
+            }
+            let x = w[0];
+            let column = &self.lower[j * W..j * W + W];
+            for k in 0..W {
+                w[k] = w[k + 1] - column[k].apply(x);
+            }
+            w[W] = b.get(j + W + 1).copied().unwrap_or(DVec2::ZERO);
+            b[j] = self.inverse_diagonal[j].apply(x);
+        }
+    }
+
+    /// Back substitution with the row-scaled U.
+    fn backward<const W: usize>(&self, b: &mut [DVec2]) {
+        let n = self.n;
+        let mut w = [DVec2::ZERO; WIDEST + 1];
+        for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
+            *slot = if k < n { b[n - 1 - k] } else { DVec2::ZERO };
+        }
+        for j in (0..n).rev() {
+            let x = w[0];
+            let column = &self.upper[j * W..j * W + W];
+            for k in 0..W {
+                w[k] = w[k + 1] - column[k].apply(x);
+            }
+            w[W] = if j > W { b[j - W - 1] } else { DVec2::ZERO };
+            b[j] = x;
+        }
+    }
+
+    /// Both sweeps through memory, for factors wider than [`WIDEST`].
+    fn solve_wide(&self, b: &mut [DVec2]) {
+        let (n, lw, uw) = (self.n, self.lower_width, self.upper_width);
         for j in 0..n {
             let p = self.pivots[j] as usize;
             if p != j {
                 b.swap(j, p);
             }
             let x = b[j];
-            let column =
-                &self.lower[self.lower_start[j] as usize..self.lower_start[j + 1] as usize];
-            for (out, factor) in b[j + 1..].iter_mut().zip(column) {
+            for (out, factor) in b[j + 1..].iter_mut().zip(&self.lower[j * lw..j * lw + lw]) {
                 *out -= factor.apply(x);
             }
-            // Ready for D⁻¹U x = D⁻¹y (off the forward chain: b[j] is not
-            // read again here).
             b[j] = self.inverse_diagonal[j].apply(x);
         }
         for j in (0..n).rev() {
             let x = b[j];
-            let column =
-                &self.upper[self.upper_start[j] as usize..self.upper_start[j + 1] as usize];
-            for (out, factor) in b[j - column.len()..j].iter_mut().zip(column) {
-                *out -= factor.apply(x);
+            for (k, factor) in self.upper[j * uw..j * uw + uw].iter().enumerate() {
+                if k < j {
+                    b[j - 1 - k] -= factor.apply(x);
+                }
             }
         }
     }
 }
+
+/// The widest factor columns solved in registers.
+const WIDEST: usize = 8;
 
 /// A handle as a constraint row `w₀ v[p₀] + w₁ v[p₁] = q`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1198,5 +1348,62 @@ impl Peel {
             CurveAnchor::Along { segment, .. } => (segment as usize, segment as usize + 1),
         };
         start.min(grab_first)..=end.max(grab_last)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic band matrix with zeros on some diagonal entries, so
+    /// factoring must fall back to pivoting.
+    fn band_matrix(n: usize, kl: usize, ku: usize) -> Vec<Vec<f64>> {
+        let mut a = vec![vec![0.0; n]; n];
+        for (i, row) in a.iter_mut().enumerate() {
+            for (j, entry) in row.iter_mut().enumerate() {
+                if j + kl >= i && i + ku >= j {
+                    *entry = ((i * 7 + j * 13) % 11) as f64 - 5.0 + if i == j { 0.5 } else { 0.0 };
+                }
+            }
+            if i % 4 == 0 {
+                row[i] = 0.0;
+            }
+        }
+        a
+    }
+
+    fn solves(kl: usize, ku: usize) -> (bool, usize, usize) {
+        let n = 40;
+        let a = band_matrix(n, kl, ku);
+        let mut lu = BandLu::<f64>::default();
+        lu.reset(n, kl, ku);
+        for (i, row) in a.iter().enumerate() {
+            for (j, &v) in row.iter().enumerate() {
+                if v != 0.0 {
+                    lu.add(i, j, v);
+                }
+            }
+        }
+        assert!(lu.factor(), "the matrix is nonsingular");
+        let x: Vec<DVec2> = (0..n)
+            .map(|i| DVec2::new(i as f64 * 0.5 - 3.0, (i % 5) as f64))
+            .collect();
+        let mut b: Vec<DVec2> = a
+            .iter()
+            .map(|row| row.iter().zip(&x).map(|(&v, &xi)| xi * v).sum())
+            .collect();
+        lu.solve(&mut b);
+        for (got, want) in b.iter().zip(&x) {
+            assert!(got.distance(*want) < 1e-9, "{got} != {want}");
+        }
+        (lu.swaps, lu.lower_width, lu.upper_width)
+    }
+
+    #[test]
+    fn a_matrix_that_needs_row_swaps_is_solved_in_registers_and_wide() {
+        let (swaps, _, upper) = solves(2, 2);
+        assert!(swaps && upper <= WIDEST, "pivoted, in registers");
+        let (swaps, _, upper) = solves(5, 5);
+        assert!(swaps && upper > WIDEST, "pivoted, through memory");
     }
 }
