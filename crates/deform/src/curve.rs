@@ -1170,10 +1170,12 @@ impl Curve {
                 // A collapsed step-1 segment has no direction: keep rest.
                 self.rest[s + 1] - self.rest[s]
             };
-            if (lo..=hi).contains(&s) {
+            // s runs from lo − 1 to at most hi: its start point is free
+            // from lo on, its end point up to hi.
+            if s >= lo {
                 self.rhs[self.point_slot[s - lo]] -= f;
             }
-            if (lo..=hi).contains(&(s + 1)) {
+            if s < hi {
                 self.rhs[self.point_slot[s + 1 - lo]] += f;
             }
         }
