@@ -305,10 +305,9 @@ function puppetState(src) {
     handlesGeneration: src.generation ?? null, // the handle set's generation (handles messages)
     handleFrame: null,                      // {generation, sequence, points}: the newest handle frame
     // The rig as the stage describes it, and its newest points (deformed
-    // grid handles or posed joints) from rig frames. A curve's centre line
-    // is drawn as the stroke itself, not as rig points.
+    // grid handles or posed joints) from rig frames.
     rig: src.rig ?? { kind: RIG_KIND.FREE },
-    rigPoints: src.rig?.rest && src.rig.kind !== RIG_KIND.CURVE ? new Float32Array(src.rig.rest.flat()) : null,
+    rigPoints: src.rig?.rest ? new Float32Array(src.rig.rest.flat()) : null,
     // Per-triangle stiffness, shown while the paint tool is on.
     weights: src.weights ?? null,
     // Key handle id -> where on the mesh it is drawn (overlay.js keyHandleAnchor).

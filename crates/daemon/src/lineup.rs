@@ -144,7 +144,7 @@ fn rig_description(rig: &Rig) -> RigDescription {
         }
         Rig::Curve(r) => RigDescription::Curve {
             width: 2.0 * r.half_width(),
-            rest: points(r.curve().rest()),
+            line: points(r.curve().rest()),
         },
     }
 }

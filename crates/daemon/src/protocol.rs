@@ -718,8 +718,9 @@ pub enum RigDescription {
     /// is the ribbon along it (vertices `2i`, `2i + 1` beside point `i`).
     Curve {
         width: f64,
-        /// The centre line at rest.
-        rest: Vec<[f64; 2]>,
+        /// The centre line at rest (not rig points: nothing to draw or grab
+        /// but the stroke itself).
+        line: Vec<[f64; 2]>,
     },
 }
 

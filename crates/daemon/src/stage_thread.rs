@@ -70,17 +70,8 @@ pub enum Command {
         source: String,
         cursor: Option<CursorState>,
     },
-    /// Paint stiffness under a brush (stage coordinates).
-    Paint {
-        puppet: u32,
-        at: DVec2,
-        radius: f64,
-        strength: f64,
-        stroke: Option<u64>,
-        reply: Reply<()>,
-    },
     /// A change a client asked for that the stage checks and records as
-    /// it is (the depth-layer brush).
+    /// it is (the stiffness and depth-layer brushes).
     Apply {
         change: Change,
         reply: Reply<()>,
@@ -920,23 +911,6 @@ impl Batch {
                 self.apply(stage, taking, Change::Release { source }, None, wake)
             }
             Command::Limit { source, puppets } => stage.limit_source(&source, puppets),
-            Command::Paint {
-                puppet,
-                at,
-                radius,
-                strength,
-                stroke,
-                reply,
-            } => {
-                let change = Change::Paint {
-                    puppet,
-                    at,
-                    radius,
-                    strength,
-                    stroke,
-                };
-                self.apply(stage, taking, change, Some(reply), wake);
-            }
             Command::Apply { change, reply } => {
                 self.apply(stage, taking, change, Some(reply), wake);
             }

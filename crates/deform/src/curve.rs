@@ -400,32 +400,15 @@ impl<T: Entry> BandLu<T> {
     /// Forward substitution with L (and the row swaps), leaving `D⁻¹y`.
     fn forward<const W: usize>(&self, b: &mut [DVec2]) {
         if self.swaps {
-            self.forward_swapping::<W>(b)
+            self.forward_with::<W, true>(b)
         } else {
-            self.forward_straight::<W>(b)
+            self.forward_with::<W, false>(b)
         }
     }
 
-    /// As [`BandLu::forward`] when no row was swapped: the window is only
-    /// indexed by constants, so it stays in registers.
-    fn forward_straight<const W: usize>(&self, b: &mut [DVec2]) {
-        let n = self.n;
-        let mut w = [DVec2::ZERO; WIDEST + 1];
-        for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
-            *slot = b.get(k).copied().unwrap_or(DVec2::ZERO);
-        }
-        for j in 0..n {
-            let x = w[0];
-            let column = &self.lower[j * W..j * W + W];
-            for k in 0..W {
-                w[k] = w[k + 1] - column[k].apply(x);
-            }
-            w[W] = b.get(j + W + 1).copied().unwrap_or(DVec2::ZERO);
-            b[j] = self.inverse_diagonal[j].apply(x);
-        }
-    }
-
-    fn forward_swapping<const W: usize>(&self, b: &mut [DVec2]) {
+    /// Without swaps (`SWAPS` false, a constant) the window is only indexed
+    /// by constants, so it stays in registers.
+    fn forward_with<const W: usize, const SWAPS: bool>(&self, b: &mut [DVec2]) {
         let n = self.n;
         let mut w = [DVec2::ZERO; WIDEST + 1];
         for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
@@ -433,7 +416,7 @@ impl<T: Entry> BandLu<T> {
         }
         for j in 0..n {
             let p = self.pivots[j] as usize;
-            if p != j {
+            if SWAPS && p != j {
                 w.swap(0, p - j);
             }
             let x = w[0];

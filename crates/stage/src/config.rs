@@ -278,6 +278,27 @@ pub struct PuppetConfig {
     pub depth: DepthMode,
 }
 
+impl PuppetConfig {
+    /// A puppet named `name` at `at` with every other setting at its
+    /// default (no picture, mesh or rig yet): for puppets made at runtime.
+    pub fn placed(name: String, at: [f64; 2]) -> PuppetConfig {
+        PuppetConfig {
+            name,
+            image: PathBuf::new(),
+            mesh: PathBuf::new(),
+            curve: None,
+            at,
+            scale: 1.0,
+            pins: Vec::new(),
+            grid: None,
+            skeleton: None,
+            keys: None,
+            save_weights: SaveWeights::default(),
+            depth: DepthMode::default(),
+        }
+    }
+}
+
 /// `[puppet.curve]`: a curve puppet's centre line, in its own coordinates
 /// (y up; an SVG path's y-down coordinates are flipped), and its stroke.
 #[derive(Debug, Clone, Deserialize)]

@@ -524,12 +524,14 @@ async fn handle_message(
                 return Err("paint needs finite x and y".into());
             }
             let at = DVec2::new(x, y);
-            ask(shared, |reply| Command::Paint {
-                puppet,
-                at,
-                radius,
-                strength,
-                stroke,
+            ask(shared, |reply| Command::Apply {
+                change: Change::Paint {
+                    puppet,
+                    at,
+                    radius,
+                    strength,
+                    stroke,
+                },
                 reply,
             })
             .await?;

@@ -17,7 +17,7 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use puppetry_mesh::build::{MeshOptions, mesh_picture};
 use puppetry_stage::Puppet;
-use puppetry_stage::config::{AccessRole, CurveConfig, PuppetConfig, SaveWeights, StageConfig};
+use puppetry_stage::config::{AccessRole, CurveConfig, PuppetConfig, StageConfig};
 
 use super::edge::{PeerAddr, origin_allowed};
 use super::guard::Refusal;
@@ -353,17 +353,7 @@ pub(super) async fn add_curve(
         let at = (lo + hi) / 2.0;
         let entry = PuppetConfig {
             curve: Some(curve),
-            name,
-            image: Default::default(),
-            mesh: Default::default(),
-            at: at.into(),
-            scale: 1.0,
-            pins: Vec::new(),
-            grid: None,
-            skeleton: None,
-            keys: None,
-            save_weights: SaveWeights::Version,
-            depth: Default::default(),
+            ..PuppetConfig::placed(name, at.into())
         };
         let puppet = Puppet::load(&config, config.puppets.len(), &entry)
             .map_err(|e| bad("points", e.to_string()))?;
@@ -493,18 +483,10 @@ fn mesh_and_load(
         .min(FIT * config.stage.height / size.y)
         .min(1.0);
     let entry = PuppetConfig {
-        curve: None,
-        name: name.to_string(),
         image: image.to_path_buf(),
         mesh: mesh_file.to_path_buf(),
-        at: wanted.at,
         scale: wanted.scale.unwrap_or(fit),
-        pins: Vec::new(),
-        grid: None,
-        skeleton: None,
-        keys: None,
-        save_weights: SaveWeights::Version,
-        depth: Default::default(),
+        ..PuppetConfig::placed(name.to_string(), wanted.at)
     };
     let puppet = Puppet::load(config, config.puppets.len(), &entry)
         .map_err(|e| bad_image(format!("the picture's mesh: {e}")))?;

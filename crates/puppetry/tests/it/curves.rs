@@ -65,7 +65,7 @@ async fn a_curve_stage_describes_its_strokes_and_a_drag_peels_one() {
     assert_eq!(rope["name"], "rope");
     assert_eq!(rope["rig"]["kind"], "curve");
     assert_eq!(rope["rig"]["width"], 14.0);
-    let rest_line = rope["rig"]["rest"].as_array().unwrap().len();
+    let rest_line = rope["rig"]["line"].as_array().unwrap().len();
     assert_eq!(points(&rope["rest"]).len(), 2 * rest_line);
 
     // The stroke's texture is a PNG of its colour.
