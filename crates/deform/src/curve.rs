@@ -180,6 +180,11 @@ impl Entry for f64 {
 /// one column after another in the order the solves read them, so a solve
 /// streams through about half the memory of the band (whose corners are
 /// mostly empty: most columns never pivot) and never tests a zero.
+///
+/// The packing is in runs of columns of one width: a handle's multiplier
+/// row sits between its points and widens the few columns around it, and
+/// packing every column as wide as those would make the solves do a third
+/// (step 1) or half (step 2) more work on zeros.
 #[derive(Debug, Default)]
 struct BandLu<T> {
     n: usize,
@@ -189,18 +194,65 @@ struct BandLu<T> {
     pivots: Vec<u32>,
     /// Per column: reciprocal of U's diagonal.
     inverse_diagonal: Vec<T>,
-    /// L below the diagonal, `lower_width` entries per column (rows
-    /// `j + 1 ..`, zero-padded): as wide as the longest column or the
-    /// farthest row swap, whichever is more.
+    /// L below the diagonal, per column rows `j + 1 ..` (zero-padded to
+    /// its run's width): as wide as the column or its row swap, whichever
+    /// is more.
     lower: Vec<T>,
-    lower_width: usize,
-    /// Whether any row was swapped (the factorisation had to pivot).
-    swaps: bool,
+    lower_runs: Vec<Run>,
+    /// Per column while factoring: how far L reaches below the diagonal
+    /// (or its row swap), and U above.
+    widths: Vec<(usize, usize)>,
     /// U above the diagonal with each row scaled by the reciprocal of its
-    /// diagonal, `upper_width` entries per column, nearest row first (rows
-    /// `j − 1, j − 2, …`, zero-padded).
+    /// diagonal, per column rows `j − 1, j − 2, …` (nearest first,
+    /// zero-padded to its run's width).
     upper: Vec<T>,
-    upper_width: usize,
+    upper_runs: Vec<Run>,
+}
+
+/// Columns `start..end` of a packed factor, `width` entries each from
+/// `offset`, and whether a row was swapped at any of them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Run {
+    start: usize,
+    end: usize,
+    width: usize,
+    offset: usize,
+    swaps: bool,
+}
+
+/// Runs are at least this many columns (but the last), so a factor whose
+/// widths alternate does not pay a window reload every few columns.
+const SHORTEST_RUN: usize = 32;
+
+/// Splits columns of the given widths (and whether each swaps a row) into
+/// runs: a new run starts where either changes, unless the current run is
+/// still short (then it widens to take the column).
+fn runs_of(columns: impl Iterator<Item = (usize, bool)>, runs: &mut Vec<Run>) {
+    runs.clear();
+    for (j, (width, swaps)) in columns.enumerate() {
+        match runs.last_mut() {
+            Some(run)
+                if run.end - run.start < SHORTEST_RUN
+                    || (run.width == width && run.swaps == swaps) =>
+            {
+                run.width = run.width.max(width);
+                run.swaps |= swaps;
+                run.end = j + 1;
+            }
+            _ => runs.push(Run {
+                start: j,
+                end: j + 1,
+                width,
+                offset: 0,
+                swaps,
+            }),
+        }
+    }
+    let mut offset = 0;
+    for run in runs.iter_mut() {
+        run.offset = offset;
+        offset += run.width * (run.end - run.start);
+    }
 }
 
 impl<T: Entry> BandLu<T> {
@@ -218,6 +270,7 @@ impl<T: Entry> BandLu<T> {
         2 * self.kl + self.ku + 1
     }
 
+    /// Where entry (i, j) lives; `kl + ku` is the diagonal's place.
     #[inline]
     fn slot(&self, i: usize, j: usize) -> usize {
         debug_assert!(i <= j + self.kl && j <= i + self.ku + self.kl);
@@ -230,55 +283,64 @@ impl<T: Entry> BandLu<T> {
         self.band[s] = self.band[s] + value;
     }
 
-    /// In-place LU with row pivoting. False when a pivot vanishes relative
-    /// to the matrix's scale: the system is singular.
+    /// In-place LU, swapping rows where the diagonal's magnitude is below
+    /// `threshold` times its column's largest (1: partial pivoting). False
+    /// when a pivot vanishes against the matrix's scale (singular) or,
+    /// below 1, when the factors grow: the caller then assembles the matrix
+    /// again and pivots partially.
     ///
-    /// First without pivoting: with each handle's multiplier after its
-    /// points, the leading blocks are nonsingular (the energy is definite
-    /// on any proper subset of the points), and without row swaps the
-    /// factors keep the matrix's own bandwidths — the fewest operations on
-    /// the solves' chains. A pivot small against the matrix, or growth in
-    /// the factors, falls back to partial pivoting.
-    fn factor(&mut self) -> bool {
-        let original = self.band.clone();
-        if self.factor_with(false) {
-            return true;
-        }
-        self.band = original;
-        self.factor_with(true)
-    }
-
-    fn factor_with(&mut self, pivoting: bool) -> bool {
+    /// Threshold pivoting ([`PIVOT_THRESHOLD`]) comes first because with
+    /// each handle's multiplier after its points the diagonal nearly always
+    /// qualifies: the factors keep the matrix's own bandwidths and the
+    /// solves' windows stay in registers, where partial pivoting swaps at
+    /// almost every column of a curve's step-1 matrix. The few swaps it
+    /// makes are where one is needed: at the free end of a long curve the
+    /// last point's pivot is tiny (its bending stiffness falls with the cube
+    /// of the free length).
+    fn factor_with(&mut self, threshold: f64) -> bool {
         let n = self.n;
         let (kl, ku) = (self.kl, self.ku);
-        let scale = self
-            .band
-            .iter()
-            .map(|z| z.magnitude_squared())
-            .fold(0.0, f64::max);
-        // Squared magnitudes: a pivot below 1e-13 (pivoting) or 1e-6
-        // (not) of the largest entry is too small to divide by.
-        let tiny = scale * if pivoting { 1e-26 } else { 1e-12 };
+        let scale = largest_magnitude(&self.band);
+        // Squared magnitudes: a pivot below 1e-13 of the largest entry is
+        // too small to divide by.
+        let tiny = scale * 1e-26;
+        let threshold = threshold * threshold;
+        let zero = T::default();
+        let stride = self.stride();
+        // Row swaps can fill U up to kl columns past ku.
+        let reach = kl + ku;
+        let diagonal = reach;
         self.pivots.clear();
         self.inverse_diagonal.clear();
+        self.widths.clear();
+        let mut largest_pivot = 0.0f64;
         for j in 0..n {
+            // U's column j (rows above the diagonal) is final: every row
+            // above has been a pivot row.
+            let column = &self.band[j * stride..(j + 1) * stride];
+            let above = (1..=reach.min(j))
+                .rev()
+                .find(|&k| column[diagonal - k] != zero)
+                .unwrap_or(0);
             let last_row = (j + kl).min(n - 1);
-            let mut pivot = j;
-            let mut best = self.band[self.slot(j, j)].magnitude_squared();
-            if pivoting {
-                for i in j + 1..=last_row {
-                    let m = self.band[self.slot(i, j)].magnitude_squared();
-                    if m > best {
-                        best = m;
-                        pivot = i;
-                    }
+            let on_diagonal = self.band[self.slot(j, j)].magnitude_squared();
+            let (mut pivot, mut best) = (j, on_diagonal);
+            for i in j + 1..=last_row {
+                let m = self.band[self.slot(i, j)].magnitude_squared();
+                if m > best {
+                    best = m;
+                    pivot = i;
                 }
+            }
+            if on_diagonal >= threshold * best {
+                (pivot, best) = (j, on_diagonal);
             }
             if best.is_nan() || best <= tiny {
                 return false;
             }
+            largest_pivot = larger(largest_pivot, best);
             self.pivots.push(pivot as u32);
-            let last_col = (j + ku + kl).min(n - 1);
+            let last_col = (j + reach).min(n - 1);
             if pivot != j {
                 for c in j..=last_col {
                     let (a, b) = (self.slot(j, c), self.slot(pivot, c));
@@ -287,183 +349,204 @@ impl<T: Entry> BandLu<T> {
             }
             let inverse = self.band[self.slot(j, j)].reciprocal();
             self.inverse_diagonal.push(inverse);
-            for i in j + 1..=last_row {
-                let s = self.slot(i, j);
-                self.band[s] = self.band[s].times(inverse);
+            // Column j's multipliers, then each later column's rows below
+            // the diagonal: both contiguous in the band layout.
+            let rows = last_row - j;
+            let (head, tail) = self.band.split_at_mut((j + 1) * stride);
+            let factors = &mut head[j * stride + diagonal + 1..][..rows];
+            for factor in factors.iter_mut() {
+                *factor = factor.times(inverse);
             }
-            for c in j + 1..=last_col {
-                let top = self.band[self.slot(j, c)];
+            let below = (1..=rows)
+                .rev()
+                .find(|&k| factors[k - 1] != zero)
+                .unwrap_or(0);
+            self.widths
+                .push((below.max(pivot - j).max(1), above.max(1)));
+            for (c, column) in (j + 1..=last_col).zip(tail.chunks_exact_mut(stride)) {
+                let above = diagonal + j - c;
+                let top = column[above];
                 if top == T::default() {
                     continue;
                 }
-                for i in j + 1..=last_row {
-                    let factor = self.band[self.slot(i, j)];
-                    let s = self.slot(i, c);
-                    self.band[s] = self.band[s] - factor.times(top);
+                for (entry, &factor) in column[above + 1..][..rows].iter_mut().zip(&*factors) {
+                    *entry = *entry - factor.times(top);
                 }
             }
         }
-        if !pivoting {
-            let largest = self
-                .band
-                .iter()
-                .map(|z| z.magnitude_squared())
-                .fold(0.0, f64::max);
-            // NaN growth fails too.
-            if largest.is_nan() || largest > scale * 1e12 {
-                return false;
-            }
-        }
-        let zero = T::default();
-        let stride = self.stride();
-        let diagonal = kl + ku;
         let column = |j: usize| &self.band[j * stride..(j + 1) * stride];
-        let mut lower_width = 0;
-        let mut upper_width = 0;
-        for j in 0..n {
-            let c = column(j);
-            let below = (1..=kl.min(n - 1 - j))
-                .rev()
-                .find(|&k| c[diagonal + k] != zero)
-                .unwrap_or(0);
-            let above = (1..=(ku + kl).min(j))
-                .rev()
-                .find(|&k| c[diagonal - k] != zero)
-                .unwrap_or(0);
-            let swap = self.pivots[j] as usize - j;
-            lower_width = lower_width.max(below).max(swap);
-            upper_width = upper_width.max(above);
-        }
-        let (lower_width, upper_width) = (lower_width.max(1), upper_width.max(1));
+        let mut lower_runs = std::mem::take(&mut self.lower_runs);
+        let mut upper_runs = std::mem::take(&mut self.upper_runs);
+        let swapped = |j: usize| self.pivots[j] as usize != j;
+        runs_of(
+            self.widths
+                .iter()
+                .enumerate()
+                .map(|(j, w)| (w.0, swapped(j))),
+            &mut lower_runs,
+        );
+        runs_of(self.widths.iter().map(|w| (w.1, false)), &mut upper_runs);
+        // The factors' largest entry, for the growth check: L's, and U's
+        // before its rows are scaled (the diagonal is `largest_pivot`).
+        let mut largest = [largest_pivot, 0.0];
         let mut lower = std::mem::take(&mut self.lower);
         let mut upper = std::mem::take(&mut self.upper);
         lower.clear();
         upper.clear();
-        for j in 0..n {
-            let c = column(j);
-            for k in 1..=lower_width {
-                lower.push(if j + k < n && k <= kl {
-                    c[diagonal + k]
-                } else {
-                    zero
-                });
+        for run in &lower_runs {
+            for j in run.start..run.end {
+                let c = column(j);
+                for k in 1..=run.width {
+                    let entry = if j + k < n && k <= kl {
+                        c[diagonal + k]
+                    } else {
+                        zero
+                    };
+                    largest[0] = larger(largest[0], entry.magnitude_squared());
+                    lower.push(entry);
+                }
             }
-            // U's rows are scaled by their diagonal's reciprocal (D⁻¹U has a
-            // unit diagonal), so the back substitution's chain from one
-            // unknown to the next is one multiply-subtract, not two.
-            for k in 1..=upper_width {
-                upper.push(if k <= j && k <= kl + ku {
-                    self.inverse_diagonal[j - k].times(c[diagonal - k])
-                } else {
-                    zero
-                });
+        }
+        for run in &upper_runs {
+            for j in run.start..run.end {
+                let c = column(j);
+                // U's rows are scaled by their diagonal's reciprocal (D⁻¹U
+                // has a unit diagonal), so the back substitution's chain
+                // from one unknown to the next is one multiply-subtract,
+                // not two.
+                for k in 1..=run.width {
+                    upper.push(if k <= j && k <= reach {
+                        let entry = c[diagonal - k];
+                        largest[1] = larger(largest[1], entry.magnitude_squared());
+                        self.inverse_diagonal[j - k].times(entry)
+                    } else {
+                        zero
+                    });
+                }
             }
         }
         self.lower = lower;
         self.upper = upper;
-        self.lower_width = lower_width;
-        self.upper_width = upper_width;
-        self.swaps = self
-            .pivots
-            .iter()
-            .enumerate()
-            .any(|(j, &p)| p as usize != j);
-        true
+        self.lower_runs = lower_runs;
+        self.upper_runs = upper_runs;
+        // Growth fails threshold pivoting (partial pivoting bounds it); a
+        // NaN fails at its pivot.
+        let largest = largest[0].max(largest[1]);
+        threshold >= 1.0 || (largest.is_finite() && largest <= scale * 1e12)
     }
 
-    /// Solves `A x = b` in place with the factors. Each sweep carries the
-    /// next unknowns in a window of registers (as wide as the factors'
-    /// columns), so the chain from one unknown to the next is one
-    /// multiply-subtract with no store and load between.
+    /// Solves `A x = b` in place with the factors, run by run. Within a
+    /// run each sweep carries the next unknowns in a window of registers
+    /// (as wide as the run's columns), so the chain from one unknown to the
+    /// next is one multiply-subtract with no store and load between; the
+    /// window goes back to `b` at the run's end.
     fn solve(&self, b: &mut [DVec2]) {
         macro_rules! sweep {
-            ($f:ident, $width:expr) => {
-                match $width {
-                    1 => self.$f::<1>(b),
-                    2 => self.$f::<2>(b),
-                    3 => self.$f::<3>(b),
-                    4 => self.$f::<4>(b),
-                    5 => self.$f::<5>(b),
-                    6 => self.$f::<6>(b),
-                    7 => self.$f::<7>(b),
-                    _ => self.$f::<WIDEST>(b),
+            ($f:ident, $wide:ident, $run:expr) => {
+                match $run.width {
+                    1 => self.$f::<1>(b, $run),
+                    2 => self.$f::<2>(b, $run),
+                    3 => self.$f::<3>(b, $run),
+                    4 => self.$f::<4>(b, $run),
+                    5 => self.$f::<5>(b, $run),
+                    6 => self.$f::<6>(b, $run),
+                    7 => self.$f::<7>(b, $run),
+                    WIDEST => self.$f::<WIDEST>(b, $run),
+                    _ => self.$wide(b, $run),
                 }
             };
         }
-        if self.lower_width > WIDEST || self.upper_width > WIDEST {
-            return self.solve_wide(b);
+        for run in &self.lower_runs {
+            sweep!(forward, forward_wide, run);
         }
-        sweep!(forward, self.lower_width);
-        sweep!(backward, self.upper_width);
+        for run in self.upper_runs.iter().rev() {
+            sweep!(backward, backward_wide, run);
+        }
     }
-
-    /// Forward substitution with L (and the row swaps), leaving `D⁻¹y`.
-    fn forward<const W: usize>(&self, b: &mut [DVec2]) {
-        if self.swaps {
-            self.forward_with::<W, true>(b)
+    /// Forward substitution with L (and the row swaps) over one run,
+    /// leaving `D⁻¹y`.
+    fn forward<const W: usize>(&self, b: &mut [DVec2], run: &Run) {
+        if run.swaps {
+            self.forward_with::<W, true>(b, run)
         } else {
-            self.forward_with::<W, false>(b)
+            self.forward_with::<W, false>(b, run)
         }
     }
 
     /// Without swaps (`SWAPS` false, a constant) the window is only indexed
     /// by constants, so it stays in registers.
-    fn forward_with<const W: usize, const SWAPS: bool>(&self, b: &mut [DVec2]) {
-        let n = self.n;
+    fn forward_with<const W: usize, const SWAPS: bool>(&self, b: &mut [DVec2], run: &Run) {
         let mut w = [DVec2::ZERO; WIDEST + 1];
         for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
-            *slot = b.get(k).copied().unwrap_or(DVec2::ZERO);
+            *slot = b.get(run.start + k).copied().unwrap_or(DVec2::ZERO);
         }
-        for j in 0..n {
+        let lower = &self.lower[run.offset..run.offset + W * (run.end - run.start)];
+        for (j, column) in (run.start..run.end).zip(lower.chunks_exact(W)) {
             let p = self.pivots[j] as usize;
             if SWAPS && p != j {
                 w.swap(0, p - j);
             }
             let x = w[0];
-            let column = &self.lower[j * W..j * W + W];
             for k in 0..W {
                 w[k] = w[k + 1] - column[k].apply(x);
             }
             w[W] = b.get(j + W + 1).copied().unwrap_or(DVec2::ZERO);
             b[j] = self.inverse_diagonal[j].apply(x);
         }
+        for (k, &value) in w.iter().enumerate().take(W) {
+            if let Some(slot) = b.get_mut(run.end + k) {
+                *slot = value;
+            }
+        }
     }
 
-    /// Back substitution with the row-scaled U.
-    fn backward<const W: usize>(&self, b: &mut [DVec2]) {
-        let n = self.n;
+    /// Back substitution with the row-scaled U over one run.
+    fn backward<const W: usize>(&self, b: &mut [DVec2], run: &Run) {
         let mut w = [DVec2::ZERO; WIDEST + 1];
+        let last = run.end - 1;
         for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
-            *slot = if k < n { b[n - 1 - k] } else { DVec2::ZERO };
+            *slot = if k <= last { b[last - k] } else { DVec2::ZERO };
         }
-        for j in (0..n).rev() {
+        let upper = &self.upper[run.offset..run.offset + W * (run.end - run.start)];
+        for (j, column) in (run.start..run.end).zip(upper.chunks_exact(W)).rev() {
             let x = w[0];
-            let column = &self.upper[j * W..j * W + W];
             for k in 0..W {
                 w[k] = w[k + 1] - column[k].apply(x);
             }
             w[W] = if j > W { b[j - W - 1] } else { DVec2::ZERO };
             b[j] = x;
         }
+        for (k, &value) in w.iter().enumerate().take(W) {
+            if k < run.start {
+                b[run.start - 1 - k] = value;
+            }
+        }
     }
 
-    /// Both sweeps through memory, for factors wider than [`WIDEST`].
-    fn solve_wide(&self, b: &mut [DVec2]) {
-        let (n, lw, uw) = (self.n, self.lower_width, self.upper_width);
-        for j in 0..n {
+    /// Forward substitution through memory, for a run wider than [`WIDEST`].
+    fn forward_wide(&self, b: &mut [DVec2], run: &Run) {
+        let width = run.width;
+        let lower = &self.lower[run.offset..run.offset + width * (run.end - run.start)];
+        for (j, column) in (run.start..run.end).zip(lower.chunks_exact(width)) {
             let p = self.pivots[j] as usize;
             if p != j {
                 b.swap(j, p);
             }
             let x = b[j];
-            for (out, factor) in b[j + 1..].iter_mut().zip(&self.lower[j * lw..j * lw + lw]) {
+            for (out, factor) in b[j + 1..].iter_mut().zip(column) {
                 *out -= factor.apply(x);
             }
             b[j] = self.inverse_diagonal[j].apply(x);
         }
-        for j in (0..n).rev() {
+    }
+
+    /// Back substitution through memory, for a run wider than [`WIDEST`].
+    fn backward_wide(&self, b: &mut [DVec2], run: &Run) {
+        let width = run.width;
+        let upper = &self.upper[run.offset..run.offset + width * (run.end - run.start)];
+        for (j, column) in (run.start..run.end).zip(upper.chunks_exact(width)).rev() {
             let x = b[j];
-            for (k, factor) in self.upper[j * uw..j * uw + uw].iter().enumerate() {
+            for (k, factor) in column.iter().enumerate() {
                 if k < j {
                     b[j - 1 - k] -= factor.apply(x);
                 }
@@ -471,6 +554,34 @@ impl<T: Entry> BandLu<T> {
         }
     }
 }
+
+/// The largest squared magnitude among `entries` (NaNs are passed over:
+/// a NaN pivot fails on its own), with four running maxima: one would
+/// chain every comparison on the last.
+fn largest_magnitude<T: Entry>(entries: &[T]) -> f64 {
+    let mut largest = [0.0f64; 4];
+    let chunks = entries.chunks_exact(4);
+    for e in chunks.remainder() {
+        largest[0] = larger(largest[0], e.magnitude_squared());
+    }
+    for chunk in chunks {
+        for (l, e) in largest.iter_mut().zip(chunk) {
+            *l = larger(*l, e.magnitude_squared());
+        }
+    }
+    largest.into_iter().fold(0.0, larger)
+}
+
+/// `a.max(b)` for a non-NaN `a`, without `f64::max`'s NaN handling (one
+/// instruction instead of four).
+#[inline]
+fn larger(a: f64, b: f64) -> f64 {
+    if b > a { b } else { a }
+}
+
+/// Threshold pivoting's ratio: a diagonal at least this fraction of its
+/// column's largest entry is kept (growth per column at most `1 + 1/0.1`).
+const PIVOT_THRESHOLD: f64 = 0.1;
 
 /// The widest factor columns solved in registers.
 const WIDEST: usize = 8;
@@ -1018,32 +1129,87 @@ impl Curve {
             }
         }
 
+        self.rhs.clear();
+        self.rhs.resize(size, DVec2::ZERO);
+        // Each system is factored first with threshold pivoting, then (on
+        // growth) partial pivoting; a failed try assembles the system again
+        // rather than keep a copy of every band.
+        let mut factored = [false; 2];
+        for threshold in [PIVOT_THRESHOLD, 1.0] {
+            let pending = factored.map(|done| !done);
+            self.assemble(size, [width1, width2], pending);
+            if pending[0] {
+                factored[0] = self.step1.factor_with(threshold);
+            }
+            if pending[1] {
+                factored[1] = self.step2.factor_with(threshold);
+            }
+            if factored == [true; 2] {
+                break;
+            }
+        }
+        let factored = if !factored[0] {
+            Err(CurveError::Underdetermined { step: 1 })
+        } else if !factored[1] {
+            Err(CurveError::Underdetermined { step: 2 })
+        } else {
+            Ok(())
+        };
+        if let Err(e) = factored {
+            // Keep the curve where it is rather than half-compiled.
+            self.constraints.clear();
+            self.placement = Placement::Still;
+            self.handle_count = anchors.len();
+            return Err(e);
+        }
+        Ok(())
+    }
+
+    /// Fills both systems and their fixed right-hand sides for the free
+    /// points `lo..=hi` and the constraints, numbered as `point_slot` says.
+    fn assemble(&mut self, size: usize, widths: [usize; 2], which: [bool; 2]) {
+        let (lo, hi, n) = (self.lo, self.hi, self.len());
+        let [width1, width2] = widths;
+        let slot =
+            |p: usize| -> Option<usize> { (lo..=hi).contains(&p).then(|| self.point_slot[p - lo]) };
         // Step 1: Σᵢ |γᵢ·(vᵢ₋₁, vᵢ, vᵢ₊₁)|² with γ = (z − 1, 1, −z).
-        self.step1.reset(size, width1, width1);
-        self.step1_base.clear();
-        self.step1_base.resize(size, DVec2::ZERO);
+        if which[0] {
+            self.step1.reset(size, width1, width1);
+            self.step1_base.clear();
+            self.step1_base.resize(size, DVec2::ZERO);
+        }
         let first_term = lo.saturating_sub(1).max(1);
         let last_term = (hi + 1).min(n - 2);
-        for i in first_term..=last_term {
+        let (stride, diagonal) = (self.step1.stride(), self.step1.kl + self.step1.ku);
+        let band = &mut self.step1.band;
+        for i in (first_term..=last_term).filter(|_| which[0]) {
             let z = self.frames[i];
             let gamma = [z - DVec2::X, DVec2::X, -z];
             let points = [i - 1, i, i + 1];
+            let slots = points.map(slot);
             for r in 0..3 {
-                let Some(row) = slot(points[r]) else { continue };
+                let Some(row) = slots[r] else { continue };
                 for s in 0..3 {
                     let value = mul(conj(gamma[r]), gamma[s]);
-                    match slot(points[s]) {
-                        Some(col) => self.step1.add(row, col, value),
+                    match slots[s] {
+                        // The band's slot(row, col), without re-reading the
+                        // layout from the matrix for every entry.
+                        Some(col) => {
+                            let entry = &mut band[col * stride + diagonal + row - col];
+                            *entry += value;
+                        }
                         None => self.step1_base[row] -= mul(value, self.pose[points[s]]),
                     }
                 }
             }
         }
         // Step 2: Σₛ |vₛ₊₁ − vₛ − fₛ|² over segments with a free end.
-        self.step2.reset(size, width2, width2);
-        self.step2_base.clear();
-        self.step2_base.resize(size, DVec2::ZERO);
-        for s in lo.saturating_sub(1)..=hi.min(n - 2) {
+        if which[1] {
+            self.step2.reset(size, width2, width2);
+            self.step2_base.clear();
+            self.step2_base.resize(size, DVec2::ZERO);
+        }
+        for s in (lo.saturating_sub(1)..=hi.min(n - 2)).filter(|_| which[1]) {
             let ends = [s, s + 1];
             let coefficient = [-1.0, 1.0];
             for r in 0..2 {
@@ -1063,37 +1229,29 @@ impl Curve {
                     continue;
                 }
                 match slot(p) {
-                    Some(s) => {
-                        self.step2.add(con.slot, s, w);
-                        self.step2.add(s, con.slot, w);
-                        let w = DVec2::new(w, 0.0);
-                        self.step1.add(con.slot, s, w);
-                        self.step1.add(s, con.slot, w);
+                    Some(s) if which[0] || which[1] => {
+                        if which[1] {
+                            self.step2.add(con.slot, s, w);
+                            self.step2.add(s, con.slot, w);
+                        }
+                        if which[0] {
+                            let w = DVec2::new(w, 0.0);
+                            self.step1.add(con.slot, s, w);
+                            self.step1.add(s, con.slot, w);
+                        }
                     }
+                    Some(_) => {}
                     None => {
-                        self.step1_base[con.slot] -= self.pose[p] * w;
-                        self.step2_base[con.slot] -= self.pose[p] * w;
+                        if which[0] {
+                            self.step1_base[con.slot] -= self.pose[p] * w;
+                        }
+                        if which[1] {
+                            self.step2_base[con.slot] -= self.pose[p] * w;
+                        }
                     }
                 }
             }
         }
-        self.rhs.clear();
-        self.rhs.resize(size, DVec2::ZERO);
-        let factored = if !self.step1.factor() {
-            Err(CurveError::Underdetermined { step: 1 })
-        } else if !self.step2.factor() {
-            Err(CurveError::Underdetermined { step: 2 })
-        } else {
-            Ok(())
-        };
-        if let Err(e) = factored {
-            // Keep the curve where it is rather than half-compiled.
-            self.constraints.clear();
-            self.placement = Placement::Still;
-            self.handle_count = anchors.len();
-            return Err(e);
-        }
-        Ok(())
     }
 
     /// Update: moves the compiled handles to `targets` (same order as the
@@ -1357,19 +1515,25 @@ mod tests {
         a
     }
 
-    fn solves(kl: usize, ku: usize) -> (bool, usize, usize) {
-        let n = 40;
-        let a = band_matrix(n, kl, ku);
+    /// Factors `a` and solves it for a known `x`; returns the factors.
+    fn solves(a: &[Vec<f64>], kl: usize, ku: usize) -> BandLu<f64> {
+        let n = a.len();
         let mut lu = BandLu::<f64>::default();
-        lu.reset(n, kl, ku);
-        for (i, row) in a.iter().enumerate() {
-            for (j, &v) in row.iter().enumerate() {
-                if v != 0.0 {
-                    lu.add(i, j, v);
+        let assemble = |lu: &mut BandLu<f64>| {
+            lu.reset(n, kl, ku);
+            for (i, row) in a.iter().enumerate() {
+                for (j, &v) in row.iter().enumerate() {
+                    if v != 0.0 {
+                        lu.add(i, j, v);
+                    }
                 }
             }
+        };
+        assemble(&mut lu);
+        if !lu.factor_with(PIVOT_THRESHOLD) {
+            assemble(&mut lu);
+            assert!(lu.factor_with(1.0), "the matrix is nonsingular");
         }
-        assert!(lu.factor(), "the matrix is nonsingular");
         let x: Vec<DVec2> = (0..n)
             .map(|i| DVec2::new(i as f64 * 0.5 - 3.0, (i % 5) as f64))
             .collect();
@@ -1381,14 +1545,58 @@ mod tests {
         for (got, want) in b.iter().zip(&x) {
             assert!(got.distance(*want) < 1e-9, "{got} != {want}");
         }
-        (lu.swaps, lu.lower_width, lu.upper_width)
+        lu
+    }
+
+    fn swapped(lu: &BandLu<f64>) -> bool {
+        lu.lower_runs.iter().any(|r| r.swaps)
+    }
+
+    fn widest(runs: &[Run]) -> usize {
+        runs.iter().map(|r| r.width).max().unwrap_or(0)
     }
 
     #[test]
     fn a_matrix_that_needs_row_swaps_is_solved_in_registers_and_wide() {
-        let (swaps, _, upper) = solves(2, 2);
-        assert!(swaps && upper <= WIDEST, "pivoted, in registers");
-        let (swaps, _, upper) = solves(5, 5);
-        assert!(swaps && upper > WIDEST, "pivoted, through memory");
+        let lu = solves(&band_matrix(40, 2, 2), 2, 2);
+        assert!(
+            swapped(&lu) && widest(&lu.upper_runs) <= WIDEST,
+            "pivoted, in registers"
+        );
+        let lu = solves(&band_matrix(40, 5, 5), 5, 5);
+        assert!(
+            swapped(&lu) && widest(&lu.upper_runs) > WIDEST,
+            "pivoted, through memory"
+        );
+    }
+
+    /// A tridiagonal matrix with two wider stretches (like a multiplier's
+    /// row among its points) is packed in runs of different widths, and
+    /// each run hands its window on to the next.
+    #[test]
+    fn a_matrix_of_varying_width_is_solved_run_by_run() {
+        let n = 200;
+        let mut a = vec![vec![0.0; n]; n];
+        for i in 0..n {
+            a[i][i] = 4.0 + (i % 3) as f64;
+            if i + 1 < n {
+                a[i][i + 1] = -1.0 - (i % 2) as f64 * 0.5;
+                a[i + 1][i] = -1.0;
+            }
+        }
+        for &(i, j) in &[(70, 73), (150, 154)] {
+            a[i][j] = 0.7;
+            a[j][i] = -0.4;
+        }
+        let lu = solves(&a, 4, 4);
+        assert!(!swapped(&lu));
+        for runs in [&lu.lower_runs, &lu.upper_runs] {
+            let widths: Vec<usize> = runs.iter().map(|r| r.width).collect();
+            assert!(widths.len() >= 3 && widths.contains(&1), "{widths:?}");
+            assert!(widest(runs) >= 3, "{widths:?}");
+            assert_eq!(runs.first().map(|r| r.start), Some(0));
+            assert_eq!(runs.last().map(|r| r.end), Some(n));
+            assert!(runs.windows(2).all(|w| w[0].end == w[1].start));
+        }
     }
 }
