@@ -544,12 +544,22 @@ impl PieceSolver {
                 corners,
                 scaled_centred: pts.map(|q| (q - centroid) * (3.0 * w)),
             });
+            // The triangle's six entries in the pattern, looked up once:
+            // `at[a][b]` for corners a and b.
+            let mut at = [[0usize; 3]; 3];
+            for a in 0..3 {
+                for b in a..3 {
+                    let position = pattern.position(corners[a] as usize, corners[b] as usize);
+                    at[a][b] = position;
+                    at[b][a] = position;
+                }
+            }
             for k in 0..3 {
                 // Corner c in the frame of the opposite edge a→b, as the
                 // complex ratio z = (c − a)/(b − a); the error
                 // e = v_c − v_a − z (v_b − v_a) has coefficients γ over (a, b, c).
-                let idx =
-                    [corners[(k + 1) % 3], corners[(k + 2) % 3], corners[k]].map(|c| c as usize);
+                let which = [(k + 1) % 3, (k + 2) % 3, k];
+                let idx = which.map(|c| corners[c] as usize);
                 let [pa, pb, pc] = idx.map(|i| rest[i]);
                 let z = complex_div(pc - pa, pb - pa);
                 let gamma = [z - DVec2::X, -z, DVec2::X];
@@ -558,14 +568,14 @@ impl PieceSolver {
                         if idx[r] <= idx[s] {
                             // A_rs += w conj(γ_r) γ_s (upper triangle only).
                             let value = DVec2::new(gamma[r].x, -gamma[r].y).rotate(gamma[s]) * w;
-                            g[pattern.position(idx[r], idx[s])] += value;
+                            g[at[which[r]][which[s]]] += value;
                         }
                     }
                 }
-                let (i, j) = (idx[0], idx[1]);
-                h[pattern.position(i, i)] += w;
-                h[pattern.position(j, j)] += w;
-                h[pattern.position(i, j)] -= w;
+                let (i, j) = (which[0], which[1]);
+                h[at[i][i]] += w;
+                h[at[j][j]] += w;
+                h[at[i][j]] -= w;
             }
         }
         // Cache-friendly sweep order for the per-frame fit.

@@ -412,19 +412,23 @@ impl Mesh {
                 }
             }
         }
-        let mut piece_of_root: HashMap<u32, usize> = HashMap::new();
+        // Indexed by root vertex (a table, not a map: this runs on every
+        // registration, 100k vertices and more).
+        let mut piece_of_root = vec![u32::MAX; n];
         let mut pieces: Vec<Piece> = Vec::new();
         for v in 0..n as u32 {
-            let root = find(&mut parent, v);
-            let p = *piece_of_root.entry(root).or_insert_with(|| {
+            let root = find(&mut parent, v) as usize;
+            if piece_of_root[root] == u32::MAX {
+                piece_of_root[root] = pieces.len() as u32;
                 pieces.push(Piece::default());
-                pieces.len() - 1
-            });
-            pieces[p].vertices.push(v);
+            }
+            pieces[piece_of_root[root] as usize].vertices.push(v);
         }
         for (t, tri) in self.triangles.iter().enumerate() {
-            let root = find(&mut parent, tri[0]);
-            pieces[piece_of_root[&root]].triangles.push(t as u32);
+            let root = find(&mut parent, tri[0]) as usize;
+            pieces[piece_of_root[root] as usize]
+                .triangles
+                .push(t as u32);
         }
         pieces
     }
