@@ -68,6 +68,11 @@ pub struct Running {
 }
 
 impl Running {
+    /// Where the daemon's time has gone since it started.
+    pub fn timings(&self) -> Arc<crate::stage_thread::Timings> {
+        self.shared.timings.clone()
+    }
+
     /// Every input has ended (replays that do not repeat have played, or
     /// are paused) and no take is playing: what was fed is in the stage
     /// thread's queue.
@@ -209,6 +214,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         cursors: outputs.cursors,
         take: outputs.take,
         changes: outputs.changes,
+        timings: outputs.timings,
         takes_dir,
         puppets_dir,
         player: std::sync::Mutex::new(None),

@@ -12,7 +12,9 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::thread::JoinHandle;
+use std::time::Instant;
 
 use bytes::Bytes;
 use glam::DVec2;
@@ -318,6 +320,39 @@ pub struct PuppetOutput {
     pub depth: watch::Receiver<Option<Bytes>>,
 }
 
+/// Where the daemon's time goes, summed since it started: per stage-thread
+/// iteration (the commands waiting, then one solve and its publishing) and
+/// per client send. Read by `puppetry bench --e2e`; relaxed atomics, a
+/// clock read per phase (tens of nanoseconds against a millisecond).
+#[derive(Debug, Default)]
+pub struct Timings {
+    /// Iterations that solved.
+    pub solves: AtomicU64,
+    /// Applying the commands: contacts to handles, pins, edits.
+    pub commands_ns: AtomicU64,
+    pub solve_ns: AtomicU64,
+    /// Encoding the binary frames once and waking every client.
+    pub frames_ns: AtomicU64,
+    /// Building the text messages that changed (weights, keys, history,
+    /// poses, cursors, take state).
+    pub messages_ns: AtomicU64,
+    /// Writing the solve into the take being recorded.
+    pub record_ns: AtomicU64,
+    /// A client task sending what changed after a wake (all its puppets'
+    /// messages), and how many such sends.
+    pub sends: AtomicU64,
+    pub send_ns: AtomicU64,
+}
+
+impl Timings {
+    /// Adds the time since `since` to `counter`; returns now.
+    pub fn add(counter: &AtomicU64, since: Instant) -> Instant {
+        let now = Instant::now();
+        counter.fetch_add((now - since).as_nanos() as u64, Ordering::Relaxed);
+        now
+    }
+}
+
 /// What the stage thread publishes.
 pub struct Outputs {
     /// The puppets on stage and each one's outputs.
@@ -328,6 +363,7 @@ pub struct Outputs {
     pub take: watch::Receiver<Arc<str>>,
     /// Bumped after each publish, so clients wait on one signal.
     pub changes: watch::Receiver<u64>,
+    pub timings: Arc<Timings>,
 }
 
 /// The stage thread's publishing ends: per puppet its newest frame and
@@ -723,11 +759,13 @@ pub fn spawn(
     // Pins from the stage file are handles before any input: solve once.
     let solved = stage.solve();
     publisher.publish(&stage, &solved, 0.0);
+    let timings = Arc::new(Timings::default());
+    let mut batch = Batch::new(timings.clone());
     let thread = std::thread::Builder::new()
         .name("stage".into())
         .spawn(move || {
-            let mut batch = Batch::default();
             while let Some(first) = commands.blocking_recv() {
+                batch.started = Instant::now();
                 let mut next = Some(first);
                 while let Some(command) = next.take() {
                     if let Command::Lineup { change, reply } = command {
@@ -783,6 +821,7 @@ pub fn spawn(
             cursors: cursors_rx,
             take: state_rx,
             changes: changes_rx,
+            timings,
         },
         thread,
     )
@@ -836,7 +875,6 @@ fn change_lineup(
 }
 
 /// What the stage thread gathered since its last solve.
-#[derive(Default)]
 struct Batch {
     /// When the newest input frame reached the daemon.
     newest: f64,
@@ -844,9 +882,23 @@ struct Batch {
     cursors_changed: bool,
     /// Something was applied since the last solve.
     dirty: bool,
+    timings: Arc<Timings>,
+    /// When this iteration's commands began.
+    started: Instant,
 }
 
 impl Batch {
+    fn new(timings: Arc<Timings>) -> Batch {
+        Batch {
+            newest: 0.0,
+            stop: false,
+            cursors_changed: false,
+            dirty: false,
+            timings,
+            started: Instant::now(),
+        }
+    }
+
     /// Applies one change to the stage (and the take's step when it took).
     fn apply(
         &mut self,
@@ -1039,18 +1091,29 @@ impl Batch {
         taking: &mut Taking,
         cursors: &BTreeMap<String, CursorState>,
     ) {
+        let t = &self.timings;
+        let mut now = Timings::add(&t.commands_ns, self.started);
         if self.dirty {
             self.dirty = false;
             let solved = stage.solve();
+            now = Timings::add(&t.solve_ns, now);
             publisher.publish(stage, &solved, self.newest);
+            now = Timings::add(&t.frames_ns, now);
             publisher.publish_weights(stage);
-            if taking.record(stage, &solved) || std::mem::take(&mut taking.announce) {
+            now = Timings::add(&t.messages_ns, now);
+            let recorded = taking.record(stage, &solved);
+            now = Timings::add(&t.record_ns, now);
+            if recorded || std::mem::take(&mut taking.announce) {
                 taking.publish(&publisher.changes);
             }
+            t.solves.fetch_add(1, Ordering::Relaxed);
         }
         if self.cursors_changed {
             self.cursors_changed = false;
             publisher.publish_cursors(cursors);
         }
+        Timings::add(&t.messages_ns, now);
+        // Whatever comes next in this iteration is commands again.
+        self.started = Instant::now();
     }
 }

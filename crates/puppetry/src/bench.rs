@@ -248,6 +248,18 @@ pub struct EndToEndResult {
     /// frame it caused, over every frame every client received.
     pub latency_us_p50: f64,
     pub latency_us_p99: f64,
+    /// Where the stage thread's time went, per solve (µs): applying
+    /// commands, solving, encoding the frames and waking the clients,
+    /// building text messages, recording.
+    pub commands_us: f64,
+    pub solve_us: f64,
+    pub frames_us: f64,
+    pub messages_us: f64,
+    pub record_us: f64,
+    /// A client task's send of what changed after a wake, on average (µs),
+    /// and the stage thread's busy share of the run's wall time.
+    pub send_us: f64,
+    pub stage_busy: f64,
 }
 
 /// Runs the daemon on `config` (its first puppet under `point`), connects
@@ -336,6 +348,8 @@ pub async fn end_to_end(
             }
         })
         .collect();
+    let timings = running.timings();
+    let playing = std::time::Instant::now();
     running
         .play(ReplaySource::from_frames(frames), pacing)
         .await;
@@ -346,7 +360,24 @@ pub async fn end_to_end(
         latencies.extend(l);
         first_reader.get_or_insert(s);
     }
+    let played = playing.elapsed().as_secs_f64();
     running.shutdown().await;
+    let load = |counter: &std::sync::atomic::AtomicU64| {
+        counter.load(std::sync::atomic::Ordering::Relaxed) as f64
+    };
+    let t = &timings;
+    let us_per_solve =
+        |ns: &std::sync::atomic::AtomicU64| load(ns) / 1e3 / load(&t.solves).max(1.0);
+    let stage_ns = [
+        &t.commands_ns,
+        &t.solve_ns,
+        &t.frames_ns,
+        &t.messages_ns,
+        &t.record_ns,
+    ]
+    .into_iter()
+    .map(load)
+    .sum::<f64>();
     let sequences = first_reader.unwrap_or_default();
     let (solves, span) = match (sequences.first(), sequences.last()) {
         (Some(a), Some(b)) if b.1 > a.1 => (b.0 - a.0, b.1 - a.1),
@@ -370,6 +401,13 @@ pub async fn end_to_end(
         },
         latency_us_p50: percentile(&latencies, 0.5),
         latency_us_p99: percentile(&latencies, 0.99),
+        commands_us: us_per_solve(&t.commands_ns),
+        solve_us: us_per_solve(&t.solve_ns),
+        frames_us: us_per_solve(&t.frames_ns),
+        messages_us: us_per_solve(&t.messages_ns),
+        record_us: us_per_solve(&t.record_ns),
+        send_us: load(&t.send_ns) / 1e3 / load(&t.sends).max(1.0),
+        stage_busy: stage_ns / 1e9 / played.max(1e-9),
     })
 }
 

@@ -552,6 +552,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         } => {
             let stages = cli::end_to_end_stages()?;
             let runtime = tokio::runtime::Runtime::new()?;
+            let mut breakdown = Vec::new();
             if !json {
                 println!(
                     "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10} {:>14} {:>14}",
@@ -606,6 +607,45 @@ fn run(args: Args) -> anyhow::Result<()> {
                             r.latency_us_p99
                         );
                     }
+                    breakdown.push(r);
+                }
+            }
+            if !json {
+                println!();
+                println!(
+                    "where the time goes, µs per solve on the stage thread (and per client send):"
+                );
+                println!(
+                    "{:<20} {:>7} {:>20} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10}",
+                    "stage",
+                    "clients",
+                    "input",
+                    "commands",
+                    "solve",
+                    "frames",
+                    "messages",
+                    "record",
+                    "stage busy",
+                    "send"
+                );
+                for r in &breakdown {
+                    println!(
+                        "{:<20} {:>7} {:>20} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>10.1}",
+                        r.mesh,
+                        r.clients,
+                        if r.pacing == "real_time" {
+                            "1 kHz real time"
+                        } else {
+                            "as fast as possible"
+                        },
+                        r.commands_us,
+                        r.solve_us,
+                        r.frames_us,
+                        r.messages_us,
+                        r.record_us,
+                        100.0 * r.stage_busy,
+                        r.send_us
+                    );
                 }
             }
         }

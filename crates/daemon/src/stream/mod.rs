@@ -79,6 +79,8 @@ pub struct Shared {
     pub export_state: watch::Sender<Arc<str>>,
     /// Bumped by the stage thread after each publish.
     pub changes: watch::Receiver<u64>,
+    /// Where the stage thread's and the client tasks' time goes.
+    pub timings: Arc<crate::stage_thread::Timings>,
     pub client_timeout: Duration,
     pub started: Instant,
     pub next_client: AtomicU64,
@@ -271,7 +273,13 @@ async fn websocket(
     let result: std::io::Result<()> = async {
         loop {
             // Send what is newest before waiting again.
+            let sending = std::time::Instant::now();
             following.send_changed(&mut ws, shared.client_timeout).await?;
+            crate::stage_thread::Timings::add(&shared.timings.send_ns, sending);
+            shared
+                .timings
+                .sends
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             if inputs.has_changed().unwrap_or(false) {
                 let text = inputs.borrow_and_update().to_string();
                 send(&mut ws, Message::text(text), shared.client_timeout).await?;
