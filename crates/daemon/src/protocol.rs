@@ -149,9 +149,12 @@ pub fn encode_frame_of(
         generation,
     }
     .encode_into(&mut out);
-    for p in points {
-        out.put_f32_le(p.x as f32);
-        out.put_f32_le(p.y as f32);
+    // Zeroed then written in place: plain stores, where a `put` per
+    // number checks capacity and copies four bytes at a time.
+    out.resize(FRAME_HEADER_BYTES + points.len() * 8, 0);
+    for (slot, p) in out[FRAME_HEADER_BYTES..].chunks_exact_mut(8).zip(points) {
+        slot[..4].copy_from_slice(&(p.x as f32).to_le_bytes());
+        slot[4..].copy_from_slice(&(p.y as f32).to_le_bytes());
     }
     out.freeze()
 }

@@ -257,9 +257,38 @@ pub struct EndToEndResult {
     pub messages_us: f64,
     pub record_us: f64,
     /// A client task's send of what changed after a wake, on average (µs),
-    /// and the stage thread's busy share of the run's wall time.
+    /// and the stage thread's busy share of the run's wall time (its
+    /// phases' clock time: the CPU's, plus any time the thread was
+    /// preempted inside a phase) and its CPU share (from the kernel's
+    /// accounting, 10 ms ticks).
     pub send_us: f64,
     pub stage_busy: f64,
+    pub stage_cpu: f64,
+}
+
+/// CPU seconds the threads named `name` of this process have used (user
+/// and system, from `/proc`), or 0 where that cannot be read.
+fn thread_cpu_by_name(name: &str) -> f64 {
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    let ticks_per_second = 100.0;
+    tasks
+        .flatten()
+        .filter(|task| {
+            std::fs::read_to_string(task.path().join("comm")).is_ok_and(|comm| comm.trim() == name)
+        })
+        .filter_map(|task| std::fs::read_to_string(task.path().join("stat")).ok())
+        .filter_map(|stat| {
+            // Fields after the command's closing parenthesis: utime and
+            // stime are the 12th and 13th.
+            let rest = &stat[stat.rfind(')')? + 2..];
+            let fields: Vec<&str> = rest.split_whitespace().collect();
+            let user: f64 = fields.get(11)?.parse().ok()?;
+            let system: f64 = fields.get(12)?.parse().ok()?;
+            Some((user + system) / ticks_per_second)
+        })
+        .sum()
 }
 
 /// Runs the daemon on `config` (its first puppet under `point`), connects
@@ -349,6 +378,7 @@ pub async fn end_to_end(
         })
         .collect();
     let timings = running.timings();
+    let stage_cpu_before = thread_cpu_by_name("stage");
     let playing = std::time::Instant::now();
     running
         .play(ReplaySource::from_frames(frames), pacing)
@@ -361,6 +391,7 @@ pub async fn end_to_end(
         first_reader.get_or_insert(s);
     }
     let played = playing.elapsed().as_secs_f64();
+    let stage_cpu = thread_cpu_by_name("stage") - stage_cpu_before;
     running.shutdown().await;
     let load = |counter: &std::sync::atomic::AtomicU64| {
         counter.load(std::sync::atomic::Ordering::Relaxed) as f64
@@ -408,6 +439,7 @@ pub async fn end_to_end(
         record_us: us_per_solve(&t.record_ns),
         send_us: load(&t.send_ns) / 1e3 / load(&t.sends).max(1.0),
         stage_busy: stage_ns / 1e9 / played.max(1e-9),
+        stage_cpu: stage_cpu / played.max(1e-9),
     })
 }
 

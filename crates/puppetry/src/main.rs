@@ -616,7 +616,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                     "where the time goes, µs per solve on the stage thread (and per client send):"
                 );
                 println!(
-                    "{:<20} {:>7} {:>20} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10}",
+                    "{:<20} {:>7} {:>20} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10} {:>10}",
                     "stage",
                     "clients",
                     "input",
@@ -626,11 +626,12 @@ fn run(args: Args) -> anyhow::Result<()> {
                     "messages",
                     "record",
                     "stage busy",
+                    "stage cpu",
                     "send"
                 );
                 for r in &breakdown {
                     println!(
-                        "{:<20} {:>7} {:>20} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>10.1}",
+                        "{:<20} {:>7} {:>20} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>9.0}% {:>10.1}",
                         r.mesh,
                         r.clients,
                         if r.pacing == "real_time" {
@@ -644,6 +645,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                         r.messages_us,
                         r.record_us,
                         100.0 * r.stage_busy,
+                        100.0 * r.stage_cpu,
                         r.send_us
                     );
                 }

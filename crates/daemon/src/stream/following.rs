@@ -10,7 +10,7 @@ use axum::extract::ws::Message;
 use bytes::Bytes;
 use tokio::sync::watch;
 
-use super::{Ws, send};
+use super::{Ws, feed, flush};
 use crate::lineup::Lineup;
 use crate::protocol::{Person, PuppetDescription, Role, ServerMessage};
 use crate::stage_thread::PublishedHandles;
@@ -104,43 +104,39 @@ impl Following {
     }
 
     /// Sends, puppet by puppet, whatever changed since the last call: the
-    /// newest of each, never a backlog.
+    /// newest of each, never a backlog, in one write.
     pub(super) async fn send_changed(
         &mut self,
         ws: &mut Ws,
         timeout: Duration,
     ) -> std::io::Result<()> {
+        let mut queued = false;
         for &i in &self.on_stage {
-            if let Some(bytes) = newest(&mut self.frames[i]) {
-                send(ws, Message::binary(bytes), timeout).await?;
-            }
+            let mut messages: [Option<Message>; 9] = Default::default();
+            messages[0] = newest(&mut self.frames[i]).map(Message::binary);
             // The depth to draw the vertices with.
-            if let Some(bytes) = newest(&mut self.depths[i]) {
-                send(ws, Message::binary(bytes), timeout).await?;
-            }
-            if let Some(bytes) = newest(&mut self.rigs[i]) {
-                send(ws, Message::binary(bytes), timeout).await?;
-            }
-            if let Some(text) = newest_text(&mut self.keys[i]) {
-                send(ws, Message::text(text), timeout).await?;
-            }
-            if let Some(text) = newest_text(&mut self.weights[i]) {
-                send(ws, Message::text(text), timeout).await?;
-            }
+            messages[1] = newest(&mut self.depths[i]).map(Message::binary);
+            messages[2] = newest(&mut self.rigs[i]).map(Message::binary);
+            messages[3] = newest_text(&mut self.keys[i]).map(Message::text);
+            messages[4] = newest_text(&mut self.weights[i]).map(Message::text);
             if self.handles[i].has_changed().unwrap_or(false) {
                 let text = self.handles[i].borrow_and_update().text.to_string();
-                send(ws, Message::text(text), timeout).await?;
+                messages[5] = Some(Message::text(text));
             }
             // After the handles message, so its generation is known.
-            if let Some(bytes) = newest(&mut self.handle_frames[i]) {
-                send(ws, Message::binary(bytes), timeout).await?;
+            messages[6] = newest(&mut self.handle_frames[i]).map(Message::binary);
+            messages[7] = newest_text(&mut self.history[i]).map(Message::text);
+            messages[8] = self.poses[i]
+                .as_mut()
+                .and_then(newest_text)
+                .map(Message::text);
+            for message in messages.into_iter().flatten() {
+                feed(ws, message, timeout).await?;
+                queued = true;
             }
-            if let Some(text) = newest_text(&mut self.history[i]) {
-                send(ws, Message::text(text), timeout).await?;
-            }
-            if let Some(text) = self.poses[i].as_mut().and_then(newest_text) {
-                send(ws, Message::text(text), timeout).await?;
-            }
+        }
+        if queued {
+            flush(ws, timeout).await?;
         }
         Ok(())
     }

@@ -15,6 +15,7 @@ mod uploads;
 pub use edge::WebFiles;
 pub use people::People;
 
+use futures_util::SinkExt;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -400,7 +401,24 @@ async fn websocket(
 }
 
 async fn send(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Result<()> {
-    match tokio::time::timeout(timeout, ws.send(message)).await {
+    within(timeout, ws.send(message)).await
+}
+
+/// Queues a message without flushing: what one wake sends goes out in one
+/// write ([`flush`] after the last).
+async fn feed(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Result<()> {
+    within(timeout, ws.feed(message)).await
+}
+
+async fn flush(ws: &mut Ws, timeout: Duration) -> std::io::Result<()> {
+    within(timeout, ws.flush()).await
+}
+
+async fn within(
+    timeout: Duration,
+    sending: impl std::future::Future<Output = Result<(), axum::Error>>,
+) -> std::io::Result<()> {
+    match tokio::time::timeout(timeout, sending).await {
         Ok(result) => result.map_err(std::io::Error::other),
         Err(_) => Err(std::io::Error::new(
             std::io::ErrorKind::TimedOut,
