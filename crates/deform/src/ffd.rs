@@ -308,55 +308,6 @@ struct Edge {
     rest: DVec2,
 }
 
-/// The locality edges gathered per vertex (both directions), CSR.
-#[derive(Debug, Clone, Default)]
-struct Rings {
-    /// Vertex i's ring is `start[i]..start[i + 1]`.
-    start: Vec<u32>,
-    neighbour: Vec<u32>,
-    /// `wᵢⱼ (v̄ᵢ − v̄ⱼ)`.
-    weighted: Vec<DVec2>,
-    /// Per vertex, `Sᵢ = Σⱼ wᵢⱼ (v̄ᵢ − v̄ⱼ)`, summed in ring order.
-    sum: Vec<DVec2>,
-}
-
-impl Rings {
-    fn new(vertices: usize, edges: &[Edge]) -> Rings {
-        let mut start = vec![0u32; vertices + 1];
-        for e in edges {
-            start[e.i as usize + 1] += 1;
-            start[e.j as usize + 1] += 1;
-        }
-        for i in 0..vertices {
-            start[i + 1] += start[i];
-        }
-        let total = start[vertices] as usize;
-        let mut fill = start.clone();
-        let mut neighbour = vec![0u32; total];
-        let mut weighted = vec![DVec2::ZERO; total];
-        for e in edges {
-            for (a, b, rest) in [(e.i, e.j, e.rest), (e.j, e.i, -e.rest)] {
-                let at = fill[a as usize] as usize;
-                neighbour[at] = b;
-                weighted[at] = rest * e.weight;
-                fill[a as usize] += 1;
-            }
-        }
-        let sum = (0..vertices)
-            .map(|i| {
-                let ring = start[i] as usize..start[i + 1] as usize;
-                weighted[ring].iter().fold(DVec2::ZERO, |acc, we| acc + *we)
-            })
-            .collect();
-        Rings {
-            start,
-            neighbour,
-            weighted,
-            sum,
-        }
-    }
-}
-
 /// A compiled vertex handle.
 #[derive(Debug, Clone)]
 struct VertexHandle {
@@ -389,8 +340,6 @@ pub struct LpFfd {
     rest_grid: Vec<DVec2>,
     blend: Blend,
     edges: Vec<Edge>,
-    /// The same edges per vertex, for the frame's local step.
-    rings: Rings,
     /// `WᵀLW`, row-major K×K.
     locality_matrix: Vec<f64>,
     /// Two vertex handles closer than this in rest space are one handle.
@@ -414,7 +363,7 @@ pub struct LpFfd {
     // Frame scratch.
     fixed_rhs: Vec<DVec2>,
     rhs: Vec<DVec2>,
-    /// Per vertex: its one-ring's best-fit rotation (cos, sin).
+    /// Per vertex: one-ring fit sums, then unit rotations (cos, sin).
     rotations: Vec<DVec2>,
     /// Per vertex: `2λ_ml b̃`.
     vertex_rhs: Vec<DVec2>,
@@ -453,7 +402,6 @@ impl LpFfd {
             rest_grid: grid.rest_handles(),
             blend,
             edges: Vec::new(),
-            rings: Rings::default(),
             locality_matrix: Vec::new(),
             vertex_handles: Vec::new(),
             vertex_rows: Vec::new(),
@@ -531,12 +479,10 @@ impl LpFfd {
         }
         // Rebuild aside, so a failure leaves the rig as it was.
         let old_edges = std::mem::take(&mut self.edges);
-        let old_rings = std::mem::take(&mut self.rings);
         let old_locality = std::mem::take(&mut self.locality_matrix);
         self.set_edges(weights);
         if let Err(e) = self.refactor() {
             self.edges = old_edges;
-            self.rings = old_rings;
             self.locality_matrix = old_locality;
             return Err(e);
         }
@@ -795,7 +741,6 @@ impl LpFfd {
             .collect();
         // Sweep order follows the vertex order, for the caches.
         edges.sort_unstable_by_key(|e| (e.i, e.j));
-        self.rings = Rings::new(self.rest.len(), &edges);
         self.edges = edges;
         self.locality_matrix = locality_matrix(&self.blend, &self.edges, self.handle_count());
     }
@@ -1013,42 +958,28 @@ impl LpFfd {
     /// rotations of the one-ring edges (Sorkine–Alexa), then
     /// `2λ_ml b̃` into `vertex_rhs`.
     fn local_step(&mut self) {
-        let Rings {
-            start,
-            neighbour,
-            weighted,
-            sum,
-        } = &self.rings;
         let pose = &self.pose;
-        // Per vertex, gathered over its ring: the fit sums stay in
-        // registers (an edge list scattering to both ends chains every
-        // edge of a vertex through one memory slot).
-        for (i, rotation) in self.rotations.iter_mut().enumerate() {
-            let ring = start[i] as usize..start[i + 1] as usize;
-            let p = pose[i];
-            let mut fit = DVec2::ZERO;
-            for (&j, &we) in neighbour[ring.clone()].iter().zip(&weighted[ring]) {
-                let now = p - pose[j as usize];
-                fit += DVec2::new(we.dot(now), we.perp_dot(now));
-            }
-            *rotation = fit;
+        let fits = &mut self.rotations;
+        fits.fill(DVec2::ZERO);
+        for e in &self.edges {
+            let now = pose[e.i as usize] - pose[e.j as usize];
+            // The same sum (ē·e, ē×e) serves both ends: both vectors flip.
+            let q = DVec2::new(e.rest.dot(now), e.rest.perp_dot(now)) * e.weight;
+            fits[e.i as usize] += q;
+            fits[e.j as usize] += q;
         }
-        // Apart from the gather, so the square roots run in SIMD lanes
-        // instead of stalling it one vertex at a time.
-        pulp::Arch::new().dispatch(crate::lanes::Normalise(&mut self.rotations));
-        // 2λ_ml b̃ᵢ = λ_ml Σⱼ wᵢⱼ ((Rᵢ − I) + (Rⱼ − I)) ēᵢⱼ
-        //         = λ_ml (Σⱼ Rⱼ wᵢⱼēᵢⱼ + Rᵢ Sᵢ − 2Sᵢ), Sᵢ = Σⱼ wᵢⱼēᵢⱼ.
-        // With every R the identity the gather sums to Sᵢ bit for bit (same
-        // order as at registration), so the rest pose gives exactly zero.
-        let rotations = &self.rotations;
+        // A loop of its own, so the square roots run in SIMD lanes.
+        pulp::Arch::new().dispatch(crate::lanes::Normalise(fits));
+        let b = &mut self.vertex_rhs;
+        b.fill(DVec2::ZERO);
         let scale = self.params.locality;
-        for (i, b) in self.vertex_rhs.iter_mut().enumerate() {
-            let ring = start[i] as usize..start[i + 1] as usize;
-            let mut acc = DVec2::ZERO;
-            for (&j, &we) in neighbour[ring.clone()].iter().zip(&weighted[ring]) {
-                acc += rotations[j as usize].rotate(we);
-            }
-            *b = ((acc + rotations[i].rotate(sum[i])) - sum[i] * 2.0) * scale;
+        for e in &self.edges {
+            let (ri, rj) = (fits[e.i as usize], fits[e.j as usize]);
+            // 2λ_ml · (w/2)((Rᵢ − I) + (Rⱼ − I))ē, exactly zero at rest.
+            let y =
+                ((ri.rotate(e.rest) - e.rest) + (rj.rotate(e.rest) - e.rest)) * (scale * e.weight);
+            b[e.i as usize] += y;
+            b[e.j as usize] -= y;
         }
     }
 }

@@ -15,13 +15,27 @@ impl pulp::WithSimd for Normalise<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        for fit in self.0.iter_mut() {
+        let (body, tail) = self.0.split_at_mut(self.0.len() - self.0.len() % 4);
+        for chunk in body.chunks_exact_mut(4) {
+            // Split into lanes and branch-free (`&`, selects), so the square
+            // roots and divisions vectorise four at a time.
+            let x: [f64; 4] = std::array::from_fn(|l| chunk[l].x);
+            let y: [f64; 4] = std::array::from_fn(|l| chunk[l].y);
+            let norm2: [f64; 4] = std::array::from_fn(|l| x[l] * x[l] + y[l] * y[l]);
+            let scale: [f64; 4] = std::array::from_fn(|l| 1.0 / norm2[l].sqrt());
+            for l in 0..4 {
+                let ok = (norm2[l] > f64::MIN_POSITIVE) & (norm2[l] <= f64::MAX);
+                chunk[l] = DVec2::new(
+                    if ok { x[l] * scale[l] } else { 1.0 },
+                    if ok { y[l] * scale[l] } else { 0.0 },
+                );
+            }
+        }
+        for fit in tail {
             let norm2 = fit.x * fit.x + fit.y * fit.y;
-            let ok = norm2 > f64::MIN_POSITIVE && norm2 <= f64::MAX;
+            let ok = (norm2 > f64::MIN_POSITIVE) & (norm2 <= f64::MAX);
             let scale = 1.0 / norm2.sqrt();
-            // Branch-free, so the loop vectorises.
-            fit.x = if ok { fit.x * scale } else { 1.0 };
-            fit.y = if ok { fit.y * scale } else { 0.0 };
+            *fit = if ok { *fit * scale } else { DVec2::X };
         }
     }
 }

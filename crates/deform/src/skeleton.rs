@@ -621,9 +621,6 @@ pub struct ShapeAware {
     free_bone: Vec<u32>,
     /// Per bone, the rotation of its rest direction onto its posed one.
     bone_rotations: Vec<DVec2>,
-    incidence: Incidence,
-    /// Per free triangle, `3w_t R_t`.
-    scaled: Vec<DVec2>,
     joint_rows: Vec<JointRow>,
     attached: Vec<AttachedPiece>,
     /// Per mesh triangle, the bone it takes its transform from (`u32::MAX`
@@ -703,58 +700,13 @@ fn assemble_and_factor<'a>(
     Ok(RealCholesky::new(pattern, &values)?)
 }
 
-/// The free triangles at each unknown, CSR: the right-hand side is
-/// gathered per unknown (`b_v = fixed_v + Σ_t 3w_t R_t (v̄ − c̄_t)`) rather
-/// than scattered per triangle, whose three read-modify-writes chain
-/// through memory where neighbouring triangles share a corner.
-#[derive(Debug)]
-struct Incidence {
-    /// Unknown v's triangles are `start[v]..start[v + 1]`.
-    start: Vec<u32>,
-    /// Index into the free triangles.
-    triangle: Vec<u32>,
-    /// That triangle's rest corner at v, about its rest centroid.
-    corner: Vec<DVec2>,
-}
-
-impl Incidence {
-    fn new(unknowns: usize, triangles: &[StitchTriangle]) -> Incidence {
-        let mut start = vec![0u32; unknowns + 1];
-        for t in triangles {
-            for &c in &t.corners {
-                start[c as usize + 1] += 1;
-            }
-        }
-        for v in 0..unknowns {
-            start[v + 1] += start[v];
-        }
-        let total = start[unknowns] as usize;
-        let mut fill = start.clone();
-        let (mut triangle, mut corner) = (vec![0u32; total], vec![DVec2::ZERO; total]);
-        for (index, t) in triangles.iter().enumerate() {
-            for (&c, r) in t.corners.iter().zip(t.rest_corners()) {
-                let at = fill[c as usize] as usize;
-                (triangle[at], corner[at]) = (index as u32, r);
-                fill[c as usize] += 1;
-            }
-        }
-        Incidence {
-            start,
-            triangle,
-            corner,
-        }
-    }
-
-    /// `out = fixed + Σ_t scaled_t (v̄ − c̄_t)`, `scaled_t = 3w_t R_t`.
-    fn gather(&self, fixed: &[DVec2], scaled: &[DVec2], out: &mut [DVec2]) {
-        for (v, (o, f)) in out.iter_mut().zip(fixed).enumerate() {
-            let range = self.start[v] as usize..self.start[v + 1] as usize;
-            let mut sum = *f;
-            for (&t, &r) in self.triangle[range.clone()].iter().zip(&self.corner[range]) {
-                sum += scaled[t as usize].rotate(r);
-            }
-            *o = sum;
-        }
+/// Adds free triangle `t`'s share `3w R (v̄ − c̄)` of the right-hand side.
+#[inline(always)]
+fn scatter_rotated(b: &mut [DVec2], t: &StitchTriangle, rotation: DVec2) {
+    let scaled = rotation * t.weight3;
+    let r = t.rest_corners();
+    for k in 0..3 {
+        b[t.corners[k] as usize] += scaled.rotate(r[k]);
     }
 }
 
@@ -957,8 +909,6 @@ impl ShapeAware {
             rotations: vec![DVec2::X; free_triangles.len()],
             free_bone,
             bone_rotations: vec![DVec2::X; bone_count],
-            incidence: Incidence::new(n, &free_triangles),
-            scaled: vec![DVec2::ZERO; free_triangles.len()],
             bone_triangles,
             free_triangles,
             bone_mesh_triangles,
@@ -1104,7 +1054,7 @@ impl ShapeAware {
         }
         self.assemble_fixed_rhs();
         // The first right-hand side; later ones are scattered by the fit.
-        self.gather_rhs();
+        self.assemble_rhs();
         let rounds = self.params.rounds;
         for round in 0..=rounds {
             self.factor.solve(&mut self.rhs);
@@ -1190,23 +1140,17 @@ impl ShapeAware {
         if fit {
             // A collapsed triangle fits no rotation: rest orientation.
             pulp::Arch::new().dispatch(crate::lanes::Normalise(&mut self.rotations));
-            self.gather_rhs();
+            self.assemble_rhs();
         }
         energy
     }
 
     /// The stitch's right-hand side for the current free rotations.
-    fn gather_rhs(&mut self) {
-        for ((s, r), t) in self
-            .scaled
-            .iter_mut()
-            .zip(&self.rotations)
-            .zip(&self.free_triangles)
-        {
-            *s = *r * t.weight3;
+    fn assemble_rhs(&mut self) {
+        self.rhs.copy_from_slice(&self.fixed_rhs);
+        for (t, rotation) in self.free_triangles.iter().zip(&self.rotations) {
+            scatter_rotated(&mut self.rhs, t, *rotation);
         }
-        self.incidence
-            .gather(&self.fixed_rhs, &self.scaled, &mut self.rhs);
     }
 
     /// The deformed vertex positions (mesh order) of the last update; the
