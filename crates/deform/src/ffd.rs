@@ -69,14 +69,16 @@ pub const MAX_GRID_HANDLES: usize = 1024;
 /// mesh's longer bounding-box side.
 pub const GRID_MARGIN: f64 = 0.05;
 
-/// Local/global iterations per frame by default. Measured with [`bench`] on
-/// the demo puppet (10×10 grid, four vertex handles wandering on small
-/// circles, warm-started): after 4 iterations per frame the energy trails the
-/// converged one by under 0.1% (Bernstein) and 0.5% (lattice) — 1 iteration
-/// leaves 0.6–6% — while a frame's fastest time is 0.38 ms at 1k vertices and
-/// 3.6 ms at 10k for Bernstein (0.10 and 0.83 ms for the lattice). Each
-/// iteration costs two passes over `W` (n·K for Bernstein, 4n for the
-/// lattice), the one-ring sweep and the K×K triangular solves.
+/// Local/global iterations per frame by default. Measured on the demo
+/// puppet (10×10 grid, four vertex handles wandering on small circles,
+/// warm-started; the curve is in docs/rigs.md): after 4 iterations per frame
+/// the Bernstein energy trails the converged one by 0.03–0.06% (median,
+/// 1k and 10k vertices; 0.11% at worst) and the lattice's by 0.1–0.4%; 2
+/// iterations leave about 5.6 times as much. A Bernstein frame of 4 takes
+/// about 0.27 ms at 1k vertices and 2.6 ms at 10k on the 2-core
+/// development machine. Each iteration costs two passes over `W` (n·K
+/// multiply-adds for Bernstein, 4n for the lattice), the one-ring sweep and
+/// the K×K triangular solves.
 pub const DEFAULT_ITERATIONS: usize = 4;
 
 /// How vertices blend grid handles.
@@ -287,8 +289,9 @@ pub enum FfdError {
 /// Bernstein, four (column, weight) pairs for the lattice.
 #[derive(Debug, Clone)]
 enum Blend {
-    /// Row-major n×K.
-    Dense { values: Vec<f64> },
+    /// Row-major n×K (registration and compilation read whole rows), and
+    /// the same rows factored for the frame's passes.
+    Dense { values: Vec<f64>, tensor: Tensor },
     /// Four entries per row.
     Lattice {
         columns: Vec<[u32; 4]>,
@@ -366,6 +369,7 @@ pub struct LpFfd {
     rotations: Vec<DVec2>,
     /// Per vertex: `2λ_ml b̃`.
     vertex_rhs: Vec<DVec2>,
+    scratch: TensorScratch,
 }
 
 impl LpFfd {
@@ -390,6 +394,7 @@ impl LpFfd {
             normalised.push(((v - grid.min) / span).clamp(DVec2::ZERO, DVec2::ONE));
         }
         let blend = blend_matrix(&grid, &normalised);
+        let scratch = TensorScratch::new(&blend);
         let k = grid.handle_count();
         let mut rig = LpFfd {
             spec: grid,
@@ -414,6 +419,7 @@ impl LpFfd {
             rhs: vec![DVec2::ZERO; k],
             rotations: vec![DVec2::ZERO; rest.len()],
             vertex_rhs: vec![DVec2::ZERO; rest.len()],
+            scratch,
             rest,
         };
         rig.set_edges(mesh.weights());
@@ -525,7 +531,12 @@ impl LpFfd {
             self.rhs.copy_from_slice(&self.fixed_rhs);
             if locality {
                 self.local_step();
-                add_transposed(&self.blend, &self.vertex_rhs, &mut self.rhs);
+                add_transposed(
+                    &self.blend,
+                    &mut self.scratch,
+                    &self.vertex_rhs,
+                    &mut self.rhs,
+                );
             }
             self.displacement.copy_from_slice(&self.rhs);
             solve_in_place(
@@ -533,7 +544,13 @@ impl LpFfd {
                 &self.factor_inverse_diagonal,
                 &mut self.displacement,
             );
-            apply(&self.blend, &self.rest, &self.displacement, &mut self.pose);
+            apply(
+                &self.blend,
+                &mut self.scratch,
+                &self.rest,
+                &self.displacement,
+                &mut self.pose,
+            );
             if !locality {
                 // Nothing depends on the pose: one solve is the minimum.
                 break;
@@ -565,7 +582,8 @@ impl LpFfd {
             .map(|(p, r)| *p - *r)
             .collect();
         let mut out = vec![DVec2::ZERO; self.rest.len()];
-        apply(&self.blend, &self.rest, &delta, &mut out);
+        let mut scratch = TensorScratch::new(&self.blend);
+        apply(&self.blend, &mut scratch, &self.rest, &delta, &mut out);
         Ok(out)
     }
 
@@ -643,7 +661,8 @@ impl LpFfd {
             .map(|(v, r)| (*v - *r) * self.params.vertex)
             .collect();
         let mut delta = vec![DVec2::ZERO; k];
-        add_transposed(&self.blend, &residual, &mut delta);
+        let mut scratch = TensorScratch::new(&self.blend);
+        add_transposed(&self.blend, &mut scratch, &residual, &mut delta);
         solve_in_place(&factor, &inverse_diagonal, &mut delta);
         Ok(delta
             .iter()
@@ -951,14 +970,8 @@ impl LpFfd {
             fits[e.i as usize] += q;
             fits[e.j as usize] += q;
         }
-        for fit in fits.iter_mut() {
-            let norm2 = fit.length_squared();
-            *fit = if norm2 > f64::MIN_POSITIVE && norm2.is_finite() {
-                *fit / norm2.sqrt()
-            } else {
-                DVec2::X
-            };
-        }
+        // A loop of its own, so the square roots run in SIMD lanes.
+        pulp::Arch::new().dispatch(crate::lanes::Normalise(fits));
         let b = &mut self.vertex_rhs;
         b.fill(DVec2::ZERO);
         let scale = self.params.locality;
@@ -1013,7 +1026,10 @@ fn blend_matrix(spec: &GridSpec, normalised: &[DVec2]) -> Blend {
                     }
                 }
             }
-            Blend::Dense { values }
+            Blend::Dense {
+                values,
+                tensor: Tensor::new(m, n, normalised),
+            }
         }
         Basis::Lattice => {
             let mut columns = Vec::with_capacity(normalised.len());
@@ -1038,7 +1054,7 @@ fn blend_matrix(spec: &GridSpec, normalised: &[DVec2]) -> Blend {
 /// `row += scale · W_v`.
 fn add_blend_row(blend: &Blend, v: usize, k: usize, scale: f64, row: &mut [f64]) {
     match blend {
-        Blend::Dense { values } => {
+        Blend::Dense { values, .. } => {
             for (o, w) in row.iter_mut().zip(&values[v * k..(v + 1) * k]) {
                 *o += scale * w;
             }
@@ -1052,27 +1068,15 @@ fn add_blend_row(blend: &Blend, v: usize, k: usize, scale: f64, row: &mut [f64])
 }
 
 /// `out = base + W Δ`, per vertex.
-fn apply(blend: &Blend, base: &[DVec2], delta: &[DVec2], out: &mut [DVec2]) {
+fn apply(
+    blend: &Blend,
+    scratch: &mut TensorScratch,
+    base: &[DVec2],
+    delta: &[DVec2],
+    out: &mut [DVec2],
+) {
     match blend {
-        Blend::Dense { values } => {
-            let k = delta.len();
-            for ((row, o), b) in values.chunks_exact(k).zip(out.iter_mut()).zip(base) {
-                // Four partial sums: the adds pipeline instead of chaining.
-                let mut acc = [DVec2::ZERO; 4];
-                let (body, tail) = row.split_at(k - k % 4);
-                let (dbody, dtail) = delta.split_at(k - k % 4);
-                for (w, d) in body.chunks_exact(4).zip(dbody.chunks_exact(4)) {
-                    acc[0] += d[0] * w[0];
-                    acc[1] += d[1] * w[1];
-                    acc[2] += d[2] * w[2];
-                    acc[3] += d[3] * w[3];
-                }
-                for (w, d) in tail.iter().zip(dtail) {
-                    acc[0] += *d * *w;
-                }
-                *o = *b + ((acc[0] + acc[1]) + (acc[2] + acc[3]));
-            }
-        }
+        Blend::Dense { tensor, .. } => tensor.apply(scratch, base, delta, out),
         Blend::Lattice { columns, values } => {
             for (((c, w), o), b) in columns.iter().zip(values).zip(out.iter_mut()).zip(base) {
                 *o = *b
@@ -1086,17 +1090,9 @@ fn apply(blend: &Blend, base: &[DVec2], delta: &[DVec2], out: &mut [DVec2]) {
 }
 
 /// `out += Wᵀ x`.
-fn add_transposed(blend: &Blend, x: &[DVec2], out: &mut [DVec2]) {
+fn add_transposed(blend: &Blend, scratch: &mut TensorScratch, x: &[DVec2], out: &mut [DVec2]) {
     match blend {
-        Blend::Dense { values } => {
-            let k = out.len();
-            for (row, xi) in values.chunks_exact(k).zip(x) {
-                let xi = *xi;
-                for (o, w) in out.iter_mut().zip(row) {
-                    *o += xi * *w;
-                }
-            }
-        }
+        Blend::Dense { tensor, .. } => tensor.add_transposed(scratch, x, out),
         Blend::Lattice { columns, values } => {
             for ((c, w), xi) in columns.iter().zip(values).zip(x) {
                 for q in 0..4 {
@@ -1110,7 +1106,7 @@ fn add_transposed(blend: &Blend, x: &[DVec2], out: &mut [DVec2]) {
 /// `WᵀLW` (row-major K×K) with `L` the edge-weighted graph Laplacian.
 fn locality_matrix(blend: &Blend, edges: &[Edge], k: usize) -> Vec<f64> {
     match blend {
-        Blend::Dense { values } => {
+        Blend::Dense { values, .. } => {
             let n = values.len() / k;
             let mut lw = vec![0.0; n * k];
             for e in edges {
@@ -1159,7 +1155,7 @@ fn locality_matrix(blend: &Blend, edges: &[Edge], k: usize) -> Vec<f64> {
 /// `WᵀW` (row-major K×K).
 fn gram(blend: &Blend, k: usize) -> Vec<f64> {
     match blend {
-        Blend::Dense { values } => {
+        Blend::Dense { values, .. } => {
             let n = values.len() / k;
             let w = MatRef::from_row_major_slice(values, n, k);
             let mut out = Mat::<f64>::zeros(k, k);
@@ -1236,11 +1232,20 @@ fn solve_in_place(factor: &[f64], inverse_diagonal: &[f64], x: &mut [DVec2]) {
     for i in 0..k {
         let row = &factor[i * k..i * k + i];
         let (done, rest) = x.split_at_mut(i);
-        let mut s = rest[0];
-        for (l, y) in row.iter().zip(done.iter()) {
-            s -= *y * *l;
+        // Four partial sums: the row's products pipeline instead of
+        // waiting on one running sum (a K-long dependency chain per row).
+        let mut acc = [DVec2::ZERO; 4];
+        let (body, tail) = row.split_at(i - i % 4);
+        let (dbody, dtail) = done.split_at(i - i % 4);
+        for (l, y) in body.chunks_exact(4).zip(dbody.chunks_exact(4)) {
+            for q in 0..4 {
+                acc[q] += y[q] * l[q];
+            }
         }
-        rest[0] = s * inverse_diagonal[i];
+        for (l, y) in tail.iter().zip(dtail) {
+            acc[0] += *y * *l;
+        }
+        rest[0] = (rest[0] - ((acc[0] + acc[1]) + (acc[2] + acc[3]))) * inverse_diagonal[i];
     }
     for i in (0..k).rev() {
         let (before, rest) = x.split_at_mut(i);
@@ -1248,6 +1253,284 @@ fn solve_in_place(factor: &[f64], inverse_diagonal: &[f64], x: &mut [DVec2]) {
         rest[0] = xi;
         for (y, l) in before.iter_mut().zip(&factor[i * k..i * k + i]) {
             *y -= xi * *l;
+        }
+    }
+}
+
+/// Vertices the Bernstein kernels handle at once, one per SIMD lane.
+const LANES: usize = 4;
+/// Vertices per cache block of the transposed pass: its per-block inputs
+/// (`M + 2N` lane rows) stay in the first-level cache.
+const BLOCK: usize = 256;
+
+/// Bernstein rows of `W` in factored form: vertex v's row is the tensor
+/// product of its M column weights and N row weights,
+/// `W_v[r·M + c] = t_r(v)·s_c(v)`, so a frame's pass reads M + N numbers a
+/// vertex instead of M·N. Stored weight-major (all vertices' `s_c`, then
+/// `s_{c+1}`…) with the vertex count padded to whole lanes by zero weights,
+/// so the kernels run across vertices in SIMD lanes. Each pass still does
+/// the M·N multiply-adds per vertex the dense row needs (the basis has
+/// global support: no weight is zero inside the box).
+#[derive(Debug, Clone)]
+struct Tensor {
+    columns: usize,
+    rows: usize,
+    /// Vertex count rounded up to a multiple of [`LANES`].
+    padded: usize,
+    /// `columns × padded`.
+    s: Vec<f64>,
+    /// `rows × padded`.
+    t: Vec<f64>,
+}
+
+/// The frame passes' scratch, sized at registration.
+#[derive(Debug, Clone)]
+struct TensorScratch {
+    /// Δ by coordinate, K each.
+    dx: Vec<f64>,
+    dy: Vec<f64>,
+    /// Per (padded) vertex by coordinate: `WΔ` out of [`Tensor::apply`],
+    /// the vector multiplied by `Wᵀ` into [`Tensor::add_transposed`].
+    ux: Vec<f64>,
+    uy: Vec<f64>,
+    /// `t_r ⊙ x` for one block, `rows × BLOCK` each.
+    yx: Vec<f64>,
+    yy: Vec<f64>,
+    /// Lane partial sums of `Wᵀ x`, x and y per handle.
+    sums: Vec<[f64; LANES]>,
+}
+
+impl TensorScratch {
+    fn new(blend: &Blend) -> TensorScratch {
+        let (k, padded, rows) = match blend {
+            Blend::Dense { tensor, .. } => {
+                (tensor.columns * tensor.rows, tensor.padded, tensor.rows)
+            }
+            Blend::Lattice { .. } => (0, 0, 0),
+        };
+        TensorScratch {
+            dx: vec![0.0; k],
+            dy: vec![0.0; k],
+            ux: vec![0.0; padded],
+            uy: vec![0.0; padded],
+            yx: vec![0.0; rows * BLOCK],
+            yy: vec![0.0; rows * BLOCK],
+            sums: vec![[0.0; LANES]; 2 * k],
+        }
+    }
+}
+
+impl Tensor {
+    fn new(columns: usize, rows: usize, normalised: &[DVec2]) -> Tensor {
+        let padded = normalised.len().div_ceil(LANES) * LANES;
+        let mut s = vec![0.0; columns * padded];
+        let mut t = vec![0.0; rows * padded];
+        let (mut bs, mut bt) = (vec![0.0; columns], vec![0.0; rows]);
+        for (v, st) in normalised.iter().enumerate() {
+            bernstein(columns - 1, st.x, &mut bs);
+            bernstein(rows - 1, st.y, &mut bt);
+            for (c, &w) in bs.iter().enumerate() {
+                s[c * padded + v] = w;
+            }
+            for (r, &w) in bt.iter().enumerate() {
+                t[r * padded + v] = w;
+            }
+        }
+        Tensor {
+            columns,
+            rows,
+            padded,
+            s,
+            t,
+        }
+    }
+
+    /// `out = base + W Δ`.
+    fn apply(
+        &self,
+        scratch: &mut TensorScratch,
+        base: &[DVec2],
+        delta: &[DVec2],
+        out: &mut [DVec2],
+    ) {
+        for ((x, y), d) in scratch.dx.iter_mut().zip(&mut scratch.dy).zip(delta) {
+            (*x, *y) = (d.x, d.y);
+        }
+        pulp::Arch::new().dispatch(ApplyKernel {
+            tensor: self,
+            dx: &scratch.dx,
+            dy: &scratch.dy,
+            ux: &mut scratch.ux,
+            uy: &mut scratch.uy,
+        });
+        for (((o, b), x), y) in out.iter_mut().zip(base).zip(&scratch.ux).zip(&scratch.uy) {
+            *o = *b + DVec2::new(*x, *y);
+        }
+    }
+
+    /// `out += Wᵀ x`.
+    fn add_transposed(&self, scratch: &mut TensorScratch, x: &[DVec2], out: &mut [DVec2]) {
+        for ((ux, uy), v) in scratch.ux.iter_mut().zip(&mut scratch.uy).zip(x) {
+            (*ux, *uy) = (v.x, v.y);
+        }
+        pulp::Arch::new().dispatch(TransposedKernel {
+            tensor: self,
+            ux: &scratch.ux,
+            uy: &scratch.uy,
+            yx: &mut scratch.yx,
+            yy: &mut scratch.yy,
+            sums: &mut scratch.sums,
+        });
+        let lane_sum = |a: &[f64; LANES]| (a[0] + a[1]) + (a[2] + a[3]);
+        for (o, pair) in out.iter_mut().zip(scratch.sums.chunks_exact(2)) {
+            *o += DVec2::new(lane_sum(&pair[0]), lane_sum(&pair[1]));
+        }
+    }
+}
+
+/// `u = WΔ` over all vertex lanes. `f64::mul_add` is one instruction where
+/// dispatch found FMA and an exact library call elsewhere, so every machine
+/// computes the same bits.
+struct ApplyKernel<'a> {
+    tensor: &'a Tensor,
+    dx: &'a [f64],
+    dy: &'a [f64],
+    ux: &'a mut [f64],
+    uy: &'a mut [f64],
+}
+
+impl pulp::WithSimd for ApplyKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Tensor {
+            columns: m,
+            rows: n,
+            padded,
+            ref s,
+            ref t,
+        } = *self.tensor;
+        let lanes = self
+            .ux
+            .chunks_exact_mut(LANES)
+            .zip(self.uy.chunks_exact_mut(LANES));
+        for (block, (ox, oy)) in lanes.enumerate() {
+            let at = block * LANES;
+            let (mut ux, mut uy) = ([0.0; LANES], [0.0; LANES]);
+            for r in 0..n {
+                // Σ_c s_c Δ_rc, then one multiply-add by t_r: (M + 1)·N per
+                // coordinate, the weight products never formed.
+                let (mut ax, mut ay) = ([0.0; LANES], [0.0; LANES]);
+                let (gx, gy) = (&self.dx[r * m..(r + 1) * m], &self.dy[r * m..(r + 1) * m]);
+                for c in 0..m {
+                    let sc: &[f64; LANES] = s[c * padded + at..][..LANES].try_into().unwrap();
+                    for l in 0..LANES {
+                        ax[l] = sc[l].mul_add(gx[c], ax[l]);
+                        ay[l] = sc[l].mul_add(gy[c], ay[l]);
+                    }
+                }
+                let tr: &[f64; LANES] = t[r * padded + at..][..LANES].try_into().unwrap();
+                for l in 0..LANES {
+                    ux[l] = tr[l].mul_add(ax[l], ux[l]);
+                    uy[l] = tr[l].mul_add(ay[l], uy[l]);
+                }
+            }
+            ox.copy_from_slice(&ux);
+            oy.copy_from_slice(&uy);
+        }
+    }
+}
+
+/// Lane partial sums of `Wᵀ u` into `sums`: per cache block of vertices,
+/// `y_r = t_r ⊙ u`, then for every handle (r, c) the lane dot product of
+/// `s_c` with `y_r`, four columns at a time so eight independent sums hide
+/// the multiply-add latency.
+struct TransposedKernel<'a> {
+    tensor: &'a Tensor,
+    ux: &'a [f64],
+    uy: &'a [f64],
+    yx: &'a mut [f64],
+    yy: &'a mut [f64],
+    sums: &'a mut [[f64; LANES]],
+}
+
+/// `sums[2q] += Σ s_{c+q} ⊙ yx`, `sums[2q+1] += Σ s_{c+q} ⊙ yy` over
+/// `len` lanes from `at`, for the G columns from `c`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn transposed_group<const G: usize>(
+    s: &[f64],
+    padded: usize,
+    c: usize,
+    at: usize,
+    yx: &[f64],
+    yy: &[f64],
+    sums: &mut [[f64; LANES]],
+) {
+    let mut acc = [[0.0; LANES]; 8];
+    for q in 0..G {
+        acc[2 * q] = sums[2 * q];
+        acc[2 * q + 1] = sums[2 * q + 1];
+    }
+    for (i, (x, y)) in yx
+        .chunks_exact(LANES)
+        .zip(yy.chunks_exact(LANES))
+        .enumerate()
+    {
+        for q in 0..G {
+            let sc = &s[(c + q) * padded + at + i * LANES..][..LANES];
+            for l in 0..LANES {
+                acc[2 * q][l] = sc[l].mul_add(x[l], acc[2 * q][l]);
+                acc[2 * q + 1][l] = sc[l].mul_add(y[l], acc[2 * q + 1][l]);
+            }
+        }
+    }
+    sums[..2 * G].copy_from_slice(&acc[..2 * G]);
+}
+
+impl pulp::WithSimd for TransposedKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Tensor {
+            columns: m,
+            rows: n,
+            padded,
+            ref s,
+            ref t,
+        } = *self.tensor;
+        self.sums.fill([0.0; LANES]);
+        let mut at = 0;
+        while at < padded {
+            let len = BLOCK.min(padded - at);
+            for r in 0..n {
+                let tr = &t[r * padded + at..][..len];
+                let (yx, yy) = (
+                    &mut self.yx[r * BLOCK..][..len],
+                    &mut self.yy[r * BLOCK..][..len],
+                );
+                for i in 0..len {
+                    yx[i] = tr[i] * self.ux[at + i];
+                    yy[i] = tr[i] * self.uy[at + i];
+                }
+            }
+            for r in 0..n {
+                let (yx, yy) = (&self.yx[r * BLOCK..][..len], &self.yy[r * BLOCK..][..len]);
+                let mut c = 0;
+                while c < m {
+                    let sums = &mut self.sums[2 * (r * m + c)..];
+                    match m - c {
+                        1 => transposed_group::<1>(s, padded, c, at, yx, yy, sums),
+                        2 => transposed_group::<2>(s, padded, c, at, yx, yy, sums),
+                        3 => transposed_group::<3>(s, padded, c, at, yx, yy, sums),
+                        _ => transposed_group::<4>(s, padded, c, at, yx, yy, sums),
+                    }
+                    c += 4;
+                }
+            }
+            at += len;
         }
     }
 }

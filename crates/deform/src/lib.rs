@@ -16,6 +16,7 @@ pub mod arap;
 pub mod curve;
 pub mod depth;
 pub mod ffd;
+mod lanes;
 pub mod measure;
 pub mod rbf;
 pub mod skeleton;

@@ -513,6 +513,8 @@ pub struct SkeletonParamsConfig {
     pub perpendicular_scale: Option<f64>,
     #[serde(default)]
     pub warm_start: Option<bool>,
+    #[serde(default)]
+    pub bone_start: Option<bool>,
 }
 
 /// A named key pose: the rest pose with some bones turned, or any of the

@@ -222,6 +222,7 @@ impl Rig {
                 rounds: c.rounds.unwrap_or(d.rounds),
                 perpendicular_scale: c.perpendicular_scale.unwrap_or(d.perpendicular_scale),
                 warm_start: c.warm_start.unwrap_or(d.warm_start),
+                bone_start: c.bone_start.unwrap_or(d.bone_start),
             };
             let mut bone_ending = vec![None; skeleton.joints().len()];
             for (b, &[_, child]) in skeleton.bones().iter().enumerate() {

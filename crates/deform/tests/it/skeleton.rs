@@ -129,15 +129,20 @@ fn a_rotated_bone_carries_the_triangles_it_crosses() {
 fn propagation_never_raises_the_distortion_and_lowers_it_overall() {
     let mesh = gingerbread();
     let skeleton = gingerbread_skeleton();
-    let mut deformer =
-        ShapeAware::register(&mesh, skeleton.clone(), SkeletonParams::default()).unwrap();
+    // The paper's propagation: 12 rounds from the identity.
+    let paper = SkeletonParams {
+        rounds: 12,
+        bone_start: false,
+        ..SkeletonParams::default()
+    };
+    let mut deformer = ShapeAware::register(&mesh, skeleton.clone(), paper).unwrap();
     let mut pose = skeleton.rest_pose();
     pose.rotate_joint(4, 1.0).unwrap(); // left upper arm up
     pose.rotate_joint(10, -0.6).unwrap(); // left thigh
     pose.rotate_joint(2, 0.4).unwrap(); // head tilt
     deformer.update_pose(&pose).unwrap();
     let energies = deformer.energies().to_vec();
-    assert_eq!(energies.len(), SkeletonParams::default().rounds + 1);
+    assert_eq!(energies.len(), paper.rounds + 1);
     for pair in energies.windows(2) {
         assert!(
             pair[1] <= pair[0] * (1.0 + 1e-9),
@@ -151,12 +156,51 @@ fn propagation_never_raises_the_distortion_and_lowers_it_overall() {
     // More rounds go further.
     let params = SkeletonParams {
         rounds: 40,
-        ..SkeletonParams::default()
+        ..paper
     };
     let mut longer = ShapeAware::register(&mesh, skeleton, params).unwrap();
     longer.update_pose(&pose).unwrap();
     assert!(longer.energies()[40] < energies[12]);
     assert_eq!(longer.energies()[12], energies[12]);
+}
+
+#[test]
+fn starting_from_the_bones_goes_further_per_round() {
+    // A held pose with a limb turned a full radian: the hard case for the
+    // default's fewer rounds (docs/rigs.md has the curves).
+    let mesh = gingerbread();
+    let skeleton = gingerbread_skeleton();
+    let mut pose = skeleton.rest_pose();
+    pose.rotate_joint(4, 1.0).unwrap();
+    pose.rotate_joint(10, -0.6).unwrap();
+    pose.rotate_joint(2, 0.4).unwrap();
+    let energies = |params: SkeletonParams| {
+        let mut d = ShapeAware::register(&mesh, skeleton.clone(), params).unwrap();
+        d.update_pose(&pose).unwrap();
+        d.energies().to_vec()
+    };
+    let rounds = 12;
+    let from_bones = energies(SkeletonParams {
+        rounds,
+        ..SkeletonParams::default()
+    });
+    let paper = energies(SkeletonParams {
+        rounds,
+        bone_start: false,
+        ..SkeletonParams::default()
+    });
+    // Every round ends lower from the bones than from the identity.
+    for (k, (ours, theirs)) in from_bones.iter().zip(&paper).enumerate() {
+        assert!(ours < theirs, "round {k}: {ours} vs {theirs}");
+    }
+    // The default rounds end close to the paper's 12 even here.
+    let defaults = SkeletonParams::default().rounds;
+    assert!(
+        from_bones[defaults] <= paper[rounds] * 1.015,
+        "{} after {defaults} rounds vs {} after {rounds}",
+        from_bones[defaults],
+        paper[rounds]
+    );
 }
 
 #[test]
