@@ -139,24 +139,45 @@ pub fn encode_frame_of(
     generation: u32,
     points: &[DVec2],
 ) -> Bytes {
-    let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + points.len() * 8);
-    FrameHeader {
+    let header = FrameHeader {
         kind,
         puppet,
         sequence,
         input_time,
         count: points.len() as u32,
         generation,
+    };
+    let mut out = BytesMut::new();
+    write_frame(&mut out, &header, points);
+    out.freeze()
+}
+
+/// Encodes a frame of `points` (the header's count is theirs) from
+/// `arena`, a buffer kept for one stream of frames: once every frame split
+/// from it earlier is gone (clients drop theirs once sent), its storage is
+/// reclaimed, and the frame shares it with a reference count. A publisher
+/// that alternates two arenas per stream encodes without allocating.
+pub fn encode_frame_into(arena: &mut BytesMut, header: &FrameHeader, points: &[DVec2]) -> Bytes {
+    write_frame(arena, header, points);
+    arena.split().freeze()
+}
+
+fn write_frame(out: &mut BytesMut, header: &FrameHeader, points: &[DVec2]) {
+    let length = FRAME_HEADER_BYTES + points.len() * 8;
+    out.clear();
+    out.reserve(length);
+    FrameHeader {
+        count: points.len() as u32,
+        ..*header
     }
-    .encode_into(&mut out);
+    .encode_into(out);
     // Zeroed then written in place: plain stores, where a `put` per
     // number checks capacity and copies four bytes at a time.
-    out.resize(FRAME_HEADER_BYTES + points.len() * 8, 0);
+    out.resize(length, 0);
     for (slot, p) in out[FRAME_HEADER_BYTES..].chunks_exact_mut(8).zip(points) {
         slot[..4].copy_from_slice(&(p.x as f32).to_le_bytes());
         slot[4..].copy_from_slice(&(p.y as f32).to_le_bytes());
     }
-    out.freeze()
 }
 
 /// A depth frame (kind 4) of a puppet: the depth of each triangle.

@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
-use bytes::Bytes;
+use bytes::{Bytes, BytesMut};
 use glam::DVec2;
 use tokio::sync::{mpsc, oneshot, watch};
 
@@ -30,8 +30,8 @@ use puppetry_take::{Frame, Header, Record, Step};
 
 use crate::lineup::{Lineup, LineupChange};
 use crate::protocol::{
-    self, CursorView, FrameKind, GripKind, HandleView, ServerMessage, TakeState,
-    encode_depth_frame, encode_frame, encode_frame_of,
+    self, CursorView, FrameHeader, FrameKind, GripKind, HandleView, ServerMessage, TakeState,
+    encode_depth_frame, encode_frame_into,
 };
 use puppetry_stage::config::StageConfig;
 
@@ -389,6 +389,11 @@ struct Publisher {
     /// Per puppet, the depth generation last published.
     depths_published: Vec<u32>,
     sequences: Vec<u64>,
+    /// Per puppet, two arenas for each stream of frames (vertices, rig,
+    /// handles), used in turn: while one holds the newest frame, the other's
+    /// earlier frame has been sent and dropped, so its storage comes back
+    /// ([`encode_frame_into`]) and a steady stream does not allocate.
+    arenas: Vec<[[BytesMut; 2]; 3]>,
     cursors: watch::Sender<Arc<str>>,
     changes: watch::Sender<u64>,
 }
@@ -398,20 +403,26 @@ impl Publisher {
         for &(puppet, handles_changed) in solved {
             let i = puppet as usize;
             self.sequences[i] += 1;
-            let pose = stage.puppets()[i].pose();
-            self.frames[i].send_replace(Some(encode_frame(
-                FrameKind::Vertices,
+            let header = |kind| FrameHeader {
+                kind,
                 puppet,
-                self.sequences[i],
+                sequence: self.sequences[i],
                 input_time,
+                count: 0,
+                generation: 0,
+            };
+            let turn = (self.sequences[i] % 2) as usize;
+            let [frame_arenas, rig_arenas, handles_arenas] = &mut self.arenas[i];
+            let pose = stage.puppets()[i].pose();
+            self.frames[i].send_replace(Some(encode_frame_into(
+                &mut frame_arenas[turn],
+                &header(FrameKind::Vertices),
                 pose,
             )));
             if let Some(points) = stage.puppets()[i].rig().points() {
-                self.rigs[i].send_replace(Some(encode_frame(
-                    FrameKind::Rig,
-                    puppet,
-                    self.sequences[i],
-                    input_time,
+                self.rigs[i].send_replace(Some(encode_frame_into(
+                    &mut rig_arenas[turn],
+                    &header(FrameKind::Rig),
                     points,
                 )));
             }
@@ -432,12 +443,12 @@ impl Publisher {
             }
             if handles_changed || !p.handles().is_empty() {
                 p.handle_points(&mut self.handle_points);
-                self.handle_frames[i].send_replace(Some(encode_frame_of(
-                    FrameKind::Handles,
-                    puppet,
-                    self.sequences[i],
-                    input_time,
-                    p.handles_generation(),
+                self.handle_frames[i].send_replace(Some(encode_frame_into(
+                    &mut handles_arenas[turn],
+                    &FrameHeader {
+                        generation: p.handles_generation(),
+                        ..header(FrameKind::Handles)
+                    },
                     &self.handle_points,
                 )));
             }
@@ -518,6 +529,7 @@ impl Publisher {
         self.depths_published
             .push(p.depth().map_or(0, |(_, generation)| generation));
         self.sequences.push(0);
+        self.arenas.push(Default::default());
         PuppetOutput {
             frame: frame_rx,
             rig: rig_rx,
@@ -713,54 +725,14 @@ pub fn spawn(
     wake: mpsc::WeakSender<Command>,
     takes: TakeSettings,
 ) -> (Outputs, JoinHandle<()>) {
-    let (changes, changes_rx) = watch::channel(0u64);
-    let mut cursors = BTreeMap::new();
-    let (cursors_tx, cursors_rx) = watch::channel(Arc::<str>::from(cursors_message(&cursors)));
-    let mut publisher = Publisher {
-        frames: Vec::new(),
-        rigs: Vec::new(),
-        handles: Vec::new(),
-        weights: Vec::new(),
-        weights_published: Vec::new(),
-        keys: Vec::new(),
-        keys_published: Vec::new(),
-        handle_frames: Vec::new(),
-        handle_points: Vec::new(),
-        history: Vec::new(),
-        history_published: Vec::new(),
-        poses: Vec::new(),
-        poses_published: Vec::new(),
-        depths: Vec::new(),
-        depths_published: Vec::new(),
-        sequences: Vec::new(),
-        cursors: cursors_tx,
-        changes,
-    };
-    // The first weights, keys, history and pose messages hold the state as
-    // loaded: connections send them at once, so nothing is published for them.
-    let outputs: Vec<PuppetOutput> = (0..stage.puppets().len() as u32)
-        .map(|id| publisher.add_puppet(&stage, id))
-        .collect();
-    let (lineup_tx, lineup_rx) = watch::channel(Lineup::of(&stage, outputs, 0, Arc::new(config)));
-    let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
-    let mut taking = Taking {
-        settings: takes,
-        recorder: None,
-        fresh: true,
-        step: Vec::new(),
-        events: Vec::new(),
-        playing: None,
-        overdub_of: None,
-        announce: false,
-        error: None,
-        state: state_tx,
-    };
-    taking.state.send_replace(Arc::from(taking.state_message()));
-    // Pins from the stage file are handles before any input: solve once.
-    let solved = stage.solve();
-    publisher.publish(&stage, &solved, 0.0);
-    let timings = Arc::new(Timings::default());
-    let mut batch = Batch::new(timings.clone());
+    let StageLoop {
+        mut publisher,
+        mut taking,
+        mut cursors,
+        mut batch,
+        lineup: lineup_tx,
+        outputs,
+    } = StageLoop::new(config, &mut stage, takes);
     let thread = std::thread::Builder::new()
         .name("stage".into())
         .spawn(move || {
@@ -815,16 +787,87 @@ pub fn spawn(
             }
         })
         .expect("spawn the stage thread");
-    (
-        Outputs {
-            lineup: lineup_rx,
-            cursors: cursors_rx,
-            take: state_rx,
-            changes: changes_rx,
-            timings,
-        },
-        thread,
-    )
+    (outputs, thread)
+}
+
+/// What the stage thread owns besides the stage, made before it starts.
+struct StageLoop {
+    publisher: Publisher,
+    taking: Taking,
+    cursors: BTreeMap<String, CursorState>,
+    batch: Batch,
+    lineup: watch::Sender<Arc<Lineup>>,
+    outputs: Outputs,
+}
+
+impl StageLoop {
+    /// The publishing ends for `stage`'s puppets, with the stage solved
+    /// once (pins from the stage file are handles before any input).
+    fn new(config: StageConfig, stage: &mut Stage, takes: TakeSettings) -> StageLoop {
+        let (changes, changes_rx) = watch::channel(0u64);
+        let cursors = BTreeMap::new();
+        let (cursors_tx, cursors_rx) = watch::channel(Arc::<str>::from(cursors_message(&cursors)));
+        let mut publisher = Publisher {
+            frames: Vec::new(),
+            rigs: Vec::new(),
+            handles: Vec::new(),
+            weights: Vec::new(),
+            weights_published: Vec::new(),
+            keys: Vec::new(),
+            keys_published: Vec::new(),
+            handle_frames: Vec::new(),
+            handle_points: Vec::new(),
+            history: Vec::new(),
+            history_published: Vec::new(),
+            poses: Vec::new(),
+            poses_published: Vec::new(),
+            depths: Vec::new(),
+            depths_published: Vec::new(),
+            sequences: Vec::new(),
+            arenas: Vec::new(),
+            cursors: cursors_tx,
+            changes,
+        };
+        // The first weights, keys, history and pose messages hold the state
+        // as loaded: connections send them at once, so nothing is published
+        // for them.
+        let outputs: Vec<PuppetOutput> = (0..stage.puppets().len() as u32)
+            .map(|id| publisher.add_puppet(stage, id))
+            .collect();
+        let (lineup_tx, lineup_rx) =
+            watch::channel(Lineup::of(stage, outputs, 0, Arc::new(config)));
+        let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
+        let taking = Taking {
+            settings: takes,
+            recorder: None,
+            fresh: true,
+            step: Vec::new(),
+            events: Vec::new(),
+            playing: None,
+            overdub_of: None,
+            announce: false,
+            error: None,
+            state: state_tx,
+        };
+        taking.state.send_replace(Arc::from(taking.state_message()));
+        let solved = stage.solve();
+        publisher.publish(stage, &solved, 0.0);
+        let timings = Arc::new(Timings::default());
+        StageLoop {
+            publisher,
+            taking,
+            cursors,
+            batch: Batch::new(timings.clone()),
+            lineup: lineup_tx,
+            outputs: Outputs {
+                lineup: lineup_rx,
+                cursors: cursors_rx,
+                take: state_rx,
+                changes: changes_rx,
+                timings,
+            },
+        }
+    }
 }
 
 /// Adds, removes or reorders puppets and publishes the new lineup, which
@@ -885,6 +928,8 @@ struct Batch {
     timings: Arc<Timings>,
     /// When this iteration's commands began.
     started: Instant,
+    /// The puppets the last solve solved (reused: no allocation).
+    solved: Vec<(u32, bool)>,
 }
 
 impl Batch {
@@ -896,6 +941,7 @@ impl Batch {
             dirty: false,
             timings,
             started: Instant::now(),
+            solved: Vec::new(),
         }
     }
 
@@ -1095,13 +1141,14 @@ impl Batch {
         let mut now = Timings::add(&t.commands_ns, self.started);
         if self.dirty {
             self.dirty = false;
-            let solved = stage.solve();
+            stage.solve_into(&mut self.solved);
+            let solved = &self.solved;
             now = Timings::add(&t.solve_ns, now);
-            publisher.publish(stage, &solved, self.newest);
+            publisher.publish(stage, solved, self.newest);
             now = Timings::add(&t.frames_ns, now);
             publisher.publish_weights(stage);
             now = Timings::add(&t.messages_ns, now);
-            let recorded = taking.record(stage, &solved);
+            let recorded = taking.record(stage, solved);
             now = Timings::add(&t.record_ns, now);
             if recorded || std::mem::take(&mut taking.announce) {
                 taking.publish(&publisher.changes);
@@ -1115,5 +1162,111 @@ impl Batch {
         Timings::add(&t.messages_ns, now);
         // Whatever comes next in this iteration is commands again.
         self.started = Instant::now();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use puppetry_input::{Contact, Phase, SourceId};
+
+    #[global_allocator]
+    static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
+
+    /// The stage thread's whole iteration — a contact frame in, applied
+    /// to the stage, the puppet solved, its frames encoded and published,
+    /// the clients woken — allocates nothing once a drag is under way and
+    /// the clients keep up (they drop each frame once sent, so its buffer
+    /// comes back for the next).
+    #[test]
+    fn a_stage_iteration_from_contacts_to_frame_bytes_does_not_allocate() {
+        let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/demo.toml");
+        let config = StageConfig::load(&file).expect("the demo stage loads");
+        let mut stage = Stage::from_config(&config).expect("the demo stage builds");
+        let at = DVec2::from(config.puppets[0].at);
+        let takes = TakeSettings {
+            dir: std::env::temp_dir(),
+            stage_file: "demo.toml".into(),
+            record_from_first_input: false,
+        };
+        let StageLoop {
+            mut publisher,
+            mut taking,
+            cursors,
+            mut batch,
+            outputs,
+            ..
+        } = StageLoop::new(config, &mut stage, takes);
+        let (_keep, wake) = {
+            let (tx, _rx) = mpsc::channel::<Command>(1);
+            let weak = tx.downgrade();
+            (tx, weak)
+        };
+        let lineup = outputs.lineup.borrow().clone();
+        let mut clients: Vec<watch::Receiver<Option<Bytes>>> = lineup
+            .outputs
+            .iter()
+            .flat_map(|o| [o.frame.clone(), o.handle_frame.clone()])
+            .collect();
+        let source = SourceId::from("test");
+        let frame = |k: usize, phase| {
+            let angle = k as f64 * 0.05;
+            Command::Frame {
+                frame: ContactFrame {
+                    source: source.clone(),
+                    time: k as f64 * 1e-3,
+                    contacts: vec![Contact::new(
+                        1,
+                        phase,
+                        at + DVec2::new(angle.cos() - 1.0, angle.sin()) * 20.0,
+                    )],
+                },
+                received: k as f64 * 1e-3,
+            }
+        };
+        let mut commands: Vec<Command> = (0..200)
+            .map(|k| frame(k, if k == 0 { Phase::Down } else { Phase::Move }))
+            .collect();
+        let changes = publisher.changes.clone();
+        let mut sent = 0;
+        let mut iterate =
+            |command: Command,
+             stage: &mut Stage,
+             publisher: &mut Publisher,
+             clients: &mut [watch::Receiver<Option<Bytes>>]| {
+                batch.command(
+                    stage,
+                    &mut taking,
+                    &mut BTreeMap::new(),
+                    command,
+                    &wake,
+                    &changes,
+                );
+                batch.finish(stage, publisher, &mut taking, &cursors);
+                // A client sends what changed and lets it go.
+                for client in clients.iter_mut() {
+                    if client.has_changed().unwrap_or(false) {
+                        let frame = client.borrow_and_update().clone();
+                        sent += usize::from(frame.is_some());
+                    }
+                }
+            };
+        let warm_up: Vec<Command> = commands.drain(..20).collect();
+        for command in warm_up {
+            iterate(command, &mut stage, &mut publisher, &mut clients);
+        }
+        let ((), allocations) = puppetry_testkit::alloc::count(|| {
+            for command in commands.drain(..) {
+                iterate(command, &mut stage, &mut publisher, &mut clients);
+            }
+        });
+        assert!(
+            sent >= 2 * 200,
+            "every iteration published a frame and handles: {sent}"
+        );
+        assert_eq!(
+            allocations, 0,
+            "180 iterations allocated {allocations} times"
+        );
     }
 }

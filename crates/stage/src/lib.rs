@@ -29,7 +29,7 @@ pub use change::{
 };
 use config::{PuppetConfig, SaveWeights, StageConfig};
 use puppetry_deform::{Anchor, Arap};
-use puppetry_input::{ContactFrame, Phase};
+use puppetry_input::{ContactFrame, Phase, SourceId};
 use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh, MeshError};
 pub use rig::{Grip, Rig};
 
@@ -940,10 +940,10 @@ pub struct Stage {
     puppets: Vec<Puppet>,
     /// (source, contact id) → (puppet, handle id) for contacts that grabbed
     /// something; contacts on empty stage are absent.
-    grabs: HashMap<(String, u32), (usize, u64)>,
+    grabs: HashMap<(SourceId, u32), (usize, u64)>,
     /// Keyframing pads of input sources, and the contacts moving them.
     pads: Vec<pad::Pad>,
-    pad_contacts: HashMap<(String, u32), usize>,
+    pad_contacts: HashMap<(SourceId, u32), usize>,
     next_handle: u64,
     /// Handle events since the last [`Stage::take_events`], kept only while
     /// a take records them.
@@ -1138,9 +1138,10 @@ impl Stage {
 
     /// Applies one input frame: contacts land, move and lift.
     pub fn apply(&mut self, frame: &ContactFrame) {
-        let source = frame.source.to_string();
+        let source = frame.source.as_str();
         for contact in &frame.contacts {
-            let key = (source.clone(), contact.id);
+            // A shared name: no allocation per contact.
+            let key = (frame.source.clone(), contact.id);
             // Most stages have no pads: no lookup per contact then.
             if let Some(&pad) = (!self.pad_contacts.is_empty())
                 .then(|| self.pad_contacts.get(&key))
@@ -1159,14 +1160,14 @@ impl Stage {
                     // A repeated down without an up: the old grab ends first.
                     self.release(&key);
                     if let Some(pad) = self.pads.iter().position(|p| {
-                        !self.puppets[p.puppet].removed && p.takes(&source, contact.position)
+                        !self.puppets[p.puppet].removed && p.takes(source, contact.position)
                     }) {
                         self.pad_contacts.insert(key, pad);
                         self.move_cursor(pad, contact.position);
                         continue;
                     }
                     if let Some(grab) = self.grab(
-                        Owner::Source(source.clone()),
+                        Owner::Source(source.to_string()),
                         HandleKind::Contact,
                         contact.position,
                         Some(contact.id),
@@ -1224,11 +1225,11 @@ impl Stage {
 
     /// Lifts every contact of a source (it disconnected or vanished).
     pub fn release_source(&mut self, source: &str) {
-        self.pad_contacts.retain(|k, _| k.0 != source);
+        self.pad_contacts.retain(|k, _| k.0.as_str() != source);
         let keys: Vec<_> = self
             .grabs
             .keys()
-            .filter(|k| k.0 == source)
+            .filter(|k| k.0.as_str() == source)
             .cloned()
             .collect();
         for key in keys {
@@ -1236,7 +1237,7 @@ impl Stage {
         }
     }
 
-    fn release(&mut self, key: &(String, u32)) {
+    fn release(&mut self, key: &(SourceId, u32)) {
         if let Some((puppet, handle)) = self.grabs.remove(key) {
             self.remove_handle(puppet, handle);
         }
@@ -2099,8 +2100,16 @@ impl Stage {
     /// Solves every puppet whose handles changed or moved; returns, per
     /// solved puppet, whether its handle set changed.
     pub fn solve(&mut self) -> Vec<(u32, bool)> {
-        self.drive_keys();
         let mut solved = Vec::new();
+        self.solve_into(&mut solved);
+        solved
+    }
+
+    /// [`Stage::solve`] into a caller's list (cleared first), so a loop
+    /// that reuses one does not allocate.
+    pub fn solve_into(&mut self, solved: &mut Vec<(u32, bool)>) {
+        solved.clear();
+        self.drive_keys();
         for p in &mut self.puppets {
             if !(p.handles_changed || p.moved) {
                 continue;
@@ -2131,7 +2140,6 @@ impl Stage {
             p.handles_changed = false;
             p.moved = false;
         }
-        solved
     }
 }
 
