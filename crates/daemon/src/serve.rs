@@ -38,6 +38,8 @@ pub enum ServeError {
     Input(String),
     #[error(transparent)]
     Osc(#[from] crate::osc::OscError),
+    #[error("loading the stage stopped: {0}")]
+    Loading(String),
 }
 
 /// One attempt of a source (see `sources::supervise`).
@@ -171,7 +173,14 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         paused_replays,
     } = options;
     let started = Instant::now();
-    let stage = Stage::from_config(config)?;
+    // Loading meshes and factoring their solvers takes seconds on a big
+    // mesh: not on a tokio worker.
+    let stage = {
+        let config = config.clone();
+        tokio::task::spawn_blocking(move || Stage::from_config(&config))
+            .await
+            .map_err(|e| ServeError::Loading(e.to_string()))??
+    };
     let (commands, commands_rx) = mpsc::channel(COMMAND_QUEUE);
     let listener = stream::bind(config.stage.listen).await?;
     let address = listener
