@@ -10,7 +10,10 @@ use std::sync::Arc;
 
 use glam::DVec2;
 
-use crate::protocol::{GridBasis, PuppetDescription, RigDescription, SkeletonMode, StageSize};
+use crate::protocol::{
+    GridBasis, Person, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
+    StageSize,
+};
 use crate::stage_thread::PuppetOutput;
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Picture, Puppet, Rig, Stage};
@@ -76,6 +79,27 @@ pub struct StageDescription {
     pub size: StageSize,
     /// Every puppet's picture, by id (removed puppets' too: ids stay).
     pub images: Vec<Picture>,
+    /// Each entry of `puppets` as JSON, split where its handles go: a
+    /// connection's `stage` message is these pieces around each puppet's
+    /// current handles, not a copy of the meshes serialised again.
+    pub puppet_json: Vec<(String, String)>,
+}
+
+/// The serialised form of a puppet with no handles holds this exactly once
+/// (serde writes fields in declaration order; a string value cannot hold
+/// it, since its quotes would be escaped).
+const NO_HANDLES: &str = r#","handles":[],"#;
+
+/// `puppet`'s JSON before and after its (empty) handle list.
+fn split_at_handles(puppet: &PuppetDescription) -> (String, String) {
+    let text = serde_json::to_string(puppet).expect("puppet descriptions serialise");
+    let at = text
+        .find(NO_HANDLES)
+        .expect("a puppet description without handles has an empty handle list");
+    (
+        text[..at + NO_HANDLES.len() - "[],".len()].to_string(),
+        text[at + NO_HANDLES.len() - 1..].to_string(),
+    )
 }
 
 impl StageDescription {
@@ -98,8 +122,9 @@ impl StageDescription {
                 weights: p.mesh.weights().to_vec(),
                 rig: rig_description(p.rig()),
             })
-            .collect();
+            .collect::<Vec<_>>();
         StageDescription {
+            puppet_json: puppets.iter().map(split_at_handles).collect(),
             puppets,
             size: StageSize {
                 width: stage.width,
@@ -107,6 +132,49 @@ impl StageDescription {
             },
             images: stage.puppets().iter().map(|p| p.picture.clone()).collect(),
         }
+    }
+}
+
+impl StageDescription {
+    /// The "stage" message for a client: the serialised puppets around
+    /// each one's handles (`handles(id)`, as JSON).
+    pub fn message(
+        &self,
+        client: u64,
+        role: Role,
+        you: Person,
+        mut handles: impl FnMut(u32) -> String,
+    ) -> String {
+        let head = ServerMessage::Stage {
+            client,
+            role,
+            you,
+            stage: self.size,
+            puppets: Vec::new(),
+        }
+        .to_text();
+        // `puppets` is the last field, so the message ends with it.
+        let head = head
+            .strip_suffix("[]}")
+            .expect("the stage message ends with its puppets");
+        let pieces: usize = self
+            .puppet_json
+            .iter()
+            .map(|(a, b)| a.len() + b.len())
+            .sum();
+        let mut text = String::with_capacity(head.len() + pieces + 256 * self.puppets.len() + 2);
+        text.push_str(head);
+        text.push('[');
+        for (k, (p, (before, after))) in self.puppets.iter().zip(&self.puppet_json).enumerate() {
+            if k > 0 {
+                text.push(',');
+            }
+            text.push_str(before);
+            text.push_str(&handles(p.id));
+            text.push_str(after);
+        }
+        text.push_str("]}");
+        text
     }
 }
 
@@ -146,5 +214,61 @@ fn rig_description(rig: &Rig) -> RigDescription {
             width: 2.0 * r.half_width(),
             line: points(r.curve().rest()),
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::{GripKind, HandleKind, HandleView, PersonRole};
+
+    /// The stage message spliced from the lineup's serialised puppets is
+    /// exactly what serialising the whole message would give, for stages
+    /// of every rig kind and several puppets with and without handles.
+    #[test]
+    fn a_spliced_stage_message_is_the_serialised_one() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        for file in ["demo.toml", "grid.toml", "skeleton.toml", "curve.toml"] {
+            let config = StageConfig::load(&dir.join(file)).expect("a bundled stage loads");
+            let stage = Stage::from_config(&config).expect("a bundled stage builds");
+            let description = StageDescription::of(&stage);
+            let handles = |id: u32| -> Vec<HandleView> {
+                (0..id % 3)
+                    .map(|k| HandleView {
+                        id: u64::from(k),
+                        owner: format!("client:{k}\"\\,\"handles\":[],"),
+                        kind: HandleKind::Contact,
+                        at: [f64::from(id), 0.5],
+                        grip: GripKind::Point,
+                        index: (k == 1).then_some(7),
+                    })
+                    .collect()
+            };
+            let you = Person {
+                owner: "client:3".into(),
+                name: "A \"handles\":[], name".into(),
+                role: PersonRole::Viewer,
+                colour: "#123456".into(),
+            };
+            let spliced = description.message(3, Role::Viewer, you.clone(), |id| {
+                serde_json::to_string(&handles(id)).unwrap()
+            });
+            let whole = ServerMessage::Stage {
+                client: 3,
+                role: Role::Viewer,
+                you,
+                stage: description.size,
+                puppets: description
+                    .puppets
+                    .iter()
+                    .map(|p| PuppetDescription {
+                        handles: handles(p.id),
+                        ..p.clone()
+                    })
+                    .collect(),
+            }
+            .to_text();
+            assert_eq!(spliced, whole, "{file}");
+        }
     }
 }

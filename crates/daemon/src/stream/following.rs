@@ -12,7 +12,7 @@ use tokio::sync::watch;
 
 use super::{Ws, feed, flush};
 use crate::lineup::Lineup;
-use crate::protocol::{Person, PuppetDescription, Role, ServerMessage};
+use crate::protocol::{Person, Role};
 use crate::stage_thread::PublishedHandles;
 
 /// A connection's ends of one lineup's outputs, by puppet id.
@@ -84,23 +84,10 @@ impl Following {
     /// The "stage" message of this lineup, with each puppet's handles now
     /// (the "handles" messages that follow repeat them with their text).
     pub(super) fn stage_message(&self, client: u64, role: Role, you: Person) -> String {
-        let description = &self.lineup.description;
-        let puppets = description
-            .puppets
-            .iter()
-            .map(|p| PuppetDescription {
-                handles: self.handles[p.id as usize].borrow().handles.clone(),
-                ..p.clone()
-            })
-            .collect();
-        ServerMessage::Stage {
-            client,
-            role,
-            you,
-            stage: description.size,
-            puppets,
-        }
-        .to_text()
+        self.lineup.description.message(client, role, you, |id| {
+            serde_json::to_string(&self.handles[id as usize].borrow().handles)
+                .expect("handles serialise")
+        })
     }
 
     /// Sends, puppet by puppet, whatever changed since the last call: the
