@@ -584,8 +584,10 @@ pub enum ServerMessage {
     /// Who is on the stage: connected performers and directors, and the
     /// stage's input sources (on connecting and on every change).
     People { people: Vec<Person> },
-    /// The answer to `ping`.
-    Pong { t: f64 },
+    /// The answer to `ping`: its `t`, and the daemon's clock when it
+    /// answered (seconds since it started: the clock of frames'
+    /// `input_time`), so a client can place frames on its own clock.
+    Pong { t: f64, clock: f64 },
     /// A puppet's handle set changed; `generation` is the one handles
     /// frames of this set carry.
     Handles {

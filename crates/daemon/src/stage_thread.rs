@@ -733,61 +733,86 @@ pub fn spawn(
         lineup: lineup_tx,
         outputs,
     } = StageLoop::new(config, &mut stage, takes);
+    let pool = solve_pool();
     let thread = std::thread::Builder::new()
         .name("stage".into())
         .spawn(move || {
-            while let Some(first) = commands.blocking_recv() {
-                batch.started = Instant::now();
-                let mut next = Some(first);
-                while let Some(command) = next.take() {
-                    if let Command::Lineup { change, reply } = command {
-                        // What came before lands on the old lineup.
-                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                        let result =
-                            change_lineup(&mut stage, &mut publisher, &taking, &lineup_tx, change);
-                        let _ = reply.send(result);
-                        batch.dirty = true;
-                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                    } else if let Command::Played { changes, received } = command {
-                        // A played step is solved on its own, as it was
-                        // when it was recorded.
-                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                        for change in changes {
-                            batch.apply(&mut stage, &mut taking, change, None, &wake);
+            // The loop runs on a worker of the stage's own pool: when a
+            // frame moves several puppets they are solved side by side on
+            // the pool, the loop's own thread taking its share instead of
+            // waiting, and no other user of rayon's global pool competes.
+            pool.install(move || {
+                while let Some(first) = commands.blocking_recv() {
+                    batch.started = Instant::now();
+                    let mut next = Some(first);
+                    while let Some(command) = next.take() {
+                        if let Command::Lineup { change, reply } = command {
+                            // What came before lands on the old lineup.
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                            let result = change_lineup(
+                                &mut stage,
+                                &mut publisher,
+                                &taking,
+                                &lineup_tx,
+                                change,
+                            );
+                            let _ = reply.send(result);
+                            batch.dirty = true;
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                        } else if let Command::Played { changes, received } = command {
+                            // A played step is solved on its own, as it was
+                            // when it was recorded.
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                            for change in changes {
+                                batch.apply(&mut stage, &mut taking, change, None, &wake);
+                            }
+                            batch.newest = received;
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                        } else {
+                            batch.command(
+                                &mut stage,
+                                &mut taking,
+                                &mut cursors,
+                                command,
+                                &wake,
+                                &publisher.changes,
+                            );
                         }
-                        batch.newest = received;
-                        batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                    } else {
-                        batch.command(
-                            &mut stage,
-                            &mut taking,
-                            &mut cursors,
-                            command,
-                            &wake,
-                            &publisher.changes,
-                        );
+                        if batch.stop {
+                            break;
+                        }
+                        // Catch up: apply everything already waiting, solve once.
+                        next = commands.try_recv().ok();
                     }
                     if batch.stop {
-                        break;
+                        if taking.recorder.is_some() {
+                            let _ = taking.stop(&mut stage, "shutdown");
+                        }
+                        // Dropping the publisher tells every client to close.
+                        return;
                     }
-                    // Catch up: apply everything already waiting, solve once.
-                    next = commands.try_recv().ok();
+                    batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
                 }
-                if batch.stop {
-                    if taking.recorder.is_some() {
-                        let _ = taking.stop(&mut stage, "shutdown");
-                    }
-                    // Dropping the publisher tells every client to close.
-                    return;
+                if taking.recorder.is_some() {
+                    let _ = taking.stop(&mut stage, "shutdown");
                 }
-                batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-            }
-            if taking.recorder.is_some() {
-                let _ = taking.stop(&mut stage, "shutdown");
-            }
+            });
         })
         .expect("spawn the stage thread");
     (outputs, thread)
+}
+
+/// The threads the stage thread's loop and its puppets' solves run on: one
+/// per core, up to 4 (the loop's own is one of them). Named "stage" like
+/// the thread that starts them, so the kernel's accounting of "stage" is
+/// all the stage's work.
+fn solve_pool() -> rayon::ThreadPool {
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get().clamp(2, 4));
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|_| "stage".into())
+        .build()
+        .expect("start the stage's solver threads")
 }
 
 /// What the stage thread owns besides the stage, made before it starts.

@@ -233,15 +233,21 @@ pub fn table_row(r: &CaseResult) -> String {
 #[derive(Debug, Clone, Serialize)]
 pub struct EndToEndResult {
     pub mesh: String,
+    /// Vertices of each puppet.
     pub vertices: usize,
+    pub puppets: usize,
+    /// Input sources, each holding one contact per puppet it plays, all
+    /// sending a frame every millisecond of input time.
+    pub performers: usize,
     pub clients: usize,
     /// "real_time" (1 kHz input) or "as_fast_as_possible".
     pub pacing: &'static str,
     /// Input frames replayed (a contact dragged at 1 kHz of input time,
     /// played as fast as possible).
     pub input_frames: usize,
-    /// Solves the stage thread published (it solves the newest state when
-    /// inputs arrive faster than it solves).
+    /// Solves the stage thread published of the least solved puppet (it
+    /// solves the newest state when inputs arrive faster than it solves),
+    /// and per second.
     pub solves: u64,
     pub solves_per_s: f64,
     /// From an input frame reaching the daemon to a client holding the
@@ -291,13 +297,14 @@ fn thread_cpu_by_name(name: &str) -> f64 {
         .sum()
 }
 
-/// Runs the daemon on `config` (its first puppet under `point`), connects
-/// `clients` viewers on loopback and replays a drag of `input_frames` frames
-/// (1 ms apart) into it with `pacing`.
+/// Runs the daemon on `config`, connects `clients` viewers on loopback and
+/// replays drags of `input_frames` frames (1 ms apart) into it with
+/// `pacing`: one input source per entry of `performers`, each holding a
+/// contact on every point it lists (a finger per puppet), all circling.
 pub async fn end_to_end(
     name: &str,
     config: &puppetry_stage::config::StageConfig,
-    point: DVec2,
+    performers: &[Vec<DVec2>],
     clients: usize,
     input_frames: usize,
     pacing: puppetry_input::replay::Pacing,
@@ -313,14 +320,33 @@ pub async fn end_to_end(
     use puppetry_daemon::protocol::{ClientMessage, FrameHeader, FrameKind, Role, ServerMessage};
     use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 
-    let running =
-        puppetry_daemon::serve::start(config, puppetry_daemon::stream::WebFiles::Embedded, None)
+    // The daemon gets a runtime of its own, as it would in its own
+    // process: the viewers' reading here then competes with it for the
+    // cores (as browsers on the same machine would), not for its tokio
+    // workers and timer.
+    let daemon_runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("daemon")
+        .enable_all()
+        .build()
+        .map_err(|e| e.to_string())?;
+    let config = config.clone();
+    let running = daemon_runtime
+        .spawn(async move {
+            puppetry_daemon::serve::start(
+                &config,
+                puppetry_daemon::stream::WebFiles::Embedded,
+                None,
+            )
             .await
-            .map_err(|e| e.to_string())?;
+        })
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|e| e.to_string())?;
     let started = running.started;
     let url = format!("ws://{}/ws", running.address);
     let mut readers = Vec::new();
-    let mut vertices = 0;
+    let (mut vertices, mut puppet_count) = (0, 0);
     for _ in 0..clients {
         let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
             .await
@@ -342,6 +368,7 @@ pub async fn end_to_end(
             return Err(format!("expected the stage message, got {stage:?}"));
         };
         vertices = puppets.first().map_or(0, |p| p.rest.len() / 2);
+        puppet_count = puppets.len();
         readers.push(tokio::spawn(async move {
             let mut latencies = Vec::new();
             let mut sequences = Vec::new();
@@ -354,35 +381,49 @@ pub async fn end_to_end(
                     let Ok(header) = FrameHeader::decode(&bytes) else {
                         continue;
                     };
-                    let (input, sequence) = (header.input_time, header.sequence);
+                    let input = header.input_time;
                     if header.kind == FrameKind::Vertices && input > 0.0 {
                         latencies.push((now - input) * 1e6);
-                        sequences.push((sequence, now));
+                        sequences.push((header.puppet, header.sequence, now));
                     }
                 }
             }
             (latencies, sequences)
         }));
     }
-    let source = SourceId::from("bench");
+    let sources: Vec<SourceId> = (0..performers.len())
+        .map(|j| SourceId::new(format!("bench-{j}")))
+        .collect();
     let frames: Vec<ContactFrame> = (0..input_frames)
-        .map(|k| {
+        .flat_map(|k| {
             let phase = if k == 0 { Phase::Down } else { Phase::Move };
             let angle = k as f64 * 0.02;
-            let at = point + DVec2::new(angle.cos() - 1.0, angle.sin()) * 40.0;
-            ContactFrame {
-                source: source.clone(),
-                time: k as f64 * 1e-3,
-                contacts: vec![Contact::new(1, phase, at)],
-            }
+            let offset = DVec2::new(angle.cos() - 1.0, angle.sin()) * 40.0;
+            performers
+                .iter()
+                .zip(&sources)
+                .map(move |(points, source)| ContactFrame {
+                    source: source.clone(),
+                    time: k as f64 * 1e-3,
+                    contacts: (1..)
+                        .zip(points)
+                        .map(|(id, &point)| Contact::new(id, phase, point + offset))
+                        .collect(),
+                })
         })
         .collect();
     let timings = running.timings();
     let stage_cpu_before = thread_cpu_by_name("stage");
     let playing = std::time::Instant::now();
-    running
-        .play(ReplaySource::from_frames(frames), pacing)
-        .await;
+    let running = daemon_runtime
+        .spawn(async move {
+            running
+                .play(ReplaySource::from_frames(frames), pacing)
+                .await;
+            running
+        })
+        .await
+        .map_err(|e| e.to_string())?;
     let mut latencies = Vec::new();
     let mut first_reader = None;
     for reader in readers {
@@ -392,7 +433,12 @@ pub async fn end_to_end(
     }
     let played = playing.elapsed().as_secs_f64();
     let stage_cpu = thread_cpu_by_name("stage") - stage_cpu_before;
-    running.shutdown().await;
+    daemon_runtime
+        .spawn(running.shutdown())
+        .await
+        .map_err(|e| e.to_string())?;
+    // Its tasks are done; dropping a runtime here would block.
+    daemon_runtime.shutdown_background();
     let load = |counter: &std::sync::atomic::AtomicU64| {
         counter.load(std::sync::atomic::Ordering::Relaxed) as f64
     };
@@ -409,11 +455,19 @@ pub async fn end_to_end(
     .into_iter()
     .map(load)
     .sum::<f64>();
+    // Per puppet, solves between its first and last frame and how long
+    // that took; the least solved puppet speaks for the run.
     let sequences = first_reader.unwrap_or_default();
-    let (solves, span) = match (sequences.first(), sequences.last()) {
-        (Some(a), Some(b)) if b.1 > a.1 => (b.0 - a.0, b.1 - a.1),
-        _ => (0, 0.0),
-    };
+    let (solves, solves_per_s) = (0..puppet_count as u32)
+        .map(|puppet| {
+            let mut of = sequences.iter().filter(|s| s.0 == puppet);
+            match (of.next(), of.next_back()) {
+                (Some(a), Some(b)) if b.2 > a.2 => (b.1 - a.1, (b.1 - a.1) as f64 / (b.2 - a.2)),
+                _ => (0, 0.0),
+            }
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, 0.0));
     latencies.sort_by(f64::total_cmp);
     if latencies.is_empty() {
         return Err("no frames reached the clients".into());
@@ -421,15 +475,13 @@ pub async fn end_to_end(
     Ok(EndToEndResult {
         mesh: name.to_string(),
         vertices,
+        puppets: puppet_count,
+        performers: performers.len(),
         clients,
         pacing: pacing_name,
         input_frames,
         solves,
-        solves_per_s: if span > 0.0 {
-            solves as f64 / span
-        } else {
-            0.0
-        },
+        solves_per_s,
         latency_us_p50: percentile(&latencies, 0.5),
         latency_us_p99: percentile(&latencies, 0.99),
         commands_us: us_per_solve(&t.commands_ns),

@@ -470,10 +470,44 @@ pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_stage::config::StageC
         std::env::temp_dir().join(format!("puppetry-bench-{}.mesh.json", std::process::id()));
     write(&file, &mesh.to_json())?;
     large.puppets[0].mesh = file;
+    // Eight copies of the demo puppet, two rows of four, for four
+    // performers with a finger on two puppets each.
+    let mut many = demo.clone();
+    let puppet = many.puppets[0].clone();
+    many.puppets = (0..8)
+        .map(|k| {
+            let mut p = puppet.clone();
+            p.name = format!("{}-{k}", puppet.name);
+            p.at = [
+                160.0 + 320.0 * (k % 4) as f64,
+                180.0 + 360.0 * (k / 4) as f64,
+            ];
+            p.scale = 0.7;
+            p
+        })
+        .collect();
     Ok(vec![
         ("demo stage".into(), demo),
         ("gingerbread@10000".into(), large),
+        ("8 puppets".into(), many),
     ])
+}
+
+/// The performers `puppetry bench --e2e` drives on `stage`: up to four,
+/// puppet `k` played by performer `k mod 4` with a finger at its centre.
+pub fn end_to_end_performers(stage: &puppetry_stage::config::StageConfig) -> Vec<Vec<glam::DVec2>> {
+    let performers = stage.puppets.len().min(4);
+    (0..performers)
+        .map(|j| {
+            stage
+                .puppets
+                .iter()
+                .skip(j)
+                .step_by(performers)
+                .map(|p| glam::DVec2::from(p.at))
+                .collect()
+        })
+        .collect()
 }
 
 /// `puppetry devices`: every input device in `dir` — name, path, kind,

@@ -19,3 +19,4 @@ pub mod compare;
 pub mod export;
 pub mod take_bench;
 pub mod takes;
+pub mod viewers_bench;

@@ -219,6 +219,12 @@ enum Command {
         /// as possible into it, with 1 and 16 WebSocket clients on loopback.
         #[arg(long)]
         e2e: bool,
+        /// Bench the daemon from outside instead: `puppetry serve` on the
+        /// demo stage in a process of its own, this many WebSocket viewers
+        /// (comma-separated counts, one case each) and a performer dragging
+        /// at 120 Hz; latency, the daemon's memory and CPU.
+        #[arg(long, value_delimiter = ',', conflicts_with_all = ["e2e", "rigs", "depth", "curves"])]
+        viewers: Option<Vec<usize>>,
         /// Bench takes instead: what recording costs the live path, and
         /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
         #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
@@ -229,6 +235,20 @@ enum Command {
               value_parser = clap::value_parser!(u32).range(1..=200))]
         handles: Vec<u32>,
     },
+}
+
+/// The "input" column of `bench --e2e`: how fast, from how many performers.
+fn input_label(r: &bench::EndToEndResult) -> String {
+    let rate = if r.pacing == "real_time" {
+        "1 kHz real time"
+    } else {
+        "as fast as possible"
+    };
+    if r.performers > 1 {
+        format!("{} × {rate}", r.performers)
+    } else {
+        rate.to_string()
+    }
 }
 
 /// `--size WxH`.
@@ -542,6 +562,24 @@ fn run(args: Args) -> anyhow::Result<()> {
                 }
             }
         }
+        Command::Bench {
+            viewers: Some(counts),
+            json,
+            ..
+        } => {
+            let runtime = tokio::runtime::Runtime::new()?;
+            if !json {
+                println!("{}", puppetry::viewers_bench::viewers_table_header());
+            }
+            for viewers in counts {
+                let r = runtime.block_on(puppetry::viewers_bench::viewers_case(viewers))?;
+                if json {
+                    println!("{}", serde_json::to_string(&r)?);
+                } else {
+                    println!("{}", puppetry::viewers_bench::viewers_table_row(&r));
+                }
+            }
+        }
         Command::Bench { takes: true, .. } => {
             let stages = cli::end_to_end_stages()?;
             let print = |line: &str| println!("{line}");
@@ -555,7 +593,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             let mut breakdown = Vec::new();
             if !json {
                 println!(
-                    "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10} {:>14} {:>14}",
+                    "{:<20} {:>8} {:>7} {:>24} {:>12} {:>8} {:>10} {:>14} {:>14}",
                     "stage",
                     "vertices",
                     "clients",
@@ -568,14 +606,16 @@ fn run(args: Args) -> anyhow::Result<()> {
                 );
             }
             for (name, stage) in &stages {
-                let point = glam::DVec2::from(stage.puppets[0].at);
+                let performers = cli::end_to_end_performers(stage);
                 use puppetry_input::replay::Pacing;
-                for (clients, pacing) in [
-                    (1, Pacing::RealTime),
-                    (16, Pacing::RealTime),
-                    (1, Pacing::AsFastAsPossible),
-                    (16, Pacing::AsFastAsPossible),
-                ] {
+                let mut cases = vec![(1, Pacing::RealTime), (16, Pacing::RealTime)];
+                if stage.puppets.len() == 1 {
+                    cases.extend([
+                        (1, Pacing::AsFastAsPossible),
+                        (16, Pacing::AsFastAsPossible),
+                    ]);
+                }
+                for (clients, pacing) in cases {
                     let frames = if pacing == Pacing::RealTime {
                         2000
                     } else {
@@ -583,19 +623,20 @@ fn run(args: Args) -> anyhow::Result<()> {
                     };
                     let r = runtime
                         .block_on(bench::end_to_end(
-                            name, stage, point, clients, frames, pacing,
+                            name,
+                            stage,
+                            &performers,
+                            clients,
+                            frames,
+                            pacing,
                         ))
                         .map_err(anyhow::Error::msg)?;
                     if json {
                         println!("{}", serde_json::to_string(&r)?);
                     } else {
-                        let input = if r.pacing == "real_time" {
-                            "1 kHz real time"
-                        } else {
-                            "as fast as possible"
-                        };
+                        let input = input_label(&r);
                         println!(
-                            "{:<20} {:>8} {:>7} {:>20} {:>12} {:>8} {:>10.0} {:>14.0} {:>14.0}",
+                            "{:<20} {:>8} {:>7} {:>24} {:>12} {:>8} {:>10.0} {:>14.0} {:>14.0}",
                             r.mesh,
                             r.vertices,
                             r.clients,
@@ -616,7 +657,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                     "where the time goes, µs per solve on the stage thread (and per client send):"
                 );
                 println!(
-                    "{:<20} {:>7} {:>20} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10} {:>10}",
+                    "{:<20} {:>7} {:>24} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10} {:>10}",
                     "stage",
                     "clients",
                     "input",
@@ -631,14 +672,10 @@ fn run(args: Args) -> anyhow::Result<()> {
                 );
                 for r in &breakdown {
                     println!(
-                        "{:<20} {:>7} {:>20} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>9.0}% {:>10.1}",
+                        "{:<20} {:>7} {:>24} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>9.0}% {:>10.1}",
                         r.mesh,
                         r.clients,
-                        if r.pacing == "real_time" {
-                            "1 kHz real time"
-                        } else {
-                            "as fast as possible"
-                        },
+                        input_label(r),
                         r.commands_us,
                         r.solve_us,
                         r.frames_us,

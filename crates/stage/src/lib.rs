@@ -2106,40 +2106,66 @@ impl Stage {
     }
 
     /// [`Stage::solve`] into a caller's list (cleared first), so a loop
-    /// that reuses one does not allocate.
+    /// that reuses one does not allocate. When more than one puppet moved,
+    /// they are solved side by side on rayon's pool (each puppet's rig and
+    /// depth are its own), so several performers on several puppets get
+    /// every frame solved on two cores.
     pub fn solve_into(&mut self, solved: &mut Vec<(u32, bool)>) {
         solved.clear();
         self.drive_keys();
-        for p in &mut self.puppets {
-            if !(p.handles_changed || p.moved) {
-                continue;
-            }
-            if p.weights_pending {
-                p.weights_pending = false;
-                if let Err(problem) = p.rig.set_weights(&p.weights) {
-                    // Painted weights are clamped to the mesh's range, so
-                    // this is not expected; the rig keeps its old weights.
-                    tracing::warn!(puppet = %p.name, "painted weights refused: {problem}");
-                }
-            }
-            if let Err(problem) = p.rig.solve(&p.handles, p.handles_changed) {
-                // Grips come from hit tests on this rig, so only a
-                // non-finite target can fail here; keep the last pose.
-                tracing::warn!(puppet = %p.name, "ignored a frame: {problem}");
-            }
-            if let Some(depth) = &mut p.depth {
-                // Poses are finite (the rig refuses others), so an error
-                // is not expected; the last depth stays.
-                if let Err(problem) = depth.update(p.rig.pose()) {
-                    tracing::warn!(puppet = %p.name, "depth: {problem}");
-                } else if depth.changed() {
-                    p.depth_generation = p.depth_generation.wrapping_add(1);
-                }
-            }
-            solved.push((p.id, p.handles_changed));
-            p.handles_changed = false;
-            p.moved = false;
+        solved.extend(
+            self.puppets
+                .iter()
+                .filter(|p| p.needs_solve())
+                .map(|p| (p.id, p.handles_changed)),
+        );
+        if solved.len() > 1 {
+            use rayon::prelude::*;
+            self.puppets
+                .par_iter_mut()
+                .filter(|p| p.needs_solve())
+                .for_each(Puppet::solve_frame);
+        } else {
+            self.puppets
+                .iter_mut()
+                .filter(|p| p.needs_solve())
+                .for_each(Puppet::solve_frame);
         }
+    }
+}
+
+impl Puppet {
+    /// Whether its handles moved or changed since it was last solved.
+    fn needs_solve(&self) -> bool {
+        self.handles_changed || self.moved
+    }
+
+    /// Solves the puppet's rig for its handles and orders its depth.
+    fn solve_frame(&mut self) {
+        if self.weights_pending {
+            self.weights_pending = false;
+            if let Err(problem) = self.rig.set_weights(&self.weights) {
+                // Painted weights are clamped to the mesh's range, so
+                // this is not expected; the rig keeps its old weights.
+                tracing::warn!(puppet = %self.name, "painted weights refused: {problem}");
+            }
+        }
+        if let Err(problem) = self.rig.solve(&self.handles, self.handles_changed) {
+            // Grips come from hit tests on this rig, so only a
+            // non-finite target can fail here; keep the last pose.
+            tracing::warn!(puppet = %self.name, "ignored a frame: {problem}");
+        }
+        if let Some(depth) = &mut self.depth {
+            // Poses are finite (the rig refuses others), so an error
+            // is not expected; the last depth stays.
+            if let Err(problem) = depth.update(self.rig.pose()) {
+                tracing::warn!(puppet = %self.name, "depth: {problem}");
+            } else if depth.changed() {
+                self.depth_generation = self.depth_generation.wrapping_add(1);
+            }
+        }
+        self.handles_changed = false;
+        self.moved = false;
     }
 }
 

@@ -474,7 +474,8 @@ async fn handle_message(
     guard::allowed(who, &message)?;
     guard::check_ranges(&message)?;
     if let ClientMessage::Ping { t } = message {
-        return Ok(Some(ServerMessage::Pong { t }.to_text()));
+        let clock = shared.started.elapsed().as_secs_f64();
+        return Ok(Some(ServerMessage::Pong { t, clock }.to_text()));
     }
     if let ClientMessage::ExportGrid { puppet } = message {
         // Read-only: viewers may ask too.

@@ -236,6 +236,8 @@ async fn bad_messages_get_typed_errors_and_closes_say_why() {
         let m = next_text(&mut ws).await;
         if m["type"] == "pong" {
             assert_eq!(m["t"], 7.5);
+            // The daemon's clock, running since it started.
+            assert!(m["clock"].as_f64().is_some_and(|c| c > 0.0), "{m}");
             break;
         }
     }

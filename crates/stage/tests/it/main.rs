@@ -11,4 +11,5 @@ mod fuzz;
 mod keyframing;
 mod keys;
 mod lineup;
+mod many;
 mod rigs_no_alloc;
