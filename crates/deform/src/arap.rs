@@ -164,6 +164,12 @@ struct SplitComplex {
     im: Vec<f64>,
 }
 
+/// A placeholder column for unused slots of a group.
+static EMPTY: &SplitComplex = &SplitComplex {
+    re: Vec::new(),
+    im: Vec::new(),
+};
+
 impl SplitComplex {
     fn from_pairs(pairs: &[DVec2]) -> SplitComplex {
         SplitComplex {
@@ -181,16 +187,50 @@ impl SplitComplex {
     fn get(&self, i: usize) -> DVec2 {
         DVec2::new(self.re[i], self.im[i])
     }
-    /// `self += z · column`.
+    /// `self = Σ zₖ · columnₖ`, up to four columns per pass over the vectors:
+    /// at large sizes the sum is bound by memory traffic, and each pass
+    /// reads and writes `self` once.
+    fn set_combination<'a>(&mut self, terms: impl Iterator<Item = (DVec2, &'a SplitComplex)>) {
+        let mut group: [(DVec2, &SplitComplex); 4] = [(DVec2::ZERO, EMPTY); 4];
+        let mut filled = 0;
+        let mut first = true;
+        for term in terms {
+            group[filled] = term;
+            filled += 1;
+            if filled == 4 {
+                self.combine::<4>(&group, first);
+                first = false;
+                filled = 0;
+            }
+        }
+        match filled {
+            1 => self.combine::<1>(&group, first),
+            2 => self.combine::<2>(&group, first),
+            3 => self.combine::<3>(&group, first),
+            _ if first => {
+                self.re.fill(0.0);
+                self.im.fill(0.0);
+            }
+            _ => {}
+        }
+    }
+
+    /// `self (= or +=) Σ zₖ · columnₖ` over the first `C` terms.
     #[inline]
-    fn add_scaled(&mut self, z: DVec2, column: &SplitComplex) {
-        let (a, b) = (z.x, z.y);
+    fn combine<const C: usize>(&mut self, terms: &[(DVec2, &SplitComplex); 4], assign: bool) {
         let n = self.re.len();
         let (re, im) = (&mut self.re[..n], &mut self.im[..n]);
-        let (cr, ci) = (&column.re[..n], &column.im[..n]);
+        let z: [DVec2; C] = std::array::from_fn(|c| terms[c].0);
+        let cr: [&[f64]; C] = std::array::from_fn(|c| &terms[c].1.re[..n]);
+        let ci: [&[f64]; C] = std::array::from_fn(|c| &terms[c].1.im[..n]);
         for i in 0..n {
-            re[i] += a * cr[i] - b * ci[i];
-            im[i] += a * ci[i] + b * cr[i];
+            let (mut r, mut m) = if assign { (0.0, 0.0) } else { (re[i], im[i]) };
+            for c in 0..C {
+                r += z[c].x * cr[c][i] - z[c].y * ci[c][i];
+                m += z[c].x * ci[c][i] + z[c].y * cr[c][i];
+            }
+            re[i] = r;
+            im[i] = m;
         }
     }
 }
@@ -231,8 +271,6 @@ struct PieceSolver {
     step2_rhs: Vec<DVec2>,
     step2_xi: Vec<DVec2>,
     step2_pose: Vec<DVec2>,
-    /// Per-triangle step-2a fit sums, then unit rotations.
-    fits: Vec<DVec2>,
 }
 
 /// The registered solver for one rest mesh. See the module docs for the
@@ -628,7 +666,6 @@ impl PieceSolver {
             step2_rhs: Vec::new(),
             step2_xi: Vec::new(),
             step2_pose: vec![DVec2::ZERO; n],
-            fits: vec![DVec2::ZERO; piece_triangles.len()],
         })
     }
 
@@ -849,16 +886,12 @@ impl PieceSolver {
                     }
                 }
                 let v1 = &mut self.step1_pose;
-                v1.re.fill(0.0);
-                v1.im.fill(0.0);
                 let columns = self
                     .handles
                     .iter()
                     .map(|h| &h.step1_column)
                     .chain(self.step1_anchor_columns.iter());
-                for (xi, column) in self.step1_xi.iter().zip(columns) {
-                    v1.add_scaled(*xi, column);
-                }
+                v1.set_combination(self.step1_xi.iter().copied().zip(columns));
                 if steps == Steps::ScaleFree {
                     for (local, &v) in self.vertices.iter().enumerate() {
                         pose[v as usize] = v1.get(local);
@@ -869,35 +902,43 @@ impl PieceSolver {
                 // terms telescope to b_i += w(2f_i − f_j − f_l) = 3w·f_i
                 // (the fitted corners f sum to zero about the centroid), so
                 // with r̃ = 3w·r̄ precomputed, b_i += unit_rotation · r̃_i.
-                // Three sweeps: gather the fit sums, normalise them (a plain
-                // loop the compiler vectorises, hiding sqrt/div latency),
-                // scatter the rotated corners.
-                for (tri, fit) in self.triangles.iter().zip(self.fits.iter_mut()) {
-                    let [i, j, l] = tri.corners.map(|c| c as usize);
-                    let (p0, p1, p2) = (v1.get(i), v1.get(j), v1.get(l));
-                    let r = &tri.scaled_centred;
-                    let dot = r[0].dot(p0) + r[1].dot(p1) + r[2].dot(p2);
-                    let crs = r[0].perp_dot(p0) + r[1].perp_dot(p1) + r[2].perp_dot(p2);
-                    *fit = DVec2::new(dot, crs);
-                }
-                for fit in self.fits.iter_mut() {
-                    let norm2 = fit.length_squared();
-                    let scale = 1.0 / norm2.sqrt();
-                    // A collapsed step-1 triangle fits no rotation: keep rest.
-                    *fit = if norm2 > f64::MIN_POSITIVE && scale > 0.0 {
-                        *fit * scale
-                    } else {
-                        DVec2::X
-                    };
-                }
+                // Per chunk of triangles, three sweeps: gather the fit sums,
+                // normalise them (a plain loop the compiler vectorises,
+                // hiding sqrt/div latency), scatter the rotated corners. The
+                // chunk's triangles are still in L1 for the scatter, so at
+                // large sizes the triangles stream from memory once.
+                const CHUNK: usize = 64;
+                let mut fits = [DVec2::ZERO; CHUNK];
                 let b = &mut self.step2_pose;
                 b.fill(DVec2::ZERO);
-                for (tri, rotation) in self.triangles.iter().zip(&self.fits) {
-                    let [i, j, l] = tri.corners.map(|c| c as usize);
-                    let r = &tri.scaled_centred;
-                    b[i] += rotation.rotate(r[0]);
-                    b[j] += rotation.rotate(r[1]);
-                    b[l] += rotation.rotate(r[2]);
+                for triangles in self.triangles.chunks(CHUNK) {
+                    let fits = &mut fits[..triangles.len()];
+                    for (tri, fit) in triangles.iter().zip(fits.iter_mut()) {
+                        let [i, j, l] = tri.corners.map(|c| c as usize);
+                        let (p0, p1, p2) = (v1.get(i), v1.get(j), v1.get(l));
+                        let r = &tri.scaled_centred;
+                        let dot = r[0].dot(p0) + r[1].dot(p1) + r[2].dot(p2);
+                        let crs = r[0].perp_dot(p0) + r[1].perp_dot(p1) + r[2].perp_dot(p2);
+                        *fit = DVec2::new(dot, crs);
+                    }
+                    for fit in fits.iter_mut() {
+                        let norm2 = fit.length_squared();
+                        let scale = 1.0 / norm2.sqrt();
+                        // A collapsed step-1 triangle fits no rotation: keep
+                        // rest.
+                        *fit = if norm2 > f64::MIN_POSITIVE && scale > 0.0 {
+                            *fit * scale
+                        } else {
+                            DVec2::X
+                        };
+                    }
+                    for (tri, rotation) in triangles.iter().zip(fits.iter()) {
+                        let [i, j, l] = tri.corners.map(|c| c as usize);
+                        let r = &tri.scaled_centred;
+                        b[i] += rotation.rotate(r[0]);
+                        b[j] += rotation.rotate(r[1]);
+                        b[l] += rotation.rotate(r[2]);
+                    }
                 }
                 // Step 2b: v = K₂⁻¹(b + B̃ᵀξ₂) = L₂⁻ᵀ(z + Y ξ₂) with z = L₂⁻¹b and
                 // ξ₂ = S₂⁻¹([q; 0] − Yᵀz); x and y travel together as a pair.
