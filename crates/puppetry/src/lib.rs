@@ -17,5 +17,6 @@ pub mod bundled;
 pub mod cli;
 pub mod compare;
 pub mod export;
+pub mod peers;
 pub mod take_bench;
 pub mod takes;
