@@ -171,16 +171,19 @@ def iterations_to(data, energy, bc, start, goal, cap):
 
 
 def time_sequence(data, bcs, starts, iterations):
-    """Per-frame times of `arap_solve` from the given starts."""
+    """Per-frame wall and process CPU times (µs) of `arap_solve` from the
+    given starts."""
     import igl
 
-    out = []
+    wall, cpu = [], []
     for bc, U, k in zip(bcs, starts, iterations):
         data.max_iter = k
+        c = time.process_time()
         t = time.perf_counter()
         igl.arap_solve(bc, data, U)
-        out.append((time.perf_counter() - t) * 1e6)
-    return out
+        wall.append((time.perf_counter() - t) * 1e6)
+        cpu.append((time.process_time() - c) * 1e6)
+    return wall, cpu
 
 
 def igl_version():
@@ -258,19 +261,28 @@ def run_case(args, puppetry, work, mesh_path, size_label, handle_count):
     e_min = [energy(solve(data, bc, U, args.cap)) for bc, U in zip(bcs, warm_starts)]
 
     # The call's own cost: no iteration, just argument and result copies.
-    overhead = median(time_sequence(data, bcs, one_starts, [0] * len(bcs)))
+    overhead = median(time_sequence(data, bcs, one_starts, [0] * len(bcs))[0])
 
     # Timed rounds, alternating the two sides. A frame's time is its fastest
     # round (on a shared machine a call is sometimes preempted for a whole
     # scheduler slice, and longer calls more often), then the median frame.
-    rounds = {"ours": [], "one": [], "warm": [], "cold": []}
+    # Process CPU times are kept too: preemption does not count in them.
+    sides = ("ours", "one", "warm", "cold")
+    rounds = {k: [] for k in sides}
+    cpu_rounds = {k: [] for k in sides}
     for _ in range(args.rounds):
         times, _ = run_ours(puppetry, case_path, poses_path, n, args.frames)
-        rounds["ours"].append(times["update_us"])
-        rounds["one"].append(time_sequence(data, bcs, one_starts, [1] * len(bcs)))
-        rounds["warm"].append(time_sequence(data, bcs, warm_starts, warm_k))
-        rounds["cold"].append(time_sequence(data, bcs, [V] * len(bcs), cold_k))
+        measured = {
+            "ours": (times["update_us"], times["update_cpu_us"]),
+            "one": time_sequence(data, bcs, one_starts, [1] * len(bcs)),
+            "warm": time_sequence(data, bcs, warm_starts, warm_k),
+            "cold": time_sequence(data, bcs, [V] * len(bcs), cold_k),
+        }
+        for k, (wall, cpu) in measured.items():
+            rounds[k].append(wall)
+            cpu_rounds[k].append(cpu)
     t = {k: median([min(f) for f in zip(*v)]) for k, v in rounds.items()}
+    c = {k: median([min(f) for f in zip(*v)]) for k, v in cpu_rounds.items()}
     round_medians = {k: [round(median(r), 1) for r in v] for k, v in rounds.items()}
     return {
         "mesh": f"gingerbread@{size_label}",
@@ -285,6 +297,10 @@ def run_case(args, puppetry, work, mesh_path, size_label, handle_count):
         "libigl_warm_us": t["warm"],
         "libigl_cold_us": t["cold"],
         "libigl_call_overhead_us": overhead,
+        "ours_cpu_us": c["ours"],
+        "libigl_one_iter_cpu_us": c["one"],
+        "libigl_warm_cpu_us": c["warm"],
+        "libigl_cold_cpu_us": c["cold"],
         "warm_iterations_p50": median(warm_k),
         "warm_iterations_max": max(warm_k),
         "warm_reached": warm_reached,
@@ -300,23 +316,30 @@ def run_case(args, puppetry, work, mesh_path, size_label, handle_count):
 
 
 def print_table(results):
-    print()
-    print(
-        f"{'mesh':<18} {'verts':>6} {'hdl':>3} {'ours µs':>9} "
-        f"{'1 iter µs':>10} {'×':>6} {'warm→E µs':>10} {'iters':>6} {'×':>6} "
-        f"{'cold→E µs':>10} {'iters':>6} {'×':>6} {'call µs':>8}"
-    )
-    for r in results:
-        o = r["ours_us"]
+    for title, suffix in (("wall", "_us"), ("process CPU", "_cpu_us")):
+        print()
+        print(f"{title} time per frame, µs (median frame of its fastest round); × = libigl / ours")
         print(
-            f"{r['mesh']:<18} {r['vertices']:>6} {r['handles']:>3} {o:>9.1f} "
-            f"{r['libigl_one_iter_us']:>10.1f} {r['libigl_one_iter_us'] / o:>6.2f} "
-            f"{r['libigl_warm_us']:>10.1f} {r['warm_iterations_p50']:>6g} "
-            f"{r['libigl_warm_us'] / o:>6.2f} "
-            f"{r['libigl_cold_us']:>10.1f} {r['cold_iterations_p50']:>6g} "
-            f"{r['libigl_cold_us'] / o:>6.2f} {r['libigl_call_overhead_us']:>8.1f}"
+            f"{'mesh':<18} {'verts':>6} {'hdl':>3} {'ours':>8} "
+            f"{'1 iter':>8} {'×':>6} {'warm→E':>8} {'iters':>5} {'×':>6} "
+            f"{'cold→E':>8} {'iters':>5} {'×':>6}"
         )
+        for r in results:
+            o = r["ours" + suffix]
+            one = r["libigl_one_iter" + suffix]
+            warm = r["libigl_warm" + suffix]
+            cold = r["libigl_cold" + suffix]
+            print(
+                f"{r['mesh']:<18} {r['vertices']:>6} {r['handles']:>3} {o:>8.1f} "
+                f"{one:>8.1f} {one / o:>6.2f} {warm:>8.1f} {r['warm_iterations_p50']:>5g} "
+                f"{warm / o:>6.2f} {cold:>8.1f} {r['cold_iterations_p50']:>5g} {cold / o:>6.2f}"
+            )
     print()
+    print("libigl's arap_solve call alone (max_iter = 0), µs: "
+          + ", ".join(f"{r['mesh']}/{r['handles']}: {r['libigl_call_overhead_us']:.1f}"
+                      for r in results))
+    print()
+    print("energy Σ A‖J − R‖² / Σ A, median frame; E min: libigl converged")
     print(
         f"{'mesh':<18} {'hdl':>3} {'E ours':>10} {'E 1 iter':>10} "
         f"{'E warm→E':>10} {'E min':>10} {'warm reached':>13} {'cold reached':>13}"

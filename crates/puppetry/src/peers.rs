@@ -10,6 +10,9 @@
 //!
 //! Only the update is timed, after registration and compilation, exactly as
 //! `puppetry bench` times it; writing the poses happens after the timed loop.
+//! Each update's process CPU time is kept beside its wall time: on a shared
+//! machine a long call is preempted more often than a short one, so wall
+//! times alone would favour whichever solver is faster.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -42,6 +45,8 @@ pub struct CaseTimes {
     pub compile_us: f64,
     /// One per frame, in frame order.
     pub update_us: Vec<f64>,
+    /// The same updates' process CPU time.
+    pub update_cpu_us: Vec<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -123,10 +128,13 @@ pub fn run(
     // Reserved up front so the timed loop's copies never reallocate.
     let mut poses = Vec::with_capacity(if keep_poses { n * frames.len() } else { 0 });
     let mut update_us = Vec::with_capacity(frames.len());
+    let mut update_cpu_us = Vec::with_capacity(frames.len());
     for targets in &frames {
+        let cpu = process_cpu_seconds();
         let start = Instant::now();
         arap.update(targets, Steps::Both)?;
         update_us.push(start.elapsed().as_secs_f64() * 1e6);
+        update_cpu_us.push((process_cpu_seconds() - cpu) * 1e6);
         if keep_poses {
             poses.extend_from_slice(arap.pose());
         }
@@ -138,8 +146,21 @@ pub fn run(
         register_ms,
         compile_us,
         update_us,
+        update_cpu_us,
     };
     Ok((times, poses))
+}
+
+/// CPU time of the whole process (as Python's `time.process_time`, which
+/// the peer script times the other side with).
+fn process_cpu_seconds() -> f64 {
+    let mut now = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `now` is a valid timespec for the call to fill.
+    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut now) };
+    now.tv_sec as f64 + now.tv_nsec as f64 * 1e-9
 }
 
 /// Writes poses as little-endian `f64` pairs.
@@ -208,6 +229,7 @@ mod tests {
         };
         let (times, poses) = run(&case, &mesh, true).unwrap();
         assert_eq!(times.update_us.len(), 3);
+        assert_eq!(times.update_cpu_us.len(), 3);
         assert_eq!(poses.len(), 3 * 9);
         for (f, targets) in case.frames.iter().enumerate() {
             let pose = &poses[f * 9..(f + 1) * 9];
