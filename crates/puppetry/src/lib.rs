@@ -17,6 +17,7 @@ pub mod bundled;
 pub mod cli;
 pub mod compare;
 pub mod export;
+pub mod peers;
 pub mod take_bench;
 pub mod takes;
 pub mod viewers_bench;

@@ -167,6 +167,17 @@ enum Command {
         #[arg(long, default_value_t = 0.1)]
         inset: f64,
     },
+    /// Time ARAP updates on a given mesh, handle vertices and per-frame
+    /// targets, to compare with another solver on the same problem (see
+    /// benches/peers/README.md). Prints one JSON line.
+    BenchCase {
+        /// {"mesh": "<.mesh.json, relative to this file>", "handles":
+        /// [vertex, …], "frames": [[[x, y] per handle], …]}
+        case: PathBuf,
+        /// Write every frame's pose here as little-endian f64 x, y pairs.
+        #[arg(long)]
+        poses: Option<PathBuf>,
+    },
     /// The lp-FFD paper's comparison (its Table 1): direct FFD (Hsu et al.),
     /// ARAP followed by inverse FFD, plain ARAP and lp-FFD on one layered
     /// figure, one grid and one set of vertex handles; prints the mean
@@ -527,6 +538,12 @@ fn run(args: Args) -> anyhow::Result<()> {
         } => {
             let out = cli::solve_command(&mesh, &handles, step1_only, svg.as_deref())?;
             println!("{out}");
+        }
+        Command::BenchCase { case, poses } => {
+            println!(
+                "{}",
+                puppetry::peers::bench_case_command(&case, poses.as_deref())?
+            );
         }
         Command::Compare {
             grid,
