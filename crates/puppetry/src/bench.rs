@@ -297,6 +297,22 @@ fn thread_cpu_by_name(name: &str) -> f64 {
         .sum()
 }
 
+/// How the benches' viewers connect: with a small read buffer, because
+/// tungstenite zero-fills its whole read buffer (128 KiB by default) before
+/// every read, which would make the bench's own viewers, not the daemon,
+/// most of the CPU being spent.
+pub async fn connect_viewer(
+    url: &str,
+) -> Result<
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>,
+    tokio_tungstenite::tungstenite::Error,
+> {
+    let config = tokio_tungstenite::tungstenite::protocol::WebSocketConfig::default()
+        .read_buffer_size(16 * 1024);
+    let (ws, _) = tokio_tungstenite::connect_async_with_config(url, Some(config), false).await?;
+    Ok(ws)
+}
+
 /// Runs the daemon on `config`, connects `clients` viewers on loopback and
 /// replays drags of `input_frames` frames (1 ms apart) into it with
 /// `pacing`: one input source per entry of `performers`, each holding a
@@ -348,9 +364,7 @@ pub async fn end_to_end(
     let mut readers = Vec::new();
     let (mut vertices, mut puppet_count) = (0, 0);
     for _ in 0..clients {
-        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
-            .await
-            .map_err(|e| e.to_string())?;
+        let mut ws = connect_viewer(&url).await.map_err(|e| e.to_string())?;
         let hello = ClientMessage::Hello {
             role: Role::Viewer,
             token: None,

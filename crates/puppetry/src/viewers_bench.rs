@@ -168,7 +168,7 @@ async fn connect(
     address: &str,
     hello: serde_json::Value,
 ) -> Result<(Ws, serde_json::Value), ViewersError> {
-    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{address}/ws")).await?;
+    let mut ws = crate::bench::connect_viewer(&format!("ws://{address}/ws")).await?;
     ws.send(Message::text(hello.to_string())).await?;
     loop {
         match ws.next().await {
