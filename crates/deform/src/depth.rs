@@ -98,6 +98,8 @@ pub struct DepthOrder {
     calm: bool,
     calm_at: Vec<DVec2>,
     calm_budget: Vec<f64>,
+    /// Per boundary edge, one over its squared length (zero if it has none).
+    calm_inverse: Vec<f64>,
     skipped: bool,
     /// Oldest first; the newest pin of a region wins.
     pins: Vec<u32>,
@@ -301,6 +303,7 @@ impl DepthOrder {
             calm: false,
             calm_at: vec![DVec2::ZERO; boundary_count],
             calm_budget: vec![0.0; boundary_count],
+            calm_inverse: vec![0.0; boundary_count],
             next_boundary,
             skipped: false,
             pins: Vec::with_capacity(MAX_PINS),
@@ -492,14 +495,14 @@ impl DepthOrder {
         if edges.is_empty() {
             return;
         }
-        let longest = edges
-            .iter()
-            .map(|e| {
-                (positions[e.b as usize] - positions[e.a as usize])
-                    .abs()
-                    .max_element()
-            })
-            .fold(0.0, f64::max);
+        let mut longest = 0.0f64;
+        for (inverse, e) in self.calm_inverse.iter_mut().zip(edges) {
+            let along = positions[e.b as usize] - positions[e.a as usize];
+            longest = longest.max(along.abs().max_element());
+            let length = along.length_squared();
+            *inverse = if length > 0.0 { 1.0 / length } else { 0.0 };
+        }
+        let inverse = &self.calm_inverse;
         let reach = longest / 2.0;
         budget.fill(reach * reach);
         for (at, e) in self.calm_at.iter_mut().zip(edges) {
@@ -542,7 +545,10 @@ impl DepthOrder {
                     }
                     let (a, b) = ends(i as usize);
                     let (c, d) = ends(j as usize);
-                    let half = segments_distance_squared(a, b, c, d) / 4.0;
+                    let half = segments_distance_squared(
+                        (a, b, inverse[i as usize]),
+                        (c, d, inverse[j as usize]),
+                    ) / 4.0;
                     let (i, j) = (i as usize, j as usize);
                     for k in [
                         i,
@@ -1211,28 +1217,27 @@ fn segments_meet(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
     side(a, b, c) * side(a, b, d) <= 0.0 && side(c, d, a) * side(c, d, b) <= 0.0
 }
 
-/// The squared distance between segments `ab` and `cd`: zero where they
-/// cross, else the nearest of each end to the other segment (so collinear
-/// segments in a row are apart, unlike for [`segments_meet`]).
-fn segments_distance_squared(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> f64 {
+/// The squared distance between segments `ab` and `cd`, each given with
+/// one over its squared length (zero for a point): zero where they cross,
+/// else the nearest of each end to the other segment (so collinear segments
+/// in a row are apart, unlike for [`segments_meet`]).
+fn segments_distance_squared(
+    (a, b, over_ab): (DVec2, DVec2, f64),
+    (c, d, over_cd): (DVec2, DVec2, f64),
+) -> f64 {
     let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
     if side(a, b, c) * side(a, b, d) < 0.0 && side(c, d, a) * side(c, d, b) < 0.0 {
         return 0.0;
     }
-    let to_segment = |p: DVec2, q: DVec2, r: DVec2| {
+    let to_segment = |p: DVec2, q: DVec2, r: DVec2, over: f64| {
         let along = r - q;
-        let length = along.length_squared();
-        let t = if length > 0.0 {
-            ((p - q).dot(along) / length).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
+        let t = ((p - q).dot(along) * over).clamp(0.0, 1.0);
         p.distance_squared(q + along * t)
     };
-    to_segment(a, c, d)
-        .min(to_segment(b, c, d))
-        .min(to_segment(c, a, b))
-        .min(to_segment(d, a, b))
+    to_segment(a, c, d, over_cd)
+        .min(to_segment(b, c, d, over_cd))
+        .min(to_segment(c, a, b, over_ab))
+        .min(to_segment(d, a, b, over_ab))
 }
 
 /// A uniform grid rebuilt every frame into buffers sized at registration:
