@@ -9,7 +9,10 @@
 //! Phases as in the deformers: [`DepthOrder::register`] precomputes the
 //! topology (edge neighbours, boundary edges per piece) and sizes the
 //! scratch; [`DepthOrder::update`] runs per frame and does not allocate in
-//! steady state. A frame first tries the cheap reject — no inverted triangle,
+//! steady state. After an overlap-free frame, a motion bound settles the
+//! next frames while every boundary vertex stays within half its distance
+//! to the nearest other boundary edge and no triangle inverts. Otherwise a
+//! frame first tries the cheap reject — no inverted triangle,
 //! no two boundary edges crossing (a uniform grid of boundary edges), no
 //! piece inside another — and then the answer is the static order. Otherwise
 //! overlapping triangle pairs are grown from the triangles at boundary
