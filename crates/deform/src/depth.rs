@@ -9,7 +9,10 @@
 //! Phases as in the deformers: [`DepthOrder::register`] precomputes the
 //! topology (edge neighbours, boundary edges per piece) and sizes the
 //! scratch; [`DepthOrder::update`] runs per frame and does not allocate in
-//! steady state. A frame first tries the cheap reject — no inverted triangle,
+//! steady state. After an overlap-free frame, a motion bound settles the
+//! next frames while every boundary vertex stays within half its distance
+//! to the nearest other boundary edge and no triangle inverts. Otherwise a
+//! frame first tries the cheap reject — no inverted triangle,
 //! no two boundary edges crossing (a uniform grid of boundary edges), no
 //! piece inside another — and then the answer is the static order. Otherwise
 //! overlapping triangle pairs are grown from the triangles at boundary
@@ -89,6 +92,18 @@ pub struct DepthOrder {
     pair_count: usize,
     dropped: usize,
     scanned_all: bool,
+    /// Per boundary edge, the edge starting at its end.
+    next_boundary: Vec<u32>,
+    /// A certificate that frames stay overlap-free: set after an
+    /// overlap-free frame, it holds while no triangle inverts and every
+    /// boundary edge's start stays within its budget (squared distance) of
+    /// where it was then (both per boundary edge).
+    calm: bool,
+    calm_at: Vec<DVec2>,
+    calm_budget: Vec<f64>,
+    /// Per boundary edge, one over its squared length (zero if it has none).
+    calm_inverse: Vec<f64>,
+    skipped: bool,
     /// Oldest first; the newest pin of a region wins.
     pins: Vec<u32>,
     /// Last frame's role of each triangle (`FRONT | BACK` bits), the memory
@@ -228,6 +243,15 @@ impl DepthOrder {
             piece_boundary[p] += piece_boundary[p - 1];
         }
 
+        // Every boundary vertex starts exactly one boundary edge (the mesh
+        // has no bowties).
+        let mut starting = HashMap::with_capacity(boundary.len());
+        for (i, e) in boundary.iter().enumerate() {
+            starting.insert(e.a, i as u32);
+        }
+        let next_boundary = boundary.iter().map(|e| starting[&e.b]).collect();
+        let boundary_count = boundary.len();
+
         let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
         let most = count.max(boundary.len());
         let scratch = Scratch {
@@ -279,6 +303,12 @@ impl DepthOrder {
             pair_count: 0,
             dropped: 0,
             scanned_all: false,
+            calm: false,
+            calm_at: vec![DVec2::ZERO; boundary_count],
+            calm_budget: vec![0.0; boundary_count],
+            calm_inverse: vec![0.0; boundary_count],
+            next_boundary,
+            skipped: false,
             pins: Vec::with_capacity(MAX_PINS),
             scratch,
         })
@@ -316,6 +346,14 @@ impl DepthOrder {
     /// from boundary crossings and inverted triangles.
     pub fn scanned_all(&self) -> bool {
         self.scanned_all
+    }
+
+    /// Whether the last update was settled by the motion bound alone: every
+    /// vertex stayed close enough to where it was at an earlier overlap-free
+    /// frame that nothing could have started to overlap (see
+    /// `docs/depth.md`).
+    pub fn skipped(&self) -> bool {
+        self.skipped
     }
 
     /// Front-over-back constraints the last update had to drop to break
@@ -359,6 +397,13 @@ impl DepthOrder {
         }
         if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
             return Err(DepthError::PositionNotFinite { vertex });
+        }
+        self.skipped = self.calm && self.still_calm(positions);
+        if self.skipped {
+            // The last frame was overlap-free (static depth, no roles, no
+            // pins) and this one is too: nothing to write.
+            self.changed = false;
+            return Ok(&self.depth);
         }
         let s = &mut self.scratch;
         s.inverted.clear();
@@ -414,7 +459,111 @@ impl DepthOrder {
             self.order();
         }
         self.write_depth();
+        self.calm = !self.overlapped;
+        if self.calm {
+            self.certify_calm(positions);
+        }
         Ok(&self.depth)
+    }
+
+    /// Whether this frame is certainly overlap-free, given the certificate
+    /// of an earlier overlap-free frame: no triangle is inverted, and no two
+    /// boundary edges can have met on the way here, since every boundary
+    /// vertex moved less than half the distance from its edges to any
+    /// other. Then no piece can have moved inside another either, and the
+    /// exact path would find nothing to grow from.
+    fn still_calm(&self, positions: &[DVec2]) -> bool {
+        let within = self
+            .boundary
+            .iter()
+            .zip(&self.calm_at)
+            .zip(&self.calm_budget)
+            .all(|((e, at), &budget)| positions[e.a as usize].distance_squared(*at) < budget);
+        within
+            && self.triangles.iter().all(|tri| {
+                let [a, b, c] = tri.map(|i| positions[i as usize]);
+                (b - a).perp_dot(c - a) > 0.0
+            })
+    }
+
+    /// After an overlap-free frame: how far each boundary vertex may move
+    /// from here (straight, all at once) before two boundary edges could
+    /// meet: less than half their distance. Only edges closer than the
+    /// longest edge's extent are measured (a grid of their boxes grown by
+    /// half of it); every budget is capped at that half.
+    fn certify_calm(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        let budget = &mut self.calm_budget;
+        let edges = &self.boundary;
+        if edges.is_empty() {
+            return;
+        }
+        let mut longest = 0.0f64;
+        for (inverse, e) in self.calm_inverse.iter_mut().zip(edges) {
+            let along = positions[e.b as usize] - positions[e.a as usize];
+            longest = longest.max(along.abs().max_element());
+            let length = along.length_squared();
+            *inverse = if length > 0.0 { 1.0 / length } else { 0.0 };
+        }
+        let inverse = &self.calm_inverse;
+        let reach = longest / 2.0;
+        budget.fill(reach * reach);
+        for (at, e) in self.calm_at.iter_mut().zip(edges) {
+            *at = positions[e.a as usize];
+        }
+        let ends = |i: usize| {
+            let e = edges[i];
+            (positions[e.a as usize], positions[e.b as usize])
+        };
+        let boxed = |i: usize| {
+            let (a, b) = ends(i);
+            (a.min(b) - reach, a.max(b) + reach)
+        };
+        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        for i in 0..edges.len() {
+            let (blo, bhi) = boxed(i);
+            lo = lo.min(blo);
+            hi = hi.max(bhi);
+        }
+        s.grid
+            .fill(lo, hi, longest + 2.0 * reach, edges.len(), boxed);
+        let grid = &s.grid;
+        for cell in 0..grid.cell_count() {
+            let members = grid.members(cell);
+            for (n, &i) in members.iter().enumerate() {
+                let ei = edges[i as usize];
+                let (ilo, ihi) = boxed(i as usize);
+                for &j in &members[n + 1..] {
+                    let ej = edges[j as usize];
+                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
+                        continue;
+                    }
+                    let (jlo, jhi) = boxed(j as usize);
+                    let (meet_lo, meet_hi) = (ilo.max(jlo), ihi.min(jhi));
+                    if meet_lo.x > meet_hi.x
+                        || meet_lo.y > meet_hi.y
+                        || grid.cell_of(meet_lo) != cell
+                    {
+                        continue;
+                    }
+                    let (a, b) = ends(i as usize);
+                    let (c, d) = ends(j as usize);
+                    let half = segments_distance_squared(
+                        (a, b, inverse[i as usize]),
+                        (c, d, inverse[j as usize]),
+                    ) / 4.0;
+                    let (i, j) = (i as usize, j as usize);
+                    for k in [
+                        i,
+                        j,
+                        self.next_boundary[i] as usize,
+                        self.next_boundary[j] as usize,
+                    ] {
+                        budget[k] = budget[k].min(half);
+                    }
+                }
+            }
+        }
     }
 
     /// Fills `seeds` with the triangle pairs of crossing, non-adjacent
@@ -1069,6 +1218,29 @@ pub fn triangles_overlap(a: [DVec2; 3], b: [DVec2; 3]) -> bool {
 fn segments_meet(a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
     let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
     side(a, b, c) * side(a, b, d) <= 0.0 && side(c, d, a) * side(c, d, b) <= 0.0
+}
+
+/// The squared distance between segments `ab` and `cd`, each given with
+/// one over its squared length (zero for a point): zero where they cross,
+/// else the nearest of each end to the other segment (so collinear segments
+/// in a row are apart, unlike for [`segments_meet`]).
+fn segments_distance_squared(
+    (a, b, over_ab): (DVec2, DVec2, f64),
+    (c, d, over_cd): (DVec2, DVec2, f64),
+) -> f64 {
+    let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
+    if side(a, b, c) * side(a, b, d) < 0.0 && side(c, d, a) * side(c, d, b) < 0.0 {
+        return 0.0;
+    }
+    let to_segment = |p: DVec2, q: DVec2, r: DVec2, over: f64| {
+        let along = r - q;
+        let t = ((p - q).dot(along) * over).clamp(0.0, 1.0);
+        p.distance_squared(q + along * t)
+    };
+    to_segment(a, c, d, over_cd)
+        .min(to_segment(b, c, d, over_cd))
+        .min(to_segment(c, a, b, over_ab))
+        .min(to_segment(d, a, b, over_ab))
 }
 
 /// A uniform grid rebuilt every frame into buffers sized at registration:

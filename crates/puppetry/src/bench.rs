@@ -818,6 +818,8 @@ pub struct DepthResult {
     pub flat_frames_scanning_all: usize,
     pub fold_frames_scanning_all: usize,
     pub flat_frames_overlapping: usize,
+    /// Frames of the no-overlap phase settled by the motion bound alone.
+    pub flat_frames_skipped: usize,
     pub frames: usize,
 }
 
@@ -867,7 +869,7 @@ pub fn run_depth_case(
     let mut frame = |targets: &[DVec2],
                      arap: &mut Arap,
                      depth: &mut DepthOrder|
-     -> Result<(f64, bool, usize, bool), DepthBenchError> {
+     -> Result<(f64, bool, usize, bool, bool), DepthBenchError> {
         let start = Instant::now();
         arap.update(targets, Steps::Both)?;
         arap_times.push(micros(start.elapsed()));
@@ -879,15 +881,17 @@ pub fn run_depth_case(
             depth.overlapped(),
             depth.overlap_pairs(),
             depth.scanned_all(),
+            depth.skipped(),
         ))
     };
     let mut targets = held.clone();
     let mut flat = Vec::with_capacity(frames);
-    let (mut flat_scanning, mut flat_overlapping) = (0, 0);
+    let (mut flat_scanning, mut flat_overlapping, mut flat_skipped) = (0, 0, 0);
     for f in 0..frames {
         animate(&held, size * 0.3, f, &mut targets);
-        let (took, overlapped, _, scanned) = frame(&targets, &mut arap, &mut depth)?;
+        let (took, overlapped, _, scanned, skipped) = frame(&targets, &mut arap, &mut depth)?;
         flat.push(took);
+        flat_skipped += usize::from(skipped);
         flat_overlapping += usize::from(overlapped);
         flat_scanning += usize::from(scanned);
     }
@@ -906,7 +910,7 @@ pub fn run_depth_case(
     for f in 0..frames {
         let t = f as f64 * 0.05;
         targets[2] = over + DVec2::new(t.cos(), t.sin()) * (0.02 * size);
-        let (took, overlapped, count, scanned) = frame(&targets, &mut arap, &mut depth)?;
+        let (took, overlapped, count, scanned, _) = frame(&targets, &mut arap, &mut depth)?;
         fold.push(took);
         pairs.push(count);
         overlapping += usize::from(overlapped);
@@ -934,6 +938,7 @@ pub fn run_depth_case(
         fold_frames_overlapping: overlapping,
         fold_pairs_median: pairs[pairs.len() / 2],
         flat_frames_scanning_all: flat_scanning,
+        flat_frames_skipped: flat_skipped,
         fold_frames_scanning_all: fold_scanning,
         flat_frames_overlapping: flat_overlapping,
         frames,

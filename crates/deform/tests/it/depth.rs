@@ -257,6 +257,47 @@ fn pieces_follow_their_layers_until_a_pin_and_again_after_separating() {
 }
 
 #[test]
+fn small_steps_without_overlap_are_settled_by_the_motion_bound() {
+    // Piece 1 lowered onto piece 0 and through it in small steps, then a
+    // vertex of piece 0 pushed through its neighbours: every frame agrees
+    // with brute force, and the frames far from any overlap skip the tests.
+    let mesh = two_bars(DVec2::new(3.0, 5.0));
+    let mut order = DepthOrder::register(&mesh, None).unwrap();
+    let mut poses: Vec<Vec<DVec2>> = (0..80)
+        .map(|step| moved_piece(&mesh, DVec2::new(0.01 * step as f64, -0.05 * step as f64)))
+        .collect();
+    let apart = moved_piece(&mesh, DVec2::new(0.0, 3.0));
+    poses.extend((0..40).map(|step| {
+        pushed(
+            &mesh,
+            &apart,
+            DVec2::new(5.0, 1.0),
+            DVec2::new(0.0, 0.05 * step as f64),
+        )
+    }));
+    let (mut skipped, mut overlapping) = (0, 0);
+    for pose in &poses {
+        let depth = order.update(pose).unwrap().to_vec();
+        let pairs = overlapping_pairs(&mesh, pose);
+        assert_eq!(order.overlapped(), !pairs.is_empty());
+        assert_eq!(order.overlap_pairs(), pairs.len());
+        if order.skipped() {
+            skipped += 1;
+            assert!(!order.changed() && inverted_count(&mesh, pose) == 0);
+        }
+        if pairs.is_empty() {
+            assert_eq!(depth, order.static_depth());
+        } else {
+            overlapping += 1;
+            assert!(!order.skipped());
+        }
+    }
+    assert!(skipped > 20, "only {skipped} frames skipped");
+    assert!(overlapping > 10, "only {overlapping} frames overlapped");
+    assert!(inverted_count(&mesh, poses.last().unwrap()) > 0);
+}
+
+#[test]
 fn a_piece_wholly_inside_another_is_found() {
     let mesh = two_bars(DVec2::new(3.0, 5.0));
     let pieces = mesh.pieces();
