@@ -841,6 +841,11 @@ const WIDEST: usize = 8;
 struct Split<T> {
     arms: [BandLu<T>; 2],
     joint: usize,
+    /// Per arm: the joint unknowns it touches (the border's columns, in
+    /// order), how many, and each joint unknown's place among them.
+    bordered: [[usize; JOINT]; 2],
+    border_count: [usize; 2],
+    border_place: [[usize; JOINT]; 2],
     /// The joint block as assembled.
     block: [[T; JOINT]; JOINT],
     /// LU of the joint's Schur complement (partial pivoting, rows swapped
@@ -860,9 +865,22 @@ enum Place {
 impl<T: Entry> Split<T> {
     /// Zeroes arms of the given sizes and bandwidths and a joint of
     /// `joint` unknowns.
-    fn reset(&mut self, sizes: [usize; 2], widths: [usize; 2], joint: usize) {
-        for ((arm, n), w) in self.arms.iter_mut().zip(sizes).zip(widths) {
-            arm.reset_bordered(n, w, w, joint, true);
+    fn reset(
+        &mut self,
+        sizes: [usize; 2],
+        widths: [usize; 2],
+        joint: usize,
+        links: [[bool; JOINT]; 2],
+    ) {
+        for a in 0..2 {
+            let mut count = 0;
+            for k in (0..joint).filter(|&k| links[a][k]) {
+                self.bordered[a][count] = k;
+                self.border_place[a][k] = count;
+                count += 1;
+            }
+            self.border_count[a] = count;
+            self.arms[a].reset_bordered(sizes[a], widths[a], widths[a], count, true);
         }
         self.joint = joint;
         self.block = Default::default();
@@ -884,7 +902,6 @@ impl<T: Entry> Split<T> {
     /// entry is new: in an arm's row or column from `new[arm]` on, or in
     /// the joint block when `block`.
     fn add(&mut self, row: usize, col: usize, value: T, new: [usize; 2], block: bool) {
-        let joint = self.joint;
         match (self.place(row), self.place(col)) {
             (Place::Arm(a, i), Place::Arm(b, j)) => {
                 debug_assert_eq!(a, b, "the arms do not touch");
@@ -894,13 +911,15 @@ impl<T: Entry> Split<T> {
             }
             (Place::Arm(a, i), Place::Joint(k)) => {
                 if i >= new[a] {
-                    let entry = &mut self.arms[a].border_col[i * joint + k];
+                    let (width, k) = (self.border_count[a], self.border_place[a][k]);
+                    let entry = &mut self.arms[a].border_col[i * width + k];
                     *entry = *entry + value;
                 }
             }
             (Place::Joint(k), Place::Arm(a, j)) => {
                 if j >= new[a] {
-                    let entry = &mut self.arms[a].border_row[j * joint + k];
+                    let (width, k) = (self.border_count[a], self.border_place[a][k]);
+                    let entry = &mut self.arms[a].border_row[j * width + k];
                     *entry = *entry + value;
                 }
             }
@@ -940,11 +959,16 @@ impl<T: Entry> Split<T> {
         let m = self.joint;
         let mut s = self.block;
         let mut scale = self.arms[0].scale.max(self.arms[1].scale);
-        for a in 0..m {
-            for b in 0..m {
-                scale = larger(scale, s[a][b].magnitude_squared());
-                for arm in &self.arms {
-                    s[a][b] = s[a][b] - arm.border_sum[a][b];
+        for row in &s[..m] {
+            for entry in &row[..m] {
+                scale = larger(scale, entry.magnitude_squared());
+            }
+        }
+        for (a, arm) in self.arms.iter().enumerate() {
+            let joint = &self.bordered[a][..self.border_count[a]];
+            for (x, &r) in joint.iter().enumerate() {
+                for (y, &c) in joint.iter().enumerate() {
+                    s[r][c] = s[r][c] - arm.border_sum[x][y];
                 }
             }
         }
@@ -982,12 +1006,18 @@ impl<T: Entry> Split<T> {
         let (left, rest) = b.split_at_mut(self.arms[0].n);
         let (right, joint) = rest.split_at_mut(self.arms[1].n);
         let mut parts = [left, right];
-        for (arm, part) in self.arms.iter().zip(parts.iter_mut()) {
+        for (a, (arm, part)) in self.arms.iter().zip(parts.iter_mut()).enumerate() {
             arm.forward_all(part);
-            for (row, &x) in arm.border_row.chunks_exact(m).zip(part.iter()) {
-                for (y, r) in joint.iter_mut().zip(row) {
-                    *y -= r.apply(x);
-                }
+            let mut sums = [DVec2::ZERO; JOINT];
+            match self.border_count[a] {
+                0 => {}
+                1 => border_sums::<T, 1>(&arm.border_row, part, &mut sums),
+                2 => border_sums::<T, 2>(&arm.border_row, part, &mut sums),
+                3 => border_sums::<T, 3>(&arm.border_row, part, &mut sums),
+                _ => border_sums::<T, JOINT>(&arm.border_row, part, &mut sums),
+            }
+            for (&k, sum) in self.bordered[a][..self.border_count[a]].iter().zip(sums) {
+                joint[k] -= sum;
             }
         }
         let s = &self.schur;
@@ -1007,13 +1037,41 @@ impl<T: Entry> Split<T> {
             }
             joint[k] = s[k][k].apply(x);
         }
-        for (arm, part) in self.arms.iter().zip(parts.iter_mut()) {
-            for (col, x) in arm.border_col.chunks_exact(m).zip(part.iter_mut()) {
-                for (c, y) in col.iter().zip(&*joint) {
-                    *x -= c.apply(*y);
-                }
+        for (a, (arm, part)) in self.arms.iter().zip(parts.iter_mut()).enumerate() {
+            let mut x = [DVec2::ZERO; JOINT];
+            for (x, &k) in x.iter_mut().zip(&self.bordered[a][..self.border_count[a]]) {
+                *x = joint[k];
+            }
+            match self.border_count[a] {
+                0 => {}
+                1 => border_terms::<T, 1>(&arm.border_col, part, &x),
+                2 => border_terms::<T, 2>(&arm.border_col, part, &x),
+                3 => border_terms::<T, 3>(&arm.border_col, part, &x),
+                _ => border_terms::<T, JOINT>(&arm.border_col, part, &x),
             }
             arm.backward_all(part);
+        }
+    }
+}
+
+/// `Σⱼ rowⱼ · xⱼ` over an arm's columns, for a border `K` wide: what the
+/// arm's forward sweep takes off the joint's right-hand side.
+fn border_sums<T: Entry, const K: usize>(rows: &[T], x: &[DVec2], sums: &mut [DVec2; JOINT]) {
+    let mut acc = [DVec2::ZERO; K];
+    for (row, &x) in rows.chunks_exact(K).zip(x) {
+        for k in 0..K {
+            acc[k] += row[k].apply(x);
+        }
+    }
+    sums[..K].copy_from_slice(&acc);
+}
+
+/// `xⱼ −= colⱼ · joint` over an arm's rows, for a border `K` wide: the
+/// joint's part of the back substitution.
+fn border_terms<T: Entry, const K: usize>(cols: &[T], x: &mut [DVec2], joint: &[DVec2; JOINT]) {
+    for (col, x) in cols.chunks_exact(K).zip(x) {
+        for k in 0..K {
+            *x -= col[k].apply(joint[k]);
         }
     }
 }
@@ -1029,6 +1087,8 @@ struct Grown {
     sizes: [usize; 2],
     /// Per step, per arm.
     widths: [[usize; 2]; 2],
+    /// Per step, per arm, per joint unknown: whether they are coupled.
+    links: [[[bool; JOINT]; 2]; 2],
     /// Per constraint: which of its points are free.
     free: Vec<[bool; 2]>,
 }
@@ -1751,14 +1811,22 @@ impl Curve {
         };
         // Bandwidths per step and arm, from the couplings within an arm.
         let mut widths = [[1; 2]; 2];
-        let mut couple = |p: usize, q: usize, steps: &[usize]| {
-            if let (Some((a, x)), Some((b, y))) = (arm_of(p), arm_of(q))
-                && a == b
-            {
+        // Which joint unknowns each arm touches (per step): only those
+        // border it.
+        let mut links = [[[false; JOINT]; 2]; 2];
+        let mut couple = |p: usize, q: usize, steps: &[usize]| match (arm_of(p), arm_of(q)) {
+            (Some((a, x)), Some((b, y))) if a == b => {
                 for &step in steps {
                     widths[step][a] = widths[step][a].max(x.abs_diff(y));
                 }
             }
+            (Some((a, _)), None) | (None, Some((a, _))) => {
+                let k = p.max(q) - sizes[0] - sizes[1];
+                for &step in steps {
+                    links[step][a][k] = true;
+                }
+            }
+            _ => {}
         };
         for p in lo..=hi {
             for q in p + 1..=(p + 2).min(hi) {
@@ -1780,6 +1848,7 @@ impl Curve {
             joint_size: joint,
             sizes,
             widths,
+            links,
             free,
         };
         self.constraints = constraints.to_vec();
@@ -1788,7 +1857,8 @@ impl Curve {
                 g.anchors == grown.anchors
                     && g.lo >= lo
                     && g.hi <= hi
-                    && (g.joint, g.joint_size, g.widths) == (grown.joint, joint, widths)
+                    && (g.joint, g.joint_size, g.widths, g.links)
+                        == (grown.joint, joint, widths, links)
                     && g.free == grown.free
             });
         let mut factored = false;
@@ -1805,8 +1875,8 @@ impl Curve {
         }
         if !factored {
             for threshold in [PIVOT_THRESHOLD, 1.0] {
-                self.split1.reset(sizes, widths[0], joint);
-                self.split2.reset(sizes, widths[1], joint);
+                self.split1.reset(sizes, widths[0], joint, links[0]);
+                self.split2.reset(sizes, widths[1], joint, links[1]);
                 self.assemble_split(None);
                 factored = self.split1.factor(threshold) && self.split2.factor(threshold);
                 if factored {
