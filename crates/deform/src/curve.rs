@@ -545,35 +545,35 @@ impl<T: Entry> BandLu<T> {
         let diagonal = self.kl + self.ku;
         let last_row = (j + self.kl).min(n - 1);
         let last_col = (j + self.kl + self.ku).min(n - 1);
+        // Joint rows in column j (ρ, kept: ρ·(D⁻¹y)ⱼ is L's border term in
+        // a solve), their multipliers X = ρ/uⱼⱼ, and joint columns in row j
+        // (Y, kept scaled like U's row).
         let mut row = [T::default(); JOINT];
         let mut col = [T::default(); JOINT];
         row[..joint].copy_from_slice(&self.border_row[j * joint..][..joint]);
         col[..joint].copy_from_slice(&self.border_col[j * joint..][..joint]);
-        let mut scaled = [T::default(); JOINT];
-        for a in 0..joint {
-            scaled[a] = inverse.times(col[a]);
-            *largest = larger(*largest, col[a].magnitude_squared());
-            *largest = larger(*largest, row[a].times(inverse).magnitude_squared());
+        let multiplier = row.map(|r| r.times(inverse));
+        let scaled = col.map(|c| inverse.times(c));
+        for (m, c) in multiplier.iter().zip(&col) {
+            *largest = larger(*largest, c.magnitude_squared());
+            *largest = larger(*largest, m.magnitude_squared());
         }
-        for a in 0..joint {
-            for b in 0..joint {
-                self.border_sum[a][b] = self.border_sum[a][b] + row[a].times(scaled[b]);
+        // X·Y = ρ·(Y/uⱼⱼ) comes off the joint block.
+        for (sums, r) in self.border_sum.iter_mut().zip(&row).take(joint) {
+            for (sum, y) in sums.iter_mut().zip(&scaled).take(joint) {
+                *sum = *sum + r.times(*y);
             }
         }
         self.border_col[j * joint..][..joint].copy_from_slice(&scaled[..joint]);
-        let mut multiplier = [T::default(); JOINT];
-        for a in 0..joint {
-            multiplier[a] = row[a].times(inverse);
-        }
         for c in j + 1..=last_col {
             // Row j of U in column c.
             let u = self.band[c * stride + diagonal + j - c];
             if u == T::default() {
                 continue;
             }
-            for a in 0..joint {
-                let entry = &mut self.border_row[c * joint + a];
-                *entry = *entry - multiplier[a].times(u);
+            let entries = &mut self.border_row[c * joint..][..joint];
+            for (entry, m) in entries.iter_mut().zip(&multiplier) {
+                *entry = *entry - m.times(u);
             }
         }
         for i in j + 1..=last_row {
@@ -581,9 +581,9 @@ impl<T: Entry> BandLu<T> {
             if l == T::default() {
                 continue;
             }
-            for b in 0..joint {
-                let entry = &mut self.border_col[i * joint + b];
-                *entry = *entry - l.times(col[b]);
+            let entries = &mut self.border_col[i * joint..][..joint];
+            for (entry, y) in entries.iter_mut().zip(&col) {
+                *entry = *entry - l.times(*y);
             }
         }
     }
@@ -987,11 +987,12 @@ impl<T: Entry> Split<T> {
             self.schur_pivots[k] = p;
             let inverse = s[k][k].reciprocal();
             s[k][k] = inverse;
-            for i in k + 1..m {
-                let l = s[i][k].times(inverse);
-                s[i][k] = l;
-                for c in k + 1..m {
-                    s[i][c] = s[i][c] - l.times(s[k][c]);
+            let pivot_row = s[k];
+            for row in &mut s[k + 1..m] {
+                let l = row[k].times(inverse);
+                row[k] = l;
+                for (entry, u) in row[k + 1..m].iter_mut().zip(&pivot_row[k + 1..m]) {
+                    *entry = *entry - l.times(*u);
                 }
             }
         }
@@ -1913,6 +1914,7 @@ impl Curve {
         let first_segment = lo.saturating_sub(1);
         let last_segment = hi.min(n - 2);
         // Terms and segments holding a new point (or all), each once.
+        #[allow(clippy::reversed_empty_ranges)]
         let none = 1..=0;
         let (new, block, terms, segments) = match old {
             None => (
