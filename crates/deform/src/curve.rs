@@ -654,76 +654,109 @@ impl<T: Entry> BandLu<T> {
 
     /// Solves `A x = b` in place with the factors.
     fn solve(&self, b: &mut [DVec2]) {
-        self.forward_all(b);
-        self.backward_all(b);
+        let mut sums = [DVec2::ZERO; JOINT];
+        self.forward_all(b, &mut sums);
+        self.backward_all(b, &[DVec2::ZERO; JOINT]);
     }
 
-    /// The forward substitution of a solve with the factors, run by run. Within a
-    /// run each sweep carries the next unknowns in a window of registers
-    /// (as wide as the run's columns), so the chain from one unknown to the
-    /// next is one multiply-subtract with no store and load between; the
-    /// window goes back to `b` at the run's end.
-    fn forward_all(&self, b: &mut [DVec2]) {
-        macro_rules! sweep {
-            ($f:ident, $wide:ident, $run:expr) => {
-                match $run.width {
-                    1 => self.$f::<1>(b, $run),
-                    2 => self.$f::<2>(b, $run),
-                    3 => self.$f::<3>(b, $run),
-                    4 => self.$f::<4>(b, $run),
-                    5 => self.$f::<5>(b, $run),
-                    6 => self.$f::<6>(b, $run),
-                    7 => self.$f::<7>(b, $run),
-                    WIDEST => self.$f::<WIDEST>(b, $run),
-                    _ => self.$wide(b, $run),
-                }
-            };
+    /// The forward substitution of a solve with the factors, run by run,
+    /// leaving `D⁻¹y`; with a border, `sums[a]` gains joint row `a`'s
+    /// `Σⱼ ρⱼ (D⁻¹y)ⱼ`. Within a run each sweep carries the next unknowns
+    /// in a window of registers (as wide as the run's columns), so the
+    /// chain from one unknown to the next is one multiply-subtract with no
+    /// store and load between; the window goes back to `b` at the run's
+    /// end. The border's sums are taken in the same sweep, off that chain.
+    fn forward_all(&self, b: &mut [DVec2], sums: &mut [DVec2; JOINT]) {
+        match self.joint {
+            0 => self.forward_runs::<0>(b, sums),
+            1 => self.forward_runs::<1>(b, sums),
+            2 => self.forward_runs::<2>(b, sums),
+            3 => self.forward_runs::<3>(b, sums),
+            _ => self.forward_runs::<JOINT>(b, sums),
         }
+    }
+
+    fn forward_runs<const K: usize>(&self, b: &mut [DVec2], sums: &mut [DVec2; JOINT]) {
         for run in &self.lower_runs {
-            sweep!(forward, forward_wide, run);
+            match run.width {
+                1 => self.forward::<1, K>(b, run, sums),
+                2 => self.forward::<2, K>(b, run, sums),
+                3 => self.forward::<3, K>(b, run, sums),
+                4 => self.forward::<4, K>(b, run, sums),
+                5 => self.forward::<5, K>(b, run, sums),
+                6 => self.forward::<6, K>(b, run, sums),
+                7 => self.forward::<7, K>(b, run, sums),
+                WIDEST => self.forward::<WIDEST, K>(b, run, sums),
+                _ => self.forward_wide::<K>(b, run, sums),
+            }
         }
     }
 
-    /// The back substitution of [`BandLu::forward_all`]'s solve.
-    fn backward_all(&self, b: &mut [DVec2]) {
-        macro_rules! sweep {
-            ($f:ident, $wide:ident, $run:expr) => {
-                match $run.width {
-                    1 => self.$f::<1>(b, $run),
-                    2 => self.$f::<2>(b, $run),
-                    3 => self.$f::<3>(b, $run),
-                    4 => self.$f::<4>(b, $run),
-                    5 => self.$f::<5>(b, $run),
-                    6 => self.$f::<6>(b, $run),
-                    7 => self.$f::<7>(b, $run),
-                    WIDEST => self.$f::<WIDEST>(b, $run),
-                    _ => self.$wide(b, $run),
-                }
-            };
-        }
-        for run in self.upper_runs.iter().rev() {
-            sweep!(backward, backward_wide, run);
+    /// The back substitution of [`BandLu::forward_all`]'s solve, given the
+    /// joint's solution (with a border: each `(D⁻¹y)ⱼ` loses `ŷⱼ·joint`
+    /// as it enters the window).
+    fn backward_all(&self, b: &mut [DVec2], joint: &[DVec2; JOINT]) {
+        match self.joint {
+            0 => self.backward_runs::<0>(b, joint),
+            1 => self.backward_runs::<1>(b, joint),
+            2 => self.backward_runs::<2>(b, joint),
+            3 => self.backward_runs::<3>(b, joint),
+            _ => self.backward_runs::<JOINT>(b, joint),
         }
     }
-    /// Forward substitution with L (and the row swaps) over one run,
-    /// leaving `D⁻¹y`.
-    fn forward<const W: usize>(&self, b: &mut [DVec2], run: &Run) {
+
+    fn backward_runs<const K: usize>(&self, b: &mut [DVec2], joint: &[DVec2; JOINT]) {
+        // Entries from here on have had their border term taken off.
+        let mut bordered = b.len();
+        for run in self.upper_runs.iter().rev() {
+            match run.width {
+                1 => self.backward::<1, K>(b, run, joint, &mut bordered),
+                2 => self.backward::<2, K>(b, run, joint, &mut bordered),
+                3 => self.backward::<3, K>(b, run, joint, &mut bordered),
+                4 => self.backward::<4, K>(b, run, joint, &mut bordered),
+                5 => self.backward::<5, K>(b, run, joint, &mut bordered),
+                6 => self.backward::<6, K>(b, run, joint, &mut bordered),
+                7 => self.backward::<7, K>(b, run, joint, &mut bordered),
+                WIDEST => self.backward::<WIDEST, K>(b, run, joint, &mut bordered),
+                _ => self.backward_wide::<K>(b, run, joint, &mut bordered),
+            }
+        }
+    }
+
+    /// Forward substitution with L (and the row swaps) over one run.
+    fn forward<const W: usize, const K: usize>(
+        &self,
+        b: &mut [DVec2],
+        run: &Run,
+        sums: &mut [DVec2; JOINT],
+    ) {
         if run.swaps {
-            self.forward_with::<W, true>(b, run)
+            self.forward_with::<W, true, K>(b, run, sums)
         } else {
-            self.forward_with::<W, false>(b, run)
+            self.forward_with::<W, false, K>(b, run, sums)
         }
     }
 
     /// Without swaps (`SWAPS` false, a constant) the window is only indexed
     /// by constants, so it stays in registers.
-    fn forward_with<const W: usize, const SWAPS: bool>(&self, b: &mut [DVec2], run: &Run) {
+    fn forward_with<const W: usize, const SWAPS: bool, const K: usize>(
+        &self,
+        b: &mut [DVec2],
+        run: &Run,
+        sums: &mut [DVec2; JOINT],
+    ) {
         let mut w = [DVec2::ZERO; WIDEST + 1];
         for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
             *slot = b.get(run.start + k).copied().unwrap_or(DVec2::ZERO);
         }
+        let mut sum = [DVec2::ZERO; K];
+        sum.copy_from_slice(&sums[..K]);
         let lower = &self.lower[run.offset..run.offset + W * (run.end - run.start)];
-        for (j, column) in (run.start..run.end).zip(lower.chunks_exact(W)) {
+        let rows = &self.border_row[run.start * K..run.end * K];
+        for ((j, column), row) in (run.start..run.end).zip(lower.chunks_exact(W)).zip(
+            rows.chunks_exact(K.max(1))
+                .chain(std::iter::repeat(&[][..])),
+        ) {
             let p = self.pivots[j] as usize;
             if SWAPS && p != j {
                 w.swap(0, p - j);
@@ -733,8 +766,13 @@ impl<T: Entry> BandLu<T> {
                 w[k] = w[k + 1] - column[k].apply(x);
             }
             w[W] = b.get(j + W + 1).copied().unwrap_or(DVec2::ZERO);
-            b[j] = self.inverse_diagonal[j].apply(x);
+            let y = self.inverse_diagonal[j].apply(x);
+            b[j] = y;
+            for k in 0..K {
+                sum[k] += row[k].apply(y);
+            }
         }
+        sums[..K].copy_from_slice(&sum);
         for (k, &value) in w.iter().enumerate().take(W) {
             if let Some(slot) = b.get_mut(run.end + k) {
                 *slot = value;
@@ -742,12 +780,43 @@ impl<T: Entry> BandLu<T> {
         }
     }
 
+    /// Entry `i` of `b` as the back substitution first reads it: less its
+    /// border term, unless taken off already (from `bordered` on).
+    #[inline(always)]
+    fn entering<const K: usize>(
+        &self,
+        b: &[DVec2],
+        i: usize,
+        joint: &[DVec2; JOINT],
+        bordered: usize,
+    ) -> DVec2 {
+        let mut value = b[i];
+        if K > 0 && i < bordered {
+            let col = &self.border_col[i * K..(i + 1) * K];
+            for k in 0..K {
+                value -= col[k].apply(joint[k]);
+            }
+        }
+        value
+    }
+
     /// Back substitution with the row-scaled U over one run.
-    fn backward<const W: usize>(&self, b: &mut [DVec2], run: &Run) {
+    fn backward<const W: usize, const K: usize>(
+        &self,
+        b: &mut [DVec2],
+        run: &Run,
+        joint: &[DVec2; JOINT],
+        bordered: &mut usize,
+    ) {
         let mut w = [DVec2::ZERO; WIDEST + 1];
         let last = run.end - 1;
+        let from = *bordered;
         for (k, slot) in w.iter_mut().enumerate().take(W + 1) {
-            *slot = if k <= last { b[last - k] } else { DVec2::ZERO };
+            *slot = if k <= last {
+                self.entering::<K>(b, last - k, joint, from)
+            } else {
+                DVec2::ZERO
+            };
         }
         let upper = &self.upper[run.offset..run.offset + W * (run.end - run.start)];
         for (j, column) in (run.start..run.end).zip(upper.chunks_exact(W)).rev() {
@@ -755,7 +824,11 @@ impl<T: Entry> BandLu<T> {
             for k in 0..W {
                 w[k] = w[k + 1] - column[k].apply(x);
             }
-            w[W] = if j > W { b[j - W - 1] } else { DVec2::ZERO };
+            w[W] = if j > W {
+                self.entering::<K>(b, j - W - 1, joint, from)
+            } else {
+                DVec2::ZERO
+            };
             b[j] = x;
         }
         for (k, &value) in w.iter().enumerate().take(W) {
@@ -763,10 +836,13 @@ impl<T: Entry> BandLu<T> {
                 b[run.start - 1 - k] = value;
             }
         }
+        // The window went back to the W entries below the run; the one
+        // read after them was dropped as read.
+        *bordered = run.start.saturating_sub(W);
     }
 
     /// Forward substitution through memory, for a run wider than [`WIDEST`].
-    fn forward_wide(&self, b: &mut [DVec2], run: &Run) {
+    fn forward_wide<const K: usize>(&self, b: &mut [DVec2], run: &Run, sums: &mut [DVec2; JOINT]) {
         let width = run.width;
         let lower = &self.lower[run.offset..run.offset + width * (run.end - run.start)];
         for (j, column) in (run.start..run.end).zip(lower.chunks_exact(width)) {
@@ -778,12 +854,27 @@ impl<T: Entry> BandLu<T> {
             for (out, factor) in b[j + 1..].iter_mut().zip(column) {
                 *out -= factor.apply(x);
             }
-            b[j] = self.inverse_diagonal[j].apply(x);
+            let y = self.inverse_diagonal[j].apply(x);
+            b[j] = y;
+            for k in 0..K {
+                sums[k] += self.border_row[j * K + k].apply(y);
+            }
         }
     }
 
-    /// Back substitution through memory, for a run wider than [`WIDEST`].
-    fn backward_wide(&self, b: &mut [DVec2], run: &Run) {
+    /// Back substitution through memory, for a run wider than [`WIDEST`]:
+    /// its entries lose their border terms first.
+    fn backward_wide<const K: usize>(
+        &self,
+        b: &mut [DVec2],
+        run: &Run,
+        joint: &[DVec2; JOINT],
+        bordered: &mut usize,
+    ) {
+        for i in run.start..run.end.min(*bordered) {
+            b[i] = self.entering::<K>(b, i, joint, *bordered);
+        }
+        *bordered = run.start;
         let width = run.width;
         let upper = &self.upper[run.offset..run.offset + width * (run.end - run.start)];
         for (j, column) in (run.start..run.end).zip(upper.chunks_exact(width)).rev() {
@@ -1008,15 +1099,8 @@ impl<T: Entry> Split<T> {
         let (right, joint) = rest.split_at_mut(self.arms[1].n);
         let mut parts = [left, right];
         for (a, (arm, part)) in self.arms.iter().zip(parts.iter_mut()).enumerate() {
-            arm.forward_all(part);
             let mut sums = [DVec2::ZERO; JOINT];
-            match self.border_count[a] {
-                0 => {}
-                1 => border_sums::<T, 1>(&arm.border_row, part, &mut sums),
-                2 => border_sums::<T, 2>(&arm.border_row, part, &mut sums),
-                3 => border_sums::<T, 3>(&arm.border_row, part, &mut sums),
-                _ => border_sums::<T, JOINT>(&arm.border_row, part, &mut sums),
-            }
+            arm.forward_all(part, &mut sums);
             for (&k, sum) in self.bordered[a][..self.border_count[a]].iter().zip(sums) {
                 joint[k] -= sum;
             }
@@ -1043,36 +1127,7 @@ impl<T: Entry> Split<T> {
             for (x, &k) in x.iter_mut().zip(&self.bordered[a][..self.border_count[a]]) {
                 *x = joint[k];
             }
-            match self.border_count[a] {
-                0 => {}
-                1 => border_terms::<T, 1>(&arm.border_col, part, &x),
-                2 => border_terms::<T, 2>(&arm.border_col, part, &x),
-                3 => border_terms::<T, 3>(&arm.border_col, part, &x),
-                _ => border_terms::<T, JOINT>(&arm.border_col, part, &x),
-            }
-            arm.backward_all(part);
-        }
-    }
-}
-
-/// `Σⱼ rowⱼ · xⱼ` over an arm's columns, for a border `K` wide: what the
-/// arm's forward sweep takes off the joint's right-hand side.
-fn border_sums<T: Entry, const K: usize>(rows: &[T], x: &[DVec2], sums: &mut [DVec2; JOINT]) {
-    let mut acc = [DVec2::ZERO; K];
-    for (row, &x) in rows.chunks_exact(K).zip(x) {
-        for k in 0..K {
-            acc[k] += row[k].apply(x);
-        }
-    }
-    sums[..K].copy_from_slice(&acc);
-}
-
-/// `xⱼ −= colⱼ · joint` over an arm's rows, for a border `K` wide: the
-/// joint's part of the back substitution.
-fn border_terms<T: Entry, const K: usize>(cols: &[T], x: &mut [DVec2], joint: &[DVec2; JOINT]) {
-    for (col, x) in cols.chunks_exact(K).zip(x) {
-        for k in 0..K {
-            *x -= col[k].apply(joint[k]);
+            arm.backward_all(part, &x);
         }
     }
 }
@@ -2487,6 +2542,13 @@ mod tests {
         }
     }
 
+    fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| p.distance(*q))
+            .fold(0.0, f64::max)
+    }
+
     /// A wavy curve that is not at rest: every point has moved, so the
     /// held points pull on the free ones.
     fn posed_wave(n: usize) -> Curve {
@@ -2551,12 +2613,27 @@ mod tests {
             fresh.set_pose(&pose).unwrap();
             fresh.compile_within(&anchors, free.clone()).unwrap();
             assert_eq!(fresh.grew, 0);
+            // And the one banded system along the curve, which solves the
+            // same problem in another order.
+            let mut natural = Curve::register(curve.rest()).unwrap();
+            natural.set_pose(&pose).unwrap();
+            natural.compile_with(&anchors, free.clone(), false).unwrap();
+            assert_eq!(natural.layout, Layout::Natural);
             for steps in [Steps::ScaleFree, Steps::Both] {
                 let want = fresh.update(&targets, steps).unwrap().to_vec();
+                let along = natural.update(&targets, steps).unwrap();
+                let off = max_distance(along, &want);
+                // Rounding differs between the orders, amplified by the
+                // conditioning: a free end's bending stiffness falls with
+                // the cube of its length (the whole curve here has two
+                // handles near its middle).
+                let tolerance = if free == (0..=n - 1) { 1e-4 } else { 1e-7 };
+                assert!(
+                    off < tolerance,
+                    "{free:?} {steps:?}: split off natural by {off}"
+                );
                 let got = curve.update(&targets, steps).unwrap();
-                for (g, w) in got.iter().zip(&want) {
-                    worst = worst.max(g.distance(*w));
-                }
+                worst = worst.max(max_distance(got, &want));
             }
         }
         worst
