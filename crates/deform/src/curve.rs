@@ -856,8 +856,8 @@ impl<T: Entry> BandLu<T> {
             }
             let y = self.inverse_diagonal[j].apply(x);
             b[j] = y;
-            for k in 0..K {
-                sums[k] += self.border_row[j * K + k].apply(y);
+            for (sum, r) in sums.iter_mut().zip(&self.border_row[j * K..(j + 1) * K]) {
+                *sum += r.apply(y);
             }
         }
     }
