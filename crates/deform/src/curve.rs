@@ -259,21 +259,19 @@ struct Run {
 const SHORTEST_RUN: usize = 32;
 
 /// Splits columns `from..` of the given widths (and whether each swaps a
-/// row) into runs after `runs` (which end at `from`): a new run starts at
-/// `from` and where either changes, unless the current run is still short
-/// (then it widens to take the column).
+/// row) into runs after `runs` (which end at `from`): a new run starts
+/// where either changes, unless the current run is still short (then it
+/// widens to take the column).
 fn runs_of(from: usize, columns: impl Iterator<Item = (usize, bool)>, runs: &mut Vec<Run>) {
     let first = runs.len();
-    let mut offset = runs
-        .last()
-        .map_or(0, |r| r.offset + r.width * (r.end - r.start));
     for (j, (width, swaps)) in (from..).zip(columns) {
+        // A run packed before (cut back by a growth) only takes columns
+        // like its own: a wider one would change its packing.
         let own = runs.len() > first;
         match runs.last_mut() {
             Some(run)
-                if own
-                    && (run.end - run.start < SHORTEST_RUN
-                        || (run.width == width && run.swaps == swaps)) =>
+                if (run.width == width && run.swaps == swaps)
+                    || (own && run.end - run.start < SHORTEST_RUN) =>
             {
                 run.width = run.width.max(width);
                 run.swaps |= swaps;
@@ -288,6 +286,9 @@ fn runs_of(from: usize, columns: impl Iterator<Item = (usize, bool)>, runs: &mut
             }),
         }
     }
+    let mut offset = first.checked_sub(1).map_or(0, |i| {
+        runs[i].offset + runs[i].width * (runs[i].end - runs[i].start)
+    });
     for run in &mut runs[first..] {
         run.offset = offset;
         offset += run.width * (run.end - run.start);
@@ -618,8 +619,9 @@ impl<T: Entry> BandLu<T> {
         let mut upper = std::mem::take(&mut self.upper);
         lower.truncate(lower_len);
         upper.truncate(upper_len);
-        for run in &lower_runs[first_lower..] {
-            for j in run.start..run.end {
+        // From the run a growth cut back, which may have taken columns.
+        for run in &lower_runs[first_lower.saturating_sub(1)..] {
+            for j in run.start.max(from)..run.end {
                 let c = column(j);
                 for k in 1..=run.width {
                     lower.push(if j + k < n && k <= kl {
@@ -630,8 +632,8 @@ impl<T: Entry> BandLu<T> {
                 }
             }
         }
-        for run in &upper_runs[first_upper..] {
-            for j in run.start..run.end {
+        for run in &upper_runs[first_upper.saturating_sub(1)..] {
+            for j in run.start.max(from)..run.end {
                 let c = column(j);
                 // U's rows are scaled by their diagonal's reciprocal (D⁻¹U
                 // has a unit diagonal), so the back substitution's chain
