@@ -958,9 +958,12 @@ enum Place {
 impl<T: Entry> Split<T> {
     /// Zeroes arms of the given sizes and bandwidths and a joint of
     /// `joint` unknowns.
+    /// Each arm's storage is reserved for `capacity[arm]` unknowns, as
+    /// far as the region may grow, so growing never moves it.
     fn reset(
         &mut self,
         sizes: [usize; 2],
+        capacity: [usize; 2],
         widths: [usize; 2],
         joint: usize,
         links: [[bool; JOINT]; 2],
@@ -973,7 +976,18 @@ impl<T: Entry> Split<T> {
                 count += 1;
             }
             self.border_count[a] = count;
-            self.arms[a].reset_bordered(sizes[a], widths[a], widths[a], count, true);
+            let arm = &mut self.arms[a];
+            arm.reset_bordered(sizes[a], widths[a], widths[a], count, true);
+            let more = capacity[a].saturating_sub(sizes[a]);
+            arm.band.reserve(more * arm.stride());
+            arm.border_row.reserve(more * count);
+            arm.border_col.reserve(more * count);
+            for factor in [&mut arm.lower, &mut arm.upper] {
+                factor.reserve(capacity[a] * (widths[a] + 1));
+            }
+            arm.pivots.reserve(more);
+            arm.inverse_diagonal.reserve(more);
+            arm.widths.reserve(more);
         }
         self.joint = joint;
         self.block = Default::default();
@@ -1788,6 +1802,7 @@ impl Curve {
         lo: usize,
         hi: usize,
     ) -> bool {
+        let n = self.len();
         let free_of = |c: &Constraint| {
             [0, 1].map(|k| c.weights[k] != 0.0 && (lo..=hi).contains(&c.points[k]))
         };
@@ -1933,8 +1948,19 @@ impl Curve {
         }
         if !factored {
             for threshold in [PIVOT_THRESHOLD, 1.0] {
-                self.split1.reset(sizes, widths[0], joint, links[0]);
-                self.split2.reset(sizes, widths[1], joint, links[1]);
+                // The arms reach at most the curve's ends.
+                let handles = constraints.len();
+                let capacity = [j0 + handles, n - j1 + handles];
+                self.split1
+                    .reset(sizes, capacity, widths[0], joint, links[0]);
+                self.split2
+                    .reset(sizes, capacity, widths[1], joint, links[1]);
+                let all = n + handles;
+                for v in [&mut self.step1_base, &mut self.step2_base, &mut self.rhs] {
+                    v.reserve(all.saturating_sub(v.len()));
+                }
+                self.point_slot
+                    .reserve(n.saturating_sub(self.point_slot.len()));
                 self.assemble_split(None);
                 factored = self.split1.factor(threshold) && self.split2.factor(threshold);
                 if factored {
