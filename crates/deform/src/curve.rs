@@ -21,6 +21,10 @@
 //! the system banded: compile factors it by banded LU with partial pivoting
 //! (the KKT matrix is indefinite) in O(n), an update is two banded solves
 //! (complex for step 1; real for step 2, whose x and y share the matrix).
+//! A free interval is numbered instead outward from its first handle, in
+//! two arms joined there (`Split`), so that a peel's region growing at
+//! its ends appends to the arms' eliminations: a region change factors only
+//! the growth.
 //!
 //! Phases: [`Curve::register`] (rest curve: validation, local frames),
 //! [`Curve::compile`] / [`Curve::compile_within`] (handle set or free
@@ -1582,7 +1586,7 @@ impl Curve {
     /// A free interval that grew at its ends since the last call, with the
     /// same handles (a peel's region), costs in proportion to the growth:
     /// the systems are split at the first handle into two arms numbered
-    /// outward from it (see [`Split`]), whose factors are extended.
+    /// outward from it (`Split`), whose factors are extended.
     pub fn compile_within(
         &mut self,
         anchors: &[CurveAnchor],
