@@ -617,6 +617,16 @@ fn updates_do_not_allocate() {
         peel.drag(&curve, frame as f64).unwrap();
     }
     assert_eq!(alloc::stop(), 0, "update or drag allocated");
+    // A free interval (split at its handle into two arms and a joint),
+    // grown once.
+    curve.compile_within(&anchors[1..2], 200..=300).unwrap();
+    curve.compile_within(&anchors[1..2], 180..=330).unwrap();
+    alloc::start();
+    for _ in 0..20 {
+        targets[1].y += 0.3;
+        curve.update(&targets[1..2], Steps::Both).unwrap();
+    }
+    assert_eq!(alloc::stop(), 0, "a free interval's update allocated");
     alloc::start();
     curve.compile(&anchors[..2]).unwrap();
     assert!(alloc::stop() > 0, "the counter counts");
