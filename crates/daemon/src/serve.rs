@@ -96,6 +96,13 @@ impl Running {
         play_into(source, pacing, &self.commands, self.started).await;
     }
 
+    /// Feeds the stage the frames sent into `frames`, each stamped as it
+    /// arrives, as an input device's reader does; finishes when every
+    /// sender is gone. Returns the frames fed.
+    pub async fn feed(&self, frames: mpsc::Receiver<ContactFrame>) -> usize {
+        forward(frames, &self.commands, self.started).await
+    }
+
     /// Stops accepting, ends the inputs and the stage thread, and waits.
     pub async fn shutdown(self) {
         if let Some(osc) = &self.osc {

@@ -431,9 +431,23 @@ pub async fn end_to_end(
     let playing = std::time::Instant::now();
     let running = daemon_runtime
         .spawn(async move {
-            running
-                .play(ReplaySource::from_frames(frames), pacing)
-                .await;
+            match pacing {
+                // In real time the frames come from a thread of their own
+                // that sleeps to each frame's time, as a device's events
+                // come when they happen: a replay's tokio timer ticks in
+                // whole milliseconds and would hand over two frames at once.
+                Pacing::RealTime => {
+                    let (sender, frames_rx) = tokio::sync::mpsc::channel(64);
+                    let feeder = std::thread::spawn(move || feed_in_real_time(frames, &sender));
+                    running.feed(frames_rx).await;
+                    let _ = feeder.join();
+                }
+                Pacing::AsFastAsPossible => {
+                    running
+                        .play(ReplaySource::from_frames(frames), pacing)
+                        .await;
+                }
+            }
             running
         })
         .await
@@ -507,6 +521,25 @@ pub async fn end_to_end(
         stage_busy: stage_ns / 1e9 / played.max(1e-9),
         stage_cpu: stage_cpu / played.max(1e-9),
     })
+}
+
+/// Sends each of `frames` when its time (from the first) has come, sleeping
+/// the thread in between (to within the kernel's timer slack, about 50 µs).
+fn feed_in_real_time(
+    frames: Vec<puppetry_input::ContactFrame>,
+    sender: &tokio::sync::mpsc::Sender<puppetry_input::ContactFrame>,
+) {
+    let start = std::time::Instant::now();
+    let first = frames.first().map_or(0.0, |f| f.time);
+    for frame in frames {
+        let due = start + Duration::from_secs_f64((frame.time - first).max(0.0));
+        if let Some(wait) = due.checked_duration_since(std::time::Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        if sender.blocking_send(frame).is_err() {
+            return;
+        }
+    }
 }
 
 /// The grid the rig cases use (the paper's size).
