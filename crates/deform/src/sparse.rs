@@ -90,18 +90,7 @@ impl Structure {
     /// non-zero only at `nonzeros`: their paths to the root of the
     /// elimination tree, in increasing order.
     fn reach(&self, nonzeros: impl Iterator<Item = usize>) -> Vec<u32> {
-        let mut seen = vec![false; self.parent.len()];
-        let mut columns = Vec::new();
-        for mut j in nonzeros.map(|j| j as u32) {
-            // Paths merge: stop at the first column already on one.
-            while j != u32::MAX && !seen[j as usize] {
-                seen[j as usize] = true;
-                columns.push(j);
-                j = self.parent[j as usize];
-            }
-        }
-        columns.sort_unstable();
-        columns
+        paths_to_root(&self.parent, nonzeros.map(|j| j as u32))
     }
 
     /// The invariant the unchecked solves rely on.
@@ -434,18 +423,7 @@ impl Supernodes {
     /// The supernodes a forward solve touches when the right-hand side is
     /// non-zero only in the given columns, in increasing order.
     fn reach(&self, nonzeros: impl Iterator<Item = usize>) -> Vec<u32> {
-        let mut seen = vec![false; self.count()];
-        let mut out = Vec::new();
-        for j in nonzeros {
-            let mut s = self.home[j];
-            while s != u32::MAX && !seen[s as usize] {
-                seen[s as usize] = true;
-                out.push(s);
-                s = self.parent[s as usize];
-            }
-        }
-        out.sort_unstable();
-        out
+        paths_to_root(&self.parent, nonzeros.map(|j| self.home[j]))
     }
 
     /// `x ← L⁻¹ x` over the supernodes `which` (increasing).
@@ -998,6 +976,25 @@ impl ComplexCholesky {
             &complex_upper,
         );
     }
+}
+
+/// The nodes on the paths from `starts` to the root of the tree `parent`
+/// (`u32::MAX` above the root), each once, in increasing order: the
+/// columns or supernodes a sparse right-hand side reaches in a forward
+/// solve.
+fn paths_to_root(parent: &[u32], starts: impl Iterator<Item = u32>) -> Vec<u32> {
+    let mut seen = vec![false; parent.len()];
+    let mut nodes = Vec::new();
+    for mut node in starts {
+        // Paths merge: stop at the first node already on one.
+        while node != u32::MAX && !seen[node as usize] {
+            seen[node as usize] = true;
+            nodes.push(node);
+            node = parent[node as usize];
+        }
+    }
+    nodes.sort_unstable();
+    nodes
 }
 
 #[cfg(test)]
