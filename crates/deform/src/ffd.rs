@@ -342,6 +342,7 @@ pub struct LpFfd {
     rest_grid: Vec<DVec2>,
     blend: Blend,
     edges: Vec<Edge>,
+    rings: Rings,
     /// `WᵀLW`, row-major K×K.
     locality_matrix: Vec<f64>,
     /// Two vertex handles closer than this in rest space are one handle.
@@ -354,10 +355,11 @@ pub struct LpFfd {
     /// (grid handle, index into the caller's grid targets).
     grid_handles: Vec<(usize, usize)>,
     grid_target_count: usize,
-    /// Cholesky factor `L` of the global matrix, row-major lower K×K, and
-    /// the reciprocals of its diagonal.
-    factor: Vec<f64>,
-    factor_inverse_diagonal: Vec<f64>,
+    /// The inverse of the global matrix, row-major K×K (symmetric): a
+    /// frame's solve is one dense product, four rows at a time in SIMD
+    /// lanes, instead of two triangular solves whose rows wait on each
+    /// other.
+    inverse: Vec<f64>,
     // State: Δ, P' = P⁰ + Δ, V = V̄ + WΔ.
     displacement: Vec<DVec2>,
     grid: Vec<DVec2>,
@@ -365,6 +367,9 @@ pub struct LpFfd {
     // Frame scratch.
     fixed_rhs: Vec<DVec2>,
     rhs: Vec<DVec2>,
+    /// `rhs` by coordinate, for the dense solve.
+    rhs_x: Vec<f64>,
+    rhs_y: Vec<f64>,
     /// Per vertex: one-ring fit sums, then unit rotations (cos, sin).
     rotations: Vec<DVec2>,
     /// Per vertex: `2λ_ml b̃`.
@@ -404,19 +409,21 @@ impl LpFfd {
             rest_grid: grid.rest_handles(),
             blend,
             edges: Vec::new(),
+            rings: Rings::default(),
             locality_matrix: Vec::new(),
             vertex_handles: Vec::new(),
             vertex_rows: Vec::new(),
             vertex_target_count: 0,
             grid_handles: Vec::new(),
             grid_target_count: 0,
-            factor: Vec::new(),
-            factor_inverse_diagonal: Vec::new(),
+            inverse: Vec::new(),
             displacement: vec![DVec2::ZERO; k],
             grid: grid.rest_handles(),
             pose: rest.clone(),
             fixed_rhs: vec![DVec2::ZERO; k],
             rhs: vec![DVec2::ZERO; k],
+            rhs_x: vec![0.0; k],
+            rhs_y: vec![0.0; k],
             rotations: vec![DVec2::ZERO; rest.len()],
             vertex_rhs: vec![DVec2::ZERO; rest.len()],
             scratch,
@@ -481,10 +488,12 @@ impl LpFfd {
         }
         // Rebuild aside, so a failure leaves the rig as it was.
         let old_edges = std::mem::take(&mut self.edges);
+        let old_rings = std::mem::take(&mut self.rings);
         let old_locality = std::mem::take(&mut self.locality_matrix);
         self.set_edges(weights);
         if let Err(e) = self.refactor() {
             self.edges = old_edges;
+            self.rings = old_rings;
             self.locality_matrix = old_locality;
             return Err(e);
         }
@@ -505,14 +514,13 @@ impl LpFfd {
         let dragged = self.resolve_grid_handles(grid_handles)?;
         // Factor before committing, so a failure leaves the rig as it was.
         let matrix = self.global_matrix(self.params.locality, &rows, &dragged);
-        let (factor, inverse_diagonal) = cholesky(matrix, self.handle_count())?;
+        let inverse = spd_inverse(matrix, self.handle_count())?;
         self.vertex_handles = handles;
         self.vertex_rows = rows;
         self.vertex_target_count = vertex_handles.len();
         self.grid_handles = dragged;
         self.grid_target_count = grid_handles.len();
-        self.factor = factor;
-        self.factor_inverse_diagonal = inverse_diagonal;
+        self.inverse = inverse;
         Ok(())
     }
 
@@ -538,12 +546,15 @@ impl LpFfd {
                     &mut self.rhs,
                 );
             }
-            self.displacement.copy_from_slice(&self.rhs);
-            solve_in_place(
-                &self.factor,
-                &self.factor_inverse_diagonal,
-                &mut self.displacement,
-            );
+            for ((x, y), r) in self.rhs_x.iter_mut().zip(&mut self.rhs_y).zip(&self.rhs) {
+                (*x, *y) = (r.x, r.y);
+            }
+            pulp::Arch::new().dispatch(DenseProduct {
+                matrix: &self.inverse,
+                x: &self.rhs_x,
+                y: &self.rhs_y,
+                out: &mut self.displacement,
+            });
             apply(
                 &self.blend,
                 &mut self.scratch,
@@ -743,6 +754,7 @@ impl LpFfd {
             .collect();
         // Sweep order follows the vertex order, for the caches.
         edges.sort_unstable_by_key(|e| (e.i, e.j));
+        self.rings = Rings::new(self.rest.len(), &edges);
         self.edges = edges;
         self.locality_matrix = locality_matrix(&self.blend, &self.edges, self.handle_count());
     }
@@ -752,9 +764,7 @@ impl LpFfd {
         let k = self.handle_count();
         let matrix =
             self.global_matrix(self.params.locality, &self.vertex_rows, &self.grid_handles);
-        let (factor, inverse_diagonal) = cholesky(matrix, k)?;
-        self.factor = factor;
-        self.factor_inverse_diagonal = inverse_diagonal;
+        self.inverse = spd_inverse(matrix, k)?;
         Ok(())
     }
 
@@ -958,30 +968,195 @@ impl LpFfd {
 
     /// Local step and the locality right-hand side: per-vertex best-fit
     /// rotations of the one-ring edges (Sorkine–Alexa), then
-    /// `2λ_ml b̃` into `vertex_rhs`.
+    /// `2λ_ml b̃` into `vertex_rhs`. Both sweeps run over four vertices at a
+    /// time in SIMD lanes, each lane walking its vertex's one-ring (see
+    /// [`Rings`]) with the sums in registers; the edge-by-edge sweep it
+    /// replaces scattered into both ends of every edge.
     fn local_step(&mut self) {
-        let pose = &self.pose;
-        let fits = &mut self.rotations;
-        fits.fill(DVec2::ZERO);
-        for e in &self.edges {
-            let now = pose[e.i as usize] - pose[e.j as usize];
-            // The same sum (ē·e, ē×e) serves both ends: both vectors flip.
-            let q = DVec2::new(e.rest.dot(now), e.rest.perp_dot(now)) * e.weight;
-            fits[e.i as usize] += q;
-            fits[e.j as usize] += q;
-        }
+        pulp::Arch::new().dispatch(FitKernel {
+            rings: &self.rings,
+            pose: &self.pose,
+            rotations: &mut self.rotations,
+        });
         // A loop of its own, so the square roots run in SIMD lanes.
-        pulp::Arch::new().dispatch(crate::lanes::Normalise(fits));
-        let b = &mut self.vertex_rhs;
-        b.fill(DVec2::ZERO);
-        let scale = self.params.locality;
-        for e in &self.edges {
-            let (ri, rj) = (fits[e.i as usize], fits[e.j as usize]);
-            // 2λ_ml · (w/2)((Rᵢ − I) + (Rⱼ − I))ē, exactly zero at rest.
-            let y =
-                ((ri.rotate(e.rest) - e.rest) + (rj.rotate(e.rest) - e.rest)) * (scale * e.weight);
-            b[e.i as usize] += y;
-            b[e.j as usize] -= y;
+        pulp::Arch::new().dispatch(crate::lanes::Normalise(&mut self.rotations));
+        pulp::Arch::new().dispatch(TurnKernel {
+            rings: &self.rings,
+            rotations: &self.rotations,
+            scale: self.params.locality,
+            out: &mut self.vertex_rhs,
+        });
+    }
+}
+
+/// The mesh's one-rings for the local step, four vertices (one per SIMD
+/// lane) per block: block b's neighbour slots are `start[b]..start[b + 1]`,
+/// slot s holding for each lane a neighbour j and `w_ij ē_ij` (`ē_ij =
+/// v̄ᵢ − v̄ⱼ`), split by coordinate. A block has as many slots as its
+/// busiest vertex has neighbours; the others are padded with their own
+/// index and a zero weight (a zero term). `sum` holds `hᵢ = Σ_j w_ij ē_ij`
+/// per lane. Padding lanes past the last vertex point at vertex 0.
+#[derive(Debug, Clone, Default)]
+struct Rings {
+    n: usize,
+    start: Vec<u32>,
+    vertex: Vec<[u32; LANES]>,
+    wx: Vec<[f64; LANES]>,
+    wy: Vec<[f64; LANES]>,
+    hx: Vec<[f64; LANES]>,
+    hy: Vec<[f64; LANES]>,
+}
+
+impl Rings {
+    fn new(n: usize, edges: &[Edge]) -> Rings {
+        let mut ring: Vec<Vec<(u32, DVec2)>> = vec![Vec::new(); n];
+        for e in edges {
+            ring[e.i as usize].push((e.j, e.rest * e.weight));
+            ring[e.j as usize].push((e.i, -e.rest * e.weight));
+        }
+        for r in &mut ring {
+            r.sort_unstable_by_key(|&(j, _)| j);
+        }
+        let blocks = n.div_ceil(LANES);
+        let mut out = Rings {
+            n,
+            start: Vec::with_capacity(blocks + 1),
+            ..Rings::default()
+        };
+        out.start.push(0);
+        for b in 0..blocks {
+            let lanes = |l: usize| b * LANES + l;
+            let width = (0..LANES)
+                .filter(|&l| lanes(l) < n)
+                .map(|l| ring[lanes(l)].len())
+                .max()
+                .unwrap_or(0);
+            for slot in 0..width {
+                let entry = |l: usize| {
+                    let v = lanes(l);
+                    match ring.get(v).and_then(|r| r.get(slot)) {
+                        Some(&(j, w)) => (j, w),
+                        None => ((if v < n { v } else { 0 }) as u32, DVec2::ZERO),
+                    }
+                };
+                out.vertex.push(std::array::from_fn(|l| entry(l).0));
+                out.wx.push(std::array::from_fn(|l| entry(l).1.x));
+                out.wy.push(std::array::from_fn(|l| entry(l).1.y));
+            }
+            out.start.push(out.vertex.len() as u32);
+            let h = |l: usize| -> DVec2 {
+                ring.get(lanes(l))
+                    .map_or(DVec2::ZERO, |r| r.iter().map(|&(_, w)| w).sum())
+            };
+            out.hx.push(std::array::from_fn(|l| h(l).x));
+            out.hy.push(std::array::from_fn(|l| h(l).y));
+        }
+        out
+    }
+}
+
+/// Per vertex, the one-ring fit `Σ_j w_ij (ē_ij·e_ij, ē_ij×e_ij)` (e the
+/// deformed edge), normalised to a rotation (cos, sin) as
+/// [`crate::lanes::Normalise`] does.
+struct FitKernel<'a> {
+    rings: &'a Rings,
+    pose: &'a [DVec2],
+    rotations: &'a mut [DVec2],
+}
+
+impl pulp::WithSimd for FitKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Rings {
+            n,
+            ref start,
+            ref vertex,
+            ref wx,
+            ref wy,
+            ..
+        } = *self.rings;
+        let pose = &self.pose[..n];
+        for (b, range) in start.windows(2).enumerate() {
+            let at = b * LANES;
+            let own: [DVec2; LANES] = std::array::from_fn(|l| pose[(at + l).min(n - 1)]);
+            let (mut d, mut c) = ([0.0; LANES], [0.0; LANES]);
+            let slots = range[0] as usize..range[1] as usize;
+            for ((j, ax), ay) in vertex[slots.clone()]
+                .iter()
+                .zip(&wx[slots.clone()])
+                .zip(&wy[slots])
+            {
+                // SAFETY: `Rings::new` only stores vertex indices below n.
+                let other: [DVec2; LANES] =
+                    std::array::from_fn(|l| unsafe { *pose.get_unchecked(j[l] as usize) });
+                for l in 0..LANES {
+                    let (ex, ey) = (own[l].x - other[l].x, own[l].y - other[l].y);
+                    d[l] += ax[l] * ex + ay[l] * ey;
+                    c[l] += ax[l] * ey - ay[l] * ex;
+                }
+            }
+            for l in 0..LANES.min(n - at) {
+                self.rotations[at + l] = DVec2::new(d[l], c[l]);
+            }
+        }
+    }
+}
+
+/// Per vertex, `2λ_ml b̃ᵢ = λ_ml Σ_j w_ij ((Rᵢ − I) + (Rⱼ − I)) ē_ij =
+/// λ_ml (Rᵢhᵢ − 2hᵢ + Σ_j Rⱼ w_ij ē_ij)`.
+struct TurnKernel<'a> {
+    rings: &'a Rings,
+    rotations: &'a [DVec2],
+    scale: f64,
+    out: &'a mut [DVec2],
+}
+
+impl pulp::WithSimd for TurnKernel<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Rings {
+            n,
+            ref start,
+            ref vertex,
+            ref wx,
+            ref wy,
+            ref hx,
+            ref hy,
+        } = *self.rings;
+        let rotations = &self.rotations[..n];
+        for (b, range) in start.windows(2).enumerate() {
+            let at = b * LANES;
+            let (mut tx, mut ty) = ([0.0; LANES], [0.0; LANES]);
+            let slots = range[0] as usize..range[1] as usize;
+            for ((j, ax), ay) in vertex[slots.clone()]
+                .iter()
+                .zip(&wx[slots.clone()])
+                .zip(&wy[slots])
+            {
+                // SAFETY: `Rings::new` only stores vertex indices below n.
+                let r: [DVec2; LANES] =
+                    std::array::from_fn(|l| unsafe { *rotations.get_unchecked(j[l] as usize) });
+                for l in 0..LANES {
+                    tx[l] += r[l].x * ax[l] - r[l].y * ay[l];
+                    ty[l] += r[l].y * ax[l] + r[l].x * ay[l];
+                }
+            }
+            let own: [DVec2; LANES] = std::array::from_fn(|l| rotations[(at + l).min(n - 1)]);
+            let (hx, hy) = (&hx[b], &hy[b]);
+            let (mut bx, mut by) = ([0.0; LANES], [0.0; LANES]);
+            for l in 0..LANES {
+                let turned_x = own[l].x * hx[l] - own[l].y * hy[l];
+                let turned_y = own[l].y * hx[l] + own[l].x * hy[l];
+                bx[l] = ((turned_x - 2.0 * hx[l]) + tx[l]) * self.scale;
+                by[l] = ((turned_y - 2.0 * hy[l]) + ty[l]) * self.scale;
+            }
+            for l in 0..LANES.min(n - at) {
+                self.out[at + l] = DVec2::new(bx[l], by[l]);
+            }
         }
     }
 }
@@ -1224,6 +1399,87 @@ fn cholesky(matrix: Vec<f64>, k: usize) -> Result<(Vec<f64>, Vec<f64>), FfdError
         }
     }
     Ok((factor, inverse_diagonal))
+}
+
+/// The inverse of a symmetric positive definite row-major K×K matrix, by
+/// its Cholesky factor (row-major, both triangles).
+fn spd_inverse(matrix: Vec<f64>, k: usize) -> Result<Vec<f64>, FfdError> {
+    let (factor, _) = cholesky(matrix, k)?;
+    let lower = Mat::<f64>::from_fn(k, k, |i, j| if j <= i { factor[i * k + j] } else { 0.0 });
+    let mut memory =
+        MemBuffer::new(faer::linalg::cholesky::llt::inverse::inverse_scratch::<f64>(k, Par::Seq));
+    let mut out = Mat::<f64>::zeros(k, k);
+    faer::linalg::cholesky::llt::inverse::inverse(
+        out.as_mut(),
+        lower.as_ref(),
+        Par::Seq,
+        MemStack::new(&mut memory),
+    );
+    let mut inverse = vec![0.0; k * k];
+    for i in 0..k {
+        for j in 0..=i {
+            inverse[i * k + j] = out[(i, j)];
+            inverse[j * k + i] = out[(i, j)];
+        }
+    }
+    if inverse.iter().all(|x| x.is_finite()) {
+        Ok(inverse)
+    } else {
+        Err(FfdError::NotPositiveDefinite { pivot: 0 })
+    }
+}
+
+/// `out = A (x, y)` for the row-major K×K `matrix`, four rows at a time so
+/// eight independent sums a lane hide the multiply-add latency.
+struct DenseProduct<'a> {
+    matrix: &'a [f64],
+    x: &'a [f64],
+    y: &'a [f64],
+    out: &'a mut [DVec2],
+}
+
+impl pulp::WithSimd for DenseProduct<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let k = self.x.len();
+        let (x, y) = (&self.x[..k], &self.y[..k]);
+        let body = k - k % LANES;
+        let (xb, yb) = (&x[..body], &y[..body]);
+        let lane_sum = |a: &[f64; LANES]| (a[0] + a[1]) + (a[2] + a[3]);
+        let mut i = 0;
+        while i < k {
+            let rows = (k - i).min(4);
+            let mut acc = [[[0.0; LANES]; 2]; 4];
+            let lines: [&[f64]; 4] =
+                std::array::from_fn(|q| &self.matrix[(i + q.min(rows - 1)) * k..][..k]);
+            let [l0, l1, l2, l3] = lines.map(|line| line[..body].chunks_exact(LANES));
+            for (((((xs, ys), a0), a1), a2), a3) in xb
+                .chunks_exact(LANES)
+                .zip(yb.chunks_exact(LANES))
+                .zip(l0)
+                .zip(l1)
+                .zip(l2)
+                .zip(l3)
+            {
+                for (q, a) in [a0, a1, a2, a3].into_iter().enumerate() {
+                    for l in 0..LANES {
+                        acc[q][0][l] = a[l].mul_add(xs[l], acc[q][0][l]);
+                        acc[q][1][l] = a[l].mul_add(ys[l], acc[q][1][l]);
+                    }
+                }
+            }
+            for q in 0..rows {
+                let mut sum = DVec2::new(lane_sum(&acc[q][0]), lane_sum(&acc[q][1]));
+                for j in body..k {
+                    sum += DVec2::new(x[j], y[j]) * lines[q][j];
+                }
+                self.out[i + q] = sum;
+            }
+            i += rows;
+        }
+    }
 }
 
 /// Solves `L Lᵀ x = x` in place (x and y together).
