@@ -59,6 +59,7 @@ use faer::{Accum, Mat, MatRef, Par, Spec};
 use glam::DVec2;
 
 use super::arap::Anchor;
+use crate::lanes::{LANES, Packed};
 use puppetry_mesh::json::MAX_COORDINATE;
 use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh};
 
@@ -989,20 +990,12 @@ impl LpFfd {
     }
 }
 
-/// The mesh's one-rings for the local step, four vertices (one per SIMD
-/// lane) per block: block b's neighbour slots are `start[b]..start[b + 1]`,
-/// slot s holding for each lane a neighbour j and `w_ij ē_ij` (`ē_ij =
-/// v̄ᵢ − v̄ⱼ`), split by coordinate. A block has as many slots as its
-/// busiest vertex has neighbours; the others are padded with their own
-/// index and a zero weight (a zero term). `sum` holds `hᵢ = Σ_j w_ij ē_ij`
-/// per lane. Padding lanes past the last vertex point at vertex 0.
+/// The mesh's one-rings for the local step, four vertices a block (see
+/// [`Packed`]): vertex i's neighbours j with `w_ij ē_ij` (`ē_ij = v̄ᵢ −
+/// v̄ⱼ`), and per lane `hᵢ = Σ_j w_ij ē_ij`.
 #[derive(Debug, Clone, Default)]
 struct Rings {
-    n: usize,
-    start: Vec<u32>,
-    vertex: Vec<[u32; LANES]>,
-    wx: Vec<[f64; LANES]>,
-    wy: Vec<[f64; LANES]>,
+    packed: Packed,
     hx: Vec<[f64; LANES]>,
     hy: Vec<[f64; LANES]>,
 }
@@ -1017,41 +1010,20 @@ impl Rings {
         for r in &mut ring {
             r.sort_unstable_by_key(|&(j, _)| j);
         }
-        let blocks = n.div_ceil(LANES);
-        let mut out = Rings {
-            n,
-            start: Vec::with_capacity(blocks + 1),
-            ..Rings::default()
+        let h = |v: usize| -> DVec2 {
+            ring.get(v)
+                .map_or(DVec2::ZERO, |r| r.iter().map(|&(_, w)| w).sum())
         };
-        out.start.push(0);
-        for b in 0..blocks {
-            let lanes = |l: usize| b * LANES + l;
-            let width = (0..LANES)
-                .filter(|&l| lanes(l) < n)
-                .map(|l| ring[lanes(l)].len())
-                .max()
-                .unwrap_or(0);
-            for slot in 0..width {
-                let entry = |l: usize| {
-                    let v = lanes(l);
-                    match ring.get(v).and_then(|r| r.get(slot)) {
-                        Some(&(j, w)) => (j, w),
-                        None => ((if v < n { v } else { 0 }) as u32, DVec2::ZERO),
-                    }
-                };
-                out.vertex.push(std::array::from_fn(|l| entry(l).0));
-                out.wx.push(std::array::from_fn(|l| entry(l).1.x));
-                out.wy.push(std::array::from_fn(|l| entry(l).1.y));
-            }
-            out.start.push(out.vertex.len() as u32);
-            let h = |l: usize| -> DVec2 {
-                ring.get(lanes(l))
-                    .map_or(DVec2::ZERO, |r| r.iter().map(|&(_, w)| w).sum())
-            };
-            out.hx.push(std::array::from_fn(|l| h(l).x));
-            out.hy.push(std::array::from_fn(|l| h(l).y));
+        let blocks = n.div_ceil(LANES);
+        Rings {
+            packed: Packed::new(&ring, n),
+            hx: (0..blocks)
+                .map(|b| std::array::from_fn(|l| h(b * LANES + l).x))
+                .collect(),
+            hy: (0..blocks)
+                .map(|b| std::array::from_fn(|l| h(b * LANES + l).y))
+                .collect(),
         }
-        out
     }
 }
 
@@ -1069,18 +1041,19 @@ impl pulp::WithSimd for FitKernel<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Rings {
-            n,
+        let Packed {
+            rows: n,
             ref start,
-            ref vertex,
-            ref wx,
-            ref wy,
-            ..
-        } = *self.rings;
+            index: ref vertex,
+            x: ref wx,
+            y: ref wy,
+        } = self.rings.packed;
         let pose = &self.pose[..n];
         for (b, range) in start.windows(2).enumerate() {
             let at = b * LANES;
             let own: [DVec2; LANES] = std::array::from_fn(|l| pose[(at + l).min(n - 1)]);
+            let ox: [f64; LANES] = std::array::from_fn(|l| own[l].x);
+            let oy: [f64; LANES] = std::array::from_fn(|l| own[l].y);
             let (mut d, mut c) = ([0.0; LANES], [0.0; LANES]);
             let slots = range[0] as usize..range[1] as usize;
             for ((j, ax), ay) in vertex[slots.clone()]
@@ -1088,11 +1061,15 @@ impl pulp::WithSimd for FitKernel<'_> {
                 .zip(&wx[slots.clone()])
                 .zip(&wy[slots])
             {
-                // SAFETY: `Rings::new` only stores vertex indices below n.
+                // SAFETY: `Packed::new` checked every index is below n.
                 let other: [DVec2; LANES] =
                     std::array::from_fn(|l| unsafe { *pose.get_unchecked(j[l] as usize) });
+                let (qx, qy): ([f64; LANES], [f64; LANES]) = (
+                    std::array::from_fn(|l| other[l].x),
+                    std::array::from_fn(|l| other[l].y),
+                );
                 for l in 0..LANES {
-                    let (ex, ey) = (own[l].x - other[l].x, own[l].y - other[l].y);
+                    let (ex, ey) = (ox[l] - qx[l], oy[l] - qy[l]);
                     d[l] += ax[l] * ex + ay[l] * ey;
                     c[l] += ax[l] * ey - ay[l] * ex;
                 }
@@ -1118,15 +1095,14 @@ impl pulp::WithSimd for TurnKernel<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Rings {
-            n,
+        let Packed {
+            rows: n,
             ref start,
-            ref vertex,
-            ref wx,
-            ref wy,
-            ref hx,
-            ref hy,
-        } = *self.rings;
+            index: ref vertex,
+            x: ref wx,
+            y: ref wy,
+        } = self.rings.packed;
+        let (hx, hy) = (&self.rings.hx, &self.rings.hy);
         let rotations = &self.rotations[..n];
         for (b, range) in start.windows(2).enumerate() {
             let at = b * LANES;
@@ -1137,12 +1113,14 @@ impl pulp::WithSimd for TurnKernel<'_> {
                 .zip(&wx[slots.clone()])
                 .zip(&wy[slots])
             {
-                // SAFETY: `Rings::new` only stores vertex indices below n.
+                // SAFETY: `Packed::new` checked every index is below n.
                 let r: [DVec2; LANES] =
                     std::array::from_fn(|l| unsafe { *rotations.get_unchecked(j[l] as usize) });
+                let rx: [f64; LANES] = std::array::from_fn(|l| r[l].x);
+                let ry: [f64; LANES] = std::array::from_fn(|l| r[l].y);
                 for l in 0..LANES {
-                    tx[l] += r[l].x * ax[l] - r[l].y * ay[l];
-                    ty[l] += r[l].y * ax[l] + r[l].x * ay[l];
+                    tx[l] += rx[l] * ax[l] - ry[l] * ay[l];
+                    ty[l] += ry[l] * ax[l] + rx[l] * ay[l];
                 }
             }
             let own: [DVec2; LANES] = std::array::from_fn(|l| rotations[(at + l).min(n - 1)]);
@@ -1513,8 +1491,6 @@ fn solve_in_place(factor: &[f64], inverse_diagonal: &[f64], x: &mut [DVec2]) {
     }
 }
 
-/// Vertices the Bernstein kernels handle at once, one per SIMD lane.
-const LANES: usize = 4;
 /// Vertices per cache block of the transposed pass: the block's M rows of
 /// `s`, one row of `t` and its `t_r ⊙ u` stay in the first-level cache
 /// while every grid row r reuses them.

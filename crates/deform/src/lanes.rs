@@ -39,3 +39,56 @@ impl pulp::WithSimd for Normalise<'_> {
         }
     }
 }
+
+/// Vertices per block of [`Packed`] rows: one per SIMD lane.
+pub(crate) const LANES: usize = 4;
+
+/// Per-vertex lists of (index, 2-vector) in blocks of [`LANES`] vertices,
+/// one per SIMD lane: block b's slots are `start[b]..start[b + 1]`, slot s
+/// holding each lane's s-th entry. A block has as many slots as its longest
+/// list; shorter lists are padded with index 0 and a zero vector (a zero
+/// term for any finite value at index 0), as are the lanes past the last
+/// vertex. Lets a sweep sum each vertex's terms in registers, four vertices
+/// at a time, where scattering into the vertices chained the sums through
+/// memory.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Packed {
+    pub(crate) rows: usize,
+    pub(crate) start: Vec<u32>,
+    pub(crate) index: Vec<[u32; LANES]>,
+    pub(crate) x: Vec<[f64; LANES]>,
+    pub(crate) y: Vec<[f64; LANES]>,
+}
+
+impl Packed {
+    /// Packs `lists` (one per vertex, entries in the order to sum them).
+    /// Every index must be below `bound`, the length of what the sweeps
+    /// read at them.
+    pub(crate) fn new(lists: &[Vec<(u32, DVec2)>], bound: usize) -> Packed {
+        assert!(
+            lists.iter().flatten().all(|&(i, _)| (i as usize) < bound),
+            "packed index out of range"
+        );
+        assert!(bound > 0 || lists.iter().all(|l| l.is_empty()));
+        let rows = lists.len();
+        let blocks = rows.div_ceil(LANES);
+        let mut out = Packed {
+            rows,
+            start: Vec::with_capacity(blocks + 1),
+            ..Packed::default()
+        };
+        out.start.push(0);
+        for b in 0..blocks {
+            let list = |l: usize| lists.get(b * LANES + l).map_or(&[][..], |v| &v[..]);
+            let width = (0..LANES).map(|l| list(l).len()).max().unwrap_or(0);
+            for slot in 0..width {
+                let entry = |l: usize| list(l).get(slot).copied().unwrap_or((0, DVec2::ZERO));
+                out.index.push(std::array::from_fn(|l| entry(l).0));
+                out.x.push(std::array::from_fn(|l| entry(l).1.x));
+                out.y.push(std::array::from_fn(|l| entry(l).1.y));
+            }
+            out.start.push(out.index.len() as u32);
+        }
+        out
+    }
+}

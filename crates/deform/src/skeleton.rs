@@ -37,6 +37,7 @@ use std::f64::consts::{PI, TAU};
 use glam::{DMat2, DVec2};
 
 use super::sparse::{FactorError, RealCholesky, UpperPattern, fill_reducing_order};
+use crate::lanes::{LANES, Packed};
 use puppetry_mesh::json::MAX_COORDINATE;
 use puppetry_mesh::polygon::segment_distance;
 use puppetry_mesh::{Locator, MAX_WEIGHT, MIN_WEIGHT, Mesh};
@@ -557,7 +558,8 @@ pub const DEFAULT_ROUNDS: usize = 8;
 const MAX_ROUNDS: usize = 1000;
 
 /// A triangle of the solved pieces, corners in unknown numbering.
-/// Kept small (56 bytes): each frame sweeps the free ones once per round.
+/// The frame sweeps the bone ones; the free ones are swept as [`FreeLanes`]
+/// and `free_corners`.
 #[derive(Debug, Clone)]
 struct StitchTriangle {
     corners: [u32; 3],
@@ -615,7 +617,14 @@ pub struct ShapeAware {
     /// The mesh triangle of each, to re-weight.
     bone_mesh_triangles: Vec<u32>,
     free_mesh_triangles: Vec<u32>,
-    /// Per free triangle, its current rotation as (cos, sin).
+    /// The free triangles again, four to a block for the fit's SIMD lanes.
+    free_lanes: FreeLanes,
+    /// Per unknown, the free triangles it is a corner of, with that
+    /// corner's `3w_t (v̄ − c̄)`: the right-hand side gathered vertex by
+    /// vertex.
+    free_corners: Packed,
+    /// Per free triangle, its current rotation as (cos, sin), padded to
+    /// whole blocks of [`LANES`].
     rotations: Vec<DVec2>,
     /// Per free triangle, the bone passing nearest its rest centroid.
     free_bone: Vec<u32>,
@@ -700,13 +709,181 @@ fn assemble_and_factor<'a>(
     Ok(RealCholesky::new(pattern, &values)?)
 }
 
-/// Adds free triangle `t`'s share `3w R (v̄ − c̄)` of the right-hand side.
-#[inline(always)]
-fn scatter_rotated(b: &mut [DVec2], t: &StitchTriangle, rotation: DVec2) {
-    let scaled = rotation * t.weight3;
-    let r = t.rest_corners();
-    for k in 0..3 {
-        b[t.corners[k] as usize] += scaled.rotate(r[k]);
+/// The free triangles in blocks of [`LANES`], by coordinate: corners, the
+/// first two rest corners about the centroid (`r̄₀`, `r̄₁`; `r̄₂ = −r̄₀ − r̄₁`),
+/// `3w_t` and `Σ|r̄|²`. Padding lanes have weight 0 and corners 0.
+#[derive(Debug, Clone, Default)]
+struct FreeLanes {
+    /// The number of unknowns, which every corner is below.
+    unknowns: usize,
+    corners: Vec<[[u32; LANES]; 3]>,
+    /// `r̄₀.x, r̄₀.y, r̄₁.x, r̄₁.y`.
+    rest: Vec<[[f64; LANES]; 4]>,
+    weight3: Vec<[f64; LANES]>,
+    rest_spread: Vec<[f64; LANES]>,
+}
+
+impl FreeLanes {
+    fn new(triangles: &[StitchTriangle], unknowns: usize) -> FreeLanes {
+        assert!(
+            triangles
+                .iter()
+                .all(|t| t.corners.iter().all(|&c| (c as usize) < unknowns)),
+            "free triangle corner out of range"
+        );
+        let blocks = triangles.len().div_ceil(LANES);
+        let mut out = FreeLanes {
+            unknowns,
+            ..FreeLanes::default()
+        };
+        for b in 0..blocks {
+            let t = |l: usize| triangles.get(b * LANES + l);
+            out.corners.push(std::array::from_fn(|k| {
+                std::array::from_fn(|l| t(l).map_or(0, |t| t.corners[k]))
+            }));
+            out.rest.push(std::array::from_fn(|q| {
+                std::array::from_fn(|l| {
+                    t(l).map_or(0.0, |t| {
+                        let r = t.centred[q / 2];
+                        if q % 2 == 0 { r.x } else { r.y }
+                    })
+                })
+            }));
+            out.weight3
+                .push(std::array::from_fn(|l| t(l).map_or(0.0, |t| t.weight3)));
+            out.rest_spread.push(std::array::from_fn(|l| {
+                t(l).map_or(0.0, |t| {
+                    t.rest_corners().iter().map(|r| r.length_squared()).sum()
+                })
+            }));
+        }
+        out
+    }
+}
+
+/// Per unknown (`n` of them), the free triangles it is a corner of and that
+/// corner's `3w_t r̄`, in triangle order.
+fn free_corners(triangles: &[StitchTriangle], n: usize) -> Packed {
+    let mut lists: Vec<Vec<(u32, DVec2)>> = vec![Vec::new(); n];
+    for (i, t) in triangles.iter().enumerate() {
+        let r = t.rest_corners();
+        for k in 0..3 {
+            lists[t.corners[k] as usize].push((i as u32, r[k] * t.weight3));
+        }
+    }
+    Packed::new(&lists, triangles.len())
+}
+
+/// The free triangles' share of the stitching energy under their current
+/// rotations, and with `fit` the fit sums `(d, c)` into `rotations`, four
+/// triangles at a time. The centroid drops out of the fit (`Σ r̄ = 0`):
+/// `d = r̄₀·(p₀ − p₂) + r̄₁·(p₁ − p₂)`, likewise `c`, and `Σ|p − c̄|²` is a
+/// third of the squared side lengths' sum.
+struct FitTriangles<'a> {
+    lanes: &'a FreeLanes,
+    x: &'a [DVec2],
+    rotations: &'a mut [DVec2],
+    fit: bool,
+}
+
+impl pulp::WithSimd for FitTriangles<'_> {
+    type Output = f64;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> f64 {
+        let FreeLanes {
+            unknowns: _,
+            ref corners,
+            ref rest,
+            ref weight3,
+            ref rest_spread,
+        } = *self.lanes;
+        let x = &self.x[..self.lanes.unknowns];
+        let rotations = &mut self.rotations[..corners.len() * LANES];
+        let mut energy = [0.0; LANES];
+        let blocks = corners
+            .iter()
+            .zip(rest)
+            .zip(weight3)
+            .zip(rest_spread)
+            .zip(rotations.chunks_exact_mut(LANES));
+        for ((((corners, r), w3), spread0), rotation) in blocks {
+            // SAFETY: `FreeLanes::new` checked every corner is below
+            // `unknowns`, the length of `x`.
+            let p: [[DVec2; LANES]; 3] = std::array::from_fn(|k| {
+                std::array::from_fn(|l| unsafe { *x.get_unchecked(corners[k][l] as usize) })
+            });
+            let px: [[f64; LANES]; 3] = std::array::from_fn(|k| std::array::from_fn(|l| p[k][l].x));
+            let py: [[f64; LANES]; 3] = std::array::from_fn(|k| std::array::from_fn(|l| p[k][l].y));
+            let rx: [f64; LANES] = std::array::from_fn(|l| rotation[l].x);
+            let ry: [f64; LANES] = std::array::from_fn(|l| rotation[l].y);
+            let (mut d, mut c) = ([0.0; LANES], [0.0; LANES]);
+            for l in 0..LANES {
+                let (d0x, d0y) = (px[0][l] - px[2][l], py[0][l] - py[2][l]);
+                let (d1x, d1y) = (px[1][l] - px[2][l], py[1][l] - py[2][l]);
+                let (ex, ey) = (d0x - d1x, d0y - d1y);
+                d[l] = (r[0][l] * d0x + r[1][l] * d0y) + (r[2][l] * d1x + r[3][l] * d1y);
+                c[l] = (r[0][l] * d0y - r[1][l] * d0x) + (r[2][l] * d1y - r[3][l] * d1x);
+                let sides = (d0x * d0x + d0y * d0y) + (d1x * d1x + d1y * d1y) + (ex * ex + ey * ey);
+                let spread = sides * (1.0 / 3.0) + spread0[l];
+                energy[l] += w3[l] * (spread - 2.0 * (rx[l] * d[l] + ry[l] * c[l]));
+            }
+            if self.fit {
+                for l in 0..LANES {
+                    rotation[l] = DVec2::new(d[l], c[l]);
+                }
+            }
+        }
+        (energy[0] + energy[1]) + (energy[2] + energy[3])
+    }
+}
+
+/// `out = fixed + Σ_t R_t (3w_t r̄)` per unknown, over its free triangles,
+/// four unknowns at a time.
+struct GatherRotated<'a> {
+    packed: &'a Packed,
+    rotations: &'a [DVec2],
+    fixed: &'a [DVec2],
+    out: &'a mut [DVec2],
+}
+
+impl pulp::WithSimd for GatherRotated<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Packed {
+            rows: n,
+            ref start,
+            ref index,
+            x: ref ax,
+            y: ref ay,
+        } = *self.packed;
+        let rotations = self.rotations;
+        for (b, range) in start.windows(2).enumerate() {
+            let at = b * LANES;
+            let (mut sx, mut sy) = ([0.0; LANES], [0.0; LANES]);
+            let slots = range[0] as usize..range[1] as usize;
+            for ((t, ax), ay) in index[slots.clone()]
+                .iter()
+                .zip(&ax[slots.clone()])
+                .zip(&ay[slots])
+            {
+                // SAFETY: `Packed::new` checked every index is below the
+                // free triangle count, the length of `rotations`.
+                let r: [DVec2; LANES] =
+                    std::array::from_fn(|l| unsafe { *rotations.get_unchecked(t[l] as usize) });
+                let rx: [f64; LANES] = std::array::from_fn(|l| r[l].x);
+                let ry: [f64; LANES] = std::array::from_fn(|l| r[l].y);
+                for l in 0..LANES {
+                    sx[l] += rx[l] * ax[l] - ry[l] * ay[l];
+                    sy[l] += ry[l] * ax[l] + rx[l] * ay[l];
+                }
+            }
+            for l in 0..LANES.min(n - at) {
+                self.out[at + l] = self.fixed[at + l] + DVec2::new(sx[l], sy[l]);
+            }
+        }
     }
 }
 
@@ -906,7 +1083,11 @@ impl ShapeAware {
             params,
             rest: rest.clone(),
             unknown_vertex,
-            rotations: vec![DVec2::X; free_triangles.len()],
+            // Whole blocks of lanes: the padding lanes' rotations are
+            // computed (from zero fits: the identity) and never read.
+            rotations: vec![DVec2::X; free_triangles.len().div_ceil(LANES) * LANES],
+            free_lanes: FreeLanes::new(&free_triangles, n),
+            free_corners: free_corners(&free_triangles, n),
             free_bone,
             bone_rotations: vec![DVec2::X; bone_count],
             bone_triangles,
@@ -979,6 +1160,8 @@ impl ShapeAware {
         match factor {
             Ok(factor) => {
                 self.factor = factor;
+                self.free_lanes = FreeLanes::new(&self.free_triangles, self.rhs.len());
+                self.free_corners = free_corners(&self.free_triangles, self.rhs.len());
                 Ok(())
             }
             Err(e) => {
@@ -1120,23 +1303,14 @@ impl ShapeAware {
         // With d = Σ r̄·p and c = Σ r̄×p (rest corners r̄ and stitched corners
         // p about their centroids), the residual under rotation (cos, sin) is
         // Σ|p|² + Σ|r̄|² − 2(cos·d + sin·c), and the best rotation is (d, c)
-        // normalised. Three sweeps — fit sums, normalisation, scatter — so
-        // the square roots and divisions overlap in a plain loop instead of
-        // stalling the scatter.
-        for (t, rotation) in self.free_triangles.iter().zip(self.rotations.iter_mut()) {
-            let p = t.corners_in(x);
-            let r = t.rest_corners();
-            let mut fitted = DVec2::ZERO;
-            let mut spread = 0.0;
-            for k in 0..3 {
-                fitted += DVec2::new(r[k].dot(p[k]), r[k].perp_dot(p[k]));
-                spread += p[k].length_squared() + r[k].length_squared();
-            }
-            energy += t.weight3 * (spread - 2.0 * rotation.dot(fitted));
-            if fit {
-                *rotation = fitted;
-            }
-        }
+        // normalised. Three sweeps — fit sums, normalisation, right-hand
+        // side — so the square roots and divisions overlap in a plain loop.
+        energy += pulp::Arch::new().dispatch(FitTriangles {
+            lanes: &self.free_lanes,
+            x,
+            rotations: &mut self.rotations,
+            fit,
+        });
         if fit {
             // A collapsed triangle fits no rotation: rest orientation.
             pulp::Arch::new().dispatch(crate::lanes::Normalise(&mut self.rotations));
@@ -1145,12 +1319,15 @@ impl ShapeAware {
         energy
     }
 
-    /// The stitch's right-hand side for the current free rotations.
+    /// The stitch's right-hand side for the current free rotations,
+    /// vertex by vertex (`free_corners`).
     fn assemble_rhs(&mut self) {
-        self.rhs.copy_from_slice(&self.fixed_rhs);
-        for (t, rotation) in self.free_triangles.iter().zip(&self.rotations) {
-            scatter_rotated(&mut self.rhs, t, *rotation);
-        }
+        pulp::Arch::new().dispatch(GatherRotated {
+            packed: &self.free_corners,
+            rotations: &self.rotations,
+            fixed: &self.fixed_rhs,
+            out: &mut self.rhs,
+        });
     }
 
     /// The deformed vertex positions (mesh order) of the last update; the
