@@ -36,7 +36,7 @@ use std::f64::consts::{PI, TAU};
 
 use glam::{DMat2, DVec2};
 
-use super::sparse::{FactorError, RealCholesky, UpperPattern, fill_reducing_order};
+use super::sparse::{FactorError, PairSolve, RealCholesky, UpperPattern, fill_reducing_order};
 use crate::lanes::{LANES, Packed};
 use puppetry_mesh::json::MAX_COORDINATE;
 use puppetry_mesh::polygon::segment_distance;
@@ -642,6 +642,8 @@ pub struct ShapeAware {
     pattern: UpperPattern,
     mesh_weights: Vec<f64>,
     factor: RealCholesky,
+    /// The factor for the stitches' solves, when it is simplicial.
+    pairs: Option<PairSolve>,
     // Frame state, sized at registration.
     posed_joints: Vec<DVec2>,
     fk_joints: Vec<DVec2>,
@@ -1099,6 +1101,7 @@ impl ShapeAware {
             triangle_bone,
             crossed,
             rest_frame_inverse,
+            pairs: factor.pair_solve(),
             factor,
             pattern,
             mesh_weights: mesh.weights().to_vec(),
@@ -1159,6 +1162,7 @@ impl ShapeAware {
         );
         match factor {
             Ok(factor) => {
+                self.pairs = factor.pair_solve();
                 self.factor = factor;
                 self.free_lanes = FreeLanes::new(&self.free_triangles, self.rhs.len());
                 self.free_corners = free_corners(&self.free_triangles, self.rhs.len());
@@ -1240,7 +1244,10 @@ impl ShapeAware {
         self.assemble_rhs();
         let rounds = self.params.rounds;
         for round in 0..=rounds {
-            self.factor.solve(&mut self.rhs);
+            match &self.pairs {
+                Some(pairs) => pairs.solve(&mut self.rhs),
+                None => self.factor.solve(&mut self.rhs),
+            }
             std::mem::swap(&mut self.rhs, &mut self.solution);
             self.energies[round] = self.measure_and_fit(round < rounds);
         }

@@ -5,7 +5,9 @@
 //! entry of `L`, reading the factor once per pass instead of once per axis.
 //! Large real factors keep faer's supernodes as dense blocks (one row index
 //! per block row, one stream of values); small ones and the complex factor
-//! are read out column by column.
+//! are read out column by column. A column factor also reads into a
+//! [`PairSolve`] (both passes as gathers, two entries per SIMD lane, each
+//! sum ending on the unknowns found last), which the skeleton's stitches use.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::SymbolicSparseColMat;
@@ -670,6 +672,19 @@ impl RealCholesky {
         self.inverse_diagonal.len()
     }
 
+    /// The factor as a [`PairSolve`], for a column-by-column (simplicial)
+    /// factor; `None` for a supernodal one, whose dense blocks its own
+    /// solves already stream.
+    pub fn pair_solve(&self) -> Option<PairSolve> {
+        match &self.layout {
+            Layout::Columns { structure, values } => {
+                structure.check(self.dim()).ok()?;
+                Some(PairSolve::new(structure, values, &self.inverse_diagonal))
+            }
+            Layout::Supernodes(_) => None,
+        }
+    }
+
     pub fn factor_entries(&self) -> usize {
         self.dim()
             + match &self.layout {
@@ -749,6 +764,142 @@ impl RealCholesky {
             values,
         }
     }
+}
+
+/// `L Lᵀ x = b` for x,y pairs with both passes as gathers: the forward pass
+/// row by row (`xᵢ = (bᵢ − Σ_{j<i} L_ij x_j) / L_ii`, a row-wise copy of the
+/// factor), the backward pass column by column. Each sum moves two entries
+/// per 256-bit lane (`[x_a, x_b] · [l_a, l_a, l_b, l_b]`), where the
+/// column solves move one x,y pair per operation and scatter in the forward
+/// pass. From a factor read out column by column.
+#[derive(Debug, Clone)]
+pub struct PairSolve {
+    inverse_diagonal: Vec<f64>,
+    rows: Structure,
+    row_values: Vec<f64>,
+    columns: Structure,
+    column_values: Vec<f64>,
+}
+
+impl PairSolve {
+    fn new(structure: &Structure, values: &[f64], inverse_diagonal: &[f64]) -> PairSolve {
+        let n = inverse_diagonal.len();
+        let mut count = vec![0u32; n + 1];
+        for &r in &structure.rows {
+            count[r as usize + 1] += 1;
+        }
+        for i in 0..n {
+            count[i + 1] += count[i];
+        }
+        let mut fill: Vec<u32> = count[..n].to_vec();
+        let mut cols = vec![0u32; structure.rows.len()];
+        let mut row_values = vec![0.0; structure.rows.len()];
+        for j in 0..n {
+            let (a, b) = (structure.start[j] as usize, structure.start[j + 1] as usize);
+            for (&i, &value) in structure.rows[a..b].iter().zip(&values[a..b]) {
+                let i = i as usize;
+                cols[fill[i] as usize] = j as u32;
+                row_values[fill[i] as usize] = value;
+                fill[i] += 1;
+            }
+        }
+        // Each column's rows decreasing, so the backward pass's newest
+        // unknowns (the rows just below the column) come last in its sum.
+        let mut columns = structure.clone();
+        let mut column_values = values.to_vec();
+        for j in 0..n {
+            let (a, b) = (structure.start[j] as usize, structure.start[j + 1] as usize);
+            columns.rows[a..b].reverse();
+            column_values[a..b].reverse();
+        }
+        PairSolve {
+            inverse_diagonal: inverse_diagonal.to_vec(),
+            rows: Structure::new(count, cols),
+            row_values,
+            columns,
+            column_values,
+        }
+    }
+
+    pub fn dim(&self) -> usize {
+        self.inverse_diagonal.len()
+    }
+
+    /// Solves `A x = b` in place.
+    pub fn solve(&self, x: &mut [DVec2]) {
+        assert_eq!(x.len(), self.dim(), "right-hand side length");
+        pulp::Arch::new().dispatch(PairPasses { solve: self, x });
+    }
+}
+
+struct PairPasses<'a> {
+    solve: &'a PairSolve,
+    x: &'a mut [DVec2],
+}
+
+impl pulp::WithSimd for PairPasses<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let PairSolve {
+            ref inverse_diagonal,
+            ref rows,
+            ref row_values,
+            ref columns,
+            ref column_values,
+        } = *self.solve;
+        let x = self.x;
+        let n = inverse_diagonal.len();
+        assert!(x.len() == n && rows.start.len() == n + 1 && columns.start.len() == n + 1);
+        assert!(rows.rows.len() == row_values.len() && columns.rows.len() == column_values.len());
+        for i in 0..n {
+            let (a, b) = (rows.start[i] as usize, rows.start[i + 1] as usize);
+            let sum = pair_dot(&row_values[a..b], &rows.rows[a..b], x);
+            x[i] = (x[i] - sum) * inverse_diagonal[i];
+        }
+        for j in (0..n).rev() {
+            let (a, b) = (columns.start[j] as usize, columns.start[j + 1] as usize);
+            prefetch_behind(column_values, &columns.rows, a);
+            let sum = pair_dot(&column_values[a..b], &columns.rows[a..b], x);
+            x[j] = (x[j] - sum) * inverse_diagonal[j];
+        }
+    }
+}
+
+/// `Σ l[k] · x[index[k]]`, two entries per four-lane sum.
+#[inline(always)]
+fn pair_dot(l: &[f64], index: &[u32], x: &[DVec2]) -> DVec2 {
+    let mut acc = [[0.0f64; 4]; 2];
+    let (lc, ic) = (l.chunks_exact(4), index.chunks_exact(4));
+    let (lr, ir) = (lc.remainder(), ic.remainder());
+    for (l, i) in lc.zip(ic) {
+        for h in 0..2 {
+            // SAFETY: `Structure::check` guarantees every index is below n
+            // = x.len().
+            let (a, b) = unsafe {
+                (
+                    *x.get_unchecked(i[2 * h] as usize),
+                    *x.get_unchecked(i[2 * h + 1] as usize),
+                )
+            };
+            let v = [a.x, a.y, b.x, b.y];
+            let w = [l[2 * h], l[2 * h], l[2 * h + 1], l[2 * h + 1]];
+            for q in 0..4 {
+                acc[h][q] = w[q].mul_add(v[q], acc[h][q]);
+            }
+        }
+    }
+    let mut sum = DVec2::new(
+        (acc[0][0] + acc[1][0]) + (acc[0][2] + acc[1][2]),
+        (acc[0][1] + acc[1][1]) + (acc[0][3] + acc[1][3]),
+    );
+    for (&l, &i) in lr.iter().zip(ir) {
+        // SAFETY: as above.
+        let v = unsafe { *x.get_unchecked(i as usize) };
+        sum = DVec2::new(l.mul_add(v.x, sum.x), l.mul_add(v.y, sum.y));
+    }
+    sum
 }
 
 /// The forward pass `L y = b` over `columns` (increasing), generic over the
@@ -1139,5 +1290,44 @@ mod tests {
                     .all(|((&p, &q), &r)| close(p, r) && close(q, r))
             );
         }
+    }
+
+    /// The gather-only pair solves give the column solves' results, and
+    /// solve the system: `A x` reproduces the right-hand side.
+    #[test]
+    fn pair_solves_agree_with_column_solves() {
+        let (pattern, values, n) = grid_laplacian(13);
+        let factor =
+            RealCholesky::choosing(&pattern, &values, SupernodalThreshold::FORCE_SIMPLICIAL)
+                .unwrap();
+        let pairs = factor.pair_solve().expect("a column factor");
+        let b: Vec<DVec2> = (0..n)
+            .map(|i| DVec2::new((i as f64 * 0.7).sin(), (i as f64 * 0.3).cos() + 0.5))
+            .collect();
+        let (mut x, mut y) = (b.clone(), b.clone());
+        factor.solve(&mut x);
+        pairs.solve(&mut y);
+        let scale = x.iter().map(|v| v.length()).fold(0.0, f64::max);
+        for (p, q) in x.iter().zip(&y) {
+            assert!(p.distance(*q) <= 1e-12 * scale, "{p} vs {q}");
+        }
+        // A y, from the upper triangle stored in the pattern.
+        let mut product = vec![DVec2::ZERO; n];
+        for col in 0..n {
+            let (a, b) = (pattern.col_ptr[col], pattern.col_ptr[col + 1]);
+            for (&row, &value) in pattern.rows[a..b].iter().zip(&values[a..b]) {
+                product[row] += y[col] * value;
+                if row != col {
+                    product[col] += y[row] * value;
+                }
+            }
+        }
+        for (p, q) in product.iter().zip(&b) {
+            assert!(p.distance(*q) <= 1e-10, "{p} vs {q}");
+        }
+        let supernodal =
+            RealCholesky::choosing(&pattern, &values, SupernodalThreshold::FORCE_SUPERNODAL)
+                .unwrap();
+        assert!(supernodal.pair_solve().is_none());
     }
 }
