@@ -41,9 +41,9 @@
 //! with `λᵢ = λ_gp` for dragged grid handles and `λ_gr` for the others, and
 //! `b̃ᵢ = Σⱼ (w_ij/2) ((Rᵢ − I) + (Rⱼ − I)) (v̄ᵢ − v̄ⱼ)`. The matrix (K×K,
 //! K = M·N, dense) changes only with the handle sets or the weights, so it is
-//! factored then (Cholesky); a frame's iteration is a local step (per-vertex
-//! rotations), two passes over `W` and two triangular solves. Iterations are
-//! warm-started from the previous frame's grid.
+//! factored and inverted then (Cholesky); a frame's iteration is a local
+//! step (per-vertex rotations), two passes over `W` and one product with the
+//! inverse. Iterations are warm-started from the previous frame's grid.
 //!
 //! Grid handles are numbered row by row from the box's `min` corner:
 //! handle `row·M + column` rests at `min + (column/(M−1), row/(N−1))·(max − min)`.
@@ -76,10 +76,10 @@ pub const GRID_MARGIN: f64 = 0.05;
 /// the Bernstein energy trails the converged one by 0.03–0.06% (median,
 /// 1k and 10k vertices; 0.11% at worst) and the lattice's by 0.1–0.4%; 2
 /// iterations leave about 5.6 times as much. A Bernstein frame of 4 takes
-/// about 0.27 ms at 1k vertices and 2.6 ms at 10k on the 2-core
+/// about 0.19 ms at 1k vertices and 1.75 ms at 10k on the 2-core
 /// development machine. Each iteration costs two passes over `W` (n·K
-/// multiply-adds for Bernstein, 4n for the lattice), the one-ring sweep and
-/// the K×K triangular solves.
+/// multiply-adds for Bernstein, 4n for the lattice), the one-ring sweeps and
+/// the K×K product with the inverse.
 pub const DEFAULT_ITERATIONS: usize = 4;
 
 /// How vertices blend grid handles.
