@@ -368,13 +368,20 @@ pub struct LpFfd {
     // Frame scratch.
     fixed_rhs: Vec<DVec2>,
     rhs: Vec<DVec2>,
-    /// `rhs` by coordinate, for the dense solve.
+    /// `rhs` by coordinate, for the dense solve, and its result by
+    /// coordinate (`2K`).
     rhs_x: Vec<f64>,
     rhs_y: Vec<f64>,
-    /// Per vertex: one-ring fit sums, then unit rotations (cos, sin).
+    product: Vec<f64>,
+    /// Per vertex (padded to whole blocks of lanes): one-ring fit sums by
+    /// coordinate, then the unit rotations (cos, sin).
+    fit_x: Vec<f64>,
+    fit_y: Vec<f64>,
     rotations: Vec<DVec2>,
-    /// Per vertex: `2λ_ml b̃`.
-    vertex_rhs: Vec<DVec2>,
+    /// Per vertex (padded to whole blocks), `2λ_ml b̃` by coordinate for the
+    /// lattice; the Bernstein basis keeps it in its pass's scratch.
+    b_x: Vec<f64>,
+    b_y: Vec<f64>,
     scratch: TensorScratch,
 }
 
@@ -425,8 +432,12 @@ impl LpFfd {
             rhs: vec![DVec2::ZERO; k],
             rhs_x: vec![0.0; k],
             rhs_y: vec![0.0; k],
+            product: vec![0.0; 2 * k],
+            fit_x: vec![0.0; rest.len().div_ceil(LANES) * LANES],
+            fit_y: vec![0.0; rest.len().div_ceil(LANES) * LANES],
             rotations: vec![DVec2::ZERO; rest.len()],
-            vertex_rhs: vec![DVec2::ZERO; rest.len()],
+            b_x: vec![0.0; rest.len().div_ceil(LANES) * LANES],
+            b_y: vec![0.0; rest.len().div_ceil(LANES) * LANES],
             scratch,
             rest,
         };
@@ -540,12 +551,7 @@ impl LpFfd {
             self.rhs.copy_from_slice(&self.fixed_rhs);
             if locality {
                 self.local_step();
-                add_transposed(
-                    &self.blend,
-                    &mut self.scratch,
-                    &self.vertex_rhs,
-                    &mut self.rhs,
-                );
+                self.add_locality_rhs();
             }
             for ((x, y), r) in self.rhs_x.iter_mut().zip(&mut self.rhs_y).zip(&self.rhs) {
                 (*x, *y) = (r.x, r.y);
@@ -554,6 +560,7 @@ impl LpFfd {
                 matrix: &self.inverse,
                 x: &self.rhs_x,
                 y: &self.rhs_y,
+                sums: &mut self.product,
                 out: &mut self.displacement,
             });
             apply(
@@ -967,9 +974,26 @@ impl LpFfd {
         }
     }
 
+    /// `rhs += Wᵀ (2λ_ml b̃)` from where [`LpFfd::local_step`] left `b̃`.
+    fn add_locality_rhs(&mut self) {
+        match &self.blend {
+            Blend::Dense { tensor, .. } => {
+                tensor.add_transposed_scratch(&mut self.scratch, &mut self.rhs)
+            }
+            Blend::Lattice { columns, values } => {
+                let b = self.b_x.iter().zip(&self.b_y);
+                for ((c, w), (&x, &y)) in columns.iter().zip(values).zip(b) {
+                    for q in 0..4 {
+                        self.rhs[c[q] as usize] += DVec2::new(x, y) * w[q];
+                    }
+                }
+            }
+        }
+    }
+
     /// Local step and the locality right-hand side: per-vertex best-fit
     /// rotations of the one-ring edges (Sorkine–Alexa), then
-    /// `2λ_ml b̃` into `vertex_rhs`. Both sweeps run over four vertices at a
+    /// `2λ_ml b̃` by coordinate (see [`LpFfd::add_locality_rhs`]). Both sweeps run over four vertices at a
     /// time in SIMD lanes, each lane walking its vertex's one-ring (see
     /// [`Rings`]) with the sums in registers; the edge-by-edge sweep it
     /// replaces scattered into both ends of every edge.
@@ -977,15 +1001,26 @@ impl LpFfd {
         pulp::Arch::new().dispatch(FitKernel {
             rings: &self.rings,
             pose: &self.pose,
-            rotations: &mut self.rotations,
+            fit_x: &mut self.fit_x,
+            fit_y: &mut self.fit_y,
         });
         // A loop of its own, so the square roots run in SIMD lanes.
-        pulp::Arch::new().dispatch(crate::lanes::Normalise(&mut self.rotations));
+        pulp::Arch::new().dispatch(crate::lanes::NormaliseLanes {
+            x: &self.fit_x,
+            y: &self.fit_y,
+            out: &mut self.rotations,
+        });
+        // Straight into the Bernstein pass's input; the lattice's own.
+        let (out_x, out_y) = match self.blend {
+            Blend::Dense { .. } => (&mut self.scratch.ux, &mut self.scratch.uy),
+            Blend::Lattice { .. } => (&mut self.b_x, &mut self.b_y),
+        };
         pulp::Arch::new().dispatch(TurnKernel {
             rings: &self.rings,
             rotations: &self.rotations,
             scale: self.params.locality,
-            out: &mut self.vertex_rhs,
+            out_x,
+            out_y,
         });
     }
 }
@@ -1033,7 +1068,9 @@ impl Rings {
 struct FitKernel<'a> {
     rings: &'a Rings,
     pose: &'a [DVec2],
-    rotations: &'a mut [DVec2],
+    /// The fit sums by coordinate, padded to whole blocks.
+    fit_x: &'a mut [f64],
+    fit_y: &'a mut [f64],
 }
 
 impl pulp::WithSimd for FitKernel<'_> {
@@ -1074,9 +1111,10 @@ impl pulp::WithSimd for FitKernel<'_> {
                     c[l] += ax[l] * ey - ay[l] * ex;
                 }
             }
-            for l in 0..LANES.min(n - at) {
-                self.rotations[at + l] = DVec2::new(d[l], c[l]);
-            }
+            // By coordinate: storing (d, c) pairs here kept the compiler
+            // from running the lanes as vectors.
+            self.fit_x[at..at + LANES].copy_from_slice(&d);
+            self.fit_y[at..at + LANES].copy_from_slice(&c);
         }
     }
 }
@@ -1087,7 +1125,9 @@ struct TurnKernel<'a> {
     rings: &'a Rings,
     rotations: &'a [DVec2],
     scale: f64,
-    out: &'a mut [DVec2],
+    /// By coordinate, padded to whole blocks (the padding lanes get 0).
+    out_x: &'a mut [f64],
+    out_y: &'a mut [f64],
 }
 
 impl pulp::WithSimd for TurnKernel<'_> {
@@ -1132,9 +1172,8 @@ impl pulp::WithSimd for TurnKernel<'_> {
                 bx[l] = ((turned_x - 2.0 * hx[l]) + tx[l]) * self.scale;
                 by[l] = ((turned_y - 2.0 * hy[l]) + ty[l]) * self.scale;
             }
-            for l in 0..LANES.min(n - at) {
-                self.out[at + l] = DVec2::new(bx[l], by[l]);
-            }
+            self.out_x[at..at + LANES].copy_from_slice(&bx);
+            self.out_y[at..at + LANES].copy_from_slice(&by);
         }
     }
 }
@@ -1407,13 +1446,45 @@ fn spd_inverse(matrix: Vec<f64>, k: usize) -> Result<Vec<f64>, FfdError> {
     }
 }
 
-/// `out = A (x, y)` for the row-major K×K `matrix`, four rows at a time so
-/// eight independent sums a lane hide the multiply-add latency.
+/// `out = A (x, y)` for the symmetric row-major K×K `matrix`: by symmetry
+/// column j is row j, so each step adds `x_j`, `y_j` times a run of row j
+/// to sums for up to sixteen outputs held in registers (eight independent
+/// sums a lane, each over j in order).
 struct DenseProduct<'a> {
     matrix: &'a [f64],
     x: &'a [f64],
     y: &'a [f64],
+    /// Scratch, `2K`: the sums by coordinate.
+    sums: &'a mut [f64],
     out: &'a mut [DVec2],
+}
+
+/// Outputs `i..i + G·LANES` of [`DenseProduct`].
+#[inline(always)]
+fn dense_group<const G: usize>(
+    matrix: &[f64],
+    k: usize,
+    i: usize,
+    x: &[f64],
+    y: &[f64],
+    out: &mut [f64],
+) {
+    let (mut ax, mut ay) = ([[0.0; LANES]; G], [[0.0; LANES]; G]);
+    for ((row, &xj), &yj) in matrix.chunks_exact(k).zip(x).zip(y) {
+        let run = &row[i..][..G * LANES];
+        for g in 0..G {
+            let a: &[f64; LANES] = run[g * LANES..][..LANES].try_into().unwrap();
+            for l in 0..LANES {
+                ax[g][l] = a[l].mul_add(xj, ax[g][l]);
+                ay[g][l] = a[l].mul_add(yj, ay[g][l]);
+            }
+        }
+    }
+    let (ox, oy) = out.split_at_mut(out.len() / 2);
+    for g in 0..G {
+        ox[i + g * LANES..][..LANES].copy_from_slice(&ax[g]);
+        oy[i + g * LANES..][..LANES].copy_from_slice(&ay[g]);
+    }
 }
 
 impl pulp::WithSimd for DenseProduct<'_> {
@@ -1422,40 +1493,29 @@ impl pulp::WithSimd for DenseProduct<'_> {
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
         let k = self.x.len();
-        let (x, y) = (&self.x[..k], &self.y[..k]);
+        let (x, y, matrix) = (&self.x[..k], &self.y[..k], &self.matrix[..k * k]);
         let body = k - k % LANES;
-        let (xb, yb) = (&x[..body], &y[..body]);
-        let lane_sum = |a: &[f64; LANES]| (a[0] + a[1]) + (a[2] + a[3]);
+        let out = &mut *self.sums;
         let mut i = 0;
-        while i < k {
-            let rows = (k - i).min(4);
-            let mut acc = [[[0.0; LANES]; 2]; 4];
-            let lines: [&[f64]; 4] =
-                std::array::from_fn(|q| &self.matrix[(i + q.min(rows - 1)) * k..][..k]);
-            let [l0, l1, l2, l3] = lines.map(|line| line[..body].chunks_exact(LANES));
-            for (((((xs, ys), a0), a1), a2), a3) in xb
-                .chunks_exact(LANES)
-                .zip(yb.chunks_exact(LANES))
-                .zip(l0)
-                .zip(l1)
-                .zip(l2)
-                .zip(l3)
-            {
-                for (q, a) in [a0, a1, a2, a3].into_iter().enumerate() {
-                    for l in 0..LANES {
-                        acc[q][0][l] = a[l].mul_add(xs[l], acc[q][0][l]);
-                        acc[q][1][l] = a[l].mul_add(ys[l], acc[q][1][l]);
-                    }
-                }
+        while i < body {
+            match (body - i) / LANES {
+                1 => dense_group::<1>(matrix, k, i, x, y, out),
+                2 => dense_group::<2>(matrix, k, i, x, y, out),
+                3 => dense_group::<3>(matrix, k, i, x, y, out),
+                _ => dense_group::<4>(matrix, k, i, x, y, out),
             }
-            for q in 0..rows {
-                let mut sum = DVec2::new(lane_sum(&acc[q][0]), lane_sum(&acc[q][1]));
-                for j in body..k {
-                    sum += DVec2::new(x[j], y[j]) * lines[q][j];
-                }
-                self.out[i + q] = sum;
+            i += 4 * LANES;
+        }
+        let (ox, oy) = out.split_at(k);
+        for (o, (x, y)) in self.out[..body].iter_mut().zip(ox.iter().zip(oy)) {
+            *o = DVec2::new(*x, *y);
+        }
+        for i in body..k {
+            let mut sum = DVec2::ZERO;
+            for ((row, &xj), &yj) in matrix.chunks_exact(k).zip(x).zip(y) {
+                sum = DVec2::new(row[i].mul_add(xj, sum.x), row[i].mul_add(yj, sum.y));
             }
-            i += rows;
+            self.out[i] = sum;
         }
     }
 }
@@ -1606,6 +1666,12 @@ impl Tensor {
         for ((ux, uy), v) in scratch.ux.iter_mut().zip(&mut scratch.uy).zip(x) {
             (*ux, *uy) = (v.x, v.y);
         }
+        self.add_transposed_scratch(scratch, out);
+    }
+
+    /// `out += Wᵀ x` for x already in `scratch.ux`, `scratch.uy` (the
+    /// padding lanes zero).
+    fn add_transposed_scratch(&self, scratch: &mut TensorScratch, out: &mut [DVec2]) {
         pulp::Arch::new().dispatch(TransposedKernel {
             tensor: self,
             ux: &scratch.ux,

@@ -40,6 +40,50 @@ impl pulp::WithSimd for Normalise<'_> {
     }
 }
 
+/// [`Normalise`] for fit sums given by coordinate (`x`, `y`, at least as
+/// long as `out`): the rotations into `out`.
+pub(crate) struct NormaliseLanes<'a> {
+    pub(crate) x: &'a [f64],
+    pub(crate) y: &'a [f64],
+    pub(crate) out: &'a mut [DVec2],
+}
+
+impl pulp::WithSimd for NormaliseLanes<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let n = self.out.len();
+        let (x, y) = (&self.x[..n], &self.y[..n]);
+        let body = n - n % 4;
+        for ((out, x), y) in self.out[..body]
+            .chunks_exact_mut(4)
+            .zip(x.chunks_exact(4))
+            .zip(y.chunks_exact(4))
+        {
+            let norm2: [f64; 4] = std::array::from_fn(|l| x[l] * x[l] + y[l] * y[l]);
+            let scale: [f64; 4] = std::array::from_fn(|l| 1.0 / norm2[l].sqrt());
+            for l in 0..4 {
+                let ok = (norm2[l] > f64::MIN_POSITIVE) & (norm2[l] <= f64::MAX);
+                out[l] = DVec2::new(
+                    if ok { x[l] * scale[l] } else { 1.0 },
+                    if ok { y[l] * scale[l] } else { 0.0 },
+                );
+            }
+        }
+        for i in body..n {
+            let norm2 = x[i] * x[i] + y[i] * y[i];
+            let ok = (norm2 > f64::MIN_POSITIVE) & (norm2 <= f64::MAX);
+            let scale = 1.0 / norm2.sqrt();
+            self.out[i] = if ok {
+                DVec2::new(x[i] * scale, y[i] * scale)
+            } else {
+                DVec2::X
+            };
+        }
+    }
+}
+
 /// Vertices per block of [`Packed`] rows: one per SIMD lane.
 pub(crate) const LANES: usize = 4;
 
