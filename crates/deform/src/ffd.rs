@@ -1697,49 +1697,81 @@ struct ApplyKernel<'a> {
     uy: &'a mut [f64],
 }
 
-/// Grid rows of `Δ` an apply step or columns of `s` a transposed step
-/// carries at once: 2·5 independent sums per lane hide the multiply-add
-/// latency on two pipes, and with the operands they fit the sixteen SIMD
-/// registers (eight sums, as before, left the pipes idle a third of the
-/// time).
+/// Columns of `s` a transposed step carries at once, and grid rows of `Δ`
+/// an apply step on a lone lane block does: 2·5 independent sums per lane
+/// hide the multiply-add latency on two pipes, and with the operands they
+/// fit the sixteen SIMD registers.
 const GROUP: usize = 5;
 const APPLY_GROUP: usize = 5;
 
-/// For grid rows `r..r + G` of one vertex lane block: `a_g = Σ_c s_c Δ_(r+g)c`
-/// (each over c in order, so the bits do not depend on G), then
-/// `u += t_(r+g) a_g` in row order. `d` holds Δ column-major with x and y
-/// interleaved (`d[c·2N + 2r + {0, 1}]`), so one short run of it feeds a
-/// step.
+/// For grid rows `r..r + G` of the B vertex lane blocks from `at`:
+/// `a_g = Σ_c s_c Δ_(r+g)c` (each over c in order, so the bits depend on
+/// neither G nor B), then `u += t_(r+g) a_g` in row order. `d` holds Δ
+/// column-major with x and y interleaved (`d[c·2N + 2r + {0, 1}]`), so one
+/// short run of it feeds a step, and each value loaded feeds B blocks.
 #[inline(always)]
-fn apply_group<const G: usize>(
+fn apply_group<const B: usize, const G: usize>(
     tensor: &Tensor,
     at: usize,
     r: usize,
     d: &[f64],
-    ux: &mut [f64; LANES],
-    uy: &mut [f64; LANES],
+    ux: &mut [[f64; LANES]; B],
+    uy: &mut [[f64; LANES]; B],
 ) {
     let (n, padded) = (tensor.rows, tensor.padded);
-    let (mut ax, mut ay) = ([[0.0; LANES]; G], [[0.0; LANES]; G]);
+    let (mut ax, mut ay) = ([[[0.0; LANES]; G]; B], [[[0.0; LANES]; G]; B]);
     for (sc, dc) in tensor.s.chunks_exact(padded).zip(d.chunks_exact(2 * n)) {
-        let sc: &[f64; LANES] = sc[at..][..LANES].try_into().unwrap();
+        let sc = &sc[at..][..B * LANES];
         let dc = &dc[2 * r..][..2 * G];
         for g in 0..G {
             let (gx, gy) = (dc[2 * g], dc[2 * g + 1]);
-            for l in 0..LANES {
-                ax[g][l] = sc[l].mul_add(gx, ax[g][l]);
-                ay[g][l] = sc[l].mul_add(gy, ay[g][l]);
+            for b in 0..B {
+                for l in 0..LANES {
+                    let w = sc[b * LANES + l];
+                    ax[b][g][l] = w.mul_add(gx, ax[b][g][l]);
+                    ay[b][g][l] = w.mul_add(gy, ay[b][g][l]);
+                }
             }
         }
     }
     for g in 0..G {
-        let tr: &[f64; LANES] = tensor.t[(r + g) * padded + at..][..LANES]
-            .try_into()
-            .unwrap();
-        for l in 0..LANES {
-            ux[l] = tr[l].mul_add(ax[g][l], ux[l]);
-            uy[l] = tr[l].mul_add(ay[g][l], uy[l]);
+        let tr = &tensor.t[(r + g) * padded + at..][..B * LANES];
+        for b in 0..B {
+            for l in 0..LANES {
+                let w = tr[b * LANES + l];
+                ux[b][l] = w.mul_add(ax[b][g][l], ux[b][l]);
+                uy[b][l] = w.mul_add(ay[b][g][l], uy[b][l]);
+            }
         }
+    }
+}
+
+/// [`apply_group`] over all grid rows for B blocks from `at`, into `ox`,
+/// `oy` (`B·LANES` each).
+#[inline(always)]
+fn apply_blocks<const B: usize, const G: usize>(
+    tensor: &Tensor,
+    at: usize,
+    d: &[f64],
+    ox: &mut [f64],
+    oy: &mut [f64],
+) {
+    let n = tensor.rows;
+    let (mut ux, mut uy) = ([[0.0; LANES]; B], [[0.0; LANES]; B]);
+    let mut r = 0;
+    while r < n {
+        match (n - r).min(G) {
+            1 => apply_group::<B, 1>(tensor, at, r, d, &mut ux, &mut uy),
+            2 => apply_group::<B, 2>(tensor, at, r, d, &mut ux, &mut uy),
+            3 => apply_group::<B, 3>(tensor, at, r, d, &mut ux, &mut uy),
+            4 => apply_group::<B, 4>(tensor, at, r, d, &mut ux, &mut uy),
+            _ => apply_group::<B, 5>(tensor, at, r, d, &mut ux, &mut uy),
+        }
+        r += G;
+    }
+    for b in 0..B {
+        ox[b * LANES..][..LANES].copy_from_slice(&ux[b]);
+        oy[b * LANES..][..LANES].copy_from_slice(&uy[b]);
     }
 }
 
@@ -1748,30 +1780,22 @@ impl pulp::WithSimd for ApplyKernel<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let n = self.tensor.rows;
-        let lanes = self
-            .ux
-            .chunks_exact_mut(LANES)
-            .zip(self.uy.chunks_exact_mut(LANES));
-        for (block, (ox, oy)) in lanes.enumerate() {
-            let at = block * LANES;
-            // Σ_r t_r Σ_c s_c Δ_rc: (M + 1)·N per coordinate, the weight
-            // products never formed.
-            let (mut ux, mut uy) = ([0.0; LANES], [0.0; LANES]);
-            let mut r = 0;
-            while r < n {
-                let (t, d) = (self.tensor, self.d);
-                match n - r {
-                    1 => apply_group::<1>(t, at, r, d, &mut ux, &mut uy),
-                    2 => apply_group::<2>(t, at, r, d, &mut ux, &mut uy),
-                    3 => apply_group::<3>(t, at, r, d, &mut ux, &mut uy),
-                    4 => apply_group::<4>(t, at, r, d, &mut ux, &mut uy),
-                    _ => apply_group::<APPLY_GROUP>(t, at, r, d, &mut ux, &mut uy),
-                }
-                r += APPLY_GROUP;
-            }
-            ox.copy_from_slice(&ux);
-            oy.copy_from_slice(&uy);
+        // Σ_r t_r Σ_c s_c Δ_rc: (M + 1)·N per coordinate, the weight
+        // products never formed. Two blocks at a time, three grid rows a
+        // step: twelve independent sums, and each broadcast Δ serves eight
+        // vertices.
+        let (t, d) = (self.tensor, self.d);
+        let padded = t.padded;
+        let pairs = padded / (2 * LANES) * (2 * LANES);
+        let (mut at, ux, uy) = (0, &mut *self.ux, &mut *self.uy);
+        while at < pairs {
+            let (ox, oy) = (&mut ux[at..][..2 * LANES], &mut uy[at..][..2 * LANES]);
+            apply_blocks::<2, 3>(t, at, d, ox, oy);
+            at += 2 * LANES;
+        }
+        if at < padded {
+            let (ox, oy) = (&mut ux[at..][..LANES], &mut uy[at..][..LANES]);
+            apply_blocks::<1, APPLY_GROUP>(t, at, d, ox, oy);
         }
     }
 }
