@@ -76,7 +76,7 @@ pub const GRID_MARGIN: f64 = 0.05;
 /// the Bernstein energy trails the converged one by 0.03–0.06% (median,
 /// 1k and 10k vertices; 0.11% at worst) and the lattice's by 0.1–0.4%; 2
 /// iterations leave about 5.6 times as much. A Bernstein frame of 4 takes
-/// about 0.19 ms at 1k vertices and 1.75 ms at 10k on the 2-core
+/// about 0.16 ms at 1k vertices and 1.5 ms at 10k on the 2-core
 /// development machine. Each iteration costs two passes over `W` (n·K
 /// multiply-adds for Bernstein, 4n for the lattice), the one-ring sweeps and
 /// the K×K product with the inverse.
@@ -357,8 +357,8 @@ pub struct LpFfd {
     grid_handles: Vec<(usize, usize)>,
     grid_target_count: usize,
     /// The inverse of the global matrix, row-major K×K (symmetric): a
-    /// frame's solve is one dense product, four rows at a time in SIMD
-    /// lanes, instead of two triangular solves whose rows wait on each
+    /// frame's solve is one dense product, sixteen outputs at a time in
+    /// SIMD lanes, instead of two triangular solves whose rows wait on each
     /// other.
     inverse: Vec<f64>,
     // State: Δ, P' = P⁰ + Δ, V = V̄ + WΔ.
