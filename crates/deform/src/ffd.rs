@@ -1084,6 +1084,7 @@ impl pulp::WithSimd for FitKernel<'_> {
             index: ref vertex,
             x: ref wx,
             y: ref wy,
+            ..
         } = self.rings.packed;
         let pose = &self.pose[..n];
         for (b, range) in start.windows(2).enumerate() {
@@ -1135,34 +1136,12 @@ impl pulp::WithSimd for TurnKernel<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Packed {
-            rows: n,
-            ref start,
-            index: ref vertex,
-            x: ref wx,
-            y: ref wy,
-        } = self.rings.packed;
+        let n = self.rings.packed.rows;
         let (hx, hy) = (&self.rings.hx, &self.rings.hy);
         let rotations = &self.rotations[..n];
-        for (b, range) in start.windows(2).enumerate() {
+        for b in 0..self.rings.packed.start.len().saturating_sub(1) {
             let at = b * LANES;
-            let (mut tx, mut ty) = ([0.0; LANES], [0.0; LANES]);
-            let slots = range[0] as usize..range[1] as usize;
-            for ((j, ax), ay) in vertex[slots.clone()]
-                .iter()
-                .zip(&wx[slots.clone()])
-                .zip(&wy[slots])
-            {
-                // SAFETY: `Packed::new` checked every index is below n.
-                let r: [DVec2; LANES] =
-                    std::array::from_fn(|l| unsafe { *rotations.get_unchecked(j[l] as usize) });
-                let rx: [f64; LANES] = std::array::from_fn(|l| r[l].x);
-                let ry: [f64; LANES] = std::array::from_fn(|l| r[l].y);
-                for l in 0..LANES {
-                    tx[l] += rx[l] * ax[l] - ry[l] * ay[l];
-                    ty[l] += ry[l] * ax[l] + rx[l] * ay[l];
-                }
-            }
+            let (tx, ty) = self.rings.packed.turned_sums(b, rotations);
             let own: [DVec2; LANES] = std::array::from_fn(|l| rotations[(at + l).min(n - 1)]);
             let (hx, hy) = (&hx[b], &hy[b]);
             let (mut bx, mut by) = ([0.0; LANES], [0.0; LANES]);

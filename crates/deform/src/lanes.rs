@@ -98,6 +98,8 @@ pub(crate) const LANES: usize = 4;
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Packed {
     pub(crate) rows: usize,
+    /// Every index is below this (checked when packed).
+    bound: usize,
     pub(crate) start: Vec<u32>,
     pub(crate) index: Vec<[u32; LANES]>,
     pub(crate) x: Vec<[f64; LANES]>,
@@ -118,6 +120,7 @@ impl Packed {
         let blocks = rows.div_ceil(LANES);
         let mut out = Packed {
             rows,
+            bound,
             start: Vec::with_capacity(blocks + 1),
             ..Packed::default()
         };
@@ -134,5 +137,39 @@ impl Packed {
             out.start.push(out.index.len() as u32);
         }
         out
+    }
+
+    /// Block `b`'s per-lane sums `Σ R(rotations[index]) (x, y)`, each
+    /// rotation held as (cos, sin): the rotated-vector gather both rigs'
+    /// right-hand sides are made of.
+    #[inline(always)]
+    pub(crate) fn turned_sums(
+        &self,
+        b: usize,
+        rotations: &[DVec2],
+    ) -> ([f64; LANES], [f64; LANES]) {
+        assert!(
+            rotations.len() >= self.bound,
+            "rotations shorter than packed indices"
+        );
+        let (mut sx, mut sy) = ([0.0; LANES], [0.0; LANES]);
+        let slots = self.start[b] as usize..self.start[b + 1] as usize;
+        for ((i, ax), ay) in self.index[slots.clone()]
+            .iter()
+            .zip(&self.x[slots.clone()])
+            .zip(&self.y[slots])
+        {
+            // SAFETY: `Packed::new` checked every index is below `bound`,
+            // and `rotations` is at least that long (asserted above).
+            let r: [DVec2; LANES] =
+                std::array::from_fn(|l| unsafe { *rotations.get_unchecked(i[l] as usize) });
+            let rx: [f64; LANES] = std::array::from_fn(|l| r[l].x);
+            let ry: [f64; LANES] = std::array::from_fn(|l| r[l].y);
+            for l in 0..LANES {
+                sx[l] += rx[l] * ax[l] - ry[l] * ay[l];
+                sy[l] += ry[l] * ax[l] + rx[l] * ay[l];
+            }
+        }
+        (sx, sy)
     }
 }

@@ -854,34 +854,10 @@ impl pulp::WithSimd for GatherRotated<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Packed {
-            rows: n,
-            ref start,
-            ref index,
-            x: ref ax,
-            y: ref ay,
-        } = *self.packed;
-        let rotations = self.rotations;
-        for (b, range) in start.windows(2).enumerate() {
+        let n = self.packed.rows;
+        for b in 0..self.packed.start.len().saturating_sub(1) {
             let at = b * LANES;
-            let (mut sx, mut sy) = ([0.0; LANES], [0.0; LANES]);
-            let slots = range[0] as usize..range[1] as usize;
-            for ((t, ax), ay) in index[slots.clone()]
-                .iter()
-                .zip(&ax[slots.clone()])
-                .zip(&ay[slots])
-            {
-                // SAFETY: `Packed::new` checked every index is below the
-                // free triangle count, the length of `rotations`.
-                let r: [DVec2; LANES] =
-                    std::array::from_fn(|l| unsafe { *rotations.get_unchecked(t[l] as usize) });
-                let rx: [f64; LANES] = std::array::from_fn(|l| r[l].x);
-                let ry: [f64; LANES] = std::array::from_fn(|l| r[l].y);
-                for l in 0..LANES {
-                    sx[l] += rx[l] * ax[l] - ry[l] * ay[l];
-                    sy[l] += ry[l] * ax[l] + rx[l] * ay[l];
-                }
-            }
+            let (sx, sy) = self.packed.turned_sums(b, self.rotations);
             for l in 0..LANES.min(n - at) {
                 self.out[at + l] = self.fixed[at + l] + DVec2::new(sx[l], sy[l]);
             }
