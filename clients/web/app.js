@@ -55,6 +55,7 @@ const legendEl = byId('people');
 const api = window.puppetry = {
   depth: {},
   connected: false,
+  live: true,                // false while a relay says it lost the stage
   framesReceived: 0,
   weightsReceived: 0,
   weights: {},               // puppet id -> its per-triangle weights now
@@ -444,6 +445,11 @@ function onText(text) {
     case SERVER_MESSAGE.INPUTS:
       api.inputs = msg;
       replayControls.onInputs(msg);
+      return;
+    case SERVER_MESSAGE.LIVE:
+      // A relay lost (or found again) the stage it shows.
+      api.live = msg.live;
+      hud.setConnection(msg.live, msg.live ? 'connected' : (msg.reason || 'the stage is not reachable'));
       return;
     case SERVER_MESSAGE.PONG:
       if (typeof msg.t === 'number') {

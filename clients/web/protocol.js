@@ -56,6 +56,7 @@ export const SERVER_MESSAGE = Object.freeze({
   POSE: 'pose',
   INPUTS: 'inputs',
   PONG: 'pong',
+  LIVE: 'live',
 });
 
 /**

@@ -5,19 +5,25 @@
 //! show-control desks read its state and trigger it over OSC ([`osc`]).
 //! Which puppets are on stage, and where each one's output is, is the
 //! [`lineup`]: fixed by the stage file until a director adds, removes or
-//! reorders puppets at runtime.
+//! reorders puppets at runtime. With `[relay]`, the stage is also
+//! published over NATS, and `puppetry relay` processes serve it to more
+//! viewers, on other machines ([`relay`]).
 //!
 //! ```text
 //!   puppetry-input ──► stage_thread ──────────────► stream
 //!   (sources, under    (owns the puppetry-stage      (HTTP + WebSocket: newest
 //!    serve's care)      Stage; solves with            frame per client; the
 //!                       puppetry-deform; encodes      web page)
-//!                       each frame once)
+//!                       each frame once)      │
+//!                                                     ├─► relay::publish ──► NATS
+//!                                                     │                       │
+//!                        relay::serve (another process): NATS ──► stream ──► viewers
 //! ```
 
 pub mod lineup;
 pub mod osc;
 pub mod protocol;
+pub mod relay;
 pub mod serve;
 pub mod sources;
 pub mod stage_thread;

@@ -25,10 +25,12 @@ pub struct Lineup {
     pub description: StageDescription,
     /// Every puppet's outputs, by id (a removed puppet's stay silent).
     pub outputs: Vec<PuppetOutput>,
-    /// Every puppet as takes name them (rest-mesh hashes), by id.
+    /// Every puppet as takes name them (rest-mesh hashes), by id (none on
+    /// a relay: it records nothing).
     pub take_puppets: Vec<puppetry_take::PuppetInfo>,
     /// The stage file with the puppets added at runtime after its own, so
-    /// a take recorded with them exports.
+    /// a take recorded with them exports. A relay has no stage file: its
+    /// lineups carry an empty stage of the same size, never read.
     pub config: Arc<StageConfig>,
 }
 
@@ -123,14 +125,27 @@ impl StageDescription {
                 rig: rig_description(p.rig()),
             })
             .collect::<Vec<_>>();
+        let size = StageSize {
+            width: stage.width,
+            height: stage.height,
+        };
+        let images = stage.puppets().iter().map(|p| p.picture.clone()).collect();
+        StageDescription::from_puppets(puppets, size, images)
+    }
+
+    /// The description of `puppets` (without handles) on a stage of
+    /// `size`; a relay makes its own from what the daemon publishes, with
+    /// no pictures (it fetches them from the daemon).
+    pub fn from_puppets(
+        puppets: Vec<PuppetDescription>,
+        size: StageSize,
+        images: Vec<Picture>,
+    ) -> StageDescription {
         StageDescription {
             puppet_json: puppets.iter().map(split_at_handles).collect(),
             puppets,
-            size: StageSize {
-                width: stage.width,
-                height: stage.height,
-            },
-            images: stage.puppets().iter().map(|p| p.picture.clone()).collect(),
+            size,
+            images,
         }
     }
 }

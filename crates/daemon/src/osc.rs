@@ -581,7 +581,7 @@ pub struct Links {
 impl Links {
     /// The stage file's puppets (show control's address space is fixed at
     /// start: puppets added at runtime are not in it).
-    pub fn of(shared: &Shared) -> Links {
+    pub fn of(shared: &Shared, commands: mpsc::Sender<Command>) -> Links {
         let lineup = shared.lineup.borrow().clone();
         let puppets = lineup
             .description
@@ -612,7 +612,7 @@ impl Links {
                 .collect(),
             puppets,
             take: shared.take.clone(),
-            commands: shared.commands.clone(),
+            commands,
         }
     }
 }

@@ -588,6 +588,14 @@ pub enum ServerMessage {
     /// answered (seconds since it started: the clock of frames'
     /// `input_time`), so a client can place frames on its own clock.
     Pong { t: f64, clock: f64 },
+    /// From a relay only: whether it reaches the stage. While not, the
+    /// picture holds still and messages are refused; when it is back, a
+    /// fresh `stage` message may follow (the daemon restarted).
+    Live {
+        live: bool,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        reason: Option<String>,
+    },
     /// A puppet's handle set changed; `generation` is the one handles
     /// frames of this set carry.
     Handles {

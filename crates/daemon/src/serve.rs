@@ -38,6 +38,8 @@ pub enum ServeError {
     Input(String),
     #[error(transparent)]
     Osc(#[from] crate::osc::OscError),
+    #[error(transparent)]
+    Relay(#[from] crate::relay::RelayError),
     #[error("loading the stage stopped: {0}")]
     Loading(String),
 }
@@ -60,6 +62,8 @@ pub struct Running {
     /// Where OSC triggers are received (`[osc].listen`, port resolved).
     pub osc_address: Option<SocketAddr>,
     osc: Option<crate::osc::Osc>,
+    /// The stage published over NATS (`[relay]`).
+    relay: Option<crate::relay::publish::Publishing>,
     commands: mpsc::Sender<Command>,
     shutdown: oneshot::Sender<()>,
     server: JoinHandle<()>,
@@ -79,10 +83,12 @@ impl Running {
     /// are paused) and no take is playing: what was fed is in the stage
     /// thread's queue.
     pub fn inputs_done(&self) -> bool {
+        let Ok(links) = self.shared.links() else {
+            return true;
+        };
         self.inputs.iter().all(|i| i.is_finished())
-            && self.shared.replays.idle()
-            && self
-                .shared
+            && links.replays.idle()
+            && links
                 .player
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
@@ -107,6 +113,9 @@ impl Running {
     pub async fn shutdown(self) {
         if let Some(osc) = &self.osc {
             osc.stop();
+        }
+        if let Some(relay) = self.relay {
+            relay.stop().await;
         }
         let _ = self.shutdown.send(());
         let _ = self.server.await;
@@ -219,32 +228,49 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
             .map(|r| (r.0.to_string(), !(paused_replays && r.4)))
             .collect(),
     ));
+    let export_state = watch::channel(Arc::<str>::from("")).0;
     let shared = Arc::new(Shared {
         lineup: outputs.lineup,
-        people,
         log: Default::default(),
         addresses: Default::default(),
         web_files,
         max_connections: config.stage.max_connections,
-        commands: commands.clone(),
         cursors: outputs.cursors,
         take: outputs.take,
+        export: export_state.subscribe(),
+        people: people.subscribe(),
+        inputs: replays.message(),
+        // A daemon never loses its own stage.
+        notice: watch::channel(Arc::<str>::from("")).1,
         changes: outputs.changes,
         timings: outputs.timings,
-        takes_dir,
-        puppets_dir,
-        player: std::sync::Mutex::new(None),
-        exporting: std::sync::atomic::AtomicBool::new(false),
-        export_state: watch::channel(Arc::<str>::from("")).0,
         client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),
         started,
         next_client: AtomicU64::new(1),
-        replays: replays.clone(),
+        backend: stream::Backend::Stage(stream::StageLinks {
+            people,
+            commands: commands.clone(),
+            takes_dir,
+            puppets_dir,
+            player: std::sync::Mutex::new(None),
+            exporting: std::sync::atomic::AtomicBool::new(false),
+            export_state,
+            replays: replays.clone(),
+        }),
     });
 
     // Before the sources, so a bad OSC address stops the start cleanly.
     let osc = match &config.osc {
-        Some(osc) => Some(crate::osc::start(osc, crate::osc::Links::of(&shared)).await?),
+        Some(osc) => {
+            Some(crate::osc::start(osc, crate::osc::Links::of(&shared, commands.clone())).await?)
+        }
+        None => None,
+    };
+    // NATS need not be up: the daemon serves its own clients regardless.
+    let relay = match &config.relay {
+        Some(relay) => Some(
+            crate::relay::publish::start(relay, &config.relay_stage_name(), shared.clone()).await?,
+        ),
         None => None,
     };
     let Spawned {
@@ -261,7 +287,9 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
             started,
         )
         .map_err(ServeError::Input)?;
-        *shared.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
+        if let Ok(links) = shared.links() {
+            *links.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
+        }
     }
     let (shutdown, shutdown_rx) = oneshot::channel();
     let server = tokio::spawn(stream::run(listener, shared.clone(), async {
@@ -273,6 +301,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         started,
         osc_address: osc.as_ref().and_then(|o| o.listen),
         osc,
+        relay,
         commands,
         shutdown,
         server,

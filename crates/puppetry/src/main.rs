@@ -64,6 +64,36 @@ enum Command {
         #[arg(long, value_name = "DIR")]
         puppets: Option<PathBuf>,
     },
+    /// Serve a daemon's stage to viewers from NATS (the daemon's stage file
+    /// has `[relay] nats = "…"`): the same web page and protocol, on any
+    /// machine; remote performers' messages go to the daemon, which checks
+    /// them as it checks direct ones (docs/scaling.md).
+    Relay {
+        /// The NATS server the daemon publishes to.
+        #[arg(long, value_name = "URL")]
+        nats: String,
+        /// The stage's name on NATS: `[relay].stage`, or the daemon's stage
+        /// file name without `.toml`.
+        #[arg(long)]
+        stage: String,
+        /// Serve viewers here.
+        #[arg(long, default_value = "127.0.0.1:8090")]
+        listen: std::net::SocketAddr,
+        /// This relay's name (letters, digits, - and _): remote performers
+        /// are `relay:<name>:<n>` on the stage. Default: relay-<pid>.
+        #[arg(long)]
+        name: Option<String>,
+        /// Serve the web client from this folder instead of the copy
+        /// compiled into the binary.
+        #[arg(long)]
+        web_root: Option<PathBuf>,
+        /// Open connections at most.
+        #[arg(long, default_value_t = 4096)]
+        max_connections: usize,
+        /// Clients that stop reading are dropped after this many seconds.
+        #[arg(long, default_value_t = 10.0)]
+        client_timeout: f64,
+    },
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
     /// alpha), webm (VP9 with alpha) — videos through ffmpeg — or spine
@@ -383,6 +413,56 @@ fn run(args: Args) -> anyhow::Result<()> {
                 println!("  stop with Ctrl-C (or SIGTERM)");
                 // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
                 // either way a take being recorded is ended cleanly.
+                let mut terminate =
+                    tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+                tokio::select! {
+                    stopped = tokio::signal::ctrl_c() => stopped?,
+                    _ = terminate.recv() => {}
+                }
+                running.shutdown().await;
+                anyhow::Ok(())
+            })?;
+        }
+        Command::Relay {
+            nats,
+            stage,
+            listen,
+            name,
+            web_root,
+            max_connections,
+            client_timeout,
+        } => {
+            tracing_subscriber::fmt()
+                .with_env_filter(
+                    tracing_subscriber::EnvFilter::try_from_default_env()
+                        .unwrap_or_else(|_| "info".into()),
+                )
+                .with_writer(std::io::stderr)
+                .init();
+            if !(client_timeout.is_finite() && client_timeout > 0.0) {
+                anyhow::bail!("--client-timeout must be a positive number of seconds");
+            }
+            let options = puppetry_daemon::relay::RelayOptions {
+                nats,
+                stage,
+                name: name.unwrap_or_else(|| format!("relay-{}", std::process::id())),
+                listen,
+                web_files: match web_root {
+                    Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
+                    None => puppetry_daemon::stream::WebFiles::Embedded,
+                },
+                max_connections,
+                client_timeout: std::time::Duration::from_secs_f64(client_timeout),
+            };
+            let runtime = tokio::runtime::Runtime::new()?;
+            runtime.block_on(async {
+                let stage = options.stage.clone();
+                let running = puppetry_daemon::relay::serve::start(options).await?;
+                println!(
+                    "puppetry: relaying stage {stage} at http://{}/",
+                    running.address
+                );
+                println!("  stop with Ctrl-C (or SIGTERM)");
                 let mut terminate =
                     tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
                 tokio::select! {

@@ -42,6 +42,10 @@ pub struct StageConfig {
     /// Show control over OSC (`docs/osc.md`); off without the section.
     #[serde(default)]
     pub osc: Option<OscConfig>,
+    /// Publishing to relays over NATS (`docs/scaling.md`); off without
+    /// the section.
+    #[serde(default)]
+    pub relay: Option<RelayConfig>,
     /// Where the file was read from; relative paths are resolved against it.
     #[serde(skip)]
     pub folder: PathBuf,
@@ -735,6 +739,41 @@ pub struct OscConfig {
     pub prefix: String,
 }
 
+/// `[relay]`: the stage published over NATS, for `puppetry relay`
+/// processes to serve viewers and forward remote performers.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RelayConfig {
+    /// The NATS server, `nats://host:port` (or `tls://…`: tokens of
+    /// remote performers travel over it).
+    pub nats: String,
+    /// The stage's name on NATS (letters, digits, `-` and `_`); relays ask
+    /// for it with `--stage`. Default: the stage file's name without `.toml`.
+    #[serde(default)]
+    pub stage: Option<String>,
+}
+
+impl StageConfig {
+    /// The stage's name on NATS (`[relay].stage`, or the file's stem).
+    pub fn relay_stage_name(&self) -> String {
+        let stem = Path::new(&self.file)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let named = self.relay.as_ref().and_then(|r| r.stage.clone());
+        named.unwrap_or_else(|| {
+            stem.chars()
+                .map(|c| if is_name_char(c) { c } else { '_' })
+                .collect()
+        })
+    }
+}
+
+/// Whether `c` may be in a stage's NATS name (one subject token).
+pub fn is_name_char(c: char) -> bool {
+    c.is_ascii_alphanumeric() || c == '-' || c == '_'
+}
+
 /// Bounds of `[osc].rate`: below one a second a show desk looks frozen;
 /// above 120 the updates outrun any display and flood the network.
 pub const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
@@ -920,6 +959,23 @@ impl StageConfig {
         if let Some(osc) = &config.osc {
             check_osc(osc).map_err(|(field, problem)| invalid(field, &problem))?;
         }
+        if let Some(relay) = &config.relay {
+            let scheme = relay.nats.split_once("://").map(|(s, _)| s);
+            if !matches!(scheme, Some("nats" | "tls")) {
+                return Err(invalid(
+                    "relay.nats".into(),
+                    "must be a nats://host:port or tls://host:port address",
+                ));
+            }
+            if let Some(name) = &relay.stage
+                && (name.is_empty() || !name.chars().all(is_name_char))
+            {
+                return Err(invalid(
+                    "relay.stage".into(),
+                    "must be letters, digits, - and _ (one NATS subject token)",
+                ));
+            }
+        }
         for (i, p) in config.puppets.iter().enumerate() {
             if !(p.scale.is_finite() && p.scale > 0.0) {
                 return Err(invalid(
@@ -979,6 +1035,30 @@ mod tests {
     fn parse(access: &str) -> Result<StageConfig, String> {
         StageConfig::parse("a.toml", &format!("{STAGE}{access}"), Path::new("/"))
             .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn the_relay_section_is_checked() {
+        let config = parse("[relay]\nnats = \"nats://127.0.0.1:4222\"\n").unwrap();
+        assert_eq!(config.relay.unwrap().nats, "nats://127.0.0.1:4222");
+        assert_eq!(
+            StageConfig::parse(
+                "my stage.toml",
+                &format!("{STAGE}[relay]\nnats = \"nats://h:1\"\n"),
+                Path::new("/")
+            )
+            .unwrap()
+            .relay_stage_name(),
+            "my_stage"
+        );
+        let named = parse("[relay]\nnats = \"tls://h:1\"\nstage = \"show-1\"\n").unwrap();
+        assert_eq!(named.relay_stage_name(), "show-1");
+        let bad = parse("[relay]\nnats = \"http://h:1\"\n").unwrap_err();
+        assert!(bad.contains("relay.nats"), "{bad}");
+        let bad = parse("[relay]\nnats = \"nats://h:1\"\nstage = \"a.b\"\n").unwrap_err();
+        assert!(bad.contains("relay.stage"), "{bad}");
+        let bad = parse("[relay]\nnats = \"nats://h:1\"\nstages = \"x\"\n").unwrap_err();
+        assert!(bad.contains("stages"), "{bad}");
     }
 
     #[test]

@@ -82,8 +82,8 @@ async fn upgrade(
 ) -> Response {
     if let Some(origin) = headers.get(header::ORIGIN) {
         let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
-        let allowed = &shared.people.access().allowed_origins;
-        if !origin_allowed(origin.to_str().unwrap_or(""), host, allowed) {
+        let allowed = shared.admission().allowed_origins;
+        if !origin_allowed(origin.to_str().unwrap_or(""), host, &allowed) {
             shared.log.warn(&peer.ip().to_string(), || {
                 format!(
                     "WebSocket from origin {:?} refused (not the daemon's own nor in access.allowed_origins)",
@@ -163,7 +163,7 @@ pub struct AddressPlace {
 impl AddressPlace {
     /// A place for `ip`, or `None` if it has `max_per_address` already.
     fn take(shared: &Arc<Shared>, ip: IpAddr) -> Option<AddressPlace> {
-        let cap = shared.people.access().max_per_address;
+        let cap = shared.admission().max_per_address;
         let mut open = shared.addresses.lock().unwrap_or_else(|p| p.into_inner());
         let count = open.entry(ip).or_insert(0);
         if *count >= cap {
@@ -194,6 +194,16 @@ impl Drop for AddressPlace {
 }
 
 async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> Response {
+    if let super::Backend::Relay(link) = &shared.backend {
+        let picture = match id.parse::<u32>() {
+            Ok(id) => link.picture(id).await,
+            Err(_) => None,
+        };
+        return match picture {
+            Some(bytes) => with_type(Body::from(bytes), "image/png"),
+            None => not_found(),
+        };
+    }
     let path = id.parse::<usize>().ok().and_then(|i| {
         let lineup = shared.lineup.borrow();
         lineup.description.images.get(i).cloned()

@@ -35,7 +35,10 @@ pub async fn take_file(State(shared): State<Arc<Shared>>, Path(file): Path<Strin
     let Some(name) = file.strip_suffix(".take") else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
-    let Ok(path) = crate::takes::take_path(&shared.takes_dir, name) else {
+    let Ok(links) = shared.links() else {
+        return plain(StatusCode::NOT_FOUND, "not found");
+    };
+    let Ok(path) = crate::takes::take_path(&links.takes_dir, name) else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
     match tokio::fs::read(&path).await {
@@ -50,7 +53,10 @@ pub async fn export(
     Path(name): Path<String>,
     Query(query): Query<HashMap<String, String>>,
 ) -> Response {
-    let Ok(take) = crate::takes::take_path(&shared.takes_dir, &name) else {
+    let Ok(links) = shared.links() else {
+        return plain(StatusCode::NOT_FOUND, "not found");
+    };
+    let Ok(take) = crate::takes::take_path(&links.takes_dir, &name) else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
     if !take.exists() {
@@ -64,7 +70,7 @@ pub async fn export(
     if let Err(problem) = check_numbers(&query, format) {
         return plain(StatusCode::BAD_REQUEST, &problem);
     }
-    if shared.exporting.swap(true, Ordering::AcqRel) {
+    if links.exporting.swap(true, Ordering::AcqRel) {
         return plain(
             StatusCode::TOO_MANY_REQUESTS,
             "an export is running; try again when it ends",
@@ -78,7 +84,7 @@ pub async fn export(
     let (width, height) = match query.get("size").map(|s| size(s)) {
         Some(Ok(s)) => s,
         Some(Err(p)) => {
-            shared.exporting.store(false, Ordering::Release);
+            links.exporting.store(false, Ordering::Release);
             return plain(StatusCode::BAD_REQUEST, &p);
         }
         None => (1280, 720),
@@ -88,7 +94,7 @@ pub async fn export(
         number(&query, "from").transpose(),
         number(&query, "to").transpose(),
     ) else {
-        shared.exporting.store(false, Ordering::Release);
+        links.exporting.store(false, Ordering::Release);
         return plain(StatusCode::BAD_REQUEST, "fps, from and to must be numbers");
     };
     let export = ExportRequest {
@@ -110,8 +116,12 @@ pub async fn export(
         .name(format!("export {name}"))
         .spawn(move || {
             lower_priority();
+            // A relay mounts no export route: this is the stage.
+            let Ok(links) = runner.links() else {
+                return;
+            };
             let mut progress = Broadcast {
-                shared: &runner,
+                links,
                 take: label.clone(),
                 format: export.format.clone(),
                 shown: usize::MAX,
@@ -123,7 +133,7 @@ pub async fn export(
                 }
                 other => (false, other.to_string()),
             });
-            runner.export_state.send_replace(Arc::from(
+            links.export_state.send_replace(Arc::from(
                 ServerMessage::Export(ExportState {
                     take: label,
                     format: export.format.clone(),
@@ -134,11 +144,11 @@ pub async fn export(
                 })
                 .to_text(),
             ));
-            runner.exporting.store(false, Ordering::Release);
+            links.exporting.store(false, Ordering::Release);
             let _ = done.send(result);
         });
     if started.is_err() {
-        shared.exporting.store(false, Ordering::Release);
+        links.exporting.store(false, Ordering::Release);
         return plain(StatusCode::INTERNAL_SERVER_ERROR, "cannot start an export");
     }
     match finished.await {
@@ -238,7 +248,7 @@ fn lower_priority() {
 
 /// Export progress as `export` messages, once per percent.
 struct Broadcast<'a> {
-    shared: &'a Shared,
+    links: &'a super::StageLinks,
     take: String,
     format: String,
     shown: usize,
@@ -251,7 +261,7 @@ impl puppetry_export::Progress for Broadcast<'_> {
             return;
         }
         self.shown = percent;
-        self.shared.export_state.send_replace(Arc::from(
+        self.links.export_state.send_replace(Arc::from(
             ServerMessage::Export(ExportState {
                 take: self.take.clone(),
                 format: self.format.clone(),

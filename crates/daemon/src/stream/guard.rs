@@ -20,7 +20,7 @@ pub const MAX_COORDINATE: f64 = 1e6;
 pub const MAX_ECHO: usize = 200;
 
 /// Why a message was refused: the `error` message sent back.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Refusal {
     pub code: ErrorCode,
     pub message: String,

@@ -7,7 +7,7 @@
 
 mod edge;
 mod exports;
-mod following;
+pub(crate) mod following;
 pub mod guard;
 pub mod people;
 mod uploads;
@@ -50,12 +50,12 @@ const READ_BUFFER: usize = 4 * 1024;
 /// Bad messages in a row before a client is disconnected.
 pub const MAX_BAD_MESSAGES: u32 = 20;
 
-/// What every connection task shares.
+/// What every connection task shares: the edge's settings, the feeds a
+/// connection follows, and where its messages go (the stage itself, or a
+/// daemon reached over NATS when this edge is a relay).
 pub struct Shared {
     /// The puppets on stage and where each one's output is.
     pub lineup: watch::Receiver<Arc<Lineup>>,
-    /// Who may connect, and who is connected (`people`).
-    pub people: Arc<People>,
     /// Client mistakes are logged through this, per client address.
     pub log: guard::RateLog,
     /// Open WebSocket connections per client address (`max_per_address`).
@@ -63,11 +63,43 @@ pub struct Shared {
     pub web_files: WebFiles,
     /// Open connections past which new ones are refused.
     pub max_connections: usize,
-    pub commands: mpsc::Sender<Command>,
     /// The newest "cursors" message (mouse cursors on the stage).
     pub cursors: watch::Receiver<Arc<str>>,
     /// The newest "take" message (recording and playing now).
     pub take: watch::Receiver<Arc<str>>,
+    /// The newest "export" message.
+    pub export: watch::Receiver<Arc<str>>,
+    /// The newest "people" message.
+    pub people: watch::Receiver<Arc<str>>,
+    /// The newest "inputs" message (the stage's replays).
+    pub inputs: watch::Receiver<Arc<str>>,
+    /// The newest "live" notice; empty while there is none (a daemon never
+    /// has one: only a relay loses its stage).
+    pub notice: watch::Receiver<Arc<str>>,
+    /// Bumped after each publish (by the stage thread, or a relay's feed).
+    pub changes: watch::Receiver<u64>,
+    /// Where the stage thread's and the client tasks' time goes.
+    pub timings: Arc<crate::stage_thread::Timings>,
+    pub client_timeout: Duration,
+    /// The clock `ping` answers with (a relay answers through the daemon).
+    pub started: Instant,
+    pub next_client: AtomicU64,
+    pub backend: Backend,
+}
+
+/// Where a connection's messages go.
+pub enum Backend {
+    /// This process runs the stage.
+    Stage(StageLinks),
+    /// This process is a relay: the stage is a daemon reached over NATS.
+    Relay(crate::relay::RelayLink),
+}
+
+/// What only the process running the stage has.
+pub struct StageLinks {
+    /// Who may connect, and who is connected.
+    pub people: Arc<People>,
+    pub commands: mpsc::Sender<Command>,
     /// Where takes are recorded and listed.
     pub takes_dir: std::path::PathBuf,
     /// The take playing, if any (never locked across an await).
@@ -78,15 +110,41 @@ pub struct Shared {
     pub exporting: std::sync::atomic::AtomicBool,
     /// The newest "export" message.
     pub export_state: watch::Sender<Arc<str>>,
-    /// Bumped by the stage thread after each publish.
-    pub changes: watch::Receiver<u64>,
-    /// Where the stage thread's and the client tasks' time goes.
-    pub timings: Arc<crate::stage_thread::Timings>,
-    pub client_timeout: Duration,
-    pub started: Instant,
-    pub next_client: AtomicU64,
     /// The stage's replay inputs, played and paused from the page.
     pub replays: Arc<crate::sources::Replays>,
+}
+
+/// Who may open the WebSocket beyond the edge's own pages, and how many
+/// per address: the stage file's `[access]`, which a relay learns from
+/// the daemon.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Admission {
+    pub allowed_origins: Vec<String>,
+    pub max_per_address: usize,
+}
+
+impl Shared {
+    /// The stage's own links; a relay has none (it forwards messages, and
+    /// does not serve uploads, takes or exports).
+    pub fn links(&self) -> Result<&StageLinks, String> {
+        match &self.backend {
+            Backend::Stage(links) => Ok(links),
+            Backend::Relay(_) => {
+                Err("a relay does not serve this: connect to the daemon itself".to_string())
+            }
+        }
+    }
+
+    /// Who may open the WebSocket, now.
+    pub fn admission(&self) -> Admission {
+        match &self.backend {
+            Backend::Stage(links) => Admission {
+                allowed_origins: links.people.access().allowed_origins.clone(),
+                max_per_address: links.people.access().max_per_address,
+            },
+            Backend::Relay(link) => link.admission(),
+        }
+    }
 }
 
 /// Binds the listener; `run` serves until `shutdown` resolves.
@@ -212,6 +270,156 @@ async fn read_hello(ws: &mut Ws, shared: &Shared, peer: &str) -> Option<(Role, O
     None
 }
 
+/// A connected client's seat: who it is to the stage, and where its
+/// messages go.
+enum Seat {
+    /// On the stage of this process.
+    Stage {
+        source: String,
+        permissions: guard::Permissions,
+        _member: Option<people::Member>,
+    },
+    /// On a relay: the daemon keeps the session, and checks every message.
+    Relay(crate::relay::Session),
+}
+
+/// A hello that was refused: what to tell the client, and how to close.
+pub(crate) struct JoinRefused {
+    pub refusal: guard::Refusal,
+    pub close: u16,
+    pub reason: String,
+}
+
+/// What the stage says of a client it let in.
+pub(crate) struct Joined {
+    pub role: Role,
+    pub you: crate::protocol::Person,
+    /// Ids of the puppets a limited performer plays; `None`: all.
+    pub puppets: Option<Vec<u32>>,
+}
+
+/// The refusal of a hello whose token opens nothing.
+pub(crate) fn bad_token() -> JoinRefused {
+    JoinRefused {
+        refusal: guard::Refusal::new(
+            crate::protocol::ErrorCode::BadToken,
+            "token refused: this connection may only view (say hello as a viewer)",
+        ),
+        close: close::TOKEN,
+        reason: "token refused".into(),
+    }
+}
+
+/// Lets `source` onto the stage as `asked` with `token`: its identity
+/// checked against the stage's `[access]`, listed in `people` (performers
+/// and directors) and limited to its puppets. The same for a direct
+/// client and one a relay forwards.
+pub(crate) async fn join_stage(
+    links: &StageLinks,
+    source: &str,
+    asked: Role,
+    token: Option<&str>,
+) -> Result<(Joined, guard::Permissions, Option<people::Member>), JoinRefused> {
+    let credential = token.and_then(|t| people::credential(links.people.access(), t));
+    if asked != Role::Viewer && credential.is_none() {
+        return Err(bad_token());
+    }
+    let (identity, member) = links.people.join(source, asked, credential);
+    let permissions = guard::Permissions {
+        role: identity.role,
+        puppets: identity.puppets.clone(),
+    };
+    if let Some(puppets) = &identity.puppets {
+        // Before any of this client's input: the stage thread takes
+        // commands in order.
+        let limit = Command::Limit {
+            source: source.to_string(),
+            puppets: Some(puppets.clone()),
+        };
+        let _ = links.commands.send(limit).await;
+    }
+    let joined = Joined {
+        role: identity.role,
+        you: identity.person,
+        puppets: identity.puppets,
+    };
+    Ok((joined, permissions, member))
+}
+
+/// Lets go of whatever `source` held on the stage, and of its puppet limit.
+pub(crate) async fn leave_stage(links: &StageLinks, source: &str, role: Role, limited: bool) {
+    if role != Role::Viewer {
+        let _ = links
+            .commands
+            .send(Command::ReleaseSource(source.to_string()))
+            .await;
+    }
+    if limited {
+        let _ = links
+            .commands
+            .send(Command::Limit {
+                source: source.to_string(),
+                puppets: None,
+            })
+            .await;
+    }
+}
+
+impl Seat {
+    async fn join(
+        shared: &Shared,
+        client: u64,
+        asked: Role,
+        token: Option<String>,
+    ) -> Result<(Seat, Joined), JoinRefused> {
+        match &shared.backend {
+            Backend::Stage(links) => {
+                let source = format!("client:{client}");
+                let (joined, permissions, member) =
+                    join_stage(links, &source, asked, token.as_deref()).await?;
+                let seat = Seat::Stage {
+                    source,
+                    permissions,
+                    _member: member,
+                };
+                Ok((seat, joined))
+            }
+            Backend::Relay(link) => {
+                let (session, joined) = link.join(client, asked, token).await?;
+                Ok((Seat::Relay(session), joined))
+            }
+        }
+    }
+
+    fn source(&self) -> &str {
+        match self {
+            Seat::Stage { source, .. } => source,
+            Seat::Relay(session) => session.source(),
+        }
+    }
+
+    async fn handle(&self, text: &str, shared: &Shared) -> Result<Option<String>, guard::Refusal> {
+        match self {
+            Seat::Stage {
+                source,
+                permissions,
+                ..
+            } => handle_message(text, permissions, source, shared).await,
+            Seat::Relay(session) => session.handle(text).await,
+        }
+    }
+
+    async fn leave(self, shared: &Shared, joined: &Joined) {
+        match (self, &shared.backend) {
+            (Seat::Stage { source, .. }, Backend::Stage(links)) => {
+                leave_stage(links, &source, joined.role, joined.puppets.is_some()).await;
+            }
+            (Seat::Relay(session), _) => session.leave(),
+            (Seat::Stage { .. }, Backend::Relay(_)) => {}
+        }
+    }
+}
+
 /// Serves one WebSocket client from its hello to its end. `place` holds
 /// the client's place under its address's cap.
 async fn websocket(
@@ -224,52 +432,37 @@ async fn websocket(
     let io = std::io::Error::other;
     let peer = peer.to_string();
     let client = shared.next_client.fetch_add(1, Ordering::Relaxed);
-    let source = format!("client:{client}");
     let Some((asked, token)) = read_hello(&mut ws, &shared, &peer).await else {
         return Ok(());
     };
-    let credential = token
-        .as_deref()
-        .and_then(|t| people::credential(shared.people.access(), t));
-    if asked != Role::Viewer && credential.is_none() {
-        let refusal = guard::Refusal::new(
-            ErrorCode::BadToken,
-            "token refused: this connection may only view (say hello as a viewer)",
-        );
-        let _ = refuse(&mut ws, &shared, &peer, &source, &refusal).await;
-        close_with(&mut ws, close::TOKEN, "token refused").await;
-        return Ok(());
-    }
-    let (identity, _member) = shared.people.join(&source, asked, credential);
-    let role = identity.role;
-    let permissions = guard::Permissions {
-        role,
-        puppets: identity.puppets.clone(),
+    let (seat, joined) = match Seat::join(&shared, client, asked, token).await {
+        Ok(seated) => seated,
+        Err(refused) => {
+            let who = format!("client:{client}");
+            let _ = refuse(&mut ws, &shared, &peer, &who, &refused.refusal).await;
+            close_with(&mut ws, refused.close, &refused.reason).await;
+            return Ok(());
+        }
     };
-    if let Some(puppets) = &identity.puppets {
-        // Before any of this client's input: the stage thread takes
-        // commands in order.
-        let limit = Command::Limit {
-            source: source.clone(),
-            puppets: Some(puppets.clone()),
-        };
-        let _ = shared.commands.send(limit).await;
-    }
-    let mut inputs = shared.replays.message();
+    let source = seat.source().to_string();
+    let role = joined.role;
+    let mut inputs = shared.inputs.clone();
     inputs.mark_changed();
     let mut lineup = shared.lineup.clone();
     let mut following = Following::of(lineup.borrow_and_update().clone());
-    let you = identity.person.clone();
+    let you = joined.you.clone();
     let stage_message = following.stage_message(client, role, you.clone());
     send(&mut ws, Message::text(stage_message), shared.client_timeout).await?;
     let mut changes = shared.changes.clone();
     let mut cursors = shared.cursors.clone();
     let mut take = shared.take.clone();
-    let mut export = shared.export_state.subscribe();
-    let mut people = shared.people.subscribe();
+    let mut export = shared.export.clone();
+    let mut people = shared.people.clone();
+    let mut notice = shared.notice.clone();
     people.mark_changed();
     cursors.mark_changed();
     take.mark_changed();
+    notice.mark_changed();
     let mut bad_in_a_row = 0u32;
     let result: std::io::Result<()> = async {
         loop {
@@ -281,45 +474,29 @@ async fn websocket(
                 .timings
                 .sends
                 .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-            if inputs.has_changed().unwrap_or(false) {
-                let text = inputs.borrow_and_update().to_string();
-                send(&mut ws, Message::text(text), shared.client_timeout).await?;
-            }
-            if cursors.has_changed().unwrap_or(false) {
-                let text = cursors.borrow_and_update().to_string();
-                send(&mut ws, Message::text(text), shared.client_timeout).await?;
-            }
-            if take.has_changed().unwrap_or(false) {
-                let text = take.borrow_and_update().to_string();
-                send(&mut ws, Message::text(text), shared.client_timeout).await?;
-            }
-            if export.has_changed().unwrap_or(false) {
-                let text = export.borrow_and_update().to_string();
-                send(&mut ws, Message::text(text), shared.client_timeout).await?;
-            }
-            if people.has_changed().unwrap_or(false) {
-                let text = people.borrow_and_update().to_string();
-                send(&mut ws, Message::text(text), shared.client_timeout).await?;
+            for feed in [&mut inputs, &mut cursors, &mut take, &mut export, &mut people, &mut notice] {
+                send_if_changed(&mut ws, feed, shared.client_timeout).await?;
             }
             tokio::select! {
                 // `changed` marks the value seen: send it here.
                 changed = export.changed() => {
                     if changed.is_ok() {
-                        let text = export.borrow_and_update().to_string();
-                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                        send_text(&mut ws, &mut export, shared.client_timeout).await?;
                     }
                 }
                 changed = people.changed() => {
                     if changed.is_ok() {
-                        let text = people.borrow_and_update().to_string();
-                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                        send_text(&mut ws, &mut people, shared.client_timeout).await?;
                     }
                 }
-                // `changed` marks the value seen: send it here.
                 changed = inputs.changed() => {
                     if changed.is_ok() {
-                        let text = inputs.borrow_and_update().to_string();
-                        send(&mut ws, Message::text(text), shared.client_timeout).await?;
+                        send_text(&mut ws, &mut inputs, shared.client_timeout).await?;
+                    }
+                }
+                changed = notice.changed() => {
+                    if changed.is_ok() {
+                        send_text(&mut ws, &mut notice, shared.client_timeout).await?;
                     }
                 }
                 // Puppets added, removed or reordered: a fresh "stage"
@@ -348,7 +525,7 @@ async fn websocket(
                         }
                         Some(Err(e)) => return Err(io(e)),
                         Some(Ok(Message::Text(text))) => {
-                            match handle_message(text.as_str(), &permissions, &source, &shared).await {
+                            match seat.handle(text.as_str(), &shared).await {
                                 Ok(answer) => {
                                     bad_in_a_row = 0;
                                     if let Some(answer) = answer {
@@ -381,23 +558,35 @@ async fn websocket(
         }
     }
     .await;
-    if role != Role::Viewer {
-        // Whatever this client held is let go.
-        let _ = shared
-            .commands
-            .send(Command::ReleaseSource(source.clone()))
-            .await;
-    }
-    if identity.puppets.is_some() {
-        let _ = shared
-            .commands
-            .send(Command::Limit {
-                source,
-                puppets: None,
-            })
-            .await;
-    }
+    seat.leave(&shared, &joined).await;
     result
+}
+
+/// Sends a text feed's newest message if it changed since last sent;
+/// an empty message is nothing to send.
+async fn send_if_changed(
+    ws: &mut Ws,
+    feed: &mut watch::Receiver<Arc<str>>,
+    timeout: Duration,
+) -> std::io::Result<()> {
+    if feed.has_changed().unwrap_or(false) {
+        send_text(ws, feed, timeout).await?;
+    }
+    Ok(())
+}
+
+/// Sends a text feed's newest message (marking it seen); an empty one is
+/// nothing to send.
+async fn send_text(
+    ws: &mut Ws,
+    feed: &mut watch::Receiver<Arc<str>>,
+    timeout: Duration,
+) -> std::io::Result<()> {
+    let text = feed.borrow_and_update().clone();
+    if text.is_empty() {
+        return Ok(());
+    }
+    send(ws, Message::text(text.to_string()), timeout).await
 }
 
 async fn send(ws: &mut Ws, message: Message, timeout: Duration) -> std::io::Result<()> {
@@ -436,6 +625,7 @@ async fn ask<T>(
     use puppetry_stage::CommandError as E;
     let (reply, answer) = tokio::sync::oneshot::channel();
     shared
+        .links()?
         .commands
         .send(command(reply))
         .await
@@ -459,7 +649,7 @@ async fn ask<T>(
 
 /// Acts on one text message of a connected client; `Ok` may carry an
 /// answer for this client, `Err` is the problem to report back.
-async fn handle_message(
+pub(crate) async fn handle_message(
     text: &str,
     who: &guard::Permissions,
     source: &str,
@@ -593,7 +783,7 @@ async fn handle_message(
         ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
         ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,
         ClientMessage::Replay { source, playing } => {
-            shared.replays.set(&source, playing)?;
+            shared.links()?.replays.set(&source, playing)?;
             return Ok(None);
         }
         ClientMessage::Pose {
@@ -728,6 +918,7 @@ async fn handle_message(
         }
         ClientMessage::StopPlaying => {
             let player = shared
+                .links()?
                 .player
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
@@ -743,6 +934,7 @@ async fn handle_message(
         }
     };
     shared
+        .links()?
         .commands
         .send(command)
         .await
@@ -754,6 +946,7 @@ async fn handle_message(
 /// while a take plays (its steps name puppets by id) or records.
 async fn change_lineup(shared: &Shared, change: LineupChange) -> Result<u32, guard::Refusal> {
     let playing = shared
+        .links()?
         .player
         .lock()
         .unwrap_or_else(|p| p.into_inner())
@@ -787,6 +980,7 @@ async fn start_take(
 ) -> Result<String, String> {
     let (reply, answer) = tokio::sync::oneshot::channel();
     shared
+        .links()?
         .commands
         .send(Command::StartTake {
             name,
@@ -803,6 +997,7 @@ async fn start_take(
 async fn stop_take(shared: &Shared) -> Result<String, String> {
     let (reply, answer) = tokio::sync::oneshot::channel();
     shared
+        .links()?
         .commands
         .send(Command::StopTake { reply })
         .await
@@ -821,7 +1016,8 @@ async fn play_take(
     replace: Vec<crate::protocol::Region>,
     replace_sources: Vec<String>,
 ) -> Result<(), String> {
-    let path = crate::takes::take_path(&shared.takes_dir, take)?;
+    let links = shared.links()?;
+    let path = crate::takes::take_path(&links.takes_dir, take)?;
     let puppets = shared.lineup.borrow().take_puppets.len();
     for (i, r) in replace.iter().enumerate() {
         if r.puppet as usize >= puppets {
@@ -837,7 +1033,7 @@ async fn play_take(
         }
     }
     {
-        let mut slot = shared.player.lock().unwrap_or_else(|p| p.into_inner());
+        let mut slot = links.player.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(p) = slot.as_ref() {
             if !p.is_finished() {
                 return Err(format!("take {} is already playing", p.name));
@@ -854,7 +1050,7 @@ async fn play_take(
         replace_sources,
     };
     let puppets = shared.lineup.borrow().take_puppets.clone();
-    let commands = shared.commands.clone();
+    let commands = links.commands.clone();
     let started = shared.started;
     let opened = tokio::task::spawn_blocking(move || {
         crate::takes::play(&path, &puppets, options, commands, started)
@@ -870,14 +1066,14 @@ async fn play_take(
             return Err(e);
         }
     };
-    let mut slot = shared.player.lock().unwrap_or_else(|p| p.into_inner());
+    let mut slot = links.player.lock().unwrap_or_else(|p| p.into_inner());
     *slot = Some(player);
     Ok(())
 }
 
 /// The `takes` message: every take in the takes folder.
 async fn list_takes(shared: &Shared) -> Result<String, String> {
-    let dir = shared.takes_dir.clone();
+    let dir = shared.links()?.takes_dir.clone();
     let listed = tokio::task::spawn_blocking(move || {
         if !dir.exists() {
             return Ok(Vec::new());

@@ -70,7 +70,10 @@ async fn add_puppet(
     headers: &HeaderMap,
     body: Body,
 ) -> Result<ServerMessage, Refused> {
-    check_director(shared, headers)?;
+    let links = shared
+        .links()
+        .map_err(|e| refused(StatusCode::NOT_FOUND, ErrorCode::NotFound, e))?;
+    check_director(links, headers)?;
     let lineup = shared.lineup.borrow().clone();
     let wanted = Wanted::parse(query, &lineup.config)?;
     let png = axum::body::to_bytes(body, MAX_UPLOAD).await.map_err(|_| {
@@ -87,11 +90,11 @@ async fn add_puppet(
             "the file is not a PNG picture (upload a .png, ideally a figure on a transparent background)",
         ));
     }
-    let dir = std::path::absolute(&shared.puppets_dir).map_err(|e| {
+    let dir = std::path::absolute(&links.puppets_dir).map_err(|e| {
         refused(
             StatusCode::INTERNAL_SERVER_ERROR,
             ErrorCode::Failed,
-            format!("puppets folder {}: {e}", shared.puppets_dir.display()),
+            format!("puppets folder {}: {e}", links.puppets_dir.display()),
         )
     })?;
     let config = lineup.config.clone();
@@ -140,10 +143,10 @@ async fn add_puppet(
 
 /// Only a director adds puppets, from the daemon's own page or an allowed
 /// origin (the same rules as the WebSocket's).
-fn check_director(shared: &Shared, headers: &HeaderMap) -> Result<(), Refused> {
+fn check_director(links: &super::StageLinks, headers: &HeaderMap) -> Result<(), Refused> {
     if let Some(origin) = headers.get(header::ORIGIN) {
         let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
-        let allowed = &shared.people.access().allowed_origins;
+        let allowed = &links.people.access().allowed_origins;
         if !origin_allowed(origin.to_str().unwrap_or(""), host, allowed) {
             return Err(refused(
                 StatusCode::FORBIDDEN,
@@ -157,7 +160,7 @@ fn check_director(shared: &Shared, headers: &HeaderMap) -> Result<(), Refused> {
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.strip_prefix("Bearer "))
         .map(str::trim);
-    let access = shared.people.access();
+    let access = links.people.access();
     match token.and_then(|t| credential(access, t)) {
         None => Err(refused(
             StatusCode::UNAUTHORIZED,

@@ -17,6 +17,7 @@ mod install;
 mod lineup;
 mod memory;
 mod osc;
+mod relay;
 mod rigs;
 mod roles;
 mod serve;

@@ -7,3 +7,4 @@ pub use puppetry_testkit::*;
 
 pub mod browser;
 pub mod daemon;
+pub mod nats;

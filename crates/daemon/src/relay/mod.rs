@@ -1,0 +1,426 @@
+//! The relay tier: a stage published over NATS, and `puppetry relay`
+//! processes that serve it to viewers on any number of machines and
+//! forward remote performers to the daemon. It owns the subjects, the
+//! messages between a daemon and its relays, and cutting large messages
+//! into parts under NATS's payload limit; [`publish`] is the daemon's
+//! side, [`serve`] the relay's.
+//!
+//! Everything the daemon publishes is under `puppetry.<stage>.out`, each
+//! puppet stream on a subject of its own (`out.p.<id>.frame`, …) carrying
+//! exactly the bytes a direct client gets; what it answers is under
+//! `puppetry.<stage>.in`. A relay that starts, or comes back after NATS
+//! went away, asks `in.sync`: the daemon publishes its whole state again
+//! (the relay drops what it already has), so state and live messages
+//! travel one ordered path. A viewer who joins a relay late is served from
+//! the relay's memory at once, as a direct newcomer is.
+
+pub mod publish;
+pub mod serve;
+
+pub use serve::{RelayLink, RelayOptions, RelayRunning, Session};
+
+use std::time::Duration;
+
+use async_nats::HeaderMap;
+use bytes::Bytes;
+use serde::{Deserialize, Serialize};
+
+use crate::protocol::{Person, PuppetDescription, Role, StageSize};
+use crate::stream::Admission;
+use crate::stream::guard::Refusal;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RelayError {
+    #[error("NATS server {url}: {problem}")]
+    Connect { url: String, problem: String },
+    #[error("stage name {0:?}: use letters, digits, - and _ (one NATS subject token)")]
+    StageName(String),
+    #[error("NATS subscription {subject}: {problem}")]
+    Subscribe { subject: String, problem: String },
+    #[error(transparent)]
+    Stream(#[from] crate::stream::StreamError),
+}
+
+/// Largest part of a message: NATS servers take 1 MiB payloads by default.
+pub const PART: usize = 512 * 1024;
+/// Largest message put together from parts.
+pub const MAX_ASSEMBLED: usize = 64 * 1024 * 1024;
+/// Header of a message in parts: `i/n`, counted from 1.
+const PART_HEADER: &str = "Puppetry-Part";
+/// How long a relay waits for the daemon's answer.
+pub const ANSWER_WITHIN: Duration = Duration::from_secs(2);
+/// How often a relay says which remote performers it still has, and the
+/// daemon says it is live.
+pub const ALIVE_EVERY: Duration = Duration::from_secs(1);
+/// A relay silent this long has lost its performers: the daemon ends
+/// their sessions (their handles let go).
+pub const RELAY_GONE_AFTER: Duration = Duration::from_secs(5);
+/// The daemon silent this long: a relay tells its viewers it lost the stage.
+pub const STAGE_GONE_AFTER: Duration = Duration::from_secs(3);
+
+/// The subjects of one stage.
+#[derive(Debug, Clone)]
+pub struct Subjects {
+    prefix: String,
+}
+
+impl Subjects {
+    pub fn new(stage: &str) -> Result<Subjects, RelayError> {
+        if stage.is_empty() || !stage.chars().all(puppetry_stage::config::is_name_char) {
+            return Err(RelayError::StageName(stage.to_string()));
+        }
+        Ok(Subjects {
+            prefix: format!("puppetry.{stage}"),
+        })
+    }
+
+    /// Everything the daemon publishes.
+    pub fn out_all(&self) -> String {
+        format!("{}.out.>", self.prefix)
+    }
+
+    /// Everything the daemon answers.
+    pub fn in_all(&self) -> String {
+        format!("{}.in.>", self.prefix)
+    }
+
+    pub fn out(&self, name: &str) -> String {
+        format!("{}.out.{name}", self.prefix)
+    }
+
+    pub fn puppet(&self, id: usize, stream: &str) -> String {
+        format!("{}.out.p.{id}.{stream}", self.prefix)
+    }
+
+    pub fn stage_text(&self, name: &str) -> String {
+        format!("{}.out.s.{name}", self.prefix)
+    }
+
+    pub fn ask(&self, name: &str) -> String {
+        format!("{}.in.{name}", self.prefix)
+    }
+
+    /// What a published subject names, past `…out.`.
+    pub fn published<'a>(&self, subject: &'a str) -> Option<&'a str> {
+        subject
+            .strip_prefix(self.prefix.as_str())?
+            .strip_prefix(".out.")
+    }
+
+    /// What an asked subject names, past `…in.`.
+    pub fn asked<'a>(&self, subject: &'a str) -> Option<&'a str> {
+        subject
+            .strip_prefix(self.prefix.as_str())?
+            .strip_prefix(".in.")
+    }
+}
+
+/// The lineup as relays get it: the `stage` message's puppets, and who
+/// may connect.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LineupMessage {
+    /// Which run of the daemon: a new one starts its revisions again.
+    pub boot: u64,
+    pub revision: u64,
+    pub size: StageSize,
+    pub puppets: Vec<PuppetDescription>,
+    /// Puppet ids in use, removed ones included (outputs are by id).
+    pub ids: usize,
+    pub admission: Admission,
+}
+
+/// The daemon's heartbeat (`out.live`), every [`ALIVE_EVERY`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Heartbeat {
+    pub boot: u64,
+    pub revision: u64,
+    /// False once, as the daemon stops.
+    pub live: bool,
+}
+
+/// A relay's client said hello with a role or a token (`in.join`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct JoinRequest {
+    /// `relay:<relay>:<client>`: how the stage names the client.
+    pub source: String,
+    pub role: Role,
+    pub token: Option<String>,
+}
+
+/// The daemon's answer to a [`JoinRequest`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum JoinAnswer {
+    Joined {
+        role: Role,
+        you: Person,
+        puppets: Option<Vec<u32>>,
+    },
+    Refused {
+        refusal: Refusal,
+        close: u16,
+        reason: String,
+    },
+}
+
+/// One text message of a relay's client (`in.msg`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MessageRequest {
+    pub source: String,
+    /// The client joined with a role (a session the daemon keeps); else a
+    /// viewer, checked as one.
+    pub session: bool,
+    pub text: String,
+}
+
+/// The daemon's answer to a [`MessageRequest`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MessageAnswer {
+    Answer(Option<String>),
+    Refused(Refusal),
+}
+
+/// A relay's client with a session left (`in.leave`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Leave {
+    pub source: String,
+}
+
+/// A relay's sessions, every [`ALIVE_EVERY`] (`in.alive`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Alive {
+    pub relay: String,
+    pub sessions: Vec<String>,
+}
+
+/// A part of a puppet's picture (`in.picture`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PictureRequest {
+    pub id: u32,
+    pub offset: usize,
+}
+
+/// Header of a picture part: the picture's whole length.
+const TOTAL_HEADER: &str = "Puppetry-Total";
+
+/// `payload` as the messages that carry it: itself, or parts of at most
+/// [`PART`] bytes with a part header (slices of it, not copies).
+pub fn parts(payload: Bytes) -> Vec<(Option<HeaderMap>, Bytes)> {
+    if payload.len() <= PART {
+        return vec![(None, payload)];
+    }
+    let n = payload.len().div_ceil(PART);
+    (0..n)
+        .map(|i| {
+            let mut headers = HeaderMap::new();
+            headers.insert(PART_HEADER, format!("{}/{n}", i + 1).as_str());
+            let end = ((i + 1) * PART).min(payload.len());
+            (Some(headers), payload.slice(i * PART..end))
+        })
+        .collect()
+}
+
+/// Publishes `payload` on `subject`, in parts if it is large.
+pub async fn publish(
+    client: &async_nats::Client,
+    subject: String,
+    payload: Bytes,
+) -> Result<(), async_nats::PublishError> {
+    for (headers, part) in parts(payload) {
+        match headers {
+            None => client.publish(subject.clone(), part).await?,
+            Some(h) => {
+                client
+                    .publish_with_headers(subject.clone(), h, part)
+                    .await?
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Puts messages in parts back together, per subject.
+#[derive(Default)]
+pub struct Assembler {
+    pending: std::collections::HashMap<String, (usize, Vec<u8>)>,
+}
+
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum PartError {
+    #[error("{subject}: part header {value:?} is not i/n")]
+    Header { subject: String, value: String },
+    #[error("{subject}: part {i} of {n} came without the ones before it")]
+    Order { subject: String, i: usize, n: usize },
+    #[error("{subject}: more than {MAX_ASSEMBLED} bytes in parts")]
+    TooLarge { subject: String },
+}
+
+impl Assembler {
+    /// The whole message once its last part is in (at once for a message
+    /// not in parts); `None` while parts are missing.
+    pub fn take(
+        &mut self,
+        subject: &str,
+        headers: Option<&HeaderMap>,
+        payload: Bytes,
+    ) -> Result<Option<Bytes>, PartError> {
+        let Some(value) = headers.and_then(|h| h.get(PART_HEADER)) else {
+            self.pending.remove(subject);
+            return Ok(Some(payload));
+        };
+        let value = value.as_str();
+        let bad = || PartError::Header {
+            subject: subject.to_string(),
+            value: value.to_string(),
+        };
+        let (i, n) = value.split_once('/').ok_or_else(bad)?;
+        let (i, n): (usize, usize) = (i.parse().map_err(|_| bad())?, n.parse().map_err(|_| bad())?);
+        if i == 0 || i > n {
+            return Err(bad());
+        }
+        if n.saturating_mul(PART) > MAX_ASSEMBLED + PART {
+            self.pending.remove(subject);
+            return Err(PartError::TooLarge {
+                subject: subject.to_string(),
+            });
+        }
+        if i == 1 {
+            self.pending
+                .insert(subject.to_string(), (1, payload.to_vec()));
+        } else {
+            let Some((seen, bytes)) = self
+                .pending
+                .get_mut(subject)
+                .filter(|(seen, _)| *seen + 1 == i)
+            else {
+                self.pending.remove(subject);
+                return Err(PartError::Order {
+                    subject: subject.to_string(),
+                    i,
+                    n,
+                });
+            };
+            *seen = i;
+            bytes.extend_from_slice(&payload);
+            if bytes.len() > MAX_ASSEMBLED {
+                self.pending.remove(subject);
+                return Err(PartError::TooLarge {
+                    subject: subject.to_string(),
+                });
+            }
+        }
+        if i < n {
+            return Ok(None);
+        }
+        let (_, bytes) = self.pending.remove(subject).expect("the parts so far");
+        Ok(Some(Bytes::from(bytes)))
+    }
+}
+
+/// NATS connection settings both sides use: start whether or not the
+/// server is up, retry for ever, quickly (a show is on), and never wait
+/// long for an answer.
+fn connect_options(name: &str, up: tokio::sync::watch::Sender<bool>) -> async_nats::ConnectOptions {
+    async_nats::ConnectOptions::new()
+        .name(name)
+        .retry_on_initial_connect()
+        .max_reconnects(None)
+        .reconnect_delay_callback(|attempt| {
+            Duration::from_millis((50u64 << attempt.min(3)).min(250))
+        })
+        .request_timeout(Some(ANSWER_WITHIN))
+        .event_callback(move |event| {
+            let up = up.clone();
+            async move {
+                match event {
+                    async_nats::Event::Connected => {
+                        up.send_replace(true);
+                    }
+                    async_nats::Event::Disconnected | async_nats::Event::Closed => {
+                        up.send_replace(false);
+                    }
+                    other => tracing::debug!("NATS: {other}"),
+                }
+            }
+        })
+}
+
+/// A NATS address checked and connected (or connecting: the client keeps
+/// trying while the server is away).
+async fn connect(
+    url: &str,
+    options: async_nats::ConnectOptions,
+) -> Result<async_nats::Client, RelayError> {
+    options.connect(url).await.map_err(|e| RelayError::Connect {
+        url: url.to_string(),
+        problem: e.to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_large_message_goes_in_parts_and_comes_back_whole() {
+        let payload: Bytes = (0..(2 * PART + 17)).map(|i| (i % 251) as u8).collect();
+        let parts = parts(payload.clone());
+        assert_eq!(parts.len(), 3);
+        assert!(parts.iter().all(|(h, p)| h.is_some() && p.len() <= PART));
+        let mut assembler = Assembler::default();
+        let mut whole = None;
+        for (k, (headers, part)) in parts.into_iter().enumerate() {
+            let got = assembler.take("s", headers.as_ref(), part).unwrap();
+            assert_eq!(got.is_some(), k == 2);
+            whole = got.or(whole);
+        }
+        assert_eq!(whole.unwrap(), payload);
+        let small = Bytes::from_static(b"small");
+        assert_eq!(parts_of_one(&small), 1);
+        assert_eq!(
+            assembler.take("s", None, small.clone()).unwrap(),
+            Some(small)
+        );
+    }
+
+    fn parts_of_one(payload: &Bytes) -> usize {
+        parts(payload.clone()).len()
+    }
+
+    #[test]
+    fn parts_out_of_order_or_too_many_are_refused() {
+        let payload: Bytes = vec![7u8; 3 * PART].into();
+        let mut parts = parts(payload);
+        let mut assembler = Assembler::default();
+        let (h, p) = parts.remove(1);
+        assert!(matches!(
+            assembler.take("s", h.as_ref(), p),
+            Err(PartError::Order { i: 2, n: 3, .. })
+        ));
+        let mut huge = HeaderMap::new();
+        huge.insert(PART_HEADER, "1/100000");
+        assert!(matches!(
+            assembler.take("s", Some(&huge), Bytes::new()),
+            Err(PartError::TooLarge { .. })
+        ));
+        let mut bad = HeaderMap::new();
+        bad.insert(PART_HEADER, "3/2");
+        assert!(matches!(
+            assembler.take("s", Some(&bad), Bytes::new()),
+            Err(PartError::Header { .. })
+        ));
+    }
+
+    #[test]
+    fn stage_names_are_one_subject_token() {
+        assert!(Subjects::new("show-1_a").is_ok());
+        for bad in ["", "a.b", "a b", "a>", "*"] {
+            assert!(Subjects::new(bad).is_err(), "{bad:?}");
+        }
+        let s = Subjects::new("t").unwrap();
+        assert_eq!(s.published("puppetry.t.out.p.3.frame"), Some("p.3.frame"));
+        assert_eq!(s.published("puppetry.tt.out.lineup"), None);
+        assert_eq!(s.asked("puppetry.t.in.msg"), Some("msg"));
+    }
+}

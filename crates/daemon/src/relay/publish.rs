@@ -1,0 +1,614 @@
+//! The daemon's side of the relay tier: publishing the stage over NATS,
+//! and answering relays. One task follows the puppets exactly as a
+//! WebSocket connection does and publishes what changed (frames are the
+//! bytes encoded once for every client); while NATS is away it publishes
+//! nothing and queues nothing, and when NATS is back it publishes the
+//! whole state again. Another task answers relays: `sync`, pictures, and
+//! the sessions of remote performers, who are let in and checked exactly
+//! as direct clients are (the same `[access]`, roles and puppet limits),
+//! named `relay:<relay>:<client>` on the stage, and let go when they
+//! leave, their relay stops saying it has them, or goes silent.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use async_nats::{Client, HeaderMap, Subject};
+use bytes::Bytes;
+use futures_util::StreamExt;
+use tokio::sync::{Semaphore, mpsc, watch};
+use tokio::task::JoinHandle;
+
+use super::{
+    ALIVE_EVERY, Alive, Heartbeat, JoinAnswer, JoinRequest, Leave, LineupMessage, MessageAnswer,
+    MessageRequest, PART, PictureRequest, RELAY_GONE_AFTER, RelayError, Subjects, TOTAL_HEADER,
+};
+use crate::protocol::Role;
+use crate::stream::following::{Following, Payload, STREAMS};
+use crate::stream::guard::{Permissions, Refusal};
+use crate::stream::{Shared, StageLinks, people};
+use puppetry_stage::Picture;
+use puppetry_stage::config::RelayConfig;
+
+/// Answers handled at once, past which the daemon reads no more requests
+/// until one is done (a relay waits for each of its client's answers).
+const ANSWERING: usize = 256;
+
+/// The stage published over NATS; stopped with [`Publishing::stop`].
+pub struct Publishing {
+    client: Client,
+    subjects: Subjects,
+    boot: u64,
+    shared: Arc<Shared>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+/// Starts publishing the stage as `stage` on the NATS server of `config`.
+/// The daemon starts whether or not the server is up.
+pub async fn start(
+    config: &RelayConfig,
+    stage: &str,
+    shared: Arc<Shared>,
+) -> Result<Publishing, RelayError> {
+    let subjects = Subjects::new(stage)?;
+    let (up_tx, up) = watch::channel(false);
+    let options = super::connect_options(&format!("puppetry daemon {stage}"), up_tx)
+        // A slow link to NATS holds a few frames at most, never seconds.
+        .client_capacity(256);
+    let client = super::connect(&config.nats, options).await?;
+    let asked = client
+        .subscribe(subjects.in_all())
+        .await
+        .map_err(|e| RelayError::Subscribe {
+            subject: subjects.in_all(),
+            problem: e.to_string(),
+        })?;
+    let boot = boot_id();
+    let (sync_tx, sync_rx) = mpsc::channel(16);
+    let sessions = Arc::new(Sessions::default());
+    let publisher = Publisher {
+        client: client.clone(),
+        subjects: subjects.clone(),
+        boot,
+        shared: shared.clone(),
+    };
+    let answerer = Answerer {
+        client: client.clone(),
+        subjects: subjects.clone(),
+        shared: shared.clone(),
+        sessions: sessions.clone(),
+        sync: sync_tx,
+    };
+    let expiry = {
+        let shared = shared.clone();
+        tokio::spawn(async move { sessions.expire_silent_relays(&shared).await })
+    };
+    tracing::info!(
+        "publishing the stage as {} on NATS {}",
+        subjects.out_all(),
+        config.nats
+    );
+    Ok(Publishing {
+        client,
+        subjects,
+        boot,
+        shared,
+        tasks: vec![
+            tokio::spawn(publisher.run(up, sync_rx)),
+            tokio::spawn(answerer.run(asked)),
+            expiry,
+        ],
+    })
+}
+
+impl Publishing {
+    /// Says the stage is ending, and stops.
+    pub async fn stop(self) {
+        for task in &self.tasks {
+            task.abort();
+        }
+        let last = Heartbeat {
+            boot: self.boot,
+            revision: self.shared.lineup.borrow().revision,
+            live: false,
+        };
+        let said = async {
+            let _ = self
+                .client
+                .publish(self.subjects.out("live"), json(&last))
+                .await;
+            let _ = self.client.flush().await;
+        };
+        let _ = tokio::time::timeout(Duration::from_secs(1), said).await;
+    }
+}
+
+/// Which run of the daemon this is, as relays tell runs apart.
+fn boot_id() -> u64 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    nanos ^ (u64::from(std::process::id()) << 40)
+}
+
+fn json(value: &impl serde::Serialize) -> Bytes {
+    Bytes::from(serde_json::to_vec(value).expect("relay messages serialise"))
+}
+
+/// The task that publishes the stage.
+struct Publisher {
+    client: Client,
+    subjects: Subjects,
+    boot: u64,
+    shared: Arc<Shared>,
+}
+
+impl Publisher {
+    async fn run(self, mut up: watch::Receiver<bool>, mut sync: mpsc::Receiver<Option<Subject>>) {
+        let shared = &self.shared;
+        let mut lineup = shared.lineup.clone();
+        let mut following = Following::of(lineup.borrow_and_update().clone());
+        let mut changes = shared.changes.clone();
+        let mut cursors = shared.cursors.clone();
+        let mut take = shared.take.clone();
+        let mut export = shared.export.clone();
+        let mut people = shared.people.clone();
+        let mut inputs = shared.inputs.clone();
+        let mut heartbeat = tokio::time::interval(ALIVE_EVERY);
+        let mut whole = true;
+        let mut answer_to: Vec<Subject> = Vec::new();
+        loop {
+            if *up.borrow() {
+                if whole {
+                    self.publish_lineup(following.lineup()).await;
+                    whole = false;
+                }
+                self.publish_changed(&mut following).await;
+                let texts = [
+                    ("cursors", &mut cursors),
+                    ("take", &mut take),
+                    ("export", &mut export),
+                    ("people", &mut people),
+                    ("inputs", &mut inputs),
+                ];
+                for (name, feed) in texts {
+                    if feed.has_changed().unwrap_or(false) {
+                        let text = feed.borrow_and_update().clone();
+                        self.send(self.subjects.stage_text(name), text_bytes(&text))
+                            .await;
+                    }
+                }
+                for reply in answer_to.drain(..) {
+                    let said = Heartbeat {
+                        boot: self.boot,
+                        revision: following.lineup().revision,
+                        live: true,
+                    };
+                    self.send(reply.to_string(), json(&said)).await;
+                }
+            } else {
+                // Nothing queues while NATS is away: every frame held in
+                // the client would keep a stage-thread buffer alive.
+                for k in 0..following.on_stage().len() {
+                    let i = following.on_stage()[k];
+                    let _ = following.changed(i);
+                }
+                answer_to.clear();
+            }
+            tokio::select! {
+                changed = changes.changed() => {
+                    if changed.is_err() {
+                        return;
+                    }
+                }
+                changed = lineup.changed() => {
+                    if changed.is_ok() {
+                        following = Following::of(lineup.borrow_and_update().clone());
+                        whole = true;
+                    }
+                }
+                // `changed` marks seen: mark again, so the loop publishes it.
+                changed = export.changed() => if changed.is_ok() { export.mark_changed() },
+                changed = people.changed() => if changed.is_ok() { people.mark_changed() },
+                changed = inputs.changed() => if changed.is_ok() { inputs.mark_changed() },
+                asked = sync.recv() => {
+                    let Some(reply) = asked else { return };
+                    answer_to.extend(reply);
+                    everything_again(&mut following, &lineup, &mut [&mut cursors, &mut take, &mut export, &mut people, &mut inputs]);
+                    whole = true;
+                }
+                changed = up.changed() => {
+                    if changed.is_err() {
+                        return;
+                    }
+                    if *up.borrow_and_update() {
+                        tracing::info!("NATS connected: publishing the whole stage");
+                        everything_again(&mut following, &lineup, &mut [&mut cursors, &mut take, &mut export, &mut people, &mut inputs]);
+                        whole = true;
+                    } else {
+                        tracing::warn!("NATS lost: direct clients go on; reconnecting");
+                    }
+                }
+                _ = heartbeat.tick() => {
+                    if *up.borrow() {
+                        let beat = Heartbeat {
+                            boot: self.boot,
+                            revision: following.lineup().revision,
+                            live: true,
+                        };
+                        self.send(self.subjects.out("live"), json(&beat)).await;
+                    }
+                }
+            }
+        }
+    }
+
+    async fn publish_lineup(&self, lineup: &crate::lineup::Lineup) {
+        let admission = self.shared.admission();
+        let message = LineupMessage {
+            boot: self.boot,
+            revision: lineup.revision,
+            size: lineup.description.size,
+            puppets: lineup.description.puppets.clone(),
+            ids: lineup.outputs.len(),
+            admission,
+        };
+        self.send(self.subjects.out("lineup"), json(&message)).await;
+    }
+
+    async fn publish_changed(&self, following: &mut Following) {
+        for k in 0..following.on_stage().len() {
+            let i = following.on_stage()[k];
+            for (slot, payload) in following.changed(i).into_iter().enumerate() {
+                let bytes = match payload {
+                    None => continue,
+                    Some(Payload::Binary(bytes)) => bytes,
+                    Some(Payload::Text(text)) => text_bytes(&text),
+                };
+                self.send(self.subjects.puppet(i, STREAMS[slot]), bytes)
+                    .await;
+            }
+        }
+    }
+
+    async fn send(&self, subject: String, payload: Bytes) {
+        if let Err(e) = super::publish(&self.client, subject, payload).await {
+            tracing::debug!("NATS publish: {e}");
+        }
+    }
+}
+
+/// The same text as bytes (one copy; texts change at human rates).
+fn text_bytes(text: &Arc<str>) -> Bytes {
+    Bytes::copy_from_slice(text.as_bytes())
+}
+
+/// Marks the whole state to publish again (a relay asked, or NATS is back).
+fn everything_again(
+    following: &mut Following,
+    lineup: &watch::Receiver<Arc<crate::lineup::Lineup>>,
+    texts: &mut [&mut watch::Receiver<Arc<str>>],
+) {
+    *following = Following::of(lineup.borrow().clone());
+    for feed in texts {
+        feed.mark_changed();
+    }
+}
+
+/// The task that answers relays.
+struct Answerer {
+    client: Client,
+    subjects: Subjects,
+    shared: Arc<Shared>,
+    sessions: Arc<Sessions>,
+    sync: mpsc::Sender<Option<Subject>>,
+}
+
+impl Answerer {
+    async fn run(self, mut asked: async_nats::Subscriber) {
+        let answering = Arc::new(Semaphore::new(ANSWERING));
+        let me = Arc::new(self);
+        while let Some(message) = asked.next().await {
+            let Some(kind) = me.subjects.asked(&message.subject) else {
+                continue;
+            };
+            match kind {
+                // A sync already waiting answers this one too.
+                "sync" => {
+                    let _ = me.sync.try_send(message.reply.clone());
+                }
+                "alive" => match serde_json::from_slice::<Alive>(&message.payload) {
+                    Ok(alive) => me.sessions.alive(&me.shared, alive).await,
+                    Err(e) => tracing::warn!("NATS {}: {e}", message.subject),
+                },
+                "join" | "msg" | "leave" | "picture" => {
+                    let Ok(permit) = answering.clone().acquire_owned().await else {
+                        return;
+                    };
+                    let me = me.clone();
+                    let kind = kind.to_string();
+                    tokio::spawn(async move {
+                        me.answer(&kind, message).await;
+                        drop(permit);
+                    });
+                }
+                other => tracing::debug!("NATS: nothing answers in.{other}"),
+            }
+        }
+    }
+
+    async fn answer(&self, kind: &str, message: async_nats::Message) {
+        let Ok(links) = self.shared.links() else {
+            return;
+        };
+        let payload = &message.payload;
+        let answer = match kind {
+            "join" => match serde_json::from_slice::<JoinRequest>(payload) {
+                Ok(request) => Some(json(&self.sessions.join(links, request).await)),
+                Err(e) => Some(json(&JoinAnswer::Refused {
+                    refusal: Refusal::from(format!("bad join: {e}")),
+                    close: crate::stream::close::POLICY,
+                    reason: "bad join".into(),
+                })),
+            },
+            "msg" => Some(json(
+                &match serde_json::from_slice::<MessageRequest>(payload) {
+                    Ok(request) => self.message(request).await,
+                    Err(e) => {
+                        MessageAnswer::Refused(Refusal::from(format!("bad relay message: {e}")))
+                    }
+                },
+            )),
+            "leave" => {
+                if let Ok(leave) = serde_json::from_slice::<Leave>(payload) {
+                    self.sessions.end(links, &leave.source).await;
+                }
+                None
+            }
+            "picture" => {
+                let Ok(request) = serde_json::from_slice::<PictureRequest>(payload) else {
+                    return;
+                };
+                if let Some(reply) = message.reply.clone() {
+                    let (headers, part) = self.picture(request).await;
+                    let _ = self.client.publish_with_headers(reply, headers, part).await;
+                }
+                None
+            }
+            _ => None,
+        };
+        if let (Some(answer), Some(reply)) = (answer, message.reply) {
+            let _ = self.client.publish(reply, answer).await;
+        }
+    }
+
+    /// Acts on a relay's client's message with that client's permissions.
+    async fn message(&self, request: MessageRequest) -> MessageAnswer {
+        if !is_relay_source(&request.source) {
+            return MessageAnswer::Refused(Refusal::from(format!(
+                "source {:?} is not relay:<relay>:<client>",
+                crate::stream::guard::clip(&request.source, 80)
+            )));
+        }
+        let permissions = match self.sessions.permissions(&request.source) {
+            Some(p) => p,
+            None if request.session => {
+                return MessageAnswer::Refused(Refusal::new(
+                    crate::protocol::ErrorCode::Failed,
+                    "the stage ended this session (the relay was away too long): reconnect",
+                ));
+            }
+            None => Permissions {
+                role: Role::Viewer,
+                puppets: None,
+            },
+        };
+        match crate::stream::handle_message(
+            &request.text,
+            &permissions,
+            &request.source,
+            &self.shared,
+        )
+        .await
+        {
+            Ok(answer) => MessageAnswer::Answer(answer),
+            Err(refusal) => MessageAnswer::Refused(refusal),
+        }
+    }
+
+    /// A part of a puppet's picture, with the whole picture's length.
+    async fn picture(&self, request: PictureRequest) -> (HeaderMap, Bytes) {
+        let picture: Option<Picture> = {
+            let lineup = self.shared.lineup.borrow();
+            lineup.description.images.get(request.id as usize).cloned()
+        };
+        let read = match &picture {
+            Some(Picture::File(path)) => tokio::fs::read(path).await.ok(),
+            Some(stroke) => stroke.png().ok(),
+            None => None,
+        };
+        let mut headers = HeaderMap::new();
+        let Some(bytes) = read else {
+            headers.insert(TOTAL_HEADER, "none");
+            return (headers, Bytes::new());
+        };
+        headers.insert(TOTAL_HEADER, bytes.len().to_string().as_str());
+        let from = request.offset.min(bytes.len());
+        let to = (from + PART).min(bytes.len());
+        (headers, Bytes::copy_from_slice(&bytes[from..to]))
+    }
+}
+
+/// `relay:<relay>:<client>`, each part one subject token's characters.
+fn is_relay_source(source: &str) -> bool {
+    let mut parts = source.split(':');
+    parts.next() == Some("relay")
+        && parts
+            .next()
+            .is_some_and(|r| !r.is_empty() && r.chars().all(puppetry_stage::config::is_name_char))
+        && parts
+            .next()
+            .is_some_and(|n| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()))
+        && parts.next().is_none()
+}
+
+/// Remote performers' sessions, by source.
+#[derive(Default)]
+struct Sessions {
+    by_source: Mutex<HashMap<String, RemoteSession>>,
+    /// When each relay last said which sessions it has.
+    relays: Mutex<HashMap<String, Instant>>,
+}
+
+struct RemoteSession {
+    relay: String,
+    permissions: Permissions,
+    limited: bool,
+    since: Instant,
+    /// Their place in the `people` list.
+    _member: Option<people::Member>,
+}
+
+impl Sessions {
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, RemoteSession>> {
+        self.by_source.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn permissions(&self, source: &str) -> Option<Permissions> {
+        self.lock().get(source).map(|s| s.permissions.clone())
+    }
+
+    async fn join(&self, links: &StageLinks, request: JoinRequest) -> JoinAnswer {
+        if !is_relay_source(&request.source) {
+            return JoinAnswer::Refused {
+                refusal: Refusal::from("a relay's client is relay:<relay>:<client>".to_string()),
+                close: crate::stream::close::POLICY,
+                reason: "bad source".into(),
+            };
+        }
+        let relay = request.source.split(':').nth(1).unwrap_or("").to_string();
+        match crate::stream::join_stage(
+            links,
+            &request.source,
+            request.role,
+            request.token.as_deref(),
+        )
+        .await
+        {
+            Ok((joined, permissions, member)) => {
+                let session = RemoteSession {
+                    relay,
+                    limited: joined.puppets.is_some(),
+                    permissions,
+                    since: Instant::now(),
+                    _member: member,
+                };
+                self.lock().insert(request.source.clone(), session);
+                tracing::info!(
+                    "{} joined through a relay as {:?}",
+                    request.source,
+                    joined.role
+                );
+                JoinAnswer::Joined {
+                    role: joined.role,
+                    you: joined.you,
+                    puppets: joined.puppets,
+                }
+            }
+            Err(refused) => JoinAnswer::Refused {
+                refusal: refused.refusal,
+                close: refused.close,
+                reason: refused.reason,
+            },
+        }
+    }
+
+    /// Ends a session: its handles let go, its limit lifted, its place in
+    /// `people` given up.
+    async fn end(&self, links: &StageLinks, source: &str) {
+        let Some(session) = self.lock().remove(source) else {
+            return;
+        };
+        crate::stream::leave_stage(links, source, session.permissions.role, session.limited).await;
+        tracing::info!("{source} left (relay {})", session.relay);
+    }
+
+    /// A relay's list of sessions: any of its sessions it no longer lists
+    /// (a leave lost on the way) ends.
+    async fn alive(&self, shared: &Shared, alive: Alive) {
+        let now = Instant::now();
+        self.relays
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(alive.relay.clone(), now);
+        let gone: Vec<String> = self
+            .lock()
+            .iter()
+            .filter(|(source, s)| {
+                s.relay == alive.relay
+                    && now.duration_since(s.since) > 2 * ALIVE_EVERY
+                    && !alive.sessions.contains(source)
+            })
+            .map(|(source, _)| source.clone())
+            .collect();
+        if let Ok(links) = shared.links() {
+            for source in gone {
+                self.end(links, &source).await;
+            }
+        }
+    }
+
+    /// Ends the sessions of relays that went silent (killed, or cut off
+    /// from NATS), so nothing stays held on stage by someone gone.
+    async fn expire_silent_relays(&self, shared: &Shared) {
+        let mut every = tokio::time::interval(ALIVE_EVERY);
+        loop {
+            every.tick().await;
+            let now = Instant::now();
+            let silent = |relay: &str, since: Instant| {
+                let heard = self
+                    .relays
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .get(relay)
+                    .copied()
+                    .unwrap_or(since);
+                now.duration_since(heard) > RELAY_GONE_AFTER
+            };
+            let gone: Vec<String> = self
+                .lock()
+                .iter()
+                .filter(|(_, s)| silent(&s.relay, s.since))
+                .map(|(source, _)| source.clone())
+                .collect();
+            let Ok(links) = shared.links() else {
+                return;
+            };
+            for source in gone {
+                tracing::warn!("{source}: its relay went silent; letting go of its handles");
+                self.end(links, &source).await;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn relay_sources_are_checked() {
+        assert!(is_relay_source("relay:hall-2:17"));
+        for bad in [
+            "client:3",
+            "relay::3",
+            "relay:a:",
+            "relay:a:3:4",
+            "relay:a.b:3",
+            "relay:a:x",
+        ] {
+            assert!(!is_relay_source(bad), "{bad}");
+        }
+    }
+}

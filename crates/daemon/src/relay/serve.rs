@@ -1,0 +1,836 @@
+//! `puppetry relay`: the daemon's web page and protocol served from NATS,
+//! to viewers on this machine's port. A mirror task keeps the newest of
+//! everything the daemon publishes in the same watch channels the daemon
+//! has, so the stream module serves relay viewers with the very code (and
+//! the very frame bytes) that serves direct ones: newest-only for a slow
+//! viewer, the whole state at once for a late one. Messages of a relay's
+//! clients go to the daemon, which checks and acts on them; an anonymous
+//! viewer stays on the relay, anyone with a role or token has a session on
+//! the stage. When the stage cannot be reached, viewers are told, keep
+//! their last picture, and are told again when it is back.
+
+use std::collections::{HashMap, HashSet};
+use std::net::SocketAddr;
+use std::sync::atomic::AtomicU64;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use async_nats::Client;
+use bytes::Bytes;
+use futures_util::StreamExt;
+use tokio::sync::{mpsc, oneshot, watch};
+use tokio::task::JoinHandle;
+
+use super::{
+    ALIVE_EVERY, ANSWER_WITHIN, Alive, Assembler, Heartbeat, JoinAnswer, JoinRequest, Leave,
+    LineupMessage, MessageAnswer, MessageRequest, PictureRequest, RelayError, STAGE_GONE_AFTER,
+    Subjects, TOTAL_HEADER,
+};
+use crate::lineup::{Lineup, StageDescription};
+use crate::protocol::{
+    ErrorCode, Person, PersonRole, RigDescription, Role, ServerMessage, StageSize,
+};
+use crate::stage_thread::{PublishedHandles, PuppetOutput, Timings};
+use crate::stream::guard::Refusal;
+use crate::stream::{self, Admission, Backend, JoinRefused, Joined, Shared, WebFiles};
+
+/// How a relay runs.
+#[derive(Debug, Clone)]
+pub struct RelayOptions {
+    /// The NATS server, `nats://host:port`.
+    pub nats: String,
+    /// The stage's name on NATS (`[relay].stage` of its stage file).
+    pub stage: String,
+    /// This relay's name: remote performers are `relay:<name>:<n>`.
+    pub name: String,
+    pub listen: SocketAddr,
+    pub web_files: WebFiles,
+    pub max_connections: usize,
+    pub client_timeout: Duration,
+}
+
+/// A running relay.
+pub struct RelayRunning {
+    pub address: SocketAddr,
+    shutdown: oneshot::Sender<()>,
+    server: JoinHandle<()>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+impl RelayRunning {
+    /// Stops serving and leaves NATS.
+    pub async fn shutdown(self) {
+        for task in &self.tasks {
+            task.abort();
+        }
+        let _ = self.shutdown.send(());
+        let _ = self.server.await;
+    }
+}
+
+/// Starts a relay: connects to NATS (or keeps trying), asks the daemon
+/// for its stage, and serves viewers on `options.listen`.
+pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
+    let subjects = Subjects::new(&options.stage)?;
+    if options.name.is_empty()
+        || !options
+            .name
+            .chars()
+            .all(puppetry_stage::config::is_name_char)
+    {
+        return Err(RelayError::StageName(options.name.clone()));
+    }
+    let (up_tx, up) = watch::channel(false);
+    let connecting = super::connect_options(&format!("puppetry relay {}", options.name), up_tx)
+        // Frames of every puppet at the input rate: room for a burst.
+        .subscription_capacity(8192);
+    let client = super::connect(&options.nats, connecting).await?;
+    let published =
+        client
+            .subscribe(subjects.out_all())
+            .await
+            .map_err(|e| RelayError::Subscribe {
+                subject: subjects.out_all(),
+                problem: e.to_string(),
+            })?;
+    let (mirror, feeds) = Mirror::new();
+    let link = RelayLink(Arc::new(LinkInner {
+        client: client.clone(),
+        subjects: subjects.clone(),
+        name: options.name.clone(),
+        admission: feeds.admission,
+        boot: feeds.boot,
+        pictures: Mutex::default(),
+        sessions: Mutex::default(),
+    }));
+    let shared = Arc::new(Shared {
+        lineup: feeds.lineup,
+        log: Default::default(),
+        addresses: Default::default(),
+        web_files: options.web_files.clone(),
+        max_connections: options.max_connections,
+        cursors: feeds.cursors,
+        take: feeds.take,
+        export: feeds.export,
+        people: feeds.people,
+        inputs: feeds.inputs,
+        notice: feeds.notice,
+        changes: feeds.changes,
+        timings: Arc::new(Timings::default()),
+        client_timeout: options.client_timeout,
+        started: Instant::now(),
+        next_client: AtomicU64::new(1),
+        backend: Backend::Relay(link.clone()),
+    });
+    let listener = stream::bind(options.listen).await?;
+    let address = listener
+        .local_addr()
+        .map_err(|source| stream::StreamError::Listen {
+            address: options.listen,
+            source,
+        })?;
+    let (shutdown, stopping) = oneshot::channel::<()>();
+    let server = tokio::spawn(stream::run(listener, shared, async move {
+        let _ = stopping.await;
+    }));
+    tracing::info!(
+        "relay {} serving stage {} from NATS {} on http://{address}/",
+        options.name,
+        options.stage,
+        options.nats
+    );
+    Ok(RelayRunning {
+        address,
+        shutdown,
+        server,
+        tasks: vec![
+            tokio::spawn(mirror.run(published, client, subjects, up)),
+            tokio::spawn(link.say_alive()),
+        ],
+    })
+}
+
+/// The relay's ends of the daemon's state, for the stream module.
+struct Feeds {
+    lineup: watch::Receiver<Arc<Lineup>>,
+    cursors: watch::Receiver<Arc<str>>,
+    take: watch::Receiver<Arc<str>>,
+    export: watch::Receiver<Arc<str>>,
+    people: watch::Receiver<Arc<str>>,
+    inputs: watch::Receiver<Arc<str>>,
+    notice: watch::Receiver<Arc<str>>,
+    changes: watch::Receiver<u64>,
+    admission: watch::Receiver<Admission>,
+    boot: watch::Receiver<u64>,
+}
+
+/// A puppet's output channels on the relay: what the daemon's stage
+/// thread has for it, fed from NATS.
+struct PuppetFeeds {
+    frame: watch::Sender<Option<Bytes>>,
+    rig: watch::Sender<Option<Bytes>>,
+    handles: watch::Sender<Arc<PublishedHandles>>,
+    weights: watch::Sender<Arc<str>>,
+    keys: watch::Sender<Arc<str>>,
+    handle_frame: watch::Sender<Option<Bytes>>,
+    history: watch::Sender<Arc<str>>,
+    pose: Option<watch::Sender<Arc<str>>>,
+    depth: watch::Sender<Option<Bytes>>,
+}
+
+impl PuppetFeeds {
+    fn new(skeleton: bool) -> (PuppetFeeds, PuppetOutput) {
+        fn text() -> (watch::Sender<Arc<str>>, watch::Receiver<Arc<str>>) {
+            watch::channel(Arc::from(""))
+        }
+        let (frame, frame_rx) = watch::channel(None);
+        let (rig, rig_rx) = watch::channel(None);
+        let (handles, handles_rx) = watch::channel(Arc::new(PublishedHandles {
+            handles: Vec::new(),
+            text: Arc::from(""),
+            generation: 0,
+        }));
+        let (weights, weights_rx) = text();
+        let (keys, keys_rx) = text();
+        let (handle_frame, handle_frame_rx) = watch::channel(None);
+        let (history, history_rx) = text();
+        let (pose, pose_rx) = skeleton.then(text).unzip();
+        let (depth, depth_rx) = watch::channel(None);
+        let feeds = PuppetFeeds {
+            frame,
+            rig,
+            handles,
+            weights,
+            keys,
+            handle_frame,
+            history,
+            pose,
+            depth,
+        };
+        let output = PuppetOutput {
+            frame: frame_rx,
+            rig: rig_rx,
+            handles: handles_rx,
+            weights: weights_rx,
+            keys: keys_rx,
+            handle_frame: handle_frame_rx,
+            history: history_rx,
+            pose: pose_rx,
+            depth: depth_rx,
+        };
+        (feeds, output)
+    }
+
+    /// Takes one message of this puppet's `stream`; whether it was news
+    /// (the daemon publishes its whole state again when a relay asks, and
+    /// what a relay has already is not sent to its viewers twice).
+    fn take(&self, stream: &str, payload: Bytes) -> Result<bool, String> {
+        let binary = |feed: &watch::Sender<Option<Bytes>>| {
+            feed.send_if_modified(|now| {
+                let news = now.as_ref() != Some(&payload);
+                if news {
+                    *now = Some(payload.clone());
+                }
+                news
+            })
+        };
+        let text = |feed: &watch::Sender<Arc<str>>| -> Result<bool, String> {
+            let text = std::str::from_utf8(&payload).map_err(|e| e.to_string())?;
+            Ok(feed.send_if_modified(|now| {
+                let news = &**now != text;
+                if news {
+                    *now = Arc::from(text);
+                }
+                news
+            }))
+        };
+        match stream {
+            "frame" => Ok(binary(&self.frame)),
+            "rig" => Ok(binary(&self.rig)),
+            "handle_frame" => Ok(binary(&self.handle_frame)),
+            "depth" => Ok(binary(&self.depth)),
+            "weights" => text(&self.weights),
+            "keys" => text(&self.keys),
+            "history" => text(&self.history),
+            "pose" => match &self.pose {
+                Some(pose) => text(pose),
+                None => Err("a pose for a puppet without a skeleton".into()),
+            },
+            "handles" => {
+                let text = std::str::from_utf8(&payload).map_err(|e| e.to_string())?;
+                if *self.handles.borrow().text == *text {
+                    return Ok(false);
+                }
+                let Ok(ServerMessage::Handles {
+                    generation,
+                    handles,
+                    ..
+                }) = serde_json::from_str::<ServerMessage>(text)
+                else {
+                    return Err("a handles message that is not one".into());
+                };
+                self.handles.send_replace(Arc::new(PublishedHandles {
+                    handles,
+                    text: Arc::from(text),
+                    generation,
+                }));
+                Ok(true)
+            }
+            other => Err(format!("no puppet stream {other:?}")),
+        }
+    }
+}
+
+/// The relay's copy of the daemon's state, kept by one task.
+struct Mirror {
+    lineup: watch::Sender<Arc<Lineup>>,
+    /// The outputs of the lineup now, by puppet id.
+    puppets: Vec<PuppetFeeds>,
+    texts: HashMap<&'static str, watch::Sender<Arc<str>>>,
+    notice: watch::Sender<Arc<str>>,
+    changes: watch::Sender<u64>,
+    admission: watch::Sender<Admission>,
+    boot: watch::Sender<u64>,
+    /// The (boot, revision) of the lineup now.
+    current: Option<(u64, u64)>,
+    /// A new lineup, shown to viewers once every puppet on it has its
+    /// handles (the daemon publishes them right after the lineup): a
+    /// viewer's `stage` message then has them, as a direct one's does.
+    pending: Option<(Arc<Lineup>, HashSet<usize>)>,
+    assembler: Assembler,
+    /// When the daemon last said it is live.
+    heard: Option<Instant>,
+    /// The daemon said it stopped.
+    stopped: bool,
+}
+
+/// Stage-wide text messages, as their subjects name them.
+const TEXTS: [&str; 5] = ["cursors", "take", "export", "people", "inputs"];
+
+impl Mirror {
+    fn new() -> (Mirror, Feeds) {
+        let (lineup, lineup_rx) = watch::channel(empty_lineup());
+        let mut texts = HashMap::new();
+        let mut receivers = HashMap::new();
+        for name in TEXTS {
+            let (tx, rx) = watch::channel(Arc::<str>::from(""));
+            texts.insert(name, tx);
+            receivers.insert(name, rx);
+        }
+        let mut text = |name| receivers.remove(name).expect("every text has a channel");
+        let (notice, notice_rx) = watch::channel(Arc::<str>::from(""));
+        let (changes, changes_rx) = watch::channel(0);
+        // Until the daemon says otherwise, a stage file's defaults.
+        let (admission, admission_rx) = watch::channel(Admission {
+            allowed_origins: Vec::new(),
+            max_per_address: puppetry_stage::config::Access::default().max_per_address,
+        });
+        let (boot, boot_rx) = watch::channel(0);
+        let feeds = Feeds {
+            lineup: lineup_rx,
+            cursors: text("cursors"),
+            take: text("take"),
+            export: text("export"),
+            people: text("people"),
+            inputs: text("inputs"),
+            notice: notice_rx,
+            changes: changes_rx,
+            admission: admission_rx,
+            boot: boot_rx,
+        };
+        let mirror = Mirror {
+            lineup,
+            puppets: Vec::new(),
+            texts,
+            notice,
+            changes,
+            admission,
+            boot,
+            current: None,
+            pending: None,
+            assembler: Assembler::default(),
+            heard: None,
+            stopped: false,
+        };
+        (mirror, feeds)
+    }
+
+    async fn run(
+        mut self,
+        mut published: async_nats::Subscriber,
+        client: Client,
+        subjects: Subjects,
+        up: watch::Receiver<bool>,
+    ) {
+        let mut every = tokio::time::interval(Duration::from_millis(250));
+        let (synced_tx, mut synced_rx) = mpsc::channel::<bool>(1);
+        let mut synced = false;
+        let mut syncing = false;
+        loop {
+            tokio::select! {
+                message = published.next() => {
+                    let Some(message) = message else { return };
+                    let news = self.take(&subjects, message);
+                    if news {
+                        self.changes.send_modify(|n| *n += 1);
+                    }
+                }
+                done = synced_rx.recv() => {
+                    syncing = false;
+                    synced = done == Some(true);
+                    if synced {
+                        self.heard = Some(Instant::now());
+                    }
+                }
+                _ = every.tick() => {
+                    let connected = *up.borrow();
+                    if !connected {
+                        synced = false;
+                    }
+                    if connected && !synced && !syncing {
+                        syncing = true;
+                        let client = client.clone();
+                        let asking = subjects.ask("sync");
+                        let done = synced_tx.clone();
+                        tokio::spawn(async move {
+                            let asked = tokio::time::timeout(
+                                ANSWER_WITHIN,
+                                client.request(asking, Bytes::new()),
+                            )
+                            .await;
+                            let _ = done.send(matches!(asked, Ok(Ok(_)))).await;
+                        });
+                    }
+                    let heard = self.heard.is_some_and(|t| t.elapsed() < STAGE_GONE_AFTER);
+                    let lost = if !connected {
+                        Some("the relay lost NATS; reconnecting")
+                    } else if self.stopped {
+                        Some("the stage stopped")
+                    } else if !synced || !heard {
+                        Some("the stage is not reachable; waiting for it")
+                    } else {
+                        None
+                    };
+                    self.tell(lost);
+                }
+            }
+        }
+    }
+
+    /// Tells viewers whether the stage is live (only what changed; nothing
+    /// while it never was lost).
+    fn tell(&self, lost: Option<&str>) {
+        let text = ServerMessage::Live {
+            live: lost.is_none(),
+            reason: lost.map(str::to_string),
+        }
+        .to_text();
+        self.notice.send_if_modified(|now| {
+            if (now.is_empty() && lost.is_none()) || **now == *text {
+                return false;
+            }
+            *now = Arc::from(text.as_str());
+            true
+        });
+    }
+
+    /// Takes one published message; whether anything changed.
+    fn take(&mut self, subjects: &Subjects, message: async_nats::Message) -> bool {
+        let Some(name) = subjects.published(&message.subject) else {
+            return false;
+        };
+        let payload =
+            match self
+                .assembler
+                .take(&message.subject, message.headers.as_ref(), message.payload)
+            {
+                Ok(Some(payload)) => payload,
+                Ok(None) => return false,
+                Err(e) => {
+                    tracing::warn!("NATS: {e}");
+                    return false;
+                }
+            };
+        let taken = if name == "lineup" {
+            self.take_lineup(&payload)
+        } else if name == "live" {
+            self.take_heartbeat(&payload)
+        } else if let Some(text) = name.strip_prefix("s.") {
+            match (self.texts.get(text), std::str::from_utf8(&payload)) {
+                (Some(feed), Ok(text)) => Ok(feed.send_if_modified(|now| {
+                    let news = &**now != text;
+                    if news {
+                        *now = Arc::from(text);
+                    }
+                    news
+                })),
+                _ => Err(format!("no stage message {text:?}")),
+            }
+        } else if let Some(puppet) = name.strip_prefix("p.") {
+            let (id, stream) = puppet.split_once('.').unwrap_or((puppet, ""));
+            let id = id.parse::<usize>().ok();
+            let taken = match id.and_then(|i| self.puppets.get(i)) {
+                Some(feeds) => feeds.take(stream, payload),
+                // Before its lineup: a sync publishes it again after.
+                None => Ok(false),
+            };
+            if stream == "handles"
+                && let (Some(id), Some((_, waiting))) = (id, self.pending.as_mut())
+            {
+                waiting.remove(&id);
+                if waiting.is_empty() {
+                    let (lineup, _) = self.pending.take().expect("a pending lineup");
+                    self.lineup.send_replace(lineup);
+                    return true;
+                }
+            }
+            taken
+        } else {
+            Err(format!("nothing is published as {name:?}"))
+        };
+        taken.unwrap_or_else(|e| {
+            tracing::warn!("NATS {}: {e}", message.subject);
+            false
+        })
+    }
+
+    fn take_heartbeat(&mut self, payload: &[u8]) -> Result<bool, String> {
+        let beat: Heartbeat = serde_json::from_slice(payload).map_err(|e| e.to_string())?;
+        self.heard = Some(Instant::now());
+        self.stopped = !beat.live;
+        Ok(false)
+    }
+
+    fn take_lineup(&mut self, payload: &[u8]) -> Result<bool, String> {
+        let message: LineupMessage = serde_json::from_slice(payload).map_err(|e| e.to_string())?;
+        self.admission.send_if_modified(|now| {
+            let news = *now != message.admission;
+            if news {
+                *now = message.admission.clone();
+            }
+            news
+        });
+        self.heard = Some(Instant::now());
+        self.stopped = false;
+        if self.current == Some((message.boot, message.revision)) {
+            return Ok(false);
+        }
+        let skeletons: HashSet<u32> = message
+            .puppets
+            .iter()
+            .filter(|p| matches!(p.rig, RigDescription::Skeleton { .. }))
+            .map(|p| p.id)
+            .collect();
+        let (feeds, outputs): (Vec<_>, Vec<_>) = (0..message.ids)
+            .map(|id| PuppetFeeds::new(skeletons.contains(&(id as u32))))
+            .unzip();
+        if message.puppets.iter().any(|p| p.id as usize >= message.ids) {
+            return Err("a puppet id past the lineup's ids".into());
+        }
+        let lineup = Lineup {
+            revision: message.revision,
+            description: StageDescription::from_puppets(message.puppets, message.size, Vec::new()),
+            outputs,
+            take_puppets: Vec::new(),
+            config: no_stage_file(message.size),
+        };
+        let waiting: HashSet<usize> = lineup
+            .description
+            .puppets
+            .iter()
+            .map(|p| p.id as usize)
+            .collect();
+        self.puppets = feeds;
+        self.current = Some((message.boot, message.revision));
+        self.boot.send_replace(message.boot);
+        if waiting.is_empty() {
+            self.lineup.send_replace(Arc::new(lineup));
+            return Ok(true);
+        }
+        self.pending = Some((Arc::new(lineup), waiting));
+        Ok(false)
+    }
+}
+
+/// A lineup with no puppets: a relay's before the daemon answers.
+fn empty_lineup() -> Arc<Lineup> {
+    let size = StageSize {
+        width: 1.0,
+        height: 1.0,
+    };
+    Arc::new(Lineup {
+        revision: 0,
+        description: StageDescription::from_puppets(Vec::new(), size, Vec::new()),
+        outputs: Vec::new(),
+        take_puppets: Vec::new(),
+        config: no_stage_file(size),
+    })
+}
+
+/// A relay has no stage file: an empty stage of the same size stands in
+/// where a lineup carries one (only the daemon reads it).
+fn no_stage_file(size: StageSize) -> Arc<puppetry_stage::config::StageConfig> {
+    let text = format!(
+        "[stage]\nwidth = {}\nheight = {}\n",
+        size.width.max(f64::MIN_POSITIVE),
+        size.height.max(f64::MIN_POSITIVE)
+    );
+    Arc::new(
+        puppetry_stage::config::StageConfig::parse("relay", &text, std::path::Path::new("."))
+            .expect("an empty stage of a positive size parses"),
+    )
+}
+
+/// Where a relay's clients' messages go: the daemon, over NATS.
+#[derive(Clone)]
+pub struct RelayLink(Arc<LinkInner>);
+
+struct LinkInner {
+    client: Client,
+    subjects: Subjects,
+    name: String,
+    admission: watch::Receiver<Admission>,
+    boot: watch::Receiver<u64>,
+    /// Pictures fetched, by (daemon run, puppet id).
+    pictures: Mutex<HashMap<(u64, u32), Bytes>>,
+    /// Clients with a session on the stage.
+    sessions: Mutex<HashSet<String>>,
+}
+
+/// The refusal while the daemon does not answer.
+fn unreachable() -> Refusal {
+    Refusal::new(
+        ErrorCode::Failed,
+        "the stage is not reachable from this relay; try again",
+    )
+}
+
+impl LinkInner {
+    async fn ask(&self, name: &str, body: Bytes) -> Result<async_nats::Message, Refusal> {
+        let asking = self.client.request(self.subjects.ask(name), body);
+        match tokio::time::timeout(ANSWER_WITHIN, asking).await {
+            Ok(Ok(answer)) => Ok(answer),
+            _ => Err(unreachable()),
+        }
+    }
+}
+
+impl RelayLink {
+    /// Who may open the WebSocket: the daemon's `[access]` as it published.
+    pub fn admission(&self) -> Admission {
+        self.0.admission.borrow().clone()
+    }
+
+    /// Seats a relay client: an anonymous viewer here; anyone else with a
+    /// session on the stage, if the daemon lets them in.
+    pub(crate) async fn join(
+        &self,
+        client: u64,
+        asked: Role,
+        token: Option<String>,
+    ) -> Result<(Session, Joined), JoinRefused> {
+        let source = format!("relay:{}:{client}", self.0.name);
+        if asked == Role::Viewer && token.is_none() {
+            let you = Person {
+                owner: source.clone(),
+                name: "viewer".into(),
+                role: PersonRole::Viewer,
+                colour: stream::people::GREY.into(),
+            };
+            let joined = Joined {
+                role: Role::Viewer,
+                you,
+                puppets: None,
+            };
+            let session = Session {
+                link: self.0.clone(),
+                source,
+                remote: false,
+            };
+            return Ok((session, joined));
+        }
+        let request = JoinRequest {
+            source: source.clone(),
+            role: asked,
+            token,
+        };
+        let body = Bytes::from(serde_json::to_vec(&request).expect("joins serialise"));
+        let refused_for = |refusal: Refusal| JoinRefused {
+            refusal,
+            close: stream::close::TRY_LATER,
+            reason: "the stage is not reachable".into(),
+        };
+        let answer = self.0.ask("join", body).await.map_err(refused_for)?;
+        match serde_json::from_slice::<JoinAnswer>(&answer.payload) {
+            Ok(JoinAnswer::Joined { role, you, puppets }) => {
+                self.0
+                    .sessions
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .insert(source.clone());
+                let session = Session {
+                    link: self.0.clone(),
+                    source,
+                    remote: true,
+                };
+                Ok((session, Joined { role, you, puppets }))
+            }
+            Ok(JoinAnswer::Refused {
+                refusal,
+                close,
+                reason,
+            }) => Err(JoinRefused {
+                refusal,
+                close,
+                reason,
+            }),
+            Err(e) => Err(refused_for(Refusal::new(
+                ErrorCode::Failed,
+                format!("the stage's answer: {e}"),
+            ))),
+        }
+    }
+
+    /// A puppet's picture, fetched from the daemon once per run of it.
+    pub(crate) async fn picture(&self, id: u32) -> Option<Bytes> {
+        let key = (*self.0.boot.borrow(), id);
+        if let Some(bytes) = self
+            .0
+            .pictures
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .get(&key)
+        {
+            return Some(bytes.clone());
+        }
+        let mut bytes = Vec::new();
+        loop {
+            let request = PictureRequest {
+                id,
+                offset: bytes.len(),
+            };
+            let body = Bytes::from(serde_json::to_vec(&request).expect("requests serialise"));
+            let answer = self.0.ask("picture", body).await.ok()?;
+            let total: usize = answer
+                .headers
+                .as_ref()
+                .and_then(|h| h.get(TOTAL_HEADER))
+                .and_then(|v| v.as_str().parse().ok())?;
+            if answer.payload.is_empty() && bytes.len() < total {
+                return None;
+            }
+            bytes.extend_from_slice(&answer.payload);
+            if bytes.len() >= total {
+                break;
+            }
+        }
+        let bytes = Bytes::from(bytes);
+        self.0
+            .pictures
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(key, bytes.clone());
+        Some(bytes)
+    }
+
+    /// Tells the daemon, every [`ALIVE_EVERY`], which sessions this relay
+    /// still has: a relay that stops saying so (killed, or cut off) has
+    /// its performers' handles let go.
+    async fn say_alive(self) {
+        let mut every = tokio::time::interval(ALIVE_EVERY);
+        loop {
+            every.tick().await;
+            let sessions = self
+                .0
+                .sessions
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .iter()
+                .cloned()
+                .collect();
+            let alive = Alive {
+                relay: self.0.name.clone(),
+                sessions,
+            };
+            let body = Bytes::from(serde_json::to_vec(&alive).expect("alive serialises"));
+            if self.0.client.connection_state() == async_nats::connection::State::Connected {
+                let _ = self
+                    .0
+                    .client
+                    .publish(self.0.subjects.ask("alive"), body)
+                    .await;
+            }
+        }
+    }
+}
+
+/// A relay client's seat: its messages go to the daemon, which acts on
+/// them with the permissions it gave the client.
+pub struct Session {
+    link: Arc<LinkInner>,
+    source: String,
+    /// The daemon keeps a session for this client (it has a role or token).
+    remote: bool,
+}
+
+impl Session {
+    pub fn source(&self) -> &str {
+        &self.source
+    }
+
+    pub(crate) async fn handle(&self, text: &str) -> Result<Option<String>, Refusal> {
+        if text.len() > stream::MAX_CLIENT_MESSAGE {
+            return Err(Refusal::new(
+                ErrorCode::TooLarge,
+                format!(
+                    "messages are at most {} KiB",
+                    stream::MAX_CLIENT_MESSAGE / 1024
+                ),
+            ));
+        }
+        let request = MessageRequest {
+            source: self.source.clone(),
+            session: self.remote,
+            text: text.to_string(),
+        };
+        let body = Bytes::from(serde_json::to_vec(&request).expect("messages serialise"));
+        let answer = self.link.ask("msg", body).await?;
+        match serde_json::from_slice::<MessageAnswer>(&answer.payload) {
+            Ok(MessageAnswer::Answer(answer)) => Ok(answer),
+            Ok(MessageAnswer::Refused(refusal)) => Err(refusal),
+            Err(e) => Err(Refusal::new(
+                ErrorCode::Failed,
+                format!("the stage's answer: {e}"),
+            )),
+        }
+    }
+
+    /// The client is gone.
+    pub fn leave(self) {}
+}
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        if !self.remote {
+            return;
+        }
+        self.link
+            .sessions
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .remove(&self.source);
+        let leave = Leave {
+            source: self.source.clone(),
+        };
+        let body = Bytes::from(serde_json::to_vec(&leave).expect("leaves serialise"));
+        let client = self.link.client.clone();
+        let subject = self.link.subjects.ask("leave");
+        // If this is lost, the relay's next `alive` no longer lists the
+        // session, and the stage ends it then.
+        if let Ok(runtime) = tokio::runtime::Handle::try_current() {
+            runtime.spawn(async move {
+                let _ = tokio::time::timeout(ANSWER_WITHIN, client.publish(subject, body)).await;
+            });
+        }
+    }
+}
