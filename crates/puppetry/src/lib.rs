@@ -1,6 +1,7 @@
 //! The `puppetry` command's own work: the commands that are not the daemon
-//! ([`cli`]: mesh, solve, devices, calibrate), the benchmarks ([`bench`])
-//! and the lp-FFD paper's comparison ([`compare`]). `main.rs` parses the
+//! ([`cli`]: mesh, solve, devices, calibrate), the benchmarks ([`bench`],
+//! [`viewers_bench`] with the relay tier's fan-out), the long-run leak
+//! check ([`soak`]) and the lp-FFD paper's comparison ([`compare`]). `main.rs` parses the
 //! command line and calls into these; the pipeline itself lives in the
 //! workspace's other crates.
 //!
@@ -18,6 +19,7 @@ pub mod cli;
 pub mod compare;
 pub mod export;
 pub mod peers;
+pub mod soak;
 pub mod take_bench;
 pub mod takes;
 pub mod viewers_bench;

@@ -94,6 +94,26 @@ enum Command {
         #[arg(long, default_value_t = 10.0)]
         client_timeout: f64,
     },
+    /// Run the daemon (and with --relay a nats-server and a relay) under a
+    /// show's churn on loopback for a set time, printing memory, open
+    /// descriptors, frames/s and p99 latency; exits 1 unless memory and
+    /// descriptors stay flat after the warm-up. Not in CI: run it before a
+    /// release.
+    Soak {
+        /// How long to run.
+        #[arg(long, default_value_t = 30.0)]
+        minutes: f64,
+        /// Seconds between rows.
+        #[arg(long, default_value_t = 60.0)]
+        every: f64,
+        /// Viewers connected at once, each connecting, reading, stalling
+        /// and dropping in turn.
+        #[arg(long, default_value_t = 40)]
+        viewers: usize,
+        /// Also through the relay tier (needs nats-server).
+        #[arg(long)]
+        relay: bool,
+    },
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
     /// alpha), webm (VP9 with alpha) — videos through ffmpeg — or spine
@@ -266,6 +286,12 @@ enum Command {
         /// at 120 Hz; latency, the daemon's memory and CPU.
         #[arg(long, value_delimiter = ',', conflicts_with_all = ["e2e", "rigs", "depth", "curves"])]
         viewers: Option<Vec<usize>>,
+        /// With --viewers: spread the viewers over this many `puppetry
+        /// relay` processes fed by a nats-server (the relay tier; 60 Hz
+        /// input); their CPU and memory per viewer, and a remote
+        /// performer's ping.
+        #[arg(long, default_value_t = 0, requires = "viewers")]
+        relays: usize,
         /// Bench takes instead: what recording costs the live path, and
         /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
         #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
@@ -473,6 +499,29 @@ fn run(args: Args) -> anyhow::Result<()> {
                 anyhow::Ok(())
             })?;
         }
+        Command::Soak {
+            minutes,
+            every,
+            viewers,
+            relay,
+        } => {
+            let valid = |v: f64| v.is_finite() && v > 0.0;
+            if !(valid(minutes) && valid(every)) {
+                anyhow::bail!("--minutes and --every must be positive numbers");
+            }
+            let options = puppetry::soak::SoakOptions {
+                duration: std::time::Duration::from_secs_f64(minutes * 60.0),
+                every: std::time::Duration::from_secs_f64(every),
+                viewers,
+                relay,
+            };
+            let runtime = tokio::runtime::Runtime::new()?;
+            let flat =
+                runtime.block_on(puppetry::soak::soak(options, |line| println!("{line}")))?;
+            if !flat {
+                std::process::exit(1);
+            }
+        }
         Command::Export {
             take,
             format,
@@ -661,19 +710,27 @@ fn run(args: Args) -> anyhow::Result<()> {
         }
         Command::Bench {
             viewers: Some(counts),
+            relays,
             json,
             ..
         } => {
+            use puppetry::viewers_bench as vb;
             let runtime = tokio::runtime::Runtime::new()?;
             if !json {
-                println!("{}", puppetry::viewers_bench::viewers_table_header());
+                if relays > 0 {
+                    println!("{}", vb::relays_table_header());
+                } else {
+                    println!("{}", vb::viewers_table_header());
+                }
             }
             for viewers in counts {
-                let r = runtime.block_on(puppetry::viewers_bench::viewers_case(viewers))?;
+                let r = runtime.block_on(vb::viewers_case(viewers, relays))?;
                 if json {
                     println!("{}", serde_json::to_string(&r)?);
+                } else if relays > 0 {
+                    println!("{}", vb::relays_table_row(&r));
                 } else {
-                    println!("{}", puppetry::viewers_bench::viewers_table_row(&r));
+                    println!("{}", vb::viewers_table_row(&r));
                 }
             }
         }

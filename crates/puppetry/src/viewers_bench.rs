@@ -7,6 +7,13 @@
 //! performer's `ping`s place the daemon's clock on this one (the answer with
 //! the shortest round trip, its `clock` at the middle of the trip). The
 //! daemon's resident memory and CPU come from `/proc`.
+//!
+//! With `--relays N` the viewers meet it through the relay tier: a
+//! `nats-server` and N `puppetry relay` processes, the viewers spread over
+//! the relays, the performer on the daemon (its clock is the one frames
+//! carry). Each relay's and the NATS server's CPU and memory come from
+//! `/proc` too, and a second performer on a relay times its round trip
+//! against the direct one's: what a remote performer's input pays.
 
 use std::io::BufRead;
 use std::path::PathBuf;
@@ -30,6 +37,8 @@ const DRAG: Duration = Duration::from_secs(5);
 #[derive(Debug, Clone, Serialize)]
 pub struct ViewersResult {
     pub viewers: usize,
+    /// Relays the viewers were spread over (0: on the daemon itself).
+    pub relays: usize,
     pub vertices: usize,
     pub input_hz: f64,
     /// Input frames the performer sent, and vertex frames each viewer got
@@ -47,6 +56,16 @@ pub struct ViewersResult {
     /// The daemon's CPU while the performer drags, in cores (1.0 = one
     /// core busy).
     pub daemon_cpu: f64,
+    /// The relays' CPU (all of them, cores) and resident sets (MB, summed)
+    /// while the performer drags; the NATS server's.
+    pub relays_cpu: f64,
+    pub relays_rss_mb: f64,
+    pub nats_cpu: f64,
+    pub nats_rss_mb: f64,
+    /// A ping's round trip from a performer on the daemon, and from one on
+    /// a relay (through NATS to the daemon and back), medians, µs.
+    pub ping_direct_us: f64,
+    pub ping_relay_us: f64,
 }
 
 /// Why a `--viewers` case could not be measured.
@@ -61,6 +80,8 @@ pub enum ViewersError {
     },
     #[error("the daemon: {0}")]
     Daemon(String),
+    #[error("the relay tier needs nats-server: install it (apt-get install nats-server)")]
+    NoNats,
     #[error("a WebSocket: {0}")]
     WebSocket(#[from] tokio_tungstenite::tungstenite::Error),
 }
@@ -88,7 +109,7 @@ impl Drop for Daemon {
 impl Daemon {
     /// Serves the bundled demo stage on a free loopback port, taking
     /// `viewers` connections from this one address.
-    fn start(viewers: usize) -> Result<Daemon, ViewersError> {
+    fn start(viewers: usize, extra: &str) -> Result<Daemon, ViewersError> {
         let demo = crate::bundled::demo_stage()?;
         let text = std::fs::read_to_string(&demo).map_err(io(demo.display().to_string()))?;
         // Beside the demo stage, so its relative paths hold.
@@ -96,34 +117,18 @@ impl Daemon {
         let text = text.replace(
             "[access]\n",
             &format!("[access]\nmax_per_address = {}\n", viewers + 8),
-        );
+        ) + extra;
         std::fs::write(&stage_file, text).map_err(io(stage_file.display().to_string()))?;
-        let exe = std::env::current_exe().map_err(io("this program's path"))?;
-        let mut child = std::process::Command::new(exe)
+        let mut serve = std::process::Command::new(this_program()?);
+        serve
             .args(["serve", "--listen", "127.0.0.1:0", "--config"])
-            .arg(&stage_file)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .map_err(io("starting puppetry serve"))?;
-        let mut out = std::io::BufReader::new(child.stdout.take().expect("piped"));
-        let mut daemon = Daemon {
+            .arg(&stage_file);
+        let (child, address) = spawn_serving(serve, "puppetry serve")?;
+        Ok(Daemon {
             child,
-            address: String::new(),
+            address,
             stage_file,
-        };
-        let mut line = String::new();
-        out.read_line(&mut line)
-            .map_err(io("the daemon's first line"))?;
-        daemon.address = line
-            .split("http://")
-            .nth(1)
-            .and_then(|rest| rest.split('/').next())
-            .ok_or_else(|| ViewersError::Daemon(format!("no address in {line:?}")))?
-            .to_string();
-        // Keep reading, so the daemon never blocks on a full pipe.
-        std::thread::spawn(move || for _ in out.lines() {});
-        Ok(daemon)
+        })
     }
 
     fn pid(&self) -> u32 {
@@ -131,8 +136,126 @@ impl Daemon {
     }
 }
 
+pub(crate) fn this_program() -> Result<PathBuf, ViewersError> {
+    std::env::current_exe().map_err(io("this program's path"))
+}
+
+/// Starts `command`, which prints the `http://ADDRESS/` it serves on its
+/// first line; the child and that address.
+pub(crate) fn spawn_serving(
+    mut command: std::process::Command,
+    what: &str,
+) -> Result<(std::process::Child, String), ViewersError> {
+    let mut child = command
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .map_err(io(format!("starting {what}")))?;
+    let mut out = std::io::BufReader::new(child.stdout.take().expect("piped"));
+    let mut line = String::new();
+    let read = out.read_line(&mut line);
+    let address = line
+        .split("http://")
+        .nth(1)
+        .and_then(|rest| rest.split('/').next())
+        .map(str::to_string);
+    let (Ok(_), Some(address)) = (read, address) else {
+        let _ = child.kill();
+        let _ = child.wait();
+        return Err(ViewersError::Daemon(format!(
+            "{what}: no address in its first line {line:?}"
+        )));
+    };
+    // Keep reading, so the child never blocks on a full pipe.
+    std::thread::spawn(move || for _ in out.lines() {});
+    Ok((child, address))
+}
+
+/// A child process killed when dropped.
+pub(crate) struct Child(pub(crate) std::process::Child);
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// The relay tier: a NATS server on a free loopback port and `relays`
+/// relay processes serving the stage `bench` from it.
+pub(crate) struct Tier {
+    pub(crate) nats: Child,
+    pub(crate) nats_url: String,
+    pub(crate) relays: Vec<(Child, String)>,
+}
+
+impl Tier {
+    pub(crate) fn start_nats() -> Result<(Child, String), ViewersError> {
+        let program = std::env::var_os("PATH")
+            .map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+            .unwrap_or_default()
+            .into_iter()
+            .chain([PathBuf::from("/usr/sbin")])
+            .map(|d| d.join("nats-server"))
+            .find(|p| p.is_file())
+            .ok_or(ViewersError::NoNats)?;
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map_err(io("a free port"))?
+            .port();
+        let child = std::process::Command::new(program)
+            .args(["-a", "127.0.0.1", "-p", &port.to_string()])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .map_err(io("starting nats-server"))?;
+        let nats = Child(child);
+        let address = std::net::SocketAddr::from(([127, 0, 0, 1], port));
+        for _ in 0..500 {
+            if std::net::TcpStream::connect(address).is_ok() {
+                return Ok((nats, format!("nats://{address}")));
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Err(ViewersError::Daemon(format!(
+            "nats-server did not listen on {address}"
+        )))
+    }
+
+    pub(crate) fn start_relays(
+        &mut self,
+        count: usize,
+        viewers: usize,
+        stage: &str,
+    ) -> Result<(), ViewersError> {
+        for k in 0..count {
+            let mut relay = std::process::Command::new(this_program()?);
+            relay.args([
+                "relay",
+                "--nats",
+                &self.nats_url,
+                "--stage",
+                stage,
+                "--listen",
+                "127.0.0.1:0",
+                "--name",
+                &format!("r{k}"),
+                "--max-connections",
+                &(viewers + 16).to_string(),
+            ]);
+            let (child, address) = spawn_serving(relay, "puppetry relay")?;
+            self.relays.push((Child(child), address));
+        }
+        Ok(())
+    }
+
+    fn pids(&self) -> Vec<u32> {
+        self.relays.iter().map(|(c, _)| c.0.id()).collect()
+    }
+}
+
 /// A process's resident set, MB.
-fn rss_mb(pid: u32) -> f64 {
+pub(crate) fn rss_mb(pid: u32) -> f64 {
     std::fs::read_to_string(format!("/proc/{pid}/status"))
         .ok()
         .and_then(|status| {
@@ -146,7 +269,7 @@ fn rss_mb(pid: u32) -> f64 {
 }
 
 /// A process's CPU seconds (user and system).
-fn cpu_seconds(pid: u32) -> f64 {
+pub(crate) fn cpu_seconds(pid: u32) -> f64 {
     let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
         return 0.0;
     };
@@ -161,10 +284,33 @@ fn cpu_seconds(pid: u32) -> f64 {
     }
 }
 
-type Ws =
+pub(crate) type Ws =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
-async fn connect(
+/// Connects and reads until a `stage` message with puppets (a relay that
+/// has not heard the daemon yet sends an empty one first).
+pub(crate) async fn connect_staged(
+    address: &str,
+    hello: serde_json::Value,
+) -> Result<(Ws, serde_json::Value), ViewersError> {
+    let (mut ws, mut stage) = connect(address, hello).await?;
+    for _ in 0..10_000 {
+        let staged =
+            stage["type"] == "stage" && stage["puppets"].as_array().is_some_and(|p| !p.is_empty());
+        if staged {
+            return Ok((ws, stage));
+        }
+        stage = match ws.next().await {
+            Some(Ok(Message::Text(text))) => serde_json::from_str(&text).unwrap_or_default(),
+            Some(Ok(_)) => continue,
+            Some(Err(e)) => return Err(e.into()),
+            None => return Err(ViewersError::Daemon("closed before the stage".into())),
+        };
+    }
+    Err(ViewersError::Daemon("no stage with puppets came".into()))
+}
+
+pub(crate) async fn connect(
     address: &str,
     hello: serde_json::Value,
 ) -> Result<(Ws, serde_json::Value), ViewersError> {
@@ -190,7 +336,7 @@ async fn connect(
 
 /// Where the daemon's clock reads 0, on `origin`'s clock (seconds): from
 /// the performer's pings, the one with the shortest round trip.
-async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<f64, ViewersError> {
+pub(crate) async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<f64, ViewersError> {
     let mut best: Option<(f64, f64)> = None;
     for _ in 0..50 {
         let sent = origin.elapsed().as_secs_f64();
@@ -222,17 +368,65 @@ async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<f64, Viewer
     Ok(best.map_or(0.0, |(_, zero)| zero))
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return 0.0;
     }
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
-/// One case: the daemon, `viewers` viewers, a performer dragging.
-pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError> {
+/// Median round trip of `count` pings on `ws`, µs.
+async fn ping_median(ws: &mut Ws, count: usize) -> Result<f64, ViewersError> {
+    let origin = Instant::now();
+    let mut trips = Vec::with_capacity(count);
+    for _ in 0..count {
+        let sent = origin.elapsed().as_secs_f64();
+        ws.send(Message::text(
+            json!({"type": "ping", "t": sent}).to_string(),
+        ))
+        .await?;
+        loop {
+            match ws.next().await {
+                Some(Ok(Message::Text(text))) => {
+                    let m: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+                    if m["type"] == "pong" && m["t"] == sent {
+                        break;
+                    }
+                }
+                Some(Ok(_)) => continue,
+                Some(Err(e)) => return Err(e.into()),
+                None => return Err(ViewersError::Daemon("closed while pinging".into())),
+            }
+        }
+        trips.push((origin.elapsed().as_secs_f64() - sent) * 1e6);
+    }
+    trips.sort_by(f64::total_cmp);
+    Ok(percentile(&trips, 0.5))
+}
+
+/// Frames a second the relay tier is benched at (an audience's display).
+pub const RELAY_INPUT_HZ: f64 = 60.0;
+
+/// One case: the daemon, `viewers` viewers (on `relays` relays, or on the
+/// daemon with none), a performer dragging.
+pub async fn viewers_case(viewers: usize, relays: usize) -> Result<ViewersResult, ViewersError> {
     let viewers = viewers.max(1);
-    let daemon = Daemon::start(viewers)?;
+    let input_hz = if relays > 0 { RELAY_INPUT_HZ } else { INPUT_HZ };
+    let mut tier = None;
+    let mut extra = String::new();
+    if relays > 0 {
+        let (nats, nats_url) = Tier::start_nats()?;
+        extra = format!("\n[relay]\nnats = \"{nats_url}\"\nstage = \"bench\"\n");
+        tier = Some(Tier {
+            nats,
+            nats_url,
+            relays: Vec::new(),
+        });
+    }
+    let daemon = Daemon::start(viewers, &extra)?;
+    if let Some(tier) = &mut tier {
+        tier.start_relays(relays, viewers, "bench")?;
+    }
     let origin = Instant::now();
     let (mut performer, stage) = connect(
         &daemon.address,
@@ -240,6 +434,18 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
     )
     .await?;
     let zero = daemon_clock_origin(&mut performer, origin).await?;
+    let (ping_direct_us, ping_relay_us) = match &tier {
+        Some(tier) => {
+            let direct = ping_median(&mut performer, 200).await?;
+            let (mut remote, _) = connect_staged(
+                &tier.relays[0].1,
+                json!({"type": "hello", "role": "performer", "token": "demo"}),
+            )
+            .await?;
+            (direct, ping_median(&mut remote, 200).await?)
+        }
+        None => (0.0, 0.0),
+    };
     let puppet = &stage["puppets"][0];
     let rest: Vec<f64> = serde_json::from_value(puppet["rest"].clone()).unwrap_or_default();
     let vertices = rest.len() / 2;
@@ -256,8 +462,12 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
     let mut readers = Vec::with_capacity(viewers);
     let mut rss_one = 0.0;
     for k in 0..viewers {
+        let address = match &tier {
+            Some(tier) => &tier.relays[k % tier.relays.len()].1,
+            None => &daemon.address,
+        };
         let (mut ws, _) =
-            connect(&daemon.address, json!({"type": "hello", "role": "viewer"})).await?;
+            connect_staged(address, json!({"type": "hello", "role": "viewer"})).await?;
         let stop = stop.clone();
         readers.push(tokio::spawn(async move {
             let mut latencies = Vec::with_capacity(1024);
@@ -290,10 +500,15 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
     }
 
     // The drag: a circle around the grab point at the input rate.
-    let period = Duration::from_secs_f64(1.0 / INPUT_HZ);
+    let period = Duration::from_secs_f64(1.0 / input_hz);
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let steps = (DRAG.as_secs_f64() * INPUT_HZ) as usize;
+    let steps = (DRAG.as_secs_f64() * input_hz) as usize;
+    let relay_pids = tier.as_ref().map(Tier::pids).unwrap_or_default();
+    let nats_pid = tier.as_ref().map(|t| t.nats.0.id());
+    let relays_cpu_of = |pids: &[u32]| pids.iter().map(|&p| cpu_seconds(p)).sum::<f64>();
+    let relays_before = relays_cpu_of(&relay_pids);
+    let nats_before = nats_pid.map_or(0.0, cpu_seconds);
     let cpu_before = cpu_seconds(daemon.pid());
     let dragging = Instant::now();
     let mut rss_all: f64 = 0.0;
@@ -310,7 +525,12 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
     }
     let up = json!({"type": "contacts", "contacts": [{"id": 1, "phase": "up"}]});
     performer.send(Message::text(up.to_string())).await?;
-    let daemon_cpu = (cpu_seconds(daemon.pid()) - cpu_before) / dragging.elapsed().as_secs_f64();
+    let dragged = dragging.elapsed().as_secs_f64();
+    let daemon_cpu = (cpu_seconds(daemon.pid()) - cpu_before) / dragged;
+    let relays_cpu = (relays_cpu_of(&relay_pids) - relays_before) / dragged;
+    let nats_cpu = (nats_pid.map_or(0.0, cpu_seconds) - nats_before) / dragged;
+    let relays_rss_mb = relay_pids.iter().map(|&p| rss_mb(p)).sum();
+    let nats_rss_mb = nats_pid.map_or(0.0, rss_mb);
     tokio::time::sleep(Duration::from_millis(300)).await;
     rss_all = rss_all.max(rss_mb(daemon.pid()));
     stop.notify_waiters();
@@ -323,6 +543,7 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
         received += l.len();
         latencies.extend(l);
     }
+    drop(tier);
     drop(daemon);
     latencies.sort_by(f64::total_cmp);
     if latencies.is_empty() {
@@ -330,8 +551,9 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
     }
     Ok(ViewersResult {
         viewers,
+        relays,
         vertices,
-        input_hz: INPUT_HZ,
+        input_hz,
         input_frames: steps,
         frames_per_viewer: received as f64 / viewers as f64,
         latency_us_p50: percentile(&latencies, 0.5),
@@ -339,7 +561,60 @@ pub async fn viewers_case(viewers: usize) -> Result<ViewersResult, ViewersError>
         rss_mb_one: rss_one,
         rss_mb_all: rss_all,
         daemon_cpu,
+        relays_cpu,
+        relays_rss_mb,
+        nats_cpu,
+        nats_rss_mb,
+        ping_direct_us,
+        ping_relay_us,
     })
+}
+
+pub fn relays_table_header() -> String {
+    format!(
+        "{:>7} {:>6} {:>8} {:>9} {:>17} {:>14} {:>14} {:>11} {:>11} {:>12} {:>13} {:>10} {:>10} {:>15} {:>14}",
+        "viewers",
+        "relays",
+        "input Hz",
+        "published",
+        "frames per viewer",
+        "latency µs p50",
+        "latency µs p99",
+        "daemon CPU",
+        "relays CPU",
+        "relays RSS MB",
+        "per viewer",
+        "NATS CPU",
+        "NATS MB",
+        "ping direct µs",
+        "ping relay µs"
+    )
+}
+
+pub fn relays_table_row(r: &ViewersResult) -> String {
+    let per_viewer = format!(
+        "{:.1}m/{:.0}K",
+        1000.0 * r.relays_cpu / r.viewers as f64,
+        1024.0 * r.relays_rss_mb / r.viewers as f64
+    );
+    format!(
+        "{:>7} {:>6} {:>8.0} {:>9} {:>17.0} {:>14.0} {:>14.0} {:>10.0}% {:>10.0}% {:>12.1} {:>13} {:>9.0}% {:>10.1} {:>15.0} {:>14.0}",
+        r.viewers,
+        r.relays,
+        r.input_hz,
+        r.input_frames,
+        r.frames_per_viewer,
+        r.latency_us_p50,
+        r.latency_us_p99,
+        100.0 * r.daemon_cpu,
+        100.0 * r.relays_cpu,
+        r.relays_rss_mb,
+        per_viewer,
+        100.0 * r.nats_cpu,
+        r.nats_rss_mb,
+        r.ping_direct_us,
+        r.ping_relay_us
+    )
 }
 
 pub fn viewers_table_header() -> String {

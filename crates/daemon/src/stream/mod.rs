@@ -463,6 +463,7 @@ async fn websocket(
     cursors.mark_changed();
     take.mark_changed();
     notice.mark_changed();
+    let mut notices = true;
     let mut bad_in_a_row = 0u32;
     let result: std::io::Result<()> = async {
         loop {
@@ -494,9 +495,11 @@ async fn websocket(
                         send_text(&mut ws, &mut inputs, shared.client_timeout).await?;
                     }
                 }
-                changed = notice.changed() => {
-                    if changed.is_ok() {
-                        send_text(&mut ws, &mut notice, shared.client_timeout).await?;
+                // A daemon's notices never change: its sender is gone.
+                changed = notice.changed(), if notices => {
+                    match changed {
+                        Ok(()) => send_text(&mut ws, &mut notice, shared.client_timeout).await?,
+                        Err(_) => notices = false,
                     }
                 }
                 // Puppets added, removed or reordered: a fresh "stage"

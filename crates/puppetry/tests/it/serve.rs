@@ -310,6 +310,31 @@ async fn a_stalled_client_slows_no_one() {
     running.shutdown().await;
 }
 
+/// A connection with nothing new to send sleeps: it wakes for changes,
+/// not for a feed that can never change (a daemon's relay notices).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_idle_connection_does_not_wake() {
+    let running = daemon("").await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    // The newcomer's state, then quiet: no input runs on this stage.
+    frame_until(&mut viewer, |_| true).await;
+    let sends = || {
+        running
+            .timings()
+            .sends
+            .load(std::sync::atomic::Ordering::Relaxed)
+    };
+    let before = sends();
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    let after = sends();
+    assert!(
+        after - before <= 2,
+        "an idle connection woke {} times in half a second",
+        after - before
+    );
+    running.shutdown().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn shutdown_is_clean_and_frees_the_port() {
     let running = daemon("").await;
