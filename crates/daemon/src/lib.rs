@@ -10,14 +10,15 @@
 //! viewers, on other machines ([`relay`]).
 //!
 //! ```text
-//!   puppetry-input ──► stage_thread ──────────────► stream
+//!   puppetry-input ──► stage_thread ──────────────► stream ──► clients
 //!   (sources, under    (owns the puppetry-stage      (HTTP + WebSocket: newest
 //!    serve's care)      Stage; solves with            frame per client; the
 //!                       puppetry-deform; encodes      web page)
-//!                       each frame once)      │
-//!                                                     ├─► relay::publish ──► NATS
-//!                                                     │                       │
-//!                        relay::serve (another process): NATS ──► stream ──► viewers
+//!                       each frame once)
+//!                              │
+//!                              └──► relay::publish ──► NATS ──► relay::serve ──► stream ──► viewers
+//!                                   (the same frames,          (another process: the same
+//!                                    newest only)               edge, fed from NATS)
 //! ```
 
 pub mod lineup;

@@ -113,6 +113,10 @@ enum Command {
         /// Also through the relay tier (needs nats-server).
         #[arg(long)]
         relay: bool,
+        /// Also loop this device capture (evemu .event) or recording
+        /// (.jsonl) on the stage.
+        #[arg(long, value_name = "FILE")]
+        capture: Option<PathBuf>,
     },
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
@@ -333,6 +337,25 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     Ok((parse(w)?, parse(h)?))
 }
 
+/// Logs to stderr, at `RUST_LOG`'s levels (default: info).
+fn log_to_stderr() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+/// Waits for Ctrl-C, or SIGTERM as systemd and docker stop daemons.
+async fn until_stopped() -> std::io::Result<()> {
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        stopped = tokio::signal::ctrl_c() => stopped,
+        _ = terminate.recv() => Ok(()),
+    }
+}
+
 fn main() -> ExitCode {
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
@@ -369,13 +392,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             no_replay,
             puppets,
         } => {
-            tracing_subscriber::fmt()
-                .with_env_filter(
-                    tracing_subscriber::EnvFilter::try_from_default_env()
-                        .unwrap_or_else(|_| "info".into()),
-                )
-                .with_writer(std::io::stderr)
-                .init();
+            log_to_stderr();
             let path = match config {
                 Some(path) => path,
                 None => puppetry::bundled::demo_stage()?,
@@ -437,14 +454,8 @@ fn run(args: Args) -> anyhow::Result<()> {
                     println!("  OSC triggers: udp://{osc} (docs/osc.md)");
                 }
                 println!("  stop with Ctrl-C (or SIGTERM)");
-                // Ctrl-C, or SIGTERM as systemd and docker stop daemons:
-                // either way a take being recorded is ended cleanly.
-                let mut terminate =
-                    tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-                tokio::select! {
-                    stopped = tokio::signal::ctrl_c() => stopped?,
-                    _ = terminate.recv() => {}
-                }
+                // Either way a take being recorded is ended cleanly.
+                until_stopped().await?;
                 running.shutdown().await;
                 anyhow::Ok(())
             })?;
@@ -458,13 +469,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             max_connections,
             client_timeout,
         } => {
-            tracing_subscriber::fmt()
-                .with_env_filter(
-                    tracing_subscriber::EnvFilter::try_from_default_env()
-                        .unwrap_or_else(|_| "info".into()),
-                )
-                .with_writer(std::io::stderr)
-                .init();
+            log_to_stderr();
             if !(client_timeout.is_finite() && client_timeout > 0.0) {
                 anyhow::bail!("--client-timeout must be a positive number of seconds");
             }
@@ -489,12 +494,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                     running.address
                 );
                 println!("  stop with Ctrl-C (or SIGTERM)");
-                let mut terminate =
-                    tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-                tokio::select! {
-                    stopped = tokio::signal::ctrl_c() => stopped?,
-                    _ = terminate.recv() => {}
-                }
+                until_stopped().await?;
                 running.shutdown().await;
                 anyhow::Ok(())
             })?;
@@ -504,6 +504,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             every,
             viewers,
             relay,
+            capture,
         } => {
             let valid = |v: f64| v.is_finite() && v > 0.0;
             if !(valid(minutes) && valid(every)) {
@@ -514,6 +515,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 every: std::time::Duration::from_secs_f64(every),
                 viewers,
                 relay,
+                capture,
             };
             let runtime = tokio::runtime::Runtime::new()?;
             let flat =

@@ -1,9 +1,11 @@
 //! `puppetry soak`: the daemon (and, with `--relay`, a NATS server and a
 //! relay) run for a set time on loopback under the churn a show puts it
 //! through, to show that nothing leaks. The bundled recorded drag loops on
-//! the stage; performers join, drag and leave; viewers connect, read,
+//! the stage, and a real device capture with it when one is given; performers join, drag and leave; viewers connect, read,
 //! stall past the client timeout and drop; malformed messages are mixed
-//! in; takes are recorded, exported (glb) and deleted. Every interval it
+//! in; takes are recorded, exported (glb) and deleted; a director adds a
+//! curve puppet and takes it off again (a new lineup each time); viewers
+//! fetch the puppets' pictures, through the relay too. Every interval it
 //! prints each process's resident memory and open descriptors, and the
 //! frames a second and p99 latency a reference viewer saw; at the end it
 //! fits a line through what came after the warm-up and says whether
@@ -35,6 +37,9 @@ pub struct SoakOptions {
     pub viewers: usize,
     /// Through a relay too (needs nats-server).
     pub relay: bool,
+    /// A capture (evemu `.event`) or recording (`.jsonl`) looped on the
+    /// stage besides the bundled recorded drag.
+    pub capture: Option<std::path::PathBuf>,
 }
 
 /// Messages a careless or hostile client sends.
@@ -59,6 +64,8 @@ struct Counts {
     performer_sessions: AtomicU64,
     bad_messages: AtomicU64,
     takes_exported: AtomicU64,
+    lineups: AtomicU64,
+    pictures: AtomicU64,
     failures: AtomicU64,
 }
 
@@ -86,6 +93,8 @@ pub struct SoakRow {
     pub performer_sessions: u64,
     pub bad_messages: u64,
     pub takes_exported: u64,
+    pub lineups: u64,
+    pub pictures: u64,
     pub failures: u64,
 }
 
@@ -118,9 +127,20 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     let _ = std::fs::create_dir_all(&takes);
     let mut tier = None;
     let mut extra = String::new();
+    if let Some(capture) = &options.capture {
+        let capture = std::path::absolute(capture).map_err(|e| ViewersError::Io {
+            what: capture.display().to_string(),
+            source: e,
+        })?;
+        // Its contacts' own range over the stage (a capture knows its axes).
+        extra += &format!(
+            "\n[[input]]\nkind = \"replay\"\nname = \"capture\"\nfile = {:?}\nrepeat = true\n",
+            capture.display().to_string()
+        );
+    }
     if options.relay {
         let (nats, nats_url) = Tier::start_nats()?;
-        extra = format!("\n[relay]\nnats = \"{nats_url}\"\nstage = \"soak\"\n");
+        extra += &format!("\n[relay]\nnats = \"{nats_url}\"\nstage = \"soak\"\n");
         tier = Some(Tier {
             nats,
             nats_url,
@@ -242,6 +262,21 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
                         read_for(&mut ws, Duration::from_millis(500 + 100 * dice.roll(20))).await;
                         drop(ws);
                     }
+                    // Fetches the picture as a page does, reads a while,
+                    // then closes properly.
+                    2 => {
+                        let picture = http(edge, b"GET /puppets/0/texture.png HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await;
+                        match picture {
+                            Ok(answer) if answer.starts_with(b"HTTP/1.1 200") => {
+                                counts.pictures.fetch_add(1, Ordering::Relaxed);
+                            }
+                            _ => {
+                                counts.failures.fetch_add(1, Ordering::Relaxed);
+                            }
+                        }
+                        read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
+                        let _ = ws.close(None).await;
+                    }
                     // Reads a while, then closes properly.
                     _ => {
                         read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
@@ -349,6 +384,23 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
         }));
     }
 
+    // A curve puppet added and taken off again: a new lineup each time.
+    {
+        let daemon = daemon.clone();
+        let counts = counts.clone();
+        let stop = stop.clone();
+        let every = (options.duration / 30).clamp(Duration::from_secs(5), Duration::from_secs(60));
+        tasks.push(tokio::spawn(async move {
+            while !*stop.borrow() {
+                tokio::time::sleep(every).await;
+                match add_and_remove_a_curve(&daemon).await {
+                    Ok(()) => counts.lineups.fetch_add(2, Ordering::Relaxed),
+                    Err(_) => counts.failures.fetch_add(1, Ordering::Relaxed),
+                };
+            }
+        }));
+    }
+
     print(&table_header());
     let start = Instant::now();
     let mut rows = Vec::new();
@@ -377,6 +429,8 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
             performer_sessions: counts.performer_sessions.load(Ordering::Relaxed),
             bad_messages: counts.bad_messages.load(Ordering::Relaxed),
             takes_exported: counts.takes_exported.load(Ordering::Relaxed),
+            lineups: counts.lineups.load(Ordering::Relaxed),
+            pictures: counts.pictures.load(Ordering::Relaxed),
             failures: counts.failures.load(Ordering::Relaxed),
         };
         cpu_before = cpu;
@@ -428,6 +482,39 @@ async fn take_and_export(daemon: &str, name: &str) -> Result<(), ViewersError> {
     }
 }
 
+/// A director adds a rope, waits for it, and takes it off the stage.
+async fn add_and_remove_a_curve(daemon: &str) -> Result<(), ViewersError> {
+    let hello = json!({"type": "hello", "role": "director", "token": "director"});
+    let (mut ws, _) = connect(daemon, hello).await?;
+    let points: Vec<[f64; 2]> = (0..40).map(|k| [100.0 + 5.0 * k as f64, 600.0]).collect();
+    let add = json!({"type": "add_curve", "name": "soak rope", "points": points, "width": 6.0, "colour": "#336699"});
+    ws.send(Message::text(add.to_string())).await?;
+    let added = tokio::time::timeout(Duration::from_secs(20), async {
+        while let Some(Ok(m)) = ws.next().await {
+            if let Message::Text(text) = m {
+                let m: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+                if m["type"] == "puppet_added" || m["type"] == "error" {
+                    return m;
+                }
+            }
+        }
+        serde_json::Value::Null
+    })
+    .await
+    .unwrap_or_default();
+    let Some(puppet) = added["puppet"].as_u64() else {
+        return Err(ViewersError::Daemon(format!("add_curve: {added}")));
+    };
+    read_for(&mut ws, Duration::from_secs(2)).await;
+    ws.send(Message::text(
+        json!({"type": "remove_puppet", "puppet": puppet}).to_string(),
+    ))
+    .await?;
+    read_for(&mut ws, Duration::from_millis(500)).await;
+    let _ = ws.close(None).await;
+    Ok(())
+}
+
 async fn http(address: &str, request: &[u8]) -> Result<Vec<u8>, ViewersError> {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let failed = |source| ViewersError::Io {
@@ -448,7 +535,7 @@ async fn http(address: &str, request: &[u8]) -> Result<Vec<u8>, ViewersError> {
 
 pub fn table_header() -> String {
     format!(
-        "{:>6} {:>10} {:>9} {:>10} {:>9} {:>9} {:>8} {:>9} {:>10} {:>8} {:>7} {:>10} {:>8} {:>6} {:>8}",
+        "{:>6} {:>10} {:>9} {:>10} {:>9} {:>9} {:>8} {:>9} {:>10} {:>8} {:>7} {:>10} {:>8} {:>6} {:>8} {:>9} {:>8}",
         "minute",
         "daemon MB",
         "daemon fd",
@@ -463,13 +550,15 @@ pub fn table_header() -> String {
         "performers",
         "bad msgs",
         "takes",
+        "lineups",
+        "pictures",
         "failures"
     )
 }
 
 pub fn table_row(r: &SoakRow) -> String {
     format!(
-        "{:>6.1} {:>10.1} {:>9} {:>9.0}% {:>9.1} {:>9} {:>8.1} {:>9.1} {:>10.2} {:>8} {:>7} {:>10} {:>8} {:>6} {:>8}",
+        "{:>6.1} {:>10.1} {:>9} {:>9.0}% {:>9.1} {:>9} {:>8.1} {:>9.1} {:>10.2} {:>8} {:>7} {:>10} {:>8} {:>6} {:>8} {:>9} {:>8}",
         r.minute,
         r.daemon_rss_mb,
         r.daemon_fds,
@@ -484,6 +573,8 @@ pub fn table_row(r: &SoakRow) -> String {
         r.performer_sessions,
         r.bad_messages,
         r.takes_exported,
+        r.lineups,
+        r.pictures,
         r.failures
     )
 }
@@ -558,6 +649,8 @@ mod tests {
             performer_sessions: 0,
             bad_messages: 0,
             takes_exported: 0,
+            lineups: 0,
+            pictures: 0,
             failures: 0,
         }
     }

@@ -751,6 +751,11 @@ pub struct RelayConfig {
     /// for it with `--stage`. Default: the stage file's name without `.toml`.
     #[serde(default)]
     pub stage: Option<String>,
+    /// Frames a second of each puppet published to relays at most (an
+    /// audience's display rate, for large audiences: a frame may then
+    /// wait up to one interval); 0, the default: every solve, with no wait.
+    #[serde(default)]
+    pub frame_rate: f64,
 }
 
 impl StageConfig {
@@ -967,6 +972,13 @@ impl StageConfig {
                     "must be a nats://host:port or tls://host:port address",
                 ));
             }
+            let rate = relay.frame_rate;
+            if !(rate == 0.0 || (1.0..=1000.0).contains(&rate)) {
+                return Err(invalid(
+                    "relay.frame_rate".into(),
+                    "must be 0 (every solve) or 1 to 1000 frames a second",
+                ));
+            }
             if let Some(name) = &relay.stage
                 && (name.is_empty() || !name.chars().all(is_name_char))
             {
@@ -1057,6 +1069,8 @@ mod tests {
         assert!(bad.contains("relay.nats"), "{bad}");
         let bad = parse("[relay]\nnats = \"nats://h:1\"\nstage = \"a.b\"\n").unwrap_err();
         assert!(bad.contains("relay.stage"), "{bad}");
+        let bad = parse("[relay]\nnats = \"nats://h:1\"\nframe_rate = 0.5\n").unwrap_err();
+        assert!(bad.contains("relay.frame_rate"), "{bad}");
         let bad = parse("[relay]\nnats = \"nats://h:1\"\nstages = \"x\"\n").unwrap_err();
         assert!(bad.contains("stages"), "{bad}");
     }

@@ -79,11 +79,6 @@ impl Subjects {
         format!("{}.out.>", self.prefix)
     }
 
-    /// Everything the daemon answers.
-    pub fn in_all(&self) -> String {
-        format!("{}.in.>", self.prefix)
-    }
-
     pub fn out(&self, name: &str) -> String {
         format!("{}.out.{name}", self.prefix)
     }
@@ -134,6 +129,8 @@ pub struct LineupMessage {
 pub struct Heartbeat {
     pub boot: u64,
     pub revision: u64,
+    /// The daemon's clock (seconds since it started: frames' `input_time`).
+    pub clock: f64,
     /// False once, as the daemon stops.
     pub live: bool,
 }

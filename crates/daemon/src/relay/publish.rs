@@ -56,13 +56,23 @@ pub async fn start(
         // A slow link to NATS holds a few frames at most, never seconds.
         .client_capacity(256);
     let client = super::connect(&config.nats, options).await?;
-    let asked = client
-        .subscribe(subjects.in_all())
-        .await
-        .map_err(|e| RelayError::Subscribe {
-            subject: subjects.in_all(),
+    // Sessions' keep-alives and syncs on their own subscription, so a
+    // burst of requests never delays them.
+    let mut control = Vec::new();
+    let mut asked = Vec::new();
+    for kind in ["alive", "sync", "join", "msg", "leave", "picture"] {
+        let subject = subjects.ask(kind);
+        let subscribed = client.subscribe(subject.clone()).await;
+        let subscribed = subscribed.map_err(|e| RelayError::Subscribe {
+            subject,
             problem: e.to_string(),
         })?;
+        if matches!(kind, "alive" | "sync") {
+            control.push(subscribed);
+        } else {
+            asked.push(subscribed);
+        }
+    }
     let boot = boot_id();
     let (sync_tx, sync_rx) = mpsc::channel(16);
     let sessions = Arc::new(Sessions::default());
@@ -71,6 +81,8 @@ pub async fn start(
         subjects: subjects.clone(),
         boot,
         shared: shared.clone(),
+        frame_every: (config.frame_rate > 0.0)
+            .then(|| Duration::from_secs_f64(1.0 / config.frame_rate)),
     };
     let answerer = Answerer {
         client: client.clone(),
@@ -81,8 +93,10 @@ pub async fn start(
     };
     let expiry = {
         let shared = shared.clone();
-        tokio::spawn(async move { sessions.expire_silent_relays(&shared).await })
+        let up = up.clone();
+        tokio::spawn(async move { sessions.expire_silent_relays(&shared, up).await })
     };
+    let answerer = Arc::new(answerer);
     tracing::info!(
         "publishing the stage as {} on NATS {}",
         subjects.out_all(),
@@ -95,10 +109,23 @@ pub async fn start(
         shared,
         tasks: vec![
             tokio::spawn(publisher.run(up, sync_rx)),
-            tokio::spawn(answerer.run(asked)),
+            tokio::spawn(
+                answerer
+                    .clone()
+                    .control(futures_util::stream::select_all(control)),
+            ),
+            tokio::spawn(answerer.run(futures_util::stream::select_all(asked))),
             expiry,
         ],
     })
+}
+
+impl Drop for Publishing {
+    fn drop(&mut self) {
+        for task in &self.tasks {
+            task.abort();
+        }
+    }
 }
 
 impl Publishing {
@@ -110,6 +137,7 @@ impl Publishing {
         let last = Heartbeat {
             boot: self.boot,
             revision: self.shared.lineup.borrow().revision,
+            clock: self.shared.started.elapsed().as_secs_f64(),
             live: false,
         };
         let said = async {
@@ -142,6 +170,10 @@ struct Publisher {
     subjects: Subjects,
     boot: u64,
     shared: Arc<Shared>,
+    /// At most one publish of the puppets' streams this often: an
+    /// audience's display rate, whatever the input rate (what comes
+    /// between is newest-only, as for a slow client).
+    frame_every: Option<Duration>,
 }
 
 impl Publisher {
@@ -158,7 +190,12 @@ impl Publisher {
         let mut heartbeat = tokio::time::interval(ALIVE_EVERY);
         let mut whole = true;
         let mut answer_to: Vec<Subject> = Vec::new();
+        let mut published = tokio::time::Instant::now();
         loop {
+            if let Some(every) = self.frame_every {
+                tokio::time::sleep_until(published + every).await;
+                published = tokio::time::Instant::now();
+            }
             if *up.borrow() {
                 if whole {
                     self.publish_lineup(following.lineup()).await;
@@ -183,6 +220,7 @@ impl Publisher {
                     let said = Heartbeat {
                         boot: self.boot,
                         revision: following.lineup().revision,
+                        clock: shared.started.elapsed().as_secs_f64(),
                         live: true,
                     };
                     self.send(reply.to_string(), json(&said)).await;
@@ -215,6 +253,10 @@ impl Publisher {
                 asked = sync.recv() => {
                     let Some(reply) = asked else { return };
                     answer_to.extend(reply);
+                    // Every relay asking now is answered by one republish.
+                    while let Ok(more) = sync.try_recv() {
+                        answer_to.extend(more);
+                    }
                     everything_again(&mut following, &lineup, &mut [&mut cursors, &mut take, &mut export, &mut people, &mut inputs]);
                     whole = true;
                 }
@@ -235,6 +277,7 @@ impl Publisher {
                         let beat = Heartbeat {
                             boot: self.boot,
                             revision: following.lineup().revision,
+                            clock: shared.started.elapsed().as_secs_f64(),
                             live: true,
                         };
                         self.send(self.subjects.out("live"), json(&beat)).await;
@@ -273,6 +316,10 @@ impl Publisher {
     }
 
     async fn send(&self, subject: String, payload: Bytes) {
+        // Queued messages would wait out the outage, holding frames.
+        if self.client.connection_state() != async_nats::connection::State::Connected {
+            return;
+        }
         if let Err(e) = super::publish(&self.client, subject, payload).await {
             tracing::debug!("NATS publish: {e}");
         }
@@ -306,22 +353,39 @@ struct Answerer {
 }
 
 impl Answerer {
-    async fn run(self, mut asked: async_nats::Subscriber) {
+    /// Syncs and relays' keep-alives, in order.
+    async fn control(
+        self: Arc<Self>,
+        mut asked: impl futures_util::Stream<Item = async_nats::Message> + Unpin,
+    ) {
+        while let Some(message) = asked.next().await {
+            match self.subjects.asked(&message.subject) {
+                // A sync already waiting answers this one too.
+                Some("sync") => {
+                    let _ = self.sync.try_send(message.reply.clone());
+                }
+                Some("alive") => match serde_json::from_slice::<Alive>(&message.payload) {
+                    Ok(alive) => self.sessions.alive(&self.shared, alive).await,
+                    Err(e) => tracing::warn!("NATS {}: {e}", message.subject),
+                },
+                _ => {}
+            }
+        }
+    }
+
+    /// Sessions' requests, each answered by a task of its own (at most
+    /// [`ANSWERING`] at once).
+    async fn run(
+        self: Arc<Self>,
+        mut asked: impl futures_util::Stream<Item = async_nats::Message> + Unpin,
+    ) {
         let answering = Arc::new(Semaphore::new(ANSWERING));
-        let me = Arc::new(self);
+        let me = self;
         while let Some(message) = asked.next().await {
             let Some(kind) = me.subjects.asked(&message.subject) else {
                 continue;
             };
             match kind {
-                // A sync already waiting answers this one too.
-                "sync" => {
-                    let _ = me.sync.try_send(message.reply.clone());
-                }
-                "alive" => match serde_json::from_slice::<Alive>(&message.payload) {
-                    Ok(alive) => me.sessions.alive(&me.shared, alive).await,
-                    Err(e) => tracing::warn!("NATS {}: {e}", message.subject),
-                },
                 "join" | "msg" | "leave" | "picture" => {
                     let Ok(permit) = answering.clone().acquire_owned().await else {
                         return;
@@ -391,9 +455,12 @@ impl Answerer {
                 crate::stream::guard::clip(&request.source, 80)
             )));
         }
-        let permissions = match self.sessions.permissions(&request.source) {
-            Some(p) => p,
-            None if request.session => {
+        let session = request
+            .session
+            .then(|| self.sessions.permissions(&request.source));
+        let permissions = match session {
+            Some(Some(p)) => p,
+            Some(None) => {
                 return MessageAnswer::Refused(Refusal::new(
                     crate::protocol::ErrorCode::Failed,
                     "the stage ended this session (the relay was away too long): reconnect",
@@ -488,6 +555,9 @@ impl Sessions {
             };
         }
         let relay = request.source.split(':').nth(1).unwrap_or("").to_string();
+        // A relay restarted under the same name numbers its clients anew:
+        // whatever the old one of this name held goes first.
+        self.end(links, &request.source).await;
         match crate::stream::join_stage(
             links,
             &request.source,
@@ -561,11 +631,24 @@ impl Sessions {
 
     /// Ends the sessions of relays that went silent (killed, or cut off
     /// from NATS), so nothing stays held on stage by someone gone.
-    async fn expire_silent_relays(&self, shared: &Shared) {
+    async fn expire_silent_relays(&self, shared: &Shared, up: watch::Receiver<bool>) {
         let mut every = tokio::time::interval(ALIVE_EVERY);
+        let mut was_up = true;
         loop {
             every.tick().await;
             let now = Instant::now();
+            // The daemon's own outage silences every relay: no one's fault.
+            if !*up.borrow() {
+                was_up = false;
+                continue;
+            }
+            if !was_up {
+                was_up = true;
+                let mut relays = self.relays.lock().unwrap_or_else(|p| p.into_inner());
+                relays.values_mut().for_each(|heard| *heard = now);
+                self.lock().values_mut().for_each(|s| s.since = now);
+                continue;
+            }
             let silent = |relay: &str, since: Instant| {
                 let heard = self
                     .relays
@@ -589,6 +672,15 @@ impl Sessions {
                 tracing::warn!("{source}: its relay went silent; letting go of its handles");
                 self.end(links, &source).await;
             }
+            // Relays long gone with no sessions are forgotten.
+            let with_sessions: std::collections::HashSet<String> =
+                self.lock().values().map(|s| s.relay.clone()).collect();
+            self.relays
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .retain(|relay, heard| {
+                    with_sessions.contains(relay) || now.duration_since(*heard) < RELAY_GONE_AFTER
+                });
         }
     }
 }

@@ -100,6 +100,9 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
         name: options.name.clone(),
         admission: feeds.admission,
         boot: feeds.boot,
+        live: feeds.live,
+        clock_offset: feeds.clock_offset,
+        started: feeds.started,
         pictures: Mutex::default(),
         sessions: Mutex::default(),
     }));
@@ -162,6 +165,10 @@ struct Feeds {
     changes: watch::Receiver<u64>,
     admission: watch::Receiver<Admission>,
     boot: watch::Receiver<u64>,
+    live: watch::Receiver<bool>,
+    clock_offset: watch::Receiver<Option<f64>>,
+    /// What the clock offset is measured from.
+    started: Instant,
 }
 
 /// A puppet's output channels on the relay: what the daemon's stage
@@ -296,7 +303,12 @@ struct Mirror {
     /// A new lineup, shown to viewers once every puppet on it has its
     /// handles (the daemon publishes them right after the lineup): a
     /// viewer's `stage` message then has them, as a direct one's does.
-    pending: Option<(Arc<Lineup>, HashSet<usize>)>,
+    pending: Option<(Arc<Lineup>, HashSet<usize>, Instant)>,
+    /// Whether the stage is live now, for the relay's sessions.
+    live: watch::Sender<bool>,
+    /// The daemon's clock (seconds) minus this process's, from heartbeats.
+    clock_offset: watch::Sender<Option<f64>>,
+    started: Instant,
     assembler: Assembler,
     /// When the daemon last said it is live.
     heard: Option<Instant>,
@@ -326,7 +338,13 @@ impl Mirror {
             max_per_address: puppetry_stage::config::Access::default().max_per_address,
         });
         let (boot, boot_rx) = watch::channel(0);
+        let started = Instant::now();
+        let (live, live_rx) = watch::channel(false);
+        let (clock_offset, clock_offset_rx) = watch::channel(None);
         let feeds = Feeds {
+            started,
+            live: live_rx,
+            clock_offset: clock_offset_rx,
             lineup: lineup_rx,
             cursors: text("cursors"),
             take: text("take"),
@@ -348,6 +366,9 @@ impl Mirror {
             boot,
             current: None,
             pending: None,
+            live,
+            clock_offset,
+            started,
             assembler: Assembler::default(),
             heard: None,
             stopped: false,
@@ -360,7 +381,7 @@ impl Mirror {
         mut published: async_nats::Subscriber,
         client: Client,
         subjects: Subjects,
-        up: watch::Receiver<bool>,
+        mut up: watch::Receiver<bool>,
     ) {
         let mut every = tokio::time::interval(Duration::from_millis(250));
         let (synced_tx, mut synced_rx) = mpsc::channel::<bool>(1);
@@ -375,6 +396,14 @@ impl Mirror {
                         self.changes.send_modify(|n| *n += 1);
                     }
                 }
+                // Any drop, however short, may have lost messages: sync again.
+                changed = up.changed() => {
+                    if changed.is_err() {
+                        return;
+                    }
+                    up.borrow_and_update();
+                    synced = false;
+                }
                 done = synced_rx.recv() => {
                     syncing = false;
                     synced = done == Some(true);
@@ -384,7 +413,12 @@ impl Mirror {
                 }
                 _ = every.tick() => {
                     let connected = *up.borrow();
-                    if !connected {
+                    // A lineup whose handles never came (lost on the way).
+                    let stuck = self
+                        .pending
+                        .as_ref()
+                        .is_some_and(|(_, _, since)| since.elapsed() > Duration::from_secs(1));
+                    if !connected || stuck {
                         synced = false;
                     }
                     if connected && !synced && !syncing {
@@ -406,7 +440,7 @@ impl Mirror {
                         Some("the relay lost NATS; reconnecting")
                     } else if self.stopped {
                         Some("the stage stopped")
-                    } else if !synced || !heard {
+                    } else if !synced || !heard || self.pending.is_some() {
                         Some("the stage is not reachable; waiting for it")
                     } else {
                         None
@@ -420,6 +454,11 @@ impl Mirror {
     /// Tells viewers whether the stage is live (only what changed; nothing
     /// while it never was lost).
     fn tell(&self, lost: Option<&str>) {
+        self.live.send_if_modified(|now| {
+            let news = *now != lost.is_none();
+            *now = lost.is_none();
+            news
+        });
         let text = ServerMessage::Live {
             live: lost.is_none(),
             reason: lost.map(str::to_string),
@@ -475,11 +514,11 @@ impl Mirror {
                 None => Ok(false),
             };
             if stream == "handles"
-                && let (Some(id), Some((_, waiting))) = (id, self.pending.as_mut())
+                && let (Some(id), Some((_, waiting, _))) = (id, self.pending.as_mut())
             {
                 waiting.remove(&id);
                 if waiting.is_empty() {
-                    let (lineup, _) = self.pending.take().expect("a pending lineup");
+                    let (lineup, _, _) = self.pending.take().expect("a pending lineup");
                     self.lineup.send_replace(lineup);
                     return true;
                 }
@@ -497,6 +536,10 @@ impl Mirror {
     fn take_heartbeat(&mut self, payload: &[u8]) -> Result<bool, String> {
         let beat: Heartbeat = serde_json::from_slice(payload).map_err(|e| e.to_string())?;
         self.heard = Some(Instant::now());
+        // A heartbeat is under a millisecond old on arrival: close enough
+        // for `pong`s, which clients use to place frames on their clocks.
+        let offset = beat.clock - self.started.elapsed().as_secs_f64();
+        self.clock_offset.send_replace(Some(offset));
         self.stopped = !beat.live;
         Ok(false)
     }
@@ -547,7 +590,7 @@ impl Mirror {
             self.lineup.send_replace(Arc::new(lineup));
             return Ok(true);
         }
-        self.pending = Some((Arc::new(lineup), waiting));
+        self.pending = Some((Arc::new(lineup), waiting, Instant::now()));
         Ok(false)
     }
 }
@@ -591,6 +634,11 @@ struct LinkInner {
     name: String,
     admission: watch::Receiver<Admission>,
     boot: watch::Receiver<u64>,
+    /// Whether the stage is live (the mirror says).
+    live: watch::Receiver<bool>,
+    /// The daemon's clock minus `started`'s, once a heartbeat came.
+    clock_offset: watch::Receiver<Option<f64>>,
+    started: Instant,
     /// Pictures fetched, by (daemon run, puppet id).
     pictures: Mutex<HashMap<(u64, u32), Bytes>>,
     /// Clients with a session on the stage.
@@ -725,11 +773,10 @@ impl RelayLink {
             }
         }
         let bytes = Bytes::from(bytes);
-        self.0
-            .pictures
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .insert(key, bytes.clone());
+        let mut pictures = self.0.pictures.lock().unwrap_or_else(|p| p.into_inner());
+        // Another run's pictures are no one's any more.
+        pictures.retain(|(boot, _), _| *boot == key.0);
+        pictures.insert(key, bytes.clone());
         Some(bytes)
     }
 
@@ -788,6 +835,14 @@ impl Session {
                 ),
             ));
         }
+        if let Some(pong) = self.pong(text) {
+            return Ok(Some(pong));
+        }
+        // Not sent while the stage is away: it would only wait, and run
+        // late (out of its time) once NATS is back.
+        if !*self.link.live.borrow() {
+            return Err(unreachable());
+        }
         let request = MessageRequest {
             source: self.source.clone(),
             session: self.remote,
@@ -803,6 +858,21 @@ impl Session {
                 format!("the stage's answer: {e}"),
             )),
         }
+    }
+
+    /// The answer to a `ping`, here: an audience's pings would otherwise
+    /// all travel to the daemon. The clock is the daemon's, from its
+    /// heartbeats.
+    fn pong(&self, text: &str) -> Option<String> {
+        if !text.contains("\"ping\"") {
+            return None;
+        }
+        let Ok(crate::protocol::ClientMessage::Ping { t }) = serde_json::from_str(text) else {
+            return None;
+        };
+        let offset = (*self.link.clock_offset.borrow())?;
+        let clock = self.link.started.elapsed().as_secs_f64() + offset;
+        Some(ServerMessage::Pong { t, clock }.to_text())
     }
 
     /// The client is gone.

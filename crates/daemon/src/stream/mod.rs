@@ -550,7 +550,11 @@ async fn websocket(
                         }
                         Some(Ok(_)) => continue,
                     };
-                    bad_in_a_row += 1;
+                    // The stage failing or busy (or a relay's stage out of
+                    // reach) is not the client's mistake.
+                    if !matches!(refusal.code, ErrorCode::Failed | ErrorCode::Busy) {
+                        bad_in_a_row += 1;
+                    }
                     refuse(&mut ws, &shared, &peer, &source, &refusal).await?;
                     if bad_in_a_row >= MAX_BAD_MESSAGES {
                         close_with(&mut ws, close::POLICY, "too many bad messages").await;

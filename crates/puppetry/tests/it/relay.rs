@@ -20,22 +20,8 @@ use puppetry_daemon::relay::{RelayOptions, RelayRunning, serve};
 
 /// The daemon's stage: a looping real capture, published on `nats`.
 fn stage(nats: &str) -> String {
-    let evemu = root().join("../shared/fixtures/evemu");
-    stage_text(&format!(
-        r#"
-[[input]]
-kind = "replay"
-name = "wetab"
-file = "{wetab}"
-repeat = true
-calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], flip_y = true, stage_min = [590, 320], stage_max = [690, 400] }}
-
-[relay]
-nats = "{nats}"
-stage = "t"
-"#,
-        wetab = evemu.join("wetab.event").display(),
-    ))
+    let relay = format!("\n[relay]\nnats = \"{nats}\"\nstage = \"t\"\n");
+    stage_text(&(looping_capture() + &relay))
 }
 
 async fn relay(nats: &str, name: &str) -> RelayRunning {
@@ -96,19 +82,38 @@ async fn frames(ws: &mut Client, count: usize) -> BTreeMap<u64, Vec<u8>> {
     seen
 }
 
-/// Reads until a text message of `kind` satisfying `done`.
+/// Reads until a text message of `kind` satisfying `done` (other messages
+/// keep coming while the replay plays: the wait is bounded as a whole).
 async fn until(ws: &mut Client, kind: &str, done: impl Fn(&Value) -> bool) -> Value {
-    loop {
-        let m = next_text(ws).await;
-        if m["type"] == kind && done(&m) {
-            return m;
+    let waiting = async {
+        loop {
+            let m = next_text(ws).await;
+            if m["type"] == kind && done(&m) {
+                return m;
+            }
         }
-    }
+    };
+    tokio::time::timeout(PLAYS, waiting)
+        .await
+        .unwrap_or_else(|_| panic!("no {kind} message as awaited in {PLAYS:?}"))
+}
+
+/// Reads until a `handles` message whose contact owners satisfy `done`,
+/// within [`PLAYS`].
+async fn until_owners(ws: &mut Client, done: impl Fn(&[String]) -> bool) {
+    let waiting = until_contact_owners(ws, done);
+    tokio::time::timeout(PLAYS, waiting)
+        .await
+        .unwrap_or_else(|_| panic!("the handles' owners never became as awaited in {PLAYS:?}"));
 }
 
 /// A newer vertex frame than `after`; its sequence.
 async fn newer_frame(ws: &mut Client, after: u64) -> u64 {
-    frame_until(ws, |f| f.sequence > after).await.sequence
+    let waiting = frame_until(ws, |f| f.sequence > after);
+    tokio::time::timeout(PLAYS, waiting)
+        .await
+        .unwrap_or_else(|_| panic!("no frame after {after} in {PLAYS:?}"))
+        .sequence
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -127,6 +132,9 @@ async fn relays_serve_the_daemons_bytes_and_outlive_each_other_and_nats() {
     let relay_a = relay(&nats.url(), "a").await;
     let relay_b = relay(&nats.url(), "b").await;
 
+    // A viewer of relay b who never reads: it slows no one (it gets
+    // newest-only and is dropped after the client timeout).
+    let (_stalled, _) = join(relay_b.address, viewer()).await;
     // The same stage everywhere: relays rebuild the daemon's message.
     let (mut direct, direct_stage) = join(running.address, viewer()).await;
     let (mut on_a, a_stage) = join(relay_a.address, viewer()).await;
@@ -228,7 +236,7 @@ async fn relays_serve_the_daemons_bytes_and_outlive_each_other_and_nats() {
         .await
         .unwrap();
     let (mut watcher, _) = join(running.address, viewer()).await;
-    until_contact_owners(&mut watcher, |owners| owners.contains(&owner)).await;
+    until_owners(&mut watcher, |owners| owners.contains(&owner)).await;
     let paint = json!({"type": "paint", "puppet": 0, "x": 640.0, "y": 400.0, "radius": 40.0, "strength": 2.0});
     performer
         .send(Message::text(paint.to_string()))
@@ -256,7 +264,7 @@ async fn relays_serve_the_daemons_bytes_and_outlive_each_other_and_nats() {
     relay_a.shutdown().await;
     drop(performer);
     newer_frame(&mut on_b, before + 10).await;
-    until_contact_owners(&mut watcher, |owners| !owners.contains(&owner)).await;
+    until_owners(&mut watcher, |owners| !owners.contains(&owner)).await;
     drop(watcher);
 
     // NATS goes: direct clients go on; relay viewers are told, then told
@@ -267,6 +275,21 @@ async fn relays_serve_the_daemons_bytes_and_outlive_each_other_and_nats() {
     newer_frame(&mut direct, before + 10).await;
     let lost = until(&mut on_b, "live", |m| m["live"] == false).await;
     assert!(lost["reason"].is_string(), "{lost}");
+    // Meanwhile the relay answers pings itself, on the daemon's clock, and
+    // refuses what needs the stage without holding it against the client.
+    on_b.send(Message::text(json!({"type": "ping", "t": 7.5}).to_string()))
+        .await
+        .unwrap();
+    let pong = until(&mut on_b, "pong", |_| true).await;
+    assert_eq!(pong["t"], 7.5);
+    assert!(pong["clock"].as_f64().unwrap() > 0.0, "{pong}");
+    for _ in 0..30 {
+        on_b.send(Message::text(json!({"type": "list_takes"}).to_string()))
+            .await
+            .unwrap();
+        let refused = until(&mut on_b, "error", |_| true).await;
+        assert_eq!(refused["code"], "failed", "{refused}");
+    }
     drop(direct);
     nats.restart();
     until(&mut on_b, "live", |m| m["live"] == true).await;

@@ -16,7 +16,9 @@ use puppetry_take::{Frame, Record, Tail, TakeReader, summarize};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::common::daemon::{PLAYS, WAIT, connect, next_text, root, stage_config, stage_text};
+use crate::common::daemon::{
+    PLAYS, WAIT, connect, looping_capture, next_text, root, stage_config, stage_text,
+};
 
 /// Two real captures, each calibrated onto the puppet, played once at
 /// their own pace (so the stage solves between their frames).
@@ -145,20 +147,8 @@ async fn a_take_of_two_real_captures_replays_bit_for_bit() {
 
 /// A stage file on disk (for the binary) with a looping real-time replay.
 fn stage_file(dir: &Path) -> PathBuf {
-    let evemu = root().join("../shared/fixtures/evemu");
-    let replay = format!(
-        r#"
-[[input]]
-kind = "replay"
-name = "wetab"
-file = "{wetab}"
-repeat = true
-calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], flip_y = true, stage_min = [590, 320], stage_max = [690, 400] }}
-"#,
-        wetab = evemu.join("wetab.event").display(),
-    );
     let path = dir.join("stage.toml");
-    std::fs::write(&path, stage_text(&replay)).unwrap();
+    std::fs::write(&path, stage_text(&looping_capture())).unwrap();
     path
 }
 

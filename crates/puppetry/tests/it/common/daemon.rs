@@ -66,6 +66,23 @@ pins = [[168, 58], [344, 58]]
     )
 }
 
+/// An `[[input]]` replaying a real capture (a WeTab's touch screen) in a
+/// loop, calibrated onto the puppet's middle.
+pub fn looping_capture() -> String {
+    let evemu = root().join("../shared/fixtures/evemu");
+    format!(
+        r#"
+[[input]]
+kind = "replay"
+name = "wetab"
+file = "{wetab}"
+repeat = true
+calibration = {{ kind = "range", x = [0, 32760], y = [0, 32760], flip_y = true, stage_min = [590, 320], stage_max = [690, 400] }}
+"#,
+        wetab = evemu.join("wetab.event").display(),
+    )
+}
+
 pub async fn daemon(extra: &str) -> Running {
     start(
         &stage_config(extra),
