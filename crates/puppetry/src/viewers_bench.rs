@@ -12,8 +12,9 @@
 //! `nats-server` and N `puppetry relay` processes, the viewers spread over
 //! the relays, the performer on the daemon (its clock is the one frames
 //! carry). Each relay's and the NATS server's CPU and memory come from
-//! `/proc` too, and a second performer on a relay times its round trip
-//! against the direct one's: what a remote performer's input pays.
+//! `/proc` too, and a second performer on a relay times a request the
+//! daemon answers against the direct one's: what a remote performer's
+//! input pays.
 
 use std::io::BufRead;
 use std::path::PathBuf;
@@ -62,10 +63,11 @@ pub struct ViewersResult {
     pub relays_rss_mb: f64,
     pub nats_cpu: f64,
     pub nats_rss_mb: f64,
-    /// A ping's round trip from a performer on the daemon, and from one on
-    /// a relay (through NATS to the daemon and back), medians, µs.
-    pub ping_direct_us: f64,
-    pub ping_relay_us: f64,
+    /// A request's round trip (`list_takes`, answered by the daemon) from a
+    /// performer on the daemon, and from one on a relay (through NATS to
+    /// the daemon and back), medians, µs.
+    pub ask_direct_us: f64,
+    pub ask_relay_us: f64,
 }
 
 /// Why a `--viewers` case could not be measured.
@@ -375,30 +377,46 @@ pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
-/// Median round trip of `count` pings on `ws`, µs.
-async fn ping_median(ws: &mut Ws, count: usize) -> Result<f64, ViewersError> {
+/// Median round trip of `count` requests the daemon itself answers
+/// (`list_takes`: a relay forwards it, as it forwards a performer's
+/// touches) on `ws`, µs.
+async fn request_median(ws: &mut Ws, count: usize) -> Result<f64, ViewersError> {
     let origin = Instant::now();
     let mut trips = Vec::with_capacity(count);
-    for _ in 0..count {
+    // A relay refuses (`failed`) until it has the stage: those are not
+    // timed, and asked again a little later.
+    let mut refused = 0;
+    while trips.len() < count {
         let sent = origin.elapsed().as_secs_f64();
-        ws.send(Message::text(
-            json!({"type": "ping", "t": sent}).to_string(),
-        ))
-        .await?;
-        loop {
+        ws.send(Message::text(json!({"type": "list_takes"}).to_string()))
+            .await?;
+        let answered = loop {
             match ws.next().await {
                 Some(Ok(Message::Text(text))) => {
                     let m: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
-                    if m["type"] == "pong" && m["t"] == sent {
-                        break;
+                    if m["type"] == "takes" {
+                        break true;
+                    }
+                    if m["type"] == "error" {
+                        break false;
                     }
                 }
                 Some(Ok(_)) => continue,
                 Some(Err(e)) => return Err(e.into()),
-                None => return Err(ViewersError::Daemon("closed while pinging".into())),
+                None => return Err(ViewersError::Daemon("closed while asking".into())),
             }
+        };
+        if answered {
+            trips.push((origin.elapsed().as_secs_f64() - sent) * 1e6);
+        } else {
+            refused += 1;
+            if refused > 200 {
+                return Err(ViewersError::Daemon(
+                    "the stage refused list_takes 200 times".into(),
+                ));
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
         }
-        trips.push((origin.elapsed().as_secs_f64() - sent) * 1e6);
     }
     trips.sort_by(f64::total_cmp);
     Ok(percentile(&trips, 0.5))
@@ -434,15 +452,15 @@ pub async fn viewers_case(viewers: usize, relays: usize) -> Result<ViewersResult
     )
     .await?;
     let zero = daemon_clock_origin(&mut performer, origin).await?;
-    let (ping_direct_us, ping_relay_us) = match &tier {
+    let (ask_direct_us, ask_relay_us) = match &tier {
         Some(tier) => {
-            let direct = ping_median(&mut performer, 200).await?;
+            let direct = request_median(&mut performer, 200).await?;
             let (mut remote, _) = connect_staged(
                 &tier.relays[0].1,
                 json!({"type": "hello", "role": "performer", "token": "demo"}),
             )
             .await?;
-            (direct, ping_median(&mut remote, 200).await?)
+            (direct, request_median(&mut remote, 200).await?)
         }
         None => (0.0, 0.0),
     };
@@ -565,8 +583,8 @@ pub async fn viewers_case(viewers: usize, relays: usize) -> Result<ViewersResult
         relays_rss_mb,
         nats_cpu,
         nats_rss_mb,
-        ping_direct_us,
-        ping_relay_us,
+        ask_direct_us,
+        ask_relay_us,
     })
 }
 
@@ -586,8 +604,8 @@ pub fn relays_table_header() -> String {
         "per viewer",
         "NATS CPU",
         "NATS MB",
-        "ping direct µs",
-        "ping relay µs"
+        "ask direct µs",
+        "ask relay µs"
     )
 }
 
@@ -612,8 +630,8 @@ pub fn relays_table_row(r: &ViewersResult) -> String {
         per_viewer,
         100.0 * r.nats_cpu,
         r.nats_rss_mb,
-        r.ping_direct_us,
-        r.ping_relay_us
+        r.ask_direct_us,
+        r.ask_relay_us
     )
 }
 
