@@ -340,7 +340,13 @@ pub(crate) async fn connect(
 /// the performer's pings, the one with the shortest round trip.
 pub(crate) async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<f64, ViewersError> {
     let mut best: Option<(f64, f64)> = None;
-    for _ in 0..50 {
+    let mut answered = 0;
+    // A relay that does not reach the stage yet refuses a ping it cannot
+    // answer: asked again a little later, a bounded number of times.
+    for _ in 0..250 {
+        if answered == 50 {
+            break;
+        }
         let sent = origin.elapsed().as_secs_f64();
         ws.send(Message::text(
             json!({"type": "ping", "t": sent}).to_string(),
@@ -351,9 +357,12 @@ pub(crate) async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<
                 Some(Ok(Message::Text(text))) => {
                     let m: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
                     if m["type"] == "pong" && m["t"] == sent {
-                        break m["clock"].as_f64().ok_or_else(|| {
+                        break Some(m["clock"].as_f64().ok_or_else(|| {
                             ViewersError::Daemon("its pong has no clock (an older build?)".into())
-                        })?;
+                        })?);
+                    }
+                    if m["type"] == "error" {
+                        break None;
                     }
                 }
                 Some(Ok(_)) => continue,
@@ -361,13 +370,19 @@ pub(crate) async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<
                 None => return Err(ViewersError::Daemon("closed while pinging".into())),
             }
         };
+        let Some(clock) = clock else {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            continue;
+        };
+        answered += 1;
         let received = origin.elapsed().as_secs_f64();
         let trip = received - sent;
         if best.is_none_or(|(t, _)| trip < t) {
             best = Some((trip, (sent + received) / 2.0 - clock));
         }
     }
-    Ok(best.map_or(0.0, |(_, zero)| zero))
+    best.map(|(_, zero)| zero)
+        .ok_or_else(|| ViewersError::Daemon("no ping was answered".into()))
 }
 
 pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
