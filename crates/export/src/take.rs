@@ -138,8 +138,22 @@ pub fn animation_of_take(
             out.push(current[q].clone());
         }
     }
+    // Bottom to top as the stage drew them; a puppet a director had
+    // removed before the take is not drawn.
+    let mut motions: Vec<Option<_>> = frames.into_iter().map(Some).collect();
     let mut puppets = Vec::new();
-    for (p, motion) in stage.puppets().iter().zip(frames) {
+    for id in reader.header.drawn() {
+        let (Some(p), Some(motion)) = (
+            stage.puppets().get(id as usize),
+            motions.get_mut(id as usize).and_then(Option::take),
+        ) else {
+            return Err(TakeExportError::Mismatch {
+                file: take.display().to_string(),
+                problem: format!(
+                    "the header's lineup names puppet {id} twice or one not on the stage"
+                ),
+            });
+        };
         let image = crate::load_picture(&p.picture)?;
         let draw_orders = if p.depth().is_some() {
             draw_orders(&p.mesh, &motion)

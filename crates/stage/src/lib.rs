@@ -1053,6 +1053,13 @@ impl Stage {
         p.removed = true;
         p.handles_changed = false;
         p.moved = false;
+        // Never solved, drawn or hit again: what only a live puppet needs
+        // goes now, so a show that adds and removes puppets for hours does
+        // not grow. The rest mesh and rig stay, small beside these: a take
+        // names every puppet by id with their hashes.
+        p.depth = None;
+        p.layers = None;
+        p.history = History::default();
         self.order.retain(|&i| i != index);
         Ok(())
     }

@@ -99,6 +99,12 @@ pub struct Header {
     /// Takes played back into this one while it was recorded (overdub).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub layers: Vec<String>,
+    /// The puppets on stage, bottom to top, when a director had removed
+    /// or reordered puppets (the lineup cannot change while a take
+    /// records); none for the stage file's own lineup, every puppet in id
+    /// order. Exports draw these and only these.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub on_stage: Option<Vec<u32>>,
 }
 
 impl Header {
@@ -127,7 +133,15 @@ impl Header {
                 .unwrap_or(0.0),
             fresh,
             layers: Vec::new(),
+            on_stage: lineup_if_changed(stage),
         }
+    }
+
+    /// The puppets an export draws, bottom to top (see `on_stage`).
+    pub fn drawn(&self) -> Vec<u32> {
+        self.on_stage
+            .clone()
+            .unwrap_or_else(|| (0..self.puppets.len() as u32).collect())
     }
 
     /// Why this take cannot be replayed into `stage`: another stage (puppet
@@ -140,12 +154,18 @@ impl Header {
                 stage.puppets().len()
             ));
         }
+        let drawn = self.drawn();
         for (i, (recorded, p)) in self.puppets.iter().zip(stage.puppets()).enumerate() {
             if recorded.name != p.name {
                 return Err(format!(
                     "puppets[{i}]: recorded as {:?}, the stage has {:?}",
                     recorded.name, p.name
                 ));
+            }
+            // A puppet removed before the take has no part in it (and let
+            // go of its stage-file pins when it went).
+            if !drawn.contains(&(i as u32)) {
+                continue;
             }
             let now = rest_hash(&p.mesh);
             if recorded.rest_hash != now {
@@ -165,6 +185,15 @@ impl Header {
         }
         Ok(())
     }
+}
+
+/// The stage's lineup, bottom to top, unless it is every puppet in id
+/// order (nothing removed or reordered).
+fn lineup_if_changed(stage: &Stage) -> Option<Vec<u32>> {
+    let lineup: Vec<u32> = stage.on_stage().map(|p| p.id).collect();
+    let in_id_order = lineup.len() == stage.puppets().len()
+        && lineup.iter().enumerate().all(|(i, &id)| id as usize == i);
+    (!in_id_order).then_some(lineup)
 }
 
 /// A stable hash of a rest mesh (FNV-1a 64, hex): the same bits give the
@@ -480,6 +509,7 @@ impl TakeReader {
                 started_unix: 0.0,
                 fresh: false,
                 layers: Vec::new(),
+                on_stage: None,
             },
             offset: MAGIC.len() as u64,
             index: 0,

@@ -112,3 +112,51 @@ fn a_take_exports_its_own_frames_and_spine_plays_them() {
     assert_eq!(report["issues"]["numErrors"], 0, "{report}");
     assert_eq!(report["issues"]["numWarnings"], 0, "{report}");
 }
+
+/// A take recorded after a director removed one puppet and put another
+/// on top draws what the stage drew: the removed one not at all (its
+/// stage-file pins, let go when it went, do not make the take mismatch),
+/// the others bottom to top in the new order.
+#[test]
+fn a_take_draws_the_lineup_it_was_recorded_with() {
+    let assets = root().join("assets/gingerbread");
+    let puppet = |name: &str, x: f64, pins: &str| {
+        format!(
+            "[[puppet]]\nname = \"{name}\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [{x}, 360]\n{pins}",
+            assets.join("gingerbread.png").display(),
+            assets.join("gingerbread.mesh.json").display()
+        )
+    };
+    let text = format!(
+        "[stage]\nwidth = 1280\nheight = 720\n{}{}{}",
+        puppet("a", 300.0, ""),
+        puppet("b", 640.0, "pins = [[168, 58], [344, 58]]\n"),
+        puppet("c", 980.0, ""),
+    );
+    let config = StageConfig::parse("lineup-take.toml", &text, Path::new("/")).unwrap();
+    let mut stage = Stage::from_config(&config).unwrap();
+    stage.remove_puppet(1).unwrap();
+    stage.set_order(&[2, 0]).unwrap();
+    stage.solve();
+    let dir = tempfile::tempdir().unwrap();
+    let take = dir.path().join("lineup.take");
+    let header = Header::of_stage("lineup", "lineup-take.toml", &stage, false);
+    assert_eq!(header.on_stage, Some(vec![2, 0]));
+    let mut writer = TakeWriter::create(&take, &header).unwrap();
+    for k in 0..3 {
+        let t = k as f64 / FPS;
+        for p in [2u32, 0] {
+            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
+            writer.write(&Record::Frame(frame)).unwrap();
+        }
+    }
+    writer.flush().unwrap();
+    let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
+    let names: Vec<&str> = animation.puppets.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["c", "a"]);
+    // A take of the stage file's own lineup names none and draws them all.
+    let fresh = Stage::from_config(&config).unwrap();
+    let header = Header::of_stage("all", "lineup-take.toml", &fresh, true);
+    assert_eq!(header.on_stage, None);
+    assert_eq!(header.drawn(), [0, 1, 2]);
+}

@@ -79,8 +79,13 @@ fn a_removed_puppet_lets_go_is_not_hit_and_keeps_its_id() {
     let mut stage = Stage::from_config(&config).unwrap();
     touch(&mut stage, 1, Phase::Down);
     assert_eq!(held(&stage), [1]);
+    assert!(stage.puppets()[1].depth().is_some());
     stage.remove_puppet(1).unwrap();
     assert!(stage.puppets()[1].removed());
+    assert!(
+        stage.puppets()[1].depth().is_none(),
+        "a removed puppet gives its depth order's buffers back"
+    );
     assert!(held(&stage).is_empty(), "what held it let go");
     // The contact that held it moves on nothing, and lifts cleanly.
     touch(&mut stage, 1, Phase::Move);

@@ -17,6 +17,7 @@ fn header(name: &str) -> Header {
         started_unix: 1.0,
         fresh: true,
         layers: Vec::new(),
+        on_stage: None,
     }
 }
 
