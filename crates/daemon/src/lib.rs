@@ -22,6 +22,7 @@
 //! ```
 
 pub mod lineup;
+pub mod memory;
 pub mod osc;
 pub mod protocol;
 pub mod relay;

@@ -393,6 +393,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             puppets,
         } => {
             log_to_stderr();
+            puppetry_daemon::memory::for_a_long_run();
             let path = match config {
                 Some(path) => path,
                 None => puppetry::bundled::demo_stage()?,
@@ -470,6 +471,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             client_timeout,
         } => {
             log_to_stderr();
+            puppetry_daemon::memory::for_a_long_run();
             if !(client_timeout.is_finite() && client_timeout > 0.0) {
                 anyhow::bail!("--client-timeout must be a positive number of seconds");
             }

@@ -146,7 +146,7 @@ pub async fn export(
             ));
             links.exporting.store(false, Ordering::Release);
             let _ = done.send(result);
-            give_back_freed_memory();
+            crate::memory::give_back_freed();
         });
     if started.is_err() {
         links.exporting.store(false, Ordering::Release);
@@ -244,18 +244,6 @@ fn lower_priority() {
     unsafe {
         let tid = libc::gettid();
         libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 10);
-    }
-}
-
-/// Returns the memory an export freed to the system. An export builds a
-/// whole stage of its own and drops it, on a thread of its own; glibc
-/// keeps what a thread freed in that thread's arena, and `puppetry soak`
-/// saw the daemon's resident set step up 10–22 MB at each export.
-fn give_back_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only walks the allocator's own free lists.
-    unsafe {
-        libc::malloc_trim(0);
     }
 }
 
