@@ -11,7 +11,7 @@
 
 use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -52,12 +52,19 @@ pub struct RelayOptions {
 /// A running relay.
 pub struct RelayRunning {
     pub address: SocketAddr,
+    link: RelayLink,
     shutdown: oneshot::Sender<()>,
     server: JoinHandle<()>,
     tasks: Vec<JoinHandle<()>>,
 }
 
 impl RelayRunning {
+    /// How many pictures this relay has fetched from the daemon: once per
+    /// puppet and daemon run, however many viewers asked at once.
+    pub fn picture_fetches(&self) -> u64 {
+        self.link.0.picture_fetches.load(Ordering::Relaxed)
+    }
+
     /// Stops serving and leaves NATS.
     pub async fn shutdown(self) {
         for task in &self.tasks {
@@ -104,6 +111,7 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
         clock_offset: feeds.clock_offset,
         started: feeds.started,
         pictures: Mutex::default(),
+        picture_fetches: AtomicU64::new(0),
         sessions: Mutex::default(),
     }));
     let shared = Arc::new(Shared {
@@ -144,6 +152,7 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
     );
     Ok(RelayRunning {
         address,
+        link: link.clone(),
         shutdown,
         server,
         tasks: vec![
@@ -639,8 +648,12 @@ struct LinkInner {
     /// The daemon's clock minus `started`'s, once a heartbeat came.
     clock_offset: watch::Receiver<Option<f64>>,
     started: Instant,
-    /// Pictures fetched, by (daemon run, puppet id).
-    pictures: Mutex<HashMap<(u64, u32), Bytes>>,
+    /// Pictures, by (daemon run, puppet id): each fetched once, by the
+    /// first viewer to ask; those who ask meanwhile wait for that fetch
+    /// rather than each asking the daemon (a page load per viewer when a
+    /// show starts would otherwise be as many fetches).
+    pictures: Mutex<HashMap<(u64, u32), Arc<tokio::sync::OnceCell<Bytes>>>>,
+    picture_fetches: AtomicU64,
     /// Clients with a session on the stage.
     sessions: Mutex<HashSet<String>>,
 }
@@ -742,15 +755,22 @@ impl RelayLink {
     /// A puppet's picture, fetched from the daemon once per run of it.
     pub(crate) async fn picture(&self, id: u32) -> Option<Bytes> {
         let key = (*self.0.boot.borrow(), id);
-        if let Some(bytes) = self
-            .0
-            .pictures
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(&key)
-        {
-            return Some(bytes.clone());
-        }
+        let cell = {
+            let mut pictures = self.0.pictures.lock().unwrap_or_else(|p| p.into_inner());
+            // Another run's pictures are no one's any more.
+            pictures.retain(|(boot, _), _| *boot == key.0);
+            pictures.entry(key).or_default().clone()
+        };
+        // A failed fetch leaves the cell empty: the next to ask tries again.
+        cell.get_or_try_init(|| self.fetch_picture(id))
+            .await
+            .ok()
+            .cloned()
+    }
+
+    /// A puppet's picture from the daemon, in as many parts as it takes.
+    async fn fetch_picture(&self, id: u32) -> Result<Bytes, ()> {
+        self.0.picture_fetches.fetch_add(1, Ordering::Relaxed);
         let mut bytes = Vec::new();
         loop {
             let request = PictureRequest {
@@ -758,26 +778,22 @@ impl RelayLink {
                 offset: bytes.len(),
             };
             let body = Bytes::from(serde_json::to_vec(&request).expect("requests serialise"));
-            let answer = self.0.ask("picture", body).await.ok()?;
+            let answer = self.0.ask("picture", body).await.map_err(|_| ())?;
             let total: usize = answer
                 .headers
                 .as_ref()
                 .and_then(|h| h.get(TOTAL_HEADER))
-                .and_then(|v| v.as_str().parse().ok())?;
+                .and_then(|v| v.as_str().parse().ok())
+                .ok_or(())?;
             if answer.payload.is_empty() && bytes.len() < total {
-                return None;
+                return Err(());
             }
             bytes.extend_from_slice(&answer.payload);
             if bytes.len() >= total {
                 break;
             }
         }
-        let bytes = Bytes::from(bytes);
-        let mut pictures = self.0.pictures.lock().unwrap_or_else(|p| p.into_inner());
-        // Another run's pictures are no one's any more.
-        pictures.retain(|(boot, _), _| *boot == key.0);
-        pictures.insert(key, bytes.clone());
-        Some(bytes)
+        Ok(Bytes::from(bytes))
     }
 
     /// Tells the daemon, every [`ALIVE_EVERY`], which sessions this relay

@@ -184,15 +184,30 @@ async fn relays_serve_the_daemons_bytes_and_outlive_each_other_and_nats() {
     }
     drop((direct, on_a, on_b));
 
-    // Pictures come through the relay, the same bytes.
+    // Pictures come through the relay, the same bytes, fetched from the
+    // daemon once however many viewers ask at the same moment.
     let picture = "/puppets/0/texture.png";
     let from_daemon = http_get(running.address, picture).await;
+    let at_once =
+        futures_util::future::join_all((0..12).map(|_| http_get(relay_b.address, picture))).await;
+    assert_eq!(
+        relay_b.picture_fetches(),
+        1,
+        "twelve viewers asking at once make one fetch"
+    );
     let from_relay = http_get(relay_b.address, picture).await;
+    assert_eq!(relay_b.picture_fetches(), 1, "the fetched picture is kept");
     assert_eq!(http_status(&from_relay), 200);
     let body = |answer: &[u8]| {
         let at = answer.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
         answer[at + 4..].to_vec()
     };
+    assert!(
+        at_once
+            .iter()
+            .all(|answer| body(answer) == body(&from_relay)),
+        "every viewer who asked at once got the picture"
+    );
     assert!(
         body(&from_relay) == body(&from_daemon),
         "the relayed picture differs"
