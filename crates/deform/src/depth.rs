@@ -43,6 +43,18 @@ const INVALID: u32 = u32::MAX - 1;
 const FRONT: u8 = 1;
 const BACK: u8 = 2;
 
+/// The sheets, by rank: every triangle of a higher sheet is drawn over
+/// every triangle of a lower one it overlaps.
+const BACK_SHEET: u8 = 0;
+const MIDDLE_SHEET: u8 = 1;
+const FRONT_SHEET: u8 = 2;
+/// Rings of overlapping triangles round the straddling ones (over one
+/// triangle, under another) that join the middle sheet, so that the line
+/// where the two sides meet can slide that far before the front or back
+/// sheet overlaps itself (on the bench's fold at 1k: 3 rings, 3 exact
+/// frames in 2000; 1 ring, 96).
+const MIDDLE_RINGS: usize = 3;
+
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
     #[error("layers: has {got} entries, expected one per triangle ({expected})")]
@@ -110,7 +122,34 @@ pub struct DepthOrder {
     /// that keeps decisions while an overlap persists.
     role: Vec<u8>,
     involved: Vec<u32>,
+    /// Whether the last update was settled by the sheets alone.
+    certified: bool,
+    sheets_allowed: bool,
+    sheets: Sheets,
     scratch: Scratch,
+}
+
+/// The triangles cut into three sheets after an exact frame with overlap
+/// (see `docs/depth.md`, "Sheets"): while the front and back sheets each
+/// overlap nothing of their own, the depth is the sheet's rank over each
+/// triangle's layer, and only the middle sheet's own pairs are found and
+/// ordered.
+#[derive(Debug)]
+struct Sheets {
+    on: bool,
+    /// Per triangle, its sheet.
+    of: Vec<u8>,
+    middle: Vec<u32>,
+    /// Every edge of a triangle whose neighbour across it lies in another
+    /// sheet, or on the mesh boundary.
+    edges: Vec<BoundaryEdge>,
+    /// Added to the layer of each sheet's triangles.
+    offset: [u16; 3],
+    queue: Vec<u32>,
+    ring: Vec<u32>,
+    next_ring: Vec<u32>,
+    /// The middle sheet's triangles' boxes, by their low x.
+    boxes: Vec<(DVec2, DVec2, u32)>,
 }
 
 /// Everything a frame writes, sized at registration.
@@ -253,7 +292,8 @@ impl DepthOrder {
         let boundary_count = boundary.len();
 
         let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
-        let most = count.max(boundary.len());
+        // The sheets' edges: up to three per triangle.
+        let most = (3 * count).max(boundary.len());
         let scratch = Scratch {
             grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most, most),
             piece_lo: vec![DVec2::ZERO; pieces.len()],
@@ -310,6 +350,19 @@ impl DepthOrder {
             next_boundary,
             skipped: false,
             pins: Vec::with_capacity(MAX_PINS),
+            certified: false,
+            sheets_allowed: true,
+            sheets: Sheets {
+                on: false,
+                of: vec![BACK_SHEET; count],
+                middle: Vec::with_capacity(count),
+                edges: Vec::with_capacity(3 * count),
+                offset: [0; 3],
+                queue: Vec::with_capacity(count),
+                ring: Vec::with_capacity(count),
+                next_ring: Vec::with_capacity(count),
+                boxes: Vec::with_capacity(count),
+            },
             scratch,
         })
     }
@@ -336,7 +389,9 @@ impl DepthOrder {
         self.changed
     }
 
-    /// Overlapping triangle pairs found by the last update.
+    /// Overlapping triangle pairs found by the last update: every pair on an
+    /// exact frame; on a frame settled by the sheets
+    /// ([`DepthOrder::certified`]), the middle sheet's own pairs only.
     pub fn overlap_pairs(&self) -> usize {
         self.pair_count
     }
@@ -354,6 +409,23 @@ impl DepthOrder {
     /// `docs/depth.md`).
     pub fn skipped(&self) -> bool {
         self.skipped
+    }
+
+    /// Whether frames may be settled by sheets (the default) or always take
+    /// the exact path: for comparing the two.
+    pub fn use_sheets(&mut self, on: bool) {
+        self.sheets_allowed = on;
+        if !on {
+            self.sheets.on = false;
+        }
+    }
+
+    /// Whether the last update was settled by the sheets of an earlier
+    /// exact frame (see `docs/depth.md`, "Sheets"): then only the middle
+    /// sheet's own pairs were found, and [`DepthOrder::overlap_pairs`]
+    /// counts those.
+    pub fn certified(&self) -> bool {
+        self.certified
     }
 
     /// Front-over-back constraints the last update had to drop to break
@@ -403,8 +475,16 @@ impl DepthOrder {
             // The last frame was overlap-free (static depth, no roles, no
             // pins) and this one is too: nothing to write.
             self.changed = false;
+            self.certified = false;
             return Ok(&self.depth);
         }
+        // The sheets from an earlier exact frame, while they still hold.
+        let leaving_sheets = self.sheets.on;
+        self.certified = self.sheets.on && self.sheet_frame(positions);
+        if self.certified {
+            return Ok(&self.depth);
+        }
+        self.sheets.on = false;
         let s = &mut self.scratch;
         s.inverted.clear();
         for (t, tri) in self.triangles.iter().enumerate() {
@@ -455,15 +535,334 @@ impl DepthOrder {
         self.overlapped = self.pair_count > 0;
         self.dropped = 0;
         if self.overlapped {
-            self.decide(positions);
+            self.decide(positions, self.scanned_all);
             self.order();
         }
-        self.write_depth();
+        self.write_depth(leaving_sheets);
         self.calm = !self.overlapped;
         if self.calm {
             self.certify_calm(positions);
+        } else {
+            self.build_sheets();
         }
         Ok(&self.depth)
+    }
+
+    /// After an exact frame with overlap: cuts the triangles into sheets for
+    /// the next frames. The triangles both in front of one triangle and
+    /// behind another, with [`MIDDLE_RINGS`] rings of overlapping triangles
+    /// round them, are the middle sheet; the rest grow from this frame's
+    /// front triangles (the front sheet) and back triangles (the back
+    /// sheet) through edge neighbours, whichever reaches a triangle first;
+    /// what neither reaches is in the back sheet. The sheets are used only
+    /// if this frame's pairs agree with their ranks (none inside the front
+    /// or back sheet, none against the ranks), the front and back sheets
+    /// are each connected, the mesh is one piece, nothing is pinned, and
+    /// the ranks fit in a depth.
+    fn build_sheets(&mut self) {
+        let count = self.triangles.len();
+        let sh = &mut self.sheets;
+        sh.on = false;
+        if !self.sheets_allowed || !self.pins.is_empty() || self.piece_boundary.len() != 2 {
+            return;
+        }
+        const UNSET: u8 = u8::MAX;
+        sh.of.fill(UNSET);
+        sh.ring.clear();
+        for &t in &self.involved {
+            if self.role[t as usize] == FRONT | BACK {
+                sh.of[t as usize] = MIDDLE_SHEET;
+                sh.ring.push(t);
+            }
+        }
+        for _ in 0..MIDDLE_RINGS {
+            sh.next_ring.clear();
+            for &t in &sh.ring {
+                for &u in &self.neighbours[t as usize] {
+                    if u != NONE && sh.of[u as usize] == UNSET && self.role[u as usize] != 0 {
+                        sh.of[u as usize] = MIDDLE_SHEET;
+                        sh.next_ring.push(u);
+                    }
+                }
+            }
+            std::mem::swap(&mut sh.ring, &mut sh.next_ring);
+        }
+        sh.queue.clear();
+        for &t in &self.involved {
+            let t = t as usize;
+            if sh.of[t] == UNSET {
+                sh.of[t] = if self.role[t] == FRONT {
+                    FRONT_SHEET
+                } else {
+                    BACK_SHEET
+                };
+                sh.queue.push(t as u32);
+            }
+        }
+        let mut head = 0;
+        while head < sh.queue.len() {
+            let t = sh.queue[head] as usize;
+            head += 1;
+            for &u in &self.neighbours[t] {
+                if u != NONE && sh.of[u as usize] == UNSET {
+                    sh.of[u as usize] = sh.of[t];
+                    sh.queue.push(u);
+                }
+            }
+        }
+        for s in sh.of.iter_mut() {
+            if *s == UNSET {
+                *s = BACK_SHEET;
+            }
+        }
+        // This frame's pairs, now (back, front), must agree with the ranks.
+        for &(back, front) in &self.scratch.pairs {
+            let (b, f) = (sh.of[back as usize], sh.of[front as usize]);
+            if !(b < f || (b == MIDDLE_SHEET && f == MIDDLE_SHEET)) {
+                return;
+            }
+        }
+        // Each of the front and back sheets connected (one piece of it
+        // cannot then lie inside another with no boundary crossing).
+        for sheet in [FRONT_SHEET, BACK_SHEET] {
+            let Some(start) = sh.of.iter().position(|&s| s == sheet) else {
+                continue;
+            };
+            let total = sh.of.iter().filter(|&&s| s == sheet).count();
+            // Marks the reached triangles by their sheet's high bit.
+            sh.queue.clear();
+            sh.queue.push(start as u32);
+            sh.of[start] |= 0x80;
+            let mut head = 0;
+            while head < sh.queue.len() {
+                let t = sh.queue[head] as usize;
+                head += 1;
+                for &u in &self.neighbours[t] {
+                    if u != NONE && sh.of[u as usize] == sheet {
+                        sh.of[u as usize] |= 0x80;
+                        sh.queue.push(u);
+                    }
+                }
+            }
+            for s in sh.of.iter_mut() {
+                *s &= 0x7f;
+            }
+            if sh.queue.len() != total {
+                return;
+            }
+        }
+        // Ranks: every middle depth above every back layer, every front
+        // depth above every middle depth (the middle's order raises a
+        // triangle by at most one a triangle).
+        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+        let mut middle = 0u32;
+        for t in 0..count {
+            let (s, layer) = (sh.of[t] as usize, u32::from(self.layers[t]));
+            lo[s] = lo[s].min(layer);
+            hi[s] = hi[s].max(layer);
+            middle += u32::from(s == MIDDLE_SHEET as usize);
+        }
+        let back_top = if lo[0] == u32::MAX { 0 } else { hi[0] };
+        let middle_offset = if lo[1] == u32::MAX {
+            0
+        } else {
+            (back_top + 1).saturating_sub(lo[1])
+        };
+        let middle_top = if lo[1] == u32::MAX {
+            back_top
+        } else {
+            hi[1] + middle_offset + middle
+        };
+        let front_offset = if lo[2] == u32::MAX {
+            0
+        } else {
+            (middle_top.max(back_top) + 1).saturating_sub(lo[2])
+        };
+        if hi[2] + front_offset > u32::from(u16::MAX) || middle_top > u32::from(u16::MAX) {
+            return;
+        }
+        sh.offset = [0, middle_offset as u16, front_offset as u16];
+        sh.middle.clear();
+        sh.middle
+            .extend((0..count as u32).filter(|&t| sh.of[t as usize] == MIDDLE_SHEET));
+        sh.edges.clear();
+        for (t, tri) in self.triangles.iter().enumerate() {
+            for k in 0..3 {
+                let u = self.neighbours[t][k];
+                if u == NONE || sh.of[u as usize] != sh.of[t] {
+                    sh.edges.push(BoundaryEdge {
+                        a: tri[k],
+                        b: tri[(k + 1) % 3],
+                        triangle: t as u32,
+                    });
+                }
+            }
+        }
+        sh.on = true;
+    }
+
+    /// A frame on the sheets: false (and nothing written) unless they still
+    /// hold. They hold while nothing is pinned, no triangle of the front or
+    /// back sheet is inverted, no two edges of one of those sheets' borders
+    /// (mesh boundary and cuts) meet, and two edges of different sheets
+    /// cross (so something still overlaps). Then neither the front nor the
+    /// back sheet overlaps itself (as for the pieces in the cheap reject),
+    /// every pair between sheets is ordered by their ranks, and only the
+    /// middle sheet's own pairs are found (every pair of its triangles whose
+    /// boxes meet is tested) and decided as in an exact frame.
+    fn sheet_frame(&mut self, positions: &[DVec2]) -> bool {
+        if !self.pins.is_empty() {
+            return false;
+        }
+        let sh = &self.sheets;
+        for (t, tri) in self.triangles.iter().enumerate() {
+            let [a, b, c] = tri.map(|i| positions[i as usize]);
+            if (b - a).perp_dot(c - a) <= 0.0 && sh.of[t] != MIDDLE_SHEET {
+                return false;
+            }
+        }
+        let edges = &sh.edges;
+        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        let mut longest = 0.0f64;
+        for e in edges {
+            let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
+            lo = lo.min(a).min(b);
+            hi = hi.max(a).max(b);
+            longest = longest.max((b - a).abs().max_element());
+        }
+        let ends = |i: usize| {
+            let e = edges[i];
+            (positions[e.a as usize], positions[e.b as usize])
+        };
+        let s = &mut self.scratch;
+        s.grid.fill(lo, hi, longest, edges.len(), |i| {
+            let (a, b) = ends(i);
+            (a.min(b), a.max(b))
+        });
+        let grid = &s.grid;
+        let mut overlapping = false;
+        for cell in 0..grid.cell_count() {
+            let members = grid.members(cell);
+            for (n, &i) in members.iter().enumerate() {
+                let ei = edges[i as usize];
+                let (a, b) = ends(i as usize);
+                let si = sh.of[ei.triangle as usize];
+                for &j in &members[n + 1..] {
+                    let ej = edges[j as usize];
+                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
+                        continue;
+                    }
+                    let sj = sh.of[ej.triangle as usize];
+                    if si == sj && si == MIDDLE_SHEET {
+                        continue;
+                    }
+                    if si != sj && overlapping {
+                        continue;
+                    }
+                    let (c, d) = ends(j as usize);
+                    let meet_lo = a.min(b).max(c.min(d));
+                    let meet_hi = a.max(b).min(c.max(d));
+                    if meet_lo.x > meet_hi.x || meet_lo.y > meet_hi.y {
+                        continue;
+                    }
+                    if grid.cell_of(meet_lo) != cell || !segments_meet(a, b, c, d) {
+                        continue;
+                    }
+                    if si == sj {
+                        return false;
+                    }
+                    // A proper crossing between triangles sharing no vertex:
+                    // those two overlap.
+                    let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
+                    let (ti, tj) = (
+                        self.triangles[ei.triangle as usize],
+                        self.triangles[ej.triangle as usize],
+                    );
+                    if side(a, b, c) * side(a, b, d) < 0.0
+                        && side(c, d, a) * side(c, d, b) < 0.0
+                        && !ti.iter().any(|v| tj.contains(v))
+                    {
+                        overlapping = true;
+                    }
+                }
+            }
+        }
+        if !overlapping {
+            return false;
+        }
+        self.middle_pairs(positions);
+        self.pair_count = self.scratch.pairs.len();
+        self.overlapped = true;
+        self.scanned_all = false;
+        self.dropped = 0;
+        if self.pair_count > 0 {
+            self.decide(positions, true);
+            self.order();
+        }
+        let (sh, s) = (&self.sheets, &mut self.scratch);
+        let mut changed = false;
+        for t in 0..self.triangles.len() {
+            let sheet = sh.of[t];
+            let base = if sheet == MIDDLE_SHEET && s.new_role[t] != 0 {
+                s.level[t]
+            } else {
+                self.layers[t]
+            };
+            let depth = base + sh.offset[sheet as usize];
+            if self.depth[t] != depth {
+                self.depth[t] = depth;
+                changed = true;
+            }
+        }
+        for &t in &s.new_involved {
+            s.new_role[t as usize] = 0;
+        }
+        s.new_involved.clear();
+        self.changed = changed;
+        self.calm = false;
+        true
+    }
+
+    /// Every overlapping pair of two middle-sheet triangles, into `pairs`
+    /// (and the table of tested pairs, which links them into patches): the
+    /// triangles sorted by their boxes' low x, each tested against those
+    /// whose boxes meet its own.
+    fn middle_pairs(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        s.pairs.clear();
+        s.parent.clear();
+        s.parity.clear();
+        s.links.clear();
+        s.tested.clear();
+        let boxes = &mut self.sheets.boxes;
+        boxes.clear();
+        for &t in &self.sheets.middle {
+            let [a, b, c] = self.triangles[t as usize].map(|i| positions[i as usize]);
+            boxes.push((a.min(b).min(c), a.max(b).max(c), t));
+        }
+        boxes.sort_unstable_by(|p, q| p.0.x.total_cmp(&q.0.x));
+        for (n, &(tlo, thi, t)) in boxes.iter().enumerate() {
+            for &(ulo, uhi, u) in &boxes[n + 1..] {
+                if ulo.x >= thi.x {
+                    break;
+                }
+                if ulo.y >= thi.y || tlo.y >= uhi.y {
+                    continue;
+                }
+                let (a, b) = (self.triangles[t as usize], self.triangles[u as usize]);
+                if a.iter().any(|v| b.contains(v)) {
+                    continue;
+                }
+                let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
+                if triangles_overlap(corners(a), corners(b)) {
+                    let key = (t.min(u), t.max(u));
+                    if let Ok(slot) = s.tested.insert(key) {
+                        s.tested.set_at(slot, s.pairs.len() as u32);
+                        s.push_pair(key);
+                    }
+                }
+            }
+        }
     }
 
     /// Whether this frame is certainly overlap-free, given the certificate
@@ -927,14 +1326,14 @@ impl DepthOrder {
     /// Groups the pairs into patches (two sides each) and decides which side
     /// of each goes in front; rewrites `pairs` as `(back, front)` and sets
     /// the new roles.
-    fn decide(&mut self, positions: &[DVec2]) {
+    fn decide(&mut self, positions: &[DVec2], link_by_table: bool) {
         let s = &mut self.scratch;
         let n = s.pairs.len();
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
-        // Growing joined them as it found them; the all-triangle grid did
-        // not.
-        let link = if self.scanned_all { n } else { 0 };
+        // Growing joined them as it found them; the all-triangle grid and
+        // the middle sheet's pairs did not.
+        let link = if link_by_table { n } else { 0 };
         for i in 0..link {
             let pair = s.pairs[i];
             for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
@@ -1094,9 +1493,19 @@ impl DepthOrder {
 
     /// Writes this frame's depths, noting any change, and moves the new roles
     /// in as next frame's memory.
-    fn write_depth(&mut self) {
+    /// After frames on the sheets (`after_sheets`), every triangle not
+    /// involved now goes back to its layer, not only last frame's involved.
+    fn write_depth(&mut self, after_sheets: bool) {
         let s = &mut self.scratch;
         let mut changed = false;
+        if after_sheets {
+            for (t, depth) in self.depth.iter_mut().enumerate() {
+                if s.new_role[t] == 0 && *depth != self.layers[t] {
+                    *depth = self.layers[t];
+                    changed = true;
+                }
+            }
+        }
         for &t in &self.involved {
             let t = t as usize;
             if s.new_role[t] == 0 && self.depth[t] != self.layers[t] {

@@ -189,6 +189,9 @@ fn an_unchanged_fold_reports_no_change() {
     let folded = bent(&mesh, 230f64.to_radians(), false);
     order.update(&folded).unwrap();
     assert!(order.changed());
+    // The next frame may switch to the sheets' depths (see docs/depth.md),
+    // once; after that an unchanged pose changes nothing.
+    order.update(&folded).unwrap();
     order.update(&folded).unwrap();
     assert!(order.overlapped() && !order.changed());
 }
@@ -446,6 +449,7 @@ fn frame_after_frame_every_pair_is_found_from_the_last_frames_pairs() {
                 .collect(),
         );
     }
+    order.use_sheets(false);
     for pose in &poses {
         let depth = order.update(pose).unwrap().to_vec();
         assert_eq!(order.overlap_pairs(), overlapping_pairs(&mesh, pose).len());
@@ -634,11 +638,15 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
     // in a few frames a cycle is broken.
     let mesh = bar(60, 6, LENGTH, HEIGHT);
     let mut order = DepthOrder::register(&mesh, None).unwrap();
-    let mut folded = 0;
+    let (mut folded, mut certified) = (0, 0);
     for (f, pose) in sliding_fold(&mesh).iter().enumerate() {
         let depth = order.update(pose).unwrap().to_vec();
         let pairs = overlapping_pairs(&mesh, pose);
-        assert_eq!(order.overlap_pairs(), pairs.len(), "frame {f}");
+        if order.certified() {
+            certified += 1;
+        } else {
+            assert_eq!(order.overlap_pairs(), pairs.len(), "frame {f}");
+        }
         assert_eq!(order.overlapped(), !pairs.is_empty(), "frame {f}");
         assert!(!order.scanned_all(), "frame {f}");
         for &(t, u) in &pairs {
@@ -650,5 +658,6 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
             folded += 1;
         }
     }
+    println!("folded {folded} certified {certified}");
     assert!(folded > 200, "only {folded} frames folded");
 }
