@@ -51,9 +51,10 @@ const FRONT_SHEET: u8 = 2;
 /// Rings of overlapping triangles round the straddling ones (over one
 /// triangle, under another) that join the middle sheet, so that the line
 /// where the two sides meet can slide that far before the front or back
-/// sheet overlaps itself (on the bench's fold at 1k: 3 rings, 3 exact
-/// frames in 2000; 1 ring, 96).
-const MIDDLE_RINGS: usize = 3;
+/// sheet overlaps itself. More rings: fewer exact frames, more middle pairs
+/// a frame (on the bench's fold at 1k, 2 rings gave the fastest frames:
+/// 7 exact frames in 10000).
+const MIDDLE_RINGS: usize = 2;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
@@ -137,9 +138,16 @@ pub struct DepthOrder {
 #[derive(Debug)]
 struct Sheets {
     on: bool,
+    /// Set when built: the next frame writes every depth.
+    fresh: bool,
     /// Per triangle, its sheet.
     of: Vec<u8>,
     middle: Vec<u32>,
+    /// Per triangle, its index in `middle`, or `NONE`.
+    local: Vec<u32>,
+    /// Per middle triangle, where its run of this frame's (sorted) middle
+    /// pairs starts (and, one further, ends).
+    run: Vec<u32>,
     /// Every edge of a triangle whose neighbour across it lies in another
     /// sheet, or on the mesh boundary.
     edges: Vec<BoundaryEdge>,
@@ -195,6 +203,18 @@ struct Scratch {
     level: Vec<u16>,
     edges: Vec<u32>,
     queue: Vec<u32>,
+}
+
+/// How [`DepthOrder::decide`] learns which pairs are neighbours.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Link {
+    /// Growing joined them already.
+    Grown,
+    /// Looked up in the table of tested pairs (the all-triangle grid).
+    ByTable,
+    /// Looked up in the sorted pairs, by each first triangle's run (the
+    /// middle sheet).
+    Sorted,
 }
 
 /// One connected patch of overlapping pairs: two sides, one goes in front.
@@ -354,8 +374,11 @@ impl DepthOrder {
             sheets_allowed: true,
             sheets: Sheets {
                 on: false,
+                fresh: false,
                 of: vec![BACK_SHEET; count],
                 middle: Vec::with_capacity(count),
+                local: vec![NONE; count],
+                run: Vec::with_capacity(count + 1),
                 edges: Vec::with_capacity(3 * count),
                 offset: [0; 3],
                 queue: Vec::with_capacity(count),
@@ -535,7 +558,14 @@ impl DepthOrder {
         self.overlapped = self.pair_count > 0;
         self.dropped = 0;
         if self.overlapped {
-            self.decide(positions, self.scanned_all);
+            self.decide(
+                positions,
+                if self.scanned_all {
+                    Link::ByTable
+                } else {
+                    Link::Grown
+                },
+            );
             self.order();
         }
         self.write_depth(leaving_sheets);
@@ -551,14 +581,15 @@ impl DepthOrder {
     /// After an exact frame with overlap: cuts the triangles into sheets for
     /// the next frames. The triangles both in front of one triangle and
     /// behind another, with [`MIDDLE_RINGS`] rings of overlapping triangles
-    /// round them, are the middle sheet; the rest grow from this frame's
-    /// front triangles (the front sheet) and back triangles (the back
-    /// sheet) through edge neighbours, whichever reaches a triangle first;
-    /// what neither reaches is in the back sheet. The sheets are used only
-    /// if this frame's pairs agree with their ranks (none inside the front
-    /// or back sheet, none against the ranks), the front and back sheets
-    /// are each connected, the mesh is one piece, nothing is pinned, and
-    /// the ranks fit in a depth.
+    /// round them, and the inverted triangles are the middle sheet; the
+    /// rest grow from this frame's front triangles (the front sheet) and
+    /// back triangles (the back sheet) through edge neighbours, whichever
+    /// reaches a triangle first; what neither reaches is in the back sheet.
+    /// Of the front and of the back sheet only the largest connected part
+    /// stays; the other parts join the middle. The sheets are used only if
+    /// this frame's pairs agree with their ranks (none inside the front or
+    /// back sheet, none against the ranks), the mesh is one piece, nothing
+    /// is pinned, and the ranks fit in a depth.
     fn build_sheets(&mut self) {
         let count = self.triangles.len();
         let sh = &mut self.sheets;
@@ -569,11 +600,15 @@ impl DepthOrder {
         const UNSET: u8 = u8::MAX;
         sh.of.fill(UNSET);
         sh.ring.clear();
-        for &t in &self.involved {
-            if self.role[t as usize] == FRONT | BACK {
-                sh.of[t as usize] = MIDDLE_SHEET;
-                sh.ring.push(t);
-            }
+        // The straddling triangles and rings round them, and the inverted
+        // ones (a crease).
+        let straddling = self
+            .involved
+            .iter()
+            .filter(|&&t| self.role[t as usize] == FRONT | BACK);
+        for &t in straddling {
+            sh.of[t as usize] = MIDDLE_SHEET;
+            sh.ring.push(t);
         }
         for _ in 0..MIDDLE_RINGS {
             sh.next_ring.clear();
@@ -586,6 +621,9 @@ impl DepthOrder {
                 }
             }
             std::mem::swap(&mut sh.ring, &mut sh.next_ring);
+        }
+        for &t in &self.scratch.inverted {
+            sh.of[t as usize] = MIDDLE_SHEET;
         }
         sh.queue.clear();
         for &t in &self.involved {
@@ -615,39 +653,67 @@ impl DepthOrder {
                 *s = BACK_SHEET;
             }
         }
-        // This frame's pairs, now (back, front), must agree with the ranks.
-        for &(back, front) in &self.scratch.pairs {
-            let (b, f) = (sh.of[back as usize], sh.of[front as usize]);
-            if !(b < f || (b == MIDDLE_SHEET && f == MIDDLE_SHEET)) {
-                return;
-            }
-        }
-        // Each of the front and back sheets connected (one piece of it
-        // cannot then lie inside another with no boundary crossing).
+        // Each of the front and back sheets connected (one part of it then
+        // cannot lie inside another with no boundary crossing): its largest
+        // part stays, smaller ones (bits cut off by the middle) join the
+        // middle, whose pairs are all found.
+        const REACHED: u8 = 0x80;
         for sheet in [FRONT_SHEET, BACK_SHEET] {
-            let Some(start) = sh.of.iter().position(|&s| s == sheet) else {
+            let (mut largest, mut largest_start) = (0, usize::MAX);
+            for start in 0..count {
+                if sh.of[start] != sheet {
+                    continue;
+                }
+                // Marks the reached triangles by the high bit.
+                sh.queue.clear();
+                sh.queue.push(start as u32);
+                sh.of[start] |= REACHED;
+                let mut head = 0;
+                while head < sh.queue.len() {
+                    let t = sh.queue[head] as usize;
+                    head += 1;
+                    for &u in &self.neighbours[t] {
+                        if u != NONE && sh.of[u as usize] == sheet {
+                            sh.of[u as usize] |= REACHED;
+                            sh.queue.push(u);
+                        }
+                    }
+                }
+                if sh.queue.len() > largest {
+                    (largest, largest_start) = (sh.queue.len(), start);
+                }
+            }
+            if largest_start == usize::MAX {
                 continue;
-            };
-            let total = sh.of.iter().filter(|&&s| s == sheet).count();
-            // Marks the reached triangles by their sheet's high bit.
+            }
+            for s in sh.of.iter_mut() {
+                *s &= !REACHED;
+            }
             sh.queue.clear();
-            sh.queue.push(start as u32);
-            sh.of[start] |= 0x80;
+            sh.queue.push(largest_start as u32);
+            sh.of[largest_start] |= REACHED;
             let mut head = 0;
             while head < sh.queue.len() {
                 let t = sh.queue[head] as usize;
                 head += 1;
                 for &u in &self.neighbours[t] {
                     if u != NONE && sh.of[u as usize] == sheet {
-                        sh.of[u as usize] |= 0x80;
+                        sh.of[u as usize] |= REACHED;
                         sh.queue.push(u);
                     }
                 }
             }
             for s in sh.of.iter_mut() {
-                *s &= 0x7f;
+                if *s == sheet {
+                    *s = MIDDLE_SHEET;
+                }
+                *s &= !REACHED;
             }
-            if sh.queue.len() != total {
+        }
+        // This frame's pairs, now (back, front), must agree with the ranks.
+        for &(back, front) in &self.scratch.pairs {
+            let (b, f) = (sh.of[back as usize], sh.of[front as usize]);
+            if !(b < f || (b == MIDDLE_SHEET && f == MIDDLE_SHEET)) {
                 return;
             }
         }
@@ -685,6 +751,10 @@ impl DepthOrder {
         sh.middle.clear();
         sh.middle
             .extend((0..count as u32).filter(|&t| sh.of[t as usize] == MIDDLE_SHEET));
+        sh.local.fill(NONE);
+        for (k, &t) in sh.middle.iter().enumerate() {
+            sh.local[t as usize] = k as u32;
+        }
         sh.edges.clear();
         for (t, tri) in self.triangles.iter().enumerate() {
             for k in 0..3 {
@@ -699,6 +769,7 @@ impl DepthOrder {
             }
         }
         sh.on = true;
+        sh.fresh = true;
     }
 
     /// A frame on the sheets: false (and nothing written) unless they still
@@ -796,12 +867,16 @@ impl DepthOrder {
         self.scanned_all = false;
         self.dropped = 0;
         if self.pair_count > 0 {
-            self.decide(positions, true);
+            self.decide(positions, Link::Sorted);
             self.order();
         }
-        let (sh, s) = (&self.sheets, &mut self.scratch);
+        let (sh, s) = (&mut self.sheets, &mut self.scratch);
         let mut changed = false;
-        for t in 0..self.triangles.len() {
+        // The front and back sheets' depths do not change while the sheets
+        // hold: written on their first frame only.
+        let all = 0..if sh.fresh { self.triangles.len() } else { 0 };
+        sh.fresh = false;
+        for t in all.chain(sh.middle.iter().map(|&t| t as usize)) {
             let sheet = sh.of[t];
             let base = if sheet == MIDDLE_SHEET && s.new_role[t] != 0 {
                 s.level[t]
@@ -823,17 +898,15 @@ impl DepthOrder {
         true
     }
 
-    /// Every overlapping pair of two middle-sheet triangles, into `pairs`
-    /// (and the table of tested pairs, which links them into patches): the
-    /// triangles sorted by their boxes' low x, each tested against those
-    /// whose boxes meet its own.
+    /// Every overlapping pair of two middle-sheet triangles, into `pairs`,
+    /// sorted, with each first triangle's run of them (for linking them into
+    /// patches): the triangles sorted by their boxes' low x, each tested
+    /// against those whose boxes meet its own.
     fn middle_pairs(&mut self, positions: &[DVec2]) {
         let s = &mut self.scratch;
         s.pairs.clear();
         s.parent.clear();
         s.parity.clear();
-        s.links.clear();
-        s.tested.clear();
         let boxes = &mut self.sheets.boxes;
         boxes.clear();
         for &t in &self.sheets.middle {
@@ -855,14 +928,26 @@ impl DepthOrder {
                 }
                 let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
                 if triangles_overlap(corners(a), corners(b)) {
-                    let key = (t.min(u), t.max(u));
-                    if let Ok(slot) = s.tested.insert(key) {
-                        s.tested.set_at(slot, s.pairs.len() as u32);
-                        s.push_pair(key);
-                    }
+                    // Each pair is met once (from its lower box).
+                    s.pairs.push((t.min(u), t.max(u)));
                 }
             }
         }
+        // Sorted, so the pairs starting with each triangle are one run
+        // (the middle list is in triangle order, so its index is too).
+        s.pairs.sort_unstable();
+        let n = s.pairs.len();
+        let sh = &mut self.sheets;
+        sh.run.clear();
+        sh.run.resize(sh.middle.len() + 1, 0);
+        for &(t, _) in &s.pairs {
+            sh.run[sh.local[t as usize] as usize + 1] += 1;
+        }
+        for k in 1..sh.run.len() {
+            sh.run[k] += sh.run[k - 1];
+        }
+        s.parent.extend(0..n as u32);
+        s.parity.resize(n, 0);
     }
 
     /// Whether this frame is certainly overlap-free, given the certificate
@@ -1326,15 +1411,15 @@ impl DepthOrder {
     /// Groups the pairs into patches (two sides each) and decides which side
     /// of each goes in front; rewrites `pairs` as `(back, front)` and sets
     /// the new roles.
-    fn decide(&mut self, positions: &[DVec2], link_by_table: bool) {
+    fn decide(&mut self, positions: &[DVec2], link: Link) {
         let s = &mut self.scratch;
         let n = s.pairs.len();
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
         // Growing joined them as it found them; the all-triangle grid and
         // the middle sheet's pairs did not.
-        let link = if link_by_table { n } else { 0 };
-        for i in 0..link {
+        let linking = if link == Link::Grown { 0 } else { n };
+        for i in 0..linking {
             let pair = s.pairs[i];
             for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
                 for &step in &self.neighbours[own as usize] {
@@ -1342,7 +1427,24 @@ impl DepthOrder {
                         continue;
                     }
                     let key = (step.min(other), step.max(other));
-                    let j = s.tested.value(key);
+                    let j = if link == Link::Sorted {
+                        // The pairs starting with `key.0` are one run.
+                        let sh = &self.sheets;
+                        let k = sh.local[key.0 as usize];
+                        if k == NONE {
+                            continue;
+                        }
+                        let run = sh.run[k as usize]..sh.run[k as usize + 1];
+                        match s.pairs[run.start as usize..run.end as usize]
+                            .iter()
+                            .position(|p| p.1 == key.1)
+                        {
+                            Some(at) => run.start + at as u32,
+                            None => continue,
+                        }
+                    } else {
+                        s.tested.value(key)
+                    };
                     if j == NONE {
                         continue;
                     }
