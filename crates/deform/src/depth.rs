@@ -55,6 +55,9 @@ const FRONT_SHEET: u8 = 2;
 /// a frame (on the bench's fold at 1k, 2 rings gave the fastest frames:
 /// 7 exact frames in 10000).
 const MIDDLE_RINGS: usize = 2;
+/// Sheets whose middle holds more than one in this many of the exact
+/// frame's pairs are not used.
+const MIDDLE_SHARE: usize = 8;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
@@ -717,6 +720,19 @@ impl DepthOrder {
                 return;
             }
         }
+        // A middle holding a large share of the pairs would cost nearly an
+        // exact frame every frame: wait for a better cut.
+        let (sh, pairs) = (&self.sheets, &self.scratch.pairs);
+        let inside = pairs
+            .iter()
+            .filter(|&&(b, f)| {
+                sh.of[b as usize] == MIDDLE_SHEET && sh.of[f as usize] == MIDDLE_SHEET
+            })
+            .count();
+        if inside * MIDDLE_SHARE > pairs.len() {
+            return;
+        }
+        let sh = &mut self.sheets;
         // Ranks: every middle depth above every back layer, every front
         // depth above every middle depth (the middle's order raises a
         // triangle by at most one a triangle).

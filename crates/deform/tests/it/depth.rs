@@ -629,9 +629,11 @@ fn sliding_fold(mesh: &Mesh) -> Vec<Vec<DVec2>> {
 #[test]
 fn a_sliding_fold_agrees_with_brute_force_every_frame() {
     // ARAP folds the bar's right half back over its left and the fold
-    // slides as the end circles: every frame, the order finds exactly the
-    // pairs brute force finds and orders each strictly, and gives the
-    // static order when nothing overlaps. What it does not give here, so
+    // slides as the end circles: every frame, the order orders every pair
+    // brute force finds strictly (on exact frames it finds exactly those
+    // pairs; on frames the sheets settle, only the middle sheet's), says
+    // whether anything overlaps, and gives the static order when nothing
+    // does. What it does not give here, so
     // this does not assert it (docs/depth.md, Limits): near the crease the
     // two sides are one patch round the crease's end, so in every folded
     // frame a few triangles lie over one triangle and under another, and
@@ -658,6 +660,10 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
             folded += 1;
         }
     }
-    println!("folded {folded} certified {certified}");
     assert!(folded > 200, "only {folded} frames folded");
+    // Most of them on the sheets, checked like the rest.
+    assert!(
+        certified > folded / 4,
+        "only {certified} frames on the sheets"
+    );
 }
