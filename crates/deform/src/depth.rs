@@ -19,7 +19,11 @@
 //! crossings and at inverted triangles through edge neighbours, like
 //! hidden-line removal (Hornung 1984), starting from last frame's pairs;
 //! many inverted triangles or a piece inside another fall back to a grid
-//! over all triangles. See `docs/depth.md`.
+//! over all triangles. After such an exact frame the triangles are cut into
+//! front, middle and back sheets; while the front and back sheets are
+//! certified to overlap nothing of their own (per border edge, like the
+//! cheap reject), later frames draw each sheet at its rank and find only
+//! the middle sheet's own pairs. See `docs/depth.md`.
 
 use std::collections::HashMap;
 
