@@ -19,7 +19,11 @@
 //! crossings and at inverted triangles through edge neighbours, like
 //! hidden-line removal (Hornung 1984), starting from last frame's pairs;
 //! many inverted triangles or a piece inside another fall back to a grid
-//! over all triangles. See `docs/depth.md`.
+//! over all triangles. After such an exact frame the triangles are cut into
+//! front, middle and back sheets; while the front and back sheets are
+//! certified to overlap nothing of their own (per border edge, like the
+//! cheap reject), later frames draw each sheet at its rank and find only
+//! the middle sheet's own pairs. See `docs/depth.md`.
 
 use std::collections::HashMap;
 
@@ -42,6 +46,22 @@ const NONE: u32 = u32::MAX;
 const INVALID: u32 = u32::MAX - 1;
 const FRONT: u8 = 1;
 const BACK: u8 = 2;
+
+/// The sheets, by rank: every triangle of a higher sheet is drawn over
+/// every triangle of a lower one it overlaps.
+const BACK_SHEET: u8 = 0;
+const MIDDLE_SHEET: u8 = 1;
+const FRONT_SHEET: u8 = 2;
+/// Rings of overlapping triangles round the straddling ones (over one
+/// triangle, under another) that join the middle sheet, so that the line
+/// where the two sides meet can slide that far before the front or back
+/// sheet overlaps itself. More rings: fewer exact frames, more middle pairs
+/// a frame (on the bench's fold at 1k, 2 rings gave the fastest frames:
+/// 7 exact frames in 10000).
+const MIDDLE_RINGS: usize = 2;
+/// Sheets whose middle holds more than one in this many of the exact
+/// frame's pairs are not used.
+const MIDDLE_SHARE: usize = 8;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
@@ -110,7 +130,41 @@ pub struct DepthOrder {
     /// that keeps decisions while an overlap persists.
     role: Vec<u8>,
     involved: Vec<u32>,
+    /// Whether the last update was settled by the sheets alone.
+    certified: bool,
+    sheets_allowed: bool,
+    sheets: Sheets,
     scratch: Scratch,
+}
+
+/// The triangles cut into three sheets after an exact frame with overlap
+/// (see `docs/depth.md`, "Sheets"): while the front and back sheets each
+/// overlap nothing of their own, the depth is the sheet's rank over each
+/// triangle's layer, and only the middle sheet's own pairs are found and
+/// ordered.
+#[derive(Debug)]
+struct Sheets {
+    on: bool,
+    /// Set when built: the next frame writes every depth.
+    fresh: bool,
+    /// Per triangle, its sheet.
+    of: Vec<u8>,
+    middle: Vec<u32>,
+    /// Per triangle, its index in `middle`, or `NONE`.
+    local: Vec<u32>,
+    /// Per middle triangle, where its run of this frame's (sorted) middle
+    /// pairs starts (and, one further, ends).
+    run: Vec<u32>,
+    /// Every edge of a triangle whose neighbour across it lies in another
+    /// sheet, or on the mesh boundary.
+    edges: Vec<BoundaryEdge>,
+    /// Added to the layer of each sheet's triangles.
+    offset: [u16; 3],
+    queue: Vec<u32>,
+    ring: Vec<u32>,
+    next_ring: Vec<u32>,
+    /// The middle sheet's triangles' boxes, by their low x.
+    boxes: Vec<(DVec2, DVec2, u32)>,
 }
 
 /// Everything a frame writes, sized at registration.
@@ -156,6 +210,18 @@ struct Scratch {
     level: Vec<u16>,
     edges: Vec<u32>,
     queue: Vec<u32>,
+}
+
+/// How [`DepthOrder::decide`] learns which pairs are neighbours.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Link {
+    /// Growing joined them already.
+    Grown,
+    /// Looked up in the table of tested pairs (the all-triangle grid).
+    ByTable,
+    /// Looked up in the sorted pairs, by each first triangle's run (the
+    /// middle sheet).
+    Sorted,
 }
 
 /// One connected patch of overlapping pairs: two sides, one goes in front.
@@ -253,7 +319,8 @@ impl DepthOrder {
         let boundary_count = boundary.len();
 
         let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
-        let most = count.max(boundary.len());
+        // The sheets' edges: up to three per triangle.
+        let most = (3 * count).max(boundary.len());
         let scratch = Scratch {
             grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most, most),
             piece_lo: vec![DVec2::ZERO; pieces.len()],
@@ -310,6 +377,22 @@ impl DepthOrder {
             next_boundary,
             skipped: false,
             pins: Vec::with_capacity(MAX_PINS),
+            certified: false,
+            sheets_allowed: true,
+            sheets: Sheets {
+                on: false,
+                fresh: false,
+                of: vec![BACK_SHEET; count],
+                middle: Vec::with_capacity(count),
+                local: vec![NONE; count],
+                run: Vec::with_capacity(count + 1),
+                edges: Vec::with_capacity(3 * count),
+                offset: [0; 3],
+                queue: Vec::with_capacity(count),
+                ring: Vec::with_capacity(count),
+                next_ring: Vec::with_capacity(count),
+                boxes: Vec::with_capacity(count),
+            },
             scratch,
         })
     }
@@ -336,7 +419,9 @@ impl DepthOrder {
         self.changed
     }
 
-    /// Overlapping triangle pairs found by the last update.
+    /// Overlapping triangle pairs found by the last update: every pair on an
+    /// exact frame; on a frame settled by the sheets
+    /// ([`DepthOrder::certified`]), the middle sheet's own pairs only.
     pub fn overlap_pairs(&self) -> usize {
         self.pair_count
     }
@@ -354,6 +439,23 @@ impl DepthOrder {
     /// `docs/depth.md`).
     pub fn skipped(&self) -> bool {
         self.skipped
+    }
+
+    /// Whether frames may be settled by sheets (the default) or always take
+    /// the exact path: for comparing the two.
+    pub fn use_sheets(&mut self, on: bool) {
+        self.sheets_allowed = on;
+        if !on {
+            self.sheets.on = false;
+        }
+    }
+
+    /// Whether the last update was settled by the sheets of an earlier
+    /// exact frame (see `docs/depth.md`, "Sheets"): then only the middle
+    /// sheet's own pairs were found, and [`DepthOrder::overlap_pairs`]
+    /// counts those.
+    pub fn certified(&self) -> bool {
+        self.certified
     }
 
     /// Front-over-back constraints the last update had to drop to break
@@ -403,8 +505,16 @@ impl DepthOrder {
             // The last frame was overlap-free (static depth, no roles, no
             // pins) and this one is too: nothing to write.
             self.changed = false;
+            self.certified = false;
             return Ok(&self.depth);
         }
+        // The sheets from an earlier exact frame, while they still hold.
+        let leaving_sheets = self.sheets.on;
+        self.certified = self.sheets.on && self.sheet_frame(positions);
+        if self.certified {
+            return Ok(&self.depth);
+        }
+        self.sheets.on = false;
         let s = &mut self.scratch;
         s.inverted.clear();
         for (t, tri) in self.triangles.iter().enumerate() {
@@ -455,15 +565,409 @@ impl DepthOrder {
         self.overlapped = self.pair_count > 0;
         self.dropped = 0;
         if self.overlapped {
-            self.decide(positions);
+            self.decide(
+                positions,
+                if self.scanned_all {
+                    Link::ByTable
+                } else {
+                    Link::Grown
+                },
+            );
             self.order();
         }
-        self.write_depth();
+        self.write_depth(leaving_sheets);
         self.calm = !self.overlapped;
         if self.calm {
             self.certify_calm(positions);
+        } else {
+            self.build_sheets();
         }
         Ok(&self.depth)
+    }
+
+    /// After an exact frame with overlap: cuts the triangles into sheets for
+    /// the next frames. The triangles both in front of one triangle and
+    /// behind another, with [`MIDDLE_RINGS`] rings of overlapping triangles
+    /// round them, and the inverted triangles are the middle sheet; the
+    /// rest grow from this frame's front triangles (the front sheet) and
+    /// back triangles (the back sheet) through edge neighbours, whichever
+    /// reaches a triangle first; what neither reaches is in the back sheet.
+    /// Of the front and of the back sheet only the largest connected part
+    /// stays; the other parts join the middle. The sheets are used only if
+    /// this frame's pairs agree with their ranks (none inside the front or
+    /// back sheet, none against the ranks), the mesh is one piece, nothing
+    /// is pinned, and the ranks fit in a depth.
+    fn build_sheets(&mut self) {
+        let count = self.triangles.len();
+        let sh = &mut self.sheets;
+        sh.on = false;
+        if !self.sheets_allowed || !self.pins.is_empty() || self.piece_boundary.len() != 2 {
+            return;
+        }
+        const UNSET: u8 = u8::MAX;
+        sh.of.fill(UNSET);
+        sh.ring.clear();
+        // The straddling triangles and rings round them, and the inverted
+        // ones (a crease).
+        let straddling = self
+            .involved
+            .iter()
+            .filter(|&&t| self.role[t as usize] == FRONT | BACK);
+        for &t in straddling {
+            sh.of[t as usize] = MIDDLE_SHEET;
+            sh.ring.push(t);
+        }
+        for _ in 0..MIDDLE_RINGS {
+            sh.next_ring.clear();
+            for &t in &sh.ring {
+                for &u in &self.neighbours[t as usize] {
+                    if u != NONE && sh.of[u as usize] == UNSET && self.role[u as usize] != 0 {
+                        sh.of[u as usize] = MIDDLE_SHEET;
+                        sh.next_ring.push(u);
+                    }
+                }
+            }
+            std::mem::swap(&mut sh.ring, &mut sh.next_ring);
+        }
+        for &t in &self.scratch.inverted {
+            sh.of[t as usize] = MIDDLE_SHEET;
+        }
+        sh.queue.clear();
+        for &t in &self.involved {
+            let t = t as usize;
+            if sh.of[t] == UNSET {
+                sh.of[t] = if self.role[t] == FRONT {
+                    FRONT_SHEET
+                } else {
+                    BACK_SHEET
+                };
+                sh.queue.push(t as u32);
+            }
+        }
+        let mut head = 0;
+        while head < sh.queue.len() {
+            let t = sh.queue[head] as usize;
+            head += 1;
+            for &u in &self.neighbours[t] {
+                if u != NONE && sh.of[u as usize] == UNSET {
+                    sh.of[u as usize] = sh.of[t];
+                    sh.queue.push(u);
+                }
+            }
+        }
+        for s in sh.of.iter_mut() {
+            if *s == UNSET {
+                *s = BACK_SHEET;
+            }
+        }
+        // Each of the front and back sheets connected (one part of it then
+        // cannot lie inside another with no boundary crossing): its largest
+        // part stays, smaller ones (bits cut off by the middle) join the
+        // middle, whose pairs are all found.
+        const REACHED: u8 = 0x80;
+        for sheet in [FRONT_SHEET, BACK_SHEET] {
+            let (mut largest, mut largest_start) = (0, usize::MAX);
+            for start in 0..count {
+                if sh.of[start] != sheet {
+                    continue;
+                }
+                // Marks the reached triangles by the high bit.
+                sh.queue.clear();
+                sh.queue.push(start as u32);
+                sh.of[start] |= REACHED;
+                let mut head = 0;
+                while head < sh.queue.len() {
+                    let t = sh.queue[head] as usize;
+                    head += 1;
+                    for &u in &self.neighbours[t] {
+                        if u != NONE && sh.of[u as usize] == sheet {
+                            sh.of[u as usize] |= REACHED;
+                            sh.queue.push(u);
+                        }
+                    }
+                }
+                if sh.queue.len() > largest {
+                    (largest, largest_start) = (sh.queue.len(), start);
+                }
+            }
+            if largest_start == usize::MAX {
+                continue;
+            }
+            for s in sh.of.iter_mut() {
+                *s &= !REACHED;
+            }
+            sh.queue.clear();
+            sh.queue.push(largest_start as u32);
+            sh.of[largest_start] |= REACHED;
+            let mut head = 0;
+            while head < sh.queue.len() {
+                let t = sh.queue[head] as usize;
+                head += 1;
+                for &u in &self.neighbours[t] {
+                    if u != NONE && sh.of[u as usize] == sheet {
+                        sh.of[u as usize] |= REACHED;
+                        sh.queue.push(u);
+                    }
+                }
+            }
+            for s in sh.of.iter_mut() {
+                if *s == sheet {
+                    *s = MIDDLE_SHEET;
+                }
+                *s &= !REACHED;
+            }
+        }
+        // This frame's pairs, now (back, front), must agree with the ranks.
+        for &(back, front) in &self.scratch.pairs {
+            let (b, f) = (sh.of[back as usize], sh.of[front as usize]);
+            if !(b < f || (b == MIDDLE_SHEET && f == MIDDLE_SHEET)) {
+                return;
+            }
+        }
+        // A middle holding a large share of the pairs would cost nearly an
+        // exact frame every frame: wait for a better cut.
+        let (sh, pairs) = (&self.sheets, &self.scratch.pairs);
+        let inside = pairs
+            .iter()
+            .filter(|&&(b, f)| {
+                sh.of[b as usize] == MIDDLE_SHEET && sh.of[f as usize] == MIDDLE_SHEET
+            })
+            .count();
+        if inside * MIDDLE_SHARE > pairs.len() {
+            return;
+        }
+        let sh = &mut self.sheets;
+        // Ranks: every middle depth above every back layer, every front
+        // depth above every middle depth (the middle's order raises a
+        // triangle by at most one a triangle).
+        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+        let mut middle = 0u32;
+        for t in 0..count {
+            let (s, layer) = (sh.of[t] as usize, u32::from(self.layers[t]));
+            lo[s] = lo[s].min(layer);
+            hi[s] = hi[s].max(layer);
+            middle += u32::from(s == MIDDLE_SHEET as usize);
+        }
+        let back_top = if lo[0] == u32::MAX { 0 } else { hi[0] };
+        let middle_offset = if lo[1] == u32::MAX {
+            0
+        } else {
+            (back_top + 1).saturating_sub(lo[1])
+        };
+        let middle_top = if lo[1] == u32::MAX {
+            back_top
+        } else {
+            hi[1] + middle_offset + middle
+        };
+        let front_offset = if lo[2] == u32::MAX {
+            0
+        } else {
+            (middle_top.max(back_top) + 1).saturating_sub(lo[2])
+        };
+        if hi[2] + front_offset > u32::from(u16::MAX) || middle_top > u32::from(u16::MAX) {
+            return;
+        }
+        sh.offset = [0, middle_offset as u16, front_offset as u16];
+        sh.middle.clear();
+        sh.middle
+            .extend((0..count as u32).filter(|&t| sh.of[t as usize] == MIDDLE_SHEET));
+        sh.local.fill(NONE);
+        for (k, &t) in sh.middle.iter().enumerate() {
+            sh.local[t as usize] = k as u32;
+        }
+        sh.edges.clear();
+        for (t, tri) in self.triangles.iter().enumerate() {
+            for k in 0..3 {
+                let u = self.neighbours[t][k];
+                if u == NONE || sh.of[u as usize] != sh.of[t] {
+                    sh.edges.push(BoundaryEdge {
+                        a: tri[k],
+                        b: tri[(k + 1) % 3],
+                        triangle: t as u32,
+                    });
+                }
+            }
+        }
+        sh.on = true;
+        sh.fresh = true;
+    }
+
+    /// A frame on the sheets: false (and nothing written) unless they still
+    /// hold. They hold while nothing is pinned, no triangle of the front or
+    /// back sheet is inverted, no two edges of one of those sheets' borders
+    /// (mesh boundary and cuts) meet, and two edges of different sheets
+    /// cross (so something still overlaps). Then neither the front nor the
+    /// back sheet overlaps itself (as for the pieces in the cheap reject),
+    /// every pair between sheets is ordered by their ranks, and only the
+    /// middle sheet's own pairs are found (every pair of its triangles whose
+    /// boxes meet is tested) and decided as in an exact frame.
+    fn sheet_frame(&mut self, positions: &[DVec2]) -> bool {
+        if !self.pins.is_empty() {
+            return false;
+        }
+        let sh = &self.sheets;
+        for (t, tri) in self.triangles.iter().enumerate() {
+            let [a, b, c] = tri.map(|i| positions[i as usize]);
+            if (b - a).perp_dot(c - a) <= 0.0 && sh.of[t] != MIDDLE_SHEET {
+                return false;
+            }
+        }
+        let edges = &sh.edges;
+        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        let mut longest = 0.0f64;
+        for e in edges {
+            let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
+            lo = lo.min(a).min(b);
+            hi = hi.max(a).max(b);
+            longest = longest.max((b - a).abs().max_element());
+        }
+        let ends = |i: usize| {
+            let e = edges[i];
+            (positions[e.a as usize], positions[e.b as usize])
+        };
+        let s = &mut self.scratch;
+        s.grid.fill(lo, hi, longest, edges.len(), |i| {
+            let (a, b) = ends(i);
+            (a.min(b), a.max(b))
+        });
+        let grid = &s.grid;
+        let mut overlapping = false;
+        for cell in 0..grid.cell_count() {
+            let members = grid.members(cell);
+            for (n, &i) in members.iter().enumerate() {
+                let ei = edges[i as usize];
+                let (a, b) = ends(i as usize);
+                let si = sh.of[ei.triangle as usize];
+                for &j in &members[n + 1..] {
+                    let ej = edges[j as usize];
+                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
+                        continue;
+                    }
+                    let sj = sh.of[ej.triangle as usize];
+                    if si == sj && si == MIDDLE_SHEET {
+                        continue;
+                    }
+                    if si != sj && overlapping {
+                        continue;
+                    }
+                    let (c, d) = ends(j as usize);
+                    let meet_lo = a.min(b).max(c.min(d));
+                    let meet_hi = a.max(b).min(c.max(d));
+                    if meet_lo.x > meet_hi.x || meet_lo.y > meet_hi.y {
+                        continue;
+                    }
+                    if grid.cell_of(meet_lo) != cell || !segments_meet(a, b, c, d) {
+                        continue;
+                    }
+                    if si == sj {
+                        return false;
+                    }
+                    // A proper crossing between triangles sharing no vertex:
+                    // those two overlap.
+                    let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
+                    let (ti, tj) = (
+                        self.triangles[ei.triangle as usize],
+                        self.triangles[ej.triangle as usize],
+                    );
+                    if side(a, b, c) * side(a, b, d) < 0.0
+                        && side(c, d, a) * side(c, d, b) < 0.0
+                        && !ti.iter().any(|v| tj.contains(v))
+                    {
+                        overlapping = true;
+                    }
+                }
+            }
+        }
+        if !overlapping {
+            return false;
+        }
+        self.middle_pairs(positions);
+        self.pair_count = self.scratch.pairs.len();
+        self.overlapped = true;
+        self.scanned_all = false;
+        self.dropped = 0;
+        if self.pair_count > 0 {
+            self.decide(positions, Link::Sorted);
+            self.order();
+        }
+        let (sh, s) = (&mut self.sheets, &mut self.scratch);
+        let mut changed = false;
+        // The front and back sheets' depths do not change while the sheets
+        // hold: written on their first frame only.
+        let all = 0..if sh.fresh { self.triangles.len() } else { 0 };
+        sh.fresh = false;
+        for t in all.chain(sh.middle.iter().map(|&t| t as usize)) {
+            let sheet = sh.of[t];
+            let base = if sheet == MIDDLE_SHEET && s.new_role[t] != 0 {
+                s.level[t]
+            } else {
+                self.layers[t]
+            };
+            let depth = base + sh.offset[sheet as usize];
+            if self.depth[t] != depth {
+                self.depth[t] = depth;
+                changed = true;
+            }
+        }
+        for &t in &s.new_involved {
+            s.new_role[t as usize] = 0;
+        }
+        s.new_involved.clear();
+        self.changed = changed;
+        self.calm = false;
+        true
+    }
+
+    /// Every overlapping pair of two middle-sheet triangles, into `pairs`,
+    /// sorted, with each first triangle's run of them (for linking them into
+    /// patches): the triangles sorted by their boxes' low x, each tested
+    /// against those whose boxes meet its own.
+    fn middle_pairs(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        s.pairs.clear();
+        s.parent.clear();
+        s.parity.clear();
+        let boxes = &mut self.sheets.boxes;
+        boxes.clear();
+        for &t in &self.sheets.middle {
+            let [a, b, c] = self.triangles[t as usize].map(|i| positions[i as usize]);
+            boxes.push((a.min(b).min(c), a.max(b).max(c), t));
+        }
+        boxes.sort_unstable_by(|p, q| p.0.x.total_cmp(&q.0.x));
+        for (n, &(tlo, thi, t)) in boxes.iter().enumerate() {
+            for &(ulo, uhi, u) in &boxes[n + 1..] {
+                if ulo.x >= thi.x {
+                    break;
+                }
+                if ulo.y >= thi.y || tlo.y >= uhi.y {
+                    continue;
+                }
+                let (a, b) = (self.triangles[t as usize], self.triangles[u as usize]);
+                if a.iter().any(|v| b.contains(v)) {
+                    continue;
+                }
+                let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
+                if triangles_overlap(corners(a), corners(b)) {
+                    // Each pair is met once (from its lower box).
+                    s.pairs.push((t.min(u), t.max(u)));
+                }
+            }
+        }
+        // Sorted, so the pairs starting with each triangle are one run
+        // (the middle list is in triangle order, so its index is too).
+        s.pairs.sort_unstable();
+        let n = s.pairs.len();
+        let sh = &mut self.sheets;
+        sh.run.clear();
+        sh.run.resize(sh.middle.len() + 1, 0);
+        for &(t, _) in &s.pairs {
+            sh.run[sh.local[t as usize] as usize + 1] += 1;
+        }
+        for k in 1..sh.run.len() {
+            sh.run[k] += sh.run[k - 1];
+        }
+        s.parent.extend(0..n as u32);
+        s.parity.resize(n, 0);
     }
 
     /// Whether this frame is certainly overlap-free, given the certificate
@@ -927,15 +1431,15 @@ impl DepthOrder {
     /// Groups the pairs into patches (two sides each) and decides which side
     /// of each goes in front; rewrites `pairs` as `(back, front)` and sets
     /// the new roles.
-    fn decide(&mut self, positions: &[DVec2]) {
+    fn decide(&mut self, positions: &[DVec2], link: Link) {
         let s = &mut self.scratch;
         let n = s.pairs.len();
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
-        // Growing joined them as it found them; the all-triangle grid did
-        // not.
-        let link = if self.scanned_all { n } else { 0 };
-        for i in 0..link {
+        // Growing joined them as it found them; the all-triangle grid and
+        // the middle sheet's pairs did not.
+        let linking = if link == Link::Grown { 0 } else { n };
+        for i in 0..linking {
             let pair = s.pairs[i];
             for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
                 for &step in &self.neighbours[own as usize] {
@@ -943,7 +1447,24 @@ impl DepthOrder {
                         continue;
                     }
                     let key = (step.min(other), step.max(other));
-                    let j = s.tested.value(key);
+                    let j = if link == Link::Sorted {
+                        // The pairs starting with `key.0` are one run.
+                        let sh = &self.sheets;
+                        let k = sh.local[key.0 as usize];
+                        if k == NONE {
+                            continue;
+                        }
+                        let run = sh.run[k as usize]..sh.run[k as usize + 1];
+                        match s.pairs[run.start as usize..run.end as usize]
+                            .iter()
+                            .position(|p| p.1 == key.1)
+                        {
+                            Some(at) => run.start + at as u32,
+                            None => continue,
+                        }
+                    } else {
+                        s.tested.value(key)
+                    };
                     if j == NONE {
                         continue;
                     }
@@ -1094,9 +1615,19 @@ impl DepthOrder {
 
     /// Writes this frame's depths, noting any change, and moves the new roles
     /// in as next frame's memory.
-    fn write_depth(&mut self) {
+    /// After frames on the sheets (`after_sheets`), every triangle not
+    /// involved now goes back to its layer, not only last frame's involved.
+    fn write_depth(&mut self, after_sheets: bool) {
         let s = &mut self.scratch;
         let mut changed = false;
+        if after_sheets {
+            for (t, depth) in self.depth.iter_mut().enumerate() {
+                if s.new_role[t] == 0 && *depth != self.layers[t] {
+                    *depth = self.layers[t];
+                    changed = true;
+                }
+            }
+        }
         for &t in &self.involved {
             let t = t as usize;
             if s.new_role[t] == 0 && self.depth[t] != self.layers[t] {
