@@ -637,6 +637,9 @@ fn no_stage_file(size: StageSize) -> Arc<puppetry_stage::config::StageConfig> {
 #[derive(Clone)]
 pub struct RelayLink(Arc<LinkInner>);
 
+/// A picture being fetched or fetched, shared by all who asked for it.
+type PictureCell = Arc<tokio::sync::OnceCell<Bytes>>;
+
 struct LinkInner {
     client: Client,
     subjects: Subjects,
@@ -652,7 +655,7 @@ struct LinkInner {
     /// first viewer to ask; those who ask meanwhile wait for that fetch
     /// rather than each asking the daemon (a page load per viewer when a
     /// show starts would otherwise be as many fetches).
-    pictures: Mutex<HashMap<(u64, u32), Arc<tokio::sync::OnceCell<Bytes>>>>,
+    pictures: Mutex<HashMap<(u64, u32), PictureCell>>,
     picture_fetches: AtomicU64,
     /// Clients with a session on the stage.
     sessions: Mutex<HashSet<String>>,
