@@ -664,30 +664,15 @@ impl DepthOrder {
         // cannot lie inside another with no boundary crossing): its largest
         // part stays, smaller ones (bits cut off by the middle) join the
         // middle, whose pairs are all found.
-        const REACHED: u8 = 0x80;
         for sheet in [FRONT_SHEET, BACK_SHEET] {
             let (mut largest, mut largest_start) = (0, usize::MAX);
             for start in 0..count {
                 if sh.of[start] != sheet {
                     continue;
                 }
-                // Marks the reached triangles by the high bit.
-                sh.queue.clear();
-                sh.queue.push(start as u32);
-                sh.of[start] |= REACHED;
-                let mut head = 0;
-                while head < sh.queue.len() {
-                    let t = sh.queue[head] as usize;
-                    head += 1;
-                    for &u in &self.neighbours[t] {
-                        if u != NONE && sh.of[u as usize] == sheet {
-                            sh.of[u as usize] |= REACHED;
-                            sh.queue.push(u);
-                        }
-                    }
-                }
-                if sh.queue.len() > largest {
-                    (largest, largest_start) = (sh.queue.len(), start);
+                let reached = flood_sheet(&mut sh.of, &mut sh.queue, &self.neighbours, start);
+                if reached > largest {
+                    (largest, largest_start) = (reached, start);
                 }
             }
             if largest_start == usize::MAX {
@@ -696,20 +681,7 @@ impl DepthOrder {
             for s in sh.of.iter_mut() {
                 *s &= !REACHED;
             }
-            sh.queue.clear();
-            sh.queue.push(largest_start as u32);
-            sh.of[largest_start] |= REACHED;
-            let mut head = 0;
-            while head < sh.queue.len() {
-                let t = sh.queue[head] as usize;
-                head += 1;
-                for &u in &self.neighbours[t] {
-                    if u != NONE && sh.of[u as usize] == sheet {
-                        sh.of[u as usize] |= REACHED;
-                        sh.queue.push(u);
-                    }
-                }
-            }
+            flood_sheet(&mut sh.of, &mut sh.queue, &self.neighbours, largest_start);
             for s in sh.of.iter_mut() {
                 if *s == sheet {
                     *s = MIDDLE_SHEET;
@@ -1656,6 +1628,36 @@ impl DepthOrder {
 /// The side of a patch that goes in front: a pin, else last frame's roles,
 /// else the higher static layer, else the side that moved further from rest,
 /// else the side whose lowest triangle index is higher.
+/// Marks a triangle reached by [`flood_sheet`] (the high bit of its sheet).
+const REACHED: u8 = 0x80;
+
+/// Marks with [`REACHED`] every triangle of `start`'s sheet joined to it
+/// through edges, not yet reached; returns how many it marked (`queue` is
+/// the flood's scratch).
+fn flood_sheet(
+    of: &mut [u8],
+    queue: &mut Vec<u32>,
+    neighbours: &[[u32; 3]],
+    start: usize,
+) -> usize {
+    let sheet = of[start];
+    queue.clear();
+    queue.push(start as u32);
+    of[start] |= REACHED;
+    let mut head = 0;
+    while head < queue.len() {
+        let t = queue[head] as usize;
+        head += 1;
+        for &u in &neighbours[t] {
+            if u != NONE && of[u as usize] == sheet {
+                of[u as usize] |= REACHED;
+                queue.push(u);
+            }
+        }
+    }
+    queue.len()
+}
+
 fn front_side(patch: &Patch) -> u8 {
     if patch.pin.0 > 0 {
         return patch.pin.1;
