@@ -823,12 +823,7 @@ impl DepthOrder {
                         continue;
                     }
                     let (c, d) = ends(j as usize);
-                    let meet_lo = a.min(b).max(c.min(d));
-                    let meet_hi = a.max(b).min(c.max(d));
-                    if meet_lo.x > meet_hi.x || meet_lo.y > meet_hi.y {
-                        continue;
-                    }
-                    if grid.cell_of(meet_lo) != cell || !segments_meet(a, b, c, d) {
+                    if !grid.meet_here(cell, a, b, c, d) {
                         continue;
                     }
                     if si == sj {
@@ -1091,14 +1086,7 @@ impl DepthOrder {
                         continue;
                     }
                     let (c, d) = ends(j as usize);
-                    let meet_lo = a.min(b).max(c.min(d));
-                    let meet_hi = a.max(b).min(c.max(d));
-                    if meet_lo.x > meet_hi.x || meet_lo.y > meet_hi.y {
-                        continue;
-                    }
-                    // Each pair is judged in one cell only: the one holding
-                    // the low corner of the boxes' intersection.
-                    if grid.cell_of(meet_lo) != cell || !segments_meet(a, b, c, d) {
+                    if !grid.meet_here(cell, a, b, c, d) {
                         continue;
                     }
                     s.seeds.push((ei.triangle, ej.triangle));
@@ -1874,6 +1862,18 @@ impl FrameGrid {
     fn cell_of(&self, p: DVec2) -> usize {
         let (c, r) = self.column_row(p);
         r * self.columns + c
+    }
+
+    /// Whether segments `ab` and `cd`, both binned in `cell`, meet and are
+    /// to be judged here: each pair is judged in one cell only, the one
+    /// holding the low corner of their boxes' intersection.
+    fn meet_here(&self, cell: usize, a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
+        let meet_lo = a.min(b).max(c.min(d));
+        let meet_hi = a.max(b).min(c.max(d));
+        meet_lo.x <= meet_hi.x
+            && meet_lo.y <= meet_hi.y
+            && self.cell_of(meet_lo) == cell
+            && segments_meet(a, b, c, d)
     }
 
     fn cell_count(&self) -> usize {
