@@ -909,12 +909,7 @@ impl DepthOrder {
                 if ulo.y >= thi.y || tlo.y >= uhi.y {
                     continue;
                 }
-                let (a, b) = (self.triangles[t as usize], self.triangles[u as usize]);
-                if a.iter().any(|v| b.contains(v)) {
-                    continue;
-                }
-                let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
-                if triangles_overlap(corners(a), corners(b)) {
+                if overlap_apart(&self.triangles, positions, t, u) {
                     // Each pair is met once (from its lower box).
                     s.pairs.push((t.min(u), t.max(u)));
                 }
@@ -1371,12 +1366,7 @@ impl DepthOrder {
                     if s.grid.cell_of(meet_lo) != cell {
                         continue;
                     }
-                    let (a, b) = (self.triangles[t as usize], self.triangles[u as usize]);
-                    if a.iter().any(|v| b.contains(v)) {
-                        continue;
-                    }
-                    let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
-                    if triangles_overlap(corners(a), corners(b)) {
+                    if overlap_apart(&self.triangles, positions, t, u) {
                         let key = (t.min(u), t.max(u));
                         if let Ok(slot) = s.tested.insert(key) {
                             s.tested.set_at(slot, s.pairs.len() as u32);
@@ -1707,6 +1697,14 @@ impl Scratch {
             self.parity[rj as usize] = pi ^ pj ^ relation;
         }
     }
+}
+
+/// Whether triangles `t` and `u` can be a pair (they share no vertex) and
+/// are one: their interiors intersect at `positions`.
+fn overlap_apart(triangles: &[[u32; 3]], positions: &[DVec2], t: u32, u: u32) -> bool {
+    let (a, b) = (triangles[t as usize], triangles[u as usize]);
+    let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
+    !a.iter().any(|v| b.contains(v)) && triangles_overlap(corners(a), corners(b))
 }
 
 /// Whether two triangles' interiors intersect (separating axes over the six
