@@ -296,6 +296,11 @@ enum Command {
         /// performer's ping.
         #[arg(long, default_value_t = 0, requires = "viewers")]
         relays: usize,
+        /// With --viewers: time this program's `puppetry serve` instead of
+        /// this one's, to compare two builds in one run (a build whose
+        /// `pong` carries no clock has its latency printed as NaN).
+        #[arg(long, requires = "viewers", value_name = "PROGRAM")]
+        daemon: Option<PathBuf>,
         /// Bench takes instead: what recording costs the live path, and
         /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
         #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
@@ -715,6 +720,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Bench {
             viewers: Some(counts),
             relays,
+            daemon,
             json,
             ..
         } => {
@@ -728,7 +734,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 }
             }
             for viewers in counts {
-                let r = runtime.block_on(vb::viewers_case(viewers, relays))?;
+                let r = runtime.block_on(vb::viewers_case(viewers, relays, daemon.as_deref()))?;
                 if json {
                     println!("{}", serde_json::to_string(&r)?);
                 } else if relays > 0 {

@@ -17,7 +17,7 @@
 //! input pays.
 
 use std::io::BufRead;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
@@ -82,6 +82,8 @@ pub enum ViewersError {
     },
     #[error("the daemon: {0}")]
     Daemon(String),
+    #[error("the daemon: its pong has no clock (an older build?)")]
+    NoClock,
     #[error("the relay tier needs nats-server: install it (apt-get install nats-server)")]
     NoNats,
     #[error("a WebSocket: {0}")]
@@ -110,8 +112,9 @@ impl Drop for Daemon {
 
 impl Daemon {
     /// Serves the bundled demo stage on a free loopback port, taking
-    /// `viewers` connections from this one address.
-    fn start(viewers: usize, extra: &str) -> Result<Daemon, ViewersError> {
+    /// `viewers` connections from this one address, with `program` (this
+    /// one when `None`).
+    fn start(viewers: usize, extra: &str, program: Option<&Path>) -> Result<Daemon, ViewersError> {
         let demo = crate::bundled::demo_stage()?;
         let text = std::fs::read_to_string(&demo).map_err(io(demo.display().to_string()))?;
         // Beside the demo stage, so its relative paths hold.
@@ -121,7 +124,11 @@ impl Daemon {
             &format!("[access]\nmax_per_address = {}\n", viewers + 8),
         ) + extra;
         std::fs::write(&stage_file, text).map_err(io(stage_file.display().to_string()))?;
-        let mut serve = std::process::Command::new(this_program()?);
+        let program = match program {
+            Some(program) => program.to_path_buf(),
+            None => this_program()?,
+        };
+        let mut serve = std::process::Command::new(program);
         serve
             .args(["serve", "--listen", "127.0.0.1:0", "--config"])
             .arg(&stage_file);
@@ -357,9 +364,7 @@ pub(crate) async fn daemon_clock_origin(ws: &mut Ws, origin: Instant) -> Result<
                 Some(Ok(Message::Text(text))) => {
                     let m: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
                     if m["type"] == "pong" && m["t"] == sent {
-                        break Some(m["clock"].as_f64().ok_or_else(|| {
-                            ViewersError::Daemon("its pong has no clock (an older build?)".into())
-                        })?);
+                        break Some(m["clock"].as_f64().ok_or(ViewersError::NoClock)?);
                     }
                     if m["type"] == "error" {
                         break None;
@@ -442,7 +447,11 @@ pub const RELAY_INPUT_HZ: f64 = 60.0;
 
 /// One case: the daemon, `viewers` viewers (on `relays` relays, or on the
 /// daemon with none), a performer dragging.
-pub async fn viewers_case(viewers: usize, relays: usize) -> Result<ViewersResult, ViewersError> {
+pub async fn viewers_case(
+    viewers: usize,
+    relays: usize,
+    daemon_program: Option<&Path>,
+) -> Result<ViewersResult, ViewersError> {
     let viewers = viewers.max(1);
     let input_hz = if relays > 0 { RELAY_INPUT_HZ } else { INPUT_HZ };
     let mut tier = None;
@@ -456,7 +465,7 @@ pub async fn viewers_case(viewers: usize, relays: usize) -> Result<ViewersResult
             relays: Vec::new(),
         });
     }
-    let daemon = Daemon::start(viewers, &extra)?;
+    let daemon = Daemon::start(viewers, &extra, daemon_program)?;
     if let Some(tier) = &mut tier {
         tier.start_relays(relays, viewers, "bench")?;
     }
@@ -466,7 +475,12 @@ pub async fn viewers_case(viewers: usize, relays: usize) -> Result<ViewersResult
         json!({"type": "hello", "role": "performer", "token": "demo"}),
     )
     .await?;
-    let zero = daemon_clock_origin(&mut performer, origin).await?;
+    // An older build timed for comparison may not tell its clock: its
+    // frames are still counted, their latency is NaN.
+    let zero = match daemon_clock_origin(&mut performer, origin).await {
+        Err(ViewersError::NoClock) if daemon_program.is_some() => f64::NAN,
+        zero => zero?,
+    };
     let (ask_direct_us, ask_relay_us) = match &tier {
         Some(tier) => {
             let direct = request_median(&mut performer, 200).await?;
