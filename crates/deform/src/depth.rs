@@ -1603,9 +1603,6 @@ impl DepthOrder {
     }
 }
 
-/// The side of a patch that goes in front: a pin, else last frame's roles,
-/// else the higher static layer, else the side that moved further from rest,
-/// else the side whose lowest triangle index is higher.
 /// Marks a triangle reached by [`flood_sheet`] (the high bit of its sheet).
 const REACHED: u8 = 0x80;
 
@@ -1636,6 +1633,9 @@ fn flood_sheet(
     queue.len()
 }
 
+/// The side of a patch that goes in front: a pin, else last frame's roles,
+/// else the higher static layer, else the side that moved further from rest,
+/// else the side whose lowest triangle index is higher.
 fn front_side(patch: &Patch) -> u8 {
     if patch.pin.0 > 0 {
         return patch.pin.1;
