@@ -62,6 +62,23 @@ const MIDDLE_RINGS: usize = 2;
 /// Sheets whose middle holds more than one in this many of the exact
 /// frame's pairs are not used.
 const MIDDLE_SHARE: usize = 8;
+/// Times a frame may widen the middle over triangles the certificate
+/// blames before it takes the exact path instead.
+const MAX_WIDENINGS: usize = 3;
+/// Triangles the certificate blames at most, for widening the middle over
+/// them; more send the frame to the exact path.
+const MAX_OFFENDERS: usize = 64;
+
+/// What the sheets' certificate says of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Certificate {
+    Holds,
+    /// A front or back triangle inverted, or two border edges of one of
+    /// those sheets met: the blamed triangles are in `Sheets::offenders`.
+    Fails,
+    /// No two edges of different sheets cross: the overlap may be over.
+    NothingOverlaps,
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
@@ -132,6 +149,8 @@ pub struct DepthOrder {
     involved: Vec<u32>,
     /// Whether the last update was settled by the sheets alone.
     certified: bool,
+    /// Whether it widened the middle to do so.
+    widened: bool,
     sheets_allowed: bool,
     sheets: Sheets,
     scratch: Scratch,
@@ -165,6 +184,12 @@ struct Sheets {
     next_ring: Vec<u32>,
     /// The middle sheet's triangles' boxes, by their low x.
     boxes: Vec<(DVec2, DVec2, u32)>,
+    /// Triangles of the front or back sheet the certificate blamed this
+    /// frame (at most [`MAX_OFFENDERS`]).
+    offenders: Vec<u32>,
+    /// The middle's size when the sheets were cut: widening stops at twice
+    /// it.
+    cut_middle: usize,
 }
 
 /// Everything a frame writes, sized at registration.
@@ -378,6 +403,7 @@ impl DepthOrder {
             skipped: false,
             pins: Vec::with_capacity(MAX_PINS),
             certified: false,
+            widened: false,
             sheets_allowed: true,
             sheets: Sheets {
                 on: false,
@@ -392,6 +418,8 @@ impl DepthOrder {
                 ring: Vec::with_capacity(count),
                 next_ring: Vec::with_capacity(count),
                 boxes: Vec::with_capacity(count),
+                offenders: Vec::with_capacity(MAX_OFFENDERS),
+                cut_middle: 0,
             },
             scratch,
         })
@@ -458,6 +486,13 @@ impl DepthOrder {
         self.certified
     }
 
+    /// Whether the last update, settled by the sheets, first widened their
+    /// middle over triangles where the line between the two sides had slid
+    /// out of it (see `docs/depth.md`, "Sheets").
+    pub fn widened(&self) -> bool {
+        self.widened
+    }
+
     /// Front-over-back constraints the last update had to drop to break
     /// cycles (see `docs/depth.md`); zero unless decisions contradict.
     pub fn dropped_constraints(&self) -> usize {
@@ -500,6 +535,7 @@ impl DepthOrder {
         if let Some(vertex) = positions.iter().position(|p| !p.is_finite()) {
             return Err(DepthError::PositionNotFinite { vertex });
         }
+        self.widened = false;
         self.skipped = self.calm && self.still_calm(positions);
         if self.skipped {
             // The last frame was overlap-free (static depth, no roles, no
@@ -598,7 +634,6 @@ impl DepthOrder {
     /// back sheet, none against the ranks), the mesh is one piece, nothing
     /// is pinned, and the ranks fit in a depth.
     fn build_sheets(&mut self) {
-        let count = self.triangles.len();
         let sh = &mut self.sheets;
         sh.on = false;
         if !self.sheets_allowed || !self.pins.is_empty() || self.piece_boundary.len() != 2 {
@@ -660,35 +695,8 @@ impl DepthOrder {
                 *s = BACK_SHEET;
             }
         }
-        // Each of the front and back sheets connected (one part of it then
-        // cannot lie inside another with no boundary crossing): its largest
-        // part stays, smaller ones (bits cut off by the middle) join the
-        // middle, whose pairs are all found.
-        for sheet in [FRONT_SHEET, BACK_SHEET] {
-            let (mut largest, mut largest_start) = (0, usize::MAX);
-            for start in 0..count {
-                if sh.of[start] != sheet {
-                    continue;
-                }
-                let reached = flood_sheet(&mut sh.of, &mut sh.queue, &self.neighbours, start);
-                if reached > largest {
-                    (largest, largest_start) = (reached, start);
-                }
-            }
-            if largest_start == usize::MAX {
-                continue;
-            }
-            for s in sh.of.iter_mut() {
-                *s &= !REACHED;
-            }
-            flood_sheet(&mut sh.of, &mut sh.queue, &self.neighbours, largest_start);
-            for s in sh.of.iter_mut() {
-                if *s == sheet {
-                    *s = MIDDLE_SHEET;
-                }
-                *s &= !REACHED;
-            }
-        }
+        keep_largest_parts(&mut self.sheets, &self.neighbours);
+        let sh = &self.sheets;
         // This frame's pairs, now (back, front), must agree with the ranks.
         for &(back, front) in &self.scratch.pairs {
             let (b, f) = (sh.of[back as usize], sh.of[front as usize]);
@@ -708,6 +716,18 @@ impl DepthOrder {
         if inside * MIDDLE_SHARE > pairs.len() {
             return;
         }
+        if !self.place_sheets() {
+            return;
+        }
+        self.sheets.cut_middle = self.sheets.middle.len();
+        self.sheets.on = true;
+        self.sheets.fresh = true;
+    }
+
+    /// With each triangle's sheet set: the ranks (false if they do not fit
+    /// in a depth), the middle list and the sheets' border edges.
+    fn place_sheets(&mut self) -> bool {
+        let count = self.triangles.len();
         let sh = &mut self.sheets;
         // Ranks: every middle depth above every back layer, every front
         // depth above every middle depth (the middle's order raises a
@@ -737,7 +757,7 @@ impl DepthOrder {
             (middle_top.max(back_top) + 1).saturating_sub(lo[2])
         };
         if hi[2] + front_offset > u32::from(u16::MAX) || middle_top > u32::from(u16::MAX) {
-            return;
+            return false;
         }
         sh.offset = [0, middle_offset as u16, front_offset as u16];
         sh.middle.clear();
@@ -760,30 +780,58 @@ impl DepthOrder {
                 }
             }
         }
-        sh.on = true;
-        sh.fresh = true;
+        true
     }
 
-    /// A frame on the sheets: false (and nothing written) unless they still
-    /// hold. They hold while nothing is pinned, no triangle of the front or
-    /// back sheet is inverted, no two edges of one of those sheets' borders
-    /// (mesh boundary and cuts) meet, and two edges of different sheets
-    /// cross (so something still overlaps). Then neither the front nor the
-    /// back sheet overlaps itself (as for the pieces in the cheap reject),
-    /// every pair between sheets is ordered by their ranks, and only the
-    /// middle sheet's own pairs are found (every pair of its triangles whose
-    /// boxes meet is tested) and decided as in an exact frame.
-    fn sheet_frame(&mut self, positions: &[DVec2]) -> bool {
-        if !self.pins.is_empty() {
+    /// Moves `offenders` (triangles of the front or back sheet that this
+    /// frame inverted or whose border edges met another of their sheet)
+    /// and the triangles round them into the middle sheet, keeps the
+    /// largest part of the front and of the back sheet, and places the
+    /// sheets again. False (the frame takes the exact path) when there are
+    /// too many offenders or the middle would grow past twice its size at
+    /// the cut.
+    fn widen_middle(&mut self) -> bool {
+        let sh = &mut self.sheets;
+        if sh.offenders.len() >= sh.offenders.capacity() {
             return false;
         }
-        let sh = &self.sheets;
+        for k in 0..sh.offenders.len() {
+            let t = sh.offenders[k] as usize;
+            sh.of[t] = MIDDLE_SHEET;
+            for u in self.neighbours[t] {
+                if u != NONE {
+                    sh.of[u as usize] = MIDDLE_SHEET;
+                }
+            }
+        }
+        keep_largest_parts(sh, &self.neighbours);
+        let middle = sh.of.iter().filter(|&&s| s == MIDDLE_SHEET).count();
+        if middle > 2 * sh.cut_middle.max(16) {
+            return false;
+        }
+        if !self.place_sheets() {
+            return false;
+        }
+        self.sheets.fresh = true;
+        true
+    }
+
+    /// The sheets' certificate for this frame: it holds while no triangle of
+    /// the front or back sheet is inverted, no two edges of one of those
+    /// sheets' borders (mesh boundary and cuts) meet, and two edges of
+    /// different sheets cross (so something still overlaps). Where it
+    /// fails, the triangles to blame are in `offenders` (up to its
+    /// capacity).
+    fn certify_sheets(&mut self, positions: &[DVec2]) -> Certificate {
+        let sh = &mut self.sheets;
+        sh.offenders.clear();
         for (t, tri) in self.triangles.iter().enumerate() {
             let [a, b, c] = tri.map(|i| positions[i as usize]);
             if (b - a).perp_dot(c - a) <= 0.0 && sh.of[t] != MIDDLE_SHEET {
-                return false;
+                offend(&mut sh.offenders, t as u32);
             }
         }
+        let sh = &mut self.sheets;
         let edges = &sh.edges;
         let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
         let mut longest = 0.0f64;
@@ -827,7 +875,9 @@ impl DepthOrder {
                         continue;
                     }
                     if si == sj {
-                        return false;
+                        offend(&mut sh.offenders, ei.triangle);
+                        offend(&mut sh.offenders, ej.triangle);
+                        continue;
                     }
                     // A proper crossing between triangles sharing no vertex:
                     // those two overlap.
@@ -845,9 +895,44 @@ impl DepthOrder {
                 }
             }
         }
-        if !overlapping {
+        if !sh.offenders.is_empty() {
+            Certificate::Fails
+        } else if overlapping {
+            Certificate::Holds
+        } else {
+            Certificate::NothingOverlaps
+        }
+    }
+
+    /// A frame on the sheets: false (and nothing written) unless they still
+    /// hold. They hold while nothing is pinned, no triangle of the front or
+    /// back sheet is inverted, no two edges of one of those sheets' borders
+    /// (mesh boundary and cuts) meet, and two edges of different sheets
+    /// cross (so something still overlaps). Then neither the front nor the
+    /// back sheet overlaps itself (as for the pieces in the cheap reject),
+    /// every pair between sheets is ordered by their ranks, and only the
+    /// middle sheet's own pairs are found (every pair of its triangles whose
+    /// boxes meet is tested) and decided as in an exact frame.
+    fn sheet_frame(&mut self, positions: &[DVec2]) -> bool {
+        if !self.pins.is_empty() {
             return false;
         }
+        // Where the line between the sides slid out of the middle, the
+        // middle widens over it and the certificate is checked again.
+        let mut widenings = 0;
+        loop {
+            match self.certify_sheets(positions) {
+                Certificate::Holds => break,
+                Certificate::NothingOverlaps => return false,
+                Certificate::Fails => {
+                    if widenings == MAX_WIDENINGS || !self.widen_middle() {
+                        return false;
+                    }
+                    widenings += 1;
+                }
+            }
+        }
+        self.widened = widenings > 0;
         self.middle_pairs(positions);
         self.pair_count = self.scratch.pairs.len();
         self.overlapped = true;
@@ -1548,6 +1633,15 @@ impl DepthOrder {
             }
             let t = s.queue[head] as usize;
             head += 1;
+            // A front already placed was placed by breaking a cycle, before
+            // this triangle: the constraint turns round (this one goes over
+            // it), so the two still get different depths.
+            for e in s.edge_start[t]..s.edge_end[t] {
+                let front = s.edges[e as usize] as usize;
+                if s.indegree[front] == 0 {
+                    s.level[t] = s.level[t].max(s.level[front].saturating_add(1));
+                }
+            }
             for e in s.edge_start[t]..s.edge_end[t] {
                 let front = s.edges[e as usize] as usize;
                 // Zero: already placed (a cycle dropped this edge).
@@ -1631,6 +1725,46 @@ fn flood_sheet(
         }
     }
     queue.len()
+}
+
+/// Blames triangle `t` for a failed certificate, once, while there is room.
+fn offend(offenders: &mut Vec<u32>, t: u32) {
+    if offenders.len() < offenders.capacity() && !offenders.contains(&t) {
+        offenders.push(t);
+    }
+}
+
+/// Each of the front and back sheets made connected (one part of it then
+/// cannot lie inside another with no boundary crossing): its largest part
+/// joined through edges stays, smaller ones (bits cut off by the middle)
+/// join the middle, whose pairs are all found.
+fn keep_largest_parts(sh: &mut Sheets, neighbours: &[[u32; 3]]) {
+    let count = sh.of.len();
+    for sheet in [FRONT_SHEET, BACK_SHEET] {
+        let (mut largest, mut largest_start) = (0, usize::MAX);
+        for start in 0..count {
+            if sh.of[start] != sheet {
+                continue;
+            }
+            let reached = flood_sheet(&mut sh.of, &mut sh.queue, neighbours, start);
+            if reached > largest {
+                (largest, largest_start) = (reached, start);
+            }
+        }
+        if largest_start == usize::MAX {
+            continue;
+        }
+        for s in sh.of.iter_mut() {
+            *s &= !REACHED;
+        }
+        flood_sheet(&mut sh.of, &mut sh.queue, neighbours, largest_start);
+        for s in sh.of.iter_mut() {
+            if *s == sheet {
+                *s = MIDDLE_SHEET;
+            }
+            *s &= !REACHED;
+        }
+    }
 }
 
 /// The side of a patch that goes in front: a pin, else last frame's roles,

@@ -847,8 +847,10 @@ pub struct DepthResult {
     /// (on frames the sheets settle, the middle sheet's own pairs only).
     pub fold_frames_overlapping: usize,
     pub fold_pairs_median: usize,
-    /// Fold frames settled by the sheets of an earlier exact frame.
+    /// Fold frames settled by the sheets of an earlier exact frame, and of
+    /// those how many first widened the middle.
     pub fold_frames_certified: usize,
+    pub fold_frames_widened: usize,
     /// Frames that tested all triangles (more than 32 inverted triangles,
     /// or a piece inside another), without and with the fold.
     pub flat_frames_scanning_all: usize,
@@ -905,7 +907,7 @@ pub fn run_depth_case(
     let mut frame = |targets: &[DVec2],
                      arap: &mut Arap,
                      depth: &mut DepthOrder|
-     -> Result<(f64, bool, usize, bool, bool, bool), DepthBenchError> {
+     -> Result<(f64, bool, usize, bool, bool, bool, bool), DepthBenchError> {
         let start = Instant::now();
         arap.update(targets, Steps::Both)?;
         arap_times.push(micros(start.elapsed()));
@@ -919,6 +921,7 @@ pub fn run_depth_case(
             depth.scanned_all(),
             depth.skipped(),
             depth.certified(),
+            depth.widened(),
         ))
     };
     let mut targets = held.clone();
@@ -926,7 +929,7 @@ pub fn run_depth_case(
     let (mut flat_scanning, mut flat_overlapping, mut flat_skipped) = (0, 0, 0);
     for f in 0..frames {
         animate(&held, size * 0.3, f, &mut targets);
-        let (took, overlapped, _, scanned, skipped, _) = frame(&targets, &mut arap, &mut depth)?;
+        let (took, overlapped, _, scanned, skipped, _, _) = frame(&targets, &mut arap, &mut depth)?;
         flat.push(took);
         flat_skipped += usize::from(skipped);
         flat_overlapping += usize::from(overlapped);
@@ -943,13 +946,14 @@ pub fn run_depth_case(
     }
     let mut fold = Vec::with_capacity(frames);
     let mut pairs = Vec::with_capacity(frames);
-    let (mut overlapping, mut fold_scanning, mut certified) = (0, 0, 0);
+    let (mut overlapping, mut fold_scanning, mut certified, mut widened) = (0, 0, 0, 0);
     for f in 0..frames {
         let t = f as f64 * 0.05;
         targets[2] = over + DVec2::new(t.cos(), t.sin()) * (0.02 * size);
-        let (took, overlapped, count, scanned, _, settled) =
+        let (took, overlapped, count, scanned, _, settled, widening) =
             frame(&targets, &mut arap, &mut depth)?;
         certified += usize::from(settled);
+        widened += usize::from(widening);
         fold.push(took);
         pairs.push(count);
         overlapping += usize::from(overlapped);
@@ -977,6 +981,7 @@ pub fn run_depth_case(
         fold_frames_overlapping: overlapping,
         fold_pairs_median: pairs[pairs.len() / 2],
         fold_frames_certified: certified,
+        fold_frames_widened: widened,
         flat_frames_scanning_all: flat_scanning,
         flat_frames_skipped: flat_skipped,
         fold_frames_scanning_all: fold_scanning,

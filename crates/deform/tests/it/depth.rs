@@ -640,10 +640,12 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
     // in a few frames a cycle is broken.
     let mesh = bar(60, 6, LENGTH, HEIGHT);
     let mut order = DepthOrder::register(&mesh, None).unwrap();
-    let (mut folded, mut certified) = (0, 0);
+    let (mut folded, mut certified, mut widened) = (0, 0, 0);
     for (f, pose) in sliding_fold(&mesh).iter().enumerate() {
         let depth = order.update(pose).unwrap().to_vec();
         let pairs = overlapping_pairs(&mesh, pose);
+        widened += usize::from(order.widened());
+        assert!(!order.widened() || order.certified(), "frame {f}");
         if order.certified() {
             certified += 1;
         } else {
@@ -663,7 +665,11 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
     assert!(folded > 200, "only {folded} frames folded");
     // Most of them on the sheets, checked like the rest.
     assert!(
-        certified > folded / 4,
+        certified > folded * 3 / 4,
         "only {certified} frames on the sheets"
     );
+    // Where the line between the sides slides out of the middle, the
+    // middle widens over it rather than the frame taking the exact path.
+    assert!(widened > 0, "the middle never widened");
+    println!("{folded} folded frames, {certified} on the sheets, {widened} widened");
 }
