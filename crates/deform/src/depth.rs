@@ -23,7 +23,8 @@
 //! front, middle and back sheets; while the front and back sheets are
 //! certified to overlap nothing of their own (per border edge, like the
 //! cheap reject), later frames draw each sheet at its rank and find only
-//! the middle sheet's own pairs. See `docs/depth.md`.
+//! the middle sheet's own pairs, widening the middle where the line between
+//! the two sides slides out of it. See `docs/depth.md`.
 
 use std::collections::HashMap;
 
