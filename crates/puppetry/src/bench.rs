@@ -861,6 +861,17 @@ pub struct DepthResult {
     pub frames: usize,
 }
 
+/// One timed depth frame of [`run_depth_case`] and what the order said of it.
+struct DepthFrame {
+    took: f64,
+    overlapped: bool,
+    pairs: usize,
+    scanned_all: bool,
+    skipped: bool,
+    certified: bool,
+    widened: bool,
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum DepthBenchError {
     #[error(transparent)]
@@ -907,33 +918,33 @@ pub fn run_depth_case(
     let mut frame = |targets: &[DVec2],
                      arap: &mut Arap,
                      depth: &mut DepthOrder|
-     -> Result<(f64, bool, usize, bool, bool, bool, bool), DepthBenchError> {
+     -> Result<DepthFrame, DepthBenchError> {
         let start = Instant::now();
         arap.update(targets, Steps::Both)?;
         arap_times.push(micros(start.elapsed()));
         let start = Instant::now();
         depth.update(arap.pose())?;
         let took = micros(start.elapsed());
-        Ok((
+        Ok(DepthFrame {
             took,
-            depth.overlapped(),
-            depth.overlap_pairs(),
-            depth.scanned_all(),
-            depth.skipped(),
-            depth.certified(),
-            depth.widened(),
-        ))
+            overlapped: depth.overlapped(),
+            pairs: depth.overlap_pairs(),
+            scanned_all: depth.scanned_all(),
+            skipped: depth.skipped(),
+            certified: depth.certified(),
+            widened: depth.widened(),
+        })
     };
     let mut targets = held.clone();
     let mut flat = Vec::with_capacity(frames);
     let (mut flat_scanning, mut flat_overlapping, mut flat_skipped) = (0, 0, 0);
     for f in 0..frames {
         animate(&held, size * 0.3, f, &mut targets);
-        let (took, overlapped, _, scanned, skipped, _, _) = frame(&targets, &mut arap, &mut depth)?;
-        flat.push(took);
-        flat_skipped += usize::from(skipped);
-        flat_overlapping += usize::from(overlapped);
-        flat_scanning += usize::from(scanned);
+        let f = frame(&targets, &mut arap, &mut depth)?;
+        flat.push(f.took);
+        flat_skipped += usize::from(f.skipped);
+        flat_overlapping += usize::from(f.overlapped);
+        flat_scanning += usize::from(f.scanned_all);
     }
     // The foot dragged up to the body's middle, a little above it.
     let over = centre + DVec2::new(-0.05, 0.1) * size;
@@ -950,14 +961,13 @@ pub fn run_depth_case(
     for f in 0..frames {
         let t = f as f64 * 0.05;
         targets[2] = over + DVec2::new(t.cos(), t.sin()) * (0.02 * size);
-        let (took, overlapped, count, scanned, _, settled, widening) =
-            frame(&targets, &mut arap, &mut depth)?;
-        certified += usize::from(settled);
-        widened += usize::from(widening);
-        fold.push(took);
-        pairs.push(count);
-        overlapping += usize::from(overlapped);
-        fold_scanning += usize::from(scanned);
+        let f = frame(&targets, &mut arap, &mut depth)?;
+        certified += usize::from(f.certified);
+        widened += usize::from(f.widened);
+        fold.push(f.took);
+        pairs.push(f.pairs);
+        overlapping += usize::from(f.overlapped);
+        fold_scanning += usize::from(f.scanned_all);
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let (arap_mean, fold_mean) = (mean(&arap_times), mean(&fold));
