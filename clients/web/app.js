@@ -67,6 +67,7 @@ const api = window.puppetry = {
   you: null,                 // the stage message's `you`: {owner, name, role, colour}
   role,                      // the role the server gave (viewer until it did)
   people: [],                // the last people message's list
+  peopleSeen: false,         // a people message came on this connection (the bar then holds everyone)
   keys: {},                  // puppet id -> the last "keys" message (key poses and the pad's cursor)
   handles: {},               // puppet id -> its handles now (stage message, then "handles" messages)
   history: {},               // puppet id -> the last "history" message
@@ -430,6 +431,7 @@ function onText(text) {
     case SERVER_MESSAGE.PEOPLE:
       people.update(msg.people);
       api.people = people.list;
+      api.peopleSeen = true;
       people.renderLegend(legendEl, myOwner);
       showYou();
       needsOverlay = true;
@@ -553,6 +555,7 @@ function onStage(msg) {
     api.depth = {};        // per puppet: the newest depth frame's generation and depths
     api.weights = Object.fromEntries(puppets.map((p) => [p.id, p.weights]));
     people.clear();
+    api.peopleSeen = false;
   }
   for (const p of puppets) setHandles(p, p.handles, p.handlesGeneration);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });

@@ -1,7 +1,7 @@
-// What record.mjs and keypad.mjs share: a fresh headless Chromium, the
-// one-line JSON summary and exit (within 2 minutes whatever hangs), waiting on
-// the page's state with messages that say what did not happen, and the
-// canvas snapshot comparison of drag.mjs.
+// What the page scripts share: a fresh headless Chromium, the one-line JSON
+// summary and exit (within 2 minutes whatever hangs), waiting on the page's
+// state with messages that say what did not happen, and the canvas snapshot
+// comparison.
 
 import fs from 'node:fs';
 import os from 'node:os';
@@ -88,8 +88,33 @@ export async function openPage(context, url, errors, label) {
     if (msg.type() === 'error') errors.push(`${label} console: ${msg.text()}`);
   });
   await page.goto(url);
-  await waitFor(page, `${label}: the stage and its textures`, () => window.puppetry?.connected && window.puppetry.ready);
+  await waitFor(page, `${label}: the stage, its textures and who is on it`,
+    () => window.puppetry?.connected && window.puppetry.ready && window.puppetry.peopleSeen);
+  await layoutSettled(page, label);
   return page;
+}
+
+/**
+ * Waits until the canvas has kept its size for a few animation frames. The
+ * toolbar wraps to a second line when messages after the stage (people,
+ * history, takes) widen it, and the stage moves down under it: a picture
+ * or a point taken before that is of another layout.
+ */
+export async function layoutSettled(page, label = 'page') {
+  const held = () => page.evaluate(() => new Promise((resolve) => {
+    const canvas = document.getElementById('gl');
+    const size = () => `${canvas.width}x${canvas.height}`;
+    const first = size();
+    let frames = 0;
+    const step = () => {
+      if (size() !== first) return resolve(false);
+      if (++frames >= 5) return resolve(true);
+      requestAnimationFrame(step);
+    };
+    requestAnimationFrame(step);
+  }));
+  for (let tries = 0; tries < 100; tries++) if (await held()) return;
+  throw new Error(`${label}: the canvas kept changing size`);
 }
 
 /** waitForFunction, failing with a message that says what did not happen. */
