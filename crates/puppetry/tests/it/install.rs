@@ -35,10 +35,34 @@ async fn an_installed_binary_serves_the_bundled_demo_from_anywhere() {
         .expect("target/<profile>/deps/<test binary>")
         .to_path_buf();
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    // Cargo gives this test process the package's variables (name, version,
+    // manifest folder, ...). Build scripts that watch them (ring's watches
+    // CARGO_PKG_NAME and CARGO_MANIFEST_DIR) would see them changed from
+    // the outer build and compile again, with all that depends on them:
+    // minutes, not seconds. The install sees the outer build's environment.
+    let set_for_tests = |name: &str| {
+        [
+            "CARGO_PKG_",
+            "CARGO_MANIFEST_",
+            "CARGO_CRATE_",
+            "CARGO_BIN_",
+        ]
+        .iter()
+        .any(|prefix| name.starts_with(prefix))
+            || ["CARGO_PRIMARY_PACKAGE", "CARGO_TARGET_TMPDIR", "OUT_DIR"].contains(&name)
+    };
+    let test_variables: Vec<std::ffi::OsString> = std::env::vars_os()
+        .map(|(name, _)| name)
+        .filter(|name| name.to_str().is_some_and(set_for_tests))
+        .collect();
     let installed = tokio::task::spawn_blocking({
         let (prefix, target) = (prefix.path().to_path_buf(), target.clone());
         move || {
-            Command::new(cargo)
+            let mut install = Command::new(cargo);
+            for name in &test_variables {
+                install.env_remove(name);
+            }
+            install
                 .args(["install", "--locked", "--offline", "--quiet", "--path"])
                 .arg(root.join("crates/puppetry"))
                 .arg("--root")
