@@ -137,7 +137,7 @@ const hud = new Hud({
   hideBar: byId('hide-bar'),
   showBar: byId('show-bar'),
   fullscreen: byId('fullscreen'),
-}, { onLayout: () => layout(), chrome: [byId('keypad')], keys: !options.show });
+}, { onLayout: () => barLayout(), chrome: [byId('keypad')], keys: !options.show });
 
 const view = new StageView(stageEl, [glCanvas, overlayCanvas], {
   fixedSize: options.size,
@@ -257,7 +257,10 @@ api.replaceRegions = () => replaceTool.regions();
 const pointerContacts = new PointerContacts(stageEl, view, {
   canStart: () => canPerform(role) && api.connected,
   tools: [replaceTool, curveTool, paintTool, pinTool], // replace marking, drawing, then the brush, win over pinning
-  onLifted: redrawOverlay,
+  onLifted: () => {
+    redrawOverlay();
+    layoutIfWaiting();
+  },
 });
 
 // Shows the tools of `newRole` (the server's word on it) and hides the rest.
@@ -291,6 +294,29 @@ function layout() {
 }
 
 addEventListener('resize', layout);
+
+// The toolbar wraps onto another line when a name joins the people list or
+// a take starts, and the stage below it moves down. Under a performer's
+// fingers that is a jump of the puppet they hold: while any contact holds
+// it, the new layout waits for the last lift (the bar may cover the
+// stage's top edge meanwhile). A resized window lays out at once.
+let layoutWaits = false;
+function barLayout() {
+  if (pointerContacts.active.size > 0) {
+    layoutWaits = true;
+    return;
+  }
+  layout();
+}
+
+// Once nothing holds the stage (the last lift, a lost connection): the
+// layout that waited.
+function layoutIfWaiting() {
+  if (layoutWaits && pointerContacts.active.size === 0) {
+    layoutWaits = false;
+    layout();
+  }
+}
 
 // ---------------------------------------------------------------- puppets
 
@@ -379,6 +405,7 @@ function onClose(e) {
   clearInterval(pingTimer);
   latency.clear();
   pointerContacts.reset(); // the server forgets our contacts with the connection
+  layoutIfWaiting();
   if (refusedNow || e.code === CLOSE_CODE.TOKEN_REFUSED) {
     // Asking again with the same token cannot help: view at once, say why.
     refuseToken();

@@ -1,6 +1,6 @@
 #!/bin/sh
 # Runs the page scripts against mock-server.mjs on a free port: drag.mjs
-# (mouse, then touch) and the scripts of issue 12's page (people, token,
+# (mouse, then touch), hold.mjs and the scripts of issue 12's page (people, token,
 # show view, pose, edits) and the director's puppets panel. A fresh mock per script, so none sees another's
 # state. Needs: npm install (in this folder), /usr/bin/chromium.
 #   sh run-against-mock.sh [SCRIPT…]   (default: all)
@@ -28,7 +28,7 @@ run() {
   env "$@" node "$script.mjs" || { echo "mock log:"; cat "$log"; exit 1; }
 }
 
-scripts=${*:-drag people token show pose edits puppets}
+scripts=${*:-drag hold people token show pose edits puppets}
 for s in $scripts; do
   start_mock
   case $s in
@@ -36,6 +36,7 @@ for s in $scripts; do
       for input in mouse touch; do
         run drag PUPPETRY_URL="$base?role=performer&token=T" PUPPETRY_POINT=400,300 PUPPETRY_INPUT=$input
       done ;;
+    hold) run hold PUPPETRY_URL="$base?role=performer&token=T" PUPPETRY_POINT=400,300 ;;
     people) run people PUPPETRY_URL=$base PUPPETRY_TOKENS=ana,ben PUPPETRY_HOLD=360,250 PUPPETRY_POINT=470,370 PUPPETRY_DRAG=30,0 ;;
     token) run token PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben ;;
     show) run show PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben ;;

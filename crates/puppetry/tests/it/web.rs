@@ -20,6 +20,22 @@ async fn a_browser_drag_deforms_the_puppet() {
     );
 }
 
+/// The stage does not move under a performer's finger: while a contact
+/// holds the puppet, the toolbar growing a line (as when a name joins the
+/// people list) leaves the stage where it is; after the lift the stage
+/// moves below the taller bar, and with nothing held it moves at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_stage_holds_still_under_a_held_contact_while_the_toolbar_grows() {
+    if !browser::enabled("the_stage_holds_still_under_a_held_contact_while_the_toolbar_grows") {
+        return;
+    }
+    let summary = browser::run_page_script("demo", "hold.mjs", "640,360").await;
+    let shift = |name: &str| summary[name].as_f64().unwrap();
+    assert!(shift("heldShift") < 0.5, "{summary}");
+    assert!(shift("liftShift") > 5.0, "{summary}");
+    assert!(shift("freeShift") > 5.0, "{summary}");
+}
+
 /// Takes from the page: the record button turns red with "REC take-001"
 /// and a running time on a performer's page and a viewer's, a drag is
 /// recorded, and after stopping the take list holds take-001, which is in

@@ -1,0 +1,73 @@
+// Headless-browser check that the stage does not move under a performer's
+// finger: while a contact holds the puppet, the toolbar growing a line (a
+// name joining the people list, a take starting; here the status line made
+// long) does not move the stage; after the lift it does, and without a
+// contact it does at once.
+//
+//   PUPPETRY_URL='http://127.0.0.1:PORT/?role=performer&token=T' \
+//   PUPPETRY_POINT='400,300' node hold.mjs
+//
+// Prints one JSON line: {heldShift, liftShift, freeShift} (how far, in CSS
+// pixels, the stage point PUPPETRY_POINT moved on the page while held,
+// after the lift, and when the bar grew with nothing held); exits 0 only on
+// success, and within 2 minutes either way.
+
+import {
+  openPage, settle, stageToClient, startScript, waitFor,
+} from './page-common.mjs';
+
+const { url, point, summary, finish, launch } = startScript();
+const errors = [];
+let page;
+
+const barHeight = () => page.evaluate(() => document.getElementById('bar').getBoundingClientRect().height);
+// Makes the toolbar at least one line taller, and waits until it is.
+async function growBar(words) {
+  const before = await barHeight();
+  await page.evaluate((n) => {
+    document.getElementById('status').textContent = Array.from({ length: n }, (_, i) => `word${i}`).join(' ');
+  }, words);
+  await waitFor(page, 'the toolbar to grow a line', (h) => document.getElementById('bar').getBoundingClientRect().height > h + 10, before);
+  await settle(page);
+}
+const shift = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1]);
+
+try {
+  const context = await launch();
+  page = await openPage(context, url, errors, 'performer');
+
+  const start = await stageToClient(page, point);
+  await page.mouse.move(start[0], start[1]);
+  await page.mouse.down();
+  for (let i = 1; i <= 5; i++) {
+    await page.mouse.move(start[0], start[1] - 6 * i);
+    await page.waitForTimeout(16);
+  }
+  await waitFor(page, 'the contact to hold the puppet', () => window.puppetry.framesReceived > 0);
+
+  const held = await stageToClient(page, point);
+  await growBar(40);
+  const whileHeld = await stageToClient(page, point);
+  summary.heldShift = shift(held, whileHeld);
+
+  await page.mouse.up();
+  await waitFor(page, 'the stage to move down after the lift',
+    ([x, y, p]) => window.puppetry.stageToClient(p[0], p[1])[1] > y + 5 || window.puppetry.stageToClient(p[0], p[1])[0] !== x,
+    [...held, point]);
+  const afterLift = await stageToClient(page, point);
+  summary.liftShift = shift(held, afterLift);
+
+  await growBar(120);
+  const free = await stageToClient(page, point);
+  summary.freeShift = shift(afterLift, free);
+
+  summary.errors = [...(await page.evaluate(() => window.puppetry.errors)), ...errors];
+  await context.close();
+  if (summary.errors.length) finish(false, 'the page reported errors');
+  if (summary.heldShift > 0.5) finish(false, `the stage moved ${summary.heldShift} px under the held contact`);
+  if (summary.freeShift < 5) finish(false, `with nothing held the stage did not move as the bar grew (${summary.freeShift} px)`);
+  finish(true);
+} catch (err) {
+  summary.errors = [...(await page?.evaluate(() => window.puppetry?.errors ?? []).catch(() => []) ?? []), ...errors];
+  finish(false, err.message.split('\n')[0]);
+}
