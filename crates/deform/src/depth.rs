@@ -172,12 +172,16 @@ struct Sheets {
     middle: Vec<u32>,
     /// Per triangle, its index in `middle`, or `NONE`.
     local: Vec<u32>,
-    /// Per middle triangle, where its run of this frame's (sorted) middle
-    /// pairs starts (and, one further, ends).
-    run: Vec<u32>,
     /// Every edge of a triangle whose neighbour across it lies in another
-    /// sheet, or on the mesh boundary.
+    /// sheet, or on the mesh boundary: the front sheet's, then the back
+    /// sheet's, then the middle's.
     edges: Vec<BoundaryEdge>,
+    /// Where the back sheet's edges start, and the middle's.
+    back_edges: usize,
+    middle_edges: usize,
+    /// Two edges of different sheets that crossed properly on the last
+    /// frame that looked for such a pair: tried first.
+    witness: (u32, u32),
     /// Added to the layer of each sheet's triangles.
     offset: [u16; 3],
     queue: Vec<u32>,
@@ -243,11 +247,9 @@ struct Scratch {
 enum Link {
     /// Growing joined them already.
     Grown,
-    /// Looked up in the table of tested pairs (the all-triangle grid).
-    ByTable,
-    /// Looked up in the sorted pairs, by each first triangle's run (the
+    /// Looked up in the table of tested pairs (the all-triangle grid, the
     /// middle sheet).
-    Sorted,
+    ByTable,
 }
 
 /// One connected patch of overlapping pairs: two sides, one goes in front.
@@ -412,8 +414,10 @@ impl DepthOrder {
                 of: vec![BACK_SHEET; count],
                 middle: Vec::with_capacity(count),
                 local: vec![NONE; count],
-                run: Vec::with_capacity(count + 1),
                 edges: Vec::with_capacity(3 * count),
+                back_edges: 0,
+                middle_edges: 0,
+                witness: (0, 0),
                 offset: [0; 3],
                 queue: Vec::with_capacity(count),
                 ring: Vec::with_capacity(count),
@@ -769,18 +773,29 @@ impl DepthOrder {
             sh.local[t as usize] = k as u32;
         }
         sh.edges.clear();
-        for (t, tri) in self.triangles.iter().enumerate() {
-            for k in 0..3 {
-                let u = self.neighbours[t][k];
-                if u == NONE || sh.of[u as usize] != sh.of[t] {
-                    sh.edges.push(BoundaryEdge {
-                        a: tri[k],
-                        b: tri[(k + 1) % 3],
-                        triangle: t as u32,
-                    });
+        for sheet in [FRONT_SHEET, BACK_SHEET, MIDDLE_SHEET] {
+            if sheet == BACK_SHEET {
+                sh.back_edges = sh.edges.len();
+            } else if sheet == MIDDLE_SHEET {
+                sh.middle_edges = sh.edges.len();
+            }
+            for (t, tri) in self.triangles.iter().enumerate() {
+                if sh.of[t] != sheet {
+                    continue;
+                }
+                for k in 0..3 {
+                    let u = self.neighbours[t][k];
+                    if u == NONE || sh.of[u as usize] != sheet {
+                        sh.edges.push(BoundaryEdge {
+                            a: tri[k],
+                            b: tri[(k + 1) % 3],
+                            triangle: t as u32,
+                        });
+                    }
                 }
             }
         }
+        sh.witness = (0, 0);
         true
     }
 
@@ -832,70 +847,41 @@ impl DepthOrder {
                 offend(&mut sh.offenders, t as u32);
             }
         }
-        let sh = &mut self.sheets;
-        let edges = &sh.edges;
-        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
-        let mut longest = 0.0f64;
-        for e in edges {
-            let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
-            lo = lo.min(a).min(b);
-            hi = hi.max(a).max(b);
-            longest = longest.max((b - a).abs().max_element());
+        // Each of the front and back sheets' borders on a grid of its own:
+        // only two edges of one sheet may not meet.
+        let (sh, grid) = (&mut self.sheets, &mut self.scratch.grid);
+        for range in [0..sh.back_edges, sh.back_edges..sh.middle_edges] {
+            let edges = &sh.edges[range];
+            edges_meeting(grid, positions, edges, |i, j| {
+                offend(&mut sh.offenders, edges[i].triangle);
+                offend(&mut sh.offenders, edges[j].triangle);
+                false
+            });
         }
-        let ends = |i: usize| {
-            let e = edges[i];
-            (positions[e.a as usize], positions[e.b as usize])
-        };
-        let s = &mut self.scratch;
-        s.grid.fill(lo, hi, longest, edges.len(), |i| {
-            let (a, b) = ends(i);
-            (a.min(b), a.max(b))
-        });
-        let grid = &s.grid;
-        let mut overlapping = false;
-        for cell in 0..grid.cell_count() {
-            let members = grid.members(cell);
-            for (n, &i) in members.iter().enumerate() {
-                let ei = edges[i as usize];
-                let (a, b) = ends(i as usize);
-                let si = sh.of[ei.triangle as usize];
-                for &j in &members[n + 1..] {
-                    let ej = edges[j as usize];
-                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
-                        continue;
-                    }
-                    let sj = sh.of[ej.triangle as usize];
-                    if si == sj && si == MIDDLE_SHEET {
-                        continue;
-                    }
-                    if si != sj && overlapping {
-                        continue;
-                    }
-                    let (c, d) = ends(j as usize);
-                    if !grid.meet_here(cell, a, b, c, d) {
-                        continue;
-                    }
-                    if si == sj {
-                        offend(&mut sh.offenders, ei.triangle);
-                        offend(&mut sh.offenders, ej.triangle);
-                        continue;
-                    }
-                    // A proper crossing between triangles sharing no vertex:
-                    // those two overlap.
-                    let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
-                    let (ti, tj) = (
-                        self.triangles[ei.triangle as usize],
-                        self.triangles[ej.triangle as usize],
-                    );
-                    if side(a, b, c) * side(a, b, d) < 0.0
-                        && side(c, d, a) * side(c, d, b) < 0.0
-                        && !ti.iter().any(|v| tj.contains(v))
-                    {
-                        overlapping = true;
-                    }
+        // Something still overlaps: last frame's two crossing edges, else
+        // any two of different sheets.
+        let sh = &self.sheets;
+        let mut overlapping =
+            sh.witness.0 != sh.witness.1 && self.edges_cross(positions, sh.witness.0, sh.witness.1);
+        if !overlapping {
+            let (sh, grid) = (&mut self.sheets, &mut self.scratch.grid);
+            let mut found = None;
+            edges_meeting(grid, positions, &sh.edges, |i, j| {
+                let (ei, ej) = (sh.edges[i], sh.edges[j]);
+                if sh.of[ei.triangle as usize] == sh.of[ej.triangle as usize]
+                    || !edges_cross_properly(&self.triangles, positions, ei, ej)
+                {
+                    return false;
                 }
+                found = Some((i as u32, j as u32));
+                true
+            });
+            if let Some(pair) = found {
+                sh.witness = pair;
+                overlapping = true;
             }
         }
+        let sh = &self.sheets;
         if !sh.offenders.is_empty() {
             Certificate::Fails
         } else if overlapping {
@@ -903,6 +889,13 @@ impl DepthOrder {
         } else {
             Certificate::NothingOverlaps
         }
+    }
+
+    /// Whether the sheets' edges `i` and `j` cross properly and their
+    /// triangles share no vertex: those two triangles overlap.
+    fn edges_cross(&self, positions: &[DVec2], i: u32, j: u32) -> bool {
+        let (ei, ej) = (self.sheets.edges[i as usize], self.sheets.edges[j as usize]);
+        edges_cross_properly(&self.triangles, positions, ei, ej)
     }
 
     /// A frame on the sheets: false (and nothing written) unless they still
@@ -940,7 +933,7 @@ impl DepthOrder {
         self.scanned_all = false;
         self.dropped = 0;
         if self.pair_count > 0 {
-            self.decide(positions, Link::Sorted);
+            self.decide(positions, Link::ByTable);
             self.order();
         }
         let (sh, s) = (&mut self.sheets, &mut self.scratch);
@@ -972,7 +965,7 @@ impl DepthOrder {
     }
 
     /// Every overlapping pair of two middle-sheet triangles, into `pairs`,
-    /// sorted, with each first triangle's run of them (for linking them into
+    /// sorted, and into the table of tested pairs (for linking them into
     /// patches): the triangles sorted by their boxes' low x, each tested
     /// against those whose boxes meet its own.
     fn middle_pairs(&mut self, positions: &[DVec2]) {
@@ -1001,18 +994,14 @@ impl DepthOrder {
                 }
             }
         }
-        // Sorted, so the pairs starting with each triangle are one run
-        // (the middle list is in triangle order, so its index is too).
+        // Sorted, so patches join in the same order whatever the sweep's.
         s.pairs.sort_unstable();
         let n = s.pairs.len();
-        let sh = &mut self.sheets;
-        sh.run.clear();
-        sh.run.resize(sh.middle.len() + 1, 0);
-        for &(t, _) in &s.pairs {
-            sh.run[sh.local[t as usize] as usize + 1] += 1;
-        }
-        for k in 1..sh.run.len() {
-            sh.run[k] += sh.run[k - 1];
+        s.tested.clear();
+        for (i, &pair) in s.pairs.iter().enumerate() {
+            if let Ok(slot) = s.tested.insert(pair) {
+                s.tested.set_at(slot, i as u32);
+            }
         }
         s.parent.extend(0..n as u32);
         s.parity.resize(n, 0);
@@ -1128,59 +1117,29 @@ impl DepthOrder {
         if edges.is_empty() {
             return;
         }
-        let mut lo = DVec2::splat(f64::INFINITY);
-        let mut hi = DVec2::splat(f64::NEG_INFINITY);
-        let mut longest = 0.0f64;
         for p in 0..self.piece_boundary.len() - 1 {
             let mut plo = DVec2::splat(f64::INFINITY);
             let mut phi = DVec2::splat(f64::NEG_INFINITY);
             for e in &edges[self.piece_boundary[p] as usize..self.piece_boundary[p + 1] as usize] {
                 // Every boundary vertex starts exactly one boundary edge (the
                 // mesh has no bowties), so these are the boundary's bounds.
-                let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
+                let a = positions[e.a as usize];
                 plo = plo.min(a);
                 phi = phi.max(a);
-                longest = longest.max((b - a).abs().max_element());
             }
             s.piece_lo[p] = plo;
             s.piece_hi[p] = phi;
-            lo = lo.min(plo);
-            hi = hi.max(phi);
         }
-        let ends = |i: usize| {
-            let e = edges[i];
-            (positions[e.a as usize], positions[e.b as usize])
-        };
-        s.grid.fill(lo, hi, longest, edges.len(), |i| {
-            let (a, b) = ends(i);
-            (a.min(b), a.max(b))
-        });
-        let grid = &s.grid;
-        for cell in 0..grid.cell_count() {
-            let members = grid.members(cell);
-            for (n, &i) in members.iter().enumerate() {
-                let ei = edges[i as usize];
-                let (a, b) = ends(i as usize);
-                for &j in &members[n + 1..] {
-                    let ej = edges[j as usize];
-                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
-                        continue;
-                    }
-                    let (c, d) = ends(j as usize);
-                    if !grid.meet_here(cell, a, b, c, d) {
-                        continue;
-                    }
-                    s.seeds.push((ei.triangle, ej.triangle));
-                    let (pi, pj) = (
-                        self.piece_of[ei.triangle as usize],
-                        self.piece_of[ej.triangle as usize],
-                    );
-                    if pi != pj {
-                        s.crossing_pieces.push((pi.min(pj), pi.max(pj)));
-                    }
-                }
+        let piece_of = &self.piece_of;
+        edges_meeting(&mut s.grid, positions, edges, |i, j| {
+            let (ti, tj) = (edges[i].triangle, edges[j].triangle);
+            s.seeds.push((ti, tj));
+            let (pi, pj) = (piece_of[ti as usize], piece_of[tj as usize]);
+            if pi != pj {
+                s.crossing_pieces.push((pi.min(pj), pi.max(pj)));
             }
-        }
+            false
+        });
         s.crossing_pieces.sort_unstable();
         s.crossing_pieces.dedup();
     }
@@ -1482,25 +1441,7 @@ impl DepthOrder {
                     if step == NONE || step == other {
                         continue;
                     }
-                    let key = (step.min(other), step.max(other));
-                    let j = if link == Link::Sorted {
-                        // The pairs starting with `key.0` are one run.
-                        let sh = &self.sheets;
-                        let k = sh.local[key.0 as usize];
-                        if k == NONE {
-                            continue;
-                        }
-                        let run = sh.run[k as usize]..sh.run[k as usize + 1];
-                        match s.pairs[run.start as usize..run.end as usize]
-                            .iter()
-                            .position(|p| p.1 == key.1)
-                        {
-                            Some(at) => run.start + at as u32,
-                            None => continue,
-                        }
-                    } else {
-                        s.tested.value(key)
-                    };
+                    let j = s.tested.value((step.min(other), step.max(other)));
                     if j == NONE {
                         continue;
                     }
@@ -1542,20 +1483,37 @@ impl DepthOrder {
                     patch.pin = (p + 1, side);
                 }
                 patch.layer[k] = patch.layer[k].max(self.layers[t as usize]);
-                // Each triangle's movement once a frame, however many
-                // pairs it is in.
-                if s.moved_frame[t as usize] != s.frame {
-                    s.moved_frame[t as usize] = s.frame;
-                    let tri = self.triangles[t as usize];
-                    let moved = tri
-                        .iter()
-                        .map(|&v| positions[v as usize] - self.rest[v as usize])
-                        .sum::<DVec2>();
-                    s.moved[t as usize] = moved.length() / 3.0;
-                }
-                patch.displacement[k] += s.moved[t as usize];
                 patch.count[k] += 1;
                 patch.lowest[k] = patch.lowest[k].min(t);
+            }
+        }
+        // Movement only where neither a pin, the votes nor the layers
+        // decide: it costs a square root a triangle.
+        let undecided = |patch: &Patch| {
+            patch.pin.0 == 0 && patch.votes[0] == patch.votes[1] && patch.layer[0] == patch.layer[1]
+        };
+        if s.patches.iter().any(undecided) {
+            for i in 0..n {
+                let (root, side) = s.find(i as u32);
+                let patch = &mut s.patches[s.patch_of_root[root as usize] as usize];
+                if !undecided(patch) {
+                    continue;
+                }
+                let (first, second) = s.pairs[i];
+                for (t, side) in [(first, side), (second, side ^ 1)] {
+                    // Each triangle's movement once a frame, however many
+                    // pairs it is in.
+                    if s.moved_frame[t as usize] != s.frame {
+                        s.moved_frame[t as usize] = s.frame;
+                        let tri = self.triangles[t as usize];
+                        let moved = tri
+                            .iter()
+                            .map(|&v| positions[v as usize] - self.rest[v as usize])
+                            .sum::<DVec2>();
+                        s.moved[t as usize] = moved.length() / 3.0;
+                    }
+                    patch.displacement[side as usize] += s.moved[t as usize];
+                }
             }
         }
         for patch in &mut s.patches {
@@ -1840,6 +1798,70 @@ fn overlap_apart(triangles: &[[u32; 3]], positions: &[DVec2], t: u32, u: u32) ->
     let (a, b) = (triangles[t as usize], triangles[u as usize]);
     let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
     !a.iter().any(|v| b.contains(v)) && triangles_overlap(corners(a), corners(b))
+}
+
+/// Calls `met` with every two of `edges` (by index) that share no vertex
+/// and meet, binned on `grid`, until it says stop (true, returned).
+fn edges_meeting(
+    grid: &mut FrameGrid,
+    positions: &[DVec2],
+    edges: &[BoundaryEdge],
+    mut met: impl FnMut(usize, usize) -> bool,
+) -> bool {
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    let mut longest = 0.0f64;
+    for e in edges {
+        let (a, b) = (positions[e.a as usize], positions[e.b as usize]);
+        lo = lo.min(a).min(b);
+        hi = hi.max(a).max(b);
+        longest = longest.max((b - a).abs().max_element());
+    }
+    let ends = |i: usize| {
+        let e = edges[i];
+        (positions[e.a as usize], positions[e.b as usize])
+    };
+    grid.fill(lo, hi, longest, edges.len(), |i| {
+        let (a, b) = ends(i);
+        (a.min(b), a.max(b))
+    });
+    for cell in 0..grid.cell_count() {
+        let members = grid.members(cell);
+        for (n, &i) in members.iter().enumerate() {
+            let ei = edges[i as usize];
+            let (a, b) = ends(i as usize);
+            for &j in &members[n + 1..] {
+                let ej = edges[j as usize];
+                if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
+                    continue;
+                }
+                let (c, d) = ends(j as usize);
+                if grid.meet_here(cell, a, b, c, d) && met(i as usize, j as usize) {
+                    return true;
+                }
+            }
+        }
+    }
+    false
+}
+
+/// Whether edges `ei` and `ej` cross properly and their triangles share no
+/// vertex: those two triangles overlap.
+fn edges_cross_properly(
+    triangles: &[[u32; 3]],
+    positions: &[DVec2],
+    ei: BoundaryEdge,
+    ej: BoundaryEdge,
+) -> bool {
+    let (a, b) = (positions[ei.a as usize], positions[ei.b as usize]);
+    let (c, d) = (positions[ej.a as usize], positions[ej.b as usize]);
+    let side = |p: DVec2, q: DVec2, r: DVec2| (q - p).perp_dot(r - p);
+    let (ti, tj) = (
+        triangles[ei.triangle as usize],
+        triangles[ej.triangle as usize],
+    );
+    side(a, b, c) * side(a, b, d) < 0.0
+        && side(c, d, a) * side(c, d, b) < 0.0
+        && !ti.iter().any(|v| tj.contains(v))
 }
 
 /// Whether two triangles' interiors intersect (separating axes over the six
