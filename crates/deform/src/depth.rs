@@ -187,8 +187,17 @@ struct Sheets {
     queue: Vec<u32>,
     ring: Vec<u32>,
     next_ring: Vec<u32>,
-    /// The middle sheet's triangles' boxes, by their low x.
+    /// The middle sheet's triangles' boxes, by their low x; emptied when
+    /// the middle changes, else kept in last frame's order, which a frame's
+    /// motion barely changes.
     boxes: Vec<(DVec2, DVec2, u32)>,
+    /// The middle's pairs as the sweep finds them, and per middle triangle
+    /// where its pairs start once sorted.
+    found: Vec<(u32, u32)>,
+    bucket: Vec<u32>,
+    /// The front and the back sheet's border edges' boxes, by their low x,
+    /// kept like `boxes`.
+    border_boxes: [Vec<(DVec2, DVec2, u32)>; 2],
     /// Triangles of the front or back sheet the certificate blamed this
     /// frame (at most [`MAX_OFFENDERS`]).
     offenders: Vec<u32>,
@@ -423,6 +432,9 @@ impl DepthOrder {
                 ring: Vec::with_capacity(count),
                 next_ring: Vec::with_capacity(count),
                 boxes: Vec::with_capacity(count),
+                found: Vec::with_capacity(count),
+                border_boxes: [Vec::with_capacity(3 * count), Vec::with_capacity(3 * count)],
+                bucket: Vec::with_capacity(count + 1),
                 offenders: Vec::with_capacity(MAX_OFFENDERS),
                 cut_middle: 0,
             },
@@ -766,6 +778,8 @@ impl DepthOrder {
         }
         sh.offset = [0, middle_offset as u16, front_offset as u16];
         sh.middle.clear();
+        sh.boxes.clear();
+        sh.border_boxes.iter_mut().for_each(Vec::clear);
         sh.middle
             .extend((0..count as u32).filter(|&t| sh.of[t as usize] == MIDDLE_SHEET));
         sh.local.fill(NONE);
@@ -847,16 +861,51 @@ impl DepthOrder {
                 offend(&mut sh.offenders, t as u32);
             }
         }
-        // Each of the front and back sheets' borders on a grid of its own:
-        // only two edges of one sheet may not meet.
-        let (sh, grid) = (&mut self.sheets, &mut self.scratch.grid);
-        for range in [0..sh.back_edges, sh.back_edges..sh.middle_edges] {
-            let edges = &sh.edges[range];
-            edges_meeting(grid, positions, edges, |i, j| {
-                offend(&mut sh.offenders, edges[i].triangle);
-                offend(&mut sh.offenders, edges[j].triangle);
-                false
-            });
+        // Each of the front and back sheets' borders swept on its own:
+        // only two edges of one sheet may not meet. The sweep keeps last
+        // frame's order of the edges' boxes, which a frame barely changes.
+        let sh = &mut self.sheets;
+        for (k, range) in [0..sh.back_edges, sh.back_edges..sh.middle_edges]
+            .into_iter()
+            .enumerate()
+        {
+            let boxes = &mut sh.border_boxes[k];
+            if boxes.is_empty() {
+                boxes.extend(range.map(|i| (DVec2::ZERO, DVec2::ZERO, i as u32)));
+            }
+            let edges = &sh.edges;
+            let ends = |i: u32| {
+                let e = edges[i as usize];
+                (positions[e.a as usize], positions[e.b as usize])
+            };
+            for (lo, hi, i) in boxes.iter_mut() {
+                let (a, b) = ends(*i);
+                (*lo, *hi) = (a.min(b), a.max(b));
+            }
+            sort_boxes_by_low_x(boxes);
+            for (n, &(ilo, ihi, i)) in boxes.iter().enumerate() {
+                let ei = edges[i as usize];
+                for &(jlo, jhi, j) in &boxes[n + 1..] {
+                    if jlo.x > ihi.x {
+                        break;
+                    }
+                    let ej = edges[j as usize];
+                    if jlo.y > ihi.y
+                        || ilo.y > jhi.y
+                        || ei.a == ej.a
+                        || ei.a == ej.b
+                        || ei.b == ej.a
+                        || ei.b == ej.b
+                    {
+                        continue;
+                    }
+                    let ((a, b), (c, d)) = (ends(i), ends(j));
+                    if segments_meet(a, b, c, d) {
+                        offend(&mut sh.offenders, ei.triangle);
+                        offend(&mut sh.offenders, ej.triangle);
+                    }
+                }
+            }
         }
         // Something still overlaps: last frame's two crossing edges, else
         // any two of different sheets.
@@ -973,13 +1022,16 @@ impl DepthOrder {
         s.pairs.clear();
         s.parent.clear();
         s.parity.clear();
-        let boxes = &mut self.sheets.boxes;
-        boxes.clear();
-        for &t in &self.sheets.middle {
-            let [a, b, c] = self.triangles[t as usize].map(|i| positions[i as usize]);
-            boxes.push((a.min(b).min(c), a.max(b).max(c), t));
+        let sh = &mut self.sheets;
+        let boxes = &mut sh.boxes;
+        if boxes.is_empty() {
+            boxes.extend(sh.middle.iter().map(|&t| (DVec2::ZERO, DVec2::ZERO, t)));
         }
-        boxes.sort_unstable_by(|p, q| p.0.x.total_cmp(&q.0.x));
+        for (lo, hi, t) in boxes.iter_mut() {
+            let [a, b, c] = self.triangles[*t as usize].map(|i| positions[i as usize]);
+            (*lo, *hi) = (a.min(b).min(c), a.max(b).max(c));
+        }
+        sort_boxes_by_low_x(boxes);
         for (n, &(tlo, thi, t)) in boxes.iter().enumerate() {
             for &(ulo, uhi, u) in &boxes[n + 1..] {
                 if ulo.x >= thi.x {
@@ -990,12 +1042,34 @@ impl DepthOrder {
                 }
                 if overlap_apart(&self.triangles, positions, t, u) {
                     // Each pair is met once (from its lower box).
-                    s.pairs.push((t.min(u), t.max(u)));
+                    sh.found.push((t.min(u), t.max(u)));
                 }
             }
         }
-        // Sorted, so patches join in the same order whatever the sweep's.
-        s.pairs.sort_unstable();
+        // Sorted, so patches join in the same order whatever the sweep's:
+        // counted out by first triangle (the middle list is in triangle
+        // order), then each first triangle's few by the second.
+        let bucket = &mut sh.bucket;
+        bucket.clear();
+        bucket.resize(sh.middle.len() + 1, 0);
+        for &(t, _) in &sh.found {
+            bucket[sh.local[t as usize] as usize + 1] += 1;
+        }
+        for k in 1..bucket.len() {
+            bucket[k] += bucket[k - 1];
+        }
+        s.pairs.resize(sh.found.len(), (0, 0));
+        for &pair in &sh.found {
+            let at = &mut bucket[sh.local[pair.0 as usize] as usize];
+            s.pairs[*at as usize] = pair;
+            *at += 1;
+        }
+        sh.found.clear();
+        let mut start = 0;
+        for &end in &bucket[..sh.middle.len()] {
+            s.pairs[start..end as usize].sort_unstable_by_key(|p| p.1);
+            start = end as usize;
+        }
         let n = s.pairs.len();
         s.tested.clear();
         for (i, &pair) in s.pairs.iter().enumerate() {
@@ -1800,6 +1874,18 @@ fn overlap_apart(triangles: &[[u32; 3]], positions: &[DVec2], t: u32, u: u32) ->
     !a.iter().any(|v| b.contains(v)) && triangles_overlap(corners(a), corners(b))
 }
 
+/// Sorts boxes `(low, high, item)` by their low x: an insertion sort, linear
+/// when they come in last frame's order.
+fn sort_boxes_by_low_x(boxes: &mut [(DVec2, DVec2, u32)]) {
+    for n in 1..boxes.len() {
+        let mut k = n;
+        while k > 0 && boxes[k - 1].0.x > boxes[k].0.x {
+            boxes.swap(k - 1, k);
+            k -= 1;
+        }
+    }
+}
+
 /// Calls `met` with every two of `edges` (by index) that share no vertex
 /// and meet, binned on `grid`, until it says stop (true, returned).
 fn edges_meeting(
@@ -1926,7 +2012,9 @@ fn segments_distance_squared(
 #[derive(Debug)]
 struct FrameGrid {
     lo: DVec2,
-    cell: f64,
+    /// One over the cell's side: binning multiplies (any monotone binning
+    /// keeps each pair judged in a cell holding both).
+    per_cell: f64,
     columns: usize,
     rows: usize,
     start: Vec<u32>,
@@ -1940,7 +2028,7 @@ impl FrameGrid {
     fn with_capacity(cells: usize, members: usize, items: usize) -> FrameGrid {
         FrameGrid {
             lo: DVec2::ZERO,
-            cell: 1.0,
+            per_cell: 1.0,
             columns: 1,
             rows: 1,
             start: Vec::with_capacity(cells + 1),
@@ -1968,7 +2056,7 @@ impl FrameGrid {
         let cells_along =
             |length: f64| ((length / cell).max(0.0) as usize + 1).min(per_side as usize + 1);
         self.lo = lo;
-        self.cell = cell;
+        self.per_cell = 1.0 / cell;
         self.columns = cells_along(hi.x - lo.x);
         self.rows = cells_along(hi.y - lo.y);
         let cells = self.columns * self.rows;
@@ -2007,7 +2095,7 @@ impl FrameGrid {
     }
 
     fn column_row(&self, p: DVec2) -> (usize, usize) {
-        let rel = (p - self.lo) / self.cell;
+        let rel = (p - self.lo) * self.per_cell;
         // Truncation is the floor here (clamped at zero first), without a
         // libm call on targets lacking a rounding instruction.
         let at = |x: f64, n: usize| (x.max(0.0) as usize).min(n - 1);
