@@ -1516,7 +1516,9 @@ impl DepthOrder {
                         continue;
                     }
                     let j = s.tested.value((step.min(other), step.max(other)));
-                    if j == NONE {
+                    // Each link is met from both its pairs: joined from the
+                    // first, a no-op from the second.
+                    if j == NONE || j <= i as u32 {
                         continue;
                     }
                     let step_position = u8::from(step > other);
@@ -1568,7 +1570,7 @@ impl DepthOrder {
         };
         if s.patches.iter().any(undecided) {
             for i in 0..n {
-                let (root, side) = s.find(i as u32);
+                let (root, side) = s.found(i);
                 let patch = &mut s.patches[s.patch_of_root[root as usize] as usize];
                 if !undecided(patch) {
                     continue;
@@ -1594,7 +1596,7 @@ impl DepthOrder {
             patch.front = front_side(patch);
         }
         for i in 0..n {
-            let (root, side) = s.find(i as u32);
+            let (root, side) = s.found(i);
             let front = s.patches[s.patch_of_root[root as usize] as usize].front;
             let (first, second) = s.pairs[i];
             let (back, front) = if side == front {
@@ -1851,6 +1853,12 @@ impl Scratch {
         (root, parity)
     }
 
+    /// Pair `i`'s root and parity once [`Scratch::find`] has run for it
+    /// (which points it at its root) and no union since.
+    fn found(&self, i: usize) -> (u32, u8) {
+        (self.parent[i], self.parity[i])
+    }
+
     /// Joins the patches of pairs `i` and `j`, whose first triangles lie on
     /// sides differing by `relation`. A link contradicting the sides already
     /// known (a patch wrapping onto itself round a tight crease) is ignored:
@@ -1866,12 +1874,13 @@ impl Scratch {
     }
 }
 
-/// Whether triangles `t` and `u` can be a pair (they share no vertex) and
-/// are one: their interiors intersect at `positions`.
+/// Whether triangles `t` and `u`, whose boxes overlap (strictly), can be a
+/// pair (they share no vertex) and are one: their interiors intersect at
+/// `positions`.
 fn overlap_apart(triangles: &[[u32; 3]], positions: &[DVec2], t: u32, u: u32) -> bool {
     let (a, b) = (triangles[t as usize], triangles[u as usize]);
     let corners = |tri: [u32; 3]| tri.map(|i| positions[i as usize]);
-    !a.iter().any(|v| b.contains(v)) && triangles_overlap(corners(a), corners(b))
+    !a.iter().any(|v| b.contains(v)) && !separated_by_an_edge(&corners(a), &corners(b))
 }
 
 /// Sorts boxes `(low, high, item)` by their low x: an insertion sort, linear
@@ -1959,20 +1968,31 @@ pub fn triangles_overlap(a: [DVec2; 3], b: [DVec2; 3]) -> bool {
     if alo.x >= bhi.x || blo.x >= ahi.x || alo.y >= bhi.y || blo.y >= ahi.y {
         return false;
     }
-    for tri in [&a, &b] {
+    !separated_by_an_edge(&a, &b)
+}
+
+/// Whether the normal of some edge of either triangle is a separating axis.
+fn separated_by_an_edge(a: &[DVec2; 3], b: &[DVec2; 3]) -> bool {
+    // Positions are finite, so plain comparisons serve for min and max
+    // (cheaper than the NaN-aware ones).
+    let (min, max) = (
+        |x: f64, y: f64| if x < y { x } else { y },
+        |x: f64, y: f64| if x > y { x } else { y },
+    );
+    for tri in [a, b] {
         for k in 0..3 {
             let axis = (tri[(k + 1) % 3] - tri[k]).perp();
             let project = |t: &[DVec2; 3]| {
                 let d = [axis.dot(t[0]), axis.dot(t[1]), axis.dot(t[2])];
-                (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+                (min(min(d[0], d[1]), d[2]), max(max(d[0], d[1]), d[2]))
             };
-            let ((amin, amax), (bmin, bmax)) = (project(&a), project(&b));
+            let ((amin, amax), (bmin, bmax)) = (project(a), project(b));
             if amax <= bmin || bmax <= amin {
-                return false;
+                return true;
             }
         }
     }
-    true
+    false
 }
 
 /// Whether segments `ab` and `cd` cross or touch (conservative: a touch
