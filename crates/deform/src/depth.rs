@@ -870,7 +870,8 @@ impl DepthOrder {
             .enumerate()
         {
             let boxes = &mut sh.border_boxes[k];
-            if boxes.is_empty() {
+            let fresh = boxes.is_empty();
+            if fresh {
                 boxes.extend(range.map(|i| (DVec2::ZERO, DVec2::ZERO, i as u32)));
             }
             let edges = &sh.edges;
@@ -882,7 +883,7 @@ impl DepthOrder {
                 let (a, b) = ends(*i);
                 (*lo, *hi) = (a.min(b), a.max(b));
             }
-            sort_boxes_by_low_x(boxes);
+            sort_boxes_by_low_x(boxes, fresh);
             for (n, &(ilo, ihi, i)) in boxes.iter().enumerate() {
                 let ei = edges[i as usize];
                 for &(jlo, jhi, j) in &boxes[n + 1..] {
@@ -1024,14 +1025,15 @@ impl DepthOrder {
         s.parity.clear();
         let sh = &mut self.sheets;
         let boxes = &mut sh.boxes;
-        if boxes.is_empty() {
+        let fresh = boxes.is_empty();
+        if fresh {
             boxes.extend(sh.middle.iter().map(|&t| (DVec2::ZERO, DVec2::ZERO, t)));
         }
         for (lo, hi, t) in boxes.iter_mut() {
             let [a, b, c] = self.triangles[*t as usize].map(|i| positions[i as usize]);
             (*lo, *hi) = (a.min(b).min(c), a.max(b).max(c));
         }
-        sort_boxes_by_low_x(boxes);
+        sort_boxes_by_low_x(boxes, fresh);
         for (n, &(tlo, thi, t)) in boxes.iter().enumerate() {
             for &(ulo, uhi, u) in &boxes[n + 1..] {
                 if ulo.x >= thi.x {
@@ -1883,9 +1885,14 @@ fn overlap_apart(triangles: &[[u32; 3]], positions: &[DVec2], t: u32, u: u32) ->
     !a.iter().any(|v| b.contains(v)) && !separated_by_an_edge(&corners(a), &corners(b))
 }
 
-/// Sorts boxes `(low, high, item)` by their low x: an insertion sort, linear
-/// when they come in last frame's order.
-fn sort_boxes_by_low_x(boxes: &mut [(DVec2, DVec2, u32)]) {
+/// Sorts boxes `(low, high, item)` by their low x: when they come in last
+/// frame's order (not `fresh`), an insertion sort, linear for a frame's
+/// small motion.
+fn sort_boxes_by_low_x(boxes: &mut [(DVec2, DVec2, u32)], fresh: bool) {
+    if fresh {
+        boxes.sort_unstable_by(|p, q| p.0.x.total_cmp(&q.0.x));
+        return;
+    }
     for n in 1..boxes.len() {
         let mut k = n;
         while k > 0 && boxes[k - 1].0.x > boxes[k].0.x {
