@@ -297,12 +297,13 @@ addEventListener('resize', layout);
 
 // The toolbar wraps onto another line when a name joins the people list or
 // a take starts, and the stage below it moves down. Under a performer's
-// fingers that is a jump of the puppet they hold: while any contact holds
-// it, the new layout waits for the last lift (the bar may cover the
-// stage's top edge meanwhile). A resized window lays out at once.
+// fingers that is a jump of the puppet they hold, or of a director's brush
+// stroke or curve half drawn: while any pointer holds the stage, the new
+// layout waits for the last lift (the bar may cover the stage's top edge
+// meanwhile). A resized window lays out at once.
 let layoutWaits = false;
 function barLayout() {
-  if (pointerContacts.active.size > 0) {
+  if (pointerContacts.held() > 0) {
     layoutWaits = true;
     return;
   }
@@ -312,7 +313,7 @@ function barLayout() {
 // Once nothing holds the stage (the last lift, a lost connection): the
 // layout that waited.
 function layoutIfWaiting() {
-  if (layoutWaits && pointerContacts.active.size === 0) {
+  if (layoutWaits && pointerContacts.held() === 0) {
     layoutWaits = false;
     layout();
   }

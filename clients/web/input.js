@@ -66,7 +66,8 @@ export class PointerContacts {
    *   pointerDown(e, x, y) -> true if it took the pointer,
    *   pointerMove(e)       -> true if it took the move,
    *   pointerUp(e)         (told of every lift).
-   * onLifted(): a contact ended (its dot should go at once).
+   * onLifted(): a contact, or a pointer a tool took, ended (a contact's dot
+   *   should go at once).
    */
   constructor(element, view, { canStart, tools, onLifted }) {
     this.view = view;
@@ -74,6 +75,7 @@ export class PointerContacts {
     this.tools = tools;
     this.onLifted = onLifted;
     this.active = new Map(); // pointerId -> latest stage point, for contacts that went "down"
+    this.toolHeld = new Set(); // pointerIds a tool took (a brush stroke, a curve being drawn)
     this.queue = [];         // contact events not yet sent, in order
 
     element.addEventListener('pointerdown', (e) => this.onDown(e));
@@ -85,7 +87,14 @@ export class PointerContacts {
   onDown(e) {
     if (!this.canStart()) return;
     const [x, y] = this.view.clientToStage(e.clientX, e.clientY);
-    for (const tool of this.tools) if (tool.pointerDown?.(e, x, y)) return;
+    for (const tool of this.tools) {
+      if (tool.pointerDown?.(e, x, y)) {
+        // Captured, so its lift reaches us wherever it happens.
+        e.currentTarget.setPointerCapture(e.pointerId);
+        this.toolHeld.add(e.pointerId);
+        return;
+      }
+    }
     if (e.pointerType === 'mouse' && e.button !== 0) return;
     // Capture: moves and the lift still reach us when the finger leaves the stage.
     e.currentTarget.setPointerCapture(e.pointerId);
@@ -103,6 +112,7 @@ export class PointerContacts {
 
   onLift(e) {
     for (const tool of this.tools) tool.pointerUp?.(e);
+    if (this.toolHeld.delete(e.pointerId)) this.onLifted();
     if (!this.active.delete(e.pointerId)) return;
     this.queue.push(contactUp(e.pointerId));
     this.onLifted();
@@ -113,9 +123,15 @@ export class PointerContacts {
     return this.active.values();
   }
 
+  /** How many pointers hold the stage: contacts and pointers a tool took. */
+  held() {
+    return this.active.size + this.toolHeld.size;
+  }
+
   /** Forgets every contact: the server forgets them with the connection. */
   reset() {
     this.active.clear();
+    this.toolHeld.clear();
     this.queue = [];
   }
 

@@ -1,8 +1,9 @@
 // Unit tests of the page's pure pieces (no browser): the address's view
 // options and token handling, the latency median, owner colours, the
 // handle frame header and where a handle is drawn, the puppets panel's
-// names, vertex counts, orders and reading of the daemon's answers; and
-// the tests' own PNG writer and reader (the mock checks uploads with it).
+// names, vertex counts, orders and reading of the daemon's answers; which
+// pointers hold the stage (contacts and pointers a tool took); and the
+// tests' own PNG writer and reader (the mock checks uploads with it).
 //
 //   node --test unit.test.mjs
 
@@ -16,6 +17,7 @@ import { CONFIG_COLOUR, People, UNKNOWN_COLOUR, parseHex, withAlpha } from '../.
 import { handleAt } from '../../clients/web/overlay.js';
 import { addPuppetPath, orderPuppetsMessage, removePuppetMessage } from '../../clients/web/protocol.js';
 import { checkVertices, movedOrder, nameFromFile, readUploadAnswer } from '../../clients/web/puppets.js';
+import { PointerContacts } from '../../clients/web/input.js';
 import { describePng, encodePng } from './png.mjs';
 
 // sessionStorage's interface over a Map.
@@ -256,4 +258,52 @@ test('the tests\' PNGs: written, then read back as the mock reads uploads', () =
   const corrupt = Buffer.from(opaque);
   corrupt.fill(0, 41, 60); // inside the image data
   assert.ok(describePng(corrupt).error);
+});
+
+// The stage's pointers without a browser: an element that keeps its
+// listeners, and pointer events with a capturing target.
+function fakeStage() {
+  const listeners = {};
+  const captured = new Set();
+  const element = {
+    addEventListener: (name, f) => { listeners[name] = f; },
+    setPointerCapture: (id) => captured.add(id),
+  };
+  const fire = (name, pointerId, extra = {}) => listeners[name]({
+    pointerId, pointerType: 'touch', button: 0, clientX: 10, clientY: 20, currentTarget: element, ...extra,
+  });
+  return { element, fire, captured };
+}
+
+test('a brush stroke or a contact holds the stage until its lift; a lost connection lets go', () => {
+  const { element, fire, captured } = fakeStage();
+  const view = { clientToStage: (x, y) => [x, y] };
+  let brushOn = false;
+  const brush = { pointerDown: () => brushOn };
+  let lifts = 0;
+  const contacts = new PointerContacts(element, view, { canStart: () => true, tools: [brush], onLifted: () => { lifts += 1; } });
+  assert.equal(contacts.held(), 0);
+
+  brushOn = true;
+  fire('pointerdown', 1);
+  assert.equal(contacts.held(), 1, 'the stroke holds the stage');
+  assert.ok(captured.has(1), 'the stroke\'s lift reaches the stage wherever it happens');
+  assert.equal(contacts.takeMessage(), null, 'a stroke is not a contact');
+  brushOn = false;
+  fire('pointerdown', 2);
+  assert.equal(contacts.held(), 2, 'a contact as well');
+  fire('pointerup', 1);
+  assert.equal(contacts.held(), 1);
+  assert.equal(lifts, 1, 'the stroke\'s lift is told');
+  fire('pointercancel', 2);
+  assert.equal(contacts.held(), 0);
+  assert.equal(lifts, 2);
+  fire('pointerup', 2);
+  assert.equal(lifts, 2, 'a second lift of the same pointer is not');
+
+  brushOn = true;
+  fire('pointerdown', 3);
+  assert.equal(contacts.held(), 1);
+  contacts.reset();
+  assert.equal(contacts.held(), 0, 'a lost connection lets go');
 });
