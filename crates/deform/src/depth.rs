@@ -187,10 +187,13 @@ struct Sheets {
     queue: Vec<u32>,
     ring: Vec<u32>,
     next_ring: Vec<u32>,
-    /// The middle sheet's triangles' boxes, by their low x; emptied when
-    /// the middle changes, else kept in last frame's order, which a frame's
-    /// motion barely changes.
+    /// The middle sheet's triangles' boxes (with their index in
+    /// `middle`), by their low x; emptied when the middle changes, else
+    /// kept in last frame's order, which a frame's motion barely changes.
     boxes: Vec<(DVec2, DVec2, u32)>,
+    /// Per middle triangle (by its index in `middle`), this frame's corners
+    /// and their projections on its own edge normals.
+    shapes: Vec<Shape>,
     /// The middle's pairs as the sweep finds them, and per middle triangle
     /// where its pairs start once sorted.
     found: Vec<(u32, u32)>,
@@ -432,6 +435,7 @@ impl DepthOrder {
                 ring: Vec::with_capacity(count),
                 next_ring: Vec::with_capacity(count),
                 boxes: Vec::with_capacity(count),
+                shapes: Vec::with_capacity(count),
                 found: Vec::with_capacity(count),
                 border_boxes: [Vec::with_capacity(3 * count), Vec::with_capacity(3 * count)],
                 bucket: Vec::with_capacity(count + 1),
@@ -1027,23 +1031,31 @@ impl DepthOrder {
         let boxes = &mut sh.boxes;
         let fresh = boxes.is_empty();
         if fresh {
-            boxes.extend(sh.middle.iter().map(|&t| (DVec2::ZERO, DVec2::ZERO, t)));
+            boxes.extend((0..sh.middle.len() as u32).map(|k| (DVec2::ZERO, DVec2::ZERO, k)));
         }
-        for (lo, hi, t) in boxes.iter_mut() {
-            let [a, b, c] = self.triangles[*t as usize].map(|i| positions[i as usize]);
+        // Each triangle's own projections once, not once a pair it is in.
+        sh.shapes.clear();
+        sh.shapes.extend(sh.middle.iter().map(|&t| {
+            let vertices = self.triangles[t as usize];
+            Shape::new(vertices, vertices.map(|i| positions[i as usize]))
+        }));
+        for (lo, hi, k) in boxes.iter_mut() {
+            let [a, b, c] = sh.shapes[*k as usize].corners;
             (*lo, *hi) = (a.min(b).min(c), a.max(b).max(c));
         }
         sort_boxes_by_low_x(boxes, fresh);
-        for (n, &(tlo, thi, t)) in boxes.iter().enumerate() {
-            for &(ulo, uhi, u) in &boxes[n + 1..] {
+        for (n, &(tlo, thi, k)) in boxes.iter().enumerate() {
+            let shape = &sh.shapes[k as usize];
+            for &(ulo, uhi, l) in &boxes[n + 1..] {
                 if ulo.x >= thi.x {
                     break;
                 }
                 if ulo.y >= thi.y || tlo.y >= uhi.y {
                     continue;
                 }
-                if overlap_apart(&self.triangles, positions, t, u) {
+                if shape.overlaps_apart(&sh.shapes[l as usize]) {
                     // Each pair is met once (from its lower box).
+                    let (t, u) = (sh.middle[k as usize], sh.middle[l as usize]);
                     sh.found.push((t.min(u), t.max(u)));
                 }
             }
@@ -1073,14 +1085,14 @@ impl DepthOrder {
             start = end as usize;
         }
         let n = s.pairs.len();
+        s.parent.extend(0..n as u32);
+        s.parity.resize(n, 0);
         s.tested.clear();
         for (i, &pair) in s.pairs.iter().enumerate() {
             if let Ok(slot) = s.tested.insert(pair) {
                 s.tested.set_at(slot, i as u32);
             }
         }
-        s.parent.extend(0..n as u32);
-        s.parity.resize(n, 0);
     }
 
     /// Whether this frame is certainly overlap-free, given the certificate
@@ -1508,23 +1520,37 @@ impl DepthOrder {
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
         // Growing joined them as it found them; the all-triangle grid and
-        // the middle sheet's pairs did not.
-        let linking = if link == Link::Grown { 0 } else { n };
-        for i in 0..linking {
-            let pair = s.pairs[i];
-            for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
-                for &step in &self.neighbours[own as usize] {
-                    if step == NONE || step == other {
-                        continue;
+        // the middle sheet's pairs did not: each patch is walked from its
+        // lowest pair, every pair pointed at it with its side. A link
+        // contradicting a side already given (a patch wrapping onto itself
+        // round a tight crease) is ignored, as `Scratch::union` does.
+        if link != Link::Grown {
+            s.stack.clear();
+            s.parent.fill(NONE);
+            for start in 0..n as u32 {
+                if s.parent[start as usize] != NONE {
+                    continue;
+                }
+                s.parent[start as usize] = start;
+                s.parity[start as usize] = 0;
+                s.stack.push(start);
+                while let Some(i) = s.stack.pop() {
+                    let (pair, side) = (s.pairs[i as usize], s.parity[i as usize]);
+                    for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
+                        for &step in &self.neighbours[own as usize] {
+                            if step == NONE || step == other {
+                                continue;
+                            }
+                            let j = s.tested.value((step.min(other), step.max(other)));
+                            if j == NONE || s.parent[j as usize] != NONE {
+                                continue;
+                            }
+                            let step_position = u8::from(step > other);
+                            s.parent[j as usize] = start;
+                            s.parity[j as usize] = side ^ own_position ^ step_position;
+                            s.stack.push(j);
+                        }
                     }
-                    let j = s.tested.value((step.min(other), step.max(other)));
-                    // Each link is met from both its pairs: joined from the
-                    // first, a no-op from the second.
-                    if j == NONE || j <= i as u32 {
-                        continue;
-                    }
-                    let step_position = u8::from(step > other);
-                    s.union(i as u32, j, own_position ^ step_position);
                 }
             }
         }
@@ -1876,6 +1902,63 @@ impl Scratch {
     }
 }
 
+/// A triangle at this frame's positions, ready for separating-axis tests
+/// against many others: its corners, and per edge `k` (corner `k` to the
+/// next) the edge's normal and the span of the corners' projections on it.
+#[derive(Debug, Clone, Copy)]
+struct Shape {
+    vertices: [u32; 3],
+    corners: [DVec2; 3],
+    normals: [DVec2; 3],
+    low: [f64; 3],
+    high: [f64; 3],
+}
+
+impl Shape {
+    fn new(vertices: [u32; 3], corners: [DVec2; 3]) -> Shape {
+        let normals = [0, 1, 2].map(|k| (corners[(k + 1) % 3] - corners[k]).perp());
+        let spans = normals.map(|axis| project(axis, &corners));
+        Shape {
+            vertices,
+            corners,
+            normals,
+            low: spans.map(|s| s.0),
+            high: spans.map(|s| s.1),
+        }
+    }
+
+    /// As [`overlap_apart`]: the two share no vertex and their interiors
+    /// intersect (boxes already known to overlap).
+    fn overlaps_apart(&self, other: &Shape) -> bool {
+        if self.vertices.iter().any(|v| other.vertices.contains(v)) {
+            return false;
+        }
+        let separates = |by: &Shape, of: &Shape| {
+            (0..3).any(|k| {
+                let (low, high) = project(by.normals[k], &of.corners);
+                by.high[k] <= low || high <= by.low[k]
+            })
+        };
+        !separates(self, other) && !separates(other, self)
+    }
+}
+
+/// The span of `corners` projected on `axis`. Positions are finite, so
+/// plain comparisons serve for min and max (cheaper than the NaN-aware
+/// ones).
+fn project(axis: DVec2, corners: &[DVec2; 3]) -> (f64, f64) {
+    let (min, max) = (
+        |x: f64, y: f64| if x < y { x } else { y },
+        |x: f64, y: f64| if x > y { x } else { y },
+    );
+    let d = [
+        axis.dot(corners[0]),
+        axis.dot(corners[1]),
+        axis.dot(corners[2]),
+    ];
+    (min(min(d[0], d[1]), d[2]), max(max(d[0], d[1]), d[2]))
+}
+
 /// Whether triangles `t` and `u`, whose boxes overlap (strictly), can be a
 /// pair (they share no vertex) and are one: their interiors intersect at
 /// `positions`.
@@ -1980,20 +2063,10 @@ pub fn triangles_overlap(a: [DVec2; 3], b: [DVec2; 3]) -> bool {
 
 /// Whether the normal of some edge of either triangle is a separating axis.
 fn separated_by_an_edge(a: &[DVec2; 3], b: &[DVec2; 3]) -> bool {
-    // Positions are finite, so plain comparisons serve for min and max
-    // (cheaper than the NaN-aware ones).
-    let (min, max) = (
-        |x: f64, y: f64| if x < y { x } else { y },
-        |x: f64, y: f64| if x > y { x } else { y },
-    );
     for tri in [a, b] {
         for k in 0..3 {
             let axis = (tri[(k + 1) % 3] - tri[k]).perp();
-            let project = |t: &[DVec2; 3]| {
-                let d = [axis.dot(t[0]), axis.dot(t[1]), axis.dot(t[2])];
-                (min(min(d[0], d[1]), d[2]), max(max(d[0], d[1]), d[2]))
-            };
-            let ((amin, amax), (bmin, bmax)) = (project(a), project(b));
+            let ((amin, amax), (bmin, bmax)) = (project(axis, a), project(axis, b));
             if amax <= bmin || bmax <= amin {
                 return true;
             }
