@@ -1156,43 +1156,20 @@ impl DepthOrder {
         }
         s.grid
             .fill(lo, hi, longest + 2.0 * reach, edges.len(), boxed);
-        let grid = &s.grid;
-        for cell in 0..grid.cell_count() {
-            let members = grid.members(cell);
-            for (n, &i) in members.iter().enumerate() {
-                let ei = edges[i as usize];
-                let (ilo, ihi) = boxed(i as usize);
-                for &j in &members[n + 1..] {
-                    let ej = edges[j as usize];
-                    if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
-                        continue;
-                    }
-                    let (jlo, jhi) = boxed(j as usize);
-                    let (meet_lo, meet_hi) = (ilo.max(jlo), ihi.min(jhi));
-                    if meet_lo.x > meet_hi.x
-                        || meet_lo.y > meet_hi.y
-                        || grid.cell_of(meet_lo) != cell
-                    {
-                        continue;
-                    }
-                    let (a, b) = ends(i as usize);
-                    let (c, d) = ends(j as usize);
-                    let half = segments_distance_squared(
-                        (a, b, inverse[i as usize]),
-                        (c, d, inverse[j as usize]),
-                    ) / 4.0;
-                    let (i, j) = (i as usize, j as usize);
-                    for k in [
-                        i,
-                        j,
-                        self.next_boundary[i] as usize,
-                        self.next_boundary[j] as usize,
-                    ] {
-                        budget[k] = budget[k].min(half);
-                    }
-                }
+        apart_pairs_on_grid(&s.grid, edges, boxed, |i, j| {
+            let (a, b) = ends(i);
+            let (c, d) = ends(j);
+            let half = segments_distance_squared((a, b, inverse[i]), (c, d, inverse[j])) / 4.0;
+            for k in [
+                i,
+                j,
+                self.next_boundary[i] as usize,
+                self.next_boundary[j] as usize,
+            ] {
+                budget[k] = budget[k].min(half);
             }
-        }
+            false
+        });
     }
 
     /// Fills `seeds` with the triangle pairs of crossing, non-adjacent
@@ -2005,22 +1982,44 @@ fn edges_meeting(
         let e = edges[i];
         (positions[e.a as usize], positions[e.b as usize])
     };
-    grid.fill(lo, hi, longest, edges.len(), |i| {
+    let boxed = |i: usize| {
         let (a, b) = ends(i);
         (a.min(b), a.max(b))
-    });
+    };
+    grid.fill(lo, hi, longest, edges.len(), boxed);
+    apart_pairs_on_grid(grid, edges, boxed, |i, j| {
+        let ((a, b), (c, d)) = (ends(i), ends(j));
+        segments_meet(a, b, c, d) && met(i, j)
+    })
+}
+
+/// Calls `visit` with every two of `edges` (by index), binned on `grid` by
+/// their `boxed` bounds, that share no vertex and whose boxes meet, each
+/// two once (in the cell holding the low corner of their boxes' meeting),
+/// until it says stop (true, returned).
+fn apart_pairs_on_grid(
+    grid: &FrameGrid,
+    edges: &[BoundaryEdge],
+    boxed: impl Fn(usize) -> (DVec2, DVec2),
+    mut visit: impl FnMut(usize, usize) -> bool,
+) -> bool {
     for cell in 0..grid.cell_count() {
         let members = grid.members(cell);
         for (n, &i) in members.iter().enumerate() {
-            let ei = edges[i as usize];
-            let (a, b) = ends(i as usize);
+            let (i, ei) = (i as usize, edges[i as usize]);
+            let (ilo, ihi) = boxed(i);
             for &j in &members[n + 1..] {
-                let ej = edges[j as usize];
+                let (j, ej) = (j as usize, edges[j as usize]);
                 if ei.a == ej.a || ei.a == ej.b || ei.b == ej.a || ei.b == ej.b {
                     continue;
                 }
-                let (c, d) = ends(j as usize);
-                if grid.meet_here(cell, a, b, c, d) && met(i as usize, j as usize) {
+                let (jlo, jhi) = boxed(j);
+                let (meet_lo, meet_hi) = (ilo.max(jlo), ihi.min(jhi));
+                if meet_lo.x <= meet_hi.x
+                    && meet_lo.y <= meet_hi.y
+                    && grid.cell_of(meet_lo) == cell
+                    && visit(i, j)
+                {
                     return true;
                 }
             }
@@ -2205,18 +2204,6 @@ impl FrameGrid {
     fn cell_of(&self, p: DVec2) -> usize {
         let (c, r) = self.column_row(p);
         r * self.columns + c
-    }
-
-    /// Whether segments `ab` and `cd`, both binned in `cell`, meet and are
-    /// to be judged here: each pair is judged in one cell only, the one
-    /// holding the low corner of their boxes' intersection.
-    fn meet_here(&self, cell: usize, a: DVec2, b: DVec2, c: DVec2, d: DVec2) -> bool {
-        let meet_lo = a.min(b).max(c.min(d));
-        let meet_hi = a.max(b).min(c.max(d));
-        meet_lo.x <= meet_hi.x
-            && meet_lo.y <= meet_hi.y
-            && self.cell_of(meet_lo) == cell
-            && segments_meet(a, b, c, d)
     }
 
     fn cell_count(&self) -> usize {
