@@ -85,6 +85,7 @@ const api = window.puppetry = {
   clientToStage,
   snapshot,
   dots: () => overlay.drawn ?? [],   // what the overlay drew last: handles and cursors, in stage coordinates
+  held: () => pointerContacts.held(), // pointers holding the stage now: contacts and tools' strokes
   poseShown: () => poseSlider.shown(),
   positions: (id) => Array.from(puppetById(id)?.positions ?? []), // a puppet's vertices as drawn now
   drop: () => ws?.close(),           // closes the connection (it reconnects): for tests of the indicator

@@ -2,10 +2,11 @@
 // finger: while a contact holds the puppet, the toolbar growing a line (a
 // name joining the people list, a take starting; here the status line made
 // long) does not move the stage; after the lift it does, and without a
-// contact it does at once.
+// contact it does at once. With PUPPETRY_HOLD_WITH=stroke (a director's
+// page) the stage is held by a brush stroke half painted instead.
 //
 //   PUPPETRY_URL='http://127.0.0.1:PORT/?role=performer&token=T' \
-//   PUPPETRY_POINT='400,300' node hold.mjs
+//   PUPPETRY_POINT='400,300' [PUPPETRY_HOLD_WITH=stroke] node hold.mjs
 //
 // Prints one JSON line: {heldShift, liftShift, freeShift} (how far, in CSS
 // pixels, the stage point PUPPETRY_POINT moved on the page while held,
@@ -17,6 +18,8 @@ import {
 } from './page-common.mjs';
 
 const { url, point, summary, finish, launch } = startScript();
+const withStroke = process.env.PUPPETRY_HOLD_WITH === 'stroke';
+summary.heldWith = withStroke ? 'stroke' : 'contact';
 const errors = [];
 let page;
 
@@ -34,7 +37,8 @@ const shift = (a, b) => Math.hypot(a[0] - b[0], a[1] - b[1]);
 
 try {
   const context = await launch();
-  page = await openPage(context, url, errors, 'performer');
+  page = await openPage(context, url, errors, withStroke ? 'director' : 'performer');
+  if (withStroke) await page.click('#paint-tool');
 
   const start = await stageToClient(page, point);
   await page.mouse.move(start[0], start[1]);
@@ -43,7 +47,11 @@ try {
     await page.mouse.move(start[0], start[1] - 6 * i);
     await page.waitForTimeout(16);
   }
-  await waitFor(page, 'the contact to hold the puppet', () => window.puppetry.framesReceived > 0);
+  if (withStroke) {
+    await waitFor(page, 'the stroke to hold the stage', () => window.puppetry.held() === 1);
+  } else {
+    await waitFor(page, 'the contact to hold the puppet', () => window.puppetry.framesReceived > 0);
+  }
 
   const held = await stageToClient(page, point);
   await growBar(40);
@@ -64,7 +72,7 @@ try {
   summary.errors = [...(await page.evaluate(() => window.puppetry.errors)), ...errors];
   await context.close();
   if (summary.errors.length) finish(false, 'the page reported errors');
-  if (summary.heldShift > 0.5) finish(false, `the stage moved ${summary.heldShift} px under the held contact`);
+  if (summary.heldShift > 0.5) finish(false, `the stage moved ${summary.heldShift} px under the held ${summary.heldWith}`);
   if (summary.freeShift < 5) finish(false, `with nothing held the stage did not move as the bar grew (${summary.freeShift} px)`);
   finish(true);
 } catch (err) {

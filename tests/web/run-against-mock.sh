@@ -1,6 +1,6 @@
 #!/bin/sh
 # Runs the page scripts against mock-server.mjs on a free port: drag.mjs
-# (mouse, then touch), hold.mjs and the scripts of issue 12's page (people, token,
+# (mouse, then touch), hold.mjs (a contact, then a director's stroke) and the scripts of issue 12's page (people, token,
 # show view, pose, edits) and the director's puppets panel. A fresh mock per script, so none sees another's
 # state. Needs: npm install (in this folder), /usr/bin/chromium.
 #   sh run-against-mock.sh [SCRIPT…]   (default: all)
@@ -36,7 +36,10 @@ for s in $scripts; do
       for input in mouse touch; do
         run drag PUPPETRY_URL="$base?role=performer&token=T" PUPPETRY_POINT=400,300 PUPPETRY_INPUT=$input
       done ;;
-    hold) run hold PUPPETRY_URL="$base?role=performer&token=T" PUPPETRY_POINT=400,300 ;;
+    hold)
+      run hold PUPPETRY_URL="$base?role=performer&token=T" PUPPETRY_POINT=400,300
+      start_mock
+      run hold PUPPETRY_URL="$base?role=director&token=director" PUPPETRY_POINT=400,300 PUPPETRY_HOLD_WITH=stroke ;;
     people) run people PUPPETRY_URL=$base PUPPETRY_TOKENS=ana,ben PUPPETRY_HOLD=360,250 PUPPETRY_POINT=470,370 PUPPETRY_DRAG=30,0 ;;
     token) run token PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben ;;
     show) run show PUPPETRY_URL=$base PUPPETRY_POINT=400,300 PUPPETRY_TOKEN=ben ;;

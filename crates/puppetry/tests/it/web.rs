@@ -36,6 +36,29 @@ async fn the_stage_holds_still_under_a_held_contact_while_the_toolbar_grows() {
     assert!(shift("freeShift") > 5.0, "{summary}");
 }
 
+/// As above for a director's brush stroke half painted: it holds the stage
+/// as a contact does, so the stage waits for its lift too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_stage_holds_still_under_a_directors_stroke_while_the_toolbar_grows() {
+    if !browser::enabled("the_stage_holds_still_under_a_directors_stroke_while_the_toolbar_grows") {
+        return;
+    }
+    let summary = browser::run_page_as(
+        "demo",
+        DIRECTOR,
+        "hold.mjs",
+        "640,360",
+        &[("PUPPETRY_HOLD_WITH", "stroke")],
+    )
+    .await
+    .summary;
+    let shift = |name: &str| summary[name].as_f64().unwrap();
+    assert_eq!(summary["heldWith"], "stroke", "{summary}");
+    assert!(shift("heldShift") < 0.5, "{summary}");
+    assert!(shift("liftShift") > 5.0, "{summary}");
+    assert!(shift("freeShift") > 5.0, "{summary}");
+}
+
 /// Takes from the page: the record button turns red with "REC take-001"
 /// and a running time on a performer's page and a viewer's, a drag is
 /// recorded, and after stopping the take list holds take-001, which is in
