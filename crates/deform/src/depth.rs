@@ -31,6 +31,8 @@ use std::collections::HashMap;
 use glam::DVec2;
 use puppetry_mesh::Mesh;
 
+use crate::lanes::{NotPositive, Triangles};
+
 /// The highest static layer a caller may give: depths above it are left for
 /// raising the front side of overlaps.
 pub const MAX_LAYER: u16 = 0x7fff;
@@ -115,7 +117,7 @@ struct BoundaryEdge {
 /// The per-frame depth order of one puppet's triangles.
 #[derive(Debug)]
 pub struct DepthOrder {
-    triangles: Vec<[u32; 3]>,
+    triangles: Triangles,
     rest: Vec<DVec2>,
     piece_of: Vec<u32>,
     layers: Vec<u16>,
@@ -202,8 +204,10 @@ struct Sheets {
     /// kept like `boxes`.
     border_boxes: [Vec<(DVec2, DVec2, u32)>; 2],
     /// Triangles of the front or back sheet the certificate blamed this
-    /// frame (at most [`MAX_OFFENDERS`]).
+    /// frame (at most [`MAX_OFFENDERS`]), and the inverted triangles it
+    /// found (of any sheet).
     offenders: Vec<u32>,
+    inverted: Vec<u32>,
     /// The middle's size when the sheets were cut: widening stops at twice
     /// it.
     cut_middle: usize,
@@ -284,7 +288,7 @@ impl DepthOrder {
     /// [`Mesh::pieces`] order. `mesh`'s vertices are the rest positions the
     /// tie rule measures movement from.
     pub fn register(mesh: &Mesh, layers: Option<&[u16]>) -> Result<DepthOrder, DepthError> {
-        let triangles = mesh.triangles().to_vec();
+        let triangles = Triangles::new(mesh.triangles().to_vec(), mesh.vertices().len());
         let count = triangles.len();
         let pieces = mesh.pieces();
         let mut piece_of = vec![0u32; count];
@@ -440,6 +444,7 @@ impl DepthOrder {
                 border_boxes: [Vec::with_capacity(3 * count), Vec::with_capacity(3 * count)],
                 bucket: Vec::with_capacity(count + 1),
                 offenders: Vec::with_capacity(MAX_OFFENDERS),
+                inverted: Vec::with_capacity(count),
                 cut_middle: 0,
             },
             scratch,
@@ -574,12 +579,11 @@ impl DepthOrder {
         self.sheets.on = false;
         let s = &mut self.scratch;
         s.inverted.clear();
-        for (t, tri) in self.triangles.iter().enumerate() {
-            let [a, b, c] = tri.map(|i| positions[i as usize]);
-            if (b - a).perp_dot(c - a) <= 0.0 {
-                s.inverted.push(t as u32);
-            }
-        }
+        pulp::Arch::new().dispatch(NotPositive {
+            triangles: &self.triangles,
+            positions,
+            out: &mut s.inverted,
+        });
         self.find_boundary_crossings(positions);
         let contained = self.piece_inside_another(positions);
         let s = &mut self.scratch;
@@ -859,10 +863,15 @@ impl DepthOrder {
     fn certify_sheets(&mut self, positions: &[DVec2]) -> Certificate {
         let sh = &mut self.sheets;
         sh.offenders.clear();
-        for (t, tri) in self.triangles.iter().enumerate() {
-            let [a, b, c] = tri.map(|i| positions[i as usize]);
-            if (b - a).perp_dot(c - a) <= 0.0 && sh.of[t] != MIDDLE_SHEET {
-                offend(&mut sh.offenders, t as u32);
+        sh.inverted.clear();
+        pulp::Arch::new().dispatch(NotPositive {
+            triangles: &self.triangles,
+            positions,
+            out: &mut sh.inverted,
+        });
+        for &t in &sh.inverted {
+            if sh.of[t as usize] != MIDDLE_SHEET {
+                offend(&mut sh.offenders, t);
             }
         }
         // Each of the front and back sheets' borders swept on its own:
@@ -1101,18 +1110,24 @@ impl DepthOrder {
     /// vertex moved less than half the distance from its edges to any
     /// other. Then no piece can have moved inside another either, and the
     /// exact path would find nothing to grow from.
-    fn still_calm(&self, positions: &[DVec2]) -> bool {
+    fn still_calm(&mut self, positions: &[DVec2]) -> bool {
         let within = self
             .boundary
             .iter()
             .zip(&self.calm_at)
             .zip(&self.calm_budget)
             .all(|((e, at), &budget)| positions[e.a as usize].distance_squared(*at) < budget);
-        within
-            && self.triangles.iter().all(|tri| {
-                let [a, b, c] = tri.map(|i| positions[i as usize]);
-                (b - a).perp_dot(c - a) > 0.0
-            })
+        if !within {
+            return false;
+        }
+        let s = &mut self.scratch;
+        s.inverted.clear();
+        pulp::Arch::new().dispatch(NotPositive {
+            triangles: &self.triangles,
+            positions,
+            out: &mut s.inverted,
+        });
+        s.inverted.is_empty()
     }
 
     /// After an overlap-free frame: how far each boundary vertex may move
@@ -1444,7 +1459,7 @@ impl DepthOrder {
         let mut lo = DVec2::splat(f64::INFINITY);
         let mut hi = DVec2::splat(f64::NEG_INFINITY);
         let mut total = 0.0f64;
-        for tri in &self.triangles {
+        for tri in self.triangles.iter() {
             let [a, b, c] = tri.map(|i| positions[i as usize]);
             let (tlo, thi) = (a.min(b).min(c), a.max(b).max(c));
             lo = lo.min(tlo);

@@ -173,3 +173,150 @@ impl Packed {
         (sx, sy)
     }
 }
+
+/// Triangles by vertex index, every index below `bound` (checked when
+/// made), so a kernel may read positions at them unchecked once it knows
+/// the positions are at least that many.
+#[derive(Debug, Clone)]
+pub(crate) struct Triangles {
+    list: Vec<[u32; 3]>,
+    bound: usize,
+}
+
+impl Triangles {
+    pub(crate) fn new(list: Vec<[u32; 3]>, bound: usize) -> Triangles {
+        assert!(
+            list.iter().flatten().all(|&i| (i as usize) < bound),
+            "triangle index out of range"
+        );
+        Triangles { list, bound }
+    }
+}
+
+impl std::ops::Deref for Triangles {
+    type Target = [[u32; 3]];
+
+    fn deref(&self) -> &[[u32; 3]] {
+        &self.list
+    }
+}
+
+/// Appends to `out`, in order, every triangle whose signed area at
+/// `positions`, `(b - a).perp_dot(c - a)` to the last bit, is not positive
+/// (inverted or flat): [`LANES`] triangles at a time, without a bounds
+/// check a corner. `out` never grows past the triangle count.
+pub(crate) struct NotPositive<'a> {
+    pub(crate) triangles: &'a Triangles,
+    pub(crate) positions: &'a [DVec2],
+    pub(crate) out: &'a mut Vec<u32>,
+}
+
+impl pulp::WithSimd for NotPositive<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let NotPositive {
+            triangles,
+            positions,
+            out,
+        } = self;
+        assert!(
+            positions.len() >= triangles.bound,
+            "fewer positions than the triangles' vertices"
+        );
+        // SAFETY: `Triangles::new` checked every index is below `bound`,
+        // and `positions` is at least that long (asserted above).
+        let corners = |tri: [u32; 3]| tri.map(|i| unsafe { *positions.get_unchecked(i as usize) });
+        let body = triangles.len() - triangles.len() % LANES;
+        for (block, chunk) in triangles[..body].chunks_exact(LANES).enumerate() {
+            let p: [[DVec2; 3]; LANES] = std::array::from_fn(|l| corners(chunk[l]));
+            // By coordinate, so the four areas are computed side by side:
+            // the same operations in the same order as `perp_dot`.
+            let (ux, uy): ([f64; LANES], [f64; LANES]) = (
+                std::array::from_fn(|l| p[l][1].x - p[l][0].x),
+                std::array::from_fn(|l| p[l][1].y - p[l][0].y),
+            );
+            let (vx, vy): ([f64; LANES], [f64; LANES]) = (
+                std::array::from_fn(|l| p[l][2].x - p[l][0].x),
+                std::array::from_fn(|l| p[l][2].y - p[l][0].y),
+            );
+            let area: [f64; LANES] = std::array::from_fn(|l| ux[l] * vy[l] - uy[l] * vx[l]);
+            if area.iter().fold(false, |any, &a| any | (a <= 0.0)) {
+                for (l, &a) in area.iter().enumerate() {
+                    if a <= 0.0 {
+                        out.push((block * LANES + l) as u32);
+                    }
+                }
+            }
+        }
+        for (t, &tri) in triangles.iter().enumerate().skip(body) {
+            let [a, b, c] = corners(tri);
+            if (b - a).perp_dot(c - a) <= 0.0 {
+                out.push(t as u32);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The kernel finds exactly what the scalar rule finds, whole blocks and
+    /// tails alike, flat triangles (zero area) included.
+    #[test]
+    fn not_positive_agrees_with_the_scalar_rule() {
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) as f64 / (1u64 << 31) as f64 - 0.5
+        };
+        let mut positions: Vec<DVec2> = (0..40).map(|_| DVec2::new(next(), next())).collect();
+        // Three in a line: any triangle of them is flat.
+        positions.extend([DVec2::ZERO, DVec2::new(1.0, 1.0), DVec2::new(2.0, 2.0)]);
+        for count in 0..=13 {
+            let list: Vec<[u32; 3]> = (0..count)
+                .map(|t| {
+                    if t % 5 == 4 {
+                        [40, 41, 42]
+                    } else {
+                        let pick = |k: u32| (t * 7 + k * 13) % 40;
+                        [pick(0), pick(1), pick(2)]
+                    }
+                })
+                .collect();
+            let expected: Vec<u32> = (0..count)
+                .filter(|&t| {
+                    let [a, b, c] = list[t as usize].map(|i| positions[i as usize]);
+                    (b - a).perp_dot(c - a) <= 0.0
+                })
+                .collect();
+            let triangles = Triangles::new(list, positions.len());
+            let mut found = Vec::new();
+            pulp::Arch::new().dispatch(NotPositive {
+                triangles: &triangles,
+                positions: &positions,
+                out: &mut found,
+            });
+            assert_eq!(found, expected, "{count} triangles");
+            assert!(
+                count < 5 || !found.is_empty(),
+                "{count}: some flat one found"
+            );
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "fewer positions")]
+    fn not_positive_refuses_too_few_positions() {
+        let triangles = Triangles::new(vec![[0, 1, 2]], 3);
+        pulp::Arch::new().dispatch(NotPositive {
+            triangles: &triangles,
+            positions: &[DVec2::ZERO; 2],
+            out: &mut Vec::new(),
+        });
+    }
+}
