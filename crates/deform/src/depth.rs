@@ -1509,13 +1509,45 @@ impl DepthOrder {
     fn decide(&mut self, positions: &[DVec2], link: Link) {
         let s = &mut self.scratch;
         let n = s.pairs.len();
+        s.frame = s.frame.wrapping_add(1);
+        if s.frame == 0 {
+            s.moved_frame.fill(0);
+            s.frame = 1;
+        }
+        s.patch_of_root.clear();
+        s.patch_of_root.resize(n, NONE);
+        s.patches.clear();
+        let new_patch = Patch {
+            lowest: [NONE; 2],
+            ..Patch::default()
+        };
+        // What each triangle of a pair tells its patch, on its side.
+        let tally = |patch: &mut Patch, (first, second): (u32, u32), side: u8| {
+            for (t, side) in [(first, side), (second, side ^ 1)] {
+                let k = side as usize;
+                let role = self.role[t as usize];
+                if role == FRONT {
+                    patch.votes[k] += 1;
+                } else if role == BACK {
+                    patch.votes[k ^ 1] += 1;
+                }
+                if let Some(p) = self.pins.iter().rposition(|&p| p == t)
+                    && p + 1 > patch.pin.0
+                {
+                    patch.pin = (p + 1, side);
+                }
+                patch.layer[k] = patch.layer[k].max(self.layers[t as usize]);
+                patch.count[k] += 1;
+                patch.lowest[k] = patch.lowest[k].min(t);
+            }
+        };
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
         // Growing joined them as it found them; the all-triangle grid and
         // the middle sheet's pairs did not: each patch is walked from its
-        // lowest pair, every pair pointed at it with its side. A link
-        // contradicting a side already given (a patch wrapping onto itself
-        // round a tight crease) is ignored, as `Scratch::union` does.
+        // lowest pair, every pair pointed at it with its side and tallied.
+        // A link contradicting a side already given (a patch wrapping onto
+        // itself round a tight crease) is ignored, as `Scratch::union` does.
         if link != Link::Grown {
             s.stack.clear();
             s.parent.fill(NONE);
@@ -1525,9 +1557,13 @@ impl DepthOrder {
                 }
                 s.parent[start as usize] = start;
                 s.parity[start as usize] = 0;
+                s.patch_of_root[start as usize] = s.patches.len() as u32;
+                s.patches.push(new_patch);
+                let patch = s.patches.len() - 1;
                 s.stack.push(start);
                 while let Some(i) = s.stack.pop() {
                     let (pair, side) = (s.pairs[i as usize], s.parity[i as usize]);
+                    tally(&mut s.patches[patch], pair, side);
                     for (own_position, own, other) in [(0u8, pair.0, pair.1), (1, pair.1, pair.0)] {
                         for &step in &self.neighbours[own as usize] {
                             if step == NONE || step == other {
@@ -1546,41 +1582,17 @@ impl DepthOrder {
                 }
             }
         }
-        s.frame = s.frame.wrapping_add(1);
-        if s.frame == 0 {
-            s.moved_frame.fill(0);
-            s.frame = 1;
-        }
-        s.patch_of_root.clear();
-        s.patch_of_root.resize(n, NONE);
-        s.patches.clear();
-        for i in 0..n {
-            let (root, side) = s.find(i as u32);
-            if s.patch_of_root[root as usize] == NONE {
-                s.patch_of_root[root as usize] = s.patches.len() as u32;
-                s.patches.push(Patch {
-                    lowest: [NONE; 2],
-                    ..Patch::default()
-                });
-            }
-            let patch = &mut s.patches[s.patch_of_root[root as usize] as usize];
-            let (first, second) = s.pairs[i];
-            for (t, side) in [(first, side), (second, side ^ 1)] {
-                let k = side as usize;
-                let role = self.role[t as usize];
-                if role == FRONT {
-                    patch.votes[k] += 1;
-                } else if role == BACK {
-                    patch.votes[k ^ 1] += 1;
+        if link == Link::Grown {
+            // Their patches from the union-find, each pair pointed straight
+            // at its root by one find.
+            for i in 0..n {
+                let (root, side) = s.find(i as u32);
+                if s.patch_of_root[root as usize] == NONE {
+                    s.patch_of_root[root as usize] = s.patches.len() as u32;
+                    s.patches.push(new_patch);
                 }
-                if let Some(p) = self.pins.iter().rposition(|&p| p == t)
-                    && p + 1 > patch.pin.0
-                {
-                    patch.pin = (p + 1, side);
-                }
-                patch.layer[k] = patch.layer[k].max(self.layers[t as usize]);
-                patch.count[k] += 1;
-                patch.lowest[k] = patch.lowest[k].min(t);
+                let patch = s.patch_of_root[root as usize] as usize;
+                tally(&mut s.patches[patch], s.pairs[i], side);
             }
         }
         // Movement only where neither a pin, the votes nor the layers
