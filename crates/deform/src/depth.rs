@@ -1543,12 +1543,25 @@ impl DepthOrder {
         };
         // Two pairs are neighbours when one triangle steps across an edge
         // and the other stays: the stepping triangles lie on the same side.
-        // Growing joined them as it found them; the all-triangle grid and
-        // the middle sheet's pairs did not: each patch is walked from its
-        // lowest pair, every pair pointed at it with its side and tallied.
-        // A link contradicting a side already given (a patch wrapping onto
-        // itself round a tight crease) is ignored, as `Scratch::union` does.
-        if link != Link::Grown {
+        if link == Link::Grown {
+            // Growing joined them as it found them: each pair is pointed
+            // straight at its patch's root by one find, and tallied.
+            for i in 0..n {
+                let (root, side) = s.find(i as u32);
+                if s.patch_of_root[root as usize] == NONE {
+                    s.patch_of_root[root as usize] = s.patches.len() as u32;
+                    s.patches.push(new_patch);
+                }
+                let patch = s.patch_of_root[root as usize] as usize;
+                tally(&mut s.patches[patch], s.pairs[i], side);
+            }
+        } else {
+            // The all-triangle grid and the middle sheet found theirs
+            // without growing: each patch is walked from its lowest pair,
+            // every pair reached given its side and tallied. A link
+            // contradicting a side already given (a patch wrapping onto
+            // itself round a tight crease) is ignored, as `Scratch::union`
+            // does.
             s.stack.clear();
             s.parent.fill(NONE);
             for start in 0..n as u32 {
@@ -1580,19 +1593,6 @@ impl DepthOrder {
                         }
                     }
                 }
-            }
-        }
-        if link == Link::Grown {
-            // Their patches from the union-find, each pair pointed straight
-            // at its root by one find.
-            for i in 0..n {
-                let (root, side) = s.find(i as u32);
-                if s.patch_of_root[root as usize] == NONE {
-                    s.patch_of_root[root as usize] = s.patches.len() as u32;
-                    s.patches.push(new_patch);
-                }
-                let patch = s.patch_of_root[root as usize] as usize;
-                tally(&mut s.patches[patch], s.pairs[i], side);
             }
         }
         // Movement only where neither a pin, the votes nor the layers
