@@ -158,6 +158,8 @@ try {
   step('done');
   const all = await allErrors(errors, Object.values(pages));
   if (all.length) throw new Error(`page errors: ${all.join('; ')}`);
+  // Closed before its profile is removed, which it writes into until then.
+  await context.close();
   finish(true);
 } catch (err) {
   summary.pages = {};

@@ -7,6 +7,7 @@ import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
 import { chromium } from 'playwright-core';
+import { removeProfile } from './profile.mjs';
 
 // Generous: a shared 2-core machine under load (CI beside other builds)
 // can take seconds per step; a hung script still ends.
@@ -44,7 +45,7 @@ export function startRun(summary) {
   const finish = (ok, reason) => {
     // process.exit skips `finally` blocks: clean up here. (Playwright kills
     // the browser it launched when this process exits.)
-    if (userDataDir) fs.rmSync(userDataDir, { recursive: true, force: true });
+    if (userDataDir) removeProfile(userDataDir, summary);
     Object.assign(summary, { ok, ms: Date.now() - t0 }, reason ? { reason } : {});
     console.log(JSON.stringify(summary));
     process.exit(ok ? 0 : 1);

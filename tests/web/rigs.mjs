@@ -13,6 +13,7 @@ import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
 import { chromium } from 'playwright-core';
+import { removeProfile } from './profile.mjs';
 
 const url = process.env.PUPPETRY_URL;
 const point = (process.env.PUPPETRY_POINT ?? '').split(',').map(Number);
@@ -21,7 +22,7 @@ const summary = { ok: false, url };
 const userDataDir = fs.mkdtempSync(path.join(os.tmpdir(), 'puppetry-chromium-'));
 
 function finish(ok, reason) {
-  fs.rmSync(userDataDir, { recursive: true, force: true });
+  removeProfile(userDataDir, summary);
   Object.assign(summary, { ok }, reason ? { reason } : {});
   console.log(JSON.stringify(summary));
   process.exit(ok ? 0 : 1);
