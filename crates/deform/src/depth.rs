@@ -31,7 +31,7 @@ use std::collections::HashMap;
 use glam::DVec2;
 use puppetry_mesh::Mesh;
 
-use crate::lanes::{NotPositive, Triangles};
+use crate::lanes::Triangles;
 
 /// The highest static layer a caller may give: depths above it are left for
 /// raising the front side of overlaps.
@@ -578,12 +578,7 @@ impl DepthOrder {
         }
         self.sheets.on = false;
         let s = &mut self.scratch;
-        s.inverted.clear();
-        pulp::Arch::new().dispatch(NotPositive {
-            triangles: &self.triangles,
-            positions,
-            out: &mut s.inverted,
-        });
+        self.triangles.not_positive(positions, &mut s.inverted);
         self.find_boundary_crossings(positions);
         let contained = self.piece_inside_another(positions);
         let s = &mut self.scratch;
@@ -863,12 +858,7 @@ impl DepthOrder {
     fn certify_sheets(&mut self, positions: &[DVec2]) -> Certificate {
         let sh = &mut self.sheets;
         sh.offenders.clear();
-        sh.inverted.clear();
-        pulp::Arch::new().dispatch(NotPositive {
-            triangles: &self.triangles,
-            positions,
-            out: &mut sh.inverted,
-        });
+        self.triangles.not_positive(positions, &mut sh.inverted);
         for &t in &sh.inverted {
             if sh.of[t as usize] != MIDDLE_SHEET {
                 offend(&mut sh.offenders, t);
@@ -1121,12 +1111,7 @@ impl DepthOrder {
             return false;
         }
         let s = &mut self.scratch;
-        s.inverted.clear();
-        pulp::Arch::new().dispatch(NotPositive {
-            triangles: &self.triangles,
-            positions,
-            out: &mut s.inverted,
-        });
+        self.triangles.not_positive(positions, &mut s.inverted);
         s.inverted.is_empty()
     }
 

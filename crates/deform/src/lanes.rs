@@ -191,6 +191,17 @@ impl Triangles {
         );
         Triangles { list, bound }
     }
+
+    /// Replaces `out` with every triangle whose signed area at `positions`
+    /// is not positive (see [`NotPositive`]).
+    pub(crate) fn not_positive(&self, positions: &[DVec2], out: &mut Vec<u32>) {
+        out.clear();
+        pulp::Arch::new().dispatch(NotPositive {
+            triangles: self,
+            positions,
+            out,
+        });
+    }
 }
 
 impl std::ops::Deref for Triangles {
@@ -205,10 +216,10 @@ impl std::ops::Deref for Triangles {
 /// `positions`, `(b - a).perp_dot(c - a)` to the last bit, is not positive
 /// (inverted or flat): [`LANES`] triangles at a time, without a bounds
 /// check a corner. `out` never grows past the triangle count.
-pub(crate) struct NotPositive<'a> {
-    pub(crate) triangles: &'a Triangles,
-    pub(crate) positions: &'a [DVec2],
-    pub(crate) out: &'a mut Vec<u32>,
+struct NotPositive<'a> {
+    triangles: &'a Triangles,
+    positions: &'a [DVec2],
+    out: &'a mut Vec<u32>,
 }
 
 impl pulp::WithSimd for NotPositive<'_> {
@@ -295,12 +306,8 @@ mod tests {
                 })
                 .collect();
             let triangles = Triangles::new(list, positions.len());
-            let mut found = Vec::new();
-            pulp::Arch::new().dispatch(NotPositive {
-                triangles: &triangles,
-                positions: &positions,
-                out: &mut found,
-            });
+            let mut found = vec![99];
+            triangles.not_positive(&positions, &mut found);
             assert_eq!(found, expected, "{count} triangles");
             assert!(
                 count < 5 || !found.is_empty(),
@@ -313,10 +320,6 @@ mod tests {
     #[should_panic(expected = "fewer positions")]
     fn not_positive_refuses_too_few_positions() {
         let triangles = Triangles::new(vec![[0, 1, 2]], 3);
-        pulp::Arch::new().dispatch(NotPositive {
-            triangles: &triangles,
-            positions: &[DVec2::ZERO; 2],
-            out: &mut Vec::new(),
-        });
+        triangles.not_positive(&[DVec2::ZERO; 2], &mut Vec::new());
     }
 }
