@@ -22,11 +22,13 @@
 //! over all triangles. After such an exact frame the triangles are cut into
 //! front, middle and back sheets; while the front and back sheets are
 //! certified to overlap nothing of their own (per border edge, like the
-//! cheap reject), later frames draw each sheet at its rank and find only
-//! the middle sheet's own pairs, widening the middle where the line between
-//! the two sides slides out of it. See `docs/depth.md`.
+//! cheap reject), later frames draw each sheet at its rank and the middle
+//! sheet in an order fixed at the cut, finding no pairs at all, and widen
+//! the middle where the line between the two sides slides out of it. See
+//! `docs/depth.md`.
 
-use std::collections::HashMap;
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap};
 
 use glam::DVec2;
 use puppetry_mesh::Mesh;
@@ -58,12 +60,15 @@ const FRONT_SHEET: u8 = 2;
 /// Rings of overlapping triangles round the straddling ones (over one
 /// triangle, under another) that join the middle sheet, so that the line
 /// where the two sides meet can slide that far before the front or back
-/// sheet overlaps itself. More rings: fewer exact frames, more middle pairs
-/// a frame (on the bench's fold at 1k, 2 rings gave the fastest frames:
-/// 7 exact frames in 10000).
+/// sheet overlaps itself. More rings: fewer exact frames, more of the
+/// overlap left to the middle's fixed order rather than to the sheets'
+/// ranks (on the bench's fold at 1k, 2 rings gave the fastest frames when
+/// the middle's pairs were still found every frame: 7 exact frames in
+/// 10000).
 const MIDDLE_RINGS: usize = 2;
 /// Sheets whose middle holds more than one in this many of the exact
-/// frame's pairs are not used.
+/// frame's pairs are not used: most of the overlap should be ordered by
+/// the sheets' ranks, region by region.
 const MIDDLE_SHARE: usize = 8;
 /// Times a frame may widen the middle over triangles the certificate
 /// blames before it takes the exact path instead.
@@ -162,18 +167,31 @@ pub struct DepthOrder {
 /// The triangles cut into three sheets after an exact frame with overlap
 /// (see `docs/depth.md`, "Sheets"): while the front and back sheets each
 /// overlap nothing of their own, the depth is the sheet's rank over each
-/// triangle's layer, and only the middle sheet's own pairs are found and
-/// ordered.
+/// triangle's layer, and the middle sheet's triangles keep an order fixed
+/// at the cut.
 #[derive(Debug)]
 struct Sheets {
     on: bool,
     /// Set when built: the next frame writes every depth.
     fresh: bool,
-    /// Per triangle, its sheet.
+    /// Per triangle, its sheet, and (while widening) the sheet it had.
     of: Vec<u8>,
+    was: Vec<u8>,
+    /// The middle's triangles, back to front in its fixed order.
     middle: Vec<u32>,
-    /// Per triangle, its index in `middle`, or `NONE`.
-    local: Vec<u32>,
+    /// Per middle triangle, its place in that order: `0..` from the cut,
+    /// then above `top` for those joining from the front sheet and below
+    /// `bottom` for those joining from the back.
+    place: Vec<i32>,
+    top: i32,
+    bottom: i32,
+    /// Per triangle, its distance (triangles crossed) through the middle
+    /// from the back sheet and from the front sheet, at the cut.
+    from_back: Vec<u32>,
+    from_front: Vec<u32>,
+    /// Middle triangles ready to be placed at the cut, lowest first:
+    /// (from the back less from the front, exact frame's depth, triangle).
+    ready: BinaryHeap<Reverse<(i64, u16, u32)>>,
     /// Every edge of a triangle whose neighbour across it lies in another
     /// sheet, or on the mesh boundary: the front sheet's, then the back
     /// sheet's, then the middle's.
@@ -184,24 +202,15 @@ struct Sheets {
     /// Two edges of different sheets that crossed properly on the last
     /// frame that looked for such a pair: tried first.
     witness: (u32, u32),
-    /// Added to the layer of each sheet's triangles.
+    /// Added to the layer of the back and of the front sheet's triangles
+    /// (the middle's entry is its lowest depth, added to each place).
     offset: [u16; 3],
     queue: Vec<u32>,
     ring: Vec<u32>,
     next_ring: Vec<u32>,
-    /// The middle sheet's triangles' boxes (with their index in
-    /// `middle`), by their low x; emptied when the middle changes, else
-    /// kept in last frame's order, which a frame's motion barely changes.
-    boxes: Vec<(DVec2, DVec2, u32)>,
-    /// Per middle triangle (by its index in `middle`), this frame's corners
-    /// and their projections on its own edge normals.
-    shapes: Vec<Shape>,
-    /// The middle's pairs as the sweep finds them, and per middle triangle
-    /// where its pairs start once sorted.
-    found: Vec<(u32, u32)>,
-    bucket: Vec<u32>,
-    /// The front and the back sheet's border edges' boxes, by their low x,
-    /// kept like `boxes`.
+    /// The front and the back sheet's border edges' boxes, by their low
+    /// x; emptied when the sheets change, else kept in last frame's order,
+    /// which a frame's motion barely changes.
     border_boxes: [Vec<(DVec2, DVec2, u32)>; 2],
     /// Triangles of the front or back sheet the certificate blamed this
     /// frame (at most [`MAX_OFFENDERS`]), and the inverted triangles it
@@ -263,8 +272,7 @@ struct Scratch {
 enum Link {
     /// Growing joined them already.
     Grown,
-    /// Looked up in the table of tested pairs (the all-triangle grid, the
-    /// middle sheet).
+    /// Looked up in the table of tested pairs (the all-triangle grid).
     ByTable,
 }
 
@@ -428,8 +436,14 @@ impl DepthOrder {
                 on: false,
                 fresh: false,
                 of: vec![BACK_SHEET; count],
+                was: vec![BACK_SHEET; count],
                 middle: Vec::with_capacity(count),
-                local: vec![NONE; count],
+                place: vec![0; count],
+                top: 0,
+                bottom: 0,
+                from_back: vec![NONE; count],
+                from_front: vec![NONE; count],
+                ready: BinaryHeap::with_capacity(count),
                 edges: Vec::with_capacity(3 * count),
                 back_edges: 0,
                 middle_edges: 0,
@@ -438,11 +452,7 @@ impl DepthOrder {
                 queue: Vec::with_capacity(count),
                 ring: Vec::with_capacity(count),
                 next_ring: Vec::with_capacity(count),
-                boxes: Vec::with_capacity(count),
-                shapes: Vec::with_capacity(count),
-                found: Vec::with_capacity(count),
                 border_boxes: [Vec::with_capacity(3 * count), Vec::with_capacity(3 * count)],
-                bucket: Vec::with_capacity(count + 1),
                 offenders: Vec::with_capacity(MAX_OFFENDERS),
                 inverted: Vec::with_capacity(count),
                 cut_middle: 0,
@@ -474,10 +484,21 @@ impl DepthOrder {
     }
 
     /// Overlapping triangle pairs found by the last update: every pair on an
-    /// exact frame; on a frame settled by the sheets
-    /// ([`DepthOrder::certified`]), the middle sheet's own pairs only.
+    /// exact frame; none on a frame settled by the sheets
+    /// ([`DepthOrder::certified`]), which orders pairs without finding them.
     pub fn overlap_pairs(&self) -> usize {
         self.pair_count
+    }
+
+    /// Triangles in the middle sheet on a frame settled by the sheets (zero
+    /// on other frames): those kept in the fixed order cut at the last exact
+    /// frame rather than by the sheets' ranks.
+    pub fn middle_triangles(&self) -> usize {
+        if self.certified {
+            self.sheets.middle.len()
+        } else {
+            0
+        }
     }
 
     /// Whether the last update had to test all triangles (more than 32
@@ -505,9 +526,8 @@ impl DepthOrder {
     }
 
     /// Whether the last update was settled by the sheets of an earlier
-    /// exact frame (see `docs/depth.md`, "Sheets"): then only the middle
-    /// sheet's own pairs were found, and [`DepthOrder::overlap_pairs`]
-    /// counts those.
+    /// exact frame (see `docs/depth.md`, "Sheets"): then no pair was listed,
+    /// and [`DepthOrder::overlap_pairs`] is zero.
     pub fn certified(&self) -> bool {
         self.certified
     }
@@ -724,8 +744,8 @@ impl DepthOrder {
                 return;
             }
         }
-        // A middle holding a large share of the pairs would cost nearly an
-        // exact frame every frame: wait for a better cut.
+        // A middle holding a large share of the pairs would leave much of
+        // the overlap to its fixed order: wait for a better cut.
         let (sh, pairs) = (&self.sheets, &self.scratch.pairs);
         let inside = pairs
             .iter()
@@ -739,19 +759,21 @@ impl DepthOrder {
         if !self.place_sheets() {
             return;
         }
+        self.order_middle_at_cut();
         self.sheets.cut_middle = self.sheets.middle.len();
         self.sheets.on = true;
         self.sheets.fresh = true;
     }
 
     /// With each triangle's sheet set: the ranks (false if they do not fit
-    /// in a depth), the middle list and the sheets' border edges.
+    /// in a depth), the middle list (in triangle order: the caller puts it
+    /// in its fixed order) and the sheets' border edges.
     fn place_sheets(&mut self) -> bool {
         let count = self.triangles.len();
         let sh = &mut self.sheets;
-        // Ranks: every middle depth above every back layer, every front
-        // depth above every middle depth (the middle's order raises a
-        // triangle by at most one a triangle).
+        // Ranks: every middle depth above every back layer (one depth a
+        // middle triangle, in its fixed order), every front depth above
+        // every middle depth.
         let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
         let mut middle = 0u32;
         for t in 0..count {
@@ -761,34 +783,20 @@ impl DepthOrder {
             middle += u32::from(s == MIDDLE_SHEET as usize);
         }
         let back_top = if lo[0] == u32::MAX { 0 } else { hi[0] };
-        let middle_offset = if lo[1] == u32::MAX {
-            0
-        } else {
-            (back_top + 1).saturating_sub(lo[1])
-        };
-        let middle_top = if lo[1] == u32::MAX {
-            back_top
-        } else {
-            hi[1] + middle_offset + middle
-        };
+        let middle_top = back_top + middle;
         let front_offset = if lo[2] == u32::MAX {
             0
         } else {
-            (middle_top.max(back_top) + 1).saturating_sub(lo[2])
+            (middle_top + 1).saturating_sub(lo[2])
         };
         if hi[2] + front_offset > u32::from(u16::MAX) || middle_top > u32::from(u16::MAX) {
             return false;
         }
-        sh.offset = [0, middle_offset as u16, front_offset as u16];
+        sh.offset = [0, (back_top + 1) as u16, front_offset as u16];
         sh.middle.clear();
-        sh.boxes.clear();
         sh.border_boxes.iter_mut().for_each(Vec::clear);
         sh.middle
             .extend((0..count as u32).filter(|&t| sh.of[t as usize] == MIDDLE_SHEET));
-        sh.local.fill(NONE);
-        for (k, &t) in sh.middle.iter().enumerate() {
-            sh.local[t as usize] = k as u32;
-        }
         sh.edges.clear();
         for sheet in [FRONT_SHEET, BACK_SHEET, MIDDLE_SHEET] {
             if sheet == BACK_SHEET {
@@ -828,6 +836,7 @@ impl DepthOrder {
         if sh.offenders.len() >= sh.offenders.capacity() {
             return false;
         }
+        sh.was.copy_from_slice(&sh.of);
         for k in 0..sh.offenders.len() {
             let t = sh.offenders[k] as usize;
             sh.of[t] = MIDDLE_SHEET;
@@ -842,11 +851,129 @@ impl DepthOrder {
         if middle > 2 * sh.cut_middle.max(16) {
             return false;
         }
+        // Each triangle joining the middle keeps its side of the middle:
+        // from the front sheet above all of it, from the back below.
+        for t in 0..sh.of.len() {
+            if sh.of[t] == MIDDLE_SHEET && sh.was[t] != MIDDLE_SHEET {
+                if sh.was[t] == FRONT_SHEET {
+                    sh.place[t] = sh.top;
+                    sh.top += 1;
+                } else {
+                    sh.bottom -= 1;
+                    sh.place[t] = sh.bottom;
+                }
+            }
+        }
         if !self.place_sheets() {
             return false;
         }
-        self.sheets.fresh = true;
+        let sh = &mut self.sheets;
+        let place = &sh.place;
+        sh.middle.sort_unstable_by_key(|&t| place[t as usize]);
+        sh.fresh = true;
         true
+    }
+
+    /// At the cut, the middle's fixed order, back to front: along the
+    /// material from the back sheet to the front sheet (a triangle fewer
+    /// triangles from the front than from the back lies nearer), where that
+    /// agrees with the exact frame's order of the middle's own pairs, which
+    /// it keeps; ties by the exact frame's depth, then by index. It is a
+    /// topological sort of those pairs (each from its lower depth to its
+    /// higher, so without cycles) that always places the ready triangle
+    /// lowest by that measure.
+    fn order_middle_at_cut(&mut self) {
+        let (sh, s) = (&mut self.sheets, &mut self.scratch);
+        for (from, sheet) in [
+            (&mut sh.from_back, BACK_SHEET),
+            (&mut sh.from_front, FRONT_SHEET),
+        ] {
+            sh.queue.clear();
+            for &t in &sh.middle {
+                let next_to_sheet = self.neighbours[t as usize]
+                    .iter()
+                    .any(|&u| u != NONE && sh.of[u as usize] == sheet);
+                from[t as usize] = if next_to_sheet { 0 } else { NONE };
+                if next_to_sheet {
+                    sh.queue.push(t);
+                }
+            }
+            let mut head = 0;
+            while head < sh.queue.len() {
+                let t = sh.queue[head] as usize;
+                head += 1;
+                for &u in &self.neighbours[t] {
+                    if u != NONE && sh.of[u as usize] == MIDDLE_SHEET && from[u as usize] == NONE {
+                        from[u as usize] = from[t] + 1;
+                        sh.queue.push(u);
+                    }
+                }
+            }
+        }
+        // A triangle neither sheet reaches counts as far from both.
+        let far = sh.middle.len() as i64;
+        let measure = |t: u32| {
+            let reach = |d: u32| if d == NONE { far } else { i64::from(d) };
+            let t = t as usize;
+            (
+                reach(sh.from_back[t]) - reach(sh.from_front[t]),
+                self.depth[t],
+                t as u32,
+            )
+        };
+        // The exact frame's pairs inside the middle, lower depth first.
+        for &t in &sh.middle {
+            s.edge_end[t as usize] = 0;
+            s.indegree[t as usize] = 0;
+        }
+        let below = |a: u32, b: u32| (self.depth[a as usize], a) < (self.depth[b as usize], b);
+        let inside = |&&(a, b): &&(u32, u32)| {
+            sh.of[a as usize] == MIDDLE_SHEET && sh.of[b as usize] == MIDDLE_SHEET
+        };
+        for &(a, b) in s.pairs.iter().filter(inside) {
+            let (low, high) = if below(a, b) { (a, b) } else { (b, a) };
+            s.edge_end[low as usize] += 1;
+            s.indegree[high as usize] += 1;
+        }
+        let mut next = 0;
+        for &t in &sh.middle {
+            let t = t as usize;
+            s.edge_start[t] = next;
+            next += s.edge_end[t];
+            s.edge_end[t] = s.edge_start[t];
+        }
+        s.edges.clear();
+        s.edges.resize(next as usize, 0);
+        for &(a, b) in s.pairs.iter().filter(inside) {
+            let (low, high) = if below(a, b) { (a, b) } else { (b, a) };
+            let slot = &mut s.edge_end[low as usize];
+            s.edges[*slot as usize] = high;
+            *slot += 1;
+        }
+        sh.ready.clear();
+        sh.ready.extend(
+            sh.middle
+                .iter()
+                .filter(|&&t| s.indegree[t as usize] == 0)
+                .map(|&t| Reverse(measure(t))),
+        );
+        let mut placed = 0;
+        while let Some(Reverse((_, _, t))) = sh.ready.pop() {
+            let t = t as usize;
+            sh.place[t] = placed;
+            placed += 1;
+            for e in s.edge_start[t]..s.edge_end[t] {
+                let high = s.edges[e as usize] as usize;
+                s.indegree[high] -= 1;
+                if s.indegree[high] == 0 {
+                    sh.ready.push(Reverse(measure(high as u32)));
+                }
+            }
+        }
+        debug_assert_eq!(placed as usize, sh.middle.len(), "depths order the pairs");
+        (sh.top, sh.bottom) = (placed, 0);
+        let place = &sh.place;
+        sh.middle.sort_unstable_by_key(|&t| place[t as usize]);
     }
 
     /// The sheets' certificate for this frame: it holds while no triangle of
@@ -957,9 +1084,9 @@ impl DepthOrder {
     /// (mesh boundary and cuts) meet, and two edges of different sheets
     /// cross (so something still overlaps). Then neither the front nor the
     /// back sheet overlaps itself (as for the pieces in the cheap reject),
-    /// every pair between sheets is ordered by their ranks, and only the
-    /// middle sheet's own pairs are found (every pair of its triangles whose
-    /// boxes meet is tested) and decided as in an exact frame.
+    /// every pair between sheets is ordered by their ranks, and every pair
+    /// inside the middle by its fixed order: the depths stay as they are,
+    /// written again only where the sheets changed.
     fn sheet_frame(&mut self, positions: &[DVec2]) -> bool {
         if !self.pins.is_empty() {
             return false;
@@ -980,118 +1107,30 @@ impl DepthOrder {
             }
         }
         self.widened = widenings > 0;
-        self.middle_pairs(positions);
-        self.pair_count = self.scratch.pairs.len();
+        self.pair_count = 0;
         self.overlapped = true;
         self.scanned_all = false;
         self.dropped = 0;
-        if self.pair_count > 0 {
-            self.decide(positions, Link::ByTable);
-            self.order();
-        }
-        let (sh, s) = (&mut self.sheets, &mut self.scratch);
-        let mut changed = false;
-        // The front and back sheets' depths do not change while the sheets
-        // hold: written on their first frame only.
-        let all = 0..if sh.fresh { self.triangles.len() } else { 0 };
-        sh.fresh = false;
-        for t in all.chain(sh.middle.iter().map(|&t| t as usize)) {
-            let sheet = sh.of[t];
-            let base = if sheet == MIDDLE_SHEET && s.new_role[t] != 0 {
-                s.level[t]
-            } else {
-                self.layers[t]
-            };
-            let depth = base + sh.offset[sheet as usize];
-            if self.depth[t] != depth {
-                self.depth[t] = depth;
-                changed = true;
-            }
-        }
-        for &t in &s.new_involved {
-            s.new_role[t as usize] = 0;
-        }
-        s.new_involved.clear();
-        self.changed = changed;
         self.calm = false;
-        true
-    }
-
-    /// Every overlapping pair of two middle-sheet triangles, into `pairs`,
-    /// sorted, and into the table of tested pairs (for linking them into
-    /// patches): the triangles sorted by their boxes' low x, each tested
-    /// against those whose boxes meet its own.
-    fn middle_pairs(&mut self, positions: &[DVec2]) {
-        let s = &mut self.scratch;
-        s.pairs.clear();
-        s.parent.clear();
-        s.parity.clear();
         let sh = &mut self.sheets;
-        let boxes = &mut sh.boxes;
-        let fresh = boxes.is_empty();
-        if fresh {
-            boxes.extend((0..sh.middle.len() as u32).map(|k| (DVec2::ZERO, DVec2::ZERO, k)));
-        }
-        // Each triangle's own projections once, not once a pair it is in.
-        sh.shapes.clear();
-        sh.shapes.extend(sh.middle.iter().map(|&t| {
-            let vertices = self.triangles[t as usize];
-            Shape::new(vertices, vertices.map(|i| positions[i as usize]))
-        }));
-        for (lo, hi, k) in boxes.iter_mut() {
-            let [a, b, c] = sh.shapes[*k as usize].corners;
-            (*lo, *hi) = (a.min(b).min(c), a.max(b).max(c));
-        }
-        sort_boxes_by_low_x(boxes, fresh);
-        for (n, &(tlo, thi, k)) in boxes.iter().enumerate() {
-            let shape = &sh.shapes[k as usize];
-            for &(ulo, uhi, l) in &boxes[n + 1..] {
-                if ulo.x >= thi.x {
-                    break;
-                }
-                if ulo.y >= thi.y || tlo.y >= uhi.y {
-                    continue;
-                }
-                if shape.overlaps_apart(&sh.shapes[l as usize]) {
-                    // Each pair is met once (from its lower box).
-                    let (t, u) = (sh.middle[k as usize], sh.middle[l as usize]);
-                    sh.found.push((t.min(u), t.max(u)));
+        let mut changed = false;
+        if sh.fresh {
+            sh.fresh = false;
+            let mut set = |t: usize, depth: u16| {
+                changed |= self.depth[t] != depth;
+                self.depth[t] = depth;
+            };
+            for (t, &sheet) in sh.of.iter().enumerate() {
+                if sheet != MIDDLE_SHEET {
+                    set(t, self.layers[t] + sh.offset[sheet as usize]);
                 }
             }
-        }
-        // Sorted, so patches join in the same order whatever the sweep's:
-        // counted out by first triangle (the middle list is in triangle
-        // order), then each first triangle's few by the second.
-        let bucket = &mut sh.bucket;
-        bucket.clear();
-        bucket.resize(sh.middle.len() + 1, 0);
-        for &(t, _) in &sh.found {
-            bucket[sh.local[t as usize] as usize + 1] += 1;
-        }
-        for k in 1..bucket.len() {
-            bucket[k] += bucket[k - 1];
-        }
-        s.pairs.resize(sh.found.len(), (0, 0));
-        for &pair in &sh.found {
-            let at = &mut bucket[sh.local[pair.0 as usize] as usize];
-            s.pairs[*at as usize] = pair;
-            *at += 1;
-        }
-        sh.found.clear();
-        let mut start = 0;
-        for &end in &bucket[..sh.middle.len()] {
-            s.pairs[start..end as usize].sort_unstable_by_key(|p| p.1);
-            start = end as usize;
-        }
-        let n = s.pairs.len();
-        s.parent.extend(0..n as u32);
-        s.parity.resize(n, 0);
-        s.tested.clear();
-        for (i, &pair) in s.pairs.iter().enumerate() {
-            if let Ok(slot) = s.tested.insert(pair) {
-                s.tested.set_at(slot, i as u32);
+            for (place, &t) in sh.middle.iter().enumerate() {
+                set(t as usize, sh.offset[MIDDLE_SHEET as usize] + place as u16);
             }
         }
+        self.changed = changed;
+        true
     }
 
     /// Whether this frame is certainly overlap-free, given the certificate
@@ -1541,8 +1580,8 @@ impl DepthOrder {
                 tally(&mut s.patches[patch], s.pairs[i], side);
             }
         } else {
-            // The all-triangle grid and the middle sheet found theirs
-            // without growing: each patch is walked from its lowest pair,
+            // The all-triangle grid found them without growing: each patch
+            // is walked from its lowest pair,
             // every pair reached given its side and tallied. A link
             // contradicting a side already given (a patch wrapping onto
             // itself round a tight crease) is ignored, as `Scratch::union`
@@ -1789,7 +1828,7 @@ fn offend(offenders: &mut Vec<u32>, t: u32) {
 /// Each of the front and back sheets made connected (one part of it then
 /// cannot lie inside another with no boundary crossing): its largest part
 /// joined through edges stays, smaller ones (bits cut off by the middle)
-/// join the middle, whose pairs are all found.
+/// join the middle, whose order orders all their pairs.
 fn keep_largest_parts(sh: &mut Sheets, neighbours: &[[u32; 3]]) {
     let count = sh.of.len();
     for sheet in [FRONT_SHEET, BACK_SHEET] {
@@ -1888,47 +1927,6 @@ impl Scratch {
             self.parent[rj as usize] = ri;
             self.parity[rj as usize] = pi ^ pj ^ relation;
         }
-    }
-}
-
-/// A triangle at this frame's positions, ready for separating-axis tests
-/// against many others: its corners, and per edge `k` (corner `k` to the
-/// next) the edge's normal and the span of the corners' projections on it.
-#[derive(Debug, Clone, Copy)]
-struct Shape {
-    vertices: [u32; 3],
-    corners: [DVec2; 3],
-    normals: [DVec2; 3],
-    low: [f64; 3],
-    high: [f64; 3],
-}
-
-impl Shape {
-    fn new(vertices: [u32; 3], corners: [DVec2; 3]) -> Shape {
-        let normals = [0, 1, 2].map(|k| (corners[(k + 1) % 3] - corners[k]).perp());
-        let spans = normals.map(|axis| project(axis, &corners));
-        Shape {
-            vertices,
-            corners,
-            normals,
-            low: spans.map(|s| s.0),
-            high: spans.map(|s| s.1),
-        }
-    }
-
-    /// As [`overlap_apart`]: the two share no vertex and their interiors
-    /// intersect (boxes already known to overlap).
-    fn overlaps_apart(&self, other: &Shape) -> bool {
-        if self.vertices.iter().any(|v| other.vertices.contains(v)) {
-            return false;
-        }
-        let separates = |by: &Shape, of: &Shape| {
-            (0..3).any(|k| {
-                let (low, high) = project(by.normals[k], &of.corners);
-                by.high[k] <= low || high <= by.low[k]
-            })
-        };
-        !separates(self, other) && !separates(other, self)
     }
 }
 

@@ -843,10 +843,12 @@ pub struct DepthResult {
     pub fold_us_median: f64,
     pub fold_us_mean: f64,
     pub fold_us_p99: f64,
-    /// Of the fold frames, how many overlapped, and the median pair count
-    /// (on frames the sheets settle, the middle sheet's own pairs only).
+    /// Of the fold frames, how many overlapped; the median of the pairs
+    /// listed (frames the sheets settle list none) and of the middle
+    /// sheet's triangles (on frames the sheets settle).
     pub fold_frames_overlapping: usize,
     pub fold_pairs_median: usize,
+    pub fold_middle_median: usize,
     /// Fold frames settled by the sheets of an earlier exact frame, and of
     /// those how many first widened the middle.
     pub fold_frames_certified: usize,
@@ -866,6 +868,7 @@ struct DepthFrame {
     took: f64,
     overlapped: bool,
     pairs: usize,
+    middle: usize,
     scanned_all: bool,
     skipped: bool,
     certified: bool,
@@ -929,6 +932,7 @@ pub fn run_depth_case(
             took,
             overlapped: depth.overlapped(),
             pairs: depth.overlap_pairs(),
+            middle: depth.middle_triangles(),
             scanned_all: depth.scanned_all(),
             skipped: depth.skipped(),
             certified: depth.certified(),
@@ -957,6 +961,7 @@ pub fn run_depth_case(
     }
     let mut fold = Vec::with_capacity(frames);
     let mut pairs = Vec::with_capacity(frames);
+    let mut middle = Vec::with_capacity(frames);
     let (mut overlapping, mut fold_scanning, mut certified, mut widened) = (0, 0, 0, 0);
     for f in 0..frames {
         let t = f as f64 * 0.05;
@@ -966,6 +971,7 @@ pub fn run_depth_case(
         widened += usize::from(f.widened);
         fold.push(f.took);
         pairs.push(f.pairs);
+        middle.push(f.middle);
         overlapping += usize::from(f.overlapped);
         fold_scanning += usize::from(f.scanned_all);
     }
@@ -975,6 +981,7 @@ pub fn run_depth_case(
         v.sort_by(f64::total_cmp);
     }
     pairs.sort_unstable();
+    middle.sort_unstable();
     Ok(DepthResult {
         mesh: name.to_string(),
         vertices: rest.len(),
@@ -990,6 +997,7 @@ pub fn run_depth_case(
         fold_us_p99: percentile(&fold, 0.99),
         fold_frames_overlapping: overlapping,
         fold_pairs_median: pairs[pairs.len() / 2],
+        fold_middle_median: middle[middle.len() / 2],
         fold_frames_certified: certified,
         fold_frames_widened: widened,
         flat_frames_scanning_all: flat_scanning,

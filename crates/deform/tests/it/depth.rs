@@ -640,7 +640,8 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
     // in a few frames a cycle is broken.
     let mesh = bar(60, 6, LENGTH, HEIGHT);
     let mut order = DepthOrder::register(&mesh, None).unwrap();
-    let (mut folded, mut certified, mut widened) = (0, 0, 0);
+    let (mut folded, mut certified, mut widened, mut kept) = (0, 0, 0, 0);
+    let mut last: (Vec<u16>, Vec<(usize, usize)>) = (Vec::new(), Vec::new());
     for (f, pose) in sliding_fold(&mesh).iter().enumerate() {
         let depth = order.update(pose).unwrap().to_vec();
         let pairs = overlapping_pairs(&mesh, pose);
@@ -648,6 +649,17 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
         assert!(!order.widened() || order.certified(), "frame {f}");
         if order.certified() {
             certified += 1;
+            // Coherence on the sheets, the middle included: a pair that
+            // overlapped on the frame before keeps the order it had.
+            let (last_depth, last_pairs) = &last;
+            for &(t, u) in pairs.iter().filter(|p| last_pairs.contains(p)) {
+                kept += 1;
+                assert_eq!(
+                    depth[t] > depth[u],
+                    last_depth[t] > last_depth[u],
+                    "frame {f}: {t} and {u} changed places while they overlapped"
+                );
+            }
         } else {
             assert_eq!(order.overlap_pairs(), pairs.len(), "frame {f}");
         }
@@ -661,7 +673,9 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
         } else {
             folded += 1;
         }
+        last = (depth, pairs);
     }
+    assert!(kept > 1000, "only {kept} pairs overlapped on two frames");
     assert!(folded > 200, "only {folded} frames folded");
     // Most of them on the sheets, checked like the rest.
     assert!(
@@ -671,5 +685,7 @@ fn a_sliding_fold_agrees_with_brute_force_every_frame() {
     // Where the line between the sides slides out of the middle, the
     // middle widens over it rather than the frame taking the exact path.
     assert!(widened > 0, "the middle never widened");
-    println!("{folded} folded frames, {certified} on the sheets, {widened} widened");
+    println!(
+        "{folded} folded frames, {certified} on the sheets, {widened} widened, {kept} pairs kept"
+    );
 }
