@@ -172,8 +172,9 @@ pub struct DepthOrder {
 #[derive(Debug)]
 struct Sheets {
     on: bool,
-    /// Set when built: the next frame writes every depth.
-    fresh: bool,
+    /// Which depths the frame must write: every one after the cut, the
+    /// middle's after a widening (the ranks leave it room), else none.
+    stale: Stale,
     /// Per triangle, its sheet, and (while widening) the sheet it had.
     of: Vec<u8>,
     was: Vec<u8>,
@@ -214,12 +215,23 @@ struct Sheets {
     border_boxes: [Vec<(DVec2, DVec2, u32)>; 2],
     /// Triangles of the front or back sheet the certificate blamed this
     /// frame (at most [`MAX_OFFENDERS`]), and the inverted triangles it
-    /// found (of any sheet).
+    /// found this frame (of any sheet).
     offenders: Vec<u32>,
     inverted: Vec<u32>,
     /// The middle's size when the sheets were cut: widening stops at twice
     /// it.
     cut_middle: usize,
+    /// A triangle of the front's and of the back's largest part when last
+    /// looked for.
+    anchor: [u32; 2],
+}
+
+/// The depths a frame on the sheets must write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Stale {
+    Nothing,
+    Middle,
+    All,
 }
 
 /// Everything a frame writes, sized at registration.
@@ -434,7 +446,7 @@ impl DepthOrder {
             sheets_allowed: true,
             sheets: Sheets {
                 on: false,
-                fresh: false,
+                stale: Stale::Nothing,
                 of: vec![BACK_SHEET; count],
                 was: vec![BACK_SHEET; count],
                 middle: Vec::with_capacity(count),
@@ -456,6 +468,7 @@ impl DepthOrder {
                 offenders: Vec::with_capacity(MAX_OFFENDERS),
                 inverted: Vec::with_capacity(count),
                 cut_middle: 0,
+                anchor: [NONE; 2],
             },
             scratch,
         })
@@ -756,34 +769,34 @@ impl DepthOrder {
         if inside * MIDDLE_SHARE > pairs.len() {
             return;
         }
-        if !self.place_sheets() {
+        if !self.rank_sheets() {
             return;
         }
+        self.place_sheets();
         self.order_middle_at_cut();
-        self.sheets.cut_middle = self.sheets.middle.len();
         self.sheets.on = true;
-        self.sheets.fresh = true;
+        self.sheets.stale = Stale::All;
     }
 
-    /// With each triangle's sheet set: the ranks (false if they do not fit
-    /// in a depth), the middle list (in triangle order: the caller puts it
-    /// in its fixed order) and the sheets' border edges.
-    fn place_sheets(&mut self) -> bool {
-        let count = self.triangles.len();
+    /// At the cut, the sheets' ranks (false if they do not fit in a
+    /// depth): every middle depth above every back layer (one depth a
+    /// middle triangle, in its fixed order), every front depth above every
+    /// middle depth. They leave room for the middle to widen to
+    /// [`DepthOrder::widen_middle`]'s limit, so widening changes no rank
+    /// and no depth outside the middle.
+    fn rank_sheets(&mut self) -> bool {
         let sh = &mut self.sheets;
-        // Ranks: every middle depth above every back layer (one depth a
-        // middle triangle, in its fixed order), every front depth above
-        // every middle depth.
         let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
-        let mut middle = 0u32;
-        for t in 0..count {
-            let (s, layer) = (sh.of[t] as usize, u32::from(self.layers[t]));
+        let mut middle = 0;
+        for (&s, &layer) in sh.of.iter().zip(&self.layers) {
+            let (s, layer) = (s as usize, u32::from(layer));
             lo[s] = lo[s].min(layer);
             hi[s] = hi[s].max(layer);
-            middle += u32::from(s == MIDDLE_SHEET as usize);
+            middle += usize::from(s == MIDDLE_SHEET as usize);
         }
+        sh.cut_middle = middle;
         let back_top = if lo[0] == u32::MAX { 0 } else { hi[0] };
-        let middle_top = back_top + middle;
+        let middle_top = back_top + widest_middle(middle) as u32;
         let front_offset = if lo[2] == u32::MAX {
             0
         } else {
@@ -793,6 +806,14 @@ impl DepthOrder {
             return false;
         }
         sh.offset = [0, (back_top + 1) as u16, front_offset as u16];
+        true
+    }
+
+    /// With each triangle's sheet set: the middle list (in triangle order:
+    /// the caller puts it in its fixed order) and the sheets' border edges.
+    fn place_sheets(&mut self) {
+        let count = self.triangles.len();
+        let sh = &mut self.sheets;
         sh.middle.clear();
         sh.border_boxes.iter_mut().for_each(Vec::clear);
         sh.middle
@@ -821,7 +842,6 @@ impl DepthOrder {
             }
         }
         sh.witness = (0, 0);
-        true
     }
 
     /// Moves `offenders` (triangles of the front or back sheet that this
@@ -848,7 +868,7 @@ impl DepthOrder {
         }
         keep_largest_parts(sh, &self.neighbours);
         let middle = sh.of.iter().filter(|&&s| s == MIDDLE_SHEET).count();
-        if middle > 2 * sh.cut_middle.max(16) {
+        if middle > widest_middle(sh.cut_middle) {
             return false;
         }
         // Each triangle joining the middle keeps its side of the middle:
@@ -864,13 +884,11 @@ impl DepthOrder {
                 }
             }
         }
-        if !self.place_sheets() {
-            return false;
-        }
+        self.place_sheets();
         let sh = &mut self.sheets;
         let place = &sh.place;
         sh.middle.sort_unstable_by_key(|&t| place[t as usize]);
-        sh.fresh = true;
+        sh.stale = sh.stale.max(Stale::Middle);
         true
     }
 
@@ -985,7 +1003,6 @@ impl DepthOrder {
     fn certify_sheets(&mut self, positions: &[DVec2]) -> Certificate {
         let sh = &mut self.sheets;
         sh.offenders.clear();
-        self.triangles.not_positive(positions, &mut sh.inverted);
         for &t in &sh.inverted {
             if sh.of[t as usize] != MIDDLE_SHEET {
                 offend(&mut sh.offenders, t);
@@ -1091,6 +1108,9 @@ impl DepthOrder {
         if !self.pins.is_empty() {
             return false;
         }
+        // The inverted triangles once a frame, whatever sheets they fall in.
+        self.triangles
+            .not_positive(positions, &mut self.sheets.inverted);
         // Where the line between the sides slid out of the middle, the
         // middle widens over it and the certificate is checked again.
         let mut widenings = 0;
@@ -1114,21 +1134,23 @@ impl DepthOrder {
         self.calm = false;
         let sh = &mut self.sheets;
         let mut changed = false;
-        if sh.fresh {
-            sh.fresh = false;
-            let mut set = |t: usize, depth: u16| {
-                changed |= self.depth[t] != depth;
-                self.depth[t] = depth;
-            };
+        let mut set = |t: usize, depth: u16| {
+            changed |= self.depth[t] != depth;
+            self.depth[t] = depth;
+        };
+        if sh.stale == Stale::All {
             for (t, &sheet) in sh.of.iter().enumerate() {
                 if sheet != MIDDLE_SHEET {
                     set(t, self.layers[t] + sh.offset[sheet as usize]);
                 }
             }
+        }
+        if sh.stale != Stale::Nothing {
             for (place, &t) in sh.middle.iter().enumerate() {
                 set(t as usize, sh.offset[MIDDLE_SHEET as usize] + place as u16);
             }
         }
+        sh.stale = Stale::Nothing;
         self.changed = changed;
         true
     }
@@ -1788,6 +1810,11 @@ impl DepthOrder {
     }
 }
 
+/// The most triangles the middle may widen to, from its size at the cut.
+fn widest_middle(cut: usize) -> usize {
+    2 * cut.max(16)
+}
+
 /// Marks a triangle reached by [`flood_sheet`] (the high bit of its sheet).
 const REACHED: u8 = 0x80;
 
@@ -1828,27 +1855,42 @@ fn offend(offenders: &mut Vec<u32>, t: u32) {
 /// Each of the front and back sheets made connected (one part of it then
 /// cannot lie inside another with no boundary crossing): its largest part
 /// joined through edges stays, smaller ones (bits cut off by the middle)
-/// join the middle, whose order orders all their pairs.
+/// join the middle, whose order orders all their pairs. The part holding
+/// the largest part's triangle from the last call is flooded first: when
+/// it holds more than half the sheet it is the largest, and no other part
+/// needs flooding (the common case when widening cuts a few triangles
+/// off).
 fn keep_largest_parts(sh: &mut Sheets, neighbours: &[[u32; 3]]) {
     let count = sh.of.len();
-    for sheet in [FRONT_SHEET, BACK_SHEET] {
-        let (mut largest, mut largest_start) = (0, usize::MAX);
-        for start in 0..count {
-            if sh.of[start] != sheet {
-                continue;
-            }
-            let reached = flood_sheet(&mut sh.of, &mut sh.queue, neighbours, start);
-            if reached > largest {
-                (largest, largest_start) = (reached, start);
-            }
-        }
-        if largest_start == usize::MAX {
+    for (k, sheet) in [FRONT_SHEET, BACK_SHEET].into_iter().enumerate() {
+        let size = sh.of.iter().filter(|&&s| s == sheet).count();
+        let anchor = sh.anchor[k] as usize;
+        let first = if anchor < count && sh.of[anchor] == sheet {
+            anchor
+        } else if let Some(t) = sh.of.iter().position(|&s| s == sheet) {
+            t
+        } else {
             continue;
+        };
+        let reached = flood_sheet(&mut sh.of, &mut sh.queue, neighbours, first);
+        let mut largest_start = first;
+        if 2 * reached <= size {
+            let mut largest = reached;
+            for start in 0..count {
+                if sh.of[start] != sheet {
+                    continue;
+                }
+                let reached = flood_sheet(&mut sh.of, &mut sh.queue, neighbours, start);
+                if reached > largest {
+                    (largest, largest_start) = (reached, start);
+                }
+            }
+            for s in sh.of.iter_mut() {
+                *s &= !REACHED;
+            }
+            flood_sheet(&mut sh.of, &mut sh.queue, neighbours, largest_start);
         }
-        for s in sh.of.iter_mut() {
-            *s &= !REACHED;
-        }
-        flood_sheet(&mut sh.of, &mut sh.queue, neighbours, largest_start);
+        sh.anchor[k] = largest_start as u32;
         for s in sh.of.iter_mut() {
             if *s == sheet {
                 *s = MIDDLE_SHEET;
