@@ -1603,11 +1603,10 @@ impl DepthOrder {
             }
         } else {
             // The all-triangle grid found them without growing: each patch
-            // is walked from its lowest pair,
-            // every pair reached given its side and tallied. A link
-            // contradicting a side already given (a patch wrapping onto
-            // itself round a tight crease) is ignored, as `Scratch::union`
-            // does.
+            // is walked from its lowest pair, every pair reached given its
+            // side and tallied. A link contradicting a side already given
+            // (a patch wrapping onto itself round a tight crease) is
+            // ignored, as `Scratch::union` does.
             s.stack.clear();
             s.parent.fill(NONE);
             for start in 0..n as u32 {
