@@ -271,12 +271,65 @@ struct Scratch {
     moved_frame: Vec<u32>,
     frame: u32,
     new_involved: Vec<u32>,
-    edge_start: Vec<u32>,
-    edge_end: Vec<u32>,
-    indegree: Vec<u32>,
+    above: Above,
     level: Vec<u16>,
-    edges: Vec<u32>,
     queue: Vec<u32>,
+}
+
+/// "Front above back" constraints between triangles, for a topological
+/// sort: per triangle, the triangles that must lie above it and how many
+/// must lie below it.
+#[derive(Debug)]
+struct Above {
+    /// Triangle `t`'s triangles above are `fronts[start[t]..end[t]]`.
+    start: Vec<u32>,
+    end: Vec<u32>,
+    fronts: Vec<u32>,
+    /// Constraints putting something below each triangle not yet placed.
+    indegree: Vec<u32>,
+}
+
+impl Above {
+    fn with_capacity(triangles: usize) -> Above {
+        Above {
+            start: vec![0; triangles],
+            end: vec![0; triangles],
+            fronts: Vec::with_capacity(triangles),
+            indegree: vec![0; triangles],
+        }
+    }
+
+    /// The constraints `(back, front)` among `triangles` (both ends of each
+    /// among them), replacing theirs.
+    fn set(&mut self, triangles: &[u32], pairs: impl Iterator<Item = (u32, u32)> + Clone) {
+        for &t in triangles {
+            self.end[t as usize] = 0;
+            self.indegree[t as usize] = 0;
+        }
+        for (back, front) in pairs.clone() {
+            self.end[back as usize] += 1;
+            self.indegree[front as usize] += 1;
+        }
+        let mut next = 0;
+        for &t in triangles {
+            let t = t as usize;
+            self.start[t] = next;
+            next += self.end[t];
+            self.end[t] = self.start[t];
+        }
+        self.fronts.clear();
+        self.fronts.resize(next as usize, 0);
+        for (back, front) in pairs {
+            let slot = &mut self.end[back as usize];
+            self.fronts[*slot as usize] = front;
+            *slot += 1;
+        }
+    }
+
+    /// Where triangle `t`'s triangles above lie in `fronts`.
+    fn of(&self, t: usize) -> std::ops::Range<usize> {
+        self.start[t] as usize..self.end[t] as usize
+    }
 }
 
 /// How [`DepthOrder::decide`] learns which pairs are neighbours.
@@ -411,11 +464,8 @@ impl DepthOrder {
             moved_frame: vec![0; count],
             frame: 0,
             new_involved: Vec::with_capacity(count),
-            edge_start: vec![0; count],
-            edge_end: vec![0; count],
-            indegree: vec![0; count],
+            above: Above::with_capacity(count),
             level: vec![0; count],
-            edges: Vec::with_capacity(count),
             queue: Vec::with_capacity(count),
         };
         Ok(DepthOrder {
@@ -940,39 +990,21 @@ impl DepthOrder {
             )
         };
         // The exact frame's pairs inside the middle, lower depth first.
-        for &t in &sh.middle {
-            s.edge_end[t as usize] = 0;
-            s.indegree[t as usize] = 0;
-        }
         let below = |a: u32, b: u32| (self.depth[a as usize], a) < (self.depth[b as usize], b);
-        let inside = |&&(a, b): &&(u32, u32)| {
-            sh.of[a as usize] == MIDDLE_SHEET && sh.of[b as usize] == MIDDLE_SHEET
-        };
-        for &(a, b) in s.pairs.iter().filter(inside) {
-            let (low, high) = if below(a, b) { (a, b) } else { (b, a) };
-            s.edge_end[low as usize] += 1;
-            s.indegree[high as usize] += 1;
-        }
-        let mut next = 0;
-        for &t in &sh.middle {
-            let t = t as usize;
-            s.edge_start[t] = next;
-            next += s.edge_end[t];
-            s.edge_end[t] = s.edge_start[t];
-        }
-        s.edges.clear();
-        s.edges.resize(next as usize, 0);
-        for &(a, b) in s.pairs.iter().filter(inside) {
-            let (low, high) = if below(a, b) { (a, b) } else { (b, a) };
-            let slot = &mut s.edge_end[low as usize];
-            s.edges[*slot as usize] = high;
-            *slot += 1;
-        }
+        let inside = s
+            .pairs
+            .iter()
+            .filter(|&&(a, b)| {
+                sh.of[a as usize] == MIDDLE_SHEET && sh.of[b as usize] == MIDDLE_SHEET
+            })
+            .map(|&(a, b)| if below(a, b) { (a, b) } else { (b, a) });
+        s.above.set(&sh.middle, inside);
+        let above = &mut s.above;
         sh.ready.clear();
         sh.ready.extend(
             sh.middle
                 .iter()
-                .filter(|&&t| s.indegree[t as usize] == 0)
+                .filter(|&&t| above.indegree[t as usize] == 0)
                 .map(|&t| Reverse(measure(t))),
         );
         let mut placed = 0;
@@ -980,10 +1012,10 @@ impl DepthOrder {
             let t = t as usize;
             sh.place[t] = placed;
             placed += 1;
-            for e in s.edge_start[t]..s.edge_end[t] {
-                let high = s.edges[e as usize] as usize;
-                s.indegree[high] -= 1;
-                if s.indegree[high] == 0 {
+            for e in above.of(t) {
+                let high = above.fronts[e] as usize;
+                above.indegree[high] -= 1;
+                if above.indegree[high] == 0 {
                     sh.ready.push(Reverse(measure(high as u32)));
                 }
             }
@@ -1698,34 +1730,15 @@ impl DepthOrder {
         let s = &mut self.scratch;
         s.new_involved.sort_unstable();
         for &t in &s.new_involved {
-            let t = t as usize;
-            s.edge_end[t] = 0;
-            s.indegree[t] = 0;
-            s.level[t] = self.layers[t];
+            s.level[t as usize] = self.layers[t as usize];
         }
-        for &(back, front) in &s.pairs {
-            s.edge_end[back as usize] += 1;
-            s.indegree[front as usize] += 1;
-        }
-        let mut next = 0u32;
-        for &t in &s.new_involved {
-            let t = t as usize;
-            s.edge_start[t] = next;
-            next += s.edge_end[t];
-            s.edge_end[t] = s.edge_start[t];
-        }
-        s.edges.clear();
-        s.edges.resize(s.pairs.len(), 0);
-        for &(back, front) in &s.pairs {
-            let slot = &mut s.edge_end[back as usize];
-            s.edges[*slot as usize] = front;
-            *slot += 1;
-        }
+        s.above.set(&s.new_involved, s.pairs.iter().copied());
+        let above = &mut s.above;
         s.queue.clear();
         s.queue.extend(
             s.new_involved
                 .iter()
-                .filter(|&&t| s.indegree[t as usize] == 0),
+                .filter(|&&t| above.indegree[t as usize] == 0),
         );
         let mut head = 0;
         while s.queue.len() < s.new_involved.len() || head < s.queue.len() {
@@ -1736,11 +1749,11 @@ impl DepthOrder {
                     .new_involved
                     .iter()
                     .copied()
-                    .filter(|&t| s.indegree[t as usize] > 0)
+                    .filter(|&t| above.indegree[t as usize] > 0)
                     .min_by_key(|&t| (self.layers[t as usize], t))
                     .expect("fewer queued than involved leaves one waiting");
-                self.dropped += s.indegree[stuck as usize] as usize;
-                s.indegree[stuck as usize] = 0;
+                self.dropped += above.indegree[stuck as usize] as usize;
+                above.indegree[stuck as usize] = 0;
                 s.queue.push(stuck);
             }
             let t = s.queue[head] as usize;
@@ -1748,21 +1761,21 @@ impl DepthOrder {
             // A front already placed was placed by breaking a cycle, before
             // this triangle: the constraint turns round (this one goes over
             // it), so the two still get different depths.
-            for e in s.edge_start[t]..s.edge_end[t] {
-                let front = s.edges[e as usize] as usize;
-                if s.indegree[front] == 0 {
+            for e in above.of(t) {
+                let front = above.fronts[e] as usize;
+                if above.indegree[front] == 0 {
                     s.level[t] = s.level[t].max(s.level[front].saturating_add(1));
                 }
             }
-            for e in s.edge_start[t]..s.edge_end[t] {
-                let front = s.edges[e as usize] as usize;
+            for e in above.of(t) {
+                let front = above.fronts[e] as usize;
                 // Zero: already placed (a cycle dropped this edge).
-                if s.indegree[front] == 0 {
+                if above.indegree[front] == 0 {
                     continue;
                 }
                 s.level[front] = s.level[front].max(s.level[t].saturating_add(1));
-                s.indegree[front] -= 1;
-                if s.indegree[front] == 0 {
+                above.indegree[front] -= 1;
+                if above.indegree[front] == 0 {
                     s.queue.push(front as u32);
                 }
             }
