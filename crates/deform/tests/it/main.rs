@@ -16,4 +16,6 @@ mod ffd;
 mod measure;
 mod no_alloc;
 mod rbf;
+mod singular_arap;
+mod singular_others;
 mod skeleton;
