@@ -41,6 +41,7 @@ use faer::linalg::lu::partial_pivoting::{
 use faer::traits::ComplexField;
 use faer::{Mat, c64};
 use glam::DVec2;
+use std::collections::HashMap;
 
 use super::sparse::{
     ComplexCholesky, FactorError, RealCholesky, SparseVector, UpperPattern, fill_reducing_order,
@@ -123,6 +124,83 @@ impl Row {
             + x[self.corners[1] as usize] * self.weights[1]
             + x[self.corners[2] as usize] * self.weights[2]
     }
+}
+
+impl Row {
+    /// The dot product of two rows over the same piece's vertices.
+    fn dot_row(&self, other: &Row) -> f64 {
+        let mut sum = 0.0;
+        for (a, wa) in self.corners.iter().zip(self.weights) {
+            for (b, wb) in other.corners.iter().zip(other.weights) {
+                if a == b {
+                    sum += wa * wb;
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// How far a handle's constraint row must stand from the span of the newer
+/// kept handles' rows to be kept: its squared distance from that span over
+/// its own squared length. Rows are barycentric weights, so two points in
+/// one triangle whose weights differ by `d` stand about `d²/2` apart: this
+/// keeps handles more than about a seventh of a triangle apart (two
+/// fingertips apart on any mesh the tracer makes), and a kept set's
+/// disagreeing targets stretch the mesh by at most about `1/√INDEPENDENCE`
+/// (ten) times their disagreement instead of without bound.
+const INDEPENDENCE: f64 = 1e-2;
+
+/// Which handles to keep, given each one's piece and constraint row. Walking
+/// from the newest, a handle is kept when its row stands at least
+/// [`INDEPENDENCE`] from the span of the rows kept before it, measured by
+/// an incremental Cholesky factor of their Gram matrix. Rows meet only
+/// through shared vertices, so handles are grouped into clusters joined by
+/// shared vertices, each with a factor of its own: handles far apart never
+/// meet, and a frame's usual handful of fingers costs a few dot products.
+fn independent(rows: &[(u32, Row)]) -> Vec<bool> {
+    fn find(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let k = rows.len();
+    let mut parent: Vec<usize> = (0..k).collect();
+    let mut first_on: HashMap<(u32, u32), usize> = HashMap::new();
+    for (h, (piece, row)) in rows.iter().enumerate() {
+        for (&corner, weight) in row.corners.iter().zip(row.weights) {
+            if weight == 0.0 {
+                continue;
+            }
+            let earlier = *first_on.entry((*piece, corner)).or_insert(h);
+            let (a, b) = (find(&mut parent, earlier), find(&mut parent, h));
+            parent[a] = b;
+        }
+    }
+    let mut live = vec![false; k];
+    // Per cluster root: the kept handles and the rows of the lower
+    // triangular factor of their Gram matrix.
+    let mut clusters: HashMap<usize, (Vec<usize>, Vec<Vec<f64>>)> = HashMap::new();
+    for h in (0..k).rev() {
+        let row = &rows[h].1;
+        let (kept, factor) = clusters.entry(find(&mut parent, h)).or_default();
+        let own = row.dot_row(row);
+        let mut y: Vec<f64> = Vec::with_capacity(kept.len() + 1);
+        for (i, &other) in kept.iter().enumerate() {
+            let along: f64 = factor[i][..i].iter().zip(&y).map(|(l, y)| l * y).sum();
+            y.push((row.dot_row(&rows[other].1) - along) / factor[i][i]);
+        }
+        let pivot = own - y.iter().map(|v| v * v).sum::<f64>();
+        if pivot > INDEPENDENCE * own {
+            y.push(pivot.sqrt());
+            factor.push(y);
+            kept.push(h);
+            live[h] = true;
+        }
+    }
+    live
 }
 
 /// A compiled handle inside a piece, with its columns of `W`.
@@ -284,8 +362,6 @@ pub struct Arap {
     pieces: Vec<PieceSolver>,
     handle_count: usize,
     pose: Vec<DVec2>,
-    /// Two handles closer than this in rest space are the same handle.
-    same_point: f64,
 }
 
 /// Best rotation (as cos, sin) taking `rest` onto `pose` about their
@@ -388,7 +464,6 @@ impl Arap {
         }
         Ok(Arap {
             pose: rest.clone(),
-            same_point: mesh.size() * 1e-9,
             rest,
             triangles,
             vertex_home,
@@ -399,28 +474,24 @@ impl Arap {
 
     /// Compilation: sets the handle set. Handles present in the previous set
     /// keep their precomputed columns; each new one costs one complex and one
-    /// real sparse solve in its own piece. Two handles on the same rest point:
-    /// the later wins. Pieces left with fewer than two handles are fixed
-    /// rigidly in their current pose.
+    /// real sparse solve in its own piece. Pieces left with fewer than two
+    /// handles are fixed rigidly in their current pose.
+    ///
+    /// Handles that (nearly) repeat newer ones are left out: the later
+    /// wins. Two handles on one rest point, three on a line inside one
+    /// triangle, four in one triangle, or a finger a hair from a pin ask the
+    /// mesh for constraints that are linearly dependent, or so nearly that
+    /// the small systems lose every digit and the pose flies off (see
+    /// [`independent`]). Leaving the older handle out keeps the pose where
+    /// the newer one puts it, which is what a finger landing on a held point
+    /// means.
     pub fn compile(&mut self, anchors: &[Anchor]) -> Result<(), ArapError> {
         let mut rows = Vec::with_capacity(anchors.len());
         for (h, anchor) in anchors.iter().enumerate() {
             rows.push(self.resolve(h, anchor)?);
         }
-        let mut live = vec![true; anchors.len()];
-        for later in (0..anchors.len()).rev() {
-            if !live[later] {
-                continue;
-            }
-            for earlier in 0..later {
-                if live[earlier]
-                    && rows[earlier].0 == rows[later].0
-                    && rows[earlier].2.distance(rows[later].2) <= self.same_point
-                {
-                    live[earlier] = false;
-                }
-            }
-        }
+        let keyed: Vec<(u32, Row)> = rows.iter().map(|r| (r.0 as u32, r.1)).collect();
+        let live = independent(&keyed);
         let mut per_piece: Vec<Vec<(usize, Anchor, Row, DVec2)>> =
             vec![Vec::new(); self.pieces.len()];
         for (h, (piece, row, point)) in rows.into_iter().enumerate() {
@@ -489,7 +560,8 @@ impl Arap {
     }
 
     /// Update: moves the compiled handles to `targets` (same order as the
-    /// anchors given to [`Arap::compile`]) and recomputes the pose.
+    /// anchors given to [`Arap::compile`]; a handle left out as dependent
+    /// has its target read and ignored) and recomputes the pose.
     /// Does not allocate.
     pub fn update(&mut self, targets: &[DVec2], steps: Steps) -> Result<&[DVec2], ArapError> {
         if targets.len() != self.handle_count {
