@@ -286,7 +286,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
             commands.clone(),
             started,
         )
-        .map_err(ServeError::Input)?;
+        .map_err(|e| ServeError::Input(e.to_string()))?;
         if let Ok(links) = shared.links() {
             *links.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
         }

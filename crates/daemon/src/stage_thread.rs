@@ -9,7 +9,7 @@
 //! while frames keep coming from the old solver, and the worker hands the
 //! new one back as a command, which swaps it in between two solves.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -21,7 +21,7 @@ use glam::DVec2;
 use tokio::sync::{mpsc, oneshot, watch};
 
 use puppetry_deform::Arap;
-use puppetry_input::ContactFrame;
+use puppetry_input::{ContactFrame, Phase};
 use puppetry_stage::{
     Change, CommandError, GridExport, Grip, HandleKind, Rebuild, Stage, StageEvent, WeightsFile,
 };
@@ -137,8 +137,18 @@ pub enum Command {
         puppet: u32,
         reply: Reply<(PathBuf, puppetry_stage::keys::KeyFile)>,
     },
-    /// Which take is playing (`None`: playing stopped), for the take state.
-    Playing(Option<String>),
+    /// A player asks to start playing a take: refused if it is the take
+    /// being recorded, else it is the take playing (the take state says).
+    PlayStarting {
+        name: String,
+        path: PathBuf,
+        reply: oneshot::Sender<Result<(), crate::takes::PlayError>>,
+    },
+    /// The take playing ended (played out, stopped or failed): what its
+    /// sources still hold lets go, and an overdub of it stops.
+    PlayEnded {
+        name: String,
+    },
     /// Add, remove or reorder puppets (refused while a take records);
     /// answers the puppet added or removed (0 for a new order).
     Lineup {
@@ -588,6 +598,13 @@ struct Taking {
     step: Vec<Change>,
     events: Vec<StageEvent>,
     playing: Option<String>,
+    /// The contacts the take being recorded holds down (by source): they
+    /// are let go in the take when it stops, so it ends with nothing held
+    /// whenever it is stopped.
+    held: BTreeMap<String, BTreeSet<u32>>,
+    /// Played sources (`TAKE/SOURCE`) that reached the stage: what they
+    /// hold lets go when their take ends.
+    played: BTreeSet<String>,
     /// The take the one recording layers over, if it is an overdub.
     overdub_of: Option<String>,
     /// The take state changed where it could not be published at once (a
@@ -647,6 +664,7 @@ impl Taking {
         self.error = None;
         self.step.clear();
         self.events.clear();
+        self.held.clear();
         stage.keep_events(true);
         Ok(name)
     }
@@ -657,15 +675,93 @@ impl Taking {
             .join(format!("{name}.{}", puppetry_take::EXTENSION))
     }
 
-    /// Ends the take being recorded (if any), for `reason`.
+    /// Notes the played sources a played change brings on stage.
+    fn note_played(&mut self, change: &Change) {
+        let source = match change {
+            Change::Contacts { frame } => frame.source.as_str(),
+            Change::Pin { owner, .. } => owner.as_str(),
+            _ => return,
+        };
+        if !self.played.contains(source) {
+            self.played.insert(source.to_string());
+        }
+    }
+
+    /// The take `name` stopped playing: an overdub of it stops too.
+    fn ended(&mut self, stage: &mut Stage, name: &str, changes: &watch::Sender<u64>) {
+        if self.playing.as_deref() != Some(name) {
+            return;
+        }
+        self.playing = None;
+        if self.overdub_of.as_deref() == Some(name) && self.recorder.is_some() {
+            let _ = self.stop(stage, "stopped");
+        }
+        self.publish(changes);
+    }
+
+    /// Notes what a change recorded into the take holds down or lets go.
+    fn note(&mut self, change: &Change) {
+        match change {
+            Change::Contacts { frame } => {
+                let source = frame.source.as_str();
+                for c in &frame.contacts {
+                    match (c.phase, self.held.get_mut(source)) {
+                        (Phase::Down, Some(ids)) => {
+                            ids.insert(c.id);
+                        }
+                        (Phase::Down, None) => {
+                            self.held.insert(source.to_string(), BTreeSet::from([c.id]));
+                        }
+                        (Phase::Up, Some(ids)) => {
+                            ids.remove(&c.id);
+                            if ids.is_empty() {
+                                self.held.remove(source);
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+            }
+            Change::Release { source } => {
+                self.held.remove(source);
+            }
+            _ => {}
+        }
+    }
+
+    /// Ends the take being recorded (if any), for `reason`. Contacts the
+    /// take holds down are let go in its last step (the live stage keeps
+    /// them: the fingers are still there), so playing it leaves nothing
+    /// held. That step has no frames: nobody saw them let go.
     fn stop(&mut self, stage: &mut Stage, reason: &str) -> Result<String, String> {
         let recorder = self
             .recorder
             .take()
             .ok_or_else(|| "no take is recording".to_string())?;
         stage.keep_events(false);
+        self.overdub_of = None;
         let name = recorder.name().to_string();
-        match recorder.finish(reason) {
+        let held = std::mem::take(&mut self.held);
+        let released = if held.is_empty() {
+            Ok(())
+        } else {
+            recorder.record(Record::Step(Step {
+                t: recorder.elapsed(),
+                changes: held
+                    .into_keys()
+                    .map(|source| Change::Release { source })
+                    .collect(),
+                events: Vec::new(),
+            }))
+        };
+        let finished = match released {
+            Ok(()) => recorder.finish(reason),
+            Err(e) => {
+                let _ = recorder.finish(&e.to_string());
+                Err(e)
+            }
+        };
+        match finished {
             Ok(()) => {
                 tracing::info!("take {name}: {reason}");
                 Ok(name)
@@ -764,10 +860,35 @@ pub fn spawn(
                             // when it was recorded.
                             batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
                             for change in changes {
+                                taking.note_played(&change);
                                 batch.apply(&mut stage, &mut taking, change, None, &wake);
                             }
                             batch.newest = received;
                             batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                        } else if let Command::PlayEnded { name } = command {
+                            // What came before is solved (and recorded) first;
+                            // the take's sources let go in a step of their
+                            // own, recorded into an overdub before it stops.
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                            batch.let_go_of_played(&mut stage, &mut taking, Some(&name), &wake);
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                            taking.ended(&mut stage, &name, &publisher.changes);
+                        } else if matches!(
+                            command,
+                            Command::StartTake { .. } | Command::StopTake { .. }
+                        ) {
+                            // What came before belongs to the take stopping
+                            // (or to none, not the take starting): solve and
+                            // record it first.
+                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                            batch.command(
+                                &mut stage,
+                                &mut taking,
+                                &mut cursors,
+                                command,
+                                &wake,
+                                &publisher.changes,
+                            );
                         } else {
                             batch.command(
                                 &mut stage,
@@ -869,6 +990,8 @@ impl StageLoop {
             step: Vec::new(),
             events: Vec::new(),
             playing: None,
+            held: BTreeMap::new(),
+            played: BTreeSet::new(),
             overdub_of: None,
             announce: false,
             error: None,
@@ -996,6 +1119,7 @@ impl Batch {
             }
         });
         if result.is_ok() && taking.recorder.is_some() {
+            taking.note(&change);
             taking.step.push(change);
         }
         if let Some(reply) = reply {
@@ -1018,8 +1142,10 @@ impl Batch {
                 self.newest = received;
                 self.apply(stage, taking, Change::Contacts { frame }, None, wake);
             }
-            Command::Played { .. } | Command::Lineup { .. } => {
-                unreachable!("played steps and lineup changes are handled on their own")
+            Command::Played { .. } | Command::Lineup { .. } | Command::PlayEnded { .. } => {
+                unreachable!(
+                    "played steps, a take's end and lineup changes are handled on their own"
+                )
             }
             Command::Pin { owner, at } => {
                 self.apply(stage, taking, Change::Pin { owner, at }, None, wake)
@@ -1045,6 +1171,10 @@ impl Batch {
                 // The history decides what to put back; the take records
                 // the state put back (a `restore`), not the undo, so it
                 // replays the same whatever history it began with.
+                if edit == Edit::Reset {
+                    // Nothing a take no longer playing held stays held.
+                    self.let_go_of_played(stage, taking, None, wake);
+                }
                 let changes = match edit {
                     Edit::Undo => stage.undo(puppet).map(|c| c.into_iter().collect()),
                     Edit::Redo => stage.redo(puppet).map(|c| c.into_iter().collect()),
@@ -1140,17 +1270,78 @@ impl Batch {
                 let _ = reply.send(taking.stop(stage, "stopped"));
                 taking.publish(changes);
             }
-            Command::Playing(name) => {
-                // An overdub ends with the take it layers over.
-                if name.is_none()
-                    && let Some(played) = taking.playing.take()
-                    && taking.overdub_of.as_deref() == Some(played.as_str())
-                {
-                    let _ = taking.stop(stage, "stopped");
+            Command::PlayStarting { name, path, reply } => {
+                // Played into itself, a take would read what it is writing.
+                let recording = taking
+                    .recorder
+                    .as_ref()
+                    .filter(|r| r.name() == name || r.path() == path);
+                if let Some(r) = recording {
+                    let take = r.name().to_string();
+                    let _ = reply.send(Err(crate::takes::PlayError::Recording { take }));
+                } else {
+                    taking.playing = Some(name);
+                    taking.publish(changes);
+                    let _ = reply.send(Ok(()));
                 }
-                taking.playing = name;
-                taking.publish(changes);
             }
+        }
+    }
+
+    /// Lets go of what played sources hold: those of the take `ended`, or
+    /// (`None`) those of every take but the one playing. Their contacts
+    /// lift and their pins go, through changes an overdub records.
+    fn let_go_of_played(
+        &mut self,
+        stage: &mut Stage,
+        taking: &mut Taking,
+        ended: Option<&str>,
+        wake: &mpsc::WeakSender<Command>,
+    ) {
+        let of = |source: &str, take: &str| {
+            source
+                .strip_prefix(take)
+                .is_some_and(|rest| rest.starts_with('/'))
+        };
+        let gone: Vec<String> = match ended {
+            Some(take) => taking
+                .played
+                .iter()
+                .filter(|s| of(s.as_str(), take))
+                .cloned()
+                .collect(),
+            None => taking
+                .played
+                .iter()
+                .filter(|s| {
+                    !taking
+                        .playing
+                        .as_deref()
+                        .is_some_and(|take| of(s.as_str(), take))
+                })
+                .cloned()
+                .collect(),
+        };
+        if gone.is_empty() {
+            return;
+        }
+        let mut pins = Vec::new();
+        for p in stage.puppets() {
+            for h in p.handles() {
+                if h.kind == HandleKind::Pin
+                    && let puppetry_stage::Owner::Source(owner) = &h.owner
+                    && gone.contains(owner)
+                {
+                    pins.push((p.id, h.id));
+                }
+            }
+        }
+        for source in gone {
+            taking.played.remove(&source);
+            self.apply(stage, taking, Change::Release { source }, None, wake);
+        }
+        for (puppet, handle) in pins {
+            self.apply(stage, taking, Change::Unpin { puppet, handle }, None, wake);
         }
     }
 

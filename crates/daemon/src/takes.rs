@@ -8,6 +8,13 @@
 //! Reading runs on a thread of its own (takes are files; the async tasks
 //! never wait on the disk); steps reach the stage thread through the same
 //! bounded command channel as every source, so none is dropped.
+//!
+//! The stage thread takes a take on before its first step (it refuses the
+//! take being recorded: played into itself it would grow as it plays) and
+//! is told when it ends however it ends (played out, stopped, a bad
+//! record, the player's own failure), so every handle the take's sources
+//! hold ends with it: a take recorded with a finger still down must not
+//! leave that finger on the stage.
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -19,7 +26,7 @@ use glam::DVec2;
 use puppetry_input::{Phase, SourceId};
 use puppetry_stage::{Change, GripEvent, StageEvent};
 use puppetry_take::{PuppetInfo, Record, Step, TakeReader};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, oneshot};
 
 use crate::protocol::Region;
 use crate::stage_thread::Command;
@@ -36,11 +43,31 @@ pub struct PlayOptions {
     pub replace_sources: Vec<String>,
 }
 
+/// Why a take cannot be played, or stopped playing early.
+#[derive(Debug, thiserror::Error)]
+pub enum PlayError {
+    #[error(transparent)]
+    Take(#[from] puppetry_take::TakeError),
+    #[error("{file}: {problem}")]
+    Stage { file: String, problem: String },
+    /// The take asked for is the one being recorded.
+    #[error("take {take} is being recorded: stop recording before playing it")]
+    Recording { take: String },
+    #[error("{file}: the stage stopped")]
+    StageStopped { file: String },
+    #[error("cannot start a player: {0}")]
+    Thread(std::io::Error),
+    #[error("the player panicked")]
+    Panicked,
+}
+
 /// A take playing.
 pub struct Player {
     pub name: String,
     stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<Result<usize, String>>>,
+    thread: Option<std::thread::JoinHandle<Result<usize, PlayError>>>,
+    /// The stage thread's answer to the take starting, until asked for.
+    started: Option<oneshot::Receiver<Result<(), PlayError>>>,
 }
 
 impl Player {
@@ -53,45 +80,102 @@ impl Player {
         self.thread.as_ref().is_none_or(|t| t.is_finished())
     }
 
+    /// Waits until the stage thread has taken the take on, or refused it
+    /// (then the player has ended: nothing of the take was played).
+    pub async fn started(&mut self) -> Result<(), PlayError> {
+        match self.started.take() {
+            Some(answer) => answer.await.unwrap_or_else(|_| {
+                Err(PlayError::StageStopped {
+                    file: self.name.clone(),
+                })
+            }),
+            None => Ok(()),
+        }
+    }
+
     /// Waits for the player; returns the steps played.
-    pub fn join(mut self) -> Result<usize, String> {
+    pub fn join(mut self) -> Result<usize, PlayError> {
         match self.thread.take() {
-            Some(t) => t
-                .join()
-                .unwrap_or_else(|_| Err("the player panicked".into())),
+            Some(t) => t.join().unwrap_or(Err(PlayError::Panicked)),
             None => Ok(0),
         }
     }
 }
 
+/// Tells the stage thread the take ended when the player thread ends, by
+/// returning or by unwinding, so its handles never outlive it.
+struct Ending<'a> {
+    name: &'a str,
+    commands: &'a mpsc::Sender<Command>,
+}
+
+impl Drop for Ending<'_> {
+    fn drop(&mut self) {
+        let _ = self.commands.blocking_send(Command::PlayEnded {
+            name: self.name.to_string(),
+        });
+    }
+}
+
 /// Opens the take at `path`, checks it against the stage's puppets and
-/// starts playing it; `done` runs on the player thread when it ends.
+/// starts playing it. The stage thread may still refuse it (the take being
+/// recorded): [`Player::started`] says.
 pub fn play(
     path: &Path,
     puppets: &[PuppetInfo],
     options: PlayOptions,
     commands: mpsc::Sender<Command>,
     started: Instant,
-) -> Result<Player, String> {
-    let reader = TakeReader::open(path).map_err(|e| e.to_string())?;
-    check(&reader.header.puppets, puppets).map_err(|p| format!("{}: {p}", path.display()))?;
+) -> Result<Player, PlayError> {
+    let reader = TakeReader::open(path)?;
+    check(&reader.header.puppets, puppets).map_err(|problem| PlayError::Stage {
+        file: path.display().to_string(),
+        problem,
+    })?;
     let name = reader.header.name.clone();
     let stop = Arc::new(AtomicBool::new(false));
     let stopping = stop.clone();
     let label = name.clone();
+    let (answer, started_rx) = oneshot::channel();
+    let file = path.to_path_buf();
     let thread = std::thread::Builder::new()
         .name(format!("play {name}"))
         .spawn(move || {
-            let _ = commands.blocking_send(Command::Playing(Some(label.clone())));
-            let result = run(reader, &label, &options, &commands, started, &stopping);
-            let _ = commands.blocking_send(Command::Playing(None));
-            result
+            let (reply, taken) = oneshot::channel();
+            let asked = commands.blocking_send(Command::PlayStarting {
+                name: label.clone(),
+                path: file,
+                reply,
+            });
+            let taken = match asked {
+                Ok(()) => taken.blocking_recv().unwrap_or_else(|_| {
+                    Err(PlayError::StageStopped {
+                        file: label.clone(),
+                    })
+                }),
+                Err(_) => Err(PlayError::StageStopped {
+                    file: label.clone(),
+                }),
+            };
+            if let Err(e) = taken {
+                let _ = answer.send(Err(e));
+                return Ok(0);
+            }
+            let _ = answer.send(Ok(()));
+            // From here the take's end reaches the stage thread whatever
+            // happens, a panic included.
+            let _ending = Ending {
+                name: &label,
+                commands: &commands,
+            };
+            run(reader, &label, &options, &commands, started, &stopping)
         })
-        .map_err(|e| format!("cannot start a player: {e}"))?;
+        .map_err(PlayError::Thread)?;
     Ok(Player {
         name,
         stop,
         thread: Some(thread),
+        started: Some(started_rx),
     })
 }
 
@@ -123,7 +207,7 @@ fn run(
     commands: &mpsc::Sender<Command>,
     started: Instant,
     stop: &AtomicBool,
-) -> Result<usize, String> {
+) -> Result<usize, PlayError> {
     let began = Instant::now();
     let mut filter = Filter::new(name, options);
     let mut played = 0;
@@ -132,7 +216,7 @@ fn run(
         if stop.load(Ordering::Relaxed) {
             break;
         }
-        let Record::Step(step) = record.map_err(|e| e.to_string())? else {
+        let Record::Step(step) = record? else {
             continue;
         };
         if !options.fast {
@@ -154,7 +238,7 @@ fn run(
             .blocking_send(Command::Played { changes, received })
             .is_err()
         {
-            return Err(format!("{file}: the stage stopped"));
+            return Err(PlayError::StageStopped { file });
         }
         played += 1;
     }

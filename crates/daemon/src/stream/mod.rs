@@ -1015,14 +1015,15 @@ async fn stop_take(shared: &Shared) -> Result<String, String> {
 }
 
 /// Plays a take; with `overdub`, records a new take of it and the live
-/// hands, which stops when the played take ends.
+/// hands, which stops when the played take ends. The take being recorded
+/// is refused (`busy`).
 async fn play_take(
     shared: &Shared,
     take: &str,
     overdub: bool,
     replace: Vec<crate::protocol::Region>,
     replace_sources: Vec<String>,
-) -> Result<(), String> {
+) -> Result<(), guard::Refusal> {
     let links = shared.links()?;
     let path = crate::takes::take_path(&links.takes_dir, take)?;
     let puppets = shared.lineup.borrow().take_puppets.len();
@@ -1031,19 +1032,20 @@ async fn play_take(
             return Err(format!(
                 "replace[{i}].puppet: no puppet {} (the stage has {puppets})",
                 r.puppet
-            ));
+            )
+            .into());
         }
         if !(r.radius.is_finite() && r.radius > 0.0 && r.at.iter().all(|v| v.is_finite())) {
-            return Err(format!(
-                "replace[{i}]: needs a finite `at` and a positive `radius`"
-            ));
+            return Err(
+                format!("replace[{i}]: needs a finite `at` and a positive `radius`").into(),
+            );
         }
     }
     {
         let mut slot = links.player.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(p) = slot.as_ref() {
             if !p.is_finished() {
-                return Err(format!("take {} is already playing", p.name));
+                return Err(format!("take {} is already playing", p.name).into());
             }
             *slot = None;
         }
@@ -1064,13 +1066,21 @@ async fn play_take(
     })
     .await
     .map_err(|e| e.to_string())?;
-    let player = match opened {
+    let started = match opened {
+        Ok(mut player) => player.started().await.map(|()| player),
+        Err(e) => Err(e),
+    };
+    let player = match started {
         Ok(player) => player,
         Err(e) => {
             if overdub {
                 let _ = stop_take(shared).await;
             }
-            return Err(e);
+            let code = match e {
+                crate::takes::PlayError::Recording { .. } => crate::protocol::ErrorCode::Busy,
+                _ => crate::protocol::ErrorCode::Failed,
+            };
+            return Err(guard::Refusal::new(code, e.to_string()));
         }
     };
     let mut slot = links.player.lock().unwrap_or_else(|p| p.into_inner());
@@ -1090,15 +1100,24 @@ async fn list_takes(shared: &Shared) -> Result<String, String> {
     .await
     .map_err(|e| e.to_string())?
     .map_err(|e| e.to_string())?;
+    // The take being recorded reads as unended: say what it is instead
+    // (it cannot be played until it stops).
+    let recording = serde_json::from_str::<serde_json::Value>(&shared.take.borrow())
+        .ok()
+        .and_then(|m| m["recording"].as_str().map(str::to_string));
     let takes = listed
         .into_iter()
         .filter_map(|t| match t {
             Ok(t) => Some(crate::protocol::TakeView {
+                ending: if recording.as_deref() == Some(t.name.as_str()) {
+                    "recording".to_string()
+                } else {
+                    t.ending
+                },
                 name: t.name,
                 duration: t.duration,
                 steps: t.steps,
                 frames: t.frames,
-                ending: t.ending,
                 layers: t.layers,
             }),
             Err(e) => {

@@ -846,3 +846,300 @@ fn sigterm_ends_the_take_cleanly() {
     assert!(status.success(), "the daemon stopped with {status}");
     assert_eq!(summarize(&take).unwrap().ending, "shutdown");
 }
+
+/// Writes a take of `stage` named `name` into `dir`: a finger lands on
+/// the puppet's middle, moves, and never lifts (the take ends with it down,
+/// as a take stopped with a finger down did before such takes let go at
+/// their end). With `last`, a step that changes nothing comes at that time.
+fn write_held_take(config: &StageConfig, dir: &Path, name: &str, last: Option<f64>) {
+    use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+    let stage = Stage::from_config(config).unwrap();
+    let header = puppetry_take::Header::of_stage(name, "test.toml", &stage, true);
+    let path = dir.join(format!("{name}.take"));
+    let mut writer = puppetry_take::TakeWriter::create(&path, &header).unwrap();
+    let mut steps: Vec<puppetry_take::Step> = (0..10)
+        .map(|k| {
+            let phase = if k == 0 { Phase::Down } else { Phase::Move };
+            let at = glam::DVec2::new(640.0 + 3.0 * k as f64, 470.0);
+            let frame = ContactFrame {
+                source: SourceId::new("client:9"),
+                time: 0.0,
+                contacts: vec![Contact::new(1, phase, at)],
+            };
+            puppetry_take::Step {
+                t: 0.02 * k as f64,
+                changes: vec![Change::Contacts { frame }],
+                events: Vec::new(),
+            }
+        })
+        .collect();
+    if let Some(t) = last {
+        // A depth flip off the stage: nothing there to flip.
+        let at = glam::DVec2::new(-100.0, -100.0);
+        steps.push(puppetry_take::Step {
+            t,
+            changes: vec![Change::DepthFlip { at }],
+            events: Vec::new(),
+        });
+    }
+    for step in steps {
+        writer.write(&Record::Step(step)).unwrap();
+    }
+    writer.flush().unwrap();
+}
+
+/// Owners of every handle on stage but the stage file's pins, as a client
+/// connecting now is told.
+async fn handle_owners(running: &Running) -> Vec<String> {
+    let (_ws, stage) = connect(running, json!({"type": "hello", "role": "viewer"})).await;
+    stage["puppets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|p| p["handles"].as_array().unwrap())
+        .map(|h| h["owner"].as_str().unwrap().to_string())
+        .filter(|owner| owner != "config")
+        .collect()
+}
+
+/// The take state a client connecting now is told.
+async fn take_state_now(running: &Running) -> Value {
+    let (mut ws, _) = connect(running, json!({"type": "hello", "role": "viewer"})).await;
+    take_state(&mut ws, |_| true).await
+}
+
+/// Waits (bounded) until no take plays. `ws` asked for the play: its ping
+/// answered means the play was taken on, so "not playing" after it means
+/// the take ended.
+async fn until_played(running: &Running, ws: &mut crate::common::daemon::Client) {
+    send(ws, json!({"type": "ping", "t": 1.0})).await;
+    until(ws, "pong", |_| true).await;
+    let deadline = Instant::now() + PLAYS;
+    while take_state_now(running).await.get("playing").is_some() {
+        assert!(Instant::now() < deadline, "the take did not end");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// The stuck handle: a take that ends with a finger still down,
+/// played to its end or stopped in the middle, leaves nothing held (its
+/// finger held the puppet while it played).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_played_take_lets_go_of_what_it_holds_when_it_ends_or_is_stopped() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = stage_config("");
+    write_held_take(&config, dir.path(), "held", None);
+    write_held_take(&config, dir.path(), "long", Some(3600.0));
+    let running = start_with(&config, options(dir.path())).await.unwrap();
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
+    let (mut ws, _) = connect(&running, hello).await;
+
+    send(&mut ws, json!({"type": "play", "take": "held"})).await;
+    until_played(&running, &mut ws).await;
+    assert_eq!(handle_owners(&running).await, Vec::<String>::new());
+
+    // Stopped while its finger is down (its last step is an hour off).
+    send(&mut ws, json!({"type": "play", "take": "long"})).await;
+    let deadline = Instant::now() + PLAYS;
+    while !handle_owners(&running)
+        .await
+        .iter()
+        .any(|o| o == "long/client:9")
+    {
+        assert!(
+            Instant::now() < deadline,
+            "the played finger never held the puppet"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    send(&mut ws, json!({"type": "stop_playing"})).await;
+    until_played(&running, &mut ws).await;
+    assert_eq!(handle_owners(&running).await, Vec::<String>::new());
+    running.shutdown().await;
+}
+
+/// Replays a take's steps into a fresh stage: the owners of the handles
+/// left at its end, but the stage file's pins.
+fn held_after_replay(config: &StageConfig, take: &Path) -> Vec<String> {
+    let mut replayer = puppetry_take::replay::Replayer::new(Stage::from_config(config).unwrap());
+    for step in frames_and_steps(take).1 {
+        replayer.apply(&step).unwrap();
+    }
+    replayer
+        .stage()
+        .puppets()
+        .iter()
+        .flat_map(|p| p.handles())
+        .map(|h| h.owner.to_string())
+        .filter(|owner| owner != "config")
+        .collect()
+}
+
+/// The releases in a take's last step.
+fn last_releases(take: &Path) -> Vec<String> {
+    let (_, steps) = frames_and_steps(take);
+    steps
+        .last()
+        .unwrap()
+        .changes
+        .iter()
+        .filter_map(|c| match c {
+            Change::Release { source } => Some(source.clone()),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The recipe: ● rec, a finger holds the puppet, ■ stop while it
+/// is down, lift, play the take to its end: nothing stays held. The take
+/// lets go of the finger in its last step, so it ends as it began.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_take_stopped_with_a_finger_down_lets_go_of_it_in_the_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = stage_config("");
+    let running = start_with(&config, options(dir.path())).await.unwrap();
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
+    let (mut ws, _) = connect(&running, hello).await;
+
+    send(&mut ws, json!({"type": "record"})).await;
+    take_state(&mut ws, |m| m["recording"] == "take-001").await;
+    send(&mut ws, contact(1, "down", [640.0, 470.0])).await;
+    for k in 1..=10 {
+        send(&mut ws, contact(1, "move", [640.0 - 2.0 * k as f64, 470.0])).await;
+    }
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    take_state(&mut ws, |m| m.get("recording").is_none()).await;
+    // The live finger still holds the puppet until it lifts.
+    let live = handle_owners(&running).await;
+    assert!(
+        live.len() == 1 && live[0].starts_with("client:"),
+        "{live:?}"
+    );
+    send(
+        &mut ws,
+        json!({"type": "contacts", "contacts": [{"id": 1, "phase": "up"}]}),
+    )
+    .await;
+
+    let take = dir.path().join("take-001.take");
+    assert_eq!(last_releases(&take), live);
+    assert_eq!(held_after_replay(&config, &take), Vec::<String>::new());
+    assert_eq!(
+        verify(&take, Stage::from_config(&config).unwrap())
+            .unwrap()
+            .first_mismatch,
+        None
+    );
+
+    send(&mut ws, json!({"type": "play", "take": "take-001"})).await;
+    until_played(&running, &mut ws).await;
+    assert_eq!(handle_owners(&running).await, Vec::<String>::new());
+    running.shutdown().await;
+}
+
+/// An overdub that stops with its played take while a live hand is down:
+/// the overdub lets go of the hand and of the played finger in its last
+/// step, the live stage keeps the hand until it lifts, and nothing of the
+/// played take stays.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_overdub_ending_with_a_hand_down_leaves_nothing_held() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = stage_config("");
+    // Its last step an hour off: it ends when stopped, which is also how
+    // a take played out ends (the player's end).
+    write_held_take(&config, dir.path(), "long", Some(3600.0));
+    let running = start_with(&config, options(dir.path())).await.unwrap();
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
+    let (mut ws, _) = connect(&running, hello).await;
+
+    send(
+        &mut ws,
+        json!({"type": "play", "take": "long", "overdub": true}),
+    )
+    .await;
+    send(&mut ws, json!({"type": "ping", "t": 1.0})).await;
+    until(&mut ws, "pong", |_| true).await;
+    send(&mut ws, contact(1, "down", [560.0, 380.0])).await;
+    send(&mut ws, contact(1, "move", [550.0, 380.0])).await;
+    let deadline = Instant::now() + PLAYS;
+    let live = loop {
+        let owners = handle_owners(&running).await;
+        let live: Vec<String> = owners
+            .iter()
+            .filter(|o| o.starts_with("client:"))
+            .cloned()
+            .collect();
+        if owners.iter().any(|o| o == "long/client:9") && live.len() == 1 {
+            break live;
+        }
+        assert!(Instant::now() < deadline, "{owners:?}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    send(&mut ws, json!({"type": "stop_playing"})).await;
+    until_played(&running, &mut ws).await;
+    assert_eq!(
+        handle_owners(&running).await,
+        live,
+        "only the live hand holds"
+    );
+
+    let overdub = dir.path().join("take-001.take");
+    assert_eq!(summarize(&overdub).unwrap().ending, "stopped");
+    let mut released: Vec<String> = frames_and_steps(&overdub)
+        .1
+        .iter()
+        .flat_map(|s| &s.changes)
+        .filter_map(|c| match c {
+            Change::Release { source } => Some(source.clone()),
+            _ => None,
+        })
+        .collect();
+    released.sort();
+    assert_eq!(released, [live[0].clone(), "long/client:9".to_string()]);
+    assert_eq!(held_after_replay(&config, &overdub), Vec::<String>::new());
+    running.shutdown().await;
+}
+
+/// The take being recorded is not offered: playing or overdubbing it is
+/// refused (`busy`) and nothing plays; the list says it is recording.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_take_being_recorded_cannot_be_played_into_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = start_with(&stage_config(""), options(dir.path()))
+        .await
+        .unwrap();
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
+    let (mut ws, _) = connect(&running, hello).await;
+    send(&mut ws, json!({"type": "record"})).await;
+    take_state(&mut ws, |m| m["recording"] == "take-001").await;
+    drag(&mut ws, 1, [640.0, 470.0], [600.0, 500.0]).await;
+
+    for overdub in [false, true] {
+        send(
+            &mut ws,
+            json!({"type": "play", "take": "take-001", "overdub": overdub}),
+        )
+        .await;
+        let error = until(&mut ws, "error", |_| true).await;
+        assert_eq!(error["code"], "busy", "overdub {overdub}: {error}");
+        assert!(
+            error["message"].as_str().unwrap().contains("take-001"),
+            "{error}"
+        );
+    }
+    let state = take_state_now(&running).await;
+    assert_eq!(state["recording"], "take-001", "{state}");
+    assert!(state.get("playing").is_none(), "{state}");
+
+    send(&mut ws, json!({"type": "list_takes"})).await;
+    let list = until(&mut ws, "takes", |_| true).await;
+    assert_eq!(list["takes"][0]["name"], "take-001");
+    assert_eq!(list["takes"][0]["ending"], "recording", "{list}");
+
+    send(&mut ws, json!({"type": "stop_recording"})).await;
+    take_state(&mut ws, |m| m.get("recording").is_none()).await;
+    send(&mut ws, json!({"type": "list_takes"})).await;
+    let list = until(&mut ws, "takes", |_| true).await;
+    assert_eq!(list["takes"][0]["ending"], "stopped", "{list}");
+    running.shutdown().await;
+}
