@@ -925,15 +925,68 @@ impl StageConfig {
             source,
         })?;
         let folder = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-        StageConfig::parse(&file, &text, &folder)
+        let config = StageConfig::parse(&file, &text, &folder)?;
+        config.check_files()?;
+        Ok(config)
+    }
+
+    /// Every picture, mesh and replay file the stage file names can be
+    /// read, and pictures and meshes are what their keys say. A stage file
+    /// copied elsewhere keeps its relative paths, which then point nowhere:
+    /// the error says what the path became and that it is relative to the
+    /// stage file's folder, not the working one. (Key files may be missing:
+    /// `save_keys` creates them.)
+    fn check_files(&self) -> Result<(), ConfigError> {
+        let mut named: Vec<(String, &'static str, &Path)> = Vec::new();
+        for (i, p) in self.puppets.iter().enumerate() {
+            for (key, path) in [("image", &p.image), ("mesh", &p.mesh)] {
+                if !path.as_os_str().is_empty() {
+                    named.push((format!("puppet[{i}].{key}"), key, path));
+                }
+            }
+        }
+        for (i, input) in self.inputs.iter().enumerate() {
+            if let InputConfig::Replay { file, .. } = input {
+                named.push((format!("input[{i}].file"), "file", file));
+            }
+        }
+        for (field, key, path) in named {
+            let problem = match head_of(&self.resolve(path)) {
+                Ok(head) => match wrong_kind(key, picture_kind(&head)) {
+                    Some(problem) => format!("{}: {problem}", path.display()),
+                    None => continue,
+                },
+                Err(error) if path.is_absolute() => {
+                    format!("{}: cannot read: {error}", path.display())
+                }
+                Err(error) => {
+                    let folder = absolute(&self.folder);
+                    format!(
+                        "{}: cannot read {}: {error} (paths in a stage file are relative \
+                         to the stage file's folder, {})",
+                        path.display(),
+                        tidy(&folder.join(path)).display(),
+                        folder.display()
+                    )
+                }
+            };
+            return Err(ConfigError::Invalid {
+                file: self.file.clone(),
+                field,
+                problem,
+            });
+        }
+        Ok(())
     }
 
     /// Parses stage TOML; `file` names it in errors, `folder` anchors its
     /// relative paths.
     pub fn parse(file: &str, text: &str, folder: &Path) -> Result<StageConfig, ConfigError> {
+        // The toml crate's message is several lines: the line of the file
+        // and a `^` under the fault. Kept whole, so the marker still points.
         let mut config: StageConfig = toml::from_str(text).map_err(|e| ConfigError::Syntax {
             file: file.to_string(),
-            message: e.to_string().trim_end().replace('\n', " "),
+            message: e.to_string().trim_end().to_string(),
         })?;
         config.folder = folder.to_path_buf();
         config.file = file.to_string();
@@ -1035,6 +1088,92 @@ impl StageConfig {
             self.folder.join(path)
         }
     }
+}
+
+/// What kind of picture (or document) a file beginning with `head` is —
+/// "a PNG picture", "a JPEG picture", … — for errors about a file given
+/// where another kind was expected; None for anything else (text, JSON).
+/// Eight signatures, written out rather than a dependency.
+pub fn picture_kind(head: &[u8]) -> Option<&'static str> {
+    const SIGNATURES: &[(&[u8], &str)] = &[
+        (b"\x89PNG\r\n\x1a\n", "a PNG picture"),
+        (b"\xff\xd8\xff", "a JPEG picture"),
+        (b"GIF87a", "a GIF picture"),
+        (b"GIF89a", "a GIF picture"),
+        (b"II*\0", "a TIFF picture"),
+        (b"MM\0*", "a TIFF picture"),
+        (b"BM", "a BMP picture"),
+        (b"%PDF", "a PDF document"),
+    ];
+    // RIFF and ISO media files name their kind after a size field.
+    if head.len() >= 12 && &head[..4] == b"RIFF" && &head[8..12] == b"WEBP" {
+        return Some("a WebP picture");
+    }
+    if head.len() >= 12 && &head[4..8] == b"ftyp" {
+        match &head[8..12] {
+            b"avif" | b"avis" => return Some("an AVIF picture"),
+            b"heic" | b"heix" | b"mif1" | b"msf1" => return Some("a HEIF picture"),
+            _ => {}
+        }
+    }
+    SIGNATURES
+        .iter()
+        .find(|(signature, _)| head.starts_with(signature))
+        .map(|(_, kind)| *kind)
+}
+
+/// What is wrong with a file of `kind` given for a puppet's `image` or
+/// `mesh`; None when it may be right.
+fn wrong_kind(key: &str, kind: Option<&str>) -> Option<String> {
+    match (key, kind) {
+        ("image", Some(kind)) if kind != "a PNG picture" => Some(format!(
+            "this is {kind}; a puppet's picture must be a PNG (with a transparent background)"
+        )),
+        ("mesh", Some(kind)) => Some(format!(
+            "this is {kind}; a puppet's mesh is a .mesh.json file (`puppetry mesh \
+             PICTURE.png -o NAME.mesh.json` makes one)"
+        )),
+        _ => None,
+    }
+}
+
+/// The first bytes of a file (fewer if it is shorter), for [`picture_kind`].
+fn head_of(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(16);
+    std::fs::File::open(path)?.take(16).read_to_end(&mut head)?;
+    Ok(head)
+}
+
+/// `path` made absolute against the working folder (as given when that
+/// cannot be read), for messages a person acts on.
+fn absolute(path: &Path) -> PathBuf {
+    let path = if path.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        path
+    };
+    tidy(&std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()))
+}
+
+/// `path` without `.` and with each `..` taking back the folder before it,
+/// as a person would write it (the file system is not asked: a message
+/// only).
+fn tidy(path: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for part in path.components() {
+        match part {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if !out.pop() {
+                    out.push(part);
+                }
+            }
+            other => out.push(other),
+        }
+    }
+    out
 }
 
 #[cfg(test)]

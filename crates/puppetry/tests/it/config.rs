@@ -156,3 +156,104 @@ fn rigs_the_deformers_refuse_are_named_by_file_puppet_and_field() {
         assert!(message.contains(says), "{says}: {message}");
     }
 }
+
+/// The skeleton stage's "cheer" key pose solved on the stage: both hands
+/// (joints 6 and 9) and the mesh around them end well above where they
+/// rest and above the shoulders. The stage is y up (origin bottom-left),
+/// so up is a larger y.
+#[test]
+fn the_skeleton_stages_cheer_raises_both_hands() {
+    let config = StageConfig::load(&config_dir().join("skeleton.toml")).unwrap();
+    let mut stage = Stage::from_config(&config).unwrap();
+    stage.solve();
+    let joints = |stage: &Stage| stage.puppets()[0].rig().points().unwrap().to_vec();
+    let rest = joints(&stage);
+    let rest_pose = stage.puppets()[0].pose().to_vec();
+    stage.set_key_pose(0, "rest", "cheer", 1.0).unwrap();
+    stage.solve();
+    let cheer = joints(&stage);
+    let pose = stage.puppets()[0].pose();
+    for (hand, shoulder) in [(6, 4), (9, 7)] {
+        let rose = cheer[hand].y - rest[hand].y;
+        assert!(
+            rose > 50.0 && cheer[hand].y > cheer[shoulder].y,
+            "hand {hand}: {:?} at rest, {:?} cheering (shoulder at {:?})",
+            rest[hand],
+            cheer[hand],
+            cheer[shoulder]
+        );
+        // The picture follows the joint: the vertices about the hand rise.
+        let near: Vec<usize> = (0..rest_pose.len())
+            .filter(|&v| rest_pose[v].distance(rest[hand]) < 20.0)
+            .collect();
+        assert!(!near.is_empty(), "vertices about hand {hand}");
+        let mean_rise = near
+            .iter()
+            .map(|&v| pose[v].y - rest_pose[v].y)
+            .sum::<f64>()
+            / near.len() as f64;
+        assert!(mean_rise > 50.0, "hand {hand}'s vertices rose {mean_rise}");
+    }
+}
+
+/// Runs `puppetry ARGS`, expects it to fail, and returns its stderr.
+fn binary_fails(args: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .args(args)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(!out.status.success(), "{args:?} succeeded: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    stderr
+}
+
+#[test]
+fn a_toml_error_keeps_its_lines_and_the_marker_points_at_the_typo() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("typo.toml");
+    // Line 3: a value that is not TOML (a word without quotes).
+    std::fs::write(&stage, "[stage]\nwidth = 1280\nheight = sevenhundred\n").unwrap();
+    let stderr = binary_fails(&["serve", "--config", stage.to_str().unwrap()]);
+    assert!(
+        stderr.contains("typo.toml") && stderr.contains("line 3"),
+        "{stderr}"
+    );
+    let lines: Vec<&str> = stderr.lines().collect();
+    let quoted = lines
+        .iter()
+        .position(|l| l.contains("height = sevenhundred"))
+        .unwrap_or_else(|| panic!("the line is quoted on a line of its own: {stderr}"));
+    let marker = lines
+        .get(quoted + 1)
+        .filter(|l| l.contains('^'))
+        .unwrap_or_else(|| panic!("a ^ marker under the line: {stderr}"));
+    assert_eq!(
+        marker.find('^'),
+        lines[quoted].find("sevenhundred"),
+        "the marker points at the typo:\n{stderr}"
+    );
+}
+
+#[test]
+fn a_stage_file_copied_elsewhere_says_its_paths_are_relative_to_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let copied = dir.path().join("shows");
+    std::fs::create_dir(&copied).unwrap();
+    let stage = copied.join("demo.toml");
+    std::fs::copy(config_dir().join("demo.toml"), &stage).unwrap();
+    let stderr = binary_fails(&["serve", "--config", stage.to_str().unwrap()]);
+    // Tempdirs are absolute paths: shown as given, `..` taken back.
+    let folder = copied.clone();
+    let became = dir.path().join("assets/gingerbread/gingerbread.png");
+    for says in [
+        "demo.toml",
+        "puppet[0].image",
+        "../assets/gingerbread/gingerbread.png",
+        "relative to the stage file's folder",
+        folder.to_str().unwrap(),
+        became.to_str().unwrap(),
+    ] {
+        assert!(stderr.contains(says), "{says:?} in {stderr}");
+    }
+}
