@@ -92,6 +92,35 @@ pub fn layered_figure() -> Result<(PathBuf, PathBuf), BundleError> {
     ))
 }
 
+/// Every token the bundled stage files give (anonymous performers' and
+/// people's): anyone who has read the README knows them, so a stage still
+/// using one must not be served beyond this machine without a warning.
+pub fn demo_tokens() -> Vec<String> {
+    let mut tokens = Vec::new();
+    for file in CONFIG.files() {
+        let is_stage = file.path().extension().is_some_and(|e| e == "toml");
+        let text = file.contents_utf8().filter(|_| is_stage);
+        let name = file.path().display().to_string();
+        // Parsed only (no file is read): the access section is all we need.
+        let Some(config) = text.and_then(|t| {
+            puppetry_stage::config::StageConfig::parse(&name, t, Path::new("/")).ok()
+        }) else {
+            continue;
+        };
+        let access = config.access;
+        for token in access
+            .performer_tokens
+            .into_iter()
+            .chain(access.people.into_iter().map(|p| p.token))
+        {
+            if !tokens.contains(&token) {
+                tokens.push(token);
+            }
+        }
+    }
+    tokens
+}
+
 fn data_home() -> PathBuf {
     if let Some(dir) = std::env::var_os("XDG_DATA_HOME").filter(|d| !d.is_empty()) {
         return PathBuf::from(dir);

@@ -1,7 +1,10 @@
 //! The scriptable commands behind `puppetry mesh`, `solve`, `compare` and `bench`: file
-//! formats in and out, and errors that name the file and field at fault.
-//! `main.rs` only parses arguments and reports.
+//! formats in and out, and errors that name the file and field at fault (and,
+//! for a file of the wrong kind, what it is and what is taken instead); also
+//! `--listen`'s forms and the URLs `serve` prints. `main.rs` only parses
+//! arguments and reports.
 
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
 use std::path::Path;
 
 use glam::DVec2;
@@ -44,7 +47,30 @@ pub enum CliError {
     Bundle(#[from] crate::bundled::BundleError),
     #[error("the bundled demo: {0}")]
     Demo(String),
+    #[error("{file}: this is {kind}; {expected}")]
+    Kind {
+        file: String,
+        kind: &'static str,
+        expected: &'static str,
+    },
+    #[error(
+        "{file} exists already: give -o {file} to replace it, -o OTHER.mesh.json to write \
+         elsewhere, or -o - for standard output"
+    )]
+    Exists { file: String },
 }
+
+/// What `puppetry mesh` takes, for errors about anything else.
+const MESH_INPUTS: &str = "`puppetry mesh` takes a PNG picture (the shape is traced from its \
+    alpha channel: convert the picture to PNG with a transparent background) or a polygon \
+    .json file (docs/mesh-format.md)";
+
+/// What `--mesh` takes.
+const MESH_FILES: &str = "a mesh file (.mesh.json, docs/mesh-format.md) is expected here; \
+    `puppetry mesh PICTURE.png -o NAME.mesh.json` makes one from a PNG picture";
+
+/// What a handles file is.
+const JSON_FILES: &str = "a JSON file is expected here";
 
 /// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
 /// a `.mesh.json`. Returns the mesh and what to warn the user about the
@@ -53,14 +79,29 @@ pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Meshed, Cli
     let options = MeshOptions {
         target_vertices: vertices,
     };
-    let is_png = input
+    // The contents decide, not the name: a PNG is meshed as a picture
+    // whatever it is called, and another picture format is named as such
+    // rather than failing as JSON that is not text.
+    let kind = file_kind(input)?;
+    let named_png = input
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
-    if is_png {
-        return Ok(mesh_picture(input, &options)?);
+    match kind {
+        Some(PNG) => return Ok(mesh_picture(input, &options)?),
+        Some(kind) => {
+            return Err(CliError::Kind {
+                file: input.display().to_string(),
+                kind,
+                expected: MESH_INPUTS,
+            });
+        }
+        // Not a picture format we know: the picture decoder says what is
+        // wrong with a file that claims to be one.
+        None if named_png => return Ok(mesh_picture(input, &options)?),
+        None => {}
     }
     let name = input.display().to_string();
-    let text = read(input)?;
+    let text = read(input, MESH_INPUTS)?;
     let shape = Shape::from_json(&name, &text)?;
     Ok(Meshed {
         mesh: triangulate(&name, &shape, &options)?,
@@ -68,21 +109,118 @@ pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Meshed, Cli
     })
 }
 
-fn read(path: &Path) -> Result<String, CliError> {
+/// The PNG entry of [`puppetry_stage::config::picture_kind`].
+const PNG: &str = "a PNG picture";
+
+/// What kind of picture (or document) `path` holds, by its first bytes;
+/// None for anything else, such as text.
+fn file_kind(path: &Path) -> Result<Option<&'static str>, CliError> {
+    let mut head = [0u8; 16];
+    let read = std::fs::File::open(path).and_then(|mut file| {
+        use std::io::Read;
+        let mut n = 0;
+        while n < head.len() {
+            match file.read(&mut head[n..])? {
+                0 => break,
+                got => n += got,
+            }
+        }
+        Ok(n)
+    });
+    let n = read.map_err(|source| CliError::Read {
+        file: path.display().to_string(),
+        source,
+    })?;
+    Ok(puppetry_stage::config::picture_kind(&head[..n]))
+}
+
+/// A text file; a picture or other binary file is refused saying what it
+/// is and what `expected` here.
+fn read(path: &Path, expected: &'static str) -> Result<String, CliError> {
     std::fs::read_to_string(path).map_err(|source| {
-        let source = if source.kind() == std::io::ErrorKind::InvalidData {
-            std::io::Error::new(
-                source.kind(),
-                "not UTF-8 text: expected a JSON file (pictures must end in .png)",
-            )
-        } else {
-            source
-        };
-        CliError::Read {
-            file: path.display().to_string(),
-            source,
+        let file = path.display().to_string();
+        if source.kind() != std::io::ErrorKind::InvalidData {
+            return CliError::Read { file, source };
+        }
+        let kind = file_kind(path).ok().flatten();
+        CliError::Kind {
+            file,
+            kind: kind.unwrap_or("not UTF-8 text"),
+            expected,
         }
     })
+}
+
+/// A mesh file; a picture given instead is refused by name, with how to
+/// mesh it.
+pub fn load_mesh(path: &Path) -> Result<Mesh, CliError> {
+    if let Some(kind) = file_kind(path)? {
+        return Err(CliError::Kind {
+            file: path.display().to_string(),
+            kind,
+            expected: MESH_FILES,
+        });
+    }
+    Ok(Mesh::load(path)?)
+}
+
+/// Where `puppetry mesh` writes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MeshOutput {
+    /// `-o -`.
+    Stdout,
+    /// `-o FILE`, replaced if it exists.
+    File(std::path::PathBuf),
+    /// No `-o`: `NAME.mesh.json` beside the input, never replacing a file.
+    Beside(std::path::PathBuf),
+}
+
+impl MeshOutput {
+    /// From `-o` (absent, `-`, or a file) and the input's name.
+    pub fn new(input: &Path, output: Option<&Path>) -> MeshOutput {
+        match output {
+            Some(path) if path == Path::new("-") => MeshOutput::Stdout,
+            Some(path) => MeshOutput::File(path.to_path_buf()),
+            None => {
+                let stem = input.file_stem().unwrap_or(input.as_os_str());
+                let mut name = stem.to_os_string();
+                name.push(".mesh.json");
+                MeshOutput::Beside(input.with_file_name(name))
+            }
+        }
+    }
+
+    /// Writes the mesh's text; returns the file written (None for standard
+    /// output).
+    pub fn write(&self, text: &str) -> Result<Option<&Path>, CliError> {
+        match self {
+            MeshOutput::Stdout => {
+                println!("{text}");
+                Ok(None)
+            }
+            MeshOutput::File(path) => write(path, text).map(|()| Some(path.as_path())),
+            MeshOutput::Beside(path) => {
+                use std::io::Write;
+                let file = path.display().to_string();
+                // Created new: a mesh beside a picture may be the one a stage
+                // file uses (the demo's is), and a default never replaces it.
+                let created = std::fs::OpenOptions::new()
+                    .write(true)
+                    .create_new(true)
+                    .open(path);
+                let mut out = match created {
+                    Ok(out) => out,
+                    Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                        return Err(CliError::Exists { file });
+                    }
+                    Err(source) => return Err(CliError::Write { file, source }),
+                };
+                out.write_all(text.as_bytes())
+                    .map_err(|source| CliError::Write { file, source })?;
+                Ok(Some(path.as_path()))
+            }
+        }
+    }
 }
 
 pub fn write(path: &Path, text: &str) -> Result<(), CliError> {
@@ -238,9 +376,9 @@ pub fn solve_command(
     step1_only: bool,
     svg: Option<&Path>,
 ) -> Result<String, CliError> {
-    let mesh = Mesh::load(mesh_path)?;
+    let mesh = load_mesh(mesh_path)?;
     let handles_name = handles_path.display().to_string();
-    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path)?, &mesh)?;
+    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path, JSON_FILES)?, &mesh)?;
     let mesh_name = mesh_path.display().to_string();
     let mut arap = Arap::register(&mesh).map_err(|e| CliError::Solve(e, mesh_name))?;
     arap.compile(&anchors)
@@ -258,6 +396,115 @@ pub fn solve_command(
     }
     let vertices: Vec<[f64; 2]> = pose.iter().map(|p| [p.x, p.y]).collect();
     Ok(serde_json::json!({ "vertices": vertices }).to_string())
+}
+
+/// Parses a `--listen` value: an address (`127.0.0.1:8080`, `[::1]:8080`,
+/// `0.0.0.0:8080`), a host name and port (`localhost:8080`, resolved; its
+/// IPv4 address first, as browsers on this machine reach `localhost` by
+/// either), or a bare port (on 127.0.0.1: this machine only, as the
+/// default is).
+pub fn parse_listen(text: &str) -> Result<SocketAddr, String> {
+    let text = text.trim();
+    if let Ok(address) = text.parse::<SocketAddr>() {
+        return Ok(address);
+    }
+    if let Ok(port) = text.parse::<u16>() {
+        return Ok(SocketAddr::from(([127, 0, 0, 1], port)));
+    }
+    let expected = "expected HOST:PORT (localhost:8080, 0.0.0.0:8080, [::1]:8080) or a port";
+    let Some((host, port)) = text.rsplit_once(':').filter(|(h, _)| !h.is_empty()) else {
+        return Err(format!("{text:?}: {expected}"));
+    };
+    let port: u16 = port
+        .parse()
+        .map_err(|_| format!("{text:?}: {port:?} is not a port (0 to 65535); {expected}"))?;
+    let addresses: Vec<SocketAddr> = std::net::ToSocketAddrs::to_socket_addrs(&(host, port))
+        .map_err(|e| format!("{text:?}: cannot resolve {host:?}: {e}"))?
+        .collect();
+    addresses
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(addresses.first())
+        .copied()
+        .ok_or_else(|| format!("{text:?}: {host:?} resolves to no address"))
+}
+
+/// Where a browser on this machine reaches a daemon listening on
+/// `address`: itself, or loopback when it listens on every interface
+/// (`0.0.0.0` or `[::]`, which no browser can open).
+pub fn url_address(address: SocketAddr) -> SocketAddr {
+    let ip: IpAddr = match address.ip() {
+        IpAddr::V4(ip) if ip.is_unspecified() => Ipv4Addr::LOCALHOST.into(),
+        IpAddr::V6(ip) if ip.is_unspecified() => Ipv6Addr::LOCALHOST.into(),
+        ip => ip,
+    };
+    SocketAddr::new(ip, address.port())
+}
+
+/// What `serve` prints on starting: the URLs to open (usable ones: an
+/// address every interface listens on is shown as loopback, and said) and
+/// a warning when the stage is open beyond this machine with tokens anyone
+/// who has read the README knows (`demo_tokens`, the bundled stages').
+pub struct Serving {
+    pub lines: Vec<String>,
+    pub warning: Option<String>,
+}
+
+/// [`Serving`] for a stage file `file` served at `address` with `access`.
+pub fn serving(
+    file: &Path,
+    address: SocketAddr,
+    access: &puppetry_stage::config::Access,
+    demo_tokens: &[String],
+) -> Serving {
+    let url = url_address(address);
+    let mut first = format!("puppetry: serving {} at http://{url}/", file.display());
+    if address.ip().is_unspecified() {
+        first.push_str(&format!(
+            " (listening on all interfaces, {address}: from other machines use this \
+             machine's address or name, port {})",
+            address.port()
+        ));
+    }
+    let mut lines = vec![first];
+    if let Some(token) = access.performer_tokens.first() {
+        lines.push(format!(
+            "  perform: http://{url}/?role=performer&token={token}"
+        ));
+    }
+    let director = access
+        .people
+        .iter()
+        .find(|p| p.role == puppetry_stage::config::AccessRole::Director);
+    if let Some(director) = director {
+        lines.push(format!(
+            "  direct:  http://{url}/?role=director&token={}",
+            director.token
+        ));
+    }
+    let known: Vec<&str> = access
+        .performer_tokens
+        .iter()
+        .chain(access.people.iter().map(|p| &p.token))
+        .filter(|t| demo_tokens.contains(t))
+        .map(String::as_str)
+        .collect();
+    let warning = (!address.ip().is_loopback() && !known.is_empty()).then(|| {
+        format!(
+            "listening beyond this machine ({address}) with the bundled demo tokens ({}): \
+             anyone on the network who has read the README can perform{}. Give [access] \
+             tokens of your own in {} (config/README.md, \"Access\") before serving on a \
+             network, or listen on 127.0.0.1.",
+            known.join(", "),
+            if director.is_some_and(|d| known.contains(&d.token.as_str())) {
+                ", and direct (record, paint, save)"
+            } else {
+                ""
+            },
+            file.display()
+        )
+    });
+    Serving { lines, warning }
 }
 
 /// Parses a `--grid` value, `COLUMNSxROWS` (e.g. `10x10`; `×` also works).
@@ -296,9 +543,9 @@ pub fn compare_command(
             (bundled.0.as_path(), bundled.1.as_path())
         }
     };
-    let mesh = Mesh::load(mesh_path)?;
+    let mesh = load_mesh(mesh_path)?;
     let handles_name = handles_path.display().to_string();
-    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path)?, &mesh)?;
+    let (anchors, targets) = parse_handles(&handles_name, &read(handles_path, JSON_FILES)?, &mesh)?;
     let comparison =
         compare::compare(&mesh, &anchors, &targets, grid.0, grid.1).map_err(|source| {
             CliError::Compare {
@@ -339,7 +586,7 @@ pub fn compare_command(
 /// `puppetry bench`: the meshes to run, as (name, mesh).
 pub fn bench_meshes(mesh: Option<&Path>, sizes: &[usize]) -> Result<Vec<(String, Mesh)>, CliError> {
     if let Some(path) = mesh {
-        return Ok(vec![(path.display().to_string(), Mesh::load(path)?)]);
+        return Ok(vec![(path.display().to_string(), load_mesh(path)?)]);
     }
     let image = crate::bundled::demo_image()?;
     sizes

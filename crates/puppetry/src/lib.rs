@@ -1,7 +1,8 @@
 //! The `puppetry` command's own work: the commands that are not the daemon
 //! ([`cli`]: mesh, solve, devices, calibrate), the benchmarks ([`bench`],
 //! [`viewers_bench`] with the relay tier's fan-out), the long-run leak
-//! check ([`soak`]) and the lp-FFD paper's comparison ([`compare`]). `main.rs` parses the
+//! check ([`soak`]), the lp-FFD paper's comparison ([`compare`]) and what
+//! stderr may be drawn with ([`terminal`]). `main.rs` parses the
 //! command line and calls into these; the pipeline itself lives in the
 //! workspace's other crates.
 //!
@@ -22,4 +23,5 @@ pub mod peers;
 pub mod soak;
 pub mod take_bench;
 pub mod takes;
+pub mod terminal;
 pub mod viewers_bench;

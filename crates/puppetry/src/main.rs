@@ -36,8 +36,11 @@ enum Command {
         /// Play --replay as fast as possible instead of in real time.
         #[arg(long)]
         fast: bool,
-        /// Listen here instead of the stage file's address.
-        #[arg(long)]
+        /// Listen here instead of the stage file's address: HOST:PORT
+        /// (localhost:8080, 192.168.1.20:8080, 0.0.0.0:8080 for every
+        /// interface, [::1]:8080) or a port alone (on 127.0.0.1, this
+        /// machine only).
+        #[arg(long, value_name = "ADDR", value_parser = cli::parse_listen)]
         listen: Option<std::net::SocketAddr>,
         /// Serve the web client from this folder instead of the copy
         /// compiled into the binary (for client development).
@@ -76,8 +79,9 @@ enum Command {
         /// file name without `.toml`.
         #[arg(long)]
         stage: String,
-        /// Serve viewers here.
-        #[arg(long, default_value = "127.0.0.1:8090")]
+        /// Serve viewers here: HOST:PORT or a port alone (on 127.0.0.1).
+        #[arg(long, default_value = "127.0.0.1:8090", value_name = "ADDR",
+              value_parser = cli::parse_listen)]
         listen: std::net::SocketAddr,
         /// This relay's name (letters, digits, - and _): remote performers
         /// are `relay:<name>:<n>` on the stage. Default: relay-<pid>.
@@ -164,8 +168,10 @@ enum Command {
         /// 1000, fewer for tiny shapes.
         #[arg(long, value_parser = clap::value_parser!(u32).range(3..=2_000_000))]
         vertices: Option<u32>,
-        /// Output file; standard output when absent.
-        #[arg(short, long)]
+        /// Output file, replaced if it exists; `-` for standard output.
+        /// Default: NAME.mesh.json beside the input (PICTURE.png gives
+        /// PICTURE.mesh.json), never replacing a file that is there.
+        #[arg(short, long, value_name = "OUT.mesh.json")]
         output: Option<PathBuf>,
     },
     /// Deform a mesh by handles and print {"vertices": [[x, y], …]}.
@@ -342,14 +348,85 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     Ok((parse(w)?, parse(h)?))
 }
 
-/// Logs to stderr, at `RUST_LOG`'s levels (default: info).
+/// Logs to stderr, at `RUST_LOG`'s levels (default: info), coloured only
+/// on a terminal and without `NO_COLOR`.
 fn log_to_stderr() {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(puppetry::terminal::colour_on_stderr())
         .init();
+}
+
+/// What `serve` says on starting: the URLs to open, where TUIO and OSC
+/// arrive, and a warning when demo tokens are open to the network.
+fn print_serving(
+    file: &std::path::Path,
+    stage: &puppetry_stage::config::StageConfig,
+    running: &puppetry_daemon::serve::Running,
+) {
+    let said = cli::serving(
+        file,
+        running.address,
+        &stage.access,
+        &puppetry::bundled::demo_tokens(),
+    );
+    if let Some(warning) = &said.warning {
+        // Logged (a service's log keeps it) and on the terminal both.
+        tracing::warn!("{warning}");
+    }
+    for line in &said.lines {
+        println!("{line}");
+    }
+    // Said, because a stage file may ask for port 0.
+    for tuio in &running.tuio_addresses {
+        println!("  TUIO: receiving on udp {tuio}");
+    }
+    if let Some(osc) = running.osc_address {
+        println!("  OSC triggers: udp://{osc} (docs/osc.md)");
+    }
+    println!("  stop with Ctrl-C (or SIGTERM)");
+}
+
+/// `puppetry mesh`: meshes, warns, writes (beside the input by default)
+/// and says what it made.
+fn mesh(
+    input: &std::path::Path,
+    vertices: Option<u32>,
+    output: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    let vertices = vertices.map(|n| n as usize);
+    let meshed = cli::mesh_command(input, vertices)?;
+    for warning in &meshed.warnings {
+        eprintln!("warning: {warning}");
+    }
+    let mesh = meshed.mesh;
+    let got = mesh.vertices().len();
+    if let Some(n) = vertices.filter(|&n| got * 100 < n * 85 || got * 100 > n * 115) {
+        eprintln!(
+            "note: asked for {n} vertices, got {got}: the outline needs {}",
+            if got > n {
+                "more (many islands or thin parts)"
+            } else {
+                "fewer (the shape is small)"
+            }
+        );
+    }
+    let output = cli::MeshOutput::new(input, output);
+    let written = output.write(&mesh.to_json())?;
+    eprintln!(
+        "meshed {}{}: {} vertices, {} triangles, {} piece(s)",
+        input.display(),
+        written
+            .map(|file| format!(" into {}", file.display()))
+            .unwrap_or_default(),
+        mesh.vertices().len(),
+        mesh.triangles().len(),
+        mesh.pieces().len()
+    );
+    Ok(())
 }
 
 /// Waits for Ctrl-C, or SIGTERM as systemd and docker stop daemons.
@@ -436,30 +513,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                     (take, play)
                 });
                 let running = puppetry_daemon::serve::start_with(&stage, options).await?;
-                let address = running.address;
-                println!("puppetry: serving {} at http://{address}/", path.display());
-                if let Some(token) = stage.access.performer_tokens.first() {
-                    println!("  perform: http://{address}/?role=performer&token={token}");
-                }
-                let director = stage
-                    .access
-                    .people
-                    .iter()
-                    .find(|p| p.role == puppetry_stage::config::AccessRole::Director);
-                if let Some(director) = director {
-                    println!(
-                        "  direct:  http://{address}/?role=director&token={}",
-                        director.token
-                    );
-                }
-                // Said, because a stage file may ask for port 0.
-                for tuio in &running.tuio_addresses {
-                    println!("  TUIO: receiving on udp {tuio}");
-                }
-                if let Some(osc) = running.osc_address {
-                    println!("  OSC triggers: udp://{osc} (docs/osc.md)");
-                }
-                println!("  stop with Ctrl-C (or SIGTERM)");
+                print_serving(&path, &stage, &running);
                 // Either way a take being recorded is ended cleanly.
                 until_stopped().await?;
                 running.shutdown().await;
@@ -498,7 +552,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 let running = puppetry_daemon::relay::serve::start(options).await?;
                 println!(
                     "puppetry: relaying stage {stage} at http://{}/",
-                    running.address
+                    cli::url_address(running.address)
                 );
                 println!("  stop with Ctrl-C (or SIGTERM)");
                 until_stopped().await?;
@@ -636,38 +690,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             input,
             vertices,
             output,
-        } => {
-            let vertices = vertices.map(|n| n as usize);
-            let meshed = cli::mesh_command(&input, vertices)?;
-            for warning in &meshed.warnings {
-                eprintln!("warning: {warning}");
-            }
-            let mesh = meshed.mesh;
-            let got = mesh.vertices().len();
-            if let Some(n) = vertices.filter(|&n| got * 100 < n * 85 || got * 100 > n * 115) {
-                eprintln!(
-                    "note: asked for {n} vertices, got {got}: the outline needs {}",
-                    if got > n {
-                        "more (many islands or thin parts)"
-                    } else {
-                        "fewer (the shape is small)"
-                    }
-                );
-            }
-            let pieces = mesh.pieces().len();
-            let text = mesh.to_json();
-            match output {
-                Some(path) => cli::write(&path, &text)?,
-                None => println!("{text}"),
-            }
-            eprintln!(
-                "meshed {}: {} vertices, {} triangles, {} piece(s)",
-                input.display(),
-                mesh.vertices().len(),
-                mesh.triangles().len(),
-                pieces
-            );
-        }
+        } => mesh(&input, vertices, output.as_deref())?,
         Command::Solve {
             mesh,
             handles,

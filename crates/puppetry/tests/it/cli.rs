@@ -302,10 +302,17 @@ fn bad_mesh_inputs_are_named_and_explained() {
     let missing = failure(&["mesh", "/nonexistent/puppet.png"]);
     assert!(missing.contains("/nonexistent/puppet.png"), "{missing}");
 
+    // A PNG by any name is meshed as a picture (this one is all clear).
     let picture_as_json = scratch(&dir, "picture.json", &png_bytes);
     let message = failure(&["mesh", picture_as_json.to_str().unwrap()]);
     assert!(
-        message.contains("picture.json") && message.contains("not UTF-8"),
+        message.contains("picture.json") && message.contains("opaque"),
+        "{message}"
+    );
+    let binary = scratch(&dir, "binary.json", b"{\xff\xfe\x00 not text");
+    let message = failure(&["mesh", binary.to_str().unwrap()]);
+    assert!(
+        message.contains("binary.json") && message.contains("not UTF-8"),
         "{message}"
     );
 
@@ -733,4 +740,348 @@ fn a_fully_opaque_picture_meshes_as_its_rectangle_with_a_warning() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(!stderr.contains("warning"), "{stderr}");
+}
+
+/// The first bytes of a JPEG (JFIF) file and a little more.
+const JPEG: &[u8] = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00\x01\x01\x00\x00\x01\x00\x01\x00\x00\xff\xdb";
+
+#[test]
+fn a_jpeg_is_named_with_what_is_taken_instead() {
+    let dir = tempfile::tempdir().unwrap();
+    let photo = scratch(&dir, "photo.jpg", JPEG);
+    // Where a picture is meshed, by either name.
+    let disguised = scratch(&dir, "disguised.png", JPEG);
+    for picture in [&photo, &disguised] {
+        let message = failure(&["mesh", picture.to_str().unwrap()]);
+        assert!(
+            message.contains(picture.to_str().unwrap())
+                && message.contains("JPEG picture")
+                && message.contains("PNG picture")
+                && message.contains("polygon .json"),
+            "{message}"
+        );
+        assert!(!message.contains("UTF-8"), "{message}");
+    }
+    // Where a mesh is expected.
+    let handles = scratch(&dir, "h.json", NO_HANDLES.as_bytes());
+    let message = failure(&[
+        "solve",
+        "--mesh",
+        photo.to_str().unwrap(),
+        "--handles",
+        handles.to_str().unwrap(),
+    ]);
+    assert!(
+        message.contains("photo.jpg")
+            && message.contains("JPEG picture")
+            && message.contains(".mesh.json")
+            && message.contains("puppetry mesh"),
+        "{message}"
+    );
+    // Where a handles file is expected.
+    let mesh = scratch(&dir, "square.mesh.json", SQUARE.as_bytes());
+    let message = failure(&[
+        "solve",
+        "--mesh",
+        mesh.to_str().unwrap(),
+        "--handles",
+        photo.to_str().unwrap(),
+    ]);
+    assert!(
+        message.contains("photo.jpg")
+            && message.contains("JPEG picture")
+            && message.contains("JSON"),
+        "{message}"
+    );
+    // As a puppet's picture or mesh in a stage file.
+    let assets = puppetry_testkit::root().join("assets/gingerbread");
+    let real_mesh = assets.join("gingerbread.mesh.json");
+    let real_image = assets.join("gingerbread.png");
+    for (image, mesh, field, says) in [
+        (&photo, &real_mesh, "puppet[0].image", "must be a PNG"),
+        (&real_image, &photo, "puppet[0].mesh", ".mesh.json"),
+    ] {
+        let stage = dir.path().join("stage.toml");
+        std::fs::write(
+            &stage,
+            format!(
+                "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"g\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\n",
+                image.display(),
+                mesh.display()
+            ),
+        )
+        .unwrap();
+        let message = failure(&[
+            "takes",
+            dir.path().to_str().unwrap(),
+            "--verify",
+            "--config",
+            stage.to_str().unwrap(),
+        ]);
+        assert!(
+            message.contains("stage.toml")
+                && message.contains(field)
+                && message.contains("JPEG picture")
+                && message.contains(says),
+            "{message}"
+        );
+    }
+}
+
+/// A small PNG: an opaque disc on a clear square.
+fn disc_png() -> Vec<u8> {
+    let size = 64u32;
+    let mut pixels = Vec::new();
+    for y in 0..size {
+        for x in 0..size {
+            let (dx, dy) = (x as f64 - 31.5, y as f64 - 31.5);
+            let alpha = if dx * dx + dy * dy < 28.0 * 28.0 {
+                255
+            } else {
+                0
+            };
+            pixels.extend([200, 120, 40, alpha]);
+        }
+    }
+    let mut bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut bytes, size, size);
+    encoder.set_color(png::ColorType::Rgba);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_image_data(&pixels).unwrap();
+    drop(writer);
+    bytes
+}
+
+#[test]
+fn mesh_without_an_output_writes_beside_the_picture_and_never_replaces() {
+    let dir = tempfile::tempdir().unwrap();
+    let picture = scratch(&dir, "disc.png", &disc_png());
+    let beside = dir.path().join("disc.mesh.json");
+    let args = ["mesh", picture.to_str().unwrap(), "--vertices", "100"];
+    let out = puppetry(&args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(out.stdout.is_empty(), "nothing on standard output");
+    let mesh = Mesh::load(&beside).unwrap();
+    assert!(mesh.vertices().len() > 10);
+    assert!(
+        stderr.contains(beside.to_str().unwrap()),
+        "says where it wrote: {stderr}"
+    );
+    // Again: the mesh beside it may be one a stage uses, so it stays.
+    std::fs::write(&beside, "kept").unwrap();
+    let message = failure(&args);
+    assert!(
+        message.contains("disc.mesh.json") && message.contains("-o"),
+        "{message}"
+    );
+    assert_eq!(std::fs::read_to_string(&beside).unwrap(), "kept");
+    // `-o -` is standard output; `-o FILE` replaces FILE.
+    let out = puppetry(&["mesh", picture.to_str().unwrap(), "-o", "-"]);
+    assert!(out.status.success());
+    let printed: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(printed["vertices"].as_array().is_some_and(|v| v.len() > 10));
+    let out = puppetry(&[
+        "mesh",
+        picture.to_str().unwrap(),
+        "-o",
+        beside.to_str().unwrap(),
+    ]);
+    assert!(out.status.success());
+    Mesh::load(&beside).unwrap();
+}
+
+/// `puppetry serve ARGS` run until it has printed its URLs: its standard
+/// output to there, and its standard error once it is stopped.
+fn serve_until_ready(args: &[&str], env: &[(&str, &str)]) -> (String, String) {
+    serve_and(args, env, |_| {})
+}
+
+/// [`serve_until_ready`], calling `meanwhile` with the standard output
+/// while the daemon still runs.
+fn serve_and(
+    args: &[&str],
+    env: &[(&str, &str)],
+    meanwhile: impl FnOnce(&str),
+) -> (String, String) {
+    use std::io::{BufRead, BufReader, Read};
+    use std::process::Stdio;
+    let mut command = Command::new(env!("CARGO_BIN_EXE_puppetry"));
+    command
+        .arg("serve")
+        .args(args)
+        .env_remove("NO_COLOR")
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    for (key, value) in env {
+        command.env(key, value);
+    }
+    let mut child = command.spawn().unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let (said, heard) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut text = String::new();
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            text.push_str(&line);
+            text.push('\n');
+            if line.contains("stop with Ctrl-C") {
+                break;
+            }
+        }
+        let _ = said.send(text);
+    });
+    let stdout = heard.recv_timeout(std::time::Duration::from_secs(120));
+    if let Ok(stdout) = &stdout {
+        meanwhile(stdout);
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    let mut stderr = String::new();
+    let _ = child.stderr.take().unwrap().read_to_string(&mut stderr);
+    let stdout = stdout.unwrap_or_else(|_| panic!("serve {args:?} never said it serves: {stderr}"));
+    (stdout, stderr)
+}
+
+/// The address in `serve`'s first line, `… at http://ADDRESS/`.
+fn served_at(stdout: &str) -> std::net::SocketAddr {
+    let first = stdout.lines().next().unwrap_or_default();
+    let address = first
+        .split(" at http://")
+        .nth(1)
+        .and_then(|rest| rest.split('/').next())
+        .unwrap_or_else(|| panic!("no URL in {stdout:?}"));
+    address
+        .parse()
+        .unwrap_or_else(|_| panic!("{address:?} in {stdout:?}"))
+}
+
+/// A stage file of the demo puppet whose anonymous performers' token is
+/// `token`.
+fn stage_with_token(dir: &TempDir, token: &str) -> PathBuf {
+    let text =
+        crate::common::daemon::stage_text("").replace("[\"secret\"]", &format!("[\"{token}\"]"));
+    scratch(dir, &format!("{token}.toml"), text.as_bytes())
+}
+
+#[test]
+fn listen_takes_a_host_name_or_a_bare_port() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = stage_with_token(&dir, "secret");
+    let stage = stage.to_str().unwrap();
+    for listen in ["localhost:0", "0"] {
+        let (stdout, stderr) = serve_until_ready(&["--config", stage, "--listen", listen], &[]);
+        let address = served_at(&stdout);
+        assert!(
+            address.ip().is_loopback() && address.port() != 0,
+            "{listen}: {stdout}"
+        );
+        assert!(!stderr.contains("WARN"), "{listen}: {stderr}");
+    }
+    for (listen, says) in [
+        ("no-such-host.invalid:8080", "no-such-host.invalid"),
+        ("localhost", "HOST:PORT"),
+        ("localhost:http", "not a port"),
+    ] {
+        let message = failure(&["serve", "--config", stage, "--listen", listen]);
+        assert!(message.contains(says), "{listen}: {message}");
+    }
+}
+
+#[test]
+fn listening_on_every_interface_prints_a_usable_url_and_warns_of_demo_tokens() {
+    let dir = tempfile::tempdir().unwrap();
+    // Tokens of one's own: usable URLs, no warning.
+    let own = stage_with_token(&dir, "secret");
+    let args = ["--config", own.to_str().unwrap(), "--listen", "0.0.0.0:0"];
+    let (stdout, stderr) = serve_and(&args, &[], |stdout| {
+        std::net::TcpStream::connect(served_at(stdout)).expect("the printed URL opens");
+    });
+    let address = served_at(&stdout);
+    assert_eq!(address.ip(), std::net::Ipv4Addr::LOCALHOST, "{stdout}");
+    assert!(
+        stdout.contains("all interfaces") && !stdout.contains("0.0.0.0/"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains(&format!("http://{address}/?role=performer&token=secret")),
+        "{stdout}"
+    );
+    assert!(!stderr.contains("demo tokens"), "{stderr}");
+    // The bundled demo's token: a loud warning, in plain text when stderr
+    // is not a terminal (a log file, here a pipe).
+    let demo = stage_with_token(&dir, "demo");
+    let (stdout, stderr) = serve_until_ready(
+        &["--config", demo.to_str().unwrap(), "--listen", "0.0.0.0:0"],
+        &[],
+    );
+    served_at(&stdout);
+    let warning = stderr
+        .lines()
+        .find(|l| l.contains("demo tokens"))
+        .unwrap_or_else(|| panic!("no warning: {stderr}"));
+    assert!(
+        warning.contains("WARN") && warning.contains("(demo)") && warning.contains("[access]"),
+        "{warning}"
+    );
+    assert!(
+        !stderr.contains('\x1b'),
+        "colour codes in a pipe: {stderr:?}"
+    );
+    // On loopback the demo tokens are fine.
+    let (_, stderr) = serve_until_ready(
+        &[
+            "--config",
+            demo.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+        ],
+        &[],
+    );
+    assert!(!stderr.contains("demo tokens"), "{stderr}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn export_draws_no_progress_bar_into_a_pipe() {
+    use crate::common::daemon::{PLAYS, looping_capture, stage_config, stage_text};
+    use puppetry_daemon::serve::{Options, start_with};
+    // A take of one pass of a real capture.
+    let once = looping_capture().replace("repeat = true\n", "");
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    let mut options = Options::new(puppetry_daemon::stream::WebFiles::Embedded);
+    options.takes_dir = takes.clone();
+    options.record = true;
+    let running = start_with(&stage_config(&once), options).await.unwrap();
+    let deadline = std::time::Instant::now() + PLAYS;
+    while !running.inputs_done() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the replay did not end"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    running.shutdown().await;
+    let stage = scratch(&dir, "stage.toml", stage_text(&once).as_bytes());
+    let take = takes.join("take-001.take");
+    let glb = dir.path().join("take.glb");
+    // Standard error is a pipe here, as in a log or `2> file`.
+    let out = puppetry(&[
+        "export",
+        take.to_str().unwrap(),
+        "--config",
+        stage.to_str().unwrap(),
+        "--format",
+        "glb",
+        "-o",
+        glb.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(std::fs::metadata(&glb).unwrap().len() > 0);
+    assert!(
+        !stderr.contains('\r') && !stderr.contains('#') && !stderr.contains('\x1b'),
+        "a progress bar in a pipe: {stderr:?}"
+    );
 }
