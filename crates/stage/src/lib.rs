@@ -138,6 +138,21 @@ pub const MAX_HISTORY: usize = 64;
 /// from where a contact lands is what it grabs.
 pub const GRAB_RADIUS_FRACTION: f64 = 1.0 / 60.0;
 
+/// A contact this fraction of the stage's smaller side outside a puppet's
+/// outline still grabs it (the nearest point of it), when it lands on no
+/// puppet: 6 units on the demo's 720-high stage, about 5 mm on a 1.2 m
+/// touch table. A touch table reports the middle of a finger's patch
+/// (8–10 mm across), so a finger half on a thin limb's edge lands up to
+/// half a finger outside it; half the grab radius (which is what a grid
+/// handle or joint may be missed by) takes that and not the background
+/// between a hand and the body.
+pub const OUTLINE_REACH_FRACTION: f64 = GRAB_RADIUS_FRACTION / 2.0;
+
+/// A point within this fraction of a triangle's perimeter of it is on it:
+/// round-off in a solved pose (or a vertex streamed as f32, about 1e-7 of
+/// its coordinates) must not decide whether a point on the outline is.
+const ON_OUTLINE: f64 = 1e-6;
+
 /// Who holds a handle.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub enum Owner {
@@ -630,35 +645,81 @@ impl Puppet {
     }
 
     /// The triangle of the current pose under `p` and `p`'s barycentric
-    /// coordinates there: what a finger landing at `p` touches.
+    /// coordinates there: what a finger landing at `p` touches. A point on
+    /// the outline (a boundary vertex or edge) is on the puppet.
     pub fn hit(&self, p: DVec2) -> Option<Anchor> {
+        self.hit_within(p, 0.0).map(|(anchor, _)| anchor)
+    }
+
+    /// As [`Puppet::hit`], and when nothing is under `p`, the point of the
+    /// puppet nearest `p` if it is within `reach` (stage units): the anchor
+    /// and where it is now. A contact's position is where the middle of a
+    /// finger is, or a vertex streamed as f32 and sent back: either can
+    /// land a hair outside the outline it is on.
+    pub fn hit_within(&self, p: DVec2, reach: f64) -> Option<(Anchor, DVec2)> {
         let pose = self.pose();
-        let mut best: Option<(f64, u16, u32, [f64; 3])> = None;
+        let mut inside: Option<(u16, f64, u32, [f64; 3])> = None;
+        let mut nearest: Option<(f64, u16, u32, DVec2)> = None;
         for (t, tri) in self.mesh.triangles().iter().enumerate() {
             let [a, b, c] = tri.map(|i| pose[i as usize]);
-            let lo = a.min(b).min(c);
-            let hi = a.max(b).max(c);
+            // The box test must not be stricter than the tests below: an
+            // exact one dropped points on the outline that round-off in
+            // the pose put a hair outside (issue 31).
+            let slack = reach + ON_OUTLINE * (a.distance(b) + b.distance(c) + c.distance(a));
+            let lo = a.min(b).min(c) - DVec2::splat(slack);
+            let hi = a.max(b).max(c) + DVec2::splat(slack);
             if p.x < lo.x || p.y < lo.y || p.x > hi.x || p.y > hi.y {
                 continue;
             }
-            let bary = barycentric_in(a, b, c, p);
-            let worst = bary[0].min(bary[1]).min(bary[2]);
             // Deformed meshes may fold over: the part drawn in front is the
             // one under the finger; then the triangle containing the point
             // most deeply.
             let near = self.depth.as_ref().map_or(0, |d| d.depth()[t]);
-            if worst >= -1e-9 && best.is_none_or(|(w, n, _, _)| (near, worst) > (n, w)) {
-                best = Some((worst, near, t as u32, bary));
+            let bary = barycentric_in(a, b, c, p);
+            if !bary.iter().all(|b| b.is_finite()) {
+                // Collapsed to a segment in this pose: its neighbours,
+                // which share its edges, are hit instead.
+                continue;
+            }
+            let worst = bary[0].min(bary[1]).min(bary[2]);
+            if worst >= 0.0 {
+                if inside.is_none_or(|(n, w, _, _)| (near, worst) > (n, w)) {
+                    inside = Some((near, worst, t as u32, bary));
+                }
+                continue;
+            }
+            // Outside this triangle: how far, in stage units (barycentric
+            // coordinates are no distance: a thin triangle's grow fast).
+            let q = [(a, b), (b, c), (c, a)]
+                .map(|(u, v)| closest_on_segment(u, v, p))
+                .into_iter()
+                .min_by(|x, y| x.distance_squared(p).total_cmp(&y.distance_squared(p)))
+                .unwrap_or(a);
+            let d = q.distance(p);
+            let on = ON_OUTLINE * (a.distance(b) + b.distance(c) + c.distance(a));
+            if d <= reach.max(on)
+                && nearest.is_none_or(|(nd, n, _, _)| {
+                    (d, std::cmp::Reverse(near)) < (nd, std::cmp::Reverse(n))
+                })
+            {
+                nearest = Some((d, near, t as u32, q));
             }
         }
-        best.map(|(_, _, triangle, bary)| {
+        let anchor = |triangle: u32, bary: [f64; 3]| {
             let clamped = bary.map(|b| b.max(0.0));
             let sum: f64 = clamped.iter().sum();
             Anchor::Point {
                 triangle,
                 bary: clamped.map(|b| b / sum),
             }
-        })
+        };
+        if let Some((_, _, triangle, bary)) = inside {
+            return Some((anchor(triangle, bary), p));
+        }
+        let (_, _, triangle, q) = nearest?;
+        let [a, b, c] = self.mesh.triangles()[triangle as usize].map(|i| pose[i as usize]);
+        let found = anchor(triangle, barycentric_in(a, b, c, q));
+        Some((found, self.posed(found)))
     }
 
     /// How events name a grip: a material point by its rest position.
@@ -682,14 +743,17 @@ impl Puppet {
     }
 
     /// A grid handle or joint near `p` first, then the material point.
-    fn reach(&self, p: DVec2, radius: f64) -> Reach {
+    /// What a contact at `p` grabs of this puppet: a grid handle or joint
+    /// within `radius`, else the point under it, or (with `outline` > 0)
+    /// the nearest point within `outline` outside it, held where it is.
+    fn reach(&self, p: DVec2, radius: f64, outline: f64) -> Reach {
         if let Some(grip) = self.rig.point_near(p, radius) {
             let at = self.rig.grip_position(grip).unwrap_or(p);
             return Reach::Grip(grip, at - p);
         }
-        match self.hit(p) {
-            Some(anchor) if self.rig.takes_points() => {
-                Reach::Grip(Grip::Point(anchor), DVec2::ZERO)
+        match self.hit_within(p, outline) {
+            Some((anchor, at)) if self.rig.takes_points() => {
+                Reach::Grip(Grip::Point(anchor), at - p)
             }
             // A skeleton is held by its bones: the nearest one, at the
             // point under the finger.
@@ -786,6 +850,16 @@ fn grip_record(grip: Grip) -> GripRecord {
             across,
         },
     }
+}
+
+/// The point of the segment `u`–`v` nearest `p`.
+fn closest_on_segment(u: DVec2, v: DVec2, p: DVec2) -> DVec2 {
+    let along = v - u;
+    let length = along.length_squared();
+    if length == 0.0 {
+        return u;
+    }
+    u + along * ((p - u).dot(along) / length).clamp(0.0, 1.0)
 }
 
 fn barycentric_in(a: DVec2, b: DVec2, c: DVec2, p: DVec2) -> [f64; 3] {
@@ -1278,9 +1352,15 @@ impl Stage {
         contact: Option<u32>,
     ) -> Option<(usize, u64)> {
         let radius = self.grab_radius();
-        for place in (0..self.order.len()).rev() {
+        // On a puppet first, top to bottom; only when the contact is on
+        // none, a hair outside one: the edge of the puppet on top must not
+        // take a finger that is on the one below.
+        let outline = self.width.min(self.height) * OUTLINE_REACH_FRACTION;
+        let places = self.order.len();
+        let passes = (0..places).rev().map(|place| (place, 0.0));
+        for (place, outline) in passes.chain((0..places).rev().map(|place| (place, outline))) {
             let puppet = self.order[place];
-            match self.puppets[puppet].reach(at, radius) {
+            match self.puppets[puppet].reach(at, radius, outline) {
                 Reach::Grip(grip, offset) => {
                     if let Owner::Source(source) = &owner
                         && let Some(puppets) = self.limits.get(source)
