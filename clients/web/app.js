@@ -206,7 +206,6 @@ const takeControls = new TakeControls({
   list: byId('take-list'),
   play: byId('take-play'),
   overdub: byId('take-overdub'),
-  stop: byId('take-stop'),
   format: byId('take-format'),
   download: byId('take-download'),
 }, {

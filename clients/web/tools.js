@@ -48,6 +48,18 @@ export class ReplaceTool {
     });
   }
 
+  /**
+   * While a take records or plays there is no overdub to mark for: the
+   * toggle is disabled and marking stops (the marks stay for the next).
+   */
+  setBusy(busy) {
+    this.button.disabled = busy;
+    if (busy && this.on) {
+      this.on = false;
+      this.button.setAttribute('aria-pressed', 'false');
+    }
+  }
+
   /** Shows the toggle (directors: overdubs are theirs). */
   setEnabled(on) {
     this.enabled = on;
@@ -609,7 +621,11 @@ export function calibrationMarks(inset, stageSize) {
  * Takes: the record button (red with the elapsed time on every page while
  * a take records), the take list, play and overdub. Everyone sees the
  * state; directors get the buttons that record and play, performers the
- * list and the download.
+ * list and the download. One button starts a take and, while anything
+ * runs (a take recording, one playing, an overdub), reads "■ stop" and
+ * stops all of it: there is no second stop to press by mistake. Play,
+ * overdub and replace are disabled while anything runs, and the take
+ * being recorded is in the list but cannot be chosen.
  */
 export class TakeControls {
   constructor(elements, { send, messages }) {
@@ -627,14 +643,14 @@ export class TakeControls {
 
   buttons() {
     const e = this.el;
-    return [e.record, e.play, e.overdub, e.stop, e.list, e.format, e.download];
+    return [e.record, e.play, e.overdub, e.list, e.format, e.download];
   }
 
   /** Which buttons show: directors record and play, performers (and directors) list and download. */
   setRole({ perform, direct }) {
     const e = this.el;
     for (const b of [e.list, e.format, e.download]) b.hidden = !perform;
-    for (const b of [e.record, e.play, e.overdub, e.stop]) b.hidden = !direct;
+    for (const b of [e.record, e.play, e.overdub]) b.hidden = !direct;
     this.fit();
   }
 
@@ -647,7 +663,14 @@ export class TakeControls {
   listen() {
     this.el.download.addEventListener('click', () => this.download());
     this.el.record.addEventListener('click', () => {
-      this.send(this.state.recording ? this.m.stopRecording() : this.m.record());
+      const { recording, playing } = this.state;
+      if (!recording && !playing) {
+        this.send(this.m.record());
+        return;
+      }
+      // The recording first: an overdub then ends with both its takes' hands let go.
+      if (recording) this.send(this.m.stopRecording());
+      if (playing) this.send(this.m.stopPlaying());
     });
     this.el.play.addEventListener('click', () => this.chosen() && this.send(this.m.play(this.chosen(), false)));
     this.el.overdub.addEventListener('click', () => {
@@ -656,11 +679,31 @@ export class TakeControls {
       this.send(this.m.play(this.chosen(), true, { replace }));
       this.replaceTool?.clear();
     });
-    this.el.stop.addEventListener('click', () => this.send(this.m.stopPlaying()));
+    this.el.list.addEventListener('change', () => this.refresh());
   }
 
+  /** The chosen take, unless something runs (nothing can be played then). */
   chosen() {
-    return this.el.list.value || null;
+    if (this.running()) return null;
+    const o = this.el.list.selectedOptions[0];
+    return o && !o.disabled ? o.value : null;
+  }
+
+  running() {
+    return !!(this.state.recording || this.state.playing);
+  }
+
+  /** The buttons as the state allows: one stop while anything runs, play and overdub only when they would play. */
+  refresh() {
+    const e = this.el;
+    const running = this.running();
+    e.record.setAttribute('aria-pressed', String(!!this.state.recording));
+    e.record.textContent = running ? '■ stop' : '● rec';
+    e.record.title = running
+      ? `Stop ${[this.state.recording && `recording ${this.state.recording}`, this.state.playing && `playing ${this.state.playing}`].filter(Boolean).join(' and ')}`
+      : 'Record a take of everything on stage (every page shows it)';
+    e.play.disabled = e.overdub.disabled = !this.chosen();
+    this.replaceTool?.setBusy(running);
   }
 
   /** Downloads the chosen take as the file itself or an export the daemon makes. */
@@ -689,8 +732,8 @@ export class TakeControls {
     const wasRecording = this.state.recording;
     this.state = { recording: msg.recording ?? null, playing: msg.playing ?? null, error: msg.error ?? null };
     this.since = performance.now() - (msg.elapsed ?? 0) * 1000;
-    this.el.record.setAttribute('aria-pressed', String(!!this.state.recording));
-    this.el.record.textContent = this.state.recording ? '■ stop' : '● rec';
+    this.markRecording();
+    this.refresh();
     this.showElapsed();
     // A take just ended: it belongs in the list.
     if (wasRecording !== this.state.recording) this.send(this.m.listTakes());
@@ -719,15 +762,28 @@ export class TakeControls {
     this.el.state.classList.toggle('error', !s.recording && !!s.error);
   }
 
-  /** A `takes` message: the list, newest selected. */
+  /** A `takes` message: the list, the newest that can be played selected. */
   onList(msg) {
     const list = this.el.list;
     list.replaceChildren(...msg.takes.map((t) => {
       const o = document.createElement('option');
       o.value = t.name;
-      o.textContent = `${t.name} (${t.duration.toFixed(1)} s${t.layers?.length ? `, over ${t.layers.join(', ')}` : ''})`;
+      o.dataset.label = `${t.name} (${t.duration.toFixed(1)} s${t.layers?.length ? `, over ${t.layers.join(', ')}` : ''})`;
+      o.dataset.ending = t.ending ?? '';
       return o;
     }));
-    if (msg.takes.length) list.value = msg.takes[msg.takes.length - 1].name;
+    this.markRecording();
+    const playable = [...list.options].filter((o) => !o.disabled);
+    if (playable.length) list.value = playable[playable.length - 1].value;
+    this.refresh();
+  }
+
+  // The take being recorded grows as it is written: listed, but not to be chosen.
+  markRecording() {
+    for (const o of this.el.list.options) {
+      const recording = o.value === this.state.recording || o.dataset.ending === 'recording';
+      o.disabled = recording;
+      o.textContent = recording ? `${o.value} (recording…)` : (o.dataset.label ?? o.value);
+    }
   }
 }

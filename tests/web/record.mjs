@@ -1,7 +1,9 @@
 // Headless-browser check of takes from the page: a performer presses the
 // record button, which turns red with "REC take-001" and a running time on
-// the performer's page and on a viewer's; drags the puppet; presses it again,
-// and the take list then holds take-001.
+// the performer's page and on a viewer's; while it records, that button is
+// the page's one stop, play, overdub and replace are disabled and take-001
+// is listed but cannot be chosen; drags the puppet; presses it again, and
+// the take list then holds take-001, which can be played.
 //
 //   PUPPETRY_URL='http://127.0.0.1:PORT/?role=performer&token=T' \
 //   PUPPETRY_POINT='640,360' node record.mjs
@@ -88,6 +90,27 @@ try {
   await shot(performer, 'recording-performer');
   await shot(viewer, 'recording-viewer');
 
+  step('while recording: one stop, and nothing to play');
+  await performer.bringToFront();
+  await waitFor(performer, 'take-001 listed as recording, not to be chosen', () => {
+    const o = document.querySelector('#take-list option[value="take-001"]');
+    return o && o.disabled && /recording/.test(o.textContent);
+  });
+  summary.whileRecording = await performer.evaluate(() => {
+    const shown = (el) => el && !el.hidden && el.getClientRects().length > 0;
+    const buttons = [...document.querySelectorAll('#take-controls button')].filter(shown);
+    return {
+      stops: buttons.filter((b) => /stop/i.test(b.textContent)).map((b) => b.id),
+      record: document.getElementById('record').textContent,
+      disabled: ['take-play', 'take-overdub', 'take-replace'].filter((id) => document.getElementById(id).disabled),
+      list: [...document.querySelectorAll('#take-list option')].map((o) => ({ name: o.value, disabled: o.disabled, text: o.textContent })),
+    };
+  });
+  const w = summary.whileRecording;
+  if (w.stops.length !== 1 || w.stops[0] !== 'record') throw new Error(`while recording the stop buttons are ${JSON.stringify(w.stops)}, not the one record button`);
+  if (w.disabled.length !== 3) throw new Error(`while recording only ${JSON.stringify(w.disabled)} of play, overdub and replace are disabled`);
+  if (w.list.some((o) => !o.disabled)) throw new Error(`while recording the list offers ${JSON.stringify(w.list)}`);
+
   step('drag the puppet');
   await performer.bringToFront();
   await keepSnapshot(performer);
@@ -114,6 +137,11 @@ try {
   summary.take = await performer.evaluate(() => window.puppetry.takes?.find((t) => t.name === 'take-001'));
   summary.afterState = await performer.textContent('#take-state');
   if (ELAPSED.test(summary.afterState)) throw new Error(`#take-state still says ${summary.afterState}`);
+  await waitFor(performer, 'take-001 to be chosen and playable after the recording',
+    () => document.getElementById('take-list').value === 'take-001'
+      && !document.querySelector('#take-list option[value="take-001"]').disabled
+      && !document.getElementById('take-play').disabled && !document.getElementById('take-overdub').disabled
+      && document.getElementById('record').textContent === '● rec');
   await waitFor(viewer, 'the viewer to see the take end', () => !document.getElementById('take-state').classList.contains('recording'));
   await shot(performer, 'stopped-performer');
 
