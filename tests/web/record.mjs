@@ -168,8 +168,12 @@ try {
   await waitFor(performer, 'a replace region where the drag began', () => window.puppetry.replaceRegions().length === 1);
   summary.replace = await performer.evaluate(() => window.puppetry.replaceRegions());
   await performer.click('#take-overdub');
-  await waitFor(performer, 'the overdub recording take-002 over take-001',
-    () => window.puppetry.take?.recording === 'take-002' && window.puppetry.take?.playing === 'take-001');
+  // Seen at once with the state: the one stop, and nothing else to play.
+  await waitFor(performer, 'the overdub recording take-002 over take-001, with one stop',
+    () => window.puppetry.take?.recording === 'take-002' && window.puppetry.take?.playing === 'take-001'
+      && document.getElementById('record').textContent === '■ stop'
+      && document.getElementById('take-play').disabled && document.getElementById('take-overdub').disabled
+      && ![...document.querySelectorAll('#take-controls button')].some((b) => b.id !== 'record' && !b.hidden && /stop/i.test(b.textContent)));
   await waitFor(performer, 'the overdub to end with take-001',
     () => window.puppetry.take && !window.puppetry.take.recording && !window.puppetry.take.playing);
 

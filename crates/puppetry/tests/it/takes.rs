@@ -847,10 +847,11 @@ fn sigterm_ends_the_take_cleanly() {
     assert_eq!(summarize(&take).unwrap().ending, "shutdown");
 }
 
-/// Writes a take of `stage` named `name` into `dir`: a finger lands on
-/// the puppet's middle, moves, and never lifts (the take ends with it down,
-/// as a take stopped with a finger down did before such takes let go at
-/// their end). With `last`, a step that changes nothing comes at that time.
+/// Writes a take of `stage` named `name` into `dir`: a pin on the right
+/// hand, then a finger lands on the puppet's middle, moves, and never lifts
+/// (the take ends with it down, as a take stopped with a finger down did
+/// before such takes let go at their end). With `last`, a step that
+/// changes nothing comes at that time.
 fn write_held_take(config: &StageConfig, dir: &Path, name: &str, last: Option<f64>) {
     use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
     let stage = Stage::from_config(config).unwrap();
@@ -873,6 +874,10 @@ fn write_held_take(config: &StageConfig, dir: &Path, name: &str, last: Option<f6
             }
         })
         .collect();
+    steps[0].changes.push(Change::Pin {
+        owner: "client:9".into(),
+        at: glam::DVec2::new(720.0, 380.0),
+    });
     if let Some(t) = last {
         // A depth flip off the stage: nothing there to flip.
         let at = glam::DVec2::new(-100.0, -100.0);
@@ -941,10 +946,13 @@ async fn a_played_take_lets_go_of_what_it_holds_when_it_ends_or_is_stopped() {
     // Stopped while its finger is down (its last step is an hour off).
     send(&mut ws, json!({"type": "play", "take": "long"})).await;
     let deadline = Instant::now() + PLAYS;
-    while !handle_owners(&running)
+    // Its pin and its finger.
+    while handle_owners(&running)
         .await
         .iter()
-        .any(|o| o == "long/client:9")
+        .filter(|o| *o == "long/client:9")
+        .count()
+        < 2
     {
         assert!(
             Instant::now() < deadline,
