@@ -191,12 +191,19 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
     let started = Instant::now();
     // Loading meshes and factoring their solvers takes seconds on a big
     // mesh: not on a tokio worker.
-    let stage = {
-        let config = config.clone();
-        tokio::task::spawn_blocking(move || Stage::from_config(&config))
-            .await
-            .map_err(|e| ServeError::Loading(e.to_string()))??
+    let (config, stage) = {
+        let mut config = config.clone();
+        let puppets_dir = puppets_dir.clone();
+        tokio::task::spawn_blocking(move || {
+            let mut stage = Stage::from_config(&config)?;
+            // Pictures directors added before a restart come back.
+            stream::restore_pictures(&mut config, &mut stage, &puppets_dir);
+            Ok::<_, StageError>((config, stage))
+        })
+        .await
+        .map_err(|e| ServeError::Loading(e.to_string()))??
     };
+    let config = &config;
     let (commands, commands_rx) = mpsc::channel(COMMAND_QUEUE);
     let listener = stream::bind(config.stage.listen).await?;
     let address = listener

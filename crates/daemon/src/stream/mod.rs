@@ -11,6 +11,7 @@ pub(crate) mod following;
 pub mod guard;
 pub mod people;
 mod uploads;
+pub use uploads::restore_pictures;
 
 pub use edge::WebFiles;
 pub use people::People;
@@ -916,7 +917,18 @@ pub(crate) async fn handle_message(
             return Ok(Some(added.to_text()));
         }
         ClientMessage::RemovePuppet { puppet } => {
+            let entry = shared
+                .lineup
+                .borrow()
+                .config
+                .puppets
+                .get(puppet as usize)
+                .cloned();
             change_lineup(shared, LineupChange::Remove(puppet)).await?;
+            // Gone for good: a restart must not bring it back.
+            if let (Some(entry), Ok(links)) = (entry, shared.links()) {
+                uploads::forget(&links.puppets_dir, &entry).await;
+            }
             return Ok(None);
         }
         ClientMessage::OrderPuppets { order } => {

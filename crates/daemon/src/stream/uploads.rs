@@ -6,18 +6,25 @@
 //! the page, the same way. Every answer is JSON: the puppet made, with
 //! warnings about the picture, or a typed `error` naming the parameter at
 //! fault.
+//!
+//! A picture goes where it covers the puppets on stage least (tiled into
+//! free stage space, smaller if need be), and its placement is written
+//! beside it, so [`restore_pictures`] brings every kept picture back when
+//! the daemon starts again; removing the puppet deletes its files.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::{ConnectInfo, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
+use glam::DVec2;
 use puppetry_mesh::build::{MeshOptions, mesh_picture};
-use puppetry_stage::Puppet;
 use puppetry_stage::config::{AccessRole, CurveConfig, PuppetConfig, StageConfig};
+use puppetry_stage::{Puppet, Stage};
+use serde::{Deserialize, Serialize};
 
 use super::edge::{PeerAddr, origin_allowed};
 use super::guard::Refusal;
@@ -37,6 +44,16 @@ pub const DEFAULT_VERTICES: usize = 1000;
 
 /// A new puppet fits in this fraction of the stage (it is never enlarged).
 const FIT: f64 = 0.5;
+
+/// Kept pictures a start brings back, at most (the oldest first): each is a
+/// mesh loaded and a solver factored before the stage opens.
+pub const MAX_RESTORED: usize = 64;
+/// Directory entries of the puppets folder a start looks at, at most.
+const MAX_SCANNED: usize = 4096;
+/// The largest kept mesh file a start reads (20000 vertices are ~1 MiB).
+const MAX_MESH_FILE: u64 = 16 << 20;
+/// The largest placement file a start reads.
+const MAX_PLACEMENT_FILE: u64 = 4096;
 
 /// `POST /puppets?name=…&vertices=…[&x=…&y=…&scale=…]` with the PNG as the
 /// body and `Authorization: Bearer TOKEN` (a director's).
@@ -99,15 +116,29 @@ async fn add_puppet(
     })?;
     let config = lineup.config.clone();
     let names: Vec<String> = config.puppets.iter().map(|p| p.name.clone()).collect();
-    let made = tokio::task::spawn_blocking(move || make(&dir, &png, wanted, &config, &names))
-        .await
-        .map_err(|e| {
-            refused(
-                StatusCode::INTERNAL_SERVER_ERROR,
-                ErrorCode::Failed,
-                e.to_string(),
-            )
-        })??;
+    let taken: Vec<[DVec2; 2]> = lineup
+        .description
+        .puppets
+        .iter()
+        .map(|p| {
+            let rest: Vec<DVec2> = p
+                .rest
+                .chunks_exact(2)
+                .map(|q| DVec2::new(f64::from(q[0]), f64::from(q[1])))
+                .collect();
+            bounds(&rest)
+        })
+        .collect();
+    let made =
+        tokio::task::spawn_blocking(move || make(&dir, &png, wanted, &config, &names, &taken))
+            .await
+            .map_err(|e| {
+                refused(
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    ErrorCode::Failed,
+                    e.to_string(),
+                )
+            })??;
     let Made {
         puppet,
         entry,
@@ -115,7 +146,11 @@ async fn add_puppet(
     } = made;
     let (vertices, triangles) = (puppet.mesh.vertices().len(), puppet.mesh.triangles().len());
     let name = entry.name.clone();
-    let files = [entry.image.clone(), entry.mesh.clone()];
+    let files = [
+        entry.image.clone(),
+        entry.mesh.clone(),
+        placement_file(&entry.image),
+    ];
     match change_lineup(shared, LineupChange::Add(Box::new((puppet, entry)))).await {
         Ok(id) => {
             tracing::info!(puppet = id, %name, vertices, "a director added a puppet");
@@ -181,7 +216,8 @@ fn check_director(links: &super::StageLinks, headers: &HeaderMap) -> Result<(), 
 struct Wanted {
     name: String,
     vertices: usize,
-    at: [f64; 2],
+    /// Where the director asked for it; none: in free stage space.
+    at: Option<[f64; 2]>,
     scale: Option<f64>,
 }
 
@@ -246,6 +282,7 @@ impl Wanted {
             }
         };
         let (width, height) = (config.stage.width, config.stage.height);
+        let asked = query.contains_key("x") || query.contains_key("y");
         let x = number("x")?.unwrap_or(width / 2.0);
         let y = number("y")?.unwrap_or(height / 2.0);
         for (field, v, size) in [("x", x, width), ("y", y, height)] {
@@ -268,7 +305,7 @@ impl Wanted {
         Ok(Wanted {
             name: name.to_string(),
             vertices,
-            at: [x, y],
+            at: asked.then_some([x, y]),
             scale,
         })
     }
@@ -402,6 +439,7 @@ fn make(
     wanted: Wanted,
     config: &StageConfig,
     names: &[String],
+    taken: &[[DVec2; 2]],
 ) -> Result<Made, Refused> {
     let failed = |what: &Path, e: std::io::Error| {
         refused(
@@ -429,13 +467,19 @@ fn make(
                 dir.join(format!("{stem}.mesh.json")),
             )
         })
-        .find(|(name, image, mesh)| !names.contains(name) && !image.exists() && !mesh.exists())
+        .find(|(name, image, mesh)| {
+            !names.contains(name)
+                && !image.exists()
+                && !mesh.exists()
+                && !placement_file(image).exists()
+        })
         .expect("a free name");
     std::fs::write(&image, png).map_err(|e| failed(&image, e))?;
-    let result = mesh_and_load(&image, &mesh_file, &name, &wanted, config);
+    let result = mesh_and_load(&image, &mesh_file, &name, &wanted, config, taken);
     if result.is_err() {
-        let _ = std::fs::remove_file(&image);
-        let _ = std::fs::remove_file(&mesh_file);
+        for file in [&image, &mesh_file, &placement_file(&image)] {
+            let _ = std::fs::remove_file(file);
+        }
     }
     result
 }
@@ -446,6 +490,7 @@ fn mesh_and_load(
     name: &str,
     wanted: &Wanted,
     config: &StageConfig,
+    taken: &[[DVec2; 2]],
 ) -> Result<Made, Refused> {
     let bad_image =
         |message: String| refused(StatusCode::BAD_REQUEST, ErrorCode::BadImage, message);
@@ -474,30 +519,293 @@ fn mesh_and_load(
             format!("{}: {e}", mesh_file.display()),
         )
     })?;
-    let (lo, hi) = meshed
-        .mesh
-        .vertices()
-        .iter()
-        .fold((glam::DVec2::MAX, glam::DVec2::MIN), |(lo, hi), &p| {
-            (lo.min(p), hi.max(p))
-        });
-    let size = (hi - lo).max(glam::DVec2::splat(1.0));
-    let fit = (FIT * config.stage.width / size.x)
-        .min(FIT * config.stage.height / size.y)
-        .min(1.0);
+    let [lo, hi] = bounds(meshed.mesh.vertices());
+    let stage = DVec2::new(config.stage.width, config.stage.height);
+    let (at, scale) = match wanted.at {
+        Some(at) => (at, fit(hi - lo, stage)),
+        None => free_spot(hi - lo, stage, taken),
+    };
     let entry = PuppetConfig {
         image: image.to_path_buf(),
         mesh: mesh_file.to_path_buf(),
-        scale: wanted.scale.unwrap_or(fit),
-        ..PuppetConfig::placed(name.to_string(), wanted.at)
+        scale: wanted.scale.unwrap_or(scale),
+        ..PuppetConfig::placed(name.to_string(), at)
     };
     let puppet = Puppet::load(config, config.puppets.len(), &entry)
         .map_err(|e| bad_image(format!("the picture's mesh: {e}")))?;
+    let placement = Placement {
+        name: entry.name.clone(),
+        at: entry.at,
+        scale: entry.scale,
+    };
+    let text = serde_json::to_string_pretty(&placement).expect("a placement serialises");
+    let file = placement_file(image);
+    std::fs::write(&file, text).map_err(|e| {
+        refused(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            ErrorCode::Failed,
+            format!("{}: {e}", file.display()),
+        )
+    })?;
     Ok(Made {
         puppet,
         entry,
         warnings,
     })
+}
+
+/// The smallest box holding `points`: lower left, upper right.
+fn bounds(points: &[DVec2]) -> [DVec2; 2] {
+    let (lo, hi) = points
+        .iter()
+        .fold((DVec2::MAX, DVec2::MIN), |(lo, hi), &p| {
+            (lo.min(p), hi.max(p))
+        });
+    if lo.cmple(hi).all() {
+        [lo, hi]
+    } else {
+        [DVec2::ZERO; 2]
+    }
+}
+
+/// The scale at which a picture `size` big fits in `FIT` of the stage.
+fn fit(size: DVec2, stage: DVec2) -> f64 {
+    let size = size.max(DVec2::ONE);
+    (FIT * stage.x / size.x)
+        .min(FIT * stage.y / size.y)
+        .min(1.0)
+}
+
+/// Candidate centres per side when looking for free stage space.
+const SPOTS: usize = 8;
+
+/// Where on the stage (and at what scale) a picture `size` big covers the
+/// puppets in `taken` (their boxes) least: at the size it fits in `FIT`
+/// of the stage, or else smaller (down to a third of that), on the first
+/// size where a spot covers nothing, the spot nearest the middle. Boxes,
+/// not outlines: a figure's box is what a performer reaches for.
+fn free_spot(size: DVec2, stage: DVec2, taken: &[[DVec2; 2]]) -> ([f64; 2], f64) {
+    let full = fit(size, stage);
+    let mut best: Option<(f64, f64, DVec2, f64)> = None;
+    for shrink in [1.0, 0.75, 0.55, 0.35] {
+        let scale = full * shrink;
+        let half = size.max(DVec2::ONE) * scale / 2.0;
+        let (lo, hi) = (half, (stage - half).max(half));
+        for j in 0..=SPOTS {
+            for i in 0..=SPOTS {
+                let t = DVec2::new(i as f64, j as f64) / SPOTS as f64;
+                let centre = lo + (hi - lo) * t;
+                let covered: f64 = taken
+                    .iter()
+                    .map(|[a, b]| {
+                        let overlap =
+                            ((centre + half).min(*b) - (centre - half).max(*a)).max(DVec2::ZERO);
+                        overlap.x * overlap.y
+                    })
+                    .sum();
+                let off_centre = centre.distance(stage / 2.0);
+                if best.is_none_or(|(c, d, _, _)| (covered, off_centre) < (c, d)) {
+                    best = Some((covered, off_centre, centre, scale));
+                }
+            }
+        }
+        if best.is_some_and(|(covered, ..)| covered == 0.0) {
+            break;
+        }
+    }
+    let (_, _, centre, scale) = best.expect("at least one spot");
+    (centre.into(), scale)
+}
+
+/// What a start needs to put a kept picture back: written beside it as
+/// `NAME.puppet.json` when it is added.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Placement {
+    name: String,
+    at: [f64; 2],
+    scale: f64,
+}
+
+/// The placement file of a kept picture (`NAME.png` → `NAME.puppet.json`).
+fn placement_file(image: &Path) -> PathBuf {
+    image.with_extension("puppet.json")
+}
+
+/// Why a kept picture is not brought back.
+#[derive(Debug, thiserror::Error)]
+enum RestoreError {
+    #[error("{0}: no mesh beside it (NAME.mesh.json)")]
+    NoMesh(String),
+    #[error("{file}: {size} bytes, more than {limit}")]
+    TooLarge { file: String, size: u64, limit: u64 },
+    #[error("{file}: {problem}")]
+    Bad { file: String, problem: String },
+}
+
+/// Brings back the pictures directors added that `dir` keeps (`NAME.png`,
+/// `NAME.mesh.json` and `NAME.puppet.json`; one without a placement file
+/// goes in free stage space), oldest first and on top of the stage file's
+/// puppets, at most [`MAX_RESTORED`] of them; each goes into `config` as
+/// the lineup's entries do. A file that cannot be read, is too large or
+/// does not load is logged and skipped. Blocking: meshes load here.
+/// Returns how many came back.
+pub fn restore_pictures(config: &mut StageConfig, stage: &mut Stage, dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0; // no folder yet: nothing was added
+    };
+    let mut pictures: Vec<(std::time::SystemTime, PathBuf)> = entries
+        .take(MAX_SCANNED)
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "png"))
+        .map(|p| {
+            let time = p
+                .metadata()
+                .and_then(|m| m.modified())
+                .unwrap_or(std::time::UNIX_EPOCH);
+            (time, p)
+        })
+        .collect();
+    pictures.sort();
+    if pictures.len() > MAX_RESTORED {
+        tracing::warn!(
+            folder = %dir.display(),
+            "{} pictures kept; bringing back the oldest {MAX_RESTORED}",
+            pictures.len()
+        );
+        pictures.truncate(MAX_RESTORED);
+    }
+    let mut restored = 0;
+    for (_, image) in pictures {
+        match restore_one(config, stage, &image) {
+            Ok(name) => {
+                tracing::info!(picture = %image.display(), %name, "a kept picture is back on stage");
+                restored += 1;
+            }
+            Err(e) => tracing::warn!("kept picture not brought back: {e}"),
+        }
+    }
+    restored
+}
+
+fn restore_one(
+    config: &mut StageConfig,
+    stage: &mut Stage,
+    image: &Path,
+) -> Result<String, RestoreError> {
+    let shown = |p: &Path| p.display().to_string();
+    let bad = |p: &Path, problem: String| RestoreError::Bad {
+        file: shown(p),
+        problem,
+    };
+    let check_size = |p: &Path, limit: u64| -> Result<(), RestoreError> {
+        let size = p.metadata().map_err(|e| bad(p, e.to_string()))?.len();
+        if size > limit {
+            return Err(RestoreError::TooLarge {
+                file: shown(p),
+                size,
+                limit,
+            });
+        }
+        Ok(())
+    };
+    let stem = image
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .ok_or_else(|| bad(image, "not a plain file name".into()))?;
+    let mesh = image.with_file_name(format!("{stem}.mesh.json"));
+    if !mesh.is_file() {
+        return Err(RestoreError::NoMesh(shown(image)));
+    }
+    check_size(image, MAX_UPLOAD as u64)?;
+    check_size(&mesh, MAX_MESH_FILE)?;
+    let placement_path = placement_file(image);
+    let placement = if placement_path.is_file() {
+        check_size(&placement_path, MAX_PLACEMENT_FILE)?;
+        let text = std::fs::read_to_string(&placement_path)
+            .map_err(|e| bad(&placement_path, e.to_string()))?;
+        let p: Placement =
+            serde_json::from_str(&text).map_err(|e| bad(&placement_path, e.to_string()))?;
+        let stage_size = [config.stage.width, config.stage.height];
+        let on_stage = (0..2).all(|k| (0.0..=stage_size[k]).contains(&p.at[k]));
+        if !(valid_name(&p.name) && on_stage && p.scale > 0.0 && p.scale <= 1000.0) {
+            return Err(bad(
+                &placement_path,
+                "name, at or scale out of range".into(),
+            ));
+        }
+        Some(p)
+    } else {
+        None
+    };
+    let (at, scale) = match &placement {
+        Some(p) => (p.at, p.scale),
+        None => {
+            let rest = puppetry_mesh::Mesh::load(&mesh).map_err(|e| bad(&mesh, e.to_string()))?;
+            let [lo, hi] = bounds(rest.vertices());
+            let taken: Vec<[DVec2; 2]> = stage
+                .on_stage()
+                .map(|p| bounds(p.mesh.vertices()))
+                .collect();
+            let stage_size = DVec2::new(config.stage.width, config.stage.height);
+            free_spot(hi - lo, stage_size, &taken)
+        }
+    };
+    let wanted = placement
+        .map(|p| p.name)
+        .unwrap_or_else(|| stem.to_string());
+    let wanted = if valid_name(&wanted) {
+        wanted
+    } else {
+        "picture".to_string()
+    };
+    let name = (1..)
+        .map(|n| {
+            if n == 1 {
+                wanted.clone()
+            } else {
+                format!("{wanted}-{n}")
+            }
+        })
+        .find(|n| !config.puppets.iter().any(|p| &p.name == n))
+        .expect("a free name");
+    let entry = PuppetConfig {
+        image: image.to_path_buf(),
+        mesh,
+        scale,
+        ..PuppetConfig::placed(name.clone(), at)
+    };
+    let puppet = Puppet::load(config, config.puppets.len(), &entry)
+        .map_err(|e| bad(image, e.to_string()))?;
+    stage
+        .add_puppet(puppet, &entry)
+        .map_err(|e| bad(image, e.to_string()))?;
+    config.puppets.push(entry);
+    Ok(name)
+}
+
+/// A removed puppet's kept files go (a picture the daemon keeps for it in
+/// `dir`), so a restart does not bring it back; a stage file's puppet's
+/// files are never touched.
+pub(super) async fn forget(dir: &Path, entry: &PuppetConfig) {
+    let Ok(dir) = std::path::absolute(dir) else {
+        return;
+    };
+    if entry.curve.is_some() || entry.image.parent() != Some(dir.as_path()) {
+        return;
+    }
+    for file in [
+        entry.image.clone(),
+        entry.mesh.clone(),
+        placement_file(&entry.image),
+    ] {
+        if let Err(e) = tokio::fs::remove_file(&file).await
+            && e.kind() != std::io::ErrorKind::NotFound
+        {
+            tracing::warn!(file = %file.display(), "a removed puppet's file stays: {e}");
+        }
+    }
 }
 
 #[cfg(test)]
@@ -512,5 +820,42 @@ mod tests {
         assert!(!valid_name(".hidden"));
         assert!(!valid_name("../etc/passwd"));
         assert!(!valid_name(&"a".repeat(65)));
+    }
+
+    fn overlap(a: [DVec2; 2], b: [DVec2; 2]) -> f64 {
+        let o = (a[1].min(b[1]) - a[0].max(b[0])).max(DVec2::ZERO);
+        o.x * o.y
+    }
+
+    /// Issue 31: each new picture landed on the others at the centre.
+    #[test]
+    fn new_pictures_go_where_they_cover_no_other() {
+        let stage = DVec2::new(1280.0, 720.0);
+        // The demo's gingerbread in the middle.
+        let mut taken = vec![[DVec2::new(394.0, 60.0), DVec2::new(886.0, 660.0)]];
+        for k in 0..6 {
+            let size = DVec2::new(120.0, 100.0);
+            let (at, scale) = free_spot(size, stage, &taken);
+            let half = size * scale / 2.0;
+            let at = DVec2::from(at);
+            let boxed = [at - half, at + half];
+            for (i, other) in taken.iter().enumerate() {
+                assert_eq!(overlap(boxed, *other), 0.0, "picture {k} covers puppet {i}");
+            }
+            assert!(
+                boxed[0].cmpge(DVec2::ZERO).all() && boxed[1].cmple(stage).all(),
+                "{boxed:?}"
+            );
+            assert!(scale > 0.0);
+            taken.push(boxed);
+        }
+    }
+
+    #[test]
+    fn an_empty_stage_takes_a_picture_in_the_middle_at_its_fit() {
+        let stage = DVec2::new(1280.0, 720.0);
+        let (at, scale) = free_spot(DVec2::new(2000.0, 1000.0), stage, &[]);
+        assert_eq!(at, [640.0, 360.0]);
+        assert_eq!(scale, fit(DVec2::new(2000.0, 1000.0), stage));
     }
 }

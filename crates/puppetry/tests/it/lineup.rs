@@ -304,7 +304,8 @@ async fn bad_pictures_and_requests_get_typed_errors_and_leave_nothing_behind() {
         !warning.contains(&dir.path().display().to_string()),
         "{warning}"
     );
-    assert_eq!(kept(dir.path()), 2);
+    // The picture, its mesh and its placement.
+    assert_eq!(kept(dir.path()), 3);
     running.shutdown().await;
 }
 
@@ -490,4 +491,109 @@ fn fuzz_upload_requests_get_an_answer_never_a_failure() {
         })
         .unwrap();
     runtime.block_on(running.shutdown());
+}
+
+/// Each puppet's rest box on the stage: [x0, y0, x1, y1], by name.
+fn boxes(stage: &Value) -> Vec<(String, [f64; 4])> {
+    stage["puppets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let rest: Vec<f64> = p["rest"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let mut b = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+            for q in rest.chunks_exact(2) {
+                b = [
+                    b[0].min(q[0]),
+                    b[1].min(q[1]),
+                    b[2].max(q[0]),
+                    b[3].max(q[1]),
+                ];
+            }
+            (p["name"].as_str().unwrap().to_string(), b)
+        })
+        .collect()
+}
+
+fn overlap(a: [f64; 4], b: [f64; 4]) -> f64 {
+    (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0)
+}
+
+/// Issue 31: pictures added from the page were gone after a restart (their
+/// files stayed in the puppets folder) and each new one landed on the
+/// others at the centre. Now each goes where it covers no other, a restart
+/// brings them back where they were (a bad file in the folder is skipped,
+/// not fatal), and a removed one stays removed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn added_pictures_go_in_free_space_and_come_back_after_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    for name in ["ball", "moon", "sun"] {
+        let query = format!("name={name}&vertices=200");
+        let (status, added) = post(&running, &query, &[AS_DIRECTOR], &disc()).await;
+        assert_eq!(status, 200, "{added}");
+    }
+    let (_viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let before = boxes(&stage);
+    assert_eq!(before.len(), 4, "{before:?}");
+    for (i, (a, box_a)) in before.iter().enumerate() {
+        for (b, box_b) in &before[i + 1..] {
+            assert_eq!(
+                overlap(*box_a, *box_b),
+                0.0,
+                "{a} {box_a:?} covers {b} {box_b:?}"
+            );
+        }
+    }
+    running.shutdown().await;
+
+    // What a start must survive in the folder: a picture that is not one,
+    // one without its mesh, a placement that is not JSON.
+    let kept = dir.path().join("puppets");
+    std::fs::write(kept.join("junk.png"), b"not a picture").unwrap();
+    std::fs::write(kept.join("junk.mesh.json"), b"{").unwrap();
+    std::fs::write(kept.join("lonely.png"), disc()).unwrap();
+    std::fs::write(kept.join("odd.png"), disc()).unwrap();
+    std::fs::copy(kept.join("ball.mesh.json"), kept.join("odd.mesh.json")).unwrap();
+    std::fs::write(kept.join("odd.puppet.json"), b"[1, 2").unwrap();
+
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let (mut director, stage) = connect(
+        &running,
+        json!({"type": "hello", "role": "director", "token": DIRECTOR}),
+    )
+    .await;
+    let after = boxes(&stage);
+    let near = |a: [f64; 4], b: [f64; 4]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-3);
+    assert_eq!(
+        after.len(),
+        before.len(),
+        "the kept pictures, no more: {after:?}"
+    );
+    for ((a, box_a), (b, box_b)) in before.iter().zip(&after) {
+        assert_eq!(a, b);
+        assert!(
+            near(*box_a, *box_b),
+            "{a} was at {box_a:?}, is at {box_b:?}"
+        );
+    }
+
+    // A removed puppet's files go with it.
+    send(&mut director, json!({"type": "remove_puppet", "puppet": 2})).await;
+    until(&mut director, "stage", |s| {
+        s["puppets"].as_array().unwrap().len() == 3
+    })
+    .await;
+    running.shutdown().await;
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let (_viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let names: Vec<String> = boxes(&stage).into_iter().map(|(n, _)| n).collect();
+    assert_eq!(names, ["gingerbread", "ball", "sun"]);
+    assert!(!kept.join("moon.png").exists());
+    running.shutdown().await;
 }
