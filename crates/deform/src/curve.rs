@@ -26,6 +26,25 @@
 //! its ends appends to the arms' eliminations: a region change factors only
 //! the growth.
 //!
+//! **Singular cases.** Handles are exact constraints, so two of them a
+//! small fraction `δ` of a segment apart with targets `D` apart would force
+//! the curve between them to length `D/δ` (a finger a hair from the rope's
+//! pin sent its end to ~4e5). The policy ([`merge_coincident`]): handles
+//! closer than half a segment along the curve's parameter (point index plus
+//! `t`), or nearest the same point, are one handle and **the later wins**;
+//! a handle within half a segment of a held point (outside the free
+//! points) is dropped — **the held point wins**. What is kept is well
+//! conditioned: no segment need stretch beyond about twice the targets'
+//! distance. All handles on one point are one handle (the curve is carried
+//! rigidly). Rest curves whose frames are themselves singular — a segment
+//! under [`MIN_LENGTH_RATIO`] of its neighbour, or a turn almost straight
+//! back — are refused by [`validate`]. Nothing is cached from one update to
+//! the next (no warm start; the factors depend only on the handle set and
+//! the held points), so a sane update after a wild one is exact again. Step
+//! 1 alone ([`Steps::ScaleFree`]) still scales the whole curve with the
+//! handles' spread — two handles half a segment apart pulled across the
+//! stage scale it a few hundred times — by design; both steps keep lengths.
+//!
 //! Phases: [`Curve::register`] (rest curve: validation, local frames),
 //! [`Curve::compile`] / [`Curve::compile_within`] (handle set or free
 //! interval changed: assembly and factorisation), [`Curve::update`] (handles
@@ -58,6 +77,16 @@ pub enum CurveError {
     RepeatedPoint { point: usize, previous: usize },
     #[error("the curve folds back on itself at point {point}: segments {} and {point} overlap", point - 1)]
     FoldsBack { point: usize },
+    #[error(
+        "segment {segment} is under {limit:e} of the length of its neighbour {neighbour}: spacing this uneven makes the solve singular (resample the curve evenly)",
+        limit = MIN_LENGTH_RATIO
+    )]
+    UnevenSpacing { segment: usize, neighbour: usize },
+    #[error(
+        "the curve turns almost straight back at point {point}: its neighbours are under {limit:e} of a segment apart, which makes the solve singular",
+        limit = MIN_LENGTH_RATIO
+    )]
+    NearlyFoldsBack { point: usize },
     #[error("segments {first} and {second} cross or touch: the curve intersects itself")]
     SelfIntersection { first: usize, second: usize },
     #[error("resampling spacing {spacing} must be finite and positive")]
@@ -1214,8 +1243,6 @@ pub struct Curve {
     frames: Vec<DVec2>,
     rest_lengths: Vec<f64>,
     pose: Vec<DVec2>,
-    /// Two handles closer than this in rest space are the same handle.
-    same_point: f64,
     placement: Placement,
     handle_count: usize,
     constraints: Vec<Constraint>,
@@ -1245,7 +1272,8 @@ pub struct Curve {
 }
 
 /// Validates a rest polyline: enough points, finite, no zero-length
-/// segment, no fold-back, no self-intersection.
+/// segment, no segment under [`MIN_LENGTH_RATIO`] of its neighbour, no
+/// fold-back (nor a turn back within that ratio), no self-intersection.
 pub fn validate(points: &[DVec2]) -> Result<(), CurveError> {
     if points.len() < 3 {
         return Err(CurveError::TooFewPoints {
@@ -1269,6 +1297,22 @@ pub fn validate(points: &[DVec2]) -> Result<(), CurveError> {
         // Segments meeting at i overlap when they turn back along one line.
         if a.perp_dot(b).abs() <= 1e-12 * a.length() * b.length() && a.dot(b) < 0.0 {
             return Err(CurveError::FoldsBack { point: i });
+        }
+        // Point i's frame is its neighbours' chord: a segment far shorter
+        // than the next, or a chord far shorter than the segments (a
+        // hairpin), leaves the step-1 system so ill-conditioned that even
+        // the handles at rest came back hundreds of units off.
+        let longer = a.length().max(b.length());
+        if a.length() < MIN_LENGTH_RATIO * longer || b.length() < MIN_LENGTH_RATIO * longer {
+            let (segment, neighbour) = if a.length() < b.length() {
+                (i - 1, i)
+            } else {
+                (i, i - 1)
+            };
+            return Err(CurveError::UnevenSpacing { segment, neighbour });
+        }
+        if (a + b).length() < MIN_LENGTH_RATIO * longer {
+            return Err(CurveError::NearlyFoldsBack { point: i });
         }
     }
     if let Some((first, second)) = first_crossing(points) {
@@ -1414,6 +1458,53 @@ pub fn resample_evenly(points: &[DVec2], spacing: f64) -> Result<Vec<DVec2>, Cur
     Ok(out)
 }
 
+/// Neighbouring segments' lengths, and a point's chord against its
+/// segments, may differ by this factor at most (see [`validate`]): at 2e-3 the handles
+/// at rest came back 2e-3 units off a 1000-unit curve, at 1e-2 about 1e-5.
+pub const MIN_LENGTH_RATIO: f64 = 1e-2;
+
+/// Handles closer than this along the curve — in its parameter, point
+/// index plus `t` — are one handle (see [`merge_coincident`]).
+const SAME_HANDLE: f64 = 0.5;
+
+/// Which constraints stay live: the policy for handles on or near one
+/// another. Exact constraints a small fraction `δ` of a segment apart with
+/// targets `D` apart force the curve between them to length `D/δ`: two
+/// handles a hair apart (a finger beside a pin) sent the rope's end to
+/// ~4e5, and a handle a hair from a held point did the same to its free
+/// neighbour. So, along the curve's parameter `u` (point index, plus `t`
+/// along a segment):
+///
+/// - two handles closer than [`SAME_HANDLE`] (half a segment), or nearest
+///   the same point, are one handle: **the later wins** (as two handles on
+///   one rest point always did). Kept handles are then at least half a
+///   segment apart and each nearest its own point, where it weighs at least
+///   ½, so the constraint rows are well conditioned (a chain of them
+///   amplifies the targets by at most a small factor) and no segment need
+///   stretch beyond about twice the targets' distance;
+/// - a handle nearest a held point (within half a segment of one just
+///   outside the free points) holds what is held: it is dropped — the held
+///   point wins, it cannot move.
+fn merge_coincident(constraints: &[Constraint], lo: usize, hi: usize, n: usize) -> Vec<bool> {
+    let at = |c: &Constraint| c.points[0] as f64 + c.weights[1];
+    let nearest = |u: f64| (u + 0.5).floor();
+    let held = |u: f64| (lo > 0 && u < lo as f64 - 0.5) || (hi + 1 < n && u > hi as f64 + 0.5);
+    let mut live: Vec<bool> = constraints.iter().map(|c| !held(at(c))).collect();
+    for later in (0..constraints.len()).rev() {
+        if !live[later] {
+            continue;
+        }
+        let u = at(&constraints[later]);
+        for earlier in 0..later {
+            let v = at(&constraints[earlier]);
+            if (u - v).abs() < SAME_HANDLE || nearest(u) == nearest(v) {
+                live[earlier] = false;
+            }
+        }
+    }
+    live
+}
+
 /// Best rotation (cos, sin) taking `rest` onto `pose` about their centroids,
 /// and the two centroids; identity when undetermined.
 fn fit_rotation(rest: &[DVec2], pose: &[DVec2]) -> (DVec2, DVec2, DVec2) {
@@ -1451,12 +1542,8 @@ impl Curve {
         for l in &rest_lengths {
             arc.push(arc.last().expect("non-empty") + l);
         }
-        let (min, max) = points.iter().fold((points[0], points[0]), |(lo, hi), p| {
-            (lo.min(*p), hi.max(*p))
-        });
         Ok(Curve {
             rest: points.to_vec(),
-            same_point: (max - min).length() * 1e-9,
             arc,
             frames,
             rest_lengths,
@@ -1570,7 +1657,8 @@ impl Curve {
     }
 
     /// Compilation with every point free: sets the handle set. Two handles on
-    /// the same rest point: the later wins. With fewer than two handles the
+    /// or near one point (within half a segment, see the module docs): the
+    /// later wins. With fewer than two handles the
     /// curve cannot be solved (rotation and scale are free): with one it
     /// takes its rest shape, rotated as its current pose best fits, and
     /// follows the handle; with none it stays in that rigid placement.
@@ -1659,23 +1747,7 @@ impl Curve {
                 slot: 0,
             });
         }
-        // The later of two handles on one rest point wins.
-        let mut live = vec![true; constraints.len()];
-        for later in (0..constraints.len()).rev() {
-            if !live[later] {
-                continue;
-            }
-            for earlier in 0..later {
-                if live[earlier]
-                    && constraints[earlier]
-                        .rest_point
-                        .distance(constraints[later].rest_point)
-                        <= self.same_point
-                {
-                    live[earlier] = false;
-                }
-            }
-        }
+        let live = merge_coincident(&constraints, lo, hi, n);
         let mut kept = live.iter();
         constraints.retain(|_| *kept.next().expect("one flag per constraint"));
         // Multipliers go right after the last free point they hold.
