@@ -45,6 +45,20 @@
 //! step (per-vertex rotations), two passes over `W` and one product with the
 //! inverse. Iterations are warm-started from the previous frame's grid.
 //!
+//! **Singular cases.** Every handle term is soft (`λ_mp`, `λ_gp`) and every
+//! grid handle is tied to its rest place by `λ_gr > 0`, so the global
+//! matrix stays positive definite whatever the handles: two vertex handles
+//! a hair apart, on a boundary vertex or edge, on a sliver, on a line, or
+//! beside a dragged grid handle, pulled anywhere, give a least-squares
+//! compromise, never a blow-up (the property tests in
+//! `tests/it/singular_others.rs` check it). Vertex handles on one rest
+//! point (within 1e-9 of the mesh's size) are one handle and the later
+//! wins; so does a grid handle given twice. The warm start carries the last
+//! pose into the next update's local steps; the iterations only lower the
+//! energy from there, so a sane update after a wild one comes back —
+//! slowly where the handles leave a rotation to the weak `λ_gr` (one
+//! handle, or two close together).
+//!
 //! Grid handles are numbered row by row from the box's `min` corner:
 //! handle `row·M + column` rests at `min + (column/(M−1), row/(N−1))·(max − min)`.
 

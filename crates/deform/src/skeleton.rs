@@ -27,6 +27,23 @@
 //! converges further per frame during continuous motion at the price of that
 //! history independence.
 //!
+//! **Singular cases.** A bone's `A_b` scales what it carries by its
+//! stretch `l/l̄`; for a bone far shorter than its triangles (a joint a hair
+//! from its parent: 1e-2 long posed 65 long scaled its triangles 6500
+//! times and the mesh flew 3e5 away) that is no measure of anything. So a
+//! bone's stretch is measured over its **reach**, the longest of the bone,
+//! the edges of the triangles it crosses and (for a piece it carries) the
+//! farthest vertex of that piece from its parent joint: `k = (reach + l −
+//! l̄)/reach`, so the stretch displaces what the bone carries by no more
+//! than the joints moved apart. Bones at least as long as their reach
+//! (the usual case) keep the paper's `A_b` exactly. Joints are soft rows
+//! (`w_p`): joints on one another or a hair apart on different bones, on
+//! a boundary vertex or edge (inside the mesh, boundary included), on a
+//! line, posed anywhere, give a least-squares compromise. Two joints on one
+//! point joined by a bone are refused (`ZeroLengthBone`). Without
+//! `warm_start` a frame depends only on its joints, so nothing is carried
+//! from a wild frame to the next.
+//!
 //! Pieces of the mesh holding no joint would leave the stitch singular (their
 //! translation is free). They are not solved: each is attached to the bone
 //! nearest to it in the rest pose and carried by that bone's transform about
@@ -601,6 +618,30 @@ struct JointRow {
 struct AttachedPiece {
     vertices: Vec<u32>,
     bone: usize,
+    /// The length the bone's stretch is measured over for this piece (see
+    /// [`stretched_transform`]): the bone's, or the farthest vertex's
+    /// distance from the bone's parent joint if that is longer.
+    reach: f64,
+}
+
+/// A bone's `A_b` with its stretch measured over `reach` instead of its own
+/// rest length: the rotation of the rest direction onto the posed one,
+/// times `k = (reach + l − l̄)/reach` along the bone and `s·k` across it
+/// (`l̄`, `l` the rest and posed lengths). With `reach = l̄` this is the
+/// virtual-joint construction's `A_b` (`k = l/l̄`); a longer reach keeps the
+/// stretch's displacement over the reach to the joints' own, `l − l̄`.
+/// Why: a bone much shorter than what it carries (a joint a hair from its
+/// parent) turned `l/l̄` into a scale of 1e6 and more, applied to triangles
+/// and pieces far larger than the bone: the mesh flew off. A bone posed to
+/// zero length keeps its rest direction.
+fn stretched_transform(rest: DVec2, posed: DVec2, reach: f64, across: f64) -> DMat2 {
+    let (rest_length, length) = (rest.length(), posed.length());
+    let k = (reach + length - rest_length) / reach;
+    let from = rest / rest_length;
+    let to = if length > 0.0 { posed / length } else { from };
+    // k (to ⊗ from + s to⊥ ⊗ from⊥), column by column.
+    let column = |x: f64, y: f64| (to * x + to.perp() * (across * y)) * k;
+    DMat2::from_cols(column(from.x, from.perp().x), column(from.y, from.perp().y))
 }
 
 /// The registered deformer for one rest mesh and skeleton. See the module
@@ -639,6 +680,9 @@ pub struct ShapeAware {
     crossed: Vec<Vec<u32>>,
     /// Per bone, `[p̄₂ − p̄₁, p̄₃ − p̄₁]⁻¹`.
     rest_frame_inverse: Vec<DMat2>,
+    /// Per bone, the length its stretch is measured over: its rest length,
+    /// or the longest edge of a triangle it crosses if that is longer.
+    reach: Vec<f64>,
     pattern: UpperPattern,
     mesh_weights: Vec<f64>,
     factor: RealCholesky,
@@ -953,9 +997,16 @@ impl ShapeAware {
                         }
                     }
                 }
+                let (a, b) = segments[best.1];
+                let reach = piece
+                    .vertices
+                    .iter()
+                    .map(|&v| rest[v as usize].distance(a))
+                    .fold(a.distance(b), f64::max);
                 attached.push(AttachedPiece {
                     vertices: piece.vertices,
                     bone: best.1,
+                    reach,
                 });
             }
         }
@@ -1049,6 +1100,22 @@ impl ShapeAware {
                 DMat2::from_cols(d, d * 0.5 + d.perp()).inverse()
             })
             .collect();
+        // A bone's stretch is measured over at least the longest edge of
+        // the triangles it carries (see `stretched_transform`).
+        let reach = segments
+            .iter()
+            .zip(&crossed)
+            .map(|(&(a, b), carried)| {
+                let mut reach = a.distance(b);
+                for &t in carried {
+                    let p = triangles[t as usize].map(|v| rest[v as usize]);
+                    for k in 0..3 {
+                        reach = reach.max(p[k].distance(p[(k + 1) % 3]));
+                    }
+                }
+                reach
+            })
+            .collect();
 
         let factor = assemble_and_factor(
             &pattern,
@@ -1077,6 +1144,7 @@ impl ShapeAware {
             triangle_bone,
             crossed,
             rest_frame_inverse,
+            reach,
             pairs: factor.pair_solve(),
             factor,
             pattern,
@@ -1198,9 +1266,13 @@ impl ShapeAware {
         for (bone, &[parent, child]) in self.skeleton.bones.iter().enumerate() {
             let (p1, p2) = (self.posed_joints[parent], self.posed_joints[child]);
             let d = p2 - p1;
-            let virtual_joint = (p1 + p2) * 0.5 + d.perp() * s;
-            self.bone_transforms[bone] =
-                DMat2::from_cols(d, virtual_joint - p1) * self.rest_frame_inverse[bone];
+            let rest = self.skeleton.joints[child] - self.skeleton.joints[parent];
+            self.bone_transforms[bone] = if self.reach[bone] > rest.length() {
+                stretched_transform(rest, d, self.reach[bone], s)
+            } else {
+                let virtual_joint = (p1 + p2) * 0.5 + d.perp() * s;
+                DMat2::from_cols(d, virtual_joint - p1) * self.rest_frame_inverse[bone]
+            };
         }
         if !self.params.warm_start && !self.params.bone_start {
             self.rotations.fill(DVec2::X);
@@ -1231,9 +1303,15 @@ impl ShapeAware {
             self.pose[v as usize] = p;
         }
         for piece in &self.attached {
-            let [parent, _] = self.skeleton.bones[piece.bone];
+            let [parent, child] = self.skeleton.bones[piece.bone];
             let (from, to) = (self.skeleton.joints[parent], self.posed_joints[parent]);
-            let transform = self.bone_transforms[piece.bone];
+            let rest = self.skeleton.joints[child] - from;
+            let transform = if piece.reach > rest.length() {
+                let posed = self.posed_joints[child] - to;
+                stretched_transform(rest, posed, piece.reach, s)
+            } else {
+                self.bone_transforms[piece.bone]
+            };
             for &v in &piece.vertices {
                 self.pose[v as usize] = to + transform * (self.rest[v as usize] - from);
             }
