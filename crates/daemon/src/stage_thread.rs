@@ -687,6 +687,25 @@ impl Taking {
         }
     }
 
+    /// A take starts playing, unless it is the take being recorded: played
+    /// into itself it would read what it is writing.
+    fn start_playing(
+        &mut self,
+        name: String,
+        path: &std::path::Path,
+        changes: &watch::Sender<u64>,
+    ) -> Result<(), crate::takes::PlayError> {
+        if let Some(r) = &self.recorder
+            && (r.name() == name || r.path() == path)
+        {
+            let take = r.name().to_string();
+            return Err(crate::takes::PlayError::Recording { take });
+        }
+        self.playing = Some(name);
+        self.publish(changes);
+        Ok(())
+    }
+
     /// The take `name` stopped playing: an overdub of it stops too.
     fn ended(&mut self, stage: &mut Stage, name: &str, changes: &watch::Sender<u64>) {
         if self.playing.as_deref() != Some(name) {
@@ -1127,6 +1146,8 @@ impl Batch {
         }
     }
 
+    /// One arm per command: long because the commands are many, each arm
+    /// short (the longer ones call out to a function of their own).
     fn command(
         &mut self,
         stage: &mut Stage,
@@ -1271,19 +1292,7 @@ impl Batch {
                 taking.publish(changes);
             }
             Command::PlayStarting { name, path, reply } => {
-                // Played into itself, a take would read what it is writing.
-                let recording = taking
-                    .recorder
-                    .as_ref()
-                    .filter(|r| r.name() == name || r.path() == path);
-                if let Some(r) = recording {
-                    let take = r.name().to_string();
-                    let _ = reply.send(Err(crate::takes::PlayError::Recording { take }));
-                } else {
-                    taking.playing = Some(name);
-                    taking.publish(changes);
-                    let _ = reply.send(Ok(()));
-                }
+                let _ = reply.send(taking.start_playing(name, &path, changes));
             }
         }
     }
