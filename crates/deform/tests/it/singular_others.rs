@@ -285,9 +285,9 @@ fn spot(kind: u8, x: f64, y: f64) -> DVec2 {
 fn anchor_of(mesh: &Mesh, locator: &Locator, p: DVec2) -> Option<Anchor> {
     let location = locator.locate(mesh, p)?;
     let tri = mesh.triangles()[location.triangle as usize];
-    for k in 0..3 {
-        if location.bary[k] == 1.0 {
-            return Some(Anchor::Vertex(tri[k]));
+    for (&v, &b) in tri.iter().zip(&location.bary) {
+        if b == 1.0 {
+            return Some(Anchor::Vertex(v));
         }
     }
     Some(Anchor::Point {
