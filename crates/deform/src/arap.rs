@@ -582,6 +582,20 @@ impl Arap {
         Ok(&self.pose)
     }
 
+    /// Puts every vertex back at rest and forgets the handle set (a
+    /// reset): pieces with fewer than two handles keep whatever pose they
+    /// were left in, so without this a puppet dropped off its pins stays
+    /// where it was dropped. The next [`Arap::compile`] starts afresh.
+    pub fn rest_pose(&mut self) {
+        self.pose.copy_from_slice(&self.rest);
+        for piece in &mut self.pieces {
+            piece.handles.clear();
+            piece.gram = None;
+            piece.placement = Placement::Fixed;
+        }
+        self.handle_count = 0;
+    }
+
     /// The current deformed vertex positions (rest order).
     pub fn pose(&self) -> &[DVec2] {
         &self.pose

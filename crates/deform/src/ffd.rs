@@ -600,6 +600,15 @@ impl LpFfd {
         Ok(&self.pose)
     }
 
+    /// Puts the grid and the mesh back at rest (a reset): the local steps
+    /// start from the pose, so without this a puppet let go keeps the
+    /// rotations of its last drag. The handles stay compiled.
+    pub fn rest_pose(&mut self) {
+        self.pose.copy_from_slice(&self.rest);
+        self.grid.copy_from_slice(&self.rest_grid);
+        self.displacement.fill(DVec2::ZERO);
+    }
+
     /// Plain FFD: the mesh deformed by the given grid (`V̄ + W(P − P⁰)`).
     pub fn deform_with_grid(&self, grid: &[DVec2]) -> Result<Vec<DVec2>, FfdError> {
         check_points(

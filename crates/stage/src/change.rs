@@ -93,6 +93,11 @@ pub enum Change {
     DepthFlip {
         at: DVec2,
     },
+    /// A puppet's rig back at its rest pose: a reset's last step. The
+    /// handles still held pull it again at the next solve.
+    Rest {
+        puppet: u32,
+    },
     /// A puppet's edits set wholesale: what an undo, redo or reset did.
     /// Recorded as the state it restored rather than as the undo, so a take
     /// replays the same whatever history the stage had when it began.

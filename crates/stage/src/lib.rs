@@ -559,7 +559,7 @@ impl Puppet {
 
     /// The static depth layers now: as painted, else the pieces' order
     /// (none with `depth = "off"`).
-    fn static_layers(&self) -> Option<Vec<u16>> {
+    pub fn static_layers(&self) -> Option<Vec<u16>> {
         let depth = self.depth.as_ref()?;
         Some(
             self.layers
@@ -1212,6 +1212,11 @@ impl Stage {
         &self.puppets
     }
 
+    /// The stage file's keyframing pads (a removed puppet's too).
+    pub fn pads(&self) -> &[pad::Pad] {
+        &self.pads
+    }
+
     /// How far from a grid handle or joint a contact may land to grab it.
     pub fn grab_radius(&self) -> f64 {
         self.width.min(self.height) * GRAB_RADIUS_FRACTION
@@ -1500,6 +1505,12 @@ impl Stage {
                 stroke,
             } => self.paint_depth_stroke(*puppet, *at, *radius, *layer, *stroke)?,
             Change::Restore { puppet, state } => return self.restore(*puppet, state),
+            Change::Rest { puppet } => {
+                let p = self.puppet_mut(*puppet)?;
+                p.rig.rest_pose();
+                p.handles_changed = true;
+                p.moved = true;
+            }
             Change::KeyPose {
                 puppet,
                 from,
@@ -1826,7 +1837,7 @@ impl Stage {
     }
 
     /// Puts the puppet back as loaded: weights from its mesh file, pins as
-    /// in the stage file, the skeleton at rest, the key cursor let go
+    /// in the stage file, its rig at rest, the key cursor let go
     /// (contacts keep their grip). One undo step. Returns the changes to
     /// apply and record.
     pub fn reset(&mut self, puppet: u32) -> Result<Vec<Change>, CommandError> {
@@ -1843,6 +1854,7 @@ impl Stage {
                 state: loaded,
             },
             Change::Cursor { puppet, at: None },
+            Change::Rest { puppet },
         ])
     }
 

@@ -481,6 +481,18 @@ impl Rig {
         Ok(())
     }
 
+    /// Back at rest (a reset): a free-form or grid puppet's solver keeps
+    /// the pose its last handles left, so a puppet let go would otherwise
+    /// stay where it was dropped. Skeletons and curves are put at rest by
+    /// the pose a reset restores.
+    pub fn rest_pose(&mut self) {
+        match self {
+            Rig::Free(r) => r.arap.rest_pose(),
+            Rig::Grid(r) => r.ffd.rest_pose(),
+            Rig::Skeleton(_) | Rig::Curve(_) => {}
+        }
+    }
+
     /// Applies painted weights: the grid and skeleton refactor now; a
     /// free-form puppet's solver is rebuilt elsewhere (see `thread`).
     pub fn set_weights(&mut self, weights: &[f64]) -> Result<(), RigError> {
