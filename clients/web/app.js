@@ -85,6 +85,8 @@ const api = window.puppetry = {
   clientToStage,
   snapshot,
   dots: () => overlay.drawn ?? [],   // what the overlay drew last: handles and cursors, in stage coordinates
+  pads: () => overlay.padsDrawn ?? [], // the key pad areas the overlay drew last: {puppet, area}, stage coordinates
+  keyLabels: () => keyPad.labels ?? [], // the key pad's key names as drawn last: {text, x, y, w, h}, pad CSS px
   held: () => pointerContacts.held(), // pointers holding the stage now: contacts and tools' strokes
   poseShown: () => poseSlider.shown(),
   positions: (id) => Array.from(puppetById(id)?.positions ?? []), // a puppet's vertices as drawn now
@@ -223,6 +225,7 @@ const keyPad = new KeyPad({
   panel: byId('keypad'),
   canvas: byId('keypad-canvas'),
   puppet: byId('keypad-puppet'),
+  open: byId('keypad-open'),
   add: byId('key-add'),
   save: byId('save-keys'),
   letGo: byId('key-let-go'),
@@ -491,6 +494,7 @@ function onText(text) {
     case SERVER_MESSAGE.KEYS:
       api.keys[msg.puppet] = msg;
       keyPad.onKeys(msg);
+      if (puppetById(msg.puppet)?.src.pads?.length) needsOverlay = true; // it draws the pad's keys and cursor
       return;
     case SERVER_MESSAGE.KEYS_SAVED:
       setStatus(`keys of puppet ${msg.puppet} saved to ${msg.file}`);
@@ -699,12 +703,21 @@ function drawOverlay() {
     rigs: !options.show,
     handles: options.dots,
     showWeights: paintTool.on,
+    pads: options.show ? [] : padAreas(),
     brush: paintTool.outline(),
     sketch: curveTool.sketch(),
     replace: replaceTool.outlines(),
     calibrationMarks: calibrateInset !== null && api.stage ? calibrationMarks(calibrateInset, api.stage.stage) : null,
     stageToClient,
   });
+}
+
+// The stage file's key pad areas (docs/keyframing.md), with what each
+// drives: the overlay draws them, since a contact there moves a cursor.
+function padAreas() {
+  return puppets.flatMap((p) => (p.src.pads ?? []).map((pad) => ({
+    ...pad, puppet: p.id, name: p.src.name, keys: api.keys[p.id]?.keys, cursor: api.keys[p.id]?.cursor,
+  })));
 }
 
 // Per animation frame: at most one "contacts" message, one paint dab (on each

@@ -94,7 +94,9 @@ export class Hud {
     fs.addEventListener('click', () => this.toggleFullscreen());
     document.addEventListener('fullscreenchange', () => {
       fs.setAttribute('aria-pressed', String(!!document.fullscreenElement));
-      fs.textContent = document.fullscreenElement ? '⤡ exit fullscreen' : '⤢ fullscreen';
+      // Symbols only, the words in the title: the toolbar's room is short.
+      fs.textContent = document.fullscreenElement ? '⤡' : '⤢';
+      fs.title = document.fullscreenElement ? 'Exit fullscreen (f)' : 'Fullscreen (f)';
     });
     // The bar wraps when the window narrows or tools appear: the stage
     // below it must move.

@@ -5,7 +5,9 @@
 // them with a right-click or Alt-click and save them. Viewers see the dots
 // and the cursor of a puppet that has keys, read-only. What is drawn is
 // always the server's state (its `keys` messages), so every page shows the
-// same pad.
+// same pad. The panel shows where there is something on it (keys, or a
+// stage `[[pad]]` area driving the puppet); a director on a stage with
+// neither opens it from the toolbar's "keys" button to make the first.
 
 import {
   PAD_CENTRE, PAD_MAX, PAD_MIN,
@@ -23,7 +25,8 @@ const clampPad = (v) => Math.min(PAD_MAX, Math.max(PAD_MIN, v));
 
 export class KeyPad {
   /**
-   * elements: {panel, canvas, puppet (a select), add, save, letGo}.
+   * elements: {panel, canvas, puppet (a select), add, save, letGo, open
+   * (the toolbar's button that shows an empty pad to a director)}.
    * send(message); canSend(): whether a message can go now (connected).
    */
   constructor(elements, { send, canSend }) {
@@ -38,7 +41,12 @@ export class KeyPad {
     this.drag = null;           // {pointerId, puppet, mode: 'cursor' | 'move', key, at}
     this.pendingCursor = null;  // {puppet, at}: the newest cursor point not yet sent
     this.dirty = true;          // redraw at the next flush
+    this.opened = false;        // a director asked for the pad with nothing on it yet
     this.el.panel.hidden = true;
+    this.el.open?.addEventListener('click', () => {
+      this.opened = !this.opened;
+      this.refresh();
+    });
     this.el.puppet.addEventListener('change', () => {
       this.selected = Number(this.el.puppet.value);
       this.drag = null;
@@ -96,7 +104,7 @@ export class KeyPad {
    * stay, which are not sent again.
    */
   setup(puppets, { sameConnection = false } = {}) {
-    this.puppets = puppets.map((p) => ({ id: p.id, name: p.src.name }));
+    this.puppets = puppets.map((p) => ({ id: p.id, name: p.src.name, pads: p.src.pads?.length ?? 0 }));
     const stays = (id) => sameConnection && this.puppets.some((p) => p.id === id);
     for (const id of [...this.state.keys()]) if (!stays(id)) this.state.delete(id);
     if (!stays(this.drag?.puppet)) this.drag = null;
@@ -127,7 +135,14 @@ export class KeyPad {
     }
     if (this.selected !== null) puppet.value = String(this.selected);
     puppet.hidden = offered.length < 2;
-    panel.hidden = offered.length === 0;
+    // An empty pad over the stage's corner is in the way and says nothing:
+    // it shows once a puppet has keys or a pad area, or when asked for.
+    const used = offered.some((p) => p.pads > 0 || this.state.get(p.id)?.keys.length);
+    panel.hidden = offered.length === 0 || !(used || this.opened);
+    if (this.el.open) {
+      this.el.open.hidden = !this.editsKeys || offered.length === 0 || used;
+      this.el.open.setAttribute('aria-pressed', String(this.opened));
+    }
     this.dirty = true;
   }
 
@@ -284,13 +299,14 @@ export class KeyPad {
       ctx.lineWidth = 1.5;
       ctx.strokeStyle = '#000';
       ctx.stroke();
-      // The name beside the dot, on the side with room for it.
-      const width = ctx.measureText(k.name).width;
-      const right = x + DOT_RADIUS + 3 + width <= css;
-      ctx.textAlign = right ? 'left' : 'right';
-      ctx.fillStyle = '#eee';
-      ctx.fillText(k.name, right ? x + DOT_RADIUS + 3 : x - DOT_RADIUS - 3, Math.min(css - 6, Math.max(6, y)));
     });
+    // Names beside their dots, placed so none overlaps another or a dot.
+    const dots = state.keys.map((k, i) => toPad(this.drag?.mode === 'move' && this.drag.puppet === this.selected
+      && this.drag.key === i ? this.drag.at : k.at));
+    this.labels = keyLabelLayout(dots, state.keys.map((k) => k.name), css, (t) => ctx.measureText(t).width);
+    ctx.textAlign = 'left';
+    ctx.fillStyle = '#eee';
+    for (const l of this.labels) ctx.fillText(l.text, l.x, l.y + LABEL_HEIGHT / 2, l.w);
 
     if (state.cursor) {
       const [x, y] = toPad(state.cursor);
@@ -305,6 +321,69 @@ export class KeyPad {
       ctx.stroke();
     }
   }
+}
+
+const LABEL_HEIGHT = 13;
+const LABEL_GAP = 3;
+
+const overlapArea = (a, b) => Math.max(0, Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x))
+  * Math.max(0, Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y));
+
+/**
+ * Where each key's name goes on a pad `size` CSS px square: dots are the
+ * keys' pad pixels, measure(text) a text's width. Each name tries right of
+ * its dot, left, above, below (inside the pad), and takes the first place
+ * that overlaps no name placed before and no dot; failing that the place
+ * overlapping least, shortened with "…" to what fits. Returns
+ * [{text, x, y, w, h}]: the box (top left) each name is drawn in.
+ */
+export function keyLabelLayout(dots, names, size, measure) {
+  const dotBoxes = dots.map(([x, y]) => ({ x: x - DOT_RADIUS, y: y - DOT_RADIUS, w: 2 * DOT_RADIUS, h: 2 * DOT_RADIUS }));
+  const placed = [];
+  const fit = (text, w) => {
+    if (measure(text) <= w) return text;
+    let t = text;
+    while (t.length > 1 && measure(`${t}…`) > w) t = t.slice(0, -1);
+    return `${t}…`;
+  };
+  names.forEach((name, i) => {
+    const [x, y] = dots[i];
+    const full = Math.min(measure(name), size);
+    const h = LABEL_HEIGHT;
+    const r = DOT_RADIUS + LABEL_GAP;
+    const clampX = (v, w) => Math.min(size - w, Math.max(0, v));
+    const clampY = (v) => Math.min(size - h, Math.max(0, v));
+    const spots = (w) => [
+      { x: x + r, y: clampY(y - h / 2), w, h },
+      { x: x - r - w, y: clampY(y - h / 2), w, h },
+      { x: clampX(x - w / 2, w), y: y - r - h, w, h },
+      { x: clampX(x - w / 2, w), y: y + r, w, h },
+    ].filter((s) => s.x >= 0 && s.y >= 0 && s.x + s.w <= size && s.y + s.h <= size);
+    const cost = (s) => [...placed, ...dotBoxes.filter((_, j) => j !== i)].reduce((sum, b) => sum + overlapArea(s, b), 0);
+    let best = spots(full).find((s) => cost(s) === 0);
+    if (!best) {
+      // Shortened: the side with the most room that overlaps nothing, or
+      // the least overlapping one.
+      const sides = [
+        { x: x + r, w: size - (x + r) }, { x: 0, w: x - r },
+      ].filter((s) => s.w >= 12).map((s) => ({ x: s.x, y: clampY(y - h / 2), w: Math.min(full, s.w), h }));
+      const narrower = sides.map((s) => {
+        // Narrow it until it clears the others (at most to 12 px).
+        let t = { ...s };
+        while (cost(t) > 0 && t.w > 12) t = t.x === x + r ? { ...t, w: t.w - 4 } : { ...t, x: t.x + 4, w: t.w - 4 };
+        return t;
+      });
+      const all = [...spots(full), ...narrower];
+      best = all.reduce((a, b) => (cost(b) < cost(a) ? b : a), all[0] ?? { x: clampX(x + r, full), y: clampY(y - h / 2), w: full, h });
+    }
+    const text = fit(name, best.w);
+    const w = Math.min(best.w, measure(text));
+    const box = { text, x: best.x, y: best.y, w, h };
+    // Right-aligned spots keep their right edge by the dot.
+    if (best.x + best.w <= x) box.x = best.x + best.w - w;
+    placed.push(box);
+  });
+  return placed;
 }
 
 /** "key N" for the smallest N from the count of keys up that no key is named yet (names must differ). */

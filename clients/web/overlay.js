@@ -100,6 +100,7 @@ export class Overlay {
    *   calibrationMarks  stage points to mark 1, 2, 3, 4, or null
    *   stageToClient     (x, y) -> [clientX, clientY]
    *   colour            (owner, alpha) -> CSS colour of the owner's handles and cursors
+   *   pads              the stage's key pad areas: {puppet, name, area: [x0, y0, x1, y1], source?, keys, cursor?}
    *   rigs              draw rigs (not in the show view)
    *   handles           draw handles, own pointers and cursors
    */
@@ -137,6 +138,8 @@ export class Overlay {
     if (scene.brush) this.drawBrush(scene.brush, toOverlay);
     if (scene.sketch) this.drawSketch(scene.sketch, toOverlay);
     for (const disc of scene.replace ?? []) this.drawReplace(disc, toOverlay);
+    this.padsDrawn = [];
+    for (const pad of scene.pads ?? []) this.drawPad(pad, toOverlay);
     if (scene.handles !== false) this.drawHandles(scene, dot, toOverlay);
     if (scene.calibrationMarks) this.drawCalibrationMarks(scene.calibrationMarks, toOverlay);
     if (scene.handles !== false) this.drawCursors(scene.cursors, scene.colour, toOverlay, dot);
@@ -286,6 +289,46 @@ export class Overlay {
     ctx.lineWidth = 1.5;
     ctx.strokeStyle = '#000';
     ctx.stroke();
+  }
+
+  // A `[[pad]]` of the stage file: a contact landing in it moves the
+  // puppet's key cursor instead of grabbing, so it must not look like bare
+  // stage. Its area (dashed, in the key colour), what it drives, its keys
+  // and the cursor, as the key pad panel draws them.
+  drawPad({ puppet, name, area, source, keys, cursor }, toOverlay) {
+    const ctx = this.ctx;
+    const [x0, y0] = toOverlay(area[0], area[3]);
+    const [x1, y1] = toOverlay(area[2], area[1]);
+    const w = x1 - x0, h = y1 - y0;
+    this.padsDrawn.push({ puppet, area: [...area] });
+    ctx.save();
+    ctx.fillStyle = 'rgb(255 171 0 / 0.08)';
+    ctx.fillRect(x0, y0, w, h);
+    ctx.setLineDash([6, 4]);
+    ctx.lineWidth = 2;
+    ctx.strokeStyle = KEY_COLOUR;
+    ctx.strokeRect(x0, y0, w, h);
+    ctx.setLineDash([]);
+    ctx.font = '11px system-ui, sans-serif';
+    ctx.textBaseline = 'top';
+    ctx.textAlign = 'left';
+    ctx.fillStyle = KEY_COLOUR;
+    ctx.fillText(`key pad: ${name}${source ? ` (${source})` : ''}`, x0 + 4, y0 + 4, Math.max(10, w - 8));
+    const at = ([u, v]) => [x0 + u * w, y0 + (1 - v) * h];
+    for (const k of keys ?? []) {
+      const [px, py] = at(k.at);
+      ctx.beginPath();
+      ctx.arc(px, py, 3, 0, 2 * Math.PI);
+      ctx.fill();
+    }
+    if (cursor) {
+      const [px, py] = at(cursor);
+      ctx.strokeStyle = '#00e5ff';
+      ctx.beginPath();
+      ctx.arc(px, py, 6, 0, 2 * Math.PI);
+      ctx.stroke();
+    }
+    ctx.restore();
   }
 
   // Red crosses, numbered in the order to touch them.

@@ -482,7 +482,9 @@ export class PoseSlider {
 /**
  * Undo, redo and reset per puppet, enabled by the server's `history`
  * messages (how many edits each way). Reset asks twice: the first press
- * arms it for a few seconds, the second sends it.
+ * arms it for a few seconds, the second sends it. On a stage of several
+ * puppets a selector picks whose buttons show (one group, not one per
+ * puppet: the toolbar must not grow a row with each puppet added).
  */
 export class EditControls {
   /** container: where the per-puppet groups go; send(message). */
@@ -490,7 +492,19 @@ export class EditControls {
     this.container = container;
     this.send = send;
     this.enabled = false;
-    this.groups = new Map(); // puppet id -> {undo, redo, reset, history}
+    this.groups = new Map(); // puppet id -> {undo, redo, reset, history, group}
+    this.selected = null;    // the puppet whose buttons show
+    this.picker = document.createElement('select');
+    this.picker.id = 'edit-puppet';
+    this.picker.title = 'The puppet undo, redo and reset act on';
+    this.picker.addEventListener('change', () => this.select(Number(this.picker.value)));
+  }
+
+  /** Shows puppet `id`'s buttons (the others' stay, hidden). */
+  select(id) {
+    this.selected = this.groups.has(id) ? id : (this.groups.keys().next().value ?? null);
+    for (const [pid, g] of this.groups) g.group.hidden = pid !== this.selected;
+    if (this.selected !== null) this.picker.value = String(this.selected);
   }
 
   setEnabled(on) {
@@ -502,14 +516,17 @@ export class EditControls {
   setup(puppets) {
     this.groups.clear();
     const named = puppets.length > 1;
-    this.container.replaceChildren(...puppets.map((p) => {
+    // Top first, as the puppets panel lists them.
+    this.picker.replaceChildren(...[...puppets].reverse().map((p) => new Option(`${p.id}: ${p.src.name}`, String(p.id))));
+    this.picker.hidden = !named;
+    this.container.replaceChildren(this.picker, ...puppets.map((p) => {
       const group = document.createElement('span');
       group.className = 'edit-group';
       group.dataset.puppet = String(p.id);
       const label = document.createElement('span');
       label.className = 'edit-name';
       label.textContent = p.src.name;
-      label.hidden = !named;
+      label.hidden = true; // the selector names it
       const button = (cls, text, title, onClick) => {
         const b = document.createElement('button');
         b.type = 'button';
@@ -520,7 +537,7 @@ export class EditControls {
         b.addEventListener('click', onClick);
         return b;
       };
-      const g = { history: null, armed: null };
+      const g = { history: null, armed: null, group };
       g.undo = button('undo', '↶ undo', `Undo the last edit of ${p.src.name} (a paint stroke, a pin, a pose)`,
         () => this.send(undoMessage(p.id)));
       g.redo = button('redo', '↷ redo', `Redo the last undone edit of ${p.src.name}`, () => this.send(redoMessage(p.id)));
@@ -529,6 +546,7 @@ export class EditControls {
       this.groups.set(p.id, g);
       return group;
     }));
+    this.select(this.selected);
     this.setEnabled(this.enabled);
   }
 

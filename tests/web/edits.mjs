@@ -39,7 +39,9 @@ async function shot(p, name) {
   fs.writeFileSync(path.join(shotDir, `${name}.png`), await p.screenshot());
 }
 
-const DIRECTOR_TOOLS = ['#paint-controls', '#save-weights', '#record', '#take-play', '#replay-controls', '#key-add', '#save-keys'];
+// A stage with no keys and no pad area shows no empty key pad: the
+// director gets the toolbar's "keys" to open it (issue 31).
+const DIRECTOR_TOOLS = ['#paint-controls', '#save-weights', '#record', '#take-play', '#replay-controls', '#keypad-open'];
 const PERFORMER_TOOLS = ['#pin-tool', '#edit-controls'];
 const visible = (p, sels) => p.evaluate((s) => s.filter((q) => document.querySelector(q)?.checkVisibility()), sels);
 const weightsOf = (p) => p.evaluate(() => window.puppetry.weights[0]);
@@ -85,7 +87,7 @@ try {
     performer: await performer.evaluate(() => window.puppetry.role),
   };
   if (summary.roles.director !== 'director' || summary.roles.performer !== 'performer') throw new Error(`roles ${JSON.stringify(summary.roles)}`);
-  // The director's pad shows for a puppet without keys (a director makes them).
+  // The director opens the pad for a puppet without keys (a director makes them).
   const directorHas = await visible(director, [...DIRECTOR_TOOLS, ...PERFORMER_TOOLS]);
   const directorLacks = [...DIRECTOR_TOOLS, ...PERFORMER_TOOLS].filter((s) => !directorHas.includes(s));
   if (directorLacks.length) throw new Error(`the director lacks ${directorLacks.join(', ')}`);

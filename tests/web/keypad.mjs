@@ -111,6 +111,12 @@ try {
   await waitFor(page, 'the keys of puppet 0', () => window.puppetry.keys[0] !== undefined);
   await waitFor(viewer, 'the viewer\'s keys of puppet 0', () => window.puppetry.keys[0] !== undefined);
   if (await keyCount(page) !== 0) throw new Error('the puppet has keys already');
+  // Issue 31: no empty pad over the stage's corner; the toolbar's "keys"
+  // opens it for a director to make the first key.
+  await waitFor(page, 'the "keys" button', () => document.getElementById('keypad-open').checkVisibility());
+  if (await page.isVisible('#keypad')) throw new Error('an empty key pad shows over a stage with no keys and no pad');
+  step('open the key pad');
+  await page.click('#keypad-open');
   if (!(await page.isVisible('#keypad'))) throw new Error('the performer has no key pad');
   if (await viewer.isVisible('#keypad')) throw new Error('a viewer sees the pad of a puppet without keys');
 

@@ -139,7 +139,8 @@ function addPuppet(req, res, query) {
     const info = describePng(png);
     if (info.error) return answer(400, { type: 'error', code: 'bad_image', message: `${name}: ${info.error}` });
     const id = nextPuppet++;
-    const puppet = { name, png, ...gridMesh(info, vertices, place) };
+    const spot = place.x === undefined && place.y === undefined ? freeSpot(info, place.scale) : {};
+    const puppet = { name, png, ...gridMesh(info, vertices, { ...place, ...spot }) };
     added.set(id, puppet);
     lineup.push(id);
     const warnings = info.opaque
@@ -150,6 +151,33 @@ function addPuppet(req, res, query) {
     });
     broadcastStage();
   });
+}
+
+// As the daemon places a picture given no x, y: where its box covers the
+// puppets' boxes least, at its fit (half the stage) or smaller, nearest the
+// middle (crates/daemon/src/stream/uploads.rs free_spot).
+function freeSpot({ width, height }, scale) {
+  const box = (rest) => {
+    const xs = rest.filter((_, k) => k % 2 === 0), ys = rest.filter((_, k) => k % 2 === 1);
+    return [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)];
+  };
+  const taken = lineup.map((id) => box(id === 0 ? REST : added.get(id).rest));
+  const fit = scale ?? Math.min(STAGE.width / 2 / width, STAGE.height / 2 / height);
+  let best = null;
+  for (const shrink of scale === undefined ? [1, 0.75, 0.55, 0.35] : [1]) {
+    const s = fit * shrink, hw = (width * s) / 2, hh = (height * s) / 2;
+    for (let j = 0; j <= 8; j++) {
+      for (let i = 0; i <= 8; i++) {
+        const x = hw + ((STAGE.width - 2 * hw) * i) / 8, y = hh + ((STAGE.height - 2 * hh) * j) / 8;
+        const covered = taken.reduce((sum, b) => sum + Math.max(0, Math.min(x + hw, b[2]) - Math.max(x - hw, b[0]))
+          * Math.max(0, Math.min(y + hh, b[3]) - Math.max(y - hh, b[1])), 0);
+        const off = Math.hypot(x - STAGE.width / 2, y - STAGE.height / 2);
+        if (!best || covered < best.covered || (covered === best.covered && off < best.off)) best = { covered, off, x, y, scale: s };
+      }
+    }
+    if (best.covered === 0) break;
+  }
+  return { x: best.x, y: best.y, scale: best.scale };
 }
 
 // The picture's rectangle as a grid of about `vertices` points, centred at

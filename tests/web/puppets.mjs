@@ -230,6 +230,34 @@ try {
   const lineup = await everyPageHas([...withFigure, opaque.puppet], 'the opaque picture added');
   await shot(director, 'puppets-opaque');
 
+  step('the toolbar stays at most two rows, the new pictures cover no puppet');
+  // Issue 31: at 1280 px the director's toolbar took 3–4 rows and grew a
+  // group of buttons with each puppet; each new picture landed on the
+  // others at the centre.
+  summary.toolbar = await director.evaluate(() => {
+    const bar = document.getElementById('bar');
+    const rows = new Set([...bar.children].filter((e) => e.checkVisibility()).map((e) => {
+      const r = e.getBoundingClientRect();
+      return Math.round((r.top + r.height / 2) / 12);
+    }));
+    return { width: innerWidth, rows: rows.size, height: bar.getBoundingClientRect().height, puppets: window.puppetry.stage.puppets.length };
+  });
+  if (summary.toolbar.width !== 1280 || summary.toolbar.puppets < 3 || summary.toolbar.rows > 2) {
+    throw new Error(`the director's toolbar at ${summary.toolbar.width} px with ${summary.toolbar.puppets} puppets takes ${summary.toolbar.rows} rows`);
+  }
+  summary.boxes = await director.evaluate(() => window.puppetry.stage.puppets.map((q) => {
+    const xs = q.rest.filter((_, k) => k % 2 === 0);
+    const ys = q.rest.filter((_, k) => k % 2 === 1);
+    return { id: q.id, box: [Math.min(...xs), Math.min(...ys), Math.max(...xs), Math.max(...ys)] };
+  }));
+  for (const added of [figure, opaque.puppet]) {
+    const a = summary.boxes.find((b) => b.id === added).box;
+    for (const { id, box: b } of summary.boxes) {
+      const cover = Math.max(0, Math.min(a[2], b[2]) - Math.max(a[0], b[0])) * Math.max(0, Math.min(a[3], b[3]) - Math.max(a[1], b[1]));
+      if (id !== added && cover > 0) throw new Error(`puppet ${added} was put over puppet ${id}: ${JSON.stringify(summary.boxes)}`);
+    }
+  }
+
   step('a text file named .png is refused');
   const bad = await upload(director, files.text, VERTICES);
   summary.badImage = bad;

@@ -18,6 +18,7 @@ import { handleAt } from '../../clients/web/overlay.js';
 import { addPuppetPath, orderPuppetsMessage, removePuppetMessage } from '../../clients/web/protocol.js';
 import { checkVertices, movedOrder, nameFromFile, readUploadAnswer } from '../../clients/web/puppets.js';
 import { PointerContacts } from '../../clients/web/input.js';
+import { keyLabelLayout } from '../../clients/web/keypad.js';
 import { describePng, encodePng } from './png.mjs';
 
 // sessionStorage's interface over a Map.
@@ -306,4 +307,26 @@ test('a brush stroke or a contact holds the stage until its lift; a lost connect
   assert.equal(contacts.held(), 1);
   contacts.reset();
   assert.equal(contacts.held(), 0, 'a lost connection lets go');
+});
+
+// Issue 31: the keyframe stage's names overlapped ("wave leftwave right").
+test('key pad names overlap neither each other nor a dot, and stay on the pad', () => {
+  const size = 180;
+  const keys = [['rest', [0.5, 0.5]], ['wave left', [0.15, 0.85]], ['wave right', [0.85, 0.85]],
+    ['crouch', [0.5, 0.1]], ['lean left', [0.1, 0.3]], ['lean right', [0.9, 0.3]],
+    ['a very long key name indeed', [0.5, 0.8]], ['close', [0.52, 0.52]]];
+  const dots = keys.map(([, [u, v]]) => [u * size, (1 - v) * size]);
+  const measure = (t) => 6 * t.length; // about 11 px system-ui
+  const labels = keyLabelLayout(dots, keys.map(([n]) => n), size, measure);
+  assert.equal(labels.length, keys.length);
+  const cover = (a, b) => Math.max(0, Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x))
+    * Math.max(0, Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y));
+  labels.forEach((a, i) => {
+    assert.ok(a.x >= 0 && a.y >= 0 && a.x + a.w <= size && a.y + a.h <= size, `${a.text} on the pad`);
+    assert.ok(a.w <= measure(a.text) + 1e-9, `${a.text} drawn in its box`);
+    labels.slice(i + 1).forEach((b) => assert.equal(cover(a, b), 0, `${a.text} / ${b.text}`));
+    dots.forEach(([x, y], j) => assert.equal(cover(a, { x: x - 6, y: y - 6, w: 12, h: 12 }), 0, `${a.text} on dot ${j}`));
+  });
+  // The six of the demo keys keep their whole names.
+  labels.slice(0, 6).forEach((l, i) => assert.equal(l.text, keys[i][0]));
 });

@@ -11,8 +11,8 @@ use std::sync::Arc;
 use glam::DVec2;
 
 use crate::protocol::{
-    GridBasis, Person, PuppetDescription, RigDescription, Role, ServerMessage, SkeletonMode,
-    StageSize,
+    GridBasis, PadArea, Person, PuppetDescription, RigDescription, Role, ServerMessage,
+    SkeletonMode, StageSize,
 };
 use crate::stage_thread::PuppetOutput;
 use puppetry_stage::config::StageConfig;
@@ -123,6 +123,15 @@ impl StageDescription {
                 handles: Vec::new(),
                 weights: p.mesh.weights().to_vec(),
                 rig: rig_description(p.rig()),
+                pads: stage
+                    .pads()
+                    .iter()
+                    .filter(|pad| pad.puppet == p.id as usize)
+                    .map(|pad| PadArea {
+                        area: [pad.min.x, pad.min.y, pad.max.x, pad.max.y],
+                        source: pad.source.clone(),
+                    })
+                    .collect(),
             })
             .collect::<Vec<_>>();
         let size = StageSize {

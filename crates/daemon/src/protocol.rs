@@ -723,6 +723,22 @@ pub struct PuppetDescription {
     /// Per-triangle stiffness as loaded.
     pub weights: Vec<f64>,
     pub rig: RigDescription,
+    /// The stage's `[[pad]]` areas that drive this puppet's key cursor:
+    /// a contact landing in one moves the cursor instead of grabbing, so
+    /// the page draws them. Absent when none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pads: Vec<PadArea>,
+}
+
+/// A keyframing pad on the stage (`[[pad]]` in the stage file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PadArea {
+    /// Lower left and upper right corners, stage units: `[x0, y0, x1, y1]`.
+    pub area: [f64; 4],
+    /// Only this input source's contacts drive it (none: every source's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<String>,
 }
 
 /// How a puppet is rigged.

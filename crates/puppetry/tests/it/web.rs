@@ -126,6 +126,25 @@ async fn the_key_pad_blends_key_poses_made_on_the_page() {
     assert!(summary["keyHandles"].as_u64().unwrap() > 0, "{summary}");
 }
 
+/// Issue 31: the keyframe stage's `[[pad]]` area is drawn on the page (a
+/// finger there moves the key cursor, so it must not look like bare
+/// stage), and the key pad's names overlap neither each other nor a dot.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_stage_pad_area_is_drawn_and_key_names_do_not_overlap() {
+    if !browser::enabled("the_stage_pad_area_is_drawn_and_key_names_do_not_overlap") {
+        return;
+    }
+    let summary = browser::run_page_as("keyframe", DIRECTOR, "padarea.mjs", "110,110", &[])
+        .await
+        .summary;
+    let area: Vec<f64> = summary["drawn"][0]["area"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|v| v.as_f64()).collect())
+        .unwrap_or_default();
+    assert_eq!(area, [20.0, 20.0, 200.0, 200.0], "{summary}");
+    assert_eq!(summary["labels"].as_array().unwrap().len(), 6, "{summary}");
+}
+
 /// Issue 12, observations 1 and 2: performers Ana and Ben (the demo stage's
 /// people) and a viewer, with a transparent show page to tell the puppet
 /// from the background. Every page's legend shows both in the colours the
