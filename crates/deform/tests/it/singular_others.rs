@@ -376,24 +376,35 @@ proptest! {
     }
 
     /// Shape-aware skeletons with joints on boundary vertices and edges, on
-    /// or a hair from one another (a bone down to 1e-9 long, or two chains
-    /// meeting), on a line, posed anywhere on the stage: registered (a
-    /// joint on the outline is inside the mesh), and a bounded pose.
+    /// or a hair from one another (a bone down to 1e-9 long, two bones
+    /// meeting, two trees' roots on one point), on a line, on slivers,
+    /// posed anywhere on the stage (free mode) or with any angles and bone
+    /// lengths up to the stage's width (FK): registered (a joint on the
+    /// outline is inside the mesh), a bounded pose, and the rest joints give
+    /// the rest mesh back.
     #[test]
     fn skeleton_joints_near_one_another_stay_bounded(
         spots in mesh_spots(),
         sliver in any::<bool>(),
-        chained in any::<bool>(),
+        topology in 0u8..3,
+        fk in prop::collection::vec((-std::f64::consts::PI..std::f64::consts::PI, 0.0..1280.0f64), 4),
     ) {
         let mesh = bar(sliver);
         let joints: Vec<DVec2> = spots.iter().map(|s| s.0).collect();
         prop_assume!(joints.len() >= 2);
-        // One chain through every joint, or bones from the first joint
-        // (a fan: joints near one another on different bones).
-        let bones: Vec<[usize; 2]> = if chained {
-            (1..joints.len()).map(|j| [j - 1, j]).collect()
-        } else {
-            (1..joints.len()).map(|j| [0, j]).collect()
+        // One chain through every joint; bones from the first joint (a
+        // fan: joints near one another on different bones); or a forest of
+        // one-bone trees (0→1, 2→3, and an odd last joint off joint 0), whose
+        // roots may sit on one point.
+        let m = joints.len();
+        let bones: Vec<[usize; 2]> = match topology {
+            0 => (1..m).map(|j| [j - 1, j]).collect(),
+            1 => (1..m).map(|j| [0, j]).collect(),
+            _ => (1..m)
+                .step_by(2)
+                .map(|j| [j - 1, j])
+                .chain((m % 2 == 1 && m > 2).then_some([0, m - 1]))
+                .collect(),
         };
         let locator = Locator::new(&mesh);
         let inside = joints.iter().all(|&p| locator.locate(&mesh, p).is_some());
@@ -413,6 +424,16 @@ proptest! {
         let targets: Vec<DVec2> = spots.iter().map(|s| s.1).collect();
         let pose = deformer.update(&targets).unwrap().to_vec();
         prop_assert!(bounded(&pose), "a vertex is {} from the stage's centre", reach(&pose));
+        let mut posed = deformer.skeleton().rest_pose();
+        for (b, &(angle, length)) in fk.iter().enumerate().take(posed.angles.len()) {
+            posed.angles[b] = angle;
+            posed.lengths[b] = length;
+        }
+        for (k, &root) in deformer.skeleton().roots().to_vec().iter().enumerate() {
+            posed.roots[k] = targets[root];
+        }
+        let pose = deformer.update_pose(&posed).unwrap();
+        prop_assert!(bounded(pose), "FK: a vertex is {} from the stage's centre", reach(pose));
         let rest = deformer.update(&joints).unwrap();
         let off = rest
             .iter()
