@@ -643,8 +643,13 @@ fn replay(show: &Show, name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// Steps run, over every sequence of every stage (printed with
+/// `--nocapture`, for the long run's count).
+static STEPS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 /// Runs a sequence on a stage: the first broken invariant, if any.
 fn run(name: &str, ops: &[Op]) -> Result<(), String> {
+    STEPS.fetch_add(ops.len(), std::sync::atomic::Ordering::Relaxed);
     let mut show = Show::new(name);
     for (i, op) in ops.iter().enumerate() {
         show.step(op)
@@ -711,7 +716,7 @@ fn simulate(name: &'static str) {
     let cases = std::env::var("PROPTEST_CASES")
         .ok()
         .and_then(|n| n.parse().ok())
-        .unwrap_or(12);
+        .unwrap_or(24);
     let config = ProptestConfig {
         cases,
         failure_persistence: None,
@@ -725,6 +730,8 @@ fn simulate(name: &'static str) {
             return Err(TestCaseError::fail(format!("{problem}\n(sequence written to {})", file.display())));
         }
     });
+    let steps = STEPS.load(std::sync::atomic::Ordering::Relaxed);
+    eprintln!("simulated {name}: {cases} sequences; {steps} steps so far in this process");
 }
 
 #[test]
