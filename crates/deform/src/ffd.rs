@@ -57,7 +57,8 @@
 //! pose into the next update's local steps; the iterations only lower the
 //! energy from there, so a sane update after a wild one comes back —
 //! slowly where the handles leave a rotation to the weak `λ_gr` (one
-//! handle, or two close together).
+//! handle, or two close together); [`LpFfd::rest_pose`] starts over from
+//! rest at once.
 //!
 //! Grid handles are numbered row by row from the box's `min` corner:
 //! handle `row·M + column` rests at `min + (column/(M−1), row/(N−1))·(max − min)`.
