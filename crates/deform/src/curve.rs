@@ -29,7 +29,7 @@
 //! **Singular cases.** Handles are exact constraints, so two of them a
 //! small fraction `δ` of a segment apart with targets `D` apart would force
 //! the curve between them to length `D/δ` (a finger a hair from the rope's
-//! pin sent its end to ~4e5). The policy ([`merge_coincident`]): handles
+//! pin sent its end to ~4e5). The policy (`merge_coincident`): handles
 //! closer than half a segment along the curve's parameter (point index plus
 //! `t`), or nearest the same point, are one handle and **the later wins**;
 //! a handle within half a segment of a held point (outside the free
