@@ -192,7 +192,7 @@ fn bounds(points: &[DVec2]) -> (DVec2, DVec2) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
 
     /// Any cluster of handles round one base point, with targets anywhere
     /// on the stage, gives a finite pose within ten times the mesh's size;
