@@ -143,13 +143,16 @@ impl Row {
 
 /// How far a handle's constraint row must stand from the span of the newer
 /// kept handles' rows to be kept: its squared distance from that span over
-/// its own squared length. Rows are barycentric weights, so two points in
-/// one triangle whose weights differ by `d` stand about `d²/2` apart: this
-/// keeps handles more than about a seventh of a triangle apart (two
-/// fingertips apart on any mesh the tracer makes), and a kept set's
-/// disagreeing targets stretch the mesh by at most about `1/√INDEPENDENCE`
-/// (ten) times their disagreement instead of without bound.
-const INDEPENDENCE: f64 = 1e-2;
+/// its own squared length. Two kept handles whose weights differ by `d` on
+/// a corner make the mesh stretch by about `1/d` times their targets'
+/// disagreement there (a corner moves by the disagreement over `d`), and
+/// their rows stand about `2d²` apart. At 0.05, `d` is at least about a
+/// sixth: a held set stretches at most about six times the distance between
+/// its targets, so a pin and a finger a hair apart pulled across the stage
+/// stay within a few stages of it (the simulated show found 30 stages at
+/// 0.01). Two points in one triangle are kept when about a third of it
+/// apart: two fingertips on any mesh the tracer makes.
+const INDEPENDENCE: f64 = 0.05;
 
 /// Which handles to keep, given each one's piece and constraint row. Walking
 /// from the newest, a handle is kept when its row stands at least

@@ -570,6 +570,26 @@ impl Show {
         Ok(())
     }
 
+    /// One line a puppet after a step (`PUPPETRY_SIMULATE_TRACE=1`): how
+    /// far its farthest vertex is from the stage's centre, and its handles.
+    fn trace(&self, i: usize, op: &Op) {
+        eprintln!("step {i}: {op:?}");
+        let centre = DVec2::new(self.stage.width, self.stage.height) * 0.5;
+        for p in self.stage.puppets() {
+            let far = p
+                .pose()
+                .iter()
+                .map(|v| v.distance(centre))
+                .fold(0.0, f64::max);
+            let handles: Vec<String> = p
+                .handles()
+                .iter()
+                .map(|h| format!("{}:{:?}@{}", h.owner, h.kind, h.target))
+                .collect();
+            eprintln!("  puppet {} farthest {far:.1} handles {handles:?}", p.id);
+        }
+    }
+
     /// After a reset with no finger down, a solve gives the rest pose.
     fn check_rest(&mut self, puppet: u32) -> Result<(), String> {
         if !self.down.is_empty() {
@@ -651,9 +671,13 @@ static STEPS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::n
 fn run(name: &str, ops: &[Op]) -> Result<(), String> {
     STEPS.fetch_add(ops.len(), std::sync::atomic::Ordering::Relaxed);
     let mut show = Show::new(name);
+    let trace = std::env::var_os("PUPPETRY_SIMULATE_TRACE").is_some();
     for (i, op) in ops.iter().enumerate() {
         show.step(op)
             .map_err(|e| format!("step {i} ({op:?}): {e}"))?;
+        if trace {
+            show.trace(i, op);
+        }
     }
     show.solve();
     show.check()?;
