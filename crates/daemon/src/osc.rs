@@ -967,12 +967,14 @@ async fn key_pose(
     to: String,
     t: f64,
 ) -> Result<(), String> {
-    ask(commands, |reply| Command::KeyPose {
+    let change = Change::KeyPose {
         puppet,
         from,
         to,
         t,
-        reply,
+    };
+    ask(commands, |reply| {
+        crate::convert::change(change, Some(reply))
     })
     .await
 }
@@ -983,7 +985,10 @@ async fn cursor(
     at: Option<DVec2>,
 ) -> Result<(), String> {
     let change = Change::Cursor { puppet, at };
-    ask(commands, |reply| Command::Keys { change, reply }).await
+    ask(commands, |reply| {
+        crate::convert::change(change, Some(reply))
+    })
+    .await
 }
 
 /// Resets a puppet (as the page's reset button): every reset trigger

@@ -100,9 +100,7 @@ pub async fn supervise<F, Fut>(
             Err(e) => {
                 // Whatever it held is let go, whether or not the source
                 // managed to say so itself.
-                let _ = commands
-                    .send(Command::ReleaseSource(name.to_string()))
-                    .await;
+                let _ = commands.send(crate::convert::release(name.as_str())).await;
                 if began.elapsed() >= HEALTHY_RUN {
                     backoff = FIRST_BACKOFF;
                 }
@@ -231,7 +229,7 @@ pub async fn run_replay<F, Fut>(
         }
         if paused {
             // Whatever it held is let go: a run cut short never lifted it.
-            let _ = commands.send(Command::ReleaseSource(name.clone())).await;
+            let _ = commands.send(crate::convert::release(&name)).await;
         } else if !repeat {
             replays.set_index(index, false);
         }
@@ -251,7 +249,7 @@ pub async fn forward(
     while let Some(frame) = frames.recv().await {
         let received = started.elapsed().as_secs_f64();
         if commands
-            .send(Command::Frame { frame, received })
+            .send(crate::convert::frame(frame, received))
             .await
             .is_err()
         {
@@ -266,6 +264,7 @@ pub async fn forward(
 mod tests {
     use super::*;
     use puppetry_input::{Contact, Phase};
+    use puppetry_stage::Change;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -303,8 +302,14 @@ mod tests {
         let mut seen = Vec::new();
         while let Some(command) = received.recv().await {
             seen.push(match command {
-                Command::ReleaseSource(name) => format!("release {name}"),
-                Command::Frame { frame, .. } => format!("frame {}", frame.source),
+                Command::Change {
+                    change: Change::Release { source },
+                    ..
+                } => format!("release {source}"),
+                Command::Change {
+                    change: Change::Contacts { frame },
+                    ..
+                } => format!("frame {}", frame.source),
                 other => format!("{other:?}"),
             });
         }

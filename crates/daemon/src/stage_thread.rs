@@ -21,7 +21,7 @@ use glam::DVec2;
 use tokio::sync::{mpsc, oneshot, watch};
 
 use puppetry_deform::Arap;
-use puppetry_input::{ContactFrame, Phase};
+use puppetry_input::Phase;
 use puppetry_stage::{
     Change, CommandError, GridExport, Grip, HandleKind, Rebuild, Stage, StageEvent, WeightsFile,
 };
@@ -41,26 +41,16 @@ pub type Reply<T> = oneshot::Sender<Result<T, CommandError>>;
 /// What the stage thread is asked to do.
 #[derive(Debug)]
 pub enum Command {
-    /// An input frame, with the time it reached the daemon (seconds since
-    /// the daemon started).
-    Frame {
-        frame: ContactFrame,
-        received: f64,
+    /// A change to the stage, from any source: an input frame, a source
+    /// gone, a pin, a brush dab, a key pose, the key cursor… (the one
+    /// conversion that makes them is [`crate::convert`]). `received`: when
+    /// an input frame reached the daemon (seconds since it started);
+    /// `reply`: whether it applied, for an asker who waits.
+    Change {
+        change: Change,
+        received: Option<f64>,
+        reply: Option<Reply<()>>,
     },
-    Pin {
-        owner: String,
-        at: DVec2,
-    },
-    Unpin {
-        puppet: u32,
-        handle: u64,
-    },
-    /// The part behind comes in front where a puppet overlaps itself.
-    DepthFlip {
-        at: DVec2,
-    },
-    /// A source went away: lift all its contacts.
-    ReleaseSource(String),
     /// A source may grab only these puppets (`None`: any), e.g. a
     /// performer limited to named puppets.
     Limit {
@@ -72,24 +62,10 @@ pub enum Command {
         source: String,
         cursor: Option<CursorState>,
     },
-    /// A change a client asked for that the stage checks and records as
-    /// it is (the stiffness and depth-layer brushes).
-    Apply {
-        change: Change,
-        reply: Reply<()>,
-    },
     /// Undo, redo or reset a puppet's edits.
     Edit {
         puppet: u32,
         edit: Edit,
-        reply: Reply<()>,
-    },
-    /// Set a skeleton to a pose between two key poses.
-    KeyPose {
-        puppet: u32,
-        from: String,
-        to: String,
-        t: f64,
         reply: Reply<()>,
     },
     /// The grid of a grid puppet, rest and deformed.
@@ -112,10 +88,7 @@ pub enum Command {
     },
     /// One step of a take played back: applied and solved on its own, so
     /// with no live input between it gives the frames the take recorded.
-    Played {
-        changes: Vec<Change>,
-        received: f64,
-    },
+    Played { changes: Vec<Change>, received: f64 },
     /// Start recording a take into the takes folder (`None`: the next free
     /// `take-NNN`); `layers` names takes played into it.
     StartTake {
@@ -126,11 +99,6 @@ pub enum Command {
     /// Stop the take being recorded; answers its name.
     StopTake {
         reply: oneshot::Sender<Result<String, String>>,
-    },
-    /// A keyframing change (cursor, key added, moved, deleted).
-    Keys {
-        change: Change,
-        reply: Reply<()>,
     },
     /// The key file of a puppet, to write (the asker writes it).
     SaveKeys {
@@ -146,9 +114,7 @@ pub enum Command {
     },
     /// The take playing ended (played out, stopped or failed): what its
     /// sources still hold lets go, and an overdub of it stops.
-    PlayEnded {
-        name: String,
-    },
+    PlayEnded { name: String },
     /// Add, remove or reorder puppets (refused while a take records);
     /// answers the puppet added or removed (0 for a new order).
     Lineup {
@@ -1159,31 +1125,22 @@ impl Batch {
     ) {
         match command {
             Command::Stop => self.stop = true,
-            Command::Frame { frame, received } => {
-                self.newest = received;
-                self.apply(stage, taking, Change::Contacts { frame }, None, wake);
+            Command::Change {
+                change,
+                received,
+                reply,
+            } => {
+                if let Some(received) = received {
+                    self.newest = received;
+                }
+                self.apply(stage, taking, change, reply, wake);
             }
             Command::Played { .. } | Command::Lineup { .. } | Command::PlayEnded { .. } => {
                 unreachable!(
                     "played steps, a take's end and lineup changes are handled on their own"
                 )
             }
-            Command::Pin { owner, at } => {
-                self.apply(stage, taking, Change::Pin { owner, at }, None, wake)
-            }
-            Command::DepthFlip { at } => {
-                self.apply(stage, taking, Change::DepthFlip { at }, None, wake)
-            }
-            Command::Unpin { puppet, handle } => {
-                self.apply(stage, taking, Change::Unpin { puppet, handle }, None, wake)
-            }
-            Command::ReleaseSource(source) => {
-                self.apply(stage, taking, Change::Release { source }, None, wake)
-            }
             Command::Limit { source, puppets } => stage.limit_source(&source, puppets),
-            Command::Apply { change, reply } => {
-                self.apply(stage, taking, change, Some(reply), wake);
-            }
             Command::Edit {
                 puppet,
                 edit,
@@ -1223,26 +1180,8 @@ impl Batch {
                     }
                 }
             }
-            Command::KeyPose {
-                puppet,
-                from,
-                to,
-                t,
-                reply,
-            } => {
-                let change = Change::KeyPose {
-                    puppet,
-                    from,
-                    to,
-                    t,
-                };
-                self.apply(stage, taking, change, Some(reply), wake);
-            }
             Command::ExportGrid { puppet, reply } => {
                 let _ = reply.send(stage.export_grid(puppet));
-            }
-            Command::Keys { change, reply } => {
-                self.apply(stage, taking, change, Some(reply), wake);
             }
             Command::SaveKeys { puppet, reply } => {
                 let _ = reply.send(stage.key_file(puppet));
@@ -1393,7 +1332,7 @@ impl Batch {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use puppetry_input::{Contact, Phase, SourceId};
+    use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 
     #[global_allocator]
     static ALLOCATOR: puppetry_testkit::alloc::Counting = puppetry_testkit::alloc::Counting;
@@ -1436,8 +1375,8 @@ mod tests {
         let source = SourceId::from("test");
         let frame = |k: usize, phase| {
             let angle = k as f64 * 0.05;
-            Command::Frame {
-                frame: ContactFrame {
+            crate::convert::frame(
+                ContactFrame {
                     source: source.clone(),
                     time: k as f64 * 1e-3,
                     contacts: vec![Contact::new(
@@ -1446,8 +1385,8 @@ mod tests {
                         at + DVec2::new(angle.cos() - 1.0, angle.sin()) * 20.0,
                     )],
                 },
-                received: k as f64 * 1e-3,
-            }
+                k as f64 * 1e-3,
+            )
         };
         let mut commands: Vec<Command> = (0..200)
             .map(|k| frame(k, if k == 0 { Phase::Down } else { Phase::Move }))

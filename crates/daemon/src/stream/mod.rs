@@ -24,16 +24,14 @@ use std::time::{Duration, Instant};
 
 use axum::extract::ws::{Message, WebSocket};
 use futures_util::StreamExt;
-use glam::DVec2;
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
+use crate::convert::Converted;
 use crate::lineup::{Lineup, LineupChange};
 use crate::protocol::{ClientMessage, Role, ServerMessage};
 use crate::stage_thread::{Command, Edit};
 use following::Following;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
-use puppetry_stage::Change;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
@@ -350,10 +348,7 @@ pub(crate) async fn join_stage(
 /// Lets go of whatever `source` held on the stage, and of its puppet limit.
 pub(crate) async fn leave_stage(links: &StageLinks, source: &str, role: Role, limited: bool) {
     if role != Role::Viewer {
-        let _ = links
-            .commands
-            .send(Command::ReleaseSource(source.to_string()))
-            .await;
+        let _ = links.commands.send(crate::convert::release(source)).await;
     }
     if limited {
         let _ = links
@@ -695,123 +690,56 @@ pub(crate) async fn handle_message(
     if let ClientMessage::ListTakes = message {
         return Ok(Some(list_takes(shared).await?));
     }
-    let command = match message {
-        ClientMessage::Hello { .. } => return Err("already said hello".into()),
-        ClientMessage::Contacts { contacts } => {
-            let mut frame = ContactFrame {
-                source: SourceId::from(source),
-                time: shared.started.elapsed().as_secs_f64(),
-                contacts: Vec::with_capacity(contacts.len()),
+    let now = shared.started.elapsed().as_secs_f64();
+    let message = match crate::convert::client(message, source, now) {
+        Ok(Converted::Change {
+            change,
+            received,
+            wait: true,
+        }) => {
+            ask(shared, |reply| Command::Change {
+                change,
+                received,
+                reply: Some(reply),
+            })
+            .await?;
+            return Ok(None);
+        }
+        Ok(Converted::Change {
+            change,
+            received,
+            wait: false,
+        }) => {
+            let command = Command::Change {
+                change,
+                received,
+                reply: None,
             };
-            for (i, c) in contacts.into_iter().enumerate() {
-                let position = match (c.x, c.y) {
-                    (Some(x), Some(y)) if x.is_finite() && y.is_finite() => DVec2::new(x, y),
-                    (None, None) if c.phase == Phase::Up => DVec2::ZERO,
-                    _ => {
-                        return Err(guard::Refusal::new(
-                            ErrorCode::BadMessage,
-                            format!(
-                                "contact {}: needs x and y (only an up may leave them out)",
-                                c.id
-                            ),
-                        )
-                        .at(format!("contacts[{i}]")));
-                    }
-                };
-                frame.contacts.push(Contact::new(c.id, c.phase, position));
-            }
-            Command::Frame {
-                received: frame.time,
-                frame,
-            }
+            return shared
+                .links()?
+                .commands
+                .send(command)
+                .await
+                .map(|()| None)
+                .map_err(|_| "the stage is shutting down".into());
         }
-        ClientMessage::Pin { x, y } if x.is_finite() && y.is_finite() => Command::Pin {
-            owner: source.to_string(),
-            at: DVec2::new(x, y),
-        },
-        ClientMessage::Pin { .. } => return Err("pin needs finite x and y".into()),
-        ClientMessage::DepthFlip { x, y } if x.is_finite() && y.is_finite() => Command::DepthFlip {
-            at: DVec2::new(x, y),
-        },
-        ClientMessage::DepthFlip { .. } => return Err("depth_flip needs finite x and y".into()),
-        ClientMessage::Unpin { puppet, handle } => Command::Unpin { puppet, handle },
-        ClientMessage::Paint {
-            puppet,
-            x,
-            y,
-            radius,
-            strength,
-            stroke,
-        } => {
-            // The stage bounds the brush (`radius`, `strength`) and names
-            // the field it refuses.
-            if !(x.is_finite() && y.is_finite()) {
-                return Err("paint needs finite x and y".into());
-            }
-            let at = DVec2::new(x, y);
-            ask(shared, |reply| Command::Apply {
-                change: Change::Paint {
-                    puppet,
-                    at,
-                    radius,
-                    strength,
-                    stroke,
-                },
-                reply,
-            })
-            .await?;
-            return Ok(None);
+        Ok(Converted::Other(message)) => message,
+        Err(e) => {
+            let refusal = guard::Refusal::new(ErrorCode::BadMessage, e.problem);
+            return Err(match e.field {
+                Some(field) => refusal.at(field),
+                None => refusal,
+            });
         }
-        ClientMessage::PaintDepth {
-            puppet,
-            x,
-            y,
-            radius,
-            layer,
-            stroke,
-        } => {
-            if !(x.is_finite() && y.is_finite()) {
-                return Err("paint_depth needs finite x and y".into());
-            }
-            let at = DVec2::new(x, y);
-            ask(shared, |reply| Command::Apply {
-                change: Change::PaintDepth {
-                    puppet,
-                    at,
-                    radius,
-                    layer,
-                    stroke,
-                },
-                reply,
-            })
-            .await?;
-            return Ok(None);
-        }
+    };
+    match message {
+        ClientMessage::Hello { .. } => Err("already said hello".into()),
         ClientMessage::Undo { puppet } => return edit(shared, puppet, Edit::Undo).await,
         ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
         ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,
         ClientMessage::Replay { source, playing } => {
             shared.links()?.replays.set(&source, playing)?;
-            return Ok(None);
-        }
-        ClientMessage::Pose {
-            puppet,
-            from,
-            to,
-            t,
-        } => {
-            if !t.is_finite() {
-                return Err("pose needs a finite t".into());
-            }
-            ask(shared, |reply| Command::KeyPose {
-                puppet,
-                from,
-                to,
-                t,
-                reply,
-            })
-            .await?;
-            return Ok(None);
+            Ok(None)
         }
         ClientMessage::SaveWeights { puppet } => {
             let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
@@ -822,26 +750,39 @@ pub(crate) async fn handle_message(
                 .await
                 .map_err(|e| format!("save_weights: {e}"))?
                 .map_err(|e| format!("save_weights: {e}"))?;
-            return Ok(Some(
+            Ok(Some(
                 ServerMessage::WeightsSaved {
                     puppet,
                     file: path.display().to_string(),
                 }
                 .to_text(),
-            ));
+            ))
         }
         ClientMessage::ExportGrid { .. }
         | ClientMessage::ListTakes
         | ClientMessage::Ping { .. } => {
             unreachable!("answered above")
         }
+        ClientMessage::Contacts { .. }
+        | ClientMessage::Pin { .. }
+        | ClientMessage::DepthFlip { .. }
+        | ClientMessage::Unpin { .. }
+        | ClientMessage::Paint { .. }
+        | ClientMessage::PaintDepth { .. }
+        | ClientMessage::Pose { .. }
+        | ClientMessage::Cursor { .. }
+        | ClientMessage::KeyAdd { .. }
+        | ClientMessage::KeyMove { .. }
+        | ClientMessage::KeyDelete { .. } => {
+            unreachable!("changes are converted above (crate::convert)")
+        }
         ClientMessage::Record { name } => {
             start_take(shared, name, Vec::new()).await?;
-            return Ok(None);
+            Ok(None)
         }
         ClientMessage::StopRecording => {
             stop_take(shared).await?;
-            return Ok(None);
+            Ok(None)
         }
         ClientMessage::Play {
             take,
@@ -850,47 +791,7 @@ pub(crate) async fn handle_message(
             replace_sources,
         } => {
             play_take(shared, &take, overdub, replace, replace_sources).await?;
-            return Ok(None);
-        }
-        ClientMessage::Cursor { puppet, at } => {
-            let change = Change::Cursor {
-                puppet,
-                at: at.map(DVec2::from),
-            };
-            ask(shared, |reply| Command::Keys { change, reply }).await?;
-            return Ok(None);
-        }
-        ClientMessage::KeyAdd { puppet, name, at } => {
-            let name = name.unwrap_or_else(|| {
-                format!(
-                    "key {}",
-                    std::time::SystemTime::now()
-                        .duration_since(std::time::UNIX_EPOCH)
-                        .map(|d| d.as_millis() % 100_000)
-                        .unwrap_or(0)
-                )
-            });
-            let change = Change::KeyAdd {
-                puppet,
-                name,
-                at: DVec2::from(at),
-            };
-            ask(shared, |reply| Command::Keys { change, reply }).await?;
-            return Ok(None);
-        }
-        ClientMessage::KeyMove { puppet, key, at } => {
-            let change = Change::KeyMove {
-                puppet,
-                key,
-                at: DVec2::from(at),
-            };
-            ask(shared, |reply| Command::Keys { change, reply }).await?;
-            return Ok(None);
-        }
-        ClientMessage::KeyDelete { puppet, key } => {
-            let change = Change::KeyDelete { puppet, key };
-            ask(shared, |reply| Command::Keys { change, reply }).await?;
-            return Ok(None);
+            Ok(None)
         }
         ClientMessage::SaveKeys { puppet } => {
             let (path, file) = ask(shared, |reply| Command::SaveKeys { puppet, reply }).await?;
@@ -899,13 +800,13 @@ pub(crate) async fn handle_message(
                 .await
                 .map_err(|e| format!("save_keys: {e}"))?
                 .map_err(|e| format!("save_keys: {e}"))?;
-            return Ok(Some(
+            Ok(Some(
                 ServerMessage::KeysSaved {
                     puppet,
                     file: path.display().to_string(),
                 }
                 .to_text(),
-            ));
+            ))
         }
         ClientMessage::AddCurve {
             name,
@@ -914,7 +815,7 @@ pub(crate) async fn handle_message(
             colour,
         } => {
             let added = uploads::add_curve(shared, name, points, width, colour).await?;
-            return Ok(Some(added.to_text()));
+            Ok(Some(added.to_text()))
         }
         ClientMessage::RemovePuppet { puppet } => {
             let entry = shared
@@ -929,11 +830,11 @@ pub(crate) async fn handle_message(
             if let (Some(entry), Ok(links)) = (entry, shared.links()) {
                 uploads::forget(&links.puppets_dir, &entry).await;
             }
-            return Ok(None);
+            Ok(None)
         }
         ClientMessage::OrderPuppets { order } => {
             change_lineup(shared, LineupChange::Order(order)).await?;
-            return Ok(None);
+            Ok(None)
         }
         ClientMessage::StopPlaying => {
             let player = shared
@@ -949,16 +850,9 @@ pub(crate) async fn handle_message(
                 }
                 None => return Err("no take is playing".into()),
             }
-            return Ok(None);
+            Ok(None)
         }
-    };
-    shared
-        .links()?
-        .commands
-        .send(command)
-        .await
-        .map(|()| None)
-        .map_err(|_| "the stage is shutting down".into())
+    }
 }
 
 /// Adds, removes or reorders puppets; answers the puppet's id. Refused
