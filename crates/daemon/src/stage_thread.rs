@@ -858,23 +858,16 @@ pub fn spawn(
                             batch.let_go_of_played(&mut stage, &mut taking, Some(&name), &wake);
                             batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
                             taking.ended(&mut stage, &name, &publisher.changes);
-                        } else if matches!(
-                            command,
-                            Command::StartTake { .. } | Command::StopTake { .. }
-                        ) {
-                            // What came before belongs to the take stopping
-                            // (or to none, not the take starting): solve and
-                            // record it first.
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                            batch.command(
-                                &mut stage,
-                                &mut taking,
-                                &mut cursors,
-                                command,
-                                &wake,
-                                &publisher.changes,
-                            );
                         } else {
+                            if matches!(
+                                command,
+                                Command::StartTake { .. } | Command::StopTake { .. }
+                            ) {
+                                // What came before belongs to the take
+                                // stopping (or to none, not the take
+                                // starting): solve and record it first.
+                                batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                            }
                             batch.command(
                                 &mut stage,
                                 &mut taking,
