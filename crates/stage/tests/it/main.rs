@@ -13,5 +13,5 @@ mod keyframing;
 mod keys;
 mod lineup;
 mod many;
-mod simulate;
 mod rigs_no_alloc;
+mod simulate;
