@@ -13,7 +13,7 @@
 
 import fs from 'node:fs';
 import path from 'node:path';
-import { startScript, allErrors, openPage, pageState, pageUrl, settle, stageToClient, waitFor, rgbOf, colourDistance } from './page-common.mjs';
+import { startScript, allErrors, heldStill, openPage, pageState, pageUrl, settle, stageToClient, waitFor, rgbOf, colourDistance } from './page-common.mjs';
 
 const { url, shotDir, summary, finish, launch } = startScript();
 const errors = [];
@@ -88,7 +88,7 @@ try {
   const k = line.length - 8;
   const grab = line[k];
   const to = [grab[0] - 120, grab[1] - 40];
-  const [gx, gy] = await stageToClient(page, grab);
+  const [gx, gy] = await heldStill(page, grab);
   await page.mouse.move(gx, gy);
   await page.mouse.down();
   for (let s = 1; s <= 12; s++) {
@@ -129,7 +129,7 @@ try {
   await director.fill('#curve-colour', '#2e7d32');
   const drawn = [];
   for (let s = 0; s <= 40; s++) drawn.push([420 + 11 * s, 80 + 25 * Math.sin(s / 6)]);
-  const [dx, dy] = await stageToClient(director, drawn[0]);
+  const [dx, dy] = await heldStill(director, drawn[0]);
   await director.mouse.move(dx, dy);
   await director.mouse.down();
   for (const at of drawn.slice(1)) {

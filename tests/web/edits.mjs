@@ -22,7 +22,7 @@
 
 import fs from 'node:fs';
 import path from 'node:path';
-import { startScript, allErrors, openPage, pageState, pageUrl, stageToClient, waitFor } from './page-common.mjs';
+import { startScript, allErrors, heldStill, openPage, pageState, pageUrl, waitFor } from './page-common.mjs';
 
 const { url, point, shotDir, viewerUrl, summary, finish, launch } = startScript();
 const token = process.env.PUPPETRY_TOKEN ?? 'ana';
@@ -108,7 +108,7 @@ try {
   step('the director paints a stroke');
   await director.bringToFront();
   await director.click('#paint-tool');
-  const [x, y] = await stageToClient(director, point);
+  const [x, y] = await heldStill(director, point);
   const weightsBefore = await director.evaluate(() => window.puppetry.weightsReceived);
   await director.mouse.move(x - 30, y);
   await director.mouse.down();

@@ -14,7 +14,7 @@
 // success, and within 2 minutes either way.
 
 import {
-  openPage, settle, stageToClient, startScript, waitFor,
+  heldStill, openPage, settle, stageToClient, startScript, waitFor,
 } from './page-common.mjs';
 
 const { url, point, summary, finish, launch } = startScript();
@@ -40,7 +40,7 @@ try {
   page = await openPage(context, url, errors, withStroke ? 'director' : 'performer');
   if (withStroke) await page.click('#paint-tool');
 
-  const start = await stageToClient(page, point);
+  const start = await heldStill(page, point);
   await page.mouse.move(start[0], start[1]);
   await page.mouse.down();
   for (let i = 1; i <= 5; i++) {

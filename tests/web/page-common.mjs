@@ -144,6 +144,25 @@ export function settle(page) {
   return page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 }
 
+/**
+ * Waits until the stage holds still on the page (stage point `at` at the
+ * same client point over two presented frames) and answers that point. A
+ * tool's settings appear after the click that turns it on and re-lay out the
+ * toolbar and the stage; on a loaded machine a pointer computed before that
+ * landed 10 units away from where the test meant (a curve drawn from the
+ * wrong point).
+ */
+export async function heldStill(page, at) {
+  let last;
+  for (let i = 0; i < 50; i++) {
+    await settle(page);
+    const now = await stageToClient(page, at);
+    if (last && now[0] === last[0] && now[1] === last[1]) return now;
+    last = now;
+  }
+  throw new Error('the page never held its layout still');
+}
+
 /** Keeps the GL canvas's pixels now as the "before" picture (see changedPixels, changesIn). */
 export async function keepSnapshot(page) {
   await settle(page);

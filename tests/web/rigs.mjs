@@ -13,6 +13,7 @@ import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
 import { chromium } from 'playwright-core';
+import { heldStill } from './page-common.mjs';
 import { removeProfile } from './profile.mjs';
 
 const url = process.env.PUPPETRY_URL;
@@ -78,7 +79,7 @@ try {
   // A paint stroke across the puppet.
   await page.click('#paint-tool');
   const weightsBefore = await page.evaluate(() => window.puppetry.weightsReceived);
-  const [x, y] = await page.evaluate(([sx, sy]) => window.puppetry.stageToClient(sx, sy), point);
+  const [x, y] = await heldStill(page, point);
   await page.mouse.move(x - 40, y);
   await page.mouse.down();
   for (let i = 1; i <= 10; i++) {
