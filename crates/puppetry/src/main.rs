@@ -63,7 +63,8 @@ enum Command {
         #[arg(long)]
         no_replay: bool,
         /// Where pictures a director adds from the page are kept, with
-        /// their meshes (default ./puppets).
+        /// their meshes and placements (default ./puppets); they come back
+        /// on stage when the daemon starts again.
         #[arg(long, value_name = "DIR")]
         puppets: Option<PathBuf>,
     },
