@@ -141,27 +141,8 @@ pub fn client(message: ClientMessage, source: &str, now: f64) -> Result<Converte
             from,
             to,
             t,
-        } => {
-            if !t.is_finite() {
-                return Err(refuse("pose needs a finite t"));
-            }
-            (
-                Change::KeyPose {
-                    puppet,
-                    from,
-                    to,
-                    t,
-                },
-                true,
-            )
-        }
-        ClientMessage::Cursor { puppet, at } => (
-            Change::Cursor {
-                puppet,
-                at: at.map(DVec2::from),
-            },
-            true,
-        ),
+        } => (key_pose(puppet, from, to, t)?, true),
+        ClientMessage::Cursor { puppet, at } => (cursor(puppet, at.map(DVec2::from)), true),
         ClientMessage::KeyAdd { puppet, name, at } => (
             Change::KeyAdd {
                 puppet,
@@ -186,6 +167,26 @@ pub fn client(message: ClientMessage, source: &str, now: f64) -> Result<Converte
         received: None,
         wait,
     })
+}
+
+/// A skeleton set `t` of the way from key pose `from` to `to`, as a
+/// client's `pose` and a show desk's `/pose` and key glides ask.
+pub fn key_pose(puppet: u32, from: String, to: String, t: f64) -> Result<Change, ConvertError> {
+    if !t.is_finite() {
+        return Err(refuse("pose needs a finite t"));
+    }
+    Ok(Change::KeyPose {
+        puppet,
+        from,
+        to,
+        t,
+    })
+}
+
+/// The keyframing cursor moved (pad coordinates) or let go (`None`), from
+/// a client or a show desk.
+pub fn cursor(puppet: u32, at: Option<DVec2>) -> Change {
+    Change::Cursor { puppet, at }
 }
 
 /// A key added without a name is named by the time, so two differ.

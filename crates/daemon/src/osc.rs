@@ -26,7 +26,6 @@ use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, watch};
 use tokio::task::{AbortHandle, JoinHandle};
 
-use puppetry_stage::Change;
 use puppetry_stage::config::OscConfig;
 
 use crate::protocol::{HandleKind, RigDescription};
@@ -967,12 +966,7 @@ async fn key_pose(
     to: String,
     t: f64,
 ) -> Result<(), String> {
-    let change = Change::KeyPose {
-        puppet,
-        from,
-        to,
-        t,
-    };
+    let change = crate::convert::key_pose(puppet, from, to, t).map_err(|e| e.to_string())?;
     ask(commands, |reply| {
         crate::convert::change(change, Some(reply))
     })
@@ -984,7 +978,7 @@ async fn cursor(
     puppet: u32,
     at: Option<DVec2>,
 ) -> Result<(), String> {
-    let change = Change::Cursor { puppet, at };
+    let change = crate::convert::cursor(puppet, at);
     ask(commands, |reply| {
         crate::convert::change(change, Some(reply))
     })
