@@ -909,9 +909,39 @@ impl pulp::WithSimd for GatherRotated<'_> {
     }
 }
 
+/// Per bone, the length its stretch is measured over: at least the bone
+/// and the longest edge of the triangles it carries (see
+/// `stretched_transform`).
+fn bone_reach(
+    segments: &[(DVec2, DVec2)],
+    crossed: &[Vec<u32>],
+    triangles: &[[u32; 3]],
+    rest: &[DVec2],
+) -> Vec<f64> {
+    segments
+        .iter()
+        .zip(crossed)
+        .map(|(&(a, b), carried)| {
+            let mut reach = a.distance(b);
+            for &t in carried {
+                let p = triangles[t as usize].map(|v| rest[v as usize]);
+                for k in 0..3 {
+                    reach = reach.max(p[k].distance(p[(k + 1) % 3]));
+                }
+            }
+            reach
+        })
+        .collect()
+}
+
 impl ShapeAware {
     /// Registration: locates the joints, finds the bones' triangles, orders,
     /// assembles and factors the stitching matrix. The pose is the rest mesh.
+    ///
+    /// Long (about 230 lines) because its phases hand each other a dozen
+    /// per-bone and per-triangle tables; the bones' reach and the
+    /// assembly live in functions of their own, and splitting the rest is
+    /// issue 33's (the house's function sizes).
     pub fn register(
         mesh: &Mesh,
         skeleton: Skeleton,
@@ -1100,22 +1130,7 @@ impl ShapeAware {
                 DMat2::from_cols(d, d * 0.5 + d.perp()).inverse()
             })
             .collect();
-        // A bone's stretch is measured over at least the longest edge of
-        // the triangles it carries (see `stretched_transform`).
-        let reach = segments
-            .iter()
-            .zip(&crossed)
-            .map(|(&(a, b), carried)| {
-                let mut reach = a.distance(b);
-                for &t in carried {
-                    let p = triangles[t as usize].map(|v| rest[v as usize]);
-                    for k in 0..3 {
-                        reach = reach.max(p[k].distance(p[(k + 1) % 3]));
-                    }
-                }
-                reach
-            })
-            .collect();
+        let reach = bone_reach(&segments, &crossed, triangles, &rest);
 
         let factor = assemble_and_factor(
             &pattern,

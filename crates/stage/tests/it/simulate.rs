@@ -316,6 +316,118 @@ impl Show {
         (!parts.is_empty()).then(|| parts.join("; "))
     }
 
+    /// Unpins one of a puppet's pins (or a handle that is none: refused).
+    fn unpin(&mut self, puppet: u8, pick: u8) {
+        let puppet = self.any(puppet);
+        let pins: Vec<u64> = self
+            .stage
+            .puppets()
+            .get(puppet as usize)
+            .map(|p| {
+                p.handles()
+                    .iter()
+                    .filter(|h| h.kind == HandleKind::Pin)
+                    .map(|h| h.id)
+                    .collect()
+            })
+            .unwrap_or_default();
+        let handle = pins.get(pick as usize % pins.len().max(1)).copied();
+        self.apply(Change::Unpin {
+            puppet,
+            handle: handle.unwrap_or(u64::from(pick)),
+        });
+    }
+
+    /// Undo then redo, checked to give back the same state.
+    fn undo_redo(&mut self, puppet: u8) -> Result<(), String> {
+        let Some(puppet) = self.live(puppet) else {
+            return Ok(());
+        };
+        // The depth shown follows painted layers at the next solve.
+        self.solve();
+        let before = self.state(puppet);
+        if let Ok(Some(change)) = self.stage.undo(puppet) {
+            self.apply(change);
+            let change = self.stage.redo(puppet).map_err(|e| e.to_string())?;
+            let change = change.ok_or("redo after an undo had nothing to redo")?;
+            self.apply(change);
+            self.solve();
+            let after = self.state(puppet);
+            if let Some(changed) = Show::differences(&before, &after) {
+                return Err(format!(
+                    "undo then redo of puppet {puppet} changed {changed}"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// A key pose between two names, the skeleton's own or none.
+    fn key_pose(&mut self, puppet: u8, from: u8, to: u8, t: f64) {
+        let puppet = self.any(puppet);
+        let mut names = vec!["rest".to_string(), "nowhere".to_string()];
+        if let Some(Rig::Skeleton(s)) = self.stage.puppets().get(puppet as usize).map(|p| p.rig()) {
+            names.extend(s.pose_names().into_iter().map(String::from));
+        }
+        self.apply(Change::KeyPose {
+            puppet,
+            from: names[from as usize % names.len()].clone(),
+            to: names[to as usize % names.len()].clone(),
+            t,
+        });
+    }
+
+    /// A rebuild landing, or the line-up changing.
+    fn lineup(&mut self, op: &Op) -> Result<(), String> {
+        match op {
+            Op::Land => {
+                if let Some(rebuild) = self.rebuilds.pop_front() {
+                    let arap = Arap::register(&rebuild.mesh).map_err(|e| e.to_string())?;
+                    self.log.push(Step::Install {
+                        puppet: rebuild.puppet,
+                        generation: rebuild.generation,
+                        mesh: rebuild.mesh.clone(),
+                    });
+                    if let Some(next) = self.stage.install(rebuild.puppet, rebuild.generation, arap)
+                    {
+                        self.rebuilds.push_back(next);
+                    }
+                }
+            }
+            Op::Remove { puppet } => {
+                if let Some(puppet) = self.live(*puppet) {
+                    // The daemon refuses to empty the stage; so does the show.
+                    if self.stage.on_stage().count() > 1 && self.stage.remove_puppet(puppet).is_ok()
+                    {
+                        self.log.push(Step::Remove(puppet));
+                    }
+                }
+            }
+            Op::Reorder { seed } => {
+                let mut order: Vec<u32> = self.stage.on_stage().map(|p| p.id).collect();
+                let n = order.len();
+                if n > 1 {
+                    order.rotate_left(*seed as usize % n);
+                    if *seed % 2 == 1 {
+                        order.swap(0, n - 1);
+                    }
+                }
+                if self.stage.set_order(&order).is_ok() {
+                    self.log.push(Step::Reorder(order));
+                }
+            }
+            Op::Add { puppet } if self.stage.puppets().len() < 6 => {
+                let index = *puppet as usize % self.config.puppets.len();
+                add(&mut self.stage, &self.config, index);
+                self.log.push(Step::Add(index));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// One step, then the invariants. One arm per op, each a change or a
+    /// call out; long only because a show does many things.
     fn step(&mut self, op: &Op) -> Result<(), String> {
         match op {
             Op::Touch { source, finger, at } => {
@@ -349,26 +461,7 @@ impl Show {
                     at,
                 });
             }
-            Op::Unpin { puppet, pick } => {
-                let puppet = self.any(*puppet);
-                let pins: Vec<u64> = self
-                    .stage
-                    .puppets()
-                    .get(puppet as usize)
-                    .map(|p| {
-                        p.handles()
-                            .iter()
-                            .filter(|h| h.kind == HandleKind::Pin)
-                            .map(|h| h.id)
-                            .collect()
-                    })
-                    .unwrap_or_default();
-                let handle = pins.get(*pick as usize % pins.len().max(1)).copied();
-                self.apply(Change::Unpin {
-                    puppet,
-                    handle: handle.unwrap_or(u64::from(*pick)),
-                });
-            }
+            Op::Unpin { puppet, pick } => self.unpin(*puppet, *pick),
             Op::Flip { at } => {
                 let at = self.point(at);
                 self.apply(Change::DepthFlip { at });
@@ -413,27 +506,7 @@ impl Show {
                     self.apply(change);
                 }
             }
-            Op::UndoRedo { puppet } => {
-                let Some(puppet) = self.live(*puppet) else {
-                    return Ok(());
-                };
-                // The depth shown follows painted layers at the next solve.
-                self.solve();
-                let before = self.state(puppet);
-                if let Ok(Some(change)) = self.stage.undo(puppet) {
-                    self.apply(change);
-                    let change = self.stage.redo(puppet).map_err(|e| e.to_string())?;
-                    let change = change.ok_or("redo after an undo had nothing to redo")?;
-                    self.apply(change);
-                    self.solve();
-                    let after = self.state(puppet);
-                    if let Some(changed) = Show::differences(&before, &after) {
-                        return Err(format!(
-                            "undo then redo of puppet {puppet} changed {changed}"
-                        ));
-                    }
-                }
-            }
+            Op::UndoRedo { puppet } => self.undo_redo(*puppet)?,
             Op::Reset { puppet } => {
                 let Some(puppet) = self.live(*puppet) else {
                     return Ok(());
@@ -450,21 +523,7 @@ impl Show {
                 from,
                 to,
                 t,
-            } => {
-                let puppet = self.any(*puppet);
-                let mut names = vec!["rest".to_string(), "nowhere".to_string()];
-                if let Some(Rig::Skeleton(s)) =
-                    self.stage.puppets().get(puppet as usize).map(|p| p.rig())
-                {
-                    names.extend(s.pose_names().into_iter().map(String::from));
-                }
-                self.apply(Change::KeyPose {
-                    puppet,
-                    from: names[*from as usize % names.len()].clone(),
-                    to: names[*to as usize % names.len()].clone(),
-                    t: *t,
-                });
-            }
+            } => self.key_pose(*puppet, *from, *to, *t),
             Op::Cursor { puppet, at } => {
                 self.apply(Change::Cursor {
                     puppet: self.any(*puppet),
@@ -497,48 +556,8 @@ impl Show {
                     self.rebuilds.push_back(rebuild);
                 }
             }
-            Op::Land => {
-                if let Some(rebuild) = self.rebuilds.pop_front() {
-                    let arap = Arap::register(&rebuild.mesh).map_err(|e| e.to_string())?;
-                    self.log.push(Step::Install {
-                        puppet: rebuild.puppet,
-                        generation: rebuild.generation,
-                        mesh: rebuild.mesh.clone(),
-                    });
-                    if let Some(next) = self.stage.install(rebuild.puppet, rebuild.generation, arap)
-                    {
-                        self.rebuilds.push_back(next);
-                    }
-                }
-            }
-            Op::Remove { puppet } => {
-                if let Some(puppet) = self.live(*puppet) {
-                    // The daemon refuses to empty the stage; so does the show.
-                    if self.stage.on_stage().count() > 1 && self.stage.remove_puppet(puppet).is_ok()
-                    {
-                        self.log.push(Step::Remove(puppet));
-                    }
-                }
-            }
-            Op::Reorder { seed } => {
-                let mut order: Vec<u32> = self.stage.on_stage().map(|p| p.id).collect();
-                let n = order.len();
-                if n > 1 {
-                    order.rotate_left(*seed as usize % n);
-                    if *seed % 2 == 1 {
-                        order.swap(0, n - 1);
-                    }
-                }
-                if self.stage.set_order(&order).is_ok() {
-                    self.log.push(Step::Reorder(order));
-                }
-            }
-            Op::Add { puppet } => {
-                if self.stage.puppets().len() < 6 {
-                    let index = *puppet as usize % self.config.puppets.len();
-                    add(&mut self.stage, &self.config, index);
-                    self.log.push(Step::Add(index));
-                }
+            Op::Land | Op::Remove { .. } | Op::Reorder { .. } | Op::Add { .. } => {
+                self.lineup(op)?
             }
             Op::Solve => self.solve(),
         }
