@@ -1,0 +1,2 @@
+//! Exports: the output size an export may reach, computed from the take
+//! before anything is allocated.
