@@ -55,6 +55,14 @@ pub enum TuioError {
     Bundle { problem: String },
     #[error("tuio: already tracking {MAX_SOURCES} sources; refusing new source `{name}`")]
     TooManySources { name: String },
+    /// Past the contacts budget (`puppetry_limits::contacts`): the whole
+    /// datagram is skipped, never cut (a cut frame would lose a lift).
+    #[error("tuio: {count} {what}: at most {limit} (docs/limits.md)")]
+    TooManyContacts {
+        what: &'static str,
+        count: usize,
+        limit: usize,
+    },
     #[error("tuio: {0}")]
     Calibration(#[from] CalibrationError),
     #[error("tuio: receiving from the socket: {0}")]
@@ -175,6 +183,7 @@ impl TuioTracker {
         let (_, packet) =
             rosc::decoder::decode_udp(datagram).map_err(|e| TuioError::Osc(e.to_string()))?;
         let snapshots = parse_packet(&packet)?;
+        within_budget(&snapshots)?;
         let new_sources: HashSet<SourceId> = snapshots
             .iter()
             .map(Snapshot::source_id)
@@ -255,6 +264,36 @@ impl TuioTracker {
             contacts,
         })
     }
+}
+
+/// A datagram's frames within the contacts budget: pointers and alive ids
+/// over the whole datagram, and alive ids per frame (what its source holds).
+/// Checked before any frame is applied, so a refused datagram changes
+/// nothing.
+fn within_budget(snapshots: &[Snapshot]) -> Result<(), TuioError> {
+    use puppetry_limits::contacts::{MAX_TUIO_CONTACTS_PER_DATAGRAM, MAX_TUIO_HELD_PER_SOURCE};
+    let stated: usize = snapshots
+        .iter()
+        .map(|s| s.pointers.len() + s.alive.len())
+        .sum();
+    if stated > MAX_TUIO_CONTACTS_PER_DATAGRAM {
+        return Err(TuioError::TooManyContacts {
+            what: "pointers and alive ids in one datagram",
+            count: stated,
+            limit: MAX_TUIO_CONTACTS_PER_DATAGRAM,
+        });
+    }
+    for snapshot in snapshots {
+        let alive: HashSet<i32> = snapshot.alive.iter().copied().collect();
+        if alive.len() > MAX_TUIO_HELD_PER_SOURCE {
+            return Err(TuioError::TooManyContacts {
+                what: "contacts alive in one source's frame",
+                count: alive.len(),
+                limit: MAX_TUIO_HELD_PER_SOURCE,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// TUIO session ids are OSC int32s; reinterpreting the bits keeps distinct
@@ -544,5 +583,90 @@ pub async fn run_udp(
                 return Ok(());
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use puppetry_limits::contacts::{MAX_TUIO_CONTACTS_PER_DATAGRAM, MAX_TUIO_HELD_PER_SOURCE};
+
+    /// A TUIO 1.1 frame with `fingers` pointers alive, as one datagram.
+    fn frame(source: &str, fingers: i32, fseq: i32) -> Vec<u8> {
+        let message = |args: Vec<OscType>| {
+            OscPacket::Message(OscMessage {
+                addr: "/tuio/2Dcur".into(),
+                args,
+            })
+        };
+        let mut content = vec![
+            message(vec!["source".into(), source.into()]),
+            message(
+                std::iter::once(OscType::from("alive"))
+                    .chain((0..fingers).map(OscType::Int))
+                    .collect(),
+            ),
+        ];
+        for s in 0..fingers {
+            content.push(message(vec![
+                "set".into(),
+                OscType::Int(s),
+                OscType::Float(0.5),
+                OscType::Float(0.5),
+                OscType::Float(0.0),
+                OscType::Float(0.0),
+                OscType::Float(0.0),
+            ]));
+        }
+        content.push(message(vec!["fseq".into(), OscType::Int(fseq)]));
+        let bundle = OscPacket::Bundle(rosc::OscBundle {
+            timetag: rosc::OscTime {
+                seconds: 0,
+                fractional: 1,
+            },
+            content,
+        });
+        rosc::encoder::encode(&bundle).unwrap()
+    }
+
+    #[test]
+    fn a_datagram_past_the_contacts_budget_is_refused_whole() {
+        let calibration = default_calibration(DVec2::new(100.0, 100.0)).unwrap();
+        let mut tracker = TuioTracker::new(calibration);
+        // A table's worth is taken.
+        let frames = tracker.push(&frame("table", 10, 1), 0.0).unwrap();
+        assert_eq!(frames[0].contacts.len(), 10);
+        // More alive in one source's frame than a source may hold.
+        let fingers = MAX_TUIO_HELD_PER_SOURCE as i32 + 1;
+        let error = tracker.push(&frame("table", fingers, 2), 0.1).unwrap_err();
+        assert!(
+            matches!(error, TuioError::TooManyContacts { count, .. } if count == fingers as usize),
+            "{error}"
+        );
+        // More than a datagram may state, over two sources' frames.
+        let half = MAX_TUIO_CONTACTS_PER_DATAGRAM as i32 / 4 + 1;
+        let packets = [frame("a", half, 1), frame("b", half, 1)];
+        let bundle = OscPacket::Bundle(rosc::OscBundle {
+            timetag: rosc::OscTime {
+                seconds: 0,
+                fractional: 1,
+            },
+            content: packets
+                .iter()
+                .map(|p| rosc::decoder::decode_udp(p).unwrap().1)
+                .collect(),
+        });
+        let error = tracker
+            .push(&rosc::encoder::encode(&bundle).unwrap(), 0.2)
+            .unwrap_err();
+        assert!(
+            matches!(error, TuioError::TooManyContacts { limit, .. } if limit == MAX_TUIO_CONTACTS_PER_DATAGRAM),
+            "{error}"
+        );
+        // Nothing of the refused datagrams was applied: the ten are still
+        // held, unmoved, and lift together.
+        let frames = tracker.push(&frame("table", 0, 3), 0.3).unwrap();
+        assert_eq!(frames[0].contacts.len(), 10);
+        assert!(frames[0].contacts.iter().all(|c| c.phase == Phase::Up));
     }
 }
