@@ -801,19 +801,12 @@ impl Taking {
 /// channel) is how solver rebuilds come back.
 pub fn spawn(
     config: StageConfig,
-    mut stage: Stage,
+    stage: Stage,
     mut commands: mpsc::Receiver<Command>,
     wake: mpsc::WeakSender<Command>,
     takes: TakeSettings,
 ) -> (Outputs, JoinHandle<()>) {
-    let StageLoop {
-        mut publisher,
-        mut taking,
-        mut cursors,
-        mut batch,
-        lineup: lineup_tx,
-        outputs,
-    } = StageLoop::new(config, &mut stage, takes);
+    let (mut driver, outputs) = StageDriver::new(config, stage, takes, wake);
     let pool = solve_pool();
     let thread = std::thread::Builder::new()
         .name("stage".into())
@@ -824,81 +817,166 @@ pub fn spawn(
             // waiting, and no other user of rayon's global pool competes.
             pool.install(move || {
                 while let Some(first) = commands.blocking_recv() {
-                    batch.started = Instant::now();
+                    driver.begin();
                     let mut next = Some(first);
                     while let Some(command) = next.take() {
-                        if let Command::Lineup { change, reply } = command {
-                            // What came before lands on the old lineup.
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                            let result = change_lineup(
-                                &mut stage,
-                                &mut publisher,
-                                &taking,
-                                &lineup_tx,
-                                change,
-                            );
-                            let _ = reply.send(result);
-                            batch.dirty = true;
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                        } else if let Command::Played { changes, received } = command {
-                            // A played step is solved on its own, as it was
-                            // when it was recorded.
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                            for change in changes {
-                                taking.note_played(&change);
-                                batch.apply(&mut stage, &mut taking, change, None, &wake);
-                            }
-                            batch.newest = received;
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                        } else if let Command::PlayEnded { name } = command {
-                            // What came before is solved (and recorded) first;
-                            // the take's sources let go in a step of their
-                            // own, recorded into an overdub before it stops.
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                            batch.let_go_of_played(&mut stage, &mut taking, Some(&name), &wake);
-                            batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                            taking.ended(&mut stage, &name, &publisher.changes);
-                        } else {
-                            if matches!(
-                                command,
-                                Command::StartTake { .. } | Command::StopTake { .. }
-                            ) {
-                                // What came before belongs to the take
-                                // stopping (or to none, not the take
-                                // starting): solve and record it first.
-                                batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
-                            }
-                            batch.command(
-                                &mut stage,
-                                &mut taking,
-                                &mut cursors,
-                                command,
-                                &wake,
-                                &publisher.changes,
-                            );
-                        }
-                        if batch.stop {
-                            break;
+                        driver.command(command);
+                        if driver.stopped() {
+                            // Dropping the publisher tells every client to close.
+                            driver.shut_down();
+                            return;
                         }
                         // Catch up: apply everything already waiting, solve once.
                         next = commands.try_recv().ok();
                     }
-                    if batch.stop {
-                        if taking.recorder.is_some() {
-                            let _ = taking.stop(&mut stage, "shutdown");
-                        }
-                        // Dropping the publisher tells every client to close.
-                        return;
-                    }
-                    batch.finish(&mut stage, &mut publisher, &mut taking, &cursors);
+                    driver.finish();
                 }
-                if taking.recorder.is_some() {
-                    let _ = taking.stop(&mut stage, "shutdown");
-                }
+                driver.shut_down();
             });
         })
         .expect("spawn the stage thread");
     (outputs, thread)
+}
+
+/// The stage thread's loop, one command at a time: [`spawn`] runs it on
+/// its thread, draining the command channel and solving once per batch; a
+/// simulated show drives it by hand, so it runs exactly the code a show
+/// does (takes recorded, played, overdubbed and stopped included) with the
+/// interleavings chosen by the test.
+pub struct StageDriver {
+    stage: Stage,
+    publisher: Publisher,
+    taking: Taking,
+    cursors: BTreeMap<String, CursorState>,
+    batch: Batch,
+    lineup: watch::Sender<Arc<Lineup>>,
+    wake: mpsc::WeakSender<Command>,
+}
+
+impl StageDriver {
+    /// The loop for `stage`, solved once (pins from the stage file are
+    /// handles before any input), and what it publishes. Solver rebuilds
+    /// come back through `wake` as [`Command::Rebuilt`].
+    pub fn new(
+        config: StageConfig,
+        mut stage: Stage,
+        takes: TakeSettings,
+        wake: mpsc::WeakSender<Command>,
+    ) -> (StageDriver, Outputs) {
+        let StageLoop {
+            publisher,
+            taking,
+            cursors,
+            batch,
+            lineup,
+            outputs,
+        } = StageLoop::new(config, &mut stage, takes);
+        let driver = StageDriver {
+            stage,
+            publisher,
+            taking,
+            cursors,
+            batch,
+            lineup,
+            wake,
+        };
+        (driver, outputs)
+    }
+
+    /// The stage as the last command left it.
+    pub fn stage(&self) -> &Stage {
+        &self.stage
+    }
+
+    /// The take being recorded, if any.
+    pub fn recording(&self) -> Option<&str> {
+        self.taking.recorder.as_ref().map(|r| r.name())
+    }
+
+    /// A batch of commands begins (for the timings).
+    pub fn begin(&mut self) {
+        self.batch.started = Instant::now();
+    }
+
+    /// Whether a [`Command::Stop`] came.
+    pub fn stopped(&self) -> bool {
+        self.batch.stop
+    }
+
+    /// Applies one command. Most wait for [`StageDriver::finish`] to be
+    /// solved with the rest of their batch; a line-up change, a played step
+    /// and a take's start, stop or end solve what came before them first,
+    /// so each lands on the stage (and in the take) it belongs to.
+    pub fn command(&mut self, command: Command) {
+        let StageDriver {
+            stage,
+            publisher,
+            taking,
+            cursors,
+            batch,
+            lineup,
+            wake,
+        } = self;
+        match command {
+            Command::Lineup { change, reply } => {
+                // What came before lands on the old lineup.
+                batch.finish(stage, publisher, taking, cursors);
+                let result = change_lineup(stage, publisher, taking, lineup, change);
+                let _ = reply.send(result);
+                batch.dirty = true;
+                batch.finish(stage, publisher, taking, cursors);
+            }
+            Command::Played { changes, received } => {
+                // A played step is solved on its own, as it was when it
+                // was recorded.
+                batch.finish(stage, publisher, taking, cursors);
+                for change in changes {
+                    taking.note_played(&change);
+                    batch.apply(stage, taking, change, None, wake);
+                }
+                batch.newest = received;
+                batch.finish(stage, publisher, taking, cursors);
+            }
+            Command::PlayEnded { name } => {
+                // What came before is solved (and recorded) first; the
+                // take's sources let go in a step of their own, recorded
+                // into an overdub before it stops.
+                batch.finish(stage, publisher, taking, cursors);
+                batch.let_go_of_played(stage, taking, Some(&name), wake);
+                batch.finish(stage, publisher, taking, cursors);
+                taking.ended(stage, &name, &publisher.changes);
+            }
+            command => {
+                if matches!(
+                    command,
+                    Command::StartTake { .. } | Command::StopTake { .. }
+                ) {
+                    // What came before belongs to the take stopping (or to
+                    // none, not the take starting): solve and record it
+                    // first.
+                    batch.finish(stage, publisher, taking, cursors);
+                }
+                batch.command(stage, taking, cursors, command, wake, &publisher.changes);
+            }
+        }
+    }
+
+    /// Solves what the batch applied, publishes it and records it.
+    pub fn finish(&mut self) {
+        self.batch.finish(
+            &mut self.stage,
+            &mut self.publisher,
+            &mut self.taking,
+            &self.cursors,
+        );
+    }
+
+    /// The loop ends: the take being recorded stops ("shutdown").
+    pub fn shut_down(&mut self) {
+        if self.taking.recorder.is_some() {
+            let _ = self.taking.stop(&mut self.stage, "shutdown");
+        }
+    }
 }
 
 /// The threads the stage thread's loop and its puppets' solves run on: one

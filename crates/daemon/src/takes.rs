@@ -127,12 +127,8 @@ pub fn play(
     commands: mpsc::Sender<Command>,
     started: Instant,
 ) -> Result<Player, PlayError> {
-    let reader = TakeReader::open(path)?;
-    check(&reader.header.puppets, puppets).map_err(|problem| PlayError::Stage {
-        file: path.display().to_string(),
-        problem,
-    })?;
-    let name = reader.header.name.clone();
+    let playback = Playback::open(path, puppets, options)?;
+    let name = playback.name().to_string();
     let stop = Arc::new(AtomicBool::new(false));
     let stopping = stop.clone();
     let label = name.clone();
@@ -168,7 +164,7 @@ pub fn play(
                 name: &label,
                 commands: &commands,
             };
-            run(reader, &label, &options, &commands, started, &stopping)
+            run(playback, &commands, started, &stopping)
         })
         .map_err(PlayError::Thread)?;
     Ok(Player {
@@ -200,27 +196,23 @@ fn check(recorded: &[PuppetInfo], stage: &[PuppetInfo]) -> Result<(), String> {
     Ok(())
 }
 
+/// Plays `playback` into the stage at its recorded times (or at once).
 fn run(
-    reader: TakeReader,
-    name: &str,
-    options: &PlayOptions,
+    mut playback: Playback,
     commands: &mpsc::Sender<Command>,
     started: Instant,
     stop: &AtomicBool,
 ) -> Result<usize, PlayError> {
     let began = Instant::now();
-    let mut filter = Filter::new(name, options);
     let mut played = 0;
-    let file = reader.file().to_string();
-    for record in reader {
+    let fast = playback.filter.options.fast;
+    while let Some(step) = playback.next_step() {
         if stop.load(Ordering::Relaxed) {
             break;
         }
-        let Record::Step(step) = record? else {
-            continue;
-        };
-        if !options.fast {
-            let due = began + Duration::from_secs_f64(step.t.max(0.0));
+        let (t, changes) = step?;
+        if !fast {
+            let due = began + Duration::from_secs_f64(t.max(0.0));
             // Sleep in short slices so a stop request is heard.
             while let Some(wait) = due.checked_duration_since(Instant::now()) {
                 if stop.load(Ordering::Relaxed) {
@@ -229,33 +221,86 @@ fn run(
                 std::thread::sleep(wait.min(Duration::from_millis(50)));
             }
         }
-        let changes = filter.step(step);
-        if changes.is_empty() {
-            continue;
-        }
         let received = started.elapsed().as_secs_f64();
         if commands
             .blocking_send(Command::Played { changes, received })
             .is_err()
         {
-            return Err(PlayError::StageStopped { file });
+            return Err(PlayError::StageStopped {
+                file: playback.file,
+            });
         }
         played += 1;
     }
-    tracing::info!("take {name}: played {played} steps");
+    tracing::info!("take {}: played {played} steps", playback.name);
     Ok(played)
 }
 
+/// A take read step by step as the stage plays it: each recorded step
+/// becomes the changes one played step applies, its sources renamed and
+/// what is replaced left out. The player thread paces it at the recorded
+/// times; a simulated show steps it by hand between its other commands.
+pub struct Playback {
+    name: String,
+    file: String,
+    reader: TakeReader,
+    filter: Filter,
+}
+
+impl Playback {
+    /// Opens the take at `path` and checks it against the stage's puppets.
+    pub fn open(
+        path: &Path,
+        puppets: &[PuppetInfo],
+        options: PlayOptions,
+    ) -> Result<Playback, PlayError> {
+        let reader = TakeReader::open(path)?;
+        check(&reader.header.puppets, puppets).map_err(|problem| PlayError::Stage {
+            file: path.display().to_string(),
+            problem,
+        })?;
+        let name = reader.header.name.clone();
+        Ok(Playback {
+            file: reader.file().to_string(),
+            filter: Filter::new(&name, options),
+            name,
+            reader,
+        })
+    }
+
+    /// The take's name (its sources play as `NAME/SOURCE`).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The next step that changes anything: its recorded time and its
+    /// changes (`None` at the take's end).
+    pub fn next_step(&mut self) -> Option<Result<(f64, Vec<Change>), PlayError>> {
+        loop {
+            let step = match self.reader.next()? {
+                Ok(Record::Step(step)) => step,
+                Ok(_) => continue,
+                Err(e) => return Some(Err(e.into())),
+            };
+            let t = step.t;
+            let changes = self.filter.step(step);
+            if !changes.is_empty() {
+                return Some(Ok((t, changes)));
+            }
+        }
+    }
+}
+
 /// Renames a played take's sources and leaves out what is replaced.
-struct Filter<'a> {
+struct Filter {
     prefix: String,
-    options: &'a PlayOptions,
+    options: PlayOptions,
     /// Recorded (source, contact) left out until they lift.
     muted: HashSet<(String, u32)>,
 }
 
-impl<'a> Filter<'a> {
-    fn new(name: &str, options: &'a PlayOptions) -> Filter<'a> {
+impl Filter {
+    fn new(name: &str, options: PlayOptions) -> Filter {
         Filter {
             prefix: format!("{name}/"),
             options,

@@ -21,6 +21,7 @@ mod relay;
 mod rigs;
 mod roles;
 mod serve;
+mod show;
 mod stage_state;
 mod takes;
 mod web;

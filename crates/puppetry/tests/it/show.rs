@@ -1,0 +1,740 @@
+//! A simulated show through the daemon's stage thread: seeded, shrinking
+//! random interleavings of what a show does to it — fingers from several
+//! sources, sources vanishing mid-contact, pins, resets, undo and redo,
+//! stiffness painted and solvers rebuilt on a worker, puppets removed and
+//! reordered, and above all takes: recorded (by hand or by `serve
+//! --record`'s first input), stopped with fingers down, played step by
+//! step, overdubbed with a source or a region replaced, and stopped in the
+//! middle. Every step is a [`Command`] handed to the
+//! [`StageDriver`] — the code the stage thread runs — and played takes come
+//! from [`Playback`], the code the player thread runs, so only the pacing
+//! is the test's.
+//!
+//! After every step: every vertex finite and within ten times the stage's
+//! size; once no finger is down and no take plays, no contact handle and
+//! nothing a played take held remains; when a take ends, nothing of it
+//! remains. At the end every take reads to its end intact, and every take
+//! that began on a fresh stage replays bit for bit (`takes --verify`).
+//!
+//! (The stage crate's `simulate` drives the stage itself, on every rig and
+//! with more kinds of change; this one is about what the stage thread adds.)
+//! A failure writes its shrunk sequence to `target/show-failure-<stage>.json`;
+//! copied into `tests/fixtures/show/` it is replayed by
+//! `simulated_show_failures_stay_fixed` for ever after.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use glam::DVec2;
+use proptest::prelude::*;
+use puppetry_daemon::lineup::LineupChange;
+use puppetry_daemon::stage_thread::{Command, Edit, StageDriver, TakeSettings};
+use puppetry_daemon::takes::{PlayOptions, Playback};
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_stage::config::StageConfig;
+use puppetry_stage::{Change, HandleKind, Owner, Stage};
+use serde::{Deserialize, Serialize};
+use tokio::sync::{mpsc, oneshot};
+
+/// The stages a show is simulated on: a free puppet, a grid, a skeleton
+/// with key poses, a rope with a puppet (two puppets), a keyframed stage.
+const STAGES: [&str; 5] = ["demo", "grid", "skeleton", "curve", "keyframe"];
+
+/// The live sources: a touch table, a performer's browser, a relay.
+const SOURCES: [&str; 3] = ["table", "client:7", "relay:hall:3"];
+
+/// Where a contact, a pin or a brush lands: fractions of the stage, or a
+/// puppet's rest vertex (the outline, pins and other fingers a hair away).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "on", rename_all = "snake_case")]
+enum Spot {
+    Stage {
+        x: f64,
+        y: f64,
+    },
+    Vertex {
+        puppet: u8,
+        vertex: u32,
+        dx: f64,
+        dy: f64,
+    },
+}
+
+/// What a played take leaves out for the live performer.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "replace", rename_all = "snake_case")]
+enum Replace {
+    Nothing,
+    Source { source: u8 },
+    Region { at: Spot, radius: f64 },
+}
+
+/// One thing a show does to the stage thread.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "op", rename_all = "snake_case")]
+enum Op {
+    Touch {
+        source: u8,
+        finger: u8,
+        at: Spot,
+    },
+    Lift {
+        source: u8,
+        finger: u8,
+    },
+    Gone {
+        source: u8,
+    },
+    Pin {
+        at: Spot,
+    },
+    Paint {
+        puppet: u8,
+        at: Spot,
+        strength: f64,
+    },
+    /// Rebuilt solvers that reached the channel land.
+    Land,
+    Undo {
+        puppet: u8,
+    },
+    Redo {
+        puppet: u8,
+    },
+    Reset {
+        puppet: u8,
+    },
+    Remove {
+        puppet: u8,
+    },
+    Reorder {
+        seed: u8,
+    },
+    Record,
+    StopRecording,
+    /// A finished take starts playing; `overdub`: recorded over as it
+    /// plays, as the page's overdub does.
+    Play {
+        take: u8,
+        overdub: bool,
+        replace: Replace,
+    },
+    /// The take playing plays its next steps (and ends after its last).
+    PlaySteps {
+        steps: u8,
+    },
+    /// The take playing is stopped in the middle.
+    StopPlaying,
+    /// The stage thread catches up: it solves, publishes and records.
+    Frame,
+}
+
+/// What the simulated shows did, over every sequence run in this process
+/// (printed with `--nocapture`: a run that never plays a take checks
+/// little).
+#[derive(Default)]
+struct Tally {
+    steps: AtomicUsize,
+    played: AtomicUsize,
+    overdubs: AtomicUsize,
+    stopped_mid_way: AtomicUsize,
+    played_out: AtomicUsize,
+    verified_exactly: AtomicUsize,
+}
+
+static TALLY: Tally = Tally {
+    steps: AtomicUsize::new(0),
+    played: AtomicUsize::new(0),
+    overdubs: AtomicUsize::new(0),
+    stopped_mid_way: AtomicUsize::new(0),
+    played_out: AtomicUsize::new(0),
+    verified_exactly: AtomicUsize::new(0),
+};
+
+fn count(counter: &AtomicUsize) {
+    counter.fetch_add(1, Ordering::Relaxed);
+}
+
+/// A failing sequence, as written for replay.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Sequence {
+    stage: String,
+    record_from_first_input: bool,
+    ops: Vec<Op>,
+}
+
+/// The take playing: its name and the rest of it.
+struct Playing {
+    name: String,
+    playback: Playback,
+}
+
+/// A show in progress: the driver, what the performers hold down, the take
+/// playing, the takes finished.
+struct Show {
+    config: StageConfig,
+    driver: StageDriver,
+    /// Keeps the channel rebuilt solvers come back on open.
+    _wake: mpsc::Sender<Command>,
+    rebuilt: mpsc::Receiver<Command>,
+    dir: tempfile::TempDir,
+    down: std::collections::BTreeSet<(u8, u8)>,
+    playing: Option<Playing>,
+    recording: bool,
+    time: f64,
+}
+
+fn config(stage: &str) -> StageConfig {
+    let root = puppetry_testkit::root();
+    StageConfig::load(&root.join(format!("config/{stage}.toml"))).unwrap()
+}
+
+impl Show {
+    fn new(stage: &str, record_from_first_input: bool) -> Show {
+        let config = config(stage);
+        let dir = tempfile::tempdir().unwrap();
+        let takes = TakeSettings {
+            dir: dir.path().to_path_buf(),
+            stage_file: config.file.clone(),
+            record_from_first_input,
+        };
+        let (wake, rebuilt) = mpsc::channel(64);
+        let built = Stage::from_config(&config).unwrap();
+        let (driver, _outputs) = StageDriver::new(config.clone(), built, takes, wake.downgrade());
+        Show {
+            config,
+            driver,
+            _wake: wake,
+            rebuilt,
+            dir,
+            down: Default::default(),
+            playing: None,
+            recording: record_from_first_input,
+            time: 0.0,
+        }
+    }
+
+    fn stage(&self) -> &Stage {
+        self.driver.stage()
+    }
+
+    fn point(&self, spot: &Spot) -> DVec2 {
+        let stage = self.stage();
+        match *spot {
+            Spot::Stage { x, y } => DVec2::new(x * stage.width, y * stage.height),
+            Spot::Vertex {
+                puppet,
+                vertex,
+                dx,
+                dy,
+            } => {
+                let p = &stage.puppets()[puppet as usize % stage.puppets().len()];
+                let v = p.mesh.vertices();
+                v[vertex as usize % v.len()] + DVec2::new(dx, dy)
+            }
+        }
+    }
+
+    /// A puppet on stage by a pick.
+    fn live(&self, pick: u8) -> Option<u32> {
+        let live: Vec<u32> = self.stage().on_stage().map(|p| p.id).collect();
+        (!live.is_empty()).then(|| live[pick as usize % live.len()])
+    }
+
+    fn change(&mut self, change: Change) {
+        self.driver.command(Command::Change {
+            change,
+            received: Some(self.time),
+            reply: None,
+        });
+    }
+
+    fn frame(&mut self, source: u8, contact: Contact) {
+        self.time += 0.01;
+        let frame = ContactFrame {
+            source: SourceId::new(SOURCES[source as usize]),
+            time: self.time,
+            contacts: vec![contact],
+        };
+        self.driver
+            .command(puppetry_daemon::convert::frame(frame, self.time));
+    }
+
+    /// Sends a command that answers, and takes its answer (the driver
+    /// answers before it returns).
+    fn ask<T>(&mut self, command: impl FnOnce(oneshot::Sender<T>) -> Command) -> Option<T> {
+        let (tx, mut rx) = oneshot::channel();
+        self.driver.command(command(tx));
+        rx.try_recv().ok()
+    }
+
+    fn takes(&self) -> Vec<PathBuf> {
+        let mut takes: Vec<PathBuf> = std::fs::read_dir(self.dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "take"))
+            .collect();
+        takes.sort();
+        takes
+    }
+
+    /// The take recording, if any, by the take state the driver publishes.
+    fn record(&mut self, layers: Vec<String>) -> bool {
+        let started = self.ask(|reply| Command::StartTake {
+            name: None,
+            layers,
+            reply,
+        });
+        let started = matches!(started, Some(Ok(_)));
+        self.recording |= started;
+        started
+    }
+
+    fn stop_recording(&mut self) {
+        let _ = self.ask(|reply| Command::StopTake { reply });
+        self.recording = false;
+    }
+
+    fn play(&mut self, take: u8, overdub: bool, replace: &Replace) -> Result<(), String> {
+        if self.playing.is_some() {
+            return Ok(());
+        }
+        let takes = self.takes();
+        let Some(path) = takes.get(take as usize % takes.len().max(1)).cloned() else {
+            return Ok(());
+        };
+        let mut options = PlayOptions {
+            fast: true,
+            ..PlayOptions::default()
+        };
+        match replace {
+            Replace::Nothing => {}
+            Replace::Source { source } => options
+                .replace_sources
+                .push(SOURCES[*source as usize % SOURCES.len()].to_string()),
+            Replace::Region { at, radius } => {
+                let at = self.point(at);
+                let Some(puppet) = self.live(0) else {
+                    return Ok(());
+                };
+                options.replace.push(puppetry_daemon::protocol::Region {
+                    puppet,
+                    at: at.into(),
+                    radius: *radius,
+                });
+            }
+        }
+        let puppets = puppetry_take::Header::of_stage("", "", self.stage(), true).puppets;
+        // A take recorded before the line-up changed no longer fits: a
+        // typed refusal, as the page shows it.
+        let Ok(playback) = Playback::open(&path, &puppets, options) else {
+            return Ok(());
+        };
+        let name = playback.name().to_string();
+        let overdubbing = overdub && !self.recording && self.record(vec![name.clone()]);
+        let answer = self.ask(|reply| Command::PlayStarting {
+            name: name.clone(),
+            path: path.clone(),
+            reply,
+        });
+        match answer {
+            Some(Ok(())) => {
+                count(&TALLY.played);
+                if overdubbing {
+                    count(&TALLY.overdubs);
+                }
+                self.playing = Some(Playing { name, playback });
+                Ok(())
+            }
+            Some(Err(_)) => {
+                if overdubbing {
+                    self.stop_recording();
+                }
+                Ok(())
+            }
+            None => Err("the stage thread did not answer a take starting".into()),
+        }
+    }
+
+    fn play_steps(&mut self, steps: u8) -> Result<(), String> {
+        for _ in 0..steps.max(1) {
+            let Some(playing) = self.playing.as_mut() else {
+                return Ok(());
+            };
+            match playing.playback.next_step() {
+                Some(Ok((_, changes))) => {
+                    self.time += 0.01;
+                    self.driver.command(Command::Played {
+                        changes,
+                        received: self.time,
+                    });
+                }
+                Some(Err(e)) => return Err(format!("a recorded take does not read: {e}")),
+                None => {
+                    count(&TALLY.played_out);
+                    self.end_playing()?
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The take playing ends (played out or stopped): nothing it held
+    /// stays; an overdub of it stops.
+    fn end_playing(&mut self) -> Result<(), String> {
+        let Some(playing) = self.playing.take() else {
+            return Ok(());
+        };
+        self.driver.command(Command::PlayEnded {
+            name: playing.name.clone(),
+        });
+        // The driver stops an overdub of the take with it.
+        if self.recording && self.takes_recording().is_none() {
+            self.recording = false;
+        }
+        let prefix = format!("{}/", playing.name);
+        for p in self.stage().puppets() {
+            if let Some(h) = p.handles().iter().find(|h| match &h.owner {
+                Owner::Source(s) => s.starts_with(&prefix),
+                Owner::Config => false,
+            }) {
+                return Err(format!(
+                    "take {} ended, yet puppet {} holds {:?} handle {} of {}",
+                    playing.name, p.id, h.kind, h.id, h.owner
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The take being recorded, by the take state the driver publishes.
+    fn takes_recording(&self) -> Option<String> {
+        self.driver.recording().map(str::to_string)
+    }
+
+    fn edit(&mut self, puppet: u8, edit: Edit) {
+        if let Some(puppet) = self.live(puppet) {
+            let _ = self.ask(|reply| Command::Edit {
+                puppet,
+                edit,
+                reply,
+            });
+        }
+    }
+
+    fn lineup(&mut self, change: LineupChange) {
+        let _ = self.ask(|reply| Command::Lineup { change, reply });
+    }
+
+    /// One step, then the invariants. One arm per op, each a command or a
+    /// call out; long only because a show does many things.
+    fn step(&mut self, op: &Op) -> Result<(), String> {
+        match op {
+            Op::Touch { source, finger, at } => {
+                let key = (*source % 3, *finger % 3);
+                let phase = if self.down.insert(key) {
+                    Phase::Down
+                } else {
+                    Phase::Move
+                };
+                let at = self.point(at);
+                self.frame(key.0, Contact::new(u32::from(key.1), phase, at));
+            }
+            Op::Lift { source, finger } => {
+                let key = (*source % 3, *finger % 3);
+                if self.down.remove(&key) {
+                    self.frame(
+                        key.0,
+                        Contact::new(u32::from(key.1), Phase::Up, DVec2::ZERO),
+                    );
+                }
+            }
+            Op::Gone { source } => {
+                let source = *source % 3;
+                self.down.retain(|(s, _)| *s != source);
+                self.driver
+                    .command(puppetry_daemon::convert::release(SOURCES[source as usize]));
+            }
+            Op::Pin { at } => {
+                let at = self.point(at);
+                self.change(Change::Pin {
+                    owner: "director".into(),
+                    at,
+                });
+            }
+            Op::Paint {
+                puppet,
+                at,
+                strength,
+            } => {
+                let at = self.point(at);
+                if let Some(puppet) = self.live(*puppet) {
+                    self.change(Change::Paint {
+                        puppet,
+                        at,
+                        radius: 40.0,
+                        strength: *strength,
+                        stroke: None,
+                    });
+                }
+            }
+            Op::Land => {
+                // A rebuild takes its worker a moment; whatever has come
+                // back lands, the rest lands later (or never: both happen
+                // in a show).
+                std::thread::sleep(std::time::Duration::from_millis(5));
+                while let Ok(command) = self.rebuilt.try_recv() {
+                    self.driver.command(command);
+                }
+            }
+            Op::Undo { puppet } => self.edit(*puppet, Edit::Undo),
+            Op::Redo { puppet } => self.edit(*puppet, Edit::Redo),
+            Op::Reset { puppet } => self.edit(*puppet, Edit::Reset),
+            Op::Remove { puppet } => {
+                if self.stage().on_stage().count() > 1
+                    && let Some(puppet) = self.live(*puppet)
+                {
+                    self.lineup(LineupChange::Remove(puppet));
+                }
+            }
+            Op::Reorder { seed } => {
+                let mut order: Vec<u32> = self.stage().on_stage().map(|p| p.id).collect();
+                let n = order.len();
+                order.rotate_left(*seed as usize % n.max(1));
+                self.lineup(LineupChange::Order(order));
+            }
+            Op::Record => {
+                self.record(Vec::new());
+            }
+            Op::StopRecording => self.stop_recording(),
+            Op::Play {
+                take,
+                overdub,
+                replace,
+            } => self.play(*take, *overdub, replace)?,
+            Op::PlaySteps { steps } => self.play_steps(*steps % 8)?,
+            Op::StopPlaying => {
+                if self.playing.is_some() {
+                    count(&TALLY.stopped_mid_way);
+                }
+                self.end_playing()?
+            }
+            Op::Frame => self.driver.finish(),
+        }
+        // `serve --record` starts its take with the first change.
+        if self.takes_recording().is_some() {
+            self.recording = true;
+        }
+        self.check()
+    }
+
+    /// Every vertex finite and near the stage; once no finger is down and
+    /// no take plays, no contact handle and nothing of a take remains.
+    fn check(&self) -> Result<(), String> {
+        let stage = self.stage();
+        let size = stage.width.max(stage.height);
+        let centre = DVec2::new(stage.width, stage.height) * 0.5;
+        for p in stage.on_stage() {
+            for (i, v) in p.pose().iter().enumerate() {
+                if !v.is_finite() || v.distance(centre) > 10.0 * size {
+                    return Err(format!("puppet {} vertex {i} is at {v}", p.id));
+                }
+            }
+        }
+        if self.down.is_empty() && self.playing.is_none() {
+            for p in stage.puppets() {
+                let left = p.handles().iter().find(|h| {
+                    h.kind == HandleKind::Contact
+                        || matches!(&h.owner, Owner::Source(s) if s.starts_with("take-"))
+                });
+                if let Some(h) = left {
+                    return Err(format!(
+                        "no finger is down and no take plays, yet puppet {} holds {:?} handle {} of {}",
+                        p.id, h.kind, h.id, h.owner
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The show ends: the take playing is stopped, the take recording
+    /// stops; every take reads to its end intact, and one that began on a
+    /// fresh stage replays bit for bit.
+    fn end(mut self) -> Result<(), String> {
+        self.end_playing()?;
+        self.driver.finish();
+        self.stop_recording();
+        self.driver.shut_down();
+        self.check()?;
+        for path in self.takes() {
+            let header = puppetry_take::TakeReader::open(&path)
+                .map_err(|e| format!("{}: {e}", path.display()))?
+                .header;
+            let stage = Stage::from_config(&self.config).unwrap();
+            let verified = puppetry_take::replay::verify(&path, stage);
+            if !header.fresh {
+                // Begun mid-show, a take replays only over the stage as it
+                // was; reading it through must still not fail.
+                if let Err(e) = &verified
+                    && !matches!(e, puppetry_take::TakeError::Stage { .. })
+                {
+                    return Err(format!("{}: {e}", path.display()));
+                }
+                continue;
+            }
+            let v = verified.map_err(|e| format!("{}: {e}", path.display()))?;
+            if let Some(m) = v.first_mismatch {
+                return Err(format!(
+                    "{} began on a fresh stage but does not replay exactly: {m}",
+                    path.display()
+                ));
+            }
+            if !matches!(v.tail, puppetry_take::Tail::Ended(_)) {
+                return Err(format!("{} is damaged: {:?}", path.display(), v.tail));
+            }
+            count(&TALLY.verified_exactly);
+        }
+        Ok(())
+    }
+}
+
+/// Runs a sequence: the first broken invariant, if any.
+fn run(sequence: &Sequence) -> Result<(), String> {
+    TALLY.steps.fetch_add(sequence.ops.len(), Ordering::Relaxed);
+    let mut show = Show::new(&sequence.stage, sequence.record_from_first_input);
+    for (i, op) in sequence.ops.iter().enumerate() {
+        show.step(op)
+            .map_err(|e| format!("step {i} ({op:?}): {e}"))?;
+        if i % 4 == 3 {
+            // The stage thread solves when its channel runs dry.
+            show.driver.finish();
+            show.check().map_err(|e| format!("after step {i}: {e}"))?;
+        }
+    }
+    show.end()
+}
+
+fn failure_file(stage: &str) -> PathBuf {
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| puppetry_testkit::root().join("target"));
+    target.join(format!("show-failure-{stage}.json"))
+}
+
+fn spot() -> impl Strategy<Value = Spot> {
+    let offset = prop_oneof![Just(0.0), Just(1e-7), Just(-1e-3), -4.0..4.0f64];
+    prop_oneof![
+        (-0.1..1.1f64, -0.1..1.1f64).prop_map(|(x, y)| Spot::Stage { x, y }),
+        (any::<u8>(), any::<u32>(), offset.clone(), offset).prop_map(|(puppet, vertex, dx, dy)| {
+            Spot::Vertex {
+                puppet,
+                vertex,
+                dx,
+                dy,
+            }
+        }),
+    ]
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    let u = any::<u8>;
+    let replace = prop_oneof![
+        2 => Just(Replace::Nothing),
+        1 => u().prop_map(|source| Replace::Source { source }),
+        1 => (spot(), 1.0..200.0f64).prop_map(|(at, radius)| Replace::Region { at, radius }),
+    ];
+    prop_oneof![
+        10 => (u(), u(), spot()).prop_map(|(source, finger, at)| Op::Touch { source, finger, at }),
+        4 => (u(), u()).prop_map(|(source, finger)| Op::Lift { source, finger }),
+        1 => u().prop_map(|source| Op::Gone { source }),
+        1 => spot().prop_map(|at| Op::Pin { at }),
+        1 => (u(), spot(), -1.5..1.5f64).prop_map(|(puppet, at, strength)| Op::Paint { puppet, at, strength }),
+        1 => Just(Op::Land),
+        1 => u().prop_map(|puppet| Op::Undo { puppet }),
+        1 => u().prop_map(|puppet| Op::Redo { puppet }),
+        1 => u().prop_map(|puppet| Op::Reset { puppet }),
+        1 => u().prop_map(|puppet| Op::Remove { puppet }),
+        1 => u().prop_map(|seed| Op::Reorder { seed }),
+        3 => Just(Op::Record),
+        3 => Just(Op::StopRecording),
+        3 => (u(), any::<bool>(), replace).prop_map(|(take, overdub, replace)| Op::Play { take, overdub, replace }),
+        6 => u().prop_map(|steps| Op::PlaySteps { steps }),
+        1 => Just(Op::StopPlaying),
+        4 => Just(Op::Frame),
+    ]
+}
+
+fn simulate(stage: &'static str) {
+    let cases = std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(8);
+    let config = ProptestConfig {
+        cases,
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    };
+    proptest!(config, |(record_from_first_input in any::<bool>(), ops in proptest::collection::vec(op(), 1..80))| {
+        let sequence = Sequence { stage: stage.to_string(), record_from_first_input, ops };
+        if let Err(problem) = run(&sequence) {
+            let file = failure_file(stage);
+            let _ = std::fs::write(&file, serde_json::to_string_pretty(&sequence).unwrap());
+            return Err(TestCaseError::fail(format!("{problem}\n(sequence written to {})", file.display())));
+        }
+    });
+    let t = &TALLY;
+    let n = |c: &AtomicUsize| c.load(Ordering::Relaxed);
+    eprintln!(
+        "show {stage}: {cases} sequences; so far in this process {} steps, {} takes played ({} overdubbed; {} played out, {} stopped mid-way), {} fresh takes replayed exactly",
+        n(&t.steps),
+        n(&t.played),
+        n(&t.overdubs),
+        n(&t.played_out),
+        n(&t.stopped_mid_way),
+        n(&t.verified_exactly)
+    );
+}
+
+#[test]
+fn show_demo() {
+    simulate(STAGES[0]);
+}
+
+#[test]
+fn show_grid() {
+    simulate(STAGES[1]);
+}
+
+#[test]
+fn show_skeleton() {
+    simulate(STAGES[2]);
+}
+
+#[test]
+fn show_curve() {
+    simulate(STAGES[3]);
+}
+
+#[test]
+fn show_keyframe() {
+    simulate(STAGES[4]);
+}
+
+/// Every sequence the simulated show ever failed on, replayed.
+#[test]
+fn simulated_show_failures_stay_fixed() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/show");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return;
+    };
+    for entry in entries {
+        let path = entry.unwrap().path();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let sequence: Sequence = serde_json::from_str(&text).unwrap();
+        if let Err(problem) = run(&sequence) {
+            panic!("{}: {problem}", path.display());
+        }
+    }
+}
