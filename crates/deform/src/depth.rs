@@ -524,6 +524,17 @@ impl DepthOrder {
         })
     }
 
+    /// The same mesh with a new static order (`layers` painted or put
+    /// back by an undo), keeping the performer's pins: a flip stays in
+    /// force until its triangle overlaps nothing, whatever is painted
+    /// meanwhile. The frame-to-frame decisions start afresh from the new
+    /// order, which is what painting it asks for.
+    pub fn with_layers(&self, mesh: &Mesh, layers: &[u16]) -> Result<DepthOrder, DepthError> {
+        let mut order = DepthOrder::register(mesh, Some(layers))?;
+        order.pins.clone_from(&self.pins);
+        Ok(order)
+    }
+
     /// The static order: each triangle's layer.
     pub fn static_depth(&self) -> &[u16] {
         &self.layers

@@ -569,10 +569,13 @@ impl Puppet {
     }
 
     /// Takes `layers` as the static depth order (painted or put back),
-    /// starting the adjustment afresh from it.
+    /// starting the adjustment afresh from it; depth flips stay.
     fn set_layers(&mut self, layers: Vec<u16>) -> Result<(), String> {
-        let order = puppetry_deform::depth::DepthOrder::register(&self.mesh, Some(&layers))
-            .map_err(|e| e.to_string())?;
+        let order = match &self.depth {
+            Some(old) => old.with_layers(&self.mesh, &layers),
+            None => puppetry_deform::depth::DepthOrder::register(&self.mesh, Some(&layers)),
+        }
+        .map_err(|e| e.to_string())?;
         self.depth = Some(order);
         self.layers = Some(layers);
         self.depth_generation = self.depth_generation.wrapping_add(1);

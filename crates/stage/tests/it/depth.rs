@@ -181,6 +181,31 @@ fn a_flip_brings_the_body_over_the_arm_and_a_touch_grabs_what_is_in_front() {
         "after the flip the body is on top"
     );
     assert!(!forearm(grabbed(&stage)), "and a touch grabs the body");
+
+    // Depth painted somewhere else, then undone: the flip stays (it used to
+    // be forgotten, the arm jumping back over the body).
+    let far = (0..triangles.len())
+        .map(|t| centroid(&pose, t))
+        .max_by(|a, b| a.distance(at).total_cmp(&b.distance(at)))
+        .unwrap();
+    stage
+        .apply_change(&Change::PaintDepth {
+            puppet: 0,
+            at: far,
+            radius: 30.0,
+            layer: 3,
+            stroke: Some(1),
+        })
+        .unwrap();
+    stage.solve();
+    assert!(
+        !forearm(on_top(&stage)),
+        "depth painted elsewhere keeps the flip"
+    );
+    let undo = stage.undo(0).unwrap().expect("the dab to undo");
+    stage.apply_change(&undo).unwrap();
+    stage.solve();
+    assert!(!forearm(on_top(&stage)), "and so does its undo");
 }
 
 /// Two pieces, one dragged over the other: unpainted, the later piece is
