@@ -932,6 +932,14 @@ async fn play_take(
 ) -> Result<(), guard::Refusal> {
     let links = shared.links()?;
     let path = crate::takes::take_path(&links.takes_dir, take)?;
+    // A take that is not there is `not_found`, named as the client named
+    // it: the player's own error would name the daemon's folder.
+    if !path.is_file() {
+        return Err(guard::Refusal::new(
+            crate::protocol::ErrorCode::NotFound,
+            format!("no take {take:?} (list_takes names them)"),
+        ));
+    }
     let puppets = shared.lineup.borrow().take_puppets.len();
     for (i, r) in replace.iter().enumerate() {
         if r.puppet as usize >= puppets {
