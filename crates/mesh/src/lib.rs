@@ -6,6 +6,7 @@
 //! Plain synchronous code over data: no I/O beyond the explicit `load`/`save`.
 
 pub mod build;
+pub mod file;
 pub mod grid;
 pub mod json;
 pub mod polygon;
@@ -27,6 +28,9 @@ pub enum MeshError {
         file: String,
         source: std::io::Error,
     },
+    /// Not a regular file, or past its size cap.
+    #[error(transparent)]
+    File(file::FileError),
     #[error("{file}: line {line}, column {column}: {message}")]
     Syntax {
         file: String,
@@ -40,6 +44,17 @@ pub enum MeshError {
         field: String,
         problem: String,
     },
+}
+
+/// A file that could not be opened stays an `Io` error, as before there
+/// were caps; a file refused by its kind or size is a `File` error.
+impl From<file::FileError> for MeshError {
+    fn from(e: file::FileError) -> MeshError {
+        match e {
+            file::FileError::Io { file, source } => MeshError::Io { file, source },
+            other => MeshError::File(other),
+        }
+    }
 }
 
 /// A validated rest mesh: counter-clockwise, non-degenerate triangles over
@@ -322,10 +337,7 @@ impl Mesh {
     /// Reads and validates a `.mesh.json` file.
     pub fn load(path: &Path) -> Result<Mesh, MeshError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| MeshError::Io {
-            file: name.clone(),
-            source,
-        })?;
+        let text = file::read_text(path, file::MESH_FILE)?;
         Mesh::from_json(&name, &text)
     }
 

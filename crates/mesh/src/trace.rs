@@ -15,7 +15,12 @@ use glam::DVec2;
 use super::polygon::{
     Polygon, Shape, bounds, find_crossing, point_in_ring, signed_area, simplify_keep,
 };
-use super::{MeshError, cross, invalid};
+use puppetry_limits::files::{
+    MAX_OUTLINE_RINGS, MAX_OUTLINE_SEGMENTS, MAX_PICTURE_DECODED_BYTES, MAX_PICTURE_PIXELS,
+    MAX_PICTURE_SIDE,
+};
+
+use super::{MeshError, cross, file, invalid};
 
 /// An outline traced from a picture, with the picture's size (for uv).
 #[derive(Debug, Clone, PartialEq)]
@@ -54,10 +59,6 @@ pub const SPECK_AREA: f64 = 4.0;
 /// Alpha is kept as 16-bit samples (8-bit values scaled by 257) so 8- and
 /// 16-bit pictures share one exact threshold halfway up the range.
 const THRESHOLD: f64 = 32767.5;
-
-/// Pictures with more pixels than this are refused rather than risk
-/// exhausting memory.
-const MAX_PIXELS: u64 = 1 << 28;
 
 /// Reads a PNG (any colour type and bit depth; palette transparency is
 /// honoured, a picture without alpha is fully opaque) and traces it.
@@ -108,24 +109,68 @@ fn not_png(name: &str, e: png::DecodingError) -> MeshError {
     }
 }
 
+/// Whether a picture of `width` × `height` pixels, `bytes` once decoded
+/// (None: past `usize`), may be decoded: checked from the PNG header,
+/// before a pixel is read, so a small file claiming a huge picture (a
+/// "picture bomb") costs nothing. `name` is the picture in errors.
+pub fn check_picture_size(
+    name: &str,
+    width: u32,
+    height: u32,
+    bytes: Option<usize>,
+) -> Result<(), MeshError> {
+    let pixels = u64::from(width) * u64::from(height);
+    let problem = if width > MAX_PICTURE_SIDE || height > MAX_PICTURE_SIDE {
+        format!("a side is longer than {MAX_PICTURE_SIDE} pixels (MAX_PICTURE_SIDE)")
+    } else if pixels > MAX_PICTURE_PIXELS {
+        format!("{pixels} pixels, more than {MAX_PICTURE_PIXELS} (MAX_PICTURE_PIXELS)")
+    } else if bytes.is_none_or(|b| b as u64 > MAX_PICTURE_DECODED_BYTES) {
+        format!(
+            "its pixels take more than {MAX_PICTURE_DECODED_BYTES} bytes decoded \
+             (MAX_PICTURE_DECODED_BYTES)"
+        )
+    } else {
+        return Ok(());
+    };
+    Err(invalid(
+        name,
+        "size",
+        format!("{width}×{height} pixels is too large: {problem}; scale the picture down"),
+    ))
+}
+
+/// A PNG decoder of the picture at `path` that has read the header and
+/// checked the picture's size ([`check_picture_size`]) before anything
+/// else: the file is read through [`file::reader`] (a regular file within
+/// `MAX_PICTURE_FILE_BYTES`) and the decoder's own allocations are capped
+/// at `MAX_PICTURE_DECODED_BYTES` too. `transformations` are set first, so
+/// the decoded size checked is the one `next_frame` will fill.
+pub fn open_png(
+    path: &Path,
+    transformations: png::Transformations,
+) -> Result<png::Reader<BufReader<file::Capped>>, MeshError> {
+    let name = path.display().to_string();
+    let input = file::reader(path, file::PICTURE_FILE)?;
+    let limits = png::Limits {
+        bytes: MAX_PICTURE_DECODED_BYTES as usize,
+    };
+    let mut decoder = png::Decoder::new_with_limits(BufReader::new(input), limits);
+    decoder.set_transformations(transformations);
+    let (width, height) = decoder
+        .read_header_info()
+        .map_err(|e| not_png(&name, e))?
+        .size();
+    check_picture_size(&name, width, height, Some(0))?;
+    let reader = decoder.read_info().map_err(|e| not_png(&name, e))?;
+    check_picture_size(&name, width, height, reader.output_buffer_size())?;
+    Ok(reader)
+}
+
 /// Decodes a PNG to one 16-bit alpha sample per pixel.
 fn read_alpha(path: &Path, name: &str) -> Result<(u32, u32, Vec<u16>), MeshError> {
-    let file = std::fs::File::open(path).map_err(|source| MeshError::Io {
-        file: name.to_string(),
-        source,
-    })?;
-    let mut decoder = png::Decoder::new(BufReader::new(file));
     // Palette → RGB(A) with tRNS as alpha, low bit depths → 8 bits.
-    decoder.set_transformations(png::Transformations::EXPAND);
-    let mut reader = decoder.read_info().map_err(|e| not_png(name, e))?;
+    let mut reader = open_png(path, png::Transformations::EXPAND)?;
     let (width, height) = reader.info().size();
-    if width as u64 * height as u64 > MAX_PIXELS {
-        return Err(invalid(
-            name,
-            "size",
-            format!("{width}×{height} pixels is too large to trace"),
-        ));
-    }
     let size = reader.output_buffer_size().ok_or_else(|| {
         invalid(
             name,
@@ -199,13 +244,7 @@ fn trace_alpha(
             format!("the picture is empty ({width}×{height} pixels)"),
         ));
     }
-    if width as u64 * height as u64 > MAX_PIXELS {
-        return Err(invalid(
-            source,
-            "size",
-            format!("{width}×{height} pixels is too large to trace"),
-        ));
-    }
+    check_picture_size(source, width, height, Some(alpha.len() * 2))?;
     let opaque = |a: u16| a as f64 > THRESHOLD;
     let opaque_count = alpha.iter().filter(|&&a| opaque(a)).count();
     if opaque_count == 0 {
@@ -241,10 +280,28 @@ fn trace_alpha(
         });
     }
 
+    let too_detailed = |problem: String| {
+        invalid(
+            source,
+            "alpha",
+            format!("{problem}: too detailed an outline to mesh; smooth or simplify the cut-out"),
+        )
+    };
     let rings: Vec<Vec<DVec2>> = march(width, height, alpha)
+        .ok_or_else(|| {
+            too_detailed(format!(
+                "more than {MAX_OUTLINE_SEGMENTS} boundary segments (MAX_OUTLINE_SEGMENTS)"
+            ))
+        })?
         .into_iter()
         .filter(|r| signed_area(r).abs() >= SPECK_AREA)
         .collect();
+    if rings.len() as u64 > MAX_OUTLINE_RINGS {
+        return Err(too_detailed(format!(
+            "{} islands and holes, more than {MAX_OUTLINE_RINGS} (MAX_OUTLINE_RINGS)",
+            rings.len()
+        )));
+    }
     if rings.is_empty() {
         return Err(invalid(
             source,
@@ -268,7 +325,8 @@ fn trace_alpha(
 /// Marching squares over pixel centres, with a transparent border so every
 /// contour closes. Each segment is oriented with the opaque side on its left
 /// (y-up), so islands come out counter-clockwise and holes clockwise.
-fn march(width: u32, height: u32, alpha: &[u16]) -> Vec<Vec<DVec2>> {
+/// None past `MAX_OUTLINE_SEGMENTS` segments, before their memory is spent.
+fn march(width: u32, height: u32, alpha: &[u16]) -> Option<Vec<Vec<DVec2>>> {
     let (w, h) = (width as usize, height as usize);
     let sx = w + 2;
     let sy = h + 2;
@@ -366,6 +424,9 @@ fn march(width: u32, height: u32, alpha: &[u16]) -> Vec<Vec<DVec2>> {
                     segments.push((e2, e1));
                 }
             }
+            if segments.len() as u64 > MAX_OUTLINE_SEGMENTS {
+                return None;
+            }
         }
     }
 
@@ -395,7 +456,7 @@ fn march(width: u32, height: u32, alpha: &[u16]) -> Vec<Vec<DVec2>> {
             rings.push(ring);
         }
     }
-    rings
+    Some(rings)
 }
 
 /// Sorts rings (counter-clockwise islands, clockwise holes) into polygons:
