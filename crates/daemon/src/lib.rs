@@ -25,6 +25,7 @@ pub mod convert;
 pub mod lineup;
 pub mod memory;
 pub mod osc;
+pub mod outputs;
 pub mod protocol;
 pub mod relay;
 pub mod serve;

@@ -10,11 +10,11 @@ use std::sync::Arc;
 
 use glam::DVec2;
 
+use crate::outputs::PuppetOutput;
 use crate::protocol::{
     GridBasis, PadArea, Person, PuppetDescription, RigDescription, Role, ServerMessage,
     SkeletonMode, StageSize,
 };
-use crate::stage_thread::PuppetOutput;
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Picture, Puppet, Rig, Stage};
 

@@ -1,0 +1,82 @@
+//! What the stage thread publishes: per puppet, the watch channels its
+//! frames, handles and state messages travel on ([`PuppetOutput`]), the
+//! stage-wide ones ([`Outputs`]) and the thread's own timings. Connections,
+//! relays, show control and the lineup read them; only the stage thread
+//! writes them.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use bytes::Bytes;
+use tokio::sync::watch;
+
+use crate::protocol::HandleView;
+
+/// A puppet's handle set as published: the typed list (newcomers' stage
+/// messages include it) and the `handles` message made from it once.
+#[derive(Debug)]
+pub struct PublishedHandles {
+    pub handles: Vec<HandleView>,
+    pub text: Arc<str>,
+    /// The set's generation (handle frames name the one they follow).
+    pub generation: u32,
+}
+
+/// The newest output of one puppet.
+#[derive(Debug, Clone)]
+pub struct PuppetOutput {
+    /// The newest encoded vertex frame (none before the first solve).
+    pub frame: watch::Receiver<Option<Bytes>>,
+    /// The newest rig frame (grid or skeleton puppets only).
+    pub rig: watch::Receiver<Option<Bytes>>,
+    /// The newest handle set and its "handles" message.
+    pub handles: watch::Receiver<Arc<PublishedHandles>>,
+    /// The newest "weights" message (changes when a performer paints).
+    pub weights: watch::Receiver<Arc<str>>,
+    /// The newest "keys" message (key poses and the cursor).
+    pub keys: watch::Receiver<Arc<str>>,
+    /// The newest handles frame: where each handle is on the solved
+    /// puppet (none before the first solve with handles).
+    pub handle_frame: watch::Receiver<Option<Bytes>>,
+    /// The newest "history" message (undo and redo steps).
+    pub history: watch::Receiver<Arc<str>>,
+    /// The newest "pose" message (skeleton puppets only).
+    pub pose: Option<watch::Receiver<Arc<str>>>,
+    /// The newest depth frame (none until the depth first differs from
+    /// the mesh's order, or with `depth = "off"`).
+    pub depth: watch::Receiver<Option<Bytes>>,
+}
+
+/// Where the daemon's time goes, summed since it started: per stage-thread
+/// iteration (the commands waiting, then one solve and its publishing) and
+/// per client send. Read by `puppetry bench --e2e`; relaxed atomics, a
+/// clock read per phase (tens of nanoseconds against a millisecond).
+#[derive(Debug, Default)]
+pub struct Timings {
+    /// Iterations that solved.
+    pub solves: AtomicU64,
+    /// Applying the commands: contacts to handles, pins, edits.
+    pub commands_ns: AtomicU64,
+    pub solve_ns: AtomicU64,
+    /// Encoding the binary frames once and waking every client.
+    pub frames_ns: AtomicU64,
+    /// Building the text messages that changed (weights, keys, history,
+    /// poses, cursors, take state).
+    pub messages_ns: AtomicU64,
+    /// Writing the solve into the take being recorded.
+    pub record_ns: AtomicU64,
+    /// A client task sending what changed after a wake (all its puppets'
+    /// messages), and how many such sends.
+    pub sends: AtomicU64,
+    pub send_ns: AtomicU64,
+}
+
+impl Timings {
+    /// Adds the time since `since` to `counter`; returns now.
+    pub fn add(counter: &AtomicU64, since: Instant) -> Instant {
+        let now = Instant::now();
+        counter.fetch_add((now - since).as_nanos() as u64, Ordering::Relaxed);
+        now
+    }
+}
