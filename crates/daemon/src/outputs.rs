@@ -1,8 +1,7 @@
 //! What the stage thread publishes: per puppet, the watch channels its
-//! frames, handles and state messages travel on ([`PuppetOutput`]), the
-//! stage-wide ones ([`Outputs`]) and the thread's own timings. Connections,
-//! relays, show control and the lineup read them; only the stage thread
-//! writes them.
+//! frames, handles and state messages travel on ([`PuppetOutput`]), and the
+//! thread's own timings. Connections, relays, show control and the lineup
+//! read them; only the stage thread writes them.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
