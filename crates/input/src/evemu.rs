@@ -6,6 +6,7 @@
 //! the file, the line and the field.
 
 use super::fields::{self, clip};
+use puppetry_mesh::file;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -24,6 +25,9 @@ pub enum EvemuError {
         file: String,
         source: std::io::Error,
     },
+    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    #[error(transparent)]
+    File(#[from] file::FileError),
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
         file: String,
@@ -68,10 +72,7 @@ pub struct EvemuFile {
 impl EvemuFile {
     pub fn read(path: &Path) -> Result<EvemuFile, EvemuError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| EvemuError::Read {
-            file: file.clone(),
-            source,
-        })?;
+        let text = file::read_text(path, file::REPLAY_FILE)?;
         EvemuFile::parse(&file, &text)
     }
 

@@ -14,6 +14,7 @@
 //! field.
 
 use super::fields::{self, clip};
+use puppetry_mesh::file;
 use std::io::Write;
 use std::path::Path;
 
@@ -24,6 +25,9 @@ pub enum HidRecordingError {
         file: String,
         source: std::io::Error,
     },
+    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    #[error(transparent)]
+    File(#[from] file::FileError),
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
         file: String,
@@ -52,10 +56,7 @@ pub struct HidRecording {
 impl HidRecording {
     pub fn read(path: &Path) -> Result<HidRecording, HidRecordingError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| HidRecordingError::Read {
-            file: file.clone(),
-            source,
-        })?;
+        let text = file::read_text(path, file::REPLAY_FILE)?;
         HidRecording::parse(&file, &text)
     }
 

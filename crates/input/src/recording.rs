@@ -4,6 +4,7 @@
 //! [`RecordingReader`]; a reader's complaint names the file, the line and,
 //! where serde can tell, the column and field.
 
+use puppetry_mesh::file;
 use std::io::{BufRead, Read, Write};
 use std::path::Path;
 
@@ -24,6 +25,9 @@ pub enum RecordingError {
         file: String,
         source: std::io::Error,
     },
+    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    #[error(transparent)]
+    File(#[from] file::FileError),
     #[error("cannot write the recording: {0}")]
     Write(#[from] std::io::Error),
     #[error("{file}:{line}: {problem}")]
@@ -275,10 +279,7 @@ impl<R: BufRead> Iterator for RecordingReader<R> {
 /// Reads a whole recording file.
 pub fn read_recording(path: &Path) -> Result<Vec<ContactFrame>, RecordingError> {
     let file = path.display().to_string();
-    let input = std::fs::File::open(path).map_err(|source| RecordingError::Read {
-        file: file.clone(),
-        source,
-    })?;
+    let input = file::reader(path, file::REPLAY_FILE)?;
     RecordingReader::new(&file, std::io::BufReader::new(input)).collect()
 }
 

@@ -7,6 +7,7 @@
 //! in [`ReplaySource::open`], so a bad file fails before anything plays and
 //! the iterator itself cannot fail. Only the pacing is async.
 
+use puppetry_mesh::file;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
@@ -29,6 +30,9 @@ pub enum ReplayError {
         file: String,
         source: std::io::Error,
     },
+    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    #[error(transparent)]
+    File(#[from] file::FileError),
     #[error(transparent)]
     Evemu(#[from] EvemuError),
     #[error(transparent)]
@@ -93,10 +97,7 @@ impl ReplaySource {
         calibration: Option<Calibration>,
     ) -> Result<ReplaySource, ReplayError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ReplayError::Read {
-            file: file.clone(),
-            source,
-        })?;
+        let text = file::read_text(path, file::REPLAY_FILE)?;
         if path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("hid"))

@@ -15,6 +15,9 @@ pub enum ConfigError {
         file: String,
         source: std::io::Error,
     },
+    /// Not a regular file, or past its size cap.
+    #[error(transparent)]
+    File(puppetry_mesh::file::FileError),
     #[error("{file}: {message}")]
     Syntax { file: String, message: String },
     #[error("{file}: {field}: {problem}")]
@@ -253,12 +256,13 @@ pub struct PuppetConfig {
     #[serde(default)]
     pub curve: Option<CurveConfig>,
     /// Stage position of the centre of the mesh's bounding box.
+    #[serde(deserialize_with = "exactly")]
     pub at: [f64; 2],
     /// Stage units per mesh unit.
     #[serde(default = "one")]
     pub scale: f64,
     /// Pins that hold from the start, in the mesh's own coordinates.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "pairs")]
     pub pins: Vec<[f64; 2]>,
     /// An lp-FFD grid rig (see `docs/rigs.md`); without `grid` or
     /// `skeleton` the puppet is free-form (ARAP).
@@ -309,7 +313,7 @@ impl PuppetConfig {
 #[serde(deny_unknown_fields)]
 pub struct CurveConfig {
     /// The centre line as points…
-    #[serde(default)]
+    #[serde(default, deserialize_with = "some_pairs")]
     pub points: Option<Vec<[f64; 2]>>,
     /// …or as an SVG path's `d` (one open subpath: M, L, H, V, C, S, Q, T).
     #[serde(default)]
@@ -386,23 +390,45 @@ fn check_curve(p: &PuppetConfig) -> Result<(), (String, String)> {
         (None, None) => return err("points", "missing: give points or svg"),
         _ => {}
     }
-    if !(c.width.is_finite() && c.width > 0.0) {
-        return err("width", "must be a positive number");
-    }
+    let range = |field: &str, v: f64, lo: f64, hi: f64| {
+        within(v, lo, hi).map_err(|problem| (format!("curve.{field}"), problem))
+    };
+    range("width", c.width, MIN_SIZE, MAX_COORDINATE)?;
     if !is_colour(&c.colour) {
         return err("colour", &format!("{:?} is not #RRGGBB", c.colour));
     }
-    if let Some(spacing) = c.spacing
-        && !(spacing.is_finite() && spacing > 0.0)
-    {
-        return err("spacing", "must be a positive number");
+    if let Some(points) = &c.points {
+        coordinates(points.iter().flatten())
+            .map_err(|(i, problem)| (format!("curve.points[{}][{}]", i / 2, i % 2), problem))?;
     }
-    if !(c.peel_rate.is_finite() && c.peel_rate >= 0.0) {
-        return err("peel_rate", "must be a non-negative number");
+    if let Some(spacing) = c.spacing {
+        range("spacing", spacing, MIN_SIZE, MAX_COORDINATE)?;
+        // The resampled centre line's points: its length over the
+        // spacing (an SVG path measured along its segments' ends, which
+        // is no longer than the curve).
+        let line: Vec<[f64; 2]> = match (&c.points, &c.svg) {
+            (Some(points), _) => points.clone(),
+            (None, Some(d)) => puppetry_mesh::stroke::parse_svg_path(d, f64::MAX)
+                .map(|p| p.iter().map(|v| v.to_array()).collect())
+                .unwrap_or_default(),
+            _ => Vec::new(),
+        };
+        let length: f64 = line
+            .windows(2)
+            .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+            .sum();
+        if length / spacing > MAX_CURVE_SAMPLES {
+            return Err((
+                "curve.spacing".into(),
+                format!(
+                    "{spacing} along a curve {length:.1} long is more than \
+                     {MAX_CURVE_SAMPLES} points: space them wider"
+                ),
+            ));
+        }
     }
-    if !(c.peel_radius.is_finite() && c.peel_radius >= 0.0) {
-        return err("peel_radius", "must be a non-negative number");
-    }
+    range("peel_rate", c.peel_rate, 0.0, 1e6)?;
+    range("peel_radius", c.peel_radius, 0.0, MAX_COORDINATE)?;
     Ok(())
 }
 
@@ -440,6 +466,7 @@ pub struct PadConfig {
     #[serde(default)]
     pub source: Option<String>,
     /// `[x0, y0, x1, y1]` in stage coordinates: the pad's corners.
+    #[serde(deserialize_with = "exactly")]
     pub area: [f64; 4],
 }
 
@@ -481,6 +508,7 @@ pub enum BasisConfig {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkeletonConfig {
+    #[serde(deserialize_with = "pairs")]
     pub joints: Vec<[f64; 2]>,
     pub bones: Vec<[usize; 2]>,
     #[serde(default)]
@@ -540,7 +568,7 @@ pub struct KeyPoseConfig {
     #[serde(default)]
     pub lengths: Option<Vec<f64>>,
     /// Every root joint's position (one per tree of the skeleton).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "some_pairs")]
     pub roots: Option<Vec<[f64; 2]>>,
 }
 
@@ -693,7 +721,7 @@ pub enum InputConfig {
         #[serde(default)]
         rotate_step_deg: Option<f64>,
         /// Where the cursor starts, stage coordinates; default the centre.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "some_pair")]
         start: Option<[f64; 2]>,
     },
 }
@@ -779,6 +807,86 @@ pub fn is_name_char(c: char) -> bool {
     c.is_ascii_alphanumeric() || c == '-' || c == '_'
 }
 
+/// How far from the origin any coordinate of a stage file may be (stage
+/// units, mesh units or device units): ten million, beyond any stage or
+/// device, and far enough inside f64 that squaring and summing never
+/// overflows.
+pub const MAX_COORDINATE: f64 = 1e7;
+
+/// The smallest length a stage file may give a size (stage width, stroke
+/// width, spacing…): a thousandth of a unit. Below it sizes are a typo,
+/// and ratios of them (a curve's length over its spacing) explode.
+pub const MIN_SIZE: f64 = 1e-3;
+
+/// The longest `[stage].client_timeout_s`: an hour. A client silent that
+/// long is gone; `Duration::from_secs_f64(1e20)` panicked.
+pub const MAX_CLIENT_TIMEOUT_S: f64 = 3600.0;
+
+/// Grid rig columns and rows at most (each way): a 64×64 lattice already
+/// has 4,225 handles.
+pub const MAX_GRID_SIDE: usize = 64;
+
+/// Solver iterations and skeleton rounds at most, per frame.
+pub const MAX_ITERATIONS: usize = 1000;
+
+/// A curve puppet's centre line is resampled to at most this many points
+/// (its length over its spacing): past it, every frame would solve a
+/// curve longer than any screen shows.
+pub const MAX_CURVE_SAMPLES: f64 = 20_000.0;
+
+/// Connections (`max_connections`, `max_per_address`) at most.
+pub const MAX_CONNECTIONS: usize = 1 << 20;
+
+/// Whether `v` is finite and within `lo..=hi`; the problem otherwise.
+fn within(v: f64, lo: f64, hi: f64) -> Result<(), String> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        let kind = if lo > 0.0 { "a positive" } else { "a" };
+        Err(format!("{v} is not {kind} finite number from {lo} to {hi}"))
+    }
+}
+
+/// Every number of `values` a coordinate (finite, within
+/// [`MAX_COORDINATE`] of the origin); the first bad one's index otherwise.
+fn coordinates<'a>(values: impl IntoIterator<Item = &'a f64>) -> Result<(), (usize, String)> {
+    for (i, &v) in values.into_iter().enumerate() {
+        within(v, -MAX_COORDINATE, MAX_COORDINATE).map_err(|p| (i, p))?;
+    }
+    Ok(())
+}
+
+/// Exactly `N` numbers, not `N` taken from a longer list (`at = [1, 2, 3]`
+/// was read as `[1, 2]`).
+fn exactly<'de, D: serde::Deserializer<'de>, const N: usize>(d: D) -> Result<[f64; N], D::Error> {
+    let v = Vec::<f64>::deserialize(d)?;
+    let n = v.len();
+    v.try_into()
+        .map_err(|_| serde::de::Error::invalid_length(n, &format!("{N} numbers").as_str()))
+}
+
+/// A list of `[x, y]` pairs, each exactly two numbers.
+fn pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<[f64; 2]>, D::Error> {
+    let v = Vec::<Vec<f64>>::deserialize(d)?;
+    v.into_iter()
+        .map(|p| {
+            let n = p.len();
+            p.try_into()
+                .map_err(|_| serde::de::Error::invalid_length(n, &"2 numbers [x, y]"))
+        })
+        .collect()
+}
+
+/// [`pairs`], optional.
+fn some_pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<Vec<[f64; 2]>>, D::Error> {
+    pairs(d).map(Some)
+}
+
+/// [`exactly`] two, optional.
+fn some_pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+    exactly::<D, 2>(d).map(Some)
+}
+
 /// Bounds of `[osc].rate`: below one a second a show desk looks frozen;
 /// above 120 the updates outrun any display and flood the network.
 pub const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
@@ -845,6 +953,71 @@ pub fn check_host_port(text: &str) -> Result<(), String> {
     }
 }
 
+/// The numbers of `[[input]]` entries: a baud rate a port can run at, a
+/// mouse's speeds and spacing within a coordinate's range, a cursor start
+/// on the stage's scale, every calibration number a coordinate.
+fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
+    for (i, input) in inputs.iter().enumerate() {
+        let field = |f: &str| format!("input[{i}].{f}");
+        let calibration = match input {
+            InputConfig::Serial {
+                baud, calibration, ..
+            } => {
+                if !(1..=20_000_000).contains(baud) {
+                    return Err((field("baud"), format!("{baud} is not 1 to 20000000")));
+                }
+                calibration
+            }
+            InputConfig::Mouse {
+                speed,
+                pair_spacing,
+                rotate_step_deg,
+                start,
+                ..
+            } => {
+                for (name, value, lo, hi) in [
+                    ("speed", *speed, 1e-6, 1e6),
+                    ("pair_spacing", *pair_spacing, MIN_SIZE, MAX_COORDINATE),
+                    ("rotate_step_deg", *rotate_step_deg, -360.0, 360.0),
+                ] {
+                    if let Some(v) = value {
+                        within(v, lo, hi).map_err(|problem| (field(name), problem))?;
+                    }
+                }
+                if let Some(start) = start {
+                    coordinates(start)
+                        .map_err(|(k, problem)| (field(&format!("start[{k}]")), problem))?;
+                }
+                &None
+            }
+            InputConfig::Replay { calibration, .. }
+            | InputConfig::Tuio { calibration, .. }
+            | InputConfig::Touch { calibration, .. }
+            | InputConfig::Pen { calibration, .. }
+            | InputConfig::Hid { calibration, .. } => calibration,
+        };
+        if let Some(spec) = calibration {
+            let numbers =
+                toml::Value::try_from(spec).map_err(|e| (field("calibration"), e.to_string()))?;
+            let mut all = Vec::new();
+            collect_numbers(&numbers, &mut all);
+            coordinates(&all).map_err(|(_, problem)| (field("calibration"), problem))?;
+        }
+    }
+    Ok(())
+}
+
+/// Every number in `value`, depth first.
+fn collect_numbers(value: &toml::Value, out: &mut Vec<f64>) {
+    match value {
+        toml::Value::Float(v) => out.push(*v),
+        toml::Value::Integer(v) => out.push(*v as f64),
+        toml::Value::Array(items) => items.iter().for_each(|v| collect_numbers(v, out)),
+        toml::Value::Table(t) => t.values().for_each(|v| collect_numbers(v, out)),
+        _ => {}
+    }
+}
+
 /// The rig sections' own checks (what the deformers check again on
 /// registration is left to them, so their errors name it precisely).
 fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
@@ -856,11 +1029,13 @@ fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
     }
     if let Some(g) = &p.grid {
         let field = |f: &str| format!("puppet[{i}].grid.{f}");
-        if g.columns < 2 || g.rows < 2 {
-            return Err((
-                field("columns"),
-                "columns and rows must be at least 2".into(),
-            ));
+        for (name, side) in [("columns", g.columns), ("rows", g.rows)] {
+            if !(2..=MAX_GRID_SIDE).contains(&side) {
+                return Err((
+                    field(name),
+                    format!("{side}: columns and rows must be 2 to {MAX_GRID_SIDE}"),
+                ));
+            }
         }
         for (name, value) in [
             ("locality", g.locality),
@@ -868,14 +1043,17 @@ fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
             ("grid", g.grid),
             ("regular", g.regular),
         ] {
-            if let Some(v) = value
-                && !(v.is_finite() && v >= 0.0)
-            {
-                return Err((field(name), "must be a finite number ≥ 0".into()));
+            if let Some(v) = value {
+                within(v, 0.0, 1e6).map_err(|problem| (field(name), problem))?;
             }
         }
-        if g.iterations == Some(0) {
-            return Err((field("iterations"), "must be at least 1".into()));
+        if let Some(n) = g.iterations
+            && !(1..=MAX_ITERATIONS).contains(&n)
+        {
+            return Err((
+                field("iterations"),
+                format!("{n} is not 1 to {MAX_ITERATIONS}"),
+            ));
         }
     }
     if let Some(s) = &p.skeleton {
@@ -886,8 +1064,26 @@ fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
                 "a skeleton puppet takes no pins (its joints are its handles)".into(),
             ));
         }
-        if s.joints.iter().flatten().any(|v| !v.is_finite()) {
-            return Err((field("joints"), "must be finite points".into()));
+        coordinates(s.joints.iter().flatten())
+            .map_err(|(j, problem)| (field(&format!("joints[{}][{}]", j / 2, j % 2)), problem))?;
+        let params = &s.params;
+        for (name, value) in [
+            ("bone_weight", params.bone_weight),
+            ("joint_weight", params.joint_weight),
+            ("perpendicular_scale", params.perpendicular_scale),
+        ] {
+            if let Some(v) = value {
+                within(v, 0.0, 1e6)
+                    .map_err(|problem| (field(&format!("params.{name}")), problem))?;
+            }
+        }
+        if let Some(n) = params.rounds
+            && !(1..=MAX_ITERATIONS).contains(&n)
+        {
+            return Err((
+                field("params.rounds"),
+                format!("{n} is not 1 to {MAX_ITERATIONS}"),
+            ));
         }
         for (k, pose) in s.poses.iter().enumerate() {
             let pose_field = |f: &str| field(&format!("poses[{k}].{f}"));
@@ -897,18 +1093,26 @@ fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
             if s.poses[..k].iter().any(|q| q.name == pose.name) {
                 return Err((pose_field("name"), "is used by another pose".into()));
             }
-            let finite = pose.turn.iter().all(|(_, d)| d.is_finite())
-                && pose.angles.iter().flatten().all(|v| v.is_finite())
+            // Degrees and lengths within a coordinate's range: a turn of
+            // 1e20 degrees is no pose, and its sine is noise.
+            let finite = pose
+                .turn
+                .iter()
+                .all(|(_, d)| within(*d, -MAX_COORDINATE, MAX_COORDINATE).is_ok())
+                && coordinates(pose.angles.iter().flatten()).is_ok()
                 && pose
                     .lengths
                     .iter()
                     .flatten()
-                    .all(|v| v.is_finite() && *v >= 0.0)
-                && pose.roots.iter().flatten().flatten().all(|v| v.is_finite());
+                    .all(|v| within(*v, 0.0, MAX_COORDINATE).is_ok())
+                && coordinates(pose.roots.iter().flatten().flatten()).is_ok();
             if !finite {
                 return Err((
                     pose_field("turn"),
-                    "angles, lengths and roots must be finite (lengths ≥ 0)".into(),
+                    format!(
+                        "turns, angles, lengths and roots must be numbers within \
+                         ±{MAX_COORDINATE} (lengths ≥ 0)"
+                    ),
                 ));
             }
         }
@@ -920,9 +1124,10 @@ impl StageConfig {
     /// Reads and checks a stage file.
     pub fn load(path: &Path) -> Result<StageConfig, ConfigError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            file: file.clone(),
-            source,
+        use puppetry_mesh::file::{self, FileError};
+        let text = file::read_text(path, file::STAGE_FILE).map_err(|e| match e {
+            FileError::Io { file, source } => ConfigError::Read { file, source },
+            other => ConfigError::File(other),
         })?;
         let folder = path.parent().unwrap_or(Path::new(".")).to_path_buf();
         let config = StageConfig::parse(&file, &text, &folder)?;
@@ -931,27 +1136,59 @@ impl StageConfig {
     }
 
     /// Every picture, mesh and replay file the stage file names can be
-    /// read, and pictures and meshes are what their keys say. A stage file
+    /// read — a regular file within its size cap (`puppetry_limits::files`),
+    /// so `/dev/zero` or a FIFO is refused here by name, before anything
+    /// reads it — and pictures and meshes are what their keys say. A stage file
     /// copied elsewhere keeps its relative paths, which then point nowhere:
     /// the error says what the path became and that it is relative to the
     /// stage file's folder, not the working one. (Key files may be missing:
     /// `save_keys` creates them.)
     fn check_files(&self) -> Result<(), ConfigError> {
-        let mut named: Vec<(String, &'static str, &Path)> = Vec::new();
+        use puppetry_mesh::file::{self, Cap};
+        let mut named: Vec<(String, &'static str, &Path, Cap)> = Vec::new();
         for (i, p) in self.puppets.iter().enumerate() {
-            for (key, path) in [("image", &p.image), ("mesh", &p.mesh)] {
+            for (key, path, cap) in [
+                ("image", &p.image, file::PICTURE_FILE),
+                ("mesh", &p.mesh, file::MESH_FILE),
+            ] {
                 if !path.as_os_str().is_empty() {
-                    named.push((format!("puppet[{i}].{key}"), key, path));
+                    named.push((format!("puppet[{i}].{key}"), key, path, cap));
+                }
+            }
+            // A key file may be missing (`save_keys` makes it), not be
+            // something else.
+            if let Some(keys) = &p.keys {
+                let resolved = self.resolve(keys);
+                match file::open(&resolved, file::KEYS_FILE) {
+                    Err(e) if e.io_kind() != Some(std::io::ErrorKind::NotFound) => {
+                        return Err(ConfigError::Invalid {
+                            file: self.file.clone(),
+                            field: format!("puppet[{i}].keys"),
+                            problem: e.to_string(),
+                        });
+                    }
+                    _ => {}
                 }
             }
         }
         for (i, input) in self.inputs.iter().enumerate() {
             if let InputConfig::Replay { file, .. } = input {
-                named.push((format!("input[{i}].file"), "file", file));
+                named.push((format!("input[{i}].file"), "file", file, file::REPLAY_FILE));
             }
         }
-        for (field, key, path) in named {
-            let problem = match head_of(&self.resolve(path)) {
+        for (field, key, path, cap) in named {
+            let problem = match head_of(&self.resolve(path), cap) {
+                Err(HeadError::File(e)) => {
+                    return Err(ConfigError::Invalid {
+                        file: self.file.clone(),
+                        field,
+                        problem: e.to_string(),
+                    });
+                }
+                Err(HeadError::Io(e)) => Err(e),
+                Ok(head) => Ok(head),
+            };
+            let problem = match problem {
                 Ok(head) => match wrong_kind(key, picture_kind(&head)) {
                     Some(problem) => format!("{}: {problem}", path.display()),
                     None => continue,
@@ -995,25 +1232,37 @@ impl StageConfig {
             field,
             problem: problem.to_string(),
         };
+        let range = |field: String, v: f64, lo: f64, hi: f64| {
+            within(v, lo, hi).map_err(|problem| invalid(field, &problem))
+        };
         let s = &config.stage;
-        if !(s.width.is_finite() && s.height.is_finite() && s.width > 0.0 && s.height > 0.0) {
-            return Err(invalid(
-                "stage".into(),
-                "width and height must be positive numbers",
-            ));
+        for (name, v) in [("width", s.width), ("height", s.height)] {
+            within(v, MIN_SIZE, MAX_COORDINATE).map_err(|problem| {
+                invalid(
+                    "stage".into(),
+                    &format!("{name}: width and height must be positive numbers: {problem}"),
+                )
+            })?;
         }
-        if !(s.client_timeout_s.is_finite() && s.client_timeout_s > 0.0) {
-            return Err(invalid(
-                "stage.client_timeout_s".into(),
-                "must be a positive number of seconds",
-            ));
-        }
-        if s.max_connections == 0 {
+        range(
+            "stage.client_timeout_s".into(),
+            s.client_timeout_s,
+            MIN_SIZE,
+            MAX_CLIENT_TIMEOUT_S,
+        )?;
+        if !(1..=MAX_CONNECTIONS).contains(&s.max_connections) {
             return Err(invalid(
                 "stage.max_connections".into(),
-                "must be at least 1",
+                &format!("must be 1 to {MAX_CONNECTIONS}"),
             ));
         }
+        if config.access.max_per_address > MAX_CONNECTIONS {
+            return Err(invalid(
+                "access.max_per_address".into(),
+                &format!("must be 1 to {MAX_CONNECTIONS}"),
+            ));
+        }
+        check_inputs(&config.inputs).map_err(|(field, problem)| invalid(field, &problem))?;
         if let Some(osc) = &config.osc {
             check_osc(osc).map_err(|(field, problem)| invalid(field, &problem))?;
         }
@@ -1042,15 +1291,12 @@ impl StageConfig {
             }
         }
         for (i, p) in config.puppets.iter().enumerate() {
-            if !(p.scale.is_finite() && p.scale > 0.0) {
-                return Err(invalid(
-                    format!("puppet[{i}].scale"),
-                    "must be a positive number",
-                ));
-            }
-            if !p.at.iter().all(|v| v.is_finite()) {
-                return Err(invalid(format!("puppet[{i}].at"), "must be finite"));
-            }
+            range(format!("puppet[{i}].scale"), p.scale, MIN_SIZE, 1e3)?;
+            coordinates(&p.at)
+                .map_err(|(k, problem)| invalid(format!("puppet[{i}].at[{k}]"), &problem))?;
+            coordinates(p.pins.iter().flatten()).map_err(|(k, problem)| {
+                invalid(format!("puppet[{i}].pins[{}][{}]", k / 2, k % 2), &problem)
+            })?;
             if config.puppets[..i].iter().any(|q| q.name == p.name) {
                 return Err(invalid(
                     format!("puppet[{i}].name"),
@@ -1069,7 +1315,7 @@ impl StageConfig {
                 ));
             }
             let [x0, y0, x1, y1] = pad.area;
-            if !pad.area.iter().all(|v| v.is_finite()) || x0 == x1 || y0 == y1 {
+            if coordinates(&pad.area).is_err() || x0 == x1 || y0 == y1 {
                 return Err(invalid(
                     format!("pad[{i}].area"),
                     "must be [x0, y0, x1, y1], finite, with some width and height",
@@ -1137,11 +1383,28 @@ fn wrong_kind(key: &str, kind: Option<&str>) -> Option<String> {
     }
 }
 
-/// The first bytes of a file (fewer if it is shorter), for [`picture_kind`].
-fn head_of(path: &Path) -> std::io::Result<Vec<u8>> {
+/// Why [`head_of`] read nothing: the file could not be opened (`Io`, told
+/// with where a relative path led) or is not a file to read at all (`File`:
+/// not a regular file, or past its cap).
+enum HeadError {
+    Io(std::io::Error),
+    File(puppetry_mesh::file::FileError),
+}
+
+/// The first bytes of a file (fewer if it is shorter), for [`picture_kind`],
+/// once it is known to be a regular file within `cap`.
+fn head_of(path: &Path, cap: puppetry_mesh::file::Cap) -> Result<Vec<u8>, HeadError> {
+    use puppetry_mesh::file::{self, FileError};
     use std::io::Read;
+    let handle = file::open(path, cap).map_err(|e| match e {
+        FileError::Io { source, .. } => HeadError::Io(source),
+        other => HeadError::File(other),
+    })?;
     let mut head = Vec::with_capacity(16);
-    std::fs::File::open(path)?.take(16).read_to_end(&mut head)?;
+    handle
+        .take(16)
+        .read_to_end(&mut head)
+        .map_err(HeadError::Io)?;
     Ok(head)
 }
 

@@ -98,6 +98,9 @@ pub enum Problem {
 pub enum KeysError {
     #[error("{file}: cannot read: {source}")]
     Read { file: String, source: io::Error },
+    /// Not a regular file, or past `MAX_KEYS_FILE_BYTES`.
+    #[error(transparent)]
+    File(puppetry_mesh::file::FileError),
     #[error("{file}: cannot write: {source}")]
     Write { file: String, source: io::Error },
     /// Not JSON, with where (1-based line and column).
@@ -134,10 +137,11 @@ pub enum KeysError {
 impl KeyFile {
     /// Reads and checks a key file; errors name `path` as given.
     pub fn load(path: &Path) -> Result<KeyFile, KeysError> {
+        use puppetry_mesh::file::{self, FileError};
         let file = path.display().to_string();
-        let text = fs::read_to_string(path).map_err(|source| KeysError::Read {
-            file: file.clone(),
-            source,
+        let text = file::read_text(path, file::KEYS_FILE).map_err(|e| match e {
+            FileError::Io { file, source } => KeysError::Read { file, source },
+            other => KeysError::File(other),
         })?;
         KeyFile::parse(&text, &file)
     }

@@ -13,5 +13,6 @@ mod keyframing;
 mod keys;
 mod lineup;
 mod many;
+mod numbers;
 mod rigs_no_alloc;
 mod simulate;
