@@ -10,19 +10,28 @@
 //! The file is a magic line and a run of framed records (length, kind,
 //! payload, CRC-32). A daemon killed mid-write leaves at most one partial
 //! record at the end: the reader reports it as a truncated tail and keeps
-//! everything before it. [`recorder`] writes on a thread of its own so the
+//! everything before it. A damaged record with more of the take after it
+//! is not a cut tail: the reader says so as an error naming the record
+//! (and can go on past it), so `takes --verify` fails on it. Every record
+//! read is bounded (`puppetry_limits::files`): its times, its changes and
+//! the contacts it lands or holds, so a crafted take cannot make a replay
+//! panic or stall. [`recorder`] writes on a thread of its own so the
 //! stage thread only hands records over; [`replay`] replays a take into a
 //! [`Stage`](puppetry_stage::Stage).
 
 pub mod recorder;
 pub mod replay;
 
+use std::collections::{HashMap, HashSet};
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use glam::DVec2;
+use puppetry_input::Phase;
+use puppetry_limits::files::{MAX_TAKE_CONTACTS, MAX_TAKE_SECONDS, MAX_TAKE_STEP_CHANGES};
 use puppetry_mesh::Mesh;
+use puppetry_mesh::file::{self as named_file, FileError};
 use puppetry_stage::{Change, Stage, StageEvent};
 use serde::{Deserialize, Serialize};
 
@@ -43,6 +52,9 @@ const KIND_END: u8 = 4;
 pub enum TakeError {
     #[error("{file}: {source}")]
     Io { file: String, source: io::Error },
+    /// Not a regular file (a FIFO would block the reader for ever).
+    #[error(transparent)]
+    File(#[from] FileError),
     #[error("{file}: not a take (it does not start with the take magic)")]
     NotATake { file: String },
     #[error("{file}: record {index} at byte {offset}: {problem}")]
@@ -480,6 +492,9 @@ pub struct TakeReader {
     index: usize,
     tail: Option<Tail>,
     length: u64,
+    /// Contacts held down, by source, as the steps read so far left them:
+    /// a take may hold at most `MAX_TAKE_CONTACTS` at once.
+    held: HashMap<String, HashSet<u32>>,
 }
 
 impl TakeReader {
@@ -489,7 +504,10 @@ impl TakeReader {
             file: file.clone(),
             source,
         };
-        let handle = File::open(path).map_err(io)?;
+        let handle = named_file::open_regular(path).map_err(|e| match e {
+            FileError::Io { file, source } => TakeError::Io { file, source },
+            other => TakeError::File(other),
+        })?;
         let length = handle.metadata().map_err(io)?.len();
         let mut input = BufReader::with_capacity(1 << 16, handle);
         let mut magic = [0u8; 8];
@@ -515,6 +533,7 @@ impl TakeReader {
             index: 0,
             tail: None,
             length,
+            held: HashMap::new(),
         };
         match reader.next_record() {
             Some(Ok(Record::Header(h))) => {
@@ -577,13 +596,29 @@ impl TakeReader {
             }
         }
         let length = u32::from_le_bytes(head[..4].try_into().unwrap());
-        if length == 0 || length > MAX_RECORD || u64::from(length) + 8 > self.length - start {
+        let remaining = self.length - start - 4;
+        if length == 0 || length > MAX_RECORD {
+            // The writer never frames an empty record or one this long, and
+            // a cut leaves a whole length field or none: damage, after which
+            // the records cannot be found again.
+            self.tail = Some(Tail::Truncated {
+                offset: start,
+                bytes: self.length - start,
+                problem: format!("a record length of {length} bytes"),
+            });
+            return Some(Err(self.corrupt(
+                start,
+                format!(
+                    "a record length of {length} bytes (1 to {MAX_RECORD}): the take is \
+                     damaged here; the {} bytes after it were not read",
+                    self.length - start
+                ),
+            )));
+        }
+        if u64::from(length) + 4 > remaining {
             return truncated(
                 self,
-                format!(
-                    "a record of {length} bytes, but {} remain",
-                    self.length - start - 4
-                ),
+                format!("a record of {length} bytes, but {remaining} remain"),
             );
         }
         let mut body = vec![0u8; length as usize + 4];
@@ -591,13 +626,31 @@ impl TakeReader {
             return truncated(self, format!("cannot read the record: {e}"));
         }
         let (data, crc) = body.split_at(length as usize);
+        let end = start + 4 + u64::from(length) + 4;
         if crc32fast::hash(data) != u32::from_le_bytes(crc.try_into().unwrap()) {
-            return truncated(self, "checksum mismatch".into());
+            if end == self.length {
+                // The last record, torn as it was written: a cut tail.
+                return truncated(self, "checksum mismatch".into());
+            }
+            // A whole record with more of the take after it was damaged
+            // after it was written: an error, and the reader goes on past
+            // it (its framing held) for whoever wants the rest.
+            self.offset = end;
+            self.index += 1;
+            return Some(Err(self.corrupt(
+                start,
+                format!(
+                    "checksum mismatch, with {} bytes of the take after it: the take is \
+                     damaged here (a cut tail would be the last record)",
+                    self.length - end
+                ),
+            )));
         }
-        self.offset += 4 + u64::from(length) + 4;
+        self.offset = end;
         let index = self.index;
         self.index += 1;
-        match Record::decode(data[0], &data[1..]) {
+        let record = Record::decode(data[0], &data[1..]).and_then(|r| self.check(r));
+        match record {
             Ok(Record::End(end)) => {
                 self.tail = Some(Tail::Ended(end.clone()));
                 Some(Ok(Record::End(end)))
@@ -610,6 +663,101 @@ impl TakeReader {
                 problem,
             })),
         }
+    }
+
+    /// A damaged record starting at `offset` (the one just counted).
+    fn corrupt(&self, offset: u64, problem: String) -> TakeError {
+        TakeError::Corrupt {
+            file: self.file.clone(),
+            index: self.index.saturating_sub(1),
+            offset,
+            problem,
+        }
+    }
+
+    /// Whether a decoded record is within the take budget: its time a
+    /// number of seconds within `MAX_TAKE_SECONDS` (a player turns it into
+    /// a `Duration`), a step's changes and contacts within theirs, and the
+    /// contacts the take holds down at once too. A step refused here
+    /// leaves the held count as it was.
+    fn check(&mut self, record: Record) -> Result<Record, String> {
+        let time = |what: &str, t: f64| {
+            if t.is_finite() && (0.0..=MAX_TAKE_SECONDS).contains(&t) {
+                Ok(())
+            } else {
+                Err(format!(
+                    "{what}: t = {t} is not 0 to {MAX_TAKE_SECONDS} seconds (MAX_TAKE_SECONDS)"
+                ))
+            }
+        };
+        match &record {
+            Record::Header(h) => {
+                let size_ok = |v: f64| v.is_finite() && v > 0.0;
+                if !(size_ok(h.stage_width) && size_ok(h.stage_height)) {
+                    return Err("header: stage_width and stage_height must be positive".into());
+                }
+                if !h.started_unix.is_finite() {
+                    return Err("header: started_unix must be a number of seconds".into());
+                }
+            }
+            Record::Step(step) => {
+                time("step", step.t)?;
+                if step.changes.len() as u64 > MAX_TAKE_STEP_CHANGES {
+                    return Err(format!(
+                        "step: {} changes, more than {MAX_TAKE_STEP_CHANGES} \
+                         (MAX_TAKE_STEP_CHANGES)",
+                        step.changes.len()
+                    ));
+                }
+                self.hold(step)?;
+            }
+            Record::Frame(f) => time("frame", f.t)?,
+            Record::End(e) => time("end", e.t)?,
+        }
+        Ok(record)
+    }
+
+    /// Counts the contacts `step` lands, moves and lifts against
+    /// `MAX_TAKE_CONTACTS`, and keeps the held ones if it is within it.
+    fn hold(&mut self, step: &Step) -> Result<(), String> {
+        let mut held = None::<HashMap<String, HashSet<u32>>>;
+        let mut in_step = 0u64;
+        for change in &step.changes {
+            let held = held.get_or_insert_with(|| self.held.clone());
+            match change {
+                Change::Contacts { frame } => {
+                    in_step += frame.contacts.len() as u64;
+                    let ids = held.entry(frame.source.to_string()).or_default();
+                    for c in &frame.contacts {
+                        match c.phase {
+                            Phase::Up => ids.remove(&c.id),
+                            _ => ids.insert(c.id),
+                        };
+                    }
+                }
+                Change::Release { source } => {
+                    held.remove(source);
+                }
+                _ => {}
+            }
+        }
+        if in_step > MAX_TAKE_CONTACTS {
+            return Err(format!(
+                "step: {in_step} contacts, more than {MAX_TAKE_CONTACTS} (MAX_TAKE_CONTACTS)"
+            ));
+        }
+        if let Some(held) = held {
+            let total: usize = held.values().map(HashSet::len).sum();
+            if total as u64 > MAX_TAKE_CONTACTS {
+                return Err(format!(
+                    "step: {total} contacts held down at once, more than {MAX_TAKE_CONTACTS} \
+                     (MAX_TAKE_CONTACTS)"
+                ));
+            }
+            self.held = held;
+            self.held.retain(|_, ids| !ids.is_empty());
+        }
+        Ok(())
     }
 }
 

@@ -1,5 +1,7 @@
-//! The take file: records round-trip, a cut or damaged tail is reported and
-//! skipped, and foreign files are refused by name.
+//! The take file: records round-trip, a cut tail is reported and skipped,
+//! damage mid-take is an error, foreign files are refused by name, and what
+//! is read is bounded.
 
+mod bounds;
 mod file;
 mod fuzz;
