@@ -440,6 +440,16 @@ async fn until_stopped() -> std::io::Result<()> {
 }
 
 fn main() -> ExitCode {
+    // Past a file-size limit (`ulimit -f`) the kernel sends SIGXFSZ, whose
+    // default kills the process: the whole show would stop for one take.
+    // Ignored, the write fails with EFBIG instead and the take stops with
+    // that error, as docs/protocol.md says ("File too large"). Children
+    // (ffmpeg for video exports) inherit it and fail the same way.
+    // SAFETY: at the start of main, before any thread exists; SIG_IGN
+    // installs no handler code.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
     match run(Args::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {

@@ -12,6 +12,7 @@ mod curves;
 mod depth;
 mod devices;
 mod edge;
+mod files;
 mod fuzz;
 mod install;
 mod lineup;
