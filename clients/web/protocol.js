@@ -84,6 +84,7 @@ export const ERROR_CODE = Object.freeze({
   FORBIDDEN: 'forbidden',
   BAD_TOKEN: 'bad_token',
   OUT_OF_RANGE: 'out_of_range',
+  TOO_MANY: 'too_many',
   NOT_FOUND: 'not_found',
   BUSY: 'busy',
   FAILED: 'failed',

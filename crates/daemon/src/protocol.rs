@@ -321,6 +321,9 @@ pub enum ErrorCode {
     BadToken,
     /// A number is not finite or is too large (coordinates: |v| ≤ 1e6).
     OutOfRange,
+    /// More than the resource budget allows (`docs/limits.md`): contacts
+    /// in one message, or held down at once.
+    TooMany,
     /// No such puppet, take, key, handle…
     NotFound,
     /// Something else is running (a take, an export).

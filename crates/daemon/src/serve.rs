@@ -149,6 +149,9 @@ pub struct Options {
     /// The stage file's replay inputs start paused (`serve --no-replay`);
     /// a director plays them from the page.
     pub paused_replays: bool,
+    /// How long the edge waits on a connection's request head and a
+    /// WebSocket's pong (`puppetry_limits::net`; tests shorten them).
+    pub edge: stream::EdgeTimes,
 }
 
 impl Options {
@@ -161,6 +164,7 @@ impl Options {
             record: false,
             play: None,
             paused_replays: false,
+            edge: stream::EdgeTimes::default(),
         }
     }
 }
@@ -187,6 +191,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         record,
         play,
         paused_replays,
+        edge,
     } = options;
     let started = Instant::now();
     // Loading meshes and factoring their solvers takes seconds on a big
@@ -263,6 +268,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
             exporting: std::sync::atomic::AtomicBool::new(false),
             export_state,
             replays: replays.clone(),
+            held: Default::default(),
         }),
     });
 
@@ -299,7 +305,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         }
     }
     let (shutdown, shutdown_rx) = oneshot::channel();
-    let server = tokio::spawn(stream::run(listener, shared.clone(), async {
+    let server = tokio::spawn(stream::run_with(listener, shared.clone(), edge, async {
         let _ = shutdown_rx.await;
     }));
     Ok(Running {
@@ -367,6 +373,10 @@ async fn resolve_inputs(
     let mut devices = Vec::new();
     let mut hids = Vec::new();
     for (index, input) in config.inputs.iter().enumerate() {
+        if let Some(name) = input_name(input) {
+            reserved_name(name)
+                .map_err(|e| ServeError::Input(format!("input[{index}].name: {e}")))?;
+        }
         let calibration = |spec: &Option<puppetry_input::CalibrationSpec>| {
             spec.clone()
                 .map(Calibration::new)
@@ -518,6 +528,39 @@ async fn resolve_inputs(
         devices,
         hids,
     })
+}
+
+/// Prefixes of the sources the daemon names itself: its WebSocket clients
+/// (`client:<n>`) and a relay's (`relay:<relay>:<n>`). An input named so
+/// would share handles, pins and limits with that client, and a client's
+/// leave would lift the input's contacts.
+pub const RESERVED_SOURCE_PREFIXES: [&str; 2] = ["client:", "relay:"];
+
+/// `name` is not one the daemon gives its clients, or why it may not be.
+fn reserved_name(name: &str) -> Result<(), String> {
+    match RESERVED_SOURCE_PREFIXES
+        .iter()
+        .find(|prefix| name.starts_with(*prefix))
+    {
+        Some(prefix) => Err(format!(
+            "{:?} starts with `{prefix}`, which names the daemon's own clients: choose another name",
+            crate::stream::guard::clip(name, 80)
+        )),
+        None => Ok(()),
+    }
+}
+
+/// The name a stage file gives an input, if it gives one.
+fn input_name(input: &InputConfig) -> Option<&str> {
+    match input {
+        InputConfig::Replay { name, .. }
+        | InputConfig::Serial { name, .. }
+        | InputConfig::Touch { name, .. }
+        | InputConfig::Pen { name, .. }
+        | InputConfig::Hid { name, .. }
+        | InputConfig::Mouse { name, .. } => name.as_deref(),
+        InputConfig::Tuio { .. } => None,
+    }
 }
 
 /// The tasks of the inputs, and where each TUIO input listens.

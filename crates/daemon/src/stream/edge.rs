@@ -1,20 +1,24 @@
-//! The network edge: one port for HTTP and WebSocket, served by axum. It
-//! owns what a stranger can reach before any token is checked: the routes
-//! (the web client's files, puppet pictures, the WebSocket upgrade), the
-//! WebSocket's Origin check, the cap on open connections (past it a
-//! connection gets a 503 and is closed) and on WebSockets per address,
-//! request size limits, MIME types and 404s. Accept errors (a full
-//! file table, say) back off inside axum's own accept loop instead of
-//! spinning.
+//! The network edge: one port for HTTP and WebSocket, routed by axum and
+//! served by hyper from the edge's own accept loop ([`serve`]). It owns
+//! what a stranger can reach before any token is checked: the routes (the
+//! web client's files, puppet pictures, the WebSocket upgrade), the
+//! WebSocket's Origin check (against the daemon's own addresses, never the
+//! request's `Host`), the caps on open connections (in all, per address,
+//! and WebSockets per address: past them a 503, or a close `1013`), the
+//! time a connection may take to send its request head
+//! (`puppetry_limits::net`), request size limits, MIME types and 404s.
+//! Accept errors (a full file table, say) back off instead of spinning.
 
+use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use axum::Router;
 use axum::body::Body;
 use axum::extract::ws::WebSocketUpgrade;
-use axum::extract::{ConnectInfo, Path, State};
+use axum::extract::{ConnectInfo, Extension, Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -22,6 +26,7 @@ use include_dir::{Dir, include_dir};
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tower::ServiceExt;
 use tower_http::limit::RequestBodyLimitLayer;
 use tower_http::services::ServeDir;
 
@@ -43,6 +48,32 @@ pub enum WebFiles {
     /// A folder, for client development (`serve --web-root`).
     Folder(PathBuf),
 }
+
+/// How long the edge waits on its connections; the defaults are
+/// `puppetry_limits::net`'s, tests shorten them (`serve::Options::edge`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeTimes {
+    /// A request head must arrive within this (silent, idle and trickling
+    /// connections are closed after it).
+    pub header_read: Duration,
+    /// Every WebSocket is pinged this often; one that has not answered the
+    /// last ping by the next is closed.
+    pub ping_every: Duration,
+}
+
+impl Default for EdgeTimes {
+    fn default() -> EdgeTimes {
+        EdgeTimes {
+            header_read: puppetry_limits::net::HEADER_READ_TIMEOUT,
+            ping_every: puppetry_limits::net::WEBSOCKET_PING_EVERY,
+        }
+    }
+}
+
+/// The address a connection reached the daemon at: its own origin, as
+/// far as the Origin check goes.
+#[derive(Debug, Clone, Copy)]
+struct LocalAddr(Option<SocketAddr>);
 
 /// The routes of the daemon's one port.
 pub fn router(shared: Arc<Shared>) -> Router {
@@ -77,13 +108,14 @@ pub fn router(shared: Arc<Shared>) -> Router {
 async fn upgrade(
     State(shared): State<Arc<Shared>>,
     ConnectInfo(PeerAddr(peer)): ConnectInfo<PeerAddr>,
+    Extension(LocalAddr(local)): Extension<LocalAddr>,
+    Extension(times): Extension<EdgeTimes>,
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
     if let Some(origin) = headers.get(header::ORIGIN) {
-        let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
         let allowed = shared.admission().allowed_origins;
-        if !origin_allowed(origin.to_str().unwrap_or(""), host, &allowed) {
+        if !own_origin(origin.to_str().unwrap_or(""), local, &allowed) {
             shared.log.warn(&peer.ip().to_string(), || {
                 format!(
                     "WebSocket from origin {:?} refused (not the daemon's own nor in access.allowed_origins)",
@@ -118,41 +150,112 @@ async fn upgrade(
                 .await;
                 return;
             };
-            if let Err(e) = websocket(socket, shared, peer.ip(), place).await {
+            if let Err(e) = websocket(socket, shared, peer.ip(), place, times).await {
                 tracing::debug!("websocket ended: {e}");
             }
         })
 }
 
-/// Whether a page of `origin` may open the WebSocket: its own page (the
-/// origin's host and port are the request's `Host`), or one listed.
-pub(super) fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
-    let origin = origin.trim_end_matches('/');
-    if allowed
-        .iter()
-        .any(|a| a.trim_end_matches('/').eq_ignore_ascii_case(origin))
-    {
+/// Whether a page of `origin` may open the WebSocket: one listed in
+/// `access.allowed_origins`, or the daemon's own page — served from the
+/// address and port the connection reached (`local`), under that address,
+/// `localhost` (on loopback) or this machine's host name. The request's
+/// `Host` is the page's to say, so it decides nothing: a page of a
+/// rebound name (DNS rebinding) names its own host there.
+pub(super) fn own_origin(origin: &str, local: Option<SocketAddr>, allowed: &[String]) -> bool {
+    if listed(origin, allowed) {
         return true;
     }
-    let authority = origin.split_once("://").map(|(_, rest)| rest).unwrap_or("");
-    match host {
-        Some(host) => !authority.is_empty() && authority.eq_ignore_ascii_case(host),
-        None => false,
+    let (Some(local), Some((host, port))) = (local, host_and_port(origin)) else {
+        return false;
+    };
+    if port != local.port() {
+        return false;
     }
+    let literal = host.trim_start_matches('[').trim_end_matches(']');
+    if literal.parse::<IpAddr>().is_ok_and(|ip| ip == local.ip()) {
+        return true;
+    }
+    (local.ip().is_loopback() && host == "localhost") || own_host_names().contains(&host)
 }
 
-/// The client's address, as axum's `ConnectInfo` carries it for the
-/// capped listener.
+/// Whether a page of `origin` may send a request that names `host` (a
+/// request's `Host`, where the connection's own address is not at hand):
+/// one listed, or its own page — the origin's host and port are `host`'s,
+/// and that host is an address, `localhost` or this machine's name. A
+/// rebound name (DNS rebinding) is none of those, though the page sends
+/// it as `Host`. The WebSocket checks [`own_origin`], which is stricter.
+pub(super) fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
+    if listed(origin, allowed) {
+        return true;
+    }
+    let (Some(host), Some((name, _))) = (host, host_and_port(origin)) else {
+        return false;
+    };
+    let authority = origin
+        .trim_end_matches('/')
+        .split_once("://")
+        .map_or("", |(_, a)| a);
+    let literal = name.trim_start_matches('[').trim_end_matches(']');
+    authority.eq_ignore_ascii_case(host)
+        && (literal.parse::<IpAddr>().is_ok()
+            || name == "localhost"
+            || own_host_names().contains(&name))
+}
+
+/// `origin` is one of `allowed` (case and a trailing `/` aside).
+fn listed(origin: &str, allowed: &[String]) -> bool {
+    let origin = origin.trim_end_matches('/');
+    allowed
+        .iter()
+        .any(|a| a.trim_end_matches('/').eq_ignore_ascii_case(origin))
+}
+
+/// An `http(s)://host[:port]` origin's host (lowercase; an IPv6 literal in
+/// its brackets) and port (the scheme's default if none is given).
+fn host_and_port(origin: &str) -> Option<(String, u16)> {
+    let (scheme, authority) = origin.trim_end_matches('/').split_once("://")?;
+    let default_port = match scheme.to_ascii_lowercase().as_str() {
+        "http" => 80,
+        "https" => 443,
+        _ => return None,
+    };
+    if authority.is_empty() || authority.contains(['/', '@', '?', '#']) {
+        return None;
+    }
+    let (host, port) = match authority.rsplit_once(':') {
+        Some((host, port)) if !port.contains(']') => (host, port.parse::<u16>().ok()?),
+        _ => (authority, default_port),
+    };
+    (!host.is_empty()).then(|| (host.to_ascii_lowercase(), port))
+}
+
+/// This machine's host name, and with `.local` (mDNS), lowercased: a page
+/// served as `http://<host name>:<port>/` is the daemon's own.
+fn own_host_names() -> &'static [String] {
+    static NAMES: std::sync::OnceLock<Vec<String>> = std::sync::OnceLock::new();
+    NAMES.get_or_init(|| {
+        let mut buffer = [0u8; 256];
+        // SAFETY: the buffer is valid for its length; gethostname writes
+        // at most that many bytes.
+        let read = unsafe { libc::gethostname(buffer.as_mut_ptr().cast(), buffer.len()) };
+        if read != 0 {
+            return Vec::new();
+        }
+        let end = buffer.iter().position(|&b| b == 0).unwrap_or(buffer.len());
+        let name = String::from_utf8_lossy(&buffer[..end]).to_ascii_lowercase();
+        if name.is_empty() {
+            return Vec::new();
+        }
+        let local = format!("{}.local", name.trim_end_matches(".local"));
+        vec![name, local]
+    })
+}
+
+/// The client's address, as axum's `ConnectInfo` carries it (the accept
+/// loop puts it on every request).
 #[derive(Debug, Clone, Copy)]
 pub struct PeerAddr(pub SocketAddr);
-
-impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, CappedListener>>
-    for PeerAddr
-{
-    fn connect_info(stream: axum::serve::IncomingStream<'_, CappedListener>) -> PeerAddr {
-        PeerAddr(*stream.remote_addr())
-    }
-}
 
 /// A WebSocket's place under its address's cap, given back when dropped.
 pub struct AddressPlace {
@@ -256,67 +359,173 @@ fn not_found() -> Response {
     (StatusCode::NOT_FOUND, "not found\n").into_response()
 }
 
-/// The listener with a cap on open connections. A connection past the cap
-/// is answered `503` and closed at once, so a flood cannot hold the
-/// daemon's memory or file table; the others are served as usual.
-pub struct CappedListener {
+/// Serves `app` on `listener` until `shutdown` resolves, then lets each
+/// connection finish its request and waits for them (upgraded WebSockets
+/// are the stage's to close). Each connection holds a place under the cap
+/// on open connections and under its address's cap (its WebSockets' cap
+/// and [`HTTP_PER_ADDRESS`](puppetry_limits::net::HTTP_PER_ADDRESS) more);
+/// past either it is answered 503 and closed at once, so a flood cannot
+/// hold the daemon's memory or file table. hyper serves HTTP/1 with a
+/// timer, so its header-read timeout runs: a connection that sends no
+/// request head in time (silent, idle after an answer, or trickling one
+/// header line at a time) is closed.
+pub(super) async fn serve(
     listener: TcpListener,
-    open: Arc<Semaphore>,
+    shared: Arc<Shared>,
+    times: EdgeTimes,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) {
+    let app = router(shared.clone()).layer(axum::Extension(times));
+    let open = Arc::new(Semaphore::new(shared.max_connections));
+    let places = Places::default();
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(times.header_read);
+    // Each connection task holds a sender; when the last is gone, every
+    // connection has ended.
+    let (alive, mut all_ended) = tokio::sync::mpsc::channel::<()>(1);
+    let (stop, stopping) = tokio::sync::watch::channel(false);
+    let mut shutdown = std::pin::pin!(shutdown);
+    loop {
+        let (stream, peer) = tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok(accepted) => accepted,
+                Err(e) => {
+                    backoff(&e).await;
+                    continue;
+                }
+            },
+            () = &mut shutdown => break,
+        };
+        let _ = stream.set_nodelay(true);
+        let Ok(place) = open.clone().try_acquire_owned() else {
+            tracing::debug!(%peer, "connection refused: too many open connections");
+            tokio::spawn(refuse(stream, "too many open connections"));
+            continue;
+        };
+        let cap = shared
+            .admission()
+            .max_per_address
+            .saturating_add(puppetry_limits::net::HTTP_PER_ADDRESS);
+        let Some(address) = places.take(peer.ip(), cap) else {
+            shared.log.warn(&peer.ip().to_string(), || {
+                format!("connection refused: {cap} open from this address already")
+            });
+            tokio::spawn(refuse(stream, "too many connections from this address"));
+            continue;
+        };
+        let local = LocalAddr(stream.local_addr().ok());
+        let io = hyper_util::rt::TokioIo::new(CappedStream {
+            stream,
+            _place: place,
+            _address: address,
+        });
+        let app = app.clone();
+        let service = hyper::service::service_fn(
+            move |mut request: axum::extract::Request<hyper::body::Incoming>| {
+                let extensions = request.extensions_mut();
+                extensions.insert(ConnectInfo(PeerAddr(peer)));
+                extensions.insert(local);
+                app.clone().oneshot(request)
+            },
+        );
+        let connection = http.serve_connection(io, service).with_upgrades();
+        let mut stopping = stopping.clone();
+        let alive = alive.clone();
+        tokio::spawn(async move {
+            let mut connection = std::pin::pin!(connection);
+            tokio::select! {
+                served = connection.as_mut() => {
+                    if let Err(e) = served {
+                        tracing::debug!(%peer, "connection ended: {e}");
+                    }
+                }
+                // Set once, at shutdown (or the loop is gone).
+                _ = stopping.changed() => {
+                    connection.as_mut().graceful_shutdown();
+                    let _ = connection.await;
+                }
+            }
+            drop(alive);
+        });
+    }
+    drop(listener);
+    let _ = stop.send(true);
+    drop(alive);
+    let _ = all_ended.recv().await;
 }
 
-impl CappedListener {
-    pub fn new(listener: TcpListener, max_connections: usize) -> CappedListener {
-        CappedListener {
-            listener,
-            open: Arc::new(Semaphore::new(max_connections)),
+/// After an accept error: errors of one connection (reset before it was
+/// accepted) are nothing to wait for; others (a full file table) are
+/// waited out a moment instead of spinning.
+async fn backoff(error: &std::io::Error) {
+    use std::io::ErrorKind as K;
+    if matches!(
+        error.kind(),
+        K::ConnectionRefused | K::ConnectionAborted | K::ConnectionReset
+    ) {
+        return;
+    }
+    tracing::error!("accepting a connection: {error}");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+}
+
+/// Open connections (HTTP and WebSocket) per client address.
+#[derive(Default, Clone)]
+struct Places {
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+impl Places {
+    /// A place for `ip`, or `None` if it holds `cap` already.
+    fn take(&self, ip: IpAddr, cap: usize) -> Option<Place> {
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        let count = open.entry(ip).or_insert(0);
+        if *count >= cap {
+            return None;
         }
+        *count += 1;
+        Some(Place {
+            places: self.clone(),
+            ip,
+        })
     }
 }
 
-/// A connection holding its place under the cap until it closes.
-pub struct CappedStream {
-    stream: TcpStream,
-    _place: OwnedSemaphorePermit,
+/// A connection's place under its address's cap, given back when the
+/// connection (or the WebSocket it became) is dropped.
+struct Place {
+    places: Places,
+    ip: IpAddr,
 }
 
-impl axum::serve::Listener for CappedListener {
-    type Io = CappedStream;
-    type Addr = std::net::SocketAddr;
-
-    async fn accept(&mut self) -> (Self::Io, Self::Addr) {
-        loop {
-            // axum's accept backs off on errors such as a full file table.
-            let (stream, peer) = axum::serve::Listener::accept(&mut self.listener).await;
-            let _ = stream.set_nodelay(true);
-            match self.open.clone().try_acquire_owned() {
-                Ok(place) => {
-                    return (
-                        CappedStream {
-                            stream,
-                            _place: place,
-                        },
-                        peer,
-                    );
-                }
-                Err(_) => {
-                    tracing::debug!(%peer, "connection refused: too many open connections");
-                    tokio::spawn(refuse(stream));
-                }
+impl Drop for Place {
+    fn drop(&mut self) {
+        let mut open = self.places.open.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(count) = open.get_mut(&self.ip) {
+            *count -= 1;
+            if *count == 0 {
+                open.remove(&self.ip);
             }
         }
     }
-
-    fn local_addr(&self) -> std::io::Result<Self::Addr> {
-        self.listener.local_addr()
-    }
 }
 
-async fn refuse(mut stream: TcpStream) {
-    let answer = b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n\
-        Content-Length: 26\r\nConnection: close\r\nRetry-After: 1\r\n\r\n\
-        too many open connections";
-    let _ = tokio::time::timeout(std::time::Duration::from_secs(2), async {
-        stream.write_all(answer).await?;
+/// A connection holding its places under the caps until it closes.
+pub struct CappedStream {
+    stream: TcpStream,
+    _place: OwnedSemaphorePermit,
+    _address: Place,
+}
+
+async fn refuse(mut stream: TcpStream, why: &str) {
+    let answer = format!(
+        "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n\
+         Content-Length: {}\r\nConnection: close\r\nRetry-After: 1\r\n\r\n{why}",
+        why.len()
+    );
+    let _ = tokio::time::timeout(Duration::from_secs(2), async {
+        stream.write_all(answer.as_bytes()).await?;
         stream.shutdown().await
     })
     .await;
@@ -366,7 +575,7 @@ impl tokio::io::AsyncWrite for CappedStream {
 
 #[cfg(test)]
 mod tests {
-    use super::origin_allowed;
+    use super::{origin_allowed, own_origin};
 
     #[test]
     fn only_the_daemons_own_or_listed_origins_pass() {
@@ -385,5 +594,49 @@ mod tests {
             assert!(!origin_allowed(foreign, host, &listed), "{foreign}");
         }
         assert!(!origin_allowed("http://127.0.0.1:8080", None, &[]));
+    }
+
+    #[test]
+    fn a_rebound_name_is_not_the_daemons_own_though_host_says_so() {
+        // DNS rebinding: the attacker's name resolves to the daemon, so
+        // the page's Origin and Host agree — and name the attacker.
+        let rebound = "http://evil.example:8080";
+        assert!(!origin_allowed(rebound, Some("evil.example:8080"), &[]));
+        let local = Some("127.0.0.1:8080".parse().unwrap());
+        assert!(!own_origin(rebound, local, &[]));
+        assert!(!own_origin("http://evil.example", local, &[]));
+        // The daemon's own page, under its address or localhost.
+        for own in [
+            "http://127.0.0.1:8080",
+            "http://localhost:8080",
+            "http://LOCALHOST:8080/",
+        ] {
+            assert!(own_origin(own, local, &[]), "{own}");
+        }
+        assert!(origin_allowed(
+            "http://localhost:8080",
+            Some("localhost:8080"),
+            &[]
+        ));
+        // Another port, another address, another scheme: not its own.
+        for foreign in [
+            "http://127.0.0.1:8081",
+            "http://127.0.0.2:8080",
+            "ftp://127.0.0.1:8080",
+            "http://127.0.0.1:8080@evil.example",
+            "null",
+        ] {
+            assert!(!own_origin(foreign, local, &[]), "{foreign}");
+        }
+        // localhost is only loopback's name; a LAN address is its own.
+        let lan = Some("192.168.1.5:8080".parse().unwrap());
+        assert!(!own_origin("http://localhost:8080", lan, &[]));
+        assert!(own_origin("http://192.168.1.5:8080", lan, &[]));
+        let v6 = Some("[::1]:80".parse().unwrap());
+        assert!(own_origin("http://[::1]", v6, &[]));
+        // Listed origins pass wherever the page came from.
+        let listed = vec!["https://show.example".to_string()];
+        assert!(own_origin("https://show.example/", local, &listed));
+        assert!(!own_origin("http://127.0.0.1:8080", None, &[]));
     }
 }

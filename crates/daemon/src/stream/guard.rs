@@ -1,13 +1,14 @@
 //! What a connected client's messages must pass before they act: the role
 //! check ([`allowed`]: one place, so a new message is one new arm), the
-//! range check of coordinates ([`check_ranges`]), and the shape of every
+//! range check of coordinates ([`check_ranges`]), the contacts budget
+//! ([`check_contacts`] per message, [`Held`] per client), and the shape of every
 //! refusal ([`Refusal`], a typed `error` naming the field). Echoed input is
 //! clipped ([`clip`]) so a stranger cannot make the daemon send or log
 //! kilobytes, and client errors are logged through a per-source token
 //! bucket ([`RateLog`]) so a flood of bad messages is a few lines and a
 //! count.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -236,6 +237,96 @@ pub fn check_ranges(message: &ClientMessage) -> Result<(), Refusal> {
             Ok(())
         }
         _ => Ok(()),
+    }
+}
+
+/// A `contacts` message within the budget: at most
+/// [`MAX_CONTACTS_PER_MESSAGE`](puppetry_limits::contacts::MAX_CONTACTS_PER_MESSAGE)
+/// contacts, each id once. Refused whole otherwise — a frame cut short
+/// could lose an up, leaving a handle held for good.
+pub fn check_contacts(message: &ClientMessage) -> Result<(), Refusal> {
+    use puppetry_limits::contacts::MAX_CONTACTS_PER_MESSAGE;
+    let ClientMessage::Contacts { contacts } = message else {
+        return Ok(());
+    };
+    if contacts.len() > MAX_CONTACTS_PER_MESSAGE {
+        return Err(Refusal::new(
+            ErrorCode::TooMany,
+            format!(
+                "{} contacts in one message: at most {MAX_CONTACTS_PER_MESSAGE} (docs/limits.md)",
+                contacts.len()
+            ),
+        )
+        .at("contacts"));
+    }
+    let mut seen = HashSet::with_capacity(contacts.len());
+    for (i, c) in contacts.iter().enumerate() {
+        if !seen.insert(c.id) {
+            return Err(Refusal::new(
+                ErrorCode::BadMessage,
+                format!("contact id {} is named twice in one message", c.id),
+            )
+            .at(format!("contacts[{i}].id")));
+        }
+    }
+    Ok(())
+}
+
+/// The contacts each client holds down, as the door sees them: every id
+/// whose last phase was down or move. The stage keeps its own count, but
+/// the door must refuse a message before it reaches the stage thread, and
+/// a client's messages pass here in order (a relayed client's too: the
+/// daemon handles them one source at a time).
+#[derive(Default)]
+pub struct Held {
+    /// Boxed: the stage's links are one variant of the edge's backend,
+    /// and a relay's is small.
+    by_source: Box<Mutex<HashMap<String, HashSet<u32>>>>,
+}
+
+impl Held {
+    /// Takes `contacts` (a message already within [`check_contacts`]) as
+    /// `source`'s next frame, or refuses it whole if `source` would hold
+    /// more than
+    /// [`MAX_HELD_PER_CLIENT`](puppetry_limits::contacts::MAX_HELD_PER_CLIENT)
+    /// down after it. A refused message changes nothing.
+    pub fn take(&self, source: &str, contacts: &[puppetry_input::Contact]) -> Result<(), Refusal> {
+        use puppetry_input::Phase;
+        use puppetry_limits::contacts::MAX_HELD_PER_CLIENT;
+        let mut by_source = self.by_source.lock().unwrap_or_else(|p| p.into_inner());
+        let held = by_source.get(source);
+        let mut after: HashSet<u32> = held.cloned().unwrap_or_default();
+        for c in contacts {
+            match c.phase {
+                Phase::Up => after.remove(&c.id),
+                Phase::Down | Phase::Move => after.insert(c.id),
+            };
+        }
+        if after.len() > MAX_HELD_PER_CLIENT {
+            return Err(Refusal::new(
+                ErrorCode::TooMany,
+                format!(
+                    "this would hold {} contacts down at once: at most {MAX_HELD_PER_CLIENT} \
+                     per client (lift some first; docs/limits.md)",
+                    after.len()
+                ),
+            )
+            .at("contacts"));
+        }
+        if after.is_empty() {
+            by_source.remove(source);
+        } else {
+            by_source.insert(source.to_string(), after);
+        }
+        Ok(())
+    }
+
+    /// `source` left: whatever it held is let go by the stage.
+    pub fn forget(&self, source: &str) {
+        self.by_source
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .remove(source);
     }
 }
 

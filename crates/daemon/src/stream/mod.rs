@@ -13,7 +13,7 @@ pub mod people;
 mod uploads;
 pub use uploads::restore_pictures;
 
-pub use edge::WebFiles;
+pub use edge::{EdgeTimes, WebFiles};
 pub use people::People;
 
 use futures_util::SinkExt;
@@ -111,6 +111,8 @@ pub struct StageLinks {
     pub export_state: watch::Sender<Arc<str>>,
     /// The stage's replay inputs, played and paused from the page.
     pub replays: Arc<crate::sources::Replays>,
+    /// The contacts each client holds down, counted at the door.
+    pub held: guard::Held,
 }
 
 /// Who may open the WebSocket beyond the edge's own pages, and how many
@@ -160,21 +162,25 @@ pub async fn run(
     shared: Arc<Shared>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) {
-    let listener = edge::CappedListener::new(listener, shared.max_connections);
-    let app = edge::router(shared).into_make_service_with_connect_info::<edge::PeerAddr>();
-    if let Err(e) = axum::serve(listener, app)
-        .with_graceful_shutdown(shutdown)
-        .await
-    {
-        tracing::error!("the server stopped: {e}");
-    }
+    run_with(listener, shared, EdgeTimes::default(), shutdown).await
+}
+
+/// [`run`], waiting on connections as `times` says.
+pub async fn run_with(
+    listener: TcpListener,
+    shared: Arc<Shared>,
+    times: EdgeTimes,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) {
+    edge::serve(listener, shared, times, shutdown).await
 }
 
 type Ws = WebSocket;
 
 /// Close codes the daemon sends (RFC 6455 and the application range).
 pub mod close {
-    /// A rule was broken: a foreign origin, no hello, too many bad messages.
+    /// A rule was broken: a foreign origin, no hello, too many bad
+    /// messages, a ping left unanswered (the client stopped reading).
     pub const POLICY: u16 = 1008;
     /// A message too large to read.
     pub const TOO_LARGE: u16 = 1009;
@@ -347,6 +353,7 @@ pub(crate) async fn join_stage(
 
 /// Lets go of whatever `source` held on the stage, and of its puppet limit.
 pub(crate) async fn leave_stage(links: &StageLinks, source: &str, role: Role, limited: bool) {
+    links.held.forget(source);
     if role != Role::Viewer {
         let _ = links.commands.send(crate::convert::release(source)).await;
     }
@@ -417,12 +424,15 @@ impl Seat {
 }
 
 /// Serves one WebSocket client from its hello to its end. `place` holds
-/// the client's place under its address's cap.
+/// the client's place under its address's cap. The client is pinged every
+/// `times.ping_every`; one that has not answered by the next ping has
+/// stopped reading, and is closed.
 async fn websocket(
     mut ws: Ws,
     shared: Arc<Shared>,
     peer: std::net::IpAddr,
     _place: edge::AddressPlace,
+    times: EdgeTimes,
 ) -> std::io::Result<()> {
     use crate::protocol::ErrorCode;
     let io = std::io::Error::other;
@@ -461,6 +471,13 @@ async fn websocket(
     notice.mark_changed();
     let mut notices = true;
     let mut bad_in_a_row = 0u32;
+    let mut pings = tokio::time::interval_at(
+        tokio::time::Instant::now() + times.ping_every,
+        times.ping_every,
+    );
+    pings.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // Pings sent, and the newest answered (pings carry their number).
+    let (mut pinged, mut answered) = (0u64, 0u64);
     let result: std::io::Result<()> = async {
         loop {
             // Send what is newest before waiting again.
@@ -507,6 +524,15 @@ async fn websocket(
                         send(&mut ws, Message::text(text), shared.client_timeout).await?;
                     }
                 }
+                _ = pings.tick() => {
+                    if answered < pinged {
+                        close_with(&mut ws, close::POLICY, "no answer to ping (not reading)").await;
+                        return Ok(());
+                    }
+                    pinged += 1;
+                    let ping = Message::Ping(pinged.to_be_bytes().to_vec().into());
+                    send(&mut ws, ping, shared.client_timeout).await?;
+                }
                 changed = changes.changed() => {
                     if changed.is_err() {
                         // The stage thread stopped: the daemon is shutting down.
@@ -543,6 +569,16 @@ async fn websocket(
                             // Answer the close, so the client sees a clean 1000.
                             let _ = ws.send(Message::Close(None)).await;
                             return Ok(());
+                        }
+                        Some(Ok(Message::Pong(payload))) => {
+                            // Only an answer to a ping sent counts.
+                            if let Ok(number) = <[u8; 8]>::try_from(payload.as_ref()) {
+                                let number = u64::from_be_bytes(number);
+                                if number <= pinged {
+                                    answered = answered.max(number);
+                                }
+                            }
+                            continue;
                         }
                         Some(Ok(_)) => continue,
                     };
@@ -666,6 +702,7 @@ pub(crate) async fn handle_message(
         .map_err(|e| guard::Refusal::new(ErrorCode::BadMessage, format!("bad message: {e}")))?;
     guard::allowed(who, &message)?;
     guard::check_ranges(&message)?;
+    guard::check_contacts(&message)?;
     if let ClientMessage::Ping { t } = message {
         let clock = shared.started.elapsed().as_secs_f64();
         return Ok(Some(ServerMessage::Pong { t, clock }.to_text()));
@@ -690,6 +727,11 @@ pub(crate) async fn handle_message(
     if let ClientMessage::ListTakes = message {
         return Ok(Some(list_takes(shared).await?));
     }
+    if let ClientMessage::Unpin { puppet, .. } = message {
+        // The stage takes an unpin without a reply (it is input-rate, like
+        // a pin): a puppet that is not on stage is refused here.
+        on_stage(shared, puppet)?;
+    }
     let now = shared.started.elapsed().as_secs_f64();
     let message = match crate::convert::client(message, source, now) {
         Ok(Converted::Change {
@@ -710,13 +752,16 @@ pub(crate) async fn handle_message(
             received,
             wait: false,
         }) => {
+            let links = shared.links()?;
+            if let puppetry_stage::Change::Contacts { frame } = &change {
+                links.held.take(source, &frame.contacts)?;
+            }
             let command = Command::Change {
                 change,
                 received,
                 reply: None,
             };
-            return shared
-                .links()?
+            return links
                 .commands
                 .send(command)
                 .await
@@ -733,7 +778,11 @@ pub(crate) async fn handle_message(
         }
     };
     match message {
-        ClientMessage::Hello { .. } => Err("already said hello".into()),
+        // A client's mistake, not something busy: it counts.
+        ClientMessage::Hello { .. } => Err(guard::Refusal::new(
+            ErrorCode::BadMessage,
+            "already said hello: a connection says hello once",
+        )),
         ClientMessage::Undo { puppet } => return edit(shared, puppet, Edit::Undo).await,
         ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
         ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,
@@ -853,6 +902,31 @@ pub(crate) async fn handle_message(
             Ok(None)
         }
     }
+}
+
+/// `puppet` is on stage now, or the refusal naming it.
+fn on_stage(shared: &Shared, puppet: u32) -> Result<(), guard::Refusal> {
+    let lineup = shared.lineup.borrow();
+    let puppets = &lineup.description.puppets;
+    if puppets.iter().any(|p| p.id == puppet) {
+        return Ok(());
+    }
+    Err(guard::Refusal::new(
+        crate::protocol::ErrorCode::NotFound,
+        format!(
+            "no puppet {puppet} on stage (there are {}: {})",
+            puppets.len(),
+            guard::clip(
+                &puppets
+                    .iter()
+                    .map(|p| p.id.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                80
+            )
+        ),
+    )
+    .at("puppet"))
 }
 
 /// Adds, removes or reorders puppets; answers the puppet's id. Refused

@@ -24,6 +24,7 @@ mod roles;
 mod serve;
 mod show;
 mod stage_state;
+mod stranger;
 mod takes;
 mod web;
 mod web_protocol;
