@@ -54,7 +54,7 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
-use crate::{Animation, ExportError, Progress, flag, io_error};
+use crate::{Animation, ExportError, Progress, flag};
 
 /// Options of a glTF export.
 #[derive(Debug, Clone, PartialEq)]
@@ -82,34 +82,59 @@ const UNSIGNED_INT: u32 = 5125;
 const LINEAR: u32 = 9729;
 const CLAMP_TO_EDGE: u32 = 33071;
 
-/// The file being assembled: JSON arrays and the binary chunk.
-#[derive(Default)]
-struct Builder {
-    bin: Vec<u8>,
+/// The file being assembled: its JSON arrays, and the binary chunk's
+/// length so far. The bytes themselves go to `out` when there is one: the
+/// file is laid out in a first pass without it (to learn the JSON, which
+/// comes first in the file) and written in a second, so no more than one
+/// chunk's vertex data is ever held.
+struct Builder<'a> {
+    length: usize,
+    out: Option<&'a mut dyn Write>,
     views: Vec<Value>,
     accessors: Vec<Value>,
 }
 
-impl Builder {
+impl<'a> Builder<'a> {
+    fn new(out: Option<&'a mut dyn Write>) -> Builder<'a> {
+        Builder {
+            length: 0,
+            out,
+            views: Vec::new(),
+            accessors: Vec::new(),
+        }
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> Result<(), ExportError> {
+        if let Some(out) = self.out.as_mut() {
+            out.write_all(bytes).map_err(write_error)?;
+        }
+        self.length += bytes.len();
+        Ok(())
+    }
+
     /// Appends bytes as a new buffer view (aligned to 4); returns its index.
-    fn view(&mut self, bytes: &[u8], target: Option<u32>, stride: Option<usize>) -> usize {
-        self.align();
-        let mut v = json!({"buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len()});
+    fn view(
+        &mut self,
+        bytes: &[u8],
+        target: Option<u32>,
+        stride: Option<usize>,
+    ) -> Result<usize, ExportError> {
+        self.align()?;
+        let mut v = json!({"buffer": 0, "byteOffset": self.length, "byteLength": bytes.len()});
         if let Some(t) = target {
             v["target"] = json!(t);
         }
         if let Some(s) = stride {
             v["byteStride"] = json!(s);
         }
-        self.bin.extend_from_slice(bytes);
+        self.write(bytes)?;
         self.views.push(v);
-        self.views.len() - 1
+        Ok(self.views.len() - 1)
     }
 
-    fn align(&mut self) {
-        while !self.bin.len().is_multiple_of(4) {
-            self.bin.push(0);
-        }
+    fn align(&mut self) -> Result<(), ExportError> {
+        let pad = self.length.next_multiple_of(4) - self.length;
+        self.write(&[0; 3][..pad])
     }
 
     fn accessor(&mut self, a: Value) -> usize {
@@ -119,9 +144,15 @@ impl Builder {
 
     /// A FLOAT accessor of `values` (grouped by `kind`: SCALAR, VEC2, VEC3)
     /// in a view of its own, with min/max when asked.
-    fn floats(&mut self, values: &[f32], kind: &str, target: Option<u32>, bounds: bool) -> usize {
+    fn floats(
+        &mut self,
+        values: &[f32],
+        kind: &str,
+        target: Option<u32>,
+        bounds: bool,
+    ) -> Result<usize, ExportError> {
         let width = components(kind);
-        let view = self.view(&f32_bytes(values), target, None);
+        let view = self.view(&f32_bytes(values), target, None)?;
         let mut a = json!({
             "bufferView": view, "componentType": FLOAT,
             "count": values.len() / width, "type": kind,
@@ -131,7 +162,14 @@ impl Builder {
             a["min"] = json!(min);
             a["max"] = json!(max);
         }
-        self.accessor(a)
+        Ok(self.accessor(a))
+    }
+}
+
+fn write_error(source: std::io::Error) -> ExportError {
+    ExportError::Io {
+        file: "glb output".into(),
+        source,
     }
 }
 
@@ -173,22 +211,23 @@ pub fn chunks(frame_count: usize, chunk: usize) -> Vec<(usize, usize)> {
 }
 
 /// Writes `animation` as a `.glb` file at `path`. `progress` counts chunks.
+/// The file is written beside `path` under a fresh name and renamed onto it
+/// when whole ([`crate::write_new`]): a link at `path` is replaced, never
+/// followed, and a failed export leaves nothing behind.
 pub fn export_glb(
     animation: &Animation,
     options: &GltfOptions,
     progress: &mut dyn Progress,
     path: &Path,
 ) -> Result<(), ExportError> {
-    let file = std::fs::File::create(path).map_err(io_error(path))?;
-    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
-    write_glb(animation, options, progress, &mut out).map_err(|e| match e {
-        ExportError::Io { source, .. } => io_error(path)(source),
-        other => other,
-    })?;
-    out.flush().map_err(io_error(path))
+    crate::write_new(path, |out| write_glb(animation, options, progress, out))
 }
 
-/// Writes `animation` as glTF binary to `out` (see the module's doc).
+/// Writes `animation` as glTF binary to `out` (see the module's doc), in
+/// two passes over the frames: the first lays the file out (the JSON chunk,
+/// which precedes the vertex data, needs every accessor's bounds), the
+/// second writes the vertex data a chunk at a time. `progress` counts the
+/// second pass's chunks.
 pub fn write_glb(
     animation: &Animation,
     options: &GltfOptions,
@@ -212,31 +251,155 @@ pub fn write_glb(
             "the take is too long for glTF's 32-bit times at this frame rate",
         ));
     }
-    let chunks = chunks(animation.frame_count, options.chunk);
-    let total = chunks.len() * animation.puppets.len();
-    let mut done = 0;
-
-    let mut b = Builder::default();
-    let mut images = Vec::new();
-    let mut textures = Vec::new();
-    let mut materials = Vec::new();
-    let mut meshes = Vec::new();
-    let mut nodes = Vec::new();
-    let mut scene_nodes = Vec::new();
-    let mut samplers = Vec::new();
-    let mut channels = Vec::new();
-
+    // The pictures, encoded once for both passes.
+    let mut pictures = Vec::with_capacity(animation.puppets.len());
     for (i, p) in animation.puppets.iter().enumerate() {
-        let n = p.vertex_count();
-        // The picture, its texture and material.
         let mut png = Vec::new();
         crate::write_png(&mut png, p.image.width, p.image.height, &p.image.pixels).map_err(
             |e| crate::invalid(format!("puppets[{i}] {:?}.image", p.name), e.to_string()),
         )?;
-        let view = b.view(&png, None, None);
-        images.push(json!({"bufferView": view, "mimeType": "image/png", "name": p.name}));
-        textures.push(json!({"sampler": 0, "source": i, "name": p.name}));
-        materials.push(json!({
+        pictures.push(png);
+    }
+    let pass = Pass {
+        animation,
+        options,
+        times: &times,
+        pictures: &pictures,
+    };
+
+    let mut layout = Builder::new(None);
+    let gltf = pass.run(&mut layout, &mut ())?;
+    if layout.length > u32::MAX as usize - (1 << 24) {
+        return Err(flag(
+            "--to",
+            format!(
+                "the take makes {} MB of vertex data, more than a .glb holds (4 GB): export a shorter range",
+                layout.length >> 20
+            ),
+        ));
+    }
+    let mut text = serde_json::to_vec(&gltf).expect("glTF JSON serialises");
+    drop(gltf);
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let length = 12 + 8 + text.len() + 8 + layout.length;
+    let mut header = Vec::with_capacity(20);
+    header.extend_from_slice(b"glTF");
+    header.extend_from_slice(&2u32.to_le_bytes());
+    header.extend_from_slice(&(length as u32).to_le_bytes());
+    header.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    header.extend_from_slice(b"JSON");
+    out.write_all(&header).map_err(write_error)?;
+    out.write_all(&text).map_err(write_error)?;
+    drop(text);
+    out.write_all(&(layout.length as u32).to_le_bytes())
+        .map_err(write_error)?;
+    out.write_all(b"BIN\0").map_err(write_error)?;
+
+    let mut bin = Builder::new(Some(out));
+    pass.run(&mut bin, progress)?;
+    if bin.length != layout.length {
+        return Err(crate::invalid(
+            "glb output",
+            format!(
+                "the vertex data came to {} bytes where {} were laid out",
+                bin.length, layout.length
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// One pass over the animation: what both the layout and the writing do.
+struct Pass<'a> {
+    animation: &'a Animation,
+    options: &'a GltfOptions,
+    /// Each frame's time, `k / fps`, as glTF keeps it.
+    times: &'a [f32],
+    /// Each puppet's picture as PNG.
+    pictures: &'a [Vec<u8>],
+}
+
+/// The glTF JSON arrays a pass fills besides the builder's.
+#[derive(Default)]
+struct Arrays {
+    images: Vec<Value>,
+    textures: Vec<Value>,
+    materials: Vec<Value>,
+    meshes: Vec<Value>,
+    nodes: Vec<Value>,
+    scene_nodes: Vec<usize>,
+    samplers: Vec<Value>,
+    channels: Vec<Value>,
+}
+
+impl Pass<'_> {
+    /// Lays out (and, with a builder that has an output, writes) the binary
+    /// chunk; returns the file's JSON.
+    fn run(&self, b: &mut Builder, progress: &mut dyn Progress) -> Result<Value, ExportError> {
+        let animation = self.animation;
+        let chunks = chunks(animation.frame_count, self.options.chunk);
+        let total = chunks.len() * animation.puppets.len();
+        let mut done = 0;
+        let mut arrays = Arrays::default();
+        for (i, p) in animation.puppets.iter().enumerate() {
+            let (uv, indices) = self.puppet(b, &mut arrays, i)?;
+            let mut children = Vec::new();
+            for (c, &span) in chunks.iter().enumerate() {
+                let shown = Shown {
+                    index: c,
+                    last_chunk: c + 1 == chunks.len(),
+                };
+                children.push(self.chunk(b, &mut arrays, i, span, shown, uv, indices)?);
+                done += 1;
+                progress.step(done, total);
+            }
+            arrays
+                .nodes
+                .push(json!({"name": p.name, "children": children}));
+            arrays.scene_nodes.push(arrays.nodes.len() - 1);
+        }
+        b.align()?;
+        let fps = animation.fps;
+        Ok(json!({
+            "asset": {"version": "2.0", "generator": concat!("puppetry-export ", env!("CARGO_PKG_VERSION"))},
+            "extensionsUsed": ["KHR_materials_unlit"],
+            "scene": 0,
+            "scenes": [{"name": "stage", "nodes": arrays.scene_nodes}],
+            "nodes": arrays.nodes,
+            "meshes": arrays.meshes,
+            "materials": arrays.materials,
+            "textures": arrays.textures,
+            "images": arrays.images,
+            "samplers": [{"magFilter": LINEAR, "minFilter": LINEAR, "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE}],
+            "animations": [{"name": self.options.animation_name, "samplers": arrays.samplers, "channels": arrays.channels}],
+            "accessors": std::mem::take(&mut b.accessors),
+            "bufferViews": std::mem::take(&mut b.views),
+            "buffers": [{"byteLength": b.length}],
+            "extras": {"fps": fps, "frameCount": animation.frame_count,
+                       "stage": {"width": animation.stage_width, "height": animation.stage_height}},
+        }))
+    }
+
+    /// Puppet `i`'s picture, texture and material, and what every chunk of
+    /// it shares: its texture coordinates and triangles (accessors).
+    fn puppet(
+        &self,
+        b: &mut Builder,
+        arrays: &mut Arrays,
+        i: usize,
+    ) -> Result<(usize, usize), ExportError> {
+        let p = &self.animation.puppets[i];
+        let n = p.vertex_count();
+        let view = b.view(&self.pictures[i], None, None)?;
+        arrays
+            .images
+            .push(json!({"bufferView": view, "mimeType": "image/png", "name": p.name}));
+        arrays
+            .textures
+            .push(json!({"sampler": 0, "source": i, "name": p.name}));
+        arrays.materials.push(json!({
             "name": p.name,
             "pbrMetallicRoughness": {
                 "baseColorTexture": {"index": i},
@@ -247,9 +410,8 @@ pub fn write_glb(
             "doubleSided": true,
             "extensions": {"KHR_materials_unlit": {}},
         }));
-        // Shared by every chunk: texture coordinates and triangles.
         let uv: Vec<f32> = p.uv.iter().flatten().copied().collect();
-        let uv = b.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false);
+        let uv = b.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false)?;
         let flat = p.triangles.iter().flatten();
         let (bytes, component): (Vec<u8>, u32) = if n <= u16::MAX as usize {
             let v: Vec<u8> = flat.flat_map(|&i| (i as u16).to_le_bytes()).collect();
@@ -257,155 +419,127 @@ pub fn write_glb(
         } else {
             (flat.flat_map(|i| i.to_le_bytes()).collect(), UNSIGNED_INT)
         };
-        let view = b.view(&bytes, Some(ELEMENT_ARRAY_BUFFER), None);
+        let view = b.view(&bytes, Some(ELEMENT_ARRAY_BUFFER), None)?;
         let indices = b.accessor(json!({
             "bufferView": view, "componentType": component,
             "count": p.triangles.len() * 3, "type": "SCALAR",
         }));
+        Ok((uv, indices))
+    }
 
-        let mut children = Vec::new();
-        for (c, &(first, last)) in chunks.iter().enumerate() {
-            let targets = last - first;
-            // Base frame and offsets, interleaved x, y, z per vertex, all in
-            // one view with a stride of 12 (several accessors share it).
-            let base = &p.frames[first];
-            let mut values = Vec::with_capacity((targets + 1) * n * 3);
-            values.extend(base.iter().flat_map(|q| [q[0], q[1], 0.0]));
-            for k in first + 1..=last {
-                values.extend(
-                    p.frames[k]
-                        .iter()
-                        .zip(base)
-                        .flat_map(|(q, o)| [q[0] - o[0], q[1] - o[1], 0.0]),
-                );
-            }
-            let view = b.view(&f32_bytes(&values), Some(ARRAY_BUFFER), Some(12));
-            let position = |j: usize, b: &mut Builder| {
-                let (min, max) = min_max(&values[j * n * 3..(j + 1) * n * 3], 3);
-                b.accessor(json!({
-                    "bufferView": view, "byteOffset": j * n * 12, "componentType": FLOAT,
-                    "count": n, "type": "VEC3", "min": min, "max": max,
-                }))
-            };
-            let base = position(0, &mut b);
-            let target_list: Vec<Value> = (1..=targets)
-                .map(|j| json!({"POSITION": position(j, &mut b)}))
-                .collect();
-            let mut primitive = json!({
-                "attributes": {"POSITION": base, "TEXCOORD_0": uv},
-                "indices": indices, "material": i, "mode": 4,
-            });
-            let mut mesh = json!({"name": format!("{} frames {first}-{last}", p.name)});
-            if targets > 0 {
-                primitive["targets"] = Value::Array(target_list);
-                mesh["weights"] = json!(vec![0.0; targets]);
-                mesh["extras"] = json!({
-                    "targetNames": (first + 1..=last).map(|k| format!("frame {k}")).collect::<Vec<_>>()
-                });
-            }
-            mesh["primitives"] = json!([primitive]);
-            meshes.push(mesh);
-            let node_index = nodes.len();
-            let mut node = json!({
-                "name": format!("{} frames {first}-{last}", p.name),
-                "mesh": meshes.len() - 1,
-            });
-            if c > 0 {
-                node["scale"] = json!([0.0, 0.0, 0.0]);
-            }
-            nodes.push(node);
-            children.push(node_index);
-
-            // Weights: one key per frame of the chunk, one-hot (zeros first).
-            if targets > 0 {
-                let input = b.floats(&times[first..=last], "SCALAR", None, true);
-                let mut w = vec![0.0f32; (targets + 1) * targets];
-                for j in 1..=targets {
-                    w[j * targets + j - 1] = 1.0;
-                }
-                let output = b.floats(&w, "SCALAR", None, false);
-                samplers.push(json!({"input": input, "output": output, "interpolation": "LINEAR"}));
-                channels.push(json!({
-                    "sampler": samplers.len() - 1,
-                    "target": {"node": node_index, "path": "weights"},
-                }));
-            }
-            // Visibility: scale 1 from the chunk's first frame, 0 from the
-            // next chunk's first frame on.
-            let mut keys = Vec::new();
-            let mut scales = Vec::new();
-            if c > 0 {
-                keys.push(0.0);
-                scales.extend([0.0; 3]);
-            }
-            keys.push(times[first]);
-            scales.extend([1.0; 3]);
-            if c + 1 < chunks.len() {
-                keys.push(times[last]);
-                scales.extend([0.0; 3]);
-            }
-            let input = b.floats(&keys, "SCALAR", None, true);
-            let output = b.floats(&scales, "VEC3", None, false);
-            samplers.push(json!({"input": input, "output": output, "interpolation": "STEP"}));
-            channels.push(json!({
-                "sampler": samplers.len() - 1,
-                "target": {"node": node_index, "path": "scale"},
-            }));
-            done += 1;
-            progress.step(done, total);
+    /// One chunk `first..=last` of puppet `i`: its mesh of morph targets,
+    /// its node, and its weights and visibility channels; returns the node.
+    #[allow(clippy::too_many_arguments)]
+    fn chunk(
+        &self,
+        b: &mut Builder,
+        arrays: &mut Arrays,
+        i: usize,
+        (first, last): (usize, usize),
+        shown: Shown,
+        uv: usize,
+        indices: usize,
+    ) -> Result<usize, ExportError> {
+        let p = &self.animation.puppets[i];
+        let n = p.vertex_count();
+        let times = self.times;
+        let targets = last - first;
+        // Base frame and offsets, interleaved x, y, z per vertex, all in
+        // one view with a stride of 12 (several accessors share it).
+        let base = &p.frames[first];
+        let mut values = Vec::with_capacity((targets + 1) * n * 3);
+        values.extend(base.iter().flat_map(|q| [q[0], q[1], 0.0]));
+        for k in first + 1..=last {
+            values.extend(
+                p.frames[k]
+                    .iter()
+                    .zip(base)
+                    .flat_map(|(q, o)| [q[0] - o[0], q[1] - o[1], 0.0]),
+            );
         }
-        nodes.push(json!({"name": p.name, "children": children}));
-        scene_nodes.push(nodes.len() - 1);
-    }
-    b.align();
-    if b.bin.len() > u32::MAX as usize - (1 << 24) {
-        return Err(flag(
-            "--to",
-            format!(
-                "the take makes {} MB of vertex data, more than a .glb holds (4 GB): export a shorter range",
-                b.bin.len() >> 20
-            ),
-        ));
-    }
+        let view = b.view(&f32_bytes(&values), Some(ARRAY_BUFFER), Some(12))?;
+        let position = |j: usize, b: &mut Builder| {
+            let (min, max) = min_max(&values[j * n * 3..(j + 1) * n * 3], 3);
+            b.accessor(json!({
+                "bufferView": view, "byteOffset": j * n * 12, "componentType": FLOAT,
+                "count": n, "type": "VEC3", "min": min, "max": max,
+            }))
+        };
+        let base = position(0, b);
+        let target_list: Vec<Value> = (1..=targets)
+            .map(|j| json!({"POSITION": position(j, b)}))
+            .collect();
+        let mut primitive = json!({
+            "attributes": {"POSITION": base, "TEXCOORD_0": uv},
+            "indices": indices, "material": i, "mode": 4,
+        });
+        let mut mesh = json!({"name": format!("{} frames {first}-{last}", p.name)});
+        if targets > 0 {
+            primitive["targets"] = Value::Array(target_list);
+            mesh["weights"] = json!(vec![0.0; targets]);
+            mesh["extras"] = json!({
+                "targetNames": (first + 1..=last).map(|k| format!("frame {k}")).collect::<Vec<_>>()
+            });
+        }
+        mesh["primitives"] = json!([primitive]);
+        arrays.meshes.push(mesh);
+        let node_index = arrays.nodes.len();
+        let mut node = json!({
+            "name": format!("{} frames {first}-{last}", p.name),
+            "mesh": arrays.meshes.len() - 1,
+        });
+        if shown.index > 0 {
+            node["scale"] = json!([0.0, 0.0, 0.0]);
+        }
+        arrays.nodes.push(node);
 
-    let gltf = json!({
-        "asset": {"version": "2.0", "generator": concat!("puppetry-export ", env!("CARGO_PKG_VERSION"))},
-        "extensionsUsed": ["KHR_materials_unlit"],
-        "scene": 0,
-        "scenes": [{"name": "stage", "nodes": scene_nodes}],
-        "nodes": nodes,
-        "meshes": meshes,
-        "materials": materials,
-        "textures": textures,
-        "images": images,
-        "samplers": [{"magFilter": LINEAR, "minFilter": LINEAR, "wrapS": CLAMP_TO_EDGE, "wrapT": CLAMP_TO_EDGE}],
-        "animations": [{"name": options.animation_name, "samplers": samplers, "channels": channels}],
-        "accessors": b.accessors,
-        "bufferViews": b.views,
-        "buffers": [{"byteLength": b.bin.len()}],
-        "extras": {"fps": fps, "frameCount": animation.frame_count,
-                   "stage": {"width": animation.stage_width, "height": animation.stage_height}},
-    });
-    let mut text = serde_json::to_vec(&gltf).expect("glTF JSON serialises");
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
+        // Weights: one key per frame of the chunk, one-hot (zeros first).
+        if targets > 0 {
+            let input = b.floats(&times[first..=last], "SCALAR", None, true)?;
+            let mut w = vec![0.0f32; (targets + 1) * targets];
+            for j in 1..=targets {
+                w[j * targets + j - 1] = 1.0;
+            }
+            let output = b.floats(&w, "SCALAR", None, false)?;
+            arrays
+                .samplers
+                .push(json!({"input": input, "output": output, "interpolation": "LINEAR"}));
+            arrays.channels.push(json!({
+                "sampler": arrays.samplers.len() - 1,
+                "target": {"node": node_index, "path": "weights"},
+            }));
+        }
+        // Visibility: scale 1 from the chunk's first frame, 0 from the
+        // next chunk's first frame on.
+        let mut keys = Vec::new();
+        let mut scales = Vec::new();
+        if shown.index > 0 {
+            keys.push(0.0);
+            scales.extend([0.0; 3]);
+        }
+        keys.push(times[first]);
+        scales.extend([1.0; 3]);
+        if !shown.last_chunk {
+            keys.push(times[last]);
+            scales.extend([0.0; 3]);
+        }
+        let input = b.floats(&keys, "SCALAR", None, true)?;
+        let output = b.floats(&scales, "VEC3", None, false)?;
+        arrays
+            .samplers
+            .push(json!({"input": input, "output": output, "interpolation": "STEP"}));
+        arrays.channels.push(json!({
+            "sampler": arrays.samplers.len() - 1,
+            "target": {"node": node_index, "path": "scale"},
+        }));
+        Ok(node_index)
     }
-    let length = 12 + 8 + text.len() + 8 + b.bin.len();
-    let write_err = |source| ExportError::Io {
-        file: "glb output".into(),
-        source,
-    };
-    let mut header = Vec::with_capacity(20);
-    header.extend_from_slice(b"glTF");
-    header.extend_from_slice(&2u32.to_le_bytes());
-    header.extend_from_slice(&(length as u32).to_le_bytes());
-    header.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    header.extend_from_slice(b"JSON");
-    out.write_all(&header).map_err(write_err)?;
-    out.write_all(&text).map_err(write_err)?;
-    out.write_all(&(b.bin.len() as u32).to_le_bytes())
-        .map_err(write_err)?;
-    out.write_all(b"BIN\0").map_err(write_err)?;
-    out.write_all(&b.bin).map_err(write_err)?;
-    Ok(())
+}
+
+/// Which chunk of its puppet a chunk is: the first is shown at the start,
+/// the last stays shown at the end.
+#[derive(Clone, Copy)]
+struct Shown {
+    index: usize,
+    last_chunk: bool,
 }

@@ -18,7 +18,13 @@
 //! animation, its options and a [`Progress`], and writing a file (or a
 //! `Write`). Every bad input is refused with an [`ExportError`] naming the
 //! file, field or command-line flag.
+//!
+//! Files are made new ([`write_new`]): written under a fresh random name
+//! beside where they go, created exclusively (so a link planted there is
+//! never followed), and renamed into place when whole. [`budget`] says
+//! what an export of a take would cost before anything is read.
 
+pub mod budget;
 pub mod frames;
 pub mod gltf;
 pub mod raster;
@@ -27,7 +33,7 @@ pub mod spine;
 pub mod take;
 pub mod video;
 
-use std::io::BufReader;
+use std::io::{BufReader, BufWriter, Write};
 use std::path::Path;
 
 /// An error of an export: which file, field or flag, and what is wrong.
@@ -60,6 +66,73 @@ pub(crate) fn io_error(file: &Path) -> impl FnOnce(std::io::Error) -> ExportErro
     move |source| ExportError::Io {
         file: file.display().to_string(),
         source,
+    }
+}
+
+/// A new, empty file beside `path` (in its folder), created exclusively
+/// (`O_EXCL`) under a random name that starts with a dot and the file's
+/// name and ends with `suffix`: nothing planted there beforehand, a link
+/// least of all, is opened. It is deleted when dropped unless persisted.
+pub fn new_beside(path: &Path, suffix: &str) -> Result<tempfile::NamedTempFile, ExportError> {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(suffix)
+        // What `File::create` gives (less the umask), not tempfile's 0600:
+        // the file is the user's export once renamed.
+        .permissions(std::fs::Permissions::from_mode(0o666))
+        .tempfile_in(dir)
+        .map_err(io_error(path))
+}
+
+/// Writes the file `path` through `write`, as a new file: into
+/// [`new_beside`] `path`, buffered, then renamed onto `path` once whole. A
+/// link at `path` is replaced, never followed; a failed write leaves
+/// nothing behind. Errors of writing name `path`.
+pub fn write_new<T>(
+    path: &Path,
+    write: impl FnOnce(&mut dyn Write) -> Result<T, ExportError>,
+) -> Result<T, ExportError> {
+    let mut file = new_beside(path, ".part")?;
+    let mut out = BufWriter::with_capacity(1 << 20, file.as_file_mut());
+    let value = write(&mut out).map_err(|e| match e {
+        ExportError::Io { source, .. } => io_error(path)(source),
+        other => other,
+    })?;
+    out.flush().map_err(io_error(path))?;
+    drop(out);
+    file.persist(path).map_err(|e| io_error(path)(e.error))?;
+    Ok(value)
+}
+
+/// A private folder for an export that has no place of its own (the
+/// daemon's downloads): made under the system's temporary folder with a
+/// random name, readable by this user only, and removed with everything in
+/// it when dropped.
+pub struct Scratch(tempfile::TempDir);
+
+impl Scratch {
+    pub fn new() -> Result<Scratch, ExportError> {
+        tempfile::Builder::new()
+            .prefix("puppetry-export-")
+            .tempdir()
+            .map(Scratch)
+            .map_err(|source| ExportError::Io {
+                file: std::env::temp_dir().display().to_string(),
+                source,
+            })
+    }
+
+    pub fn path(&self) -> &Path {
+        self.0.path()
     }
 }
 

@@ -37,7 +37,7 @@ use std::path::Path;
 use serde::Serialize;
 use serde_json::json;
 
-use crate::{AnimatedPuppet, Animation, ExportError, Progress, io_error};
+use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 
 /// Options of a Spine export.
 #[derive(Debug, Clone, PartialEq)]
@@ -297,31 +297,27 @@ pub fn write_spine(
 }
 
 /// Writes `animation` as Spine JSON at `path`, and each puppet's picture
-/// beside it as `PATH.png` (see [`SpinePuppet::path`]).
+/// beside it as `PATH.png` (see [`SpinePuppet::path`]). Each file is made
+/// new ([`crate::write_new`]): a link in its place is replaced, never
+/// followed.
 pub fn export_spine(
     animation: &Animation,
     options: &SpineOptions,
     progress: &mut dyn Progress,
     path: &Path,
 ) -> Result<SpineLayout, ExportError> {
-    let file = std::fs::File::create(path).map_err(io_error(path))?;
-    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
-    let layout = write_spine(animation, options, progress, &mut out).map_err(|e| match e {
-        ExportError::Io { source, .. } => io_error(path)(source),
-        other => other,
-    })?;
-    out.flush().map_err(io_error(path))?;
+    let layout = crate::write_new(path, |out| write_spine(animation, options, progress, out))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     for (p, placed) in animation.puppets.iter().zip(&layout.puppets) {
         let image = dir.join(format!("{}.png", placed.path));
-        let mut bytes = Vec::new();
-        crate::write_png(&mut bytes, p.image.width, p.image.height, &p.image.pixels).map_err(
-            |e| ExportError::File {
-                file: image.display().to_string(),
-                problem: format!("cannot encode PNG: {e}"),
-            },
-        )?;
-        std::fs::write(&image, bytes).map_err(io_error(&image))?;
+        crate::write_new(&image, |out| {
+            crate::write_png(out, p.image.width, p.image.height, &p.image.pixels).map_err(|e| {
+                ExportError::File {
+                    file: image.display().to_string(),
+                    problem: format!("cannot encode PNG: {e}"),
+                }
+            })
+        })?;
     }
     Ok(layout)
 }

@@ -9,7 +9,8 @@
 //! | `.webm` | VP9 (`libvpx-vp9`) | `yuva420p` | yes (stored beside the colour planes; `ffprobe` shows `yuv420p` with the tag `alpha_mode=1`, and decoding with `-c:v libvpx-vp9` gives it back) |
 //!
 //! ffmpeg's messages are captured; when it fails, the error quotes its last
-//! lines.
+//! lines. ffmpeg writes a new file beside the output, renamed onto it once
+//! finished (see [`crate::write_new`]).
 
 use std::io::{BufRead, Read, Write};
 use std::path::Path;
@@ -170,6 +171,14 @@ pub fn export_video(
         None => find_ffmpeg()?,
     };
     let file = path.display().to_string();
+    // ffmpeg writes a new file beside `path`, with its extension (which
+    // picks the container), renamed onto `path` once finished: a link at
+    // `path` is replaced, not followed, and a failure leaves nothing.
+    let extension = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let partial = crate::new_beside(path, &format!(".{extension}"))?;
     let mut child = Command::new(&ffmpeg)
         .args(["-hide_banner", "-nostdin", "-loglevel", "error", "-y"])
         .args(["-f", "rawvideo", "-pix_fmt", "rgba"])
@@ -178,7 +187,7 @@ pub fn export_video(
         .args(["-i", "-"])
         .args(format.codec_args())
         .args(["-r", &frame_rate_arg(animation.fps)])
-        .arg(path)
+        .arg(partial.path())
         .stdin(Stdio::piped())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -239,7 +248,11 @@ pub fn export_video(
             problem: format!("ffmpeg failed ({status}); its last messages:\n{tail}"),
         });
     }
-    piped
+    piped?;
+    partial
+        .persist(path)
+        .map_err(|e| crate::io_error(path)(e.error))?;
+    Ok(())
 }
 
 /// Straight RGBA over an opaque colour, in place.
