@@ -137,6 +137,8 @@ impl Batch {
                                 result = Err(e);
                             }
                         }
+                        // A pin of a take that ended may be back.
+                        self.unpin_ended(stage, taking, wake);
                         // An undo with nothing to undo still changes the
                         // history's counts: publish them.
                         self.dirty = true;
@@ -240,20 +242,36 @@ impl Batch {
         if gone.is_empty() {
             return;
         }
+        for source in gone {
+            taking.played.remove(&source);
+            taking.ended.insert(source.clone());
+            self.apply(stage, taking, Change::Release { source }, None, wake);
+        }
+        self.unpin_ended(stage, taking, wake);
+    }
+
+    /// Takes away the pins of played sources whose take ended (just now,
+    /// or an undo or redo put them back), through changes an overdub
+    /// records.
+    fn unpin_ended(
+        &mut self,
+        stage: &mut Stage,
+        taking: &mut Taking,
+        wake: &mpsc::WeakSender<Command>,
+    ) {
+        if taking.ended.is_empty() {
+            return;
+        }
         let mut pins = Vec::new();
         for p in stage.puppets() {
             for h in p.handles() {
                 if h.kind == HandleKind::Pin
                     && let puppetry_stage::Owner::Source(owner) = &h.owner
-                    && gone.contains(owner)
+                    && taking.ended.contains(owner)
                 {
                     pins.push((p.id, h.id));
                 }
             }
-        }
-        for source in gone {
-            taking.played.remove(&source);
-            self.apply(stage, taking, Change::Release { source }, None, wake);
         }
         for (puppet, handle) in pins {
             self.apply(stage, taking, Change::Unpin { puppet, handle }, None, wake);

@@ -423,6 +423,7 @@ impl StageLoop {
             playing: None,
             held: BTreeMap::new(),
             played: BTreeSet::new(),
+            ended: BTreeSet::new(),
             overdub_of: None,
             announce: false,
             error: None,

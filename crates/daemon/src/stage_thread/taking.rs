@@ -35,6 +35,10 @@ pub(super) struct Taking {
     /// Played sources (`TAKE/SOURCE`) that reached the stage: what they
     /// hold lets go when their take ends.
     pub(super) played: BTreeSet<String>,
+    /// Played sources whose take ended. An undo or redo can put back a pin
+    /// one of them held (the history knows pins, not takes): it goes again
+    /// at once. A source leaves the set when its take plays again.
+    pub(super) ended: BTreeSet<String>,
     /// The take the one recording layers over, if it is an overdub.
     pub(super) overdub_of: Option<String>,
     /// The take state changed where it could not be published at once (a
@@ -113,6 +117,7 @@ impl Taking {
             _ => return,
         };
         if !self.played.contains(source) {
+            self.ended.remove(source);
             self.played.insert(source.to_string());
         }
     }
