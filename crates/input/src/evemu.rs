@@ -27,7 +27,7 @@ pub enum EvemuError {
     },
     /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(#[from] file::FileError),
+    File(file::FileError),
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
         file: String,
@@ -37,6 +37,16 @@ pub enum EvemuError {
     },
     #[error("{file}: {source}")]
     Device { file: String, source: EvdevError },
+}
+
+/// A file that cannot be opened stays a `Read` error, as before the cap.
+impl From<file::FileError> for EvemuError {
+    fn from(e: file::FileError) -> EvemuError {
+        match e {
+            file::FileError::Io { file, source } => EvemuError::Read { file, source },
+            other => EvemuError::File(other),
+        }
+    }
 }
 
 /// The `I:` line.

@@ -27,7 +27,7 @@ pub enum HidRecordingError {
     },
     /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(#[from] file::FileError),
+    File(file::FileError),
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
         file: String,
@@ -37,6 +37,16 @@ pub enum HidRecordingError {
     },
     #[error("{file}: no `R:` line; a hid-recorder capture starts with the report descriptor")]
     NoDescriptor { file: String },
+}
+
+/// A file that cannot be opened stays a `Read` error, as before the cap.
+impl From<file::FileError> for HidRecordingError {
+    fn from(e: file::FileError) -> HidRecordingError {
+        match e {
+            file::FileError::Io { file, source } => HidRecordingError::Read { file, source },
+            other => HidRecordingError::File(other),
+        }
+    }
 }
 
 /// One device's capture.

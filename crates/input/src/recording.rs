@@ -27,7 +27,7 @@ pub enum RecordingError {
     },
     /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(#[from] file::FileError),
+    File(file::FileError),
     #[error("cannot write the recording: {0}")]
     Write(#[from] std::io::Error),
     #[error("{file}:{line}: {problem}")]
@@ -42,6 +42,16 @@ pub enum RecordingError {
         field: &'static str,
         value: f64,
     },
+}
+
+/// A file that cannot be opened stays a `Read` error, as before the cap.
+impl From<file::FileError> for RecordingError {
+    fn from(e: file::FileError) -> RecordingError {
+        match e {
+            file::FileError::Io { file, source } => RecordingError::Read { file, source },
+            other => RecordingError::File(other),
+        }
+    }
 }
 
 #[derive(Debug, Serialize, Deserialize)]

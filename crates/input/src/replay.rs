@@ -32,7 +32,7 @@ pub enum ReplayError {
     },
     /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(#[from] file::FileError),
+    File(file::FileError),
     #[error(transparent)]
     Evemu(#[from] EvemuError),
     #[error(transparent)]
@@ -49,6 +49,16 @@ pub enum ReplayError {
         time: f64,
         source: HidError,
     },
+}
+
+/// A file that cannot be opened stays a `Read` error, as before the cap.
+impl From<file::FileError> for ReplayError {
+    fn from(e: file::FileError) -> ReplayError {
+        match e {
+            file::FileError::Io { file, source } => ReplayError::Read { file, source },
+            other => ReplayError::File(other),
+        }
+    }
 }
 
 /// How fast [`replay`] plays.
