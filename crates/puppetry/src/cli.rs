@@ -398,36 +398,8 @@ pub fn solve_command(
     Ok(serde_json::json!({ "vertices": vertices }).to_string())
 }
 
-/// Parses a `--listen` value: an address (`127.0.0.1:8080`, `[::1]:8080`,
-/// `0.0.0.0:8080`), a host name and port (`localhost:8080`, resolved; its
-/// IPv4 address first, as browsers on this machine reach `localhost` by
-/// either), or a bare port (on 127.0.0.1: this machine only, as the
-/// default is).
-pub fn parse_listen(text: &str) -> Result<SocketAddr, String> {
-    let text = text.trim();
-    if let Ok(address) = text.parse::<SocketAddr>() {
-        return Ok(address);
-    }
-    if let Ok(port) = text.parse::<u16>() {
-        return Ok(SocketAddr::from(([127, 0, 0, 1], port)));
-    }
-    let expected = "expected HOST:PORT (localhost:8080, 0.0.0.0:8080, [::1]:8080) or a port";
-    let Some((host, port)) = text.rsplit_once(':').filter(|(h, _)| !h.is_empty()) else {
-        return Err(format!("{text:?}: {expected}"));
-    };
-    let port: u16 = port
-        .parse()
-        .map_err(|_| format!("{text:?}: {port:?} is not a port (0 to 65535); {expected}"))?;
-    let addresses: Vec<SocketAddr> = std::net::ToSocketAddrs::to_socket_addrs(&(host, port))
-        .map_err(|e| format!("{text:?}: cannot resolve {host:?}: {e}"))?
-        .collect();
-    addresses
-        .iter()
-        .find(|a| a.is_ipv4())
-        .or(addresses.first())
-        .copied()
-        .ok_or_else(|| format!("{text:?}: {host:?} resolves to no address"))
-}
+/// A `--listen` value, parsed as the stage file's `listen` is.
+pub use puppetry_stage::config::parse_listen;
 
 /// Where a browser on this machine reaches a daemon listening on
 /// `address`: itself, or loopback when it listens on every interface

@@ -64,8 +64,9 @@ pub struct StageSection {
     /// Stage size in stage units (y-up, origin bottom-left).
     pub width: f64,
     pub height: f64,
-    /// HTTP and WebSocket address; port 0 picks a free port.
-    #[serde(default = "default_listen")]
+    /// HTTP and WebSocket address; port 0 picks a free port. Written as
+    /// `serve --listen` takes it ([`parse_listen`]).
+    #[serde(default = "default_listen", deserialize_with = "listen_address")]
     pub listen: SocketAddr,
     /// Clients that stop reading are dropped after this many seconds.
     #[serde(default = "default_client_timeout")]
@@ -82,6 +83,43 @@ fn default_max_connections() -> usize {
 
 fn default_listen() -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], 8080))
+}
+
+fn listen_address<'de, D: serde::Deserializer<'de>>(d: D) -> Result<SocketAddr, D::Error> {
+    let text = String::deserialize(d)?;
+    parse_listen(&text).map_err(serde::de::Error::custom)
+}
+
+/// Parses a listen address, in the stage file's `listen` and `serve
+/// --listen` alike: an address (`127.0.0.1:8080`, `[::1]:8080`,
+/// `0.0.0.0:8080`), a host name and port (`localhost:8080`, resolved; its
+/// IPv4 address first, as browsers on this machine reach `localhost` by
+/// either), or a bare port (on 127.0.0.1: this machine only, as the
+/// default is).
+pub fn parse_listen(text: &str) -> Result<SocketAddr, String> {
+    let text = text.trim();
+    if let Ok(address) = text.parse::<SocketAddr>() {
+        return Ok(address);
+    }
+    if let Ok(port) = text.parse::<u16>() {
+        return Ok(SocketAddr::from(([127, 0, 0, 1], port)));
+    }
+    let expected = "expected HOST:PORT (localhost:8080, 0.0.0.0:8080, [::1]:8080) or a port";
+    let Some((host, port)) = text.rsplit_once(':').filter(|(h, _)| !h.is_empty()) else {
+        return Err(format!("{text:?}: {expected}"));
+    };
+    let port: u16 = port
+        .parse()
+        .map_err(|_| format!("{text:?}: {port:?} is not a port (0 to 65535); {expected}"))?;
+    let addresses: Vec<SocketAddr> = std::net::ToSocketAddrs::to_socket_addrs(&(host, port))
+        .map_err(|e| format!("{text:?}: cannot resolve {host:?}: {e}"))?
+        .collect();
+    addresses
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(addresses.first())
+        .copied()
+        .ok_or_else(|| format!("{text:?}: {host:?} resolves to no address"))
 }
 
 fn default_client_timeout() -> f64 {

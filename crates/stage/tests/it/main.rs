@@ -12,6 +12,7 @@ mod grab;
 mod keyframing;
 mod keys;
 mod lineup;
+mod listen;
 mod many;
 mod numbers;
 mod rigs_no_alloc;
