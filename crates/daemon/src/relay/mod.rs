@@ -3,17 +3,25 @@
 //! forward remote performers to the daemon. It owns the subjects, the
 //! messages between a daemon and its relays, and cutting large messages
 //! into parts under NATS's payload limit; [`publish`] is the daemon's
-//! side, [`serve`] the relay's.
+//! side, [`serve`] the relay's, [`nats`] connecting with credentials and
+//! the nats-server configuration that binds each party to its subjects,
+//! [`proof`] how a relayed performer's token is checked without crossing
+//! NATS.
 //!
 //! Everything the daemon publishes is under `puppetry.<stage>.out`, each
 //! puppet stream on a subject of its own (`out.p.<id>.frame`, …) carrying
-//! exactly the bytes a direct client gets; what it answers is under
-//! `puppetry.<stage>.in`. A relay that starts, or comes back after NATS
-//! went away, asks `in.sync`: the daemon publishes its whole state again
-//! (the relay drops what it already has), so state and live messages
-//! travel one ordered path. A viewer who joins a relay late is served from
-//! the relay's memory at once, as a direct newcomer is.
+//! exactly the bytes a direct client gets. A relay asks under
+//! `puppetry.<stage>.in.<relay>` (its own name in the subject, so that
+//! nats-server's permissions can hold each relay to its own subjects) and
+//! is answered under `puppetry.<stage>.reply.<relay>` (its inbox). A relay
+//! that starts, or comes back after NATS went away, asks `in.<relay>.sync`:
+//! the daemon publishes its whole state again (the relay drops what it
+//! already has), so state and live messages travel one ordered path. A
+//! viewer who joins a relay late is served from the relay's memory at
+//! once, as a direct newcomer is.
 
+pub mod nats;
+pub mod proof;
 pub mod publish;
 pub mod serve;
 
@@ -33,8 +41,14 @@ use crate::stream::guard::Refusal;
 pub enum RelayError {
     #[error("NATS server {url}: {problem}")]
     Connect { url: String, problem: String },
+    #[error("NATS address {url}: {problem}")]
+    Address { url: String, problem: String },
     #[error("stage name {0:?}: use letters, digits, - and _ (one NATS subject token)")]
     StageName(String),
+    #[error("relay name {0:?}: use letters, digits, - and _ (one NATS subject token)")]
+    RelayName(String),
+    #[error("nats-server configuration: {0}")]
+    ServerConfig(String),
     #[error("NATS subscription {subject}: {problem}")]
     Subscribe { subject: String, problem: String },
     #[error(transparent)]
@@ -64,14 +78,25 @@ pub struct Subjects {
     prefix: String,
 }
 
+/// Whether `name` is one NATS subject token of letters, digits, `-`, `_`
+/// (a stage's or a relay's name).
+pub fn is_name(name: &str) -> bool {
+    !name.is_empty() && name.chars().all(puppetry_stage::config::is_name_char)
+}
+
 impl Subjects {
     pub fn new(stage: &str) -> Result<Subjects, RelayError> {
-        if stage.is_empty() || !stage.chars().all(puppetry_stage::config::is_name_char) {
+        if !is_name(stage) {
             return Err(RelayError::StageName(stage.to_string()));
         }
         Ok(Subjects {
             prefix: format!("puppetry.{stage}"),
         })
+    }
+
+    /// The stage's name.
+    pub fn stage(&self) -> &str {
+        self.prefix.strip_prefix("puppetry.").unwrap_or("")
     }
 
     /// Everything the daemon publishes.
@@ -91,8 +116,45 @@ impl Subjects {
         format!("{}.out.s.{name}", self.prefix)
     }
 
-    pub fn ask(&self, name: &str) -> String {
-        format!("{}.in.{name}", self.prefix)
+    /// What `relay` asks as `kind` on (`in.<relay>.<kind>`).
+    pub fn ask(&self, relay: &str, kind: &str) -> String {
+        format!("{}.in.{relay}.{kind}", self.prefix)
+    }
+
+    /// Every relay's `kind` (the daemon's subscription).
+    pub fn asks(&self, kind: &str) -> String {
+        format!("{}.in.*.{kind}", self.prefix)
+    }
+
+    /// Everything any relay asks.
+    pub fn in_all(&self) -> String {
+        format!("{}.in.>", self.prefix)
+    }
+
+    /// Everything `relay` may ask on.
+    pub fn in_of(&self, relay: &str) -> String {
+        format!("{}.in.{relay}.>", self.prefix)
+    }
+
+    /// Where `relay` is answered: its NATS inbox prefix (the client's
+    /// replies go to `<inbox>.<id>.<n>`).
+    pub fn inbox(&self, relay: &str) -> String {
+        format!("{}.reply.{relay}", self.prefix)
+    }
+
+    /// Every relay's inbox.
+    pub fn reply_all(&self) -> String {
+        format!("{}.reply.>", self.prefix)
+    }
+
+    /// Whether `reply` is in `relay`'s inbox: the daemon answers nowhere
+    /// else (a relay naming another's inbox, or an `out` subject, as its
+    /// reply would have the daemon speak for it there).
+    pub fn is_inbox_of(&self, relay: &str, reply: &str) -> bool {
+        reply
+            .strip_prefix(self.inbox(relay).as_str())
+            .and_then(|rest| rest.strip_prefix('.'))
+            .is_some_and(|rest| !rest.is_empty())
     }
 
     /// What a published subject names, past `…out.`.
@@ -102,11 +164,14 @@ impl Subjects {
             .strip_prefix(".out.")
     }
 
-    /// What an asked subject names, past `…in.`.
-    pub fn asked<'a>(&self, subject: &'a str) -> Option<&'a str> {
-        subject
+    /// Who asked what on an asked subject: `(relay, kind)` of
+    /// `…in.<relay>.<kind>`.
+    pub fn asked<'a>(&self, subject: &'a str) -> Option<(&'a str, &'a str)> {
+        let rest = subject
             .strip_prefix(self.prefix.as_str())?
-            .strip_prefix(".in.")
+            .strip_prefix(".in.")?;
+        let (relay, kind) = rest.split_once('.')?;
+        (is_name(relay) && !kind.contains('.')).then_some((relay, kind))
     }
 }
 
@@ -135,13 +200,23 @@ pub struct Heartbeat {
     pub live: bool,
 }
 
-/// A relay's client said hello with a role or a token (`in.join`).
+/// A relay's client said hello with a role or a token
+/// (`in.<relay>.join`). The token itself never crosses NATS: the relay
+/// proves it holds it ([`proof`]).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct JoinRequest {
     /// `relay:<relay>:<client>`: how the stage names the client.
     pub source: String,
     pub role: Role,
-    pub token: Option<String>,
+    /// For a hello with a token: the proof of it, on a nonce the daemon
+    /// issued (`in.<relay>.challenge`).
+    pub proof: Option<proof::Proof>,
+}
+
+/// The daemon's answer to `in.<relay>.challenge`: a nonce for one join.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Challenge {
+    pub nonce: String,
 }
 
 /// The daemon's answer to a [`JoinRequest`].
@@ -160,7 +235,7 @@ pub enum JoinAnswer {
     },
 }
 
-/// One text message of a relay's client (`in.msg`).
+/// One text message of a relay's client (`in.<relay>.msg`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MessageRequest {
     pub source: String,
@@ -178,20 +253,20 @@ pub enum MessageAnswer {
     Refused(Refusal),
 }
 
-/// A relay's client with a session left (`in.leave`).
+/// A relay's client with a session left (`in.<relay>.leave`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Leave {
     pub source: String,
 }
 
-/// A relay's sessions, every [`ALIVE_EVERY`] (`in.alive`).
+/// A relay's sessions, every [`ALIVE_EVERY`] (`in.<relay>.alive`: the
+/// subject says which relay).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Alive {
-    pub relay: String,
     pub sessions: Vec<String>,
 }
 
-/// A part of a puppet's picture (`in.picture`).
+/// A part of a puppet's picture (`in.<relay>.picture`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PictureRequest {
     pub id: u32,
@@ -315,46 +390,6 @@ impl Assembler {
     }
 }
 
-/// NATS connection settings both sides use: start whether or not the
-/// server is up, retry for ever, quickly (a show is on), and never wait
-/// long for an answer.
-fn connect_options(name: &str, up: tokio::sync::watch::Sender<bool>) -> async_nats::ConnectOptions {
-    async_nats::ConnectOptions::new()
-        .name(name)
-        .retry_on_initial_connect()
-        .max_reconnects(None)
-        .reconnect_delay_callback(|attempt| {
-            Duration::from_millis((50u64 << attempt.min(3)).min(250))
-        })
-        .request_timeout(Some(ANSWER_WITHIN))
-        .event_callback(move |event| {
-            let up = up.clone();
-            async move {
-                match event {
-                    async_nats::Event::Connected => {
-                        up.send_replace(true);
-                    }
-                    async_nats::Event::Disconnected | async_nats::Event::Closed => {
-                        up.send_replace(false);
-                    }
-                    other => tracing::debug!("NATS: {other}"),
-                }
-            }
-        })
-}
-
-/// A NATS address checked and connected (or connecting: the client keeps
-/// trying while the server is away).
-async fn connect(
-    url: &str,
-    options: async_nats::ConnectOptions,
-) -> Result<async_nats::Client, RelayError> {
-    options.connect(url).await.map_err(|e| RelayError::Connect {
-        url: url.to_string(),
-        problem: e.to_string(),
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -418,6 +453,24 @@ mod tests {
         let s = Subjects::new("t").unwrap();
         assert_eq!(s.published("puppetry.t.out.p.3.frame"), Some("p.3.frame"));
         assert_eq!(s.published("puppetry.tt.out.lineup"), None);
-        assert_eq!(s.asked("puppetry.t.in.msg"), Some("msg"));
+        assert_eq!(s.asked("puppetry.t.in.hall.msg"), Some(("hall", "msg")));
+        for bad in [
+            "puppetry.t.in.msg",
+            "puppetry.t.in.a.b.msg",
+            "puppetry.t.in.*.msg",
+            "puppetry.tt.in.a.msg",
+        ] {
+            assert_eq!(s.asked(bad), None, "{bad}");
+        }
+        assert!(s.is_inbox_of("hall", "puppetry.t.reply.hall.x1.3"));
+        for bad in [
+            "puppetry.t.reply.hall",
+            "puppetry.t.reply.hall.",
+            "puppetry.t.reply.hall2.x.1",
+            "puppetry.t.reply.b.x.1",
+            "puppetry.t.out.lineup",
+        ] {
+            assert!(!s.is_inbox_of("hall", bad), "{bad}");
+        }
     }
 }

@@ -5,9 +5,16 @@
 //! nothing and queues nothing, and when NATS is back it publishes the
 //! whole state again. Another task answers relays: `sync`, pictures, and
 //! the sessions of remote performers, who are let in and checked exactly
-//! as direct clients are (the same `[access]`, roles and puppet limits),
-//! named `relay:<relay>:<client>` on the stage, and let go when they
-//! leave, their relay stops saying it has them, or goes silent.
+//! as direct clients are (the same `[access]`, roles and puppet limits,
+//! their tokens proven rather than sent: [`super::proof`]), named
+//! `relay:<relay>:<client>` on the stage, and let go when they leave,
+//! their relay stops saying it has them, or goes silent.
+//!
+//! A relay is who its subject says (`in.<relay>.…`, which nats-server's
+//! permissions bind to that relay's credentials): it speaks only for
+//! sources `relay:<relay>:…`, acts only for the sessions the daemon
+//! admitted through it, and is answered only in its own inbox. Anything
+//! else is dropped, with a log line at most every few seconds.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -19,9 +26,11 @@ use futures_util::StreamExt;
 use tokio::sync::{Semaphore, mpsc, watch};
 use tokio::task::JoinHandle;
 
+use super::proof::{self, Nonces};
 use super::{
-    ALIVE_EVERY, Alive, Heartbeat, JoinAnswer, JoinRequest, Leave, LineupMessage, MessageAnswer,
-    MessageRequest, PART, PictureRequest, RELAY_GONE_AFTER, RelayError, Subjects, TOTAL_HEADER,
+    ALIVE_EVERY, Alive, Challenge, Heartbeat, JoinAnswer, JoinRequest, Leave, LineupMessage,
+    MessageAnswer, MessageRequest, PART, PictureRequest, RELAY_GONE_AFTER, RelayError, Subjects,
+    TOTAL_HEADER,
 };
 use crate::protocol::Role;
 use crate::stream::following::{Following, Payload, STREAMS};
@@ -33,6 +42,9 @@ use puppetry_stage::config::RelayConfig;
 /// Answers handled at once, past which the daemon reads no more requests
 /// until one is done (a relay waits for each of its client's answers).
 const ANSWERING: usize = 256;
+/// At most one line this often about messages dropped (a flood of them
+/// must not flood the log).
+const DROPPED_LOG_EVERY: Duration = Duration::from_secs(5);
 
 /// The stage published over NATS; stopped with [`Publishing::stop`].
 pub struct Publishing {
@@ -51,17 +63,26 @@ pub async fn start(
     shared: Arc<Shared>,
 ) -> Result<Publishing, RelayError> {
     let subjects = Subjects::new(stage)?;
+    let address = super::nats::NatsAddress::parse(&config.nats)?;
     let (up_tx, up) = watch::channel(false);
-    let options = super::connect_options(&format!("puppetry daemon {stage}"), up_tx)
+    let options = super::nats::connect_options(&format!("puppetry daemon {stage}"), up_tx)
         // A slow link to NATS holds a few frames at most, never seconds.
         .client_capacity(256);
-    let client = super::connect(&config.nats, options).await?;
+    let client = address.connect(options).await?;
     // Sessions' keep-alives and syncs on their own subscription, so a
     // burst of requests never delays them.
     let mut control = Vec::new();
     let mut asked = Vec::new();
-    for kind in ["alive", "sync", "join", "msg", "leave", "picture"] {
-        let subject = subjects.ask(kind);
+    for kind in [
+        "alive",
+        "sync",
+        "challenge",
+        "join",
+        "msg",
+        "leave",
+        "picture",
+    ] {
+        let subject = subjects.asks(kind);
         let subscribed = client.subscribe(subject.clone()).await;
         let subscribed = subscribed.map_err(|e| RelayError::Subscribe {
             subject,
@@ -90,7 +111,10 @@ pub async fn start(
         shared: shared.clone(),
         sessions: sessions.clone(),
         sync: sync_tx,
+        nonces: Nonces::default(),
+        dropped: Dropped::default(),
     };
+    let open_check = tokio::spawn(super::nats::warn_if_open(client.clone(), up.clone()));
     let expiry = {
         let shared = shared.clone();
         let up = up.clone();
@@ -100,7 +124,7 @@ pub async fn start(
     tracing::info!(
         "publishing the stage as {} on NATS {}",
         subjects.out_all(),
-        config.nats
+        address.shown()
     );
     Ok(Publishing {
         client,
@@ -116,6 +140,7 @@ pub async fn start(
             ),
             tokio::spawn(answerer.run(futures_util::stream::select_all(asked))),
             expiry,
+            open_check,
         ],
     })
 }
@@ -350,22 +375,63 @@ struct Answerer {
     shared: Arc<Shared>,
     sessions: Arc<Sessions>,
     sync: mpsc::Sender<Option<Subject>>,
+    /// Nonces issued for relays' joins.
+    nonces: Nonces,
+    dropped: Dropped,
+}
+
+/// Messages dropped since the last line about them.
+#[derive(Default)]
+struct Dropped(Mutex<(Option<Instant>, u64)>);
+
+impl Dropped {
+    /// Logs `why` unless a line was logged lately (then counts it).
+    fn note(&self, why: std::fmt::Arguments<'_>) {
+        let mut state = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        let (last, since) = &mut *state;
+        if last.is_some_and(|t| t.elapsed() < DROPPED_LOG_EVERY) {
+            *since += 1;
+            return;
+        }
+        if *since > 0 {
+            tracing::warn!("NATS: dropped {why} (and {since} more since the last such line)");
+        } else {
+            tracing::warn!("NATS: dropped {why}");
+        }
+        *state = (Some(Instant::now()), 0);
+    }
 }
 
 impl Answerer {
+    /// `(relay, kind)` of an asked message, if it may be answered: a
+    /// reply, if it asks one, in the asking relay's own inbox.
+    fn asker<'m>(&self, message: &'m async_nats::Message) -> Option<(&'m str, &'m str)> {
+        let (relay, kind) = self.subjects.asked(&message.subject)?;
+        if let Some(reply) = &message.reply
+            && !self.subjects.is_inbox_of(relay, reply)
+        {
+            self.dropped.note(format_args!(
+                "{}: its reply subject is not relay {relay}'s inbox",
+                message.subject
+            ));
+            return None;
+        }
+        Some((relay, kind))
+    }
+
     /// Syncs and relays' keep-alives, in order.
     async fn control(
         self: Arc<Self>,
         mut asked: impl futures_util::Stream<Item = async_nats::Message> + Unpin,
     ) {
         while let Some(message) = asked.next().await {
-            match self.subjects.asked(&message.subject) {
+            match self.asker(&message) {
                 // A sync already waiting answers this one too.
-                Some("sync") => {
+                Some((_, "sync")) => {
                     let _ = self.sync.try_send(message.reply.clone());
                 }
-                Some("alive") => match serde_json::from_slice::<Alive>(&message.payload) {
-                    Ok(alive) => self.sessions.alive(&self.shared, alive).await,
+                Some((relay, "alive")) => match serde_json::from_slice::<Alive>(&message.payload) {
+                    Ok(alive) => self.sessions.alive(&self.shared, relay, alive).await,
                     Err(e) => tracing::warn!("NATS {}: {e}", message.subject),
                 },
                 _ => {}
@@ -382,51 +448,70 @@ impl Answerer {
         let answering = Arc::new(Semaphore::new(ANSWERING));
         let me = self;
         while let Some(message) = asked.next().await {
-            let Some(kind) = me.subjects.asked(&message.subject) else {
+            let Some((relay, kind)) = me.asker(&message) else {
                 continue;
             };
             match kind {
-                "join" | "msg" | "leave" | "picture" => {
+                "challenge" | "join" | "msg" | "leave" | "picture" => {
                     let Ok(permit) = answering.clone().acquire_owned().await else {
                         return;
                     };
                     let me = me.clone();
-                    let kind = kind.to_string();
+                    let (relay, kind) = (relay.to_string(), kind.to_string());
                     tokio::spawn(async move {
-                        me.answer(&kind, message).await;
+                        me.answer(&relay, &kind, message).await;
                         drop(permit);
                     });
                 }
-                other => tracing::debug!("NATS: nothing answers in.{other}"),
+                other => tracing::debug!("NATS: nothing answers in.{relay}.{other}"),
             }
         }
     }
 
-    async fn answer(&self, kind: &str, message: async_nats::Message) {
+    async fn answer(&self, relay: &str, kind: &str, message: async_nats::Message) {
         let Ok(links) = self.shared.links() else {
             return;
         };
         let payload = &message.payload;
         let answer = match kind {
+            "challenge" => match self.nonces.issue(relay) {
+                Ok(nonce) => Some(json(&Challenge { nonce })),
+                Err(e) => {
+                    tracing::error!("a nonce for relay {relay}: {e}");
+                    None
+                }
+            },
             "join" => match serde_json::from_slice::<JoinRequest>(payload) {
-                Ok(request) => Some(json(&self.sessions.join(links, request).await)),
+                Ok(request) if !is_source_of(relay, &request.source) => {
+                    self.dropped.note(format_args!(
+                        "a join from relay {relay} for {:?}, not one of its clients",
+                        crate::stream::guard::clip(&request.source, 80)
+                    ));
+                    None
+                }
+                Ok(request) => Some(json(&self.join(links, relay, request).await)),
                 Err(e) => Some(json(&JoinAnswer::Refused {
                     refusal: Refusal::from(format!("bad join: {e}")),
                     close: crate::stream::close::POLICY,
                     reason: "bad join".into(),
                 })),
             },
-            "msg" => Some(json(
-                &match serde_json::from_slice::<MessageRequest>(payload) {
-                    Ok(request) => self.message(request).await,
-                    Err(e) => {
-                        MessageAnswer::Refused(Refusal::from(format!("bad relay message: {e}")))
-                    }
-                },
-            )),
+            "msg" => match serde_json::from_slice::<MessageRequest>(payload) {
+                Ok(request) => self.message(relay, request).await.map(|a| json(&a)),
+                Err(e) => Some(json(&MessageAnswer::Refused(Refusal::from(format!(
+                    "bad relay message: {e}"
+                ))))),
+            },
             "leave" => {
                 if let Ok(leave) = serde_json::from_slice::<Leave>(payload) {
-                    self.sessions.end(links, &leave.source).await;
+                    if self.sessions.relay_of(&leave.source).as_deref() == Some(relay) {
+                        self.sessions.end(links, &leave.source).await;
+                    } else {
+                        self.dropped.note(format_args!(
+                            "a leave from relay {relay} for {:?}, not a session it has",
+                            crate::stream::guard::clip(&leave.source, 80)
+                        ));
+                    }
                 }
                 None
             }
@@ -447,13 +532,60 @@ impl Answerer {
         }
     }
 
-    /// Acts on a relay's client's message with that client's permissions.
-    async fn message(&self, request: MessageRequest) -> MessageAnswer {
-        if !is_relay_source(&request.source) {
-            return MessageAnswer::Refused(Refusal::from(format!(
-                "source {:?} is not relay:<relay>:<client>",
+    /// A relay's client's hello: its token, if it gave one, is the one of
+    /// the stage's that the proof proves, on a nonce issued to this relay.
+    async fn join(&self, links: &StageLinks, relay: &str, request: JoinRequest) -> JoinAnswer {
+        let token = match &request.proof {
+            None => None,
+            Some(proof) => {
+                if !self.nonces.redeem(relay, &proof.nonce) {
+                    return JoinAnswer::Refused {
+                        refusal: Refusal::new(
+                            crate::protocol::ErrorCode::Failed,
+                            "the join's nonce is spent, expired or not this relay's: try again",
+                        ),
+                        close: crate::stream::close::TRY_LATER,
+                        reason: "stale nonce".into(),
+                    };
+                }
+                let access = links.people.access();
+                let tokens = access
+                    .people
+                    .iter()
+                    .map(|p| p.token.as_str())
+                    .chain(access.performer_tokens.iter().map(String::as_str));
+                let matched = proof::matching(
+                    tokens,
+                    proof,
+                    self.subjects.stage(),
+                    &request.source,
+                    request.role,
+                );
+                // A proof of no token is a wrong token (or none), answered
+                // as a direct hello with one is.
+                matched.map(str::to_string)
+            }
+        };
+        self.sessions
+            .join(
+                links,
+                relay,
+                &request.source,
+                request.role,
+                token.as_deref(),
+            )
+            .await
+    }
+
+    /// Acts on a relay's client's message with that client's permissions;
+    /// `None` (no answer) for a client that is not the relay's.
+    async fn message(&self, relay: &str, request: MessageRequest) -> Option<MessageAnswer> {
+        if !is_source_of(relay, &request.source) {
+            self.dropped.note(format_args!(
+                "a message from relay {relay} for {:?}, not one of its clients",
                 crate::stream::guard::clip(&request.source, 80)
-            )));
+            ));
+            return None;
         }
         let session = request
             .session
@@ -461,17 +593,17 @@ impl Answerer {
         let permissions = match session {
             Some(Some(p)) => p,
             Some(None) => {
-                return MessageAnswer::Refused(Refusal::new(
+                return Some(MessageAnswer::Refused(Refusal::new(
                     crate::protocol::ErrorCode::Failed,
                     "the stage ended this session (the relay was away too long): reconnect",
-                ));
+                )));
             }
             None => Permissions {
                 role: Role::Viewer,
                 puppets: None,
             },
         };
-        match crate::stream::handle_message(
+        let answer = match crate::stream::handle_message(
             &request.text,
             &permissions,
             &request.source,
@@ -481,7 +613,8 @@ impl Answerer {
         {
             Ok(answer) => MessageAnswer::Answer(answer),
             Err(refusal) => MessageAnswer::Refused(refusal),
-        }
+        };
+        Some(answer)
     }
 
     /// A part of a puppet's picture, with the whole picture's length.
@@ -511,13 +644,16 @@ impl Answerer {
 fn is_relay_source(source: &str) -> bool {
     let mut parts = source.split(':');
     parts.next() == Some("relay")
-        && parts
-            .next()
-            .is_some_and(|r| !r.is_empty() && r.chars().all(puppetry_stage::config::is_name_char))
+        && parts.next().is_some_and(super::is_name)
         && parts
             .next()
             .is_some_and(|n| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()))
         && parts.next().is_none()
+}
+
+/// Whether `source` is a client of `relay` (`relay:<relay>:<n>`).
+fn is_source_of(relay: &str, source: &str) -> bool {
+    is_relay_source(source) && source.split(':').nth(1) == Some(relay)
 }
 
 /// Remote performers' sessions, by source.
@@ -546,40 +682,35 @@ impl Sessions {
         self.lock().get(source).map(|s| s.permissions.clone())
     }
 
-    async fn join(&self, links: &StageLinks, request: JoinRequest) -> JoinAnswer {
-        if !is_relay_source(&request.source) {
-            return JoinAnswer::Refused {
-                refusal: Refusal::from("a relay's client is relay:<relay>:<client>".to_string()),
-                close: crate::stream::close::POLICY,
-                reason: "bad source".into(),
-            };
-        }
-        let relay = request.source.split(':').nth(1).unwrap_or("").to_string();
+    /// Which relay admitted `source`, if it has a session.
+    fn relay_of(&self, source: &str) -> Option<String> {
+        self.lock().get(source).map(|s| s.relay.clone())
+    }
+
+    /// Lets `source` (a client of `relay`: the caller checked) onto the
+    /// stage with `token` (the daemon's own copy of the one proven).
+    async fn join(
+        &self,
+        links: &StageLinks,
+        relay: &str,
+        source: &str,
+        role: Role,
+        token: Option<&str>,
+    ) -> JoinAnswer {
         // A relay restarted under the same name numbers its clients anew:
         // whatever the old one of this name held goes first.
-        self.end(links, &request.source).await;
-        match crate::stream::join_stage(
-            links,
-            &request.source,
-            request.role,
-            request.token.as_deref(),
-        )
-        .await
-        {
+        self.end(links, source).await;
+        match crate::stream::join_stage(links, source, role, token).await {
             Ok((joined, permissions, member)) => {
                 let session = RemoteSession {
-                    relay,
+                    relay: relay.to_string(),
                     limited: joined.puppets.is_some(),
                     permissions,
                     since: Instant::now(),
                     _member: member,
                 };
-                self.lock().insert(request.source.clone(), session);
-                tracing::info!(
-                    "{} joined through a relay as {:?}",
-                    request.source,
-                    joined.role
-                );
+                self.lock().insert(source.to_string(), session);
+                tracing::info!("{source} joined through a relay as {:?}", joined.role);
                 JoinAnswer::Joined {
                     role: joined.role,
                     you: joined.you,
@@ -606,17 +737,17 @@ impl Sessions {
 
     /// A relay's list of sessions: any of its sessions it no longer lists
     /// (a leave lost on the way) ends.
-    async fn alive(&self, shared: &Shared, alive: Alive) {
+    async fn alive(&self, shared: &Shared, relay: &str, alive: Alive) {
         let now = Instant::now();
         self.relays
             .lock()
             .unwrap_or_else(|p| p.into_inner())
-            .insert(alive.relay.clone(), now);
+            .insert(relay.to_string(), now);
         let gone: Vec<String> = self
             .lock()
             .iter()
             .filter(|(source, s)| {
-                s.relay == alive.relay
+                s.relay == relay
                     && now.duration_since(s.since) > 2 * ALIVE_EVERY
                     && !alive.sessions.contains(source)
             })
@@ -702,5 +833,8 @@ mod tests {
         ] {
             assert!(!is_relay_source(bad), "{bad}");
         }
+        assert!(is_source_of("hall-2", "relay:hall-2:17"));
+        assert!(!is_source_of("hall", "relay:hall-2:17"));
+        assert!(!is_source_of("hall", "relay:hall:x"));
     }
 }

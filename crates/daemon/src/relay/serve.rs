@@ -6,8 +6,9 @@
 //! viewer, the whole state at once for a late one. Messages of a relay's
 //! clients go to the daemon, which checks and acts on them; an anonymous
 //! viewer stays on the relay, anyone with a role or token has a session on
-//! the stage. When the stage cannot be reached, viewers are told, keep
-//! their last picture, and are told again when it is back.
+//! the stage (the token proven to the daemon, never sent: [`super::proof`]).
+//! When the stage cannot be reached, viewers are told, keep their last
+//! picture, and are told again when it is back.
 
 use std::collections::{HashMap, HashSet};
 use std::net::SocketAddr;
@@ -22,9 +23,9 @@ use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use super::{
-    ALIVE_EVERY, ANSWER_WITHIN, Alive, Assembler, Heartbeat, JoinAnswer, JoinRequest, Leave,
-    LineupMessage, MessageAnswer, MessageRequest, PictureRequest, RelayError, STAGE_GONE_AFTER,
-    Subjects, TOTAL_HEADER,
+    ALIVE_EVERY, ANSWER_WITHIN, Alive, Assembler, Challenge, Heartbeat, JoinAnswer, JoinRequest,
+    Leave, LineupMessage, MessageAnswer, MessageRequest, PictureRequest, RelayError,
+    STAGE_GONE_AFTER, Subjects, TOTAL_HEADER,
 };
 use crate::lineup::{Lineup, StageDescription};
 use crate::protocol::{
@@ -37,11 +38,13 @@ use crate::stream::{self, Admission, Backend, JoinRefused, Joined, Shared, WebFi
 /// How a relay runs.
 #[derive(Debug, Clone)]
 pub struct RelayOptions {
-    /// The NATS server, `nats://host:port`.
+    /// The NATS server, `nats://[user[:password]@]host:port` (a user
+    /// without a password takes `PUPPETRY_NATS_PASSWORD`'s: [`super::nats`]).
     pub nats: String,
     /// The stage's name on NATS (`[relay].stage` of its stage file).
     pub stage: String,
-    /// This relay's name: remote performers are `relay:<name>:<n>`.
+    /// This relay's name: remote performers are `relay:<name>:<n>`, and
+    /// it asks on `in.<name>.…` (its NATS user's permissions must allow it).
     pub name: String,
     pub listen: SocketAddr,
     pub web_files: WebFiles,
@@ -79,19 +82,28 @@ impl RelayRunning {
 /// for its stage, and serves viewers on `options.listen`.
 pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
     let subjects = Subjects::new(&options.stage)?;
-    if options.name.is_empty()
-        || !options
-            .name
-            .chars()
-            .all(puppetry_stage::config::is_name_char)
+    if !super::is_name(&options.name) {
+        return Err(RelayError::RelayName(options.name.clone()));
+    }
+    let nats = super::nats::NatsAddress::parse(&options.nats)?;
+    if let Some(user) = nats.user()
+        && user != options.name
     {
-        return Err(RelayError::StageName(options.name.clone()));
+        tracing::warn!(
+            "relay {} connects to NATS as {user}: a server that binds each relay to its \
+             own subjects (docs/scaling.md) will refuse what it asks",
+            options.name
+        );
     }
     let (up_tx, up) = watch::channel(false);
-    let connecting = super::connect_options(&format!("puppetry relay {}", options.name), up_tx)
-        // Frames of every puppet at the input rate: room for a burst.
-        .subscription_capacity(8192);
-    let client = super::connect(&options.nats, connecting).await?;
+    let connecting =
+        super::nats::connect_options(&format!("puppetry relay {}", options.name), up_tx)
+            // Frames of every puppet at the input rate: room for a burst.
+            .subscription_capacity(8192)
+            // Answers come to this relay's own inbox, which its NATS user
+            // alone may read.
+            .custom_inbox_prefix(subjects.inbox(&options.name));
+    let client = nats.connect(connecting).await?;
     let published =
         client
             .subscribe(subjects.out_all())
@@ -148,7 +160,7 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
         "relay {} serving stage {} from NATS {} on http://{address}/",
         options.name,
         options.stage,
-        options.nats
+        nats.shown()
     );
     Ok(RelayRunning {
         address,
@@ -156,7 +168,14 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
         shutdown,
         server,
         tasks: vec![
-            tokio::spawn(mirror.run(published, client, subjects, up)),
+            tokio::spawn(super::nats::warn_if_open(client.clone(), up.clone())),
+            tokio::spawn(mirror.run(
+                published,
+                client,
+                subjects.ask(&options.name, "sync"),
+                subjects,
+                up,
+            )),
             tokio::spawn(link.say_alive()),
         ],
     })
@@ -389,6 +408,7 @@ impl Mirror {
         mut self,
         mut published: async_nats::Subscriber,
         client: Client,
+        sync: String,
         subjects: Subjects,
         mut up: watch::Receiver<bool>,
     ) {
@@ -433,7 +453,7 @@ impl Mirror {
                     if connected && !synced && !syncing {
                         syncing = true;
                         let client = client.clone();
-                        let asking = subjects.ask("sync");
+                        let asking = sync.clone();
                         let done = synced_tx.clone();
                         tokio::spawn(async move {
                             let asked = tokio::time::timeout(
@@ -671,7 +691,9 @@ fn unreachable() -> Refusal {
 
 impl LinkInner {
     async fn ask(&self, name: &str, body: Bytes) -> Result<async_nats::Message, Refusal> {
-        let asking = self.client.request(self.subjects.ask(name), body);
+        let asking = self
+            .client
+            .request(self.subjects.ask(&self.name, name), body);
         match tokio::time::timeout(ANSWER_WITHIN, asking).await {
             Ok(Ok(answer)) => Ok(answer),
             _ => Err(unreachable()),
@@ -713,17 +735,43 @@ impl RelayLink {
             };
             return Ok((session, joined));
         }
-        let request = JoinRequest {
-            source: source.clone(),
-            role: asked,
-            token,
-        };
-        let body = Bytes::from(serde_json::to_vec(&request).expect("joins serialise"));
         let refused_for = |refusal: Refusal| JoinRefused {
             refusal,
             close: stream::close::TRY_LATER,
             reason: "the stage is not reachable".into(),
         };
+        // The token stays here: the daemon gets a proof of it, on a nonce
+        // it issued for this join.
+        let proof = match token {
+            None => None,
+            Some(token) => {
+                let answer = self
+                    .0
+                    .ask("challenge", Bytes::new())
+                    .await
+                    .map_err(refused_for)?;
+                let challenge: Challenge =
+                    serde_json::from_slice(&answer.payload).map_err(|e| {
+                        refused_for(Refusal::new(
+                            ErrorCode::Failed,
+                            format!("the stage's challenge: {e}"),
+                        ))
+                    })?;
+                Some(super::proof::prove(
+                    &token,
+                    &challenge.nonce,
+                    self.0.subjects.stage(),
+                    &source,
+                    asked,
+                ))
+            }
+        };
+        let request = JoinRequest {
+            source: source.clone(),
+            role: asked,
+            proof,
+        };
+        let body = Bytes::from(serde_json::to_vec(&request).expect("joins serialise"));
         let answer = self.0.ask("join", body).await.map_err(refused_for)?;
         match serde_json::from_slice::<JoinAnswer>(&answer.payload) {
             Ok(JoinAnswer::Joined { role, you, puppets }) => {
@@ -814,16 +862,13 @@ impl RelayLink {
                 .iter()
                 .cloned()
                 .collect();
-            let alive = Alive {
-                relay: self.0.name.clone(),
-                sessions,
-            };
+            let alive = Alive { sessions };
             let body = Bytes::from(serde_json::to_vec(&alive).expect("alive serialises"));
             if self.0.client.connection_state() == async_nats::connection::State::Connected {
                 let _ = self
                     .0
                     .client
-                    .publish(self.0.subjects.ask("alive"), body)
+                    .publish(self.0.subjects.ask(&self.0.name, "alive"), body)
                     .await;
             }
         }
@@ -913,7 +958,7 @@ impl Drop for Session {
         };
         let body = Bytes::from(serde_json::to_vec(&leave).expect("leaves serialise"));
         let client = self.link.client.clone();
-        let subject = self.link.subjects.ask("leave");
+        let subject = self.link.subjects.ask(&self.link.name, "leave");
         // If this is lost, the relay's next `alive` no longer lists the
         // session, and the stage ends it then.
         if let Ok(runtime) = tokio::runtime::Handle::try_current() {
