@@ -73,7 +73,9 @@ enum Command {
     /// machine; remote performers' messages go to the daemon, which checks
     /// them as it checks direct ones (docs/scaling.md).
     Relay {
-        /// The NATS server the daemon publishes to.
+        /// The NATS server the daemon publishes to, with this relay's
+        /// credentials: nats://USER:PASSWORD@HOST:PORT, or nats://USER@HOST:PORT
+        /// and the password in PUPPETRY_NATS_PASSWORD (docs/scaling.md).
         #[arg(long, value_name = "URL")]
         nats: String,
         /// The stage's name on NATS: `[relay].stage`, or the daemon's stage
@@ -85,7 +87,8 @@ enum Command {
               value_parser = cli::parse_listen)]
         listen: std::net::SocketAddr,
         /// This relay's name (letters, digits, - and _): remote performers
-        /// are `relay:<name>:<n>` on the stage. Default: relay-<pid>.
+        /// are `relay:<name>:<n>` on the stage. Default: the NATS user, or
+        /// relay-<pid> without one.
         #[arg(long)]
         name: Option<String>,
         /// Serve the web client from this folder instead of the copy
@@ -545,6 +548,11 @@ fn run(args: Args) -> anyhow::Result<()> {
             if !(client_timeout.is_finite() && client_timeout > 0.0) {
                 anyhow::bail!("--client-timeout must be a positive number of seconds");
             }
+            // Named as its NATS user, whose permissions name its subjects.
+            let name = name.or_else(|| {
+                let address = puppetry_daemon::relay::nats::NatsAddress::parse(&nats);
+                address.ok()?.user().map(str::to_string)
+            });
             let options = puppetry_daemon::relay::RelayOptions {
                 nats,
                 stage,

@@ -6,6 +6,8 @@
 //! go of its performers' handles), and a NATS restart is told and
 //! recovered from.
 
+mod secure;
+
 use std::collections::BTreeMap;
 
 use futures_util::SinkExt;
