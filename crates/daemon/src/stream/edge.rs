@@ -73,7 +73,7 @@ impl Default for EdgeTimes {
 /// The address a connection reached the daemon at: its own origin, as
 /// far as the Origin check goes.
 #[derive(Debug, Clone, Copy)]
-struct LocalAddr(Option<SocketAddr>);
+pub(super) struct LocalAddr(pub(super) Option<SocketAddr>);
 
 /// The routes of the daemon's one port.
 pub fn router(shared: Arc<Shared>) -> Router {
@@ -177,30 +177,6 @@ pub(super) fn own_origin(origin: &str, local: Option<SocketAddr>, allowed: &[Str
         return true;
     }
     (local.ip().is_loopback() && host == "localhost") || own_host_names().contains(&host)
-}
-
-/// Whether a page of `origin` may send a request that names `host` (a
-/// request's `Host`, where the connection's own address is not at hand):
-/// one listed, or its own page — the origin's host and port are `host`'s,
-/// and that host is an address, `localhost` or this machine's name. A
-/// rebound name (DNS rebinding) is none of those, though the page sends
-/// it as `Host`. The WebSocket checks [`own_origin`], which is stricter.
-pub(super) fn origin_allowed(origin: &str, host: Option<&str>, allowed: &[String]) -> bool {
-    if listed(origin, allowed) {
-        return true;
-    }
-    let (Some(host), Some((name, _))) = (host, host_and_port(origin)) else {
-        return false;
-    };
-    let authority = origin
-        .trim_end_matches('/')
-        .split_once("://")
-        .map_or("", |(_, a)| a);
-    let literal = name.trim_start_matches('[').trim_end_matches(']');
-    authority.eq_ignore_ascii_case(host)
-        && (literal.parse::<IpAddr>().is_ok()
-            || name == "localhost"
-            || own_host_names().contains(&name))
 }
 
 /// `origin` is one of `allowed` (case and a trailing `/` aside).
@@ -575,15 +551,15 @@ impl tokio::io::AsyncWrite for CappedStream {
 
 #[cfg(test)]
 mod tests {
-    use super::{origin_allowed, own_origin};
+    use super::own_origin;
 
     #[test]
     fn only_the_daemons_own_or_listed_origins_pass() {
         let listed = vec!["https://show.example".to_string()];
-        let host = Some("127.0.0.1:8080");
-        assert!(origin_allowed("http://127.0.0.1:8080", host, &[]));
-        assert!(origin_allowed("https://show.example", host, &listed));
-        assert!(origin_allowed("https://SHOW.example/", host, &listed));
+        let local = Some("127.0.0.1:8080".parse().unwrap());
+        assert!(own_origin("http://127.0.0.1:8080", local, &[]));
+        assert!(own_origin("https://show.example", local, &listed));
+        assert!(own_origin("https://SHOW.example/", local, &listed));
         for foreign in [
             "https://evil.example",
             "http://127.0.0.1:8081",
@@ -591,9 +567,9 @@ mod tests {
             "null",
             "",
         ] {
-            assert!(!origin_allowed(foreign, host, &listed), "{foreign}");
+            assert!(!own_origin(foreign, local, &listed), "{foreign}");
         }
-        assert!(!origin_allowed("http://127.0.0.1:8080", None, &[]));
+        assert!(!own_origin("http://127.0.0.1:8080", None, &[]));
     }
 
     #[test]
@@ -601,7 +577,6 @@ mod tests {
         // DNS rebinding: the attacker's name resolves to the daemon, so
         // the page's Origin and Host agree — and name the attacker.
         let rebound = "http://evil.example:8080";
-        assert!(!origin_allowed(rebound, Some("evil.example:8080"), &[]));
         let local = Some("127.0.0.1:8080".parse().unwrap());
         assert!(!own_origin(rebound, local, &[]));
         assert!(!own_origin("http://evil.example", local, &[]));
@@ -613,11 +588,6 @@ mod tests {
         ] {
             assert!(own_origin(own, local, &[]), "{own}");
         }
-        assert!(origin_allowed(
-            "http://localhost:8080",
-            Some("localhost:8080"),
-            &[]
-        ));
         // Another port, another address, another scheme: not its own.
         for foreign in [
             "http://127.0.0.1:8081",

@@ -13,9 +13,11 @@
 //! the daemon starts again; removing the puppet deletes its files.
 
 use std::collections::HashMap;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use axum::Extension;
 use axum::body::Body;
 use axum::extract::{ConnectInfo, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
@@ -26,7 +28,7 @@ use puppetry_stage::config::{AccessRole, CurveConfig, PuppetConfig, StageConfig}
 use puppetry_stage::{Puppet, Stage};
 use serde::{Deserialize, Serialize};
 
-use super::edge::{PeerAddr, origin_allowed};
+use super::edge::{LocalAddr, PeerAddr, own_origin};
 use super::guard::Refusal;
 use super::people::{Credential, credential};
 use super::{Shared, change_lineup};
@@ -60,11 +62,12 @@ const MAX_PLACEMENT_FILE: u64 = 4096;
 pub(super) async fn add(
     State(shared): State<Arc<Shared>>,
     ConnectInfo(PeerAddr(peer)): ConnectInfo<PeerAddr>,
+    Extension(LocalAddr(local)): Extension<LocalAddr>,
     Query(query): Query<HashMap<String, String>>,
     headers: HeaderMap,
     body: Body,
 ) -> Response {
-    match add_puppet(&shared, &query, &headers, body).await {
+    match add_puppet(&shared, &query, &headers, local, body).await {
         Ok(added) => (StatusCode::OK, added.to_text()).into_response(),
         Err((status, refusal)) => {
             shared.log.warn(&peer.ip().to_string(), || {
@@ -85,12 +88,13 @@ async fn add_puppet(
     shared: &Shared,
     query: &HashMap<String, String>,
     headers: &HeaderMap,
+    local: Option<SocketAddr>,
     body: Body,
 ) -> Result<ServerMessage, Refused> {
     let links = shared
         .links()
         .map_err(|e| refused(StatusCode::NOT_FOUND, ErrorCode::NotFound, e))?;
-    check_director(links, headers)?;
+    check_director(links, headers, local)?;
     let lineup = shared.lineup.borrow().clone();
     let wanted = Wanted::parse(query, &lineup.config)?;
     let png = axum::body::to_bytes(body, MAX_UPLOAD).await.map_err(|_| {
@@ -177,12 +181,17 @@ async fn add_puppet(
 }
 
 /// Only a director adds puppets, from the daemon's own page or an allowed
-/// origin (the same rules as the WebSocket's).
-fn check_director(links: &super::StageLinks, headers: &HeaderMap) -> Result<(), Refused> {
+/// origin: the same rule as the WebSocket's, against the address the
+/// connection reached (`local`), never the request's `Host`, which a
+/// rebound name (DNS rebinding) sends as it likes.
+fn check_director(
+    links: &super::StageLinks,
+    headers: &HeaderMap,
+    local: Option<SocketAddr>,
+) -> Result<(), Refused> {
     if let Some(origin) = headers.get(header::ORIGIN) {
-        let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
         let allowed = &links.people.access().allowed_origins;
-        if !origin_allowed(origin.to_str().unwrap_or(""), host, allowed) {
+        if !own_origin(origin.to_str().unwrap_or(""), local, allowed) {
             return Err(refused(
                 StatusCode::FORBIDDEN,
                 ErrorCode::Forbidden,

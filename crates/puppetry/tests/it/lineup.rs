@@ -306,6 +306,20 @@ async fn bad_pictures_and_requests_get_typed_errors_and_leave_nothing_behind() {
     );
     // The picture, its mesh and its placement.
     assert_eq!(kept(dir.path()), 3);
+
+    // DNS rebinding: a page on a name that resolves to the daemon sends
+    // its own name as Origin and Host alike; the check goes by the
+    // address the connection reached, so it is refused.
+    let port = running.address.port();
+    let mut request = format!(
+        "POST /puppets?name=rebound HTTP/1.1\r\nHost: evil.example:{port}\r\nOrigin: http://evil.example:{port}\r\n{AS_DIRECTOR}\r\nContent-Type: image/png\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        picture.len()
+    )
+    .into_bytes();
+    request.extend_from_slice(&picture);
+    let answer = http_raw(running.address, &request).await;
+    assert_eq!(http_status(&answer), 403, "a rebound page added a puppet");
+    assert_eq!(kept(dir.path()), 3);
     running.shutdown().await;
 }
 
