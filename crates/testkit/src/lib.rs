@@ -3,13 +3,15 @@
 //! allocation counter for the no-allocation tests ([`alloc`]), a
 //! pseudo-terminal standing in for a serial pad ([`pty`]), TUIO bundles as a
 //! table sends them ([`tuio`]), the fuzz tests' case count and input makers
-//! ([`fuzz`]), and where the checkout's files are
+//! ([`fuzz`]), what the simulated shows share ([`simulate`]), and where
+//! the checkout's files are
 //! ([`root`]). A dev-dependency only: nothing here ships.
 
 pub mod alloc;
 pub mod fixtures;
 pub mod fuzz;
 pub mod pty;
+pub mod simulate;
 pub mod tuio;
 
 pub use fixtures::*;

@@ -33,6 +33,7 @@ use puppetry_daemon::takes::{PlayOptions, Playback};
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, HandleKind, Owner, Stage};
+use puppetry_testkit::simulate::{Spot, cases, failure_file, spot};
 use serde::{Deserialize, Serialize};
 use tokio::sync::{mpsc, oneshot};
 
@@ -42,23 +43,6 @@ const STAGES: [&str; 5] = ["demo", "grid", "skeleton", "curve", "keyframe"];
 
 /// The live sources: a touch table, a performer's browser, a relay.
 const SOURCES: [&str; 3] = ["table", "client:7", "relay:hall:3"];
-
-/// Where a contact, a pin or a brush lands: fractions of the stage, or a
-/// puppet's rest vertex (the outline, pins and other fingers a hair away).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "on", rename_all = "snake_case")]
-enum Spot {
-    Stage {
-        x: f64,
-        y: f64,
-    },
-    Vertex {
-        puppet: u8,
-        vertex: u32,
-        dx: f64,
-        dy: f64,
-    },
-}
 
 /// What a played take leaves out for the live performer.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -616,28 +600,6 @@ fn run(sequence: &Sequence) -> Result<(), String> {
     show.end()
 }
 
-fn failure_file(stage: &str) -> PathBuf {
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| puppetry_testkit::root().join("target"));
-    target.join(format!("show-failure-{stage}.json"))
-}
-
-fn spot() -> impl Strategy<Value = Spot> {
-    let offset = prop_oneof![Just(0.0), Just(1e-7), Just(-1e-3), -4.0..4.0f64];
-    prop_oneof![
-        (-0.1..1.1f64, -0.1..1.1f64).prop_map(|(x, y)| Spot::Stage { x, y }),
-        (any::<u8>(), any::<u32>(), offset.clone(), offset).prop_map(|(puppet, vertex, dx, dy)| {
-            Spot::Vertex {
-                puppet,
-                vertex,
-                dx,
-                dy,
-            }
-        }),
-    ]
-}
-
 fn op() -> impl Strategy<Value = Op> {
     let u = any::<u8>;
     let replace = prop_oneof![
@@ -667,10 +629,7 @@ fn op() -> impl Strategy<Value = Op> {
 }
 
 fn simulate(stage: &'static str) {
-    let cases = std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(8);
+    let cases = cases(8);
     let config = ProptestConfig {
         cases,
         failure_persistence: None,
@@ -679,7 +638,7 @@ fn simulate(stage: &'static str) {
     proptest!(config, |(record_from_first_input in any::<bool>(), ops in proptest::collection::vec(op(), 1..80))| {
         let sequence = Sequence { stage: stage.to_string(), record_from_first_input, ops };
         if let Err(problem) = run(&sequence) {
-            let file = failure_file(stage);
+            let file = failure_file("show", stage);
             let _ = std::fs::write(&file, serde_json::to_string_pretty(&sequence).unwrap());
             return Err(TestCaseError::fail(format!("{problem}\n(sequence written to {})", file.display())));
         }

@@ -23,7 +23,7 @@
 //! runs N sequences per stage (the default run is a few thousand steps).
 
 use std::collections::{BTreeSet, VecDeque};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::DVec2;
 use proptest::prelude::*;
@@ -31,26 +31,11 @@ use puppetry_deform::Arap;
 use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, HandleKind, Puppet, Rebuild, Rig, Stage};
+use puppetry_testkit::simulate::{Spot, cases, failure_file, spot};
 use serde::{Deserialize, Serialize};
 
 /// The stages a show is simulated on: every rig the project has.
 const STAGES: [&str; 6] = ["demo", "grid", "skeleton", "curve", "keyframe", "two"];
-
-/// Where a contact or a brush lands.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "on", rename_all = "snake_case")]
-enum Spot {
-    /// Anywhere on (or a little off) the stage, as fractions of its size.
-    Stage { x: f64, y: f64 },
-    /// On a puppet's rest vertex (indices taken modulo the counts), plus a
-    /// small offset: the outline, pins and other fingers a hair away.
-    Vertex {
-        puppet: u8,
-        vertex: u32,
-        dx: f64,
-        dy: f64,
-    },
-}
 
 /// One thing a show does.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -703,28 +688,6 @@ fn run(name: &str, ops: &[Op]) -> Result<(), String> {
     replay(&show, name)
 }
 
-fn failure_file(stage: &str) -> PathBuf {
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| puppetry_testkit::root().join("target"));
-    target.join(format!("simulate-failure-{stage}.json"))
-}
-
-fn spot() -> impl Strategy<Value = Spot> {
-    let offset = prop_oneof![Just(0.0), Just(1e-7), Just(-1e-3), Just(0.5), -4.0..4.0f64];
-    prop_oneof![
-        (-0.1..1.1f64, -0.1..1.1f64).prop_map(|(x, y)| Spot::Stage { x, y }),
-        (any::<u8>(), any::<u32>(), offset.clone(), offset).prop_map(|(puppet, vertex, dx, dy)| {
-            Spot::Vertex {
-                puppet,
-                vertex,
-                dx,
-                dy,
-            }
-        }),
-    ]
-}
-
 fn op() -> impl Strategy<Value = Op> {
     let u = any::<u8>;
     let pad = || (-0.2..1.2f64, -0.2..1.2f64).prop_map(|(x, y)| [x, y]);
@@ -756,10 +719,7 @@ fn op() -> impl Strategy<Value = Op> {
 }
 
 fn simulate(name: &'static str) {
-    let cases = std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(24);
+    let cases = cases(24);
     let config = ProptestConfig {
         cases,
         failure_persistence: None,
@@ -767,7 +727,7 @@ fn simulate(name: &'static str) {
     };
     proptest!(config, |(ops in proptest::collection::vec(op(), 1..60))| {
         if let Err(problem) = run(name, &ops) {
-            let file = failure_file(name);
+            let file = failure_file("simulate", name);
             let sequence = Sequence { stage: name.to_string(), ops: ops.clone() };
             let _ = std::fs::write(&file, serde_json::to_string_pretty(&sequence).unwrap());
             return Err(TestCaseError::fail(format!("{problem}\n(sequence written to {})", file.display())));
