@@ -219,6 +219,7 @@ const takeControls = new TakeControls({
     play: playMessage,
     stopPlaying: stopPlayingMessage,
   },
+  token: () => access.token,
 });
 
 const keyPad = new KeyPad({

@@ -637,19 +637,19 @@ export function calibrationMarks(inset, stageSize) {
 
 /**
  * Takes: the record button (red with the elapsed time on every page while
- * a take records), the take list, play and overdub. Everyone sees the
- * state; directors get the buttons that record and play, performers the
- * list and the download. One button starts a take and, while anything
+ * a take records), the take list, play, overdub and the download. Everyone
+ * sees the state; directors get the buttons. One button starts a take and, while anything
  * runs (a take recording, one playing, an overdub), reads "■ stop" and
  * stops all of it: there is no second stop to press by mistake. Play,
  * overdub and replace are disabled while anything runs, and the take
  * being recorded is in the list but cannot be chosen.
  */
 export class TakeControls {
-  constructor(elements, { send, messages }) {
+  constructor(elements, { send, messages, token }) {
     this.el = elements;
     this.send = send;
     this.m = messages;
+    this.token = token; // () => the director's token, sent with downloads
     this.state = { recording: null, playing: null, error: null };
     this.since = 0; // performance.now() when `elapsed` was 0
     for (const b of this.buttons()) b.hidden = true;
@@ -664,11 +664,10 @@ export class TakeControls {
     return [e.record, e.play, e.overdub, e.list, e.format, e.download];
   }
 
-  /** Which buttons show: directors record and play, performers (and directors) list and download. */
-  setRole({ perform, direct }) {
+  /** Which buttons show: directors record, play and download (the daemon serves takes to a director's token only). */
+  setRole({ direct }) {
     const e = this.el;
-    for (const b of [e.list, e.format, e.download]) b.hidden = !perform;
-    for (const b of [e.record, e.play, e.overdub]) b.hidden = !direct;
+    for (const b of this.buttons()) b.hidden = !direct;
     this.fit();
   }
 
@@ -724,18 +723,45 @@ export class TakeControls {
     this.replaceTool?.setBusy(running);
   }
 
-  /** Downloads the chosen take as the file itself or an export the daemon makes. */
-  download() {
+  /**
+   * Downloads the chosen take as the file itself or an export the daemon
+   * makes. The daemon wants the director's token as a header (a plain link
+   * cannot carry one, which is the point: a link on any page cannot fetch
+   * a take), so the file is fetched, then saved from memory under its name.
+   */
+  async download() {
     const take = this.chosen();
     if (!take) return;
     const format = this.el.format.value;
     const name = encodeURIComponent(take);
+    const path = format === 'take' ? `/takes/${name}.take` : `/takes/${name}/export?format=${format}&fps=30`;
+    const failed = (why) => {
+      this.state.error = `download of ${take}: ${why}`;
+      this.showElapsed();
+    };
+    let blob;
+    let file = `${take}.${format === 'spine' ? 'json' : format}`;
+    try {
+      const answer = await fetch(path, { headers: { Authorization: `Bearer ${this.token()}` }, cache: 'no-store' });
+      if (!answer.ok) {
+        failed((await answer.text()).trim() || `HTTP ${answer.status}`);
+        return;
+      }
+      file = /filename="([^"]+)"/.exec(answer.headers.get('Content-Disposition') ?? '')?.[1] ?? file;
+      blob = await answer.blob();
+    } catch (err) {
+      failed(err.message);
+      return;
+    }
+    const url = URL.createObjectURL(blob);
     const link = document.createElement('a');
-    link.href = format === 'take' ? `/takes/${name}.take` : `/takes/${name}/export?format=${format}&fps=30`;
-    link.download = '';
+    link.href = url;
+    link.download = file;
     document.body.append(link);
     link.click();
     link.remove();
+    // The browser has the file once the click is handled; give it time.
+    setTimeout(() => URL.revokeObjectURL(url), 60_000);
   }
 
   /** An `export` message: progress of an export being downloaded. */

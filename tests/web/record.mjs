@@ -145,6 +145,13 @@ try {
   await waitFor(viewer, 'the viewer to see the take end', () => !document.getElementById('take-state').classList.contains('recording'));
   await shot(performer, 'stopped-performer');
 
+  step('a take is not served without the director\'s token');
+  // What a link on any page would fire: no Authorization header (asked
+  // from here, not the page, whose console would log the refusals).
+  summary.bare = await Promise.all(['/takes/take-001.take', '/takes/take-001/export?format=glb']
+    .map((p) => fetch(new URL(p, url), { cache: 'no-store' }).then((r) => r.status)));
+  if (summary.bare.some((s) => s !== 401)) throw new Error(`without a token the take and its export answered ${summary.bare}, not 401`);
+
   step('download the take as glTF from the take list');
   await performer.selectOption('#take-list', 'take-001');
   await performer.selectOption('#take-format', 'glb');

@@ -631,7 +631,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
             println!(
                 "{}",
-                puppetry_export::take::export_take(&request, &mut bar)?
+                puppetry::export::export(&request, &mut bar)?
             );
         }
         Command::Takes {

@@ -4,20 +4,40 @@
 //! worker threads inherit), so it never competes with the stage thread for
 //! a core; its progress goes to every page as `export` messages. One export
 //! runs at a time: a second request is answered 429.
+//!
+//! Both need a director's token as `Authorization: Bearer TOKEN` (401
+//! without one, 403 for another role's): a header, not a cookie or a query,
+//! so a foreign page's `<img>` or link — which can fire a GET but not set a
+//! header — can neither download a take nor keep the export slot busy.
+//! What is served names no folder of the daemon's: the take's header is
+//! served with its `stage_file` cut to the file's name (the file on disk is
+//! left as recorded), and error messages drop the takes folder.
+//!
+//! An export's cost is computed from the take before anything is read into
+//! memory (`puppetry_export::budget`): past a limit it is a 413 naming the
+//! size and the limit. It is written into a private folder made for it
+//! (random name, this user's only), streamed from disk as the answer, and
+//! the folder removed; nothing is written at a name a stranger could
+//! guess.
 
 use std::collections::HashMap;
+use std::path::{Path as FsPath, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
 use axum::body::Body;
 use axum::extract::{Path, Query, State};
-use axum::http::{HeaderValue, StatusCode, header};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
-use puppetry_export::ExportError;
+use puppetry_export::budget::BudgetError;
 use puppetry_export::take::{ExportRequest, TakeExportError, export_take_with};
+use puppetry_export::{ExportError, Scratch};
+use puppetry_stage::config::AccessRole;
+use puppetry_take::{TakeError, TakeReader, TakeWriter};
 
 use super::Shared;
+use super::people::{Credential, credential};
 use crate::protocol::{ExportState, ServerMessage};
 
 /// Formats a browser can download as one file (a PNG sequence is a folder:
@@ -30,20 +50,190 @@ const DOWNLOADABLE: [(&str, &str, &str); 5] = [
     ("spine", "json", "application/json"),
 ];
 
-/// `GET /takes/NAME.take`: the take file.
-pub async fn take_file(State(shared): State<Arc<Shared>>, Path(file): Path<String>) -> Response {
+/// The export's query parameters; any other is refused (400).
+const PARAMETERS: [&str; 5] = ["format", "fps", "size", "from", "to"];
+
+/// Why a take could not be served.
+#[derive(Debug, thiserror::Error)]
+enum DownloadError {
+    #[error(transparent)]
+    Take(#[from] TakeError),
+    #[error(transparent)]
+    Export(#[from] ExportError),
+    #[error("{file}: {source}")]
+    Io {
+        file: String,
+        source: std::io::Error,
+    },
+}
+
+/// Only a director downloads takes and exports: `Authorization: Bearer
+/// TOKEN`, checked as the WebSocket's hello is (every token compared in
+/// constant time). The answer to anyone else.
+fn not_a_director(links: &super::StageLinks, headers: &HeaderMap) -> Option<Response> {
+    let token = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim);
+    let access = links.people.access();
+    match token.and_then(|t| credential(access, t)) {
+        Some(Credential::Person(i)) if access.people[i].role == AccessRole::Director => None,
+        None => {
+            let mut answer = plain(
+                StatusCode::UNAUTHORIZED,
+                "downloading a take needs a director's token (Authorization: Bearer TOKEN)",
+            );
+            answer.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"puppetry\""),
+            );
+            Some(answer)
+        }
+        Some(_) => Some(plain(
+            StatusCode::FORBIDDEN,
+            "downloading a take: not allowed for performers (directors download takes)",
+        )),
+    }
+}
+
+/// `GET /takes/NAME.take`: the take file, its header's `stage_file` cut to
+/// the stage file's name.
+pub async fn take_file(
+    State(shared): State<Arc<Shared>>,
+    Path(file): Path<String>,
+    headers: HeaderMap,
+) -> Response {
     let Some(name) = file.strip_suffix(".take") else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
     let Ok(links) = shared.links() else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
+    if let Some(refused) = not_a_director(links, &headers) {
+        return refused;
+    }
     let Ok(path) = crate::takes::take_path(&links.takes_dir, name) else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
-    match tokio::fs::read(&path).await {
-        Ok(bytes) => attachment(Body::from(bytes), "application/octet-stream", &file),
-        Err(_) => plain(StatusCode::NOT_FOUND, "not found"),
+    if !path.is_file() {
+        return plain(StatusCode::NOT_FOUND, &format!("no take {name}"));
+    }
+    let takes_dir = links.takes_dir.clone();
+    let served = tokio::task::spawn_blocking(move || served_take(&path)).await;
+    match served {
+        Ok(Ok((head, rest, length))) => {
+            use futures_util::StreamExt;
+            use tokio::io::AsyncReadExt;
+            let total = head.len() as u64 + length;
+            let rest = tokio::fs::File::from_std(rest).take(length);
+            let head = futures_util::stream::once(async move {
+                Ok::<_, std::io::Error>(bytes::Bytes::from(head))
+            });
+            let body = Body::from_stream(head.chain(read_stream(rest)));
+            let mut answer = attachment(body, "application/octet-stream", &file);
+            answer
+                .headers_mut()
+                .insert(header::CONTENT_LENGTH, HeaderValue::from(total));
+            answer
+        }
+        Ok(Err(e)) => plain(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            &without_folders(&e.to_string(), &takes_dir, None),
+        ),
+        Err(_) => plain(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            "reading the take stopped",
+        ),
+    }
+}
+
+/// The take at `path` as served: its magic and header record, re-encoded
+/// with `stage_file` cut to its file name, and the file opened at the
+/// record after the header with the bytes left from there (as long as the
+/// file was when opened: a take still recording is served as far as it
+/// got).
+fn served_take(path: &FsPath) -> Result<(Vec<u8>, std::fs::File, u64), DownloadError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let io = |source| DownloadError::Io {
+        file: path.display().to_string(),
+        source,
+    };
+    let mut header = TakeReader::open(path)?.header;
+    header.stage_file = FsPath::new(&header.stage_file)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    // The header re-encoded the take format's own way, through a writer.
+    let scratch = Scratch::new()?;
+    let rewritten = scratch.path().join("header.take");
+    let mut writer = TakeWriter::create(&rewritten, &header)?;
+    writer.flush()?;
+    drop(writer);
+    let head = std::fs::read(&rewritten).map_err(|source| DownloadError::Io {
+        file: rewritten.display().to_string(),
+        source,
+    })?;
+    // The header record on disk: after the magic, length (of kind and
+    // payload), kind, payload, CRC (docs/takes.md).
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let size = file.metadata().map_err(io)?.len();
+    let mut start = [0u8; 12];
+    file.read_exact(&mut start).map_err(io)?;
+    let length = u32::from_le_bytes([start[8], start[9], start[10], start[11]]) as u64;
+    let after_header = puppetry_take::MAGIC.len() as u64 + 4 + length + 4;
+    file.seek(SeekFrom::Start(after_header)).map_err(io)?;
+    Ok((head, file, size.saturating_sub(after_header)))
+}
+
+/// A file read as a stream of chunks, ending at its end or its first error.
+fn read_stream(
+    file: impl tokio::io::AsyncRead + Send + Unpin + 'static,
+) -> impl futures_util::Stream<Item = std::io::Result<bytes::Bytes>> + Send + 'static {
+    use tokio::io::AsyncReadExt;
+    futures_util::stream::unfold(Some(file), |file| async move {
+        let mut file = file?;
+        let mut buf = bytes::BytesMut::zeroed(1 << 16);
+        match file.read(&mut buf).await {
+            Ok(0) => None,
+            Ok(n) => {
+                buf.truncate(n);
+                Some((Ok(buf.freeze()), Some(file)))
+            }
+            Err(e) => Some((Err(e), None)),
+        }
+    })
+}
+
+/// `message` without the daemon's folders: the takes folder and the
+/// export's scratch folder (their paths mean nothing to a page, and tell a
+/// stranger where things are).
+fn without_folders(message: &str, takes_dir: &FsPath, scratch: Option<&FsPath>) -> String {
+    let mut text = message.to_string();
+    for dir in std::iter::once(takes_dir).chain(scratch) {
+        let dir = dir.display().to_string();
+        if !dir.is_empty() {
+            text = text.replace(&format!("{dir}/"), "").replace(&dir, "");
+        }
+    }
+    text
+}
+
+/// How an export failed, as the answer says it.
+enum Failed {
+    /// A bad parameter: 400.
+    Request(String),
+    /// Past a limit of `puppetry_limits::exports`: 413.
+    TooLarge(String),
+    /// The take or the stage: 422.
+    Export(String),
+}
+
+impl Failed {
+    fn text(&self) -> &str {
+        match self {
+            Failed::Request(t) | Failed::TooLarge(t) | Failed::Export(t) => t,
+        }
     }
 }
 
@@ -52,15 +242,25 @@ pub async fn export(
     State(shared): State<Arc<Shared>>,
     Path(name): Path<String>,
     Query(query): Query<HashMap<String, String>>,
+    headers: HeaderMap,
 ) -> Response {
     let Ok(links) = shared.links() else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
+    if let Some(refused) = not_a_director(links, &headers) {
+        return refused;
+    }
     let Ok(take) = crate::takes::take_path(&links.takes_dir, &name) else {
         return plain(StatusCode::NOT_FOUND, "not found");
     };
     if !take.exists() {
         return plain(StatusCode::NOT_FOUND, &format!("no take {name}"));
+    }
+    if let Some(unknown) = query.keys().find(|k| !PARAMETERS.contains(&k.as_str())) {
+        return plain(
+            StatusCode::BAD_REQUEST,
+            &format!("{unknown}: not a parameter (format, fps, size, from, to)"),
+        );
     }
     let request = match parse(&query, &name) {
         Ok(r) => r,
@@ -70,23 +270,10 @@ pub async fn export(
     if let Err(problem) = check_numbers(&query, format) {
         return plain(StatusCode::BAD_REQUEST, &problem);
     }
-    if links.exporting.swap(true, Ordering::AcqRel) {
-        return plain(
-            StatusCode::TOO_MANY_REQUESTS,
-            "an export is running; try again when it ends",
-        );
-    }
-    let out = std::env::temp_dir().join(format!(
-        "puppetry-export-{}-{name}.{extension}",
-        std::process::id()
-    ));
     let fps = number(&query, "fps").unwrap_or(Ok(30.0));
     let (width, height) = match query.get("size").map(|s| size(s)) {
         Some(Ok(s)) => s,
-        Some(Err(p)) => {
-            links.exporting.store(false, Ordering::Release);
-            return plain(StatusCode::BAD_REQUEST, &p);
-        }
+        Some(Err(p)) => return plain(StatusCode::BAD_REQUEST, &p),
         None => (1280, 720),
     };
     let (Ok(fps), Ok(from), Ok(to)) = (
@@ -94,12 +281,29 @@ pub async fn export(
         number(&query, "from").transpose(),
         number(&query, "to").transpose(),
     ) else {
-        links.exporting.store(false, Ordering::Release);
         return plain(StatusCode::BAD_REQUEST, "fps, from and to must be numbers");
     };
+    if links.exporting.swap(true, Ordering::AcqRel) {
+        return plain(
+            StatusCode::TOO_MANY_REQUESTS,
+            "an export is running; try again when it ends",
+        );
+    }
+    let scratch = match Scratch::new() {
+        Ok(s) => s,
+        Err(e) => {
+            links.exporting.store(false, Ordering::Release);
+            tracing::warn!("export of {name}: {e}");
+            return plain(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "cannot make a folder for the export",
+            );
+        }
+    };
+    let out = scratch.path().join(format!("{name}.{extension}"));
     let export = ExportRequest {
         take,
-        config: std::path::PathBuf::new(),
+        config: PathBuf::new(),
         format: format.to_string(),
         fps,
         from,
@@ -112,6 +316,7 @@ pub async fn export(
     // The stage file with any puppets added since: the take may have them.
     let config = shared.lineup.borrow().config.clone();
     let label = name.clone();
+    let takes_dir = links.takes_dir.clone();
     let started = std::thread::Builder::new()
         .name(format!("export {name}"))
         .spawn(move || {
@@ -126,12 +331,13 @@ pub async fn export(
                 format: export.format.clone(),
                 shown: usize::MAX,
             };
-            // A flag error is the request's fault: a 400 naming the parameter.
-            let result = export_take_with(&export, &config, &mut progress).map_err(|e| match e {
-                TakeExportError::Export(ExportError::Flag { flag, problem }) => {
-                    (true, format!("{}: {problem}", flag.trim_start_matches('-')))
+            let result = run_export(&export, &config, &mut progress).map_err(|failed| {
+                let text = without_folders(failed.text(), &takes_dir, Some(scratch.path()));
+                match failed {
+                    Failed::Request(_) => Failed::Request(text),
+                    Failed::TooLarge(_) => Failed::TooLarge(text),
+                    Failed::Export(_) => Failed::Export(text),
                 }
-                other => (false, other.to_string()),
             });
             links.export_state.send_replace(Arc::from(
                 ServerMessage::Export(ExportState {
@@ -140,12 +346,13 @@ pub async fn export(
                     done: 1,
                     total: 1,
                     finished: true,
-                    error: result.as_ref().err().map(|(_, e)| e.clone()),
+                    error: result.as_ref().err().map(|f| f.text().to_string()),
                 })
                 .to_text(),
             ));
             links.exporting.store(false, Ordering::Release);
-            let _ = done.send(result);
+            // The folder goes with the answer (or here, if no one waits).
+            let _ = done.send((result, scratch));
             crate::memory::give_back_freed();
         });
     if started.is_err() {
@@ -153,27 +360,71 @@ pub async fn export(
         return plain(StatusCode::INTERNAL_SERVER_ERROR, "cannot start an export");
     }
     match finished.await {
-        Ok(Ok(_)) => {
-            let bytes = tokio::fs::read(&out).await;
-            let _ = tokio::fs::remove_file(&out).await;
-            // A Spine export leaves its pictures beside the JSON.
-            if let Some(prefix) = out.file_name().map(|n| n.to_string_lossy().into_owned())
-                && let Ok(mut entries) = tokio::fs::read_dir(std::env::temp_dir()).await
-            {
-                while let Ok(Some(e)) = entries.next_entry().await {
-                    if e.file_name().to_string_lossy().starts_with(&prefix) {
-                        let _ = tokio::fs::remove_file(e.path()).await;
+        Ok((Ok(()), scratch)) => {
+            // Opened, then the folder removed: the file lives on while open.
+            let file = tokio::fs::File::open(&out).await;
+            let length = match &file {
+                Ok(f) => f.metadata().await.map(|m| m.len()).ok(),
+                Err(_) => None,
+            };
+            let _ = tokio::task::spawn_blocking(move || drop(scratch)).await;
+            match file {
+                Ok(file) => {
+                    let mut answer = attachment(
+                        Body::from_stream(read_stream(file)),
+                        mime,
+                        &format!("{name}.{extension}"),
+                    );
+                    if let Some(length) = length {
+                        answer
+                            .headers_mut()
+                            .insert(header::CONTENT_LENGTH, HeaderValue::from(length));
                     }
+                    answer
                 }
-            }
-            match bytes {
-                Ok(bytes) => attachment(Body::from(bytes), mime, &format!("{name}.{extension}")),
-                Err(e) => plain(StatusCode::INTERNAL_SERVER_ERROR, &e.to_string()),
+                Err(_) => plain(StatusCode::INTERNAL_SERVER_ERROR, "the export went missing"),
             }
         }
-        Ok(Err((true, problem))) => plain(StatusCode::BAD_REQUEST, &problem),
-        Ok(Err((false, problem))) => plain(StatusCode::UNPROCESSABLE_ENTITY, &problem),
+        Ok((Err(failed), _)) => match failed {
+            Failed::Request(t) => plain(StatusCode::BAD_REQUEST, &t),
+            Failed::TooLarge(t) => plain(StatusCode::PAYLOAD_TOO_LARGE, &t),
+            Failed::Export(t) => plain(StatusCode::UNPROCESSABLE_ENTITY, &t),
+        },
         Err(_) => plain(StatusCode::INTERNAL_SERVER_ERROR, "the export stopped"),
+    }
+}
+
+/// The export, after its cost is checked against the limits. A flag error
+/// is the request's fault: a 400 naming the parameter.
+fn run_export(
+    export: &ExportRequest,
+    config: &puppetry_stage::config::StageConfig,
+    progress: &mut dyn puppetry_export::Progress,
+) -> Result<(), Failed> {
+    let flag = |flag: &str, problem: &str| {
+        Failed::Request(format!("{}: {problem}", flag.trim_start_matches('-')))
+    };
+    let checked = puppetry_export::budget::check(
+        &export.take,
+        &export.format,
+        export.fps,
+        export.from,
+        export.to,
+    );
+    match checked {
+        Ok(_) => {}
+        Err(e @ BudgetError::TooLarge { .. }) => return Err(Failed::TooLarge(e.to_string())),
+        Err(BudgetError::Export(ExportError::Flag { flag: f, problem })) => {
+            return Err(flag(&f, &problem));
+        }
+        Err(other) => return Err(Failed::Export(other.to_string())),
+    }
+    match export_take_with(export, config, progress) {
+        Ok(_) => Ok(()),
+        Err(TakeExportError::Export(ExportError::Flag { flag: f, problem })) => {
+            Err(flag(&f, &problem))
+        }
+        Err(other) => Err(Failed::Export(other.to_string())),
     }
 }
 

@@ -14,6 +14,7 @@ mod devices;
 mod edge;
 mod files;
 mod fuzz;
+mod guarded;
 mod install;
 mod lineup;
 mod memory;

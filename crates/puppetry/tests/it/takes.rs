@@ -710,7 +710,14 @@ async fn performers_keyframe_over_the_wire_and_the_take_replays_it() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_page_downloads_takes_and_their_exports() {
-    use crate::common::daemon::{http_get, http_status};
+    use crate::common::daemon::{http_raw, http_status};
+    // As the page asks: the director's token as a bearer token.
+    let http_get = |address: std::net::SocketAddr, path: &str| {
+        let request = format!(
+            "GET {path} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer boss\r\nConnection: close\r\n\r\n"
+        );
+        async move { http_raw(address, request.as_bytes()).await }
+    };
     let dir = tempfile::tempdir().unwrap();
     let takes = dir.path().join("takes");
     let running = start_with(&stage_config(""), options(&takes))
@@ -731,6 +738,8 @@ async fn the_page_downloads_takes_and_their_exports() {
     };
     let file = http_get(running.address, "/takes/take-001.take").await;
     assert_eq!(http_status(&file), 200);
+    // The take as recorded (its header's stage file, a name here already,
+    // is served as its name).
     assert_eq!(
         body(&file),
         std::fs::read(takes.join("take-001.take")).unwrap()
