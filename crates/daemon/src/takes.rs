@@ -221,6 +221,9 @@ fn run(
                 std::thread::sleep(wait.min(Duration::from_millis(50)));
             }
         }
+        if changes.is_empty() {
+            continue;
+        }
         let received = started.elapsed().as_secs_f64();
         if commands
             .blocking_send(Command::Played { changes, received })
@@ -273,8 +276,10 @@ impl Playback {
         &self.name
     }
 
-    /// The next step that changes anything: its recorded time and its
-    /// changes (`None` at the take's end).
+    /// The next step: its recorded time and its changes (`None` at the
+    /// take's end). A step whose changes were all left out (replaced by a
+    /// live performer) comes too, empty: its time still paces the take, so
+    /// an overdub lasts as long as the take it layers over.
     pub fn next_step(&mut self) -> Option<Result<(f64, Vec<Change>), PlayError>> {
         loop {
             let step = match self.reader.next()? {
@@ -283,10 +288,7 @@ impl Playback {
                 Err(e) => return Some(Err(e.into())),
             };
             let t = step.t;
-            let changes = self.filter.step(step);
-            if !changes.is_empty() {
-                return Some(Ok((t, changes)));
-            }
+            return Some(Ok((t, self.filter.step(step))));
         }
     }
 }

@@ -347,6 +347,8 @@ impl Show {
                 return Ok(());
             };
             match playing.playback.next_step() {
+                // A step all replaced sends nothing; it still counts.
+                Some(Ok((_, changes))) if changes.is_empty() => {}
                 Some(Ok((_, changes))) => {
                     self.time += 0.01;
                     self.driver.command(Command::Played {
