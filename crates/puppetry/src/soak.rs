@@ -549,7 +549,8 @@ async fn read_for(ws: &mut crate::viewers_bench::Ws, span: Duration) {
 }
 
 /// A director records `name` for a few seconds, then the daemon exports
-/// it as glb over HTTP.
+/// it as glb over HTTP (the director's token in the header: exports are
+/// the director's).
 async fn take_and_export(daemon: &str, name: &str) -> Result<(), ViewersError> {
     let hello = json!({"type": "hello", "role": "director", "token": "director"});
     let (mut ws, _) = connect(daemon, hello).await?;
@@ -563,7 +564,7 @@ async fn take_and_export(daemon: &str, name: &str) -> Result<(), ViewersError> {
     read_for(&mut ws, Duration::from_millis(500)).await;
     let _ = ws.close(None).await;
     let request = format!(
-        "GET /takes/{name}/export?format=glb HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        "GET /takes/{name}/export?format=glb HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer director\r\nConnection: close\r\n\r\n"
     );
     let answer = http(daemon, request.as_bytes()).await?;
     if answer.starts_with(b"HTTP/1.1 200") {
