@@ -629,10 +629,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 output,
             };
             let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
-            println!(
-                "{}",
-                puppetry::export::export(&request, &mut bar)?
-            );
+            println!("{}", puppetry::export::export(&request, &mut bar)?);
         }
         Command::Takes {
             dir,
