@@ -4,7 +4,6 @@
 //! saying where, on a take damaged mid-file instead of answering "replays
 //! exactly" for the part before the damage.
 
-use std::io::BufRead;
 use std::path::Path;
 
 use futures_util::SinkExt;
@@ -12,11 +11,12 @@ use serde_json::json;
 use tokio_tungstenite::tungstenite::Message;
 
 use crate::common::daemon::{PLAYS, WAIT, looping_capture, next_text, stage_text};
+use crate::common::served::Served;
 
 /// Serves a looping replay recording into `takes` under `ulimit -f KB`
 /// set by `sh`, which leaves SIGXFSZ at its default (terminate): only the
 /// daemon itself can ignore it.
-fn serve_under_file_limit(dir: &Path, kb: u32) -> (std::process::Child, String) {
+fn serve_under_file_limit(dir: &Path, kb: u32) -> Served {
     let stage = dir.join("stage.toml");
     std::fs::write(&stage, stage_text(&looping_capture())).unwrap();
     let script = format!(
@@ -25,31 +25,16 @@ fn serve_under_file_limit(dir: &Path, kb: u32) -> (std::process::Child, String) 
         stage = stage.display(),
         takes = dir.join("takes").display(),
     );
-    let mut child = std::process::Command::new("sh")
-        .arg("-c")
-        .arg(script)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    out.read_line(&mut line).unwrap();
-    let address = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .to_string();
-    std::thread::spawn(move || for _ in out.lines() {});
-    (child, address)
+    let mut sh = std::process::Command::new("sh");
+    sh.arg("-c").arg(script);
+    Served::start(sh)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_file_size_limit_stops_the_take_and_the_daemon_lives() {
     let dir = tempfile::tempdir().unwrap();
-    let (mut child, address) = serve_under_file_limit(dir.path(), 64);
-    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{address}/ws"))
+    let mut daemon = serve_under_file_limit(dir.path(), 64);
+    let (mut ws, _) = tokio_tungstenite::connect_async(daemon.ws_url())
         .await
         .unwrap();
     ws.send(Message::text(
@@ -83,7 +68,5 @@ async fn a_file_size_limit_stops_the_take_and_the_daemon_lives() {
     })
     .await
     .expect("frames after the take stopped");
-    assert!(child.try_wait().unwrap().is_none(), "the daemon exited");
-    child.kill().unwrap();
-    child.wait().unwrap();
+    assert!(daemon.alive(), "the daemon exited");
 }

@@ -17,6 +17,7 @@ use serde_json::json;
 use crate::common::daemon::{
     WAIT, connect, http_raw, http_status, next_text, stage_config, stage_text,
 };
+use crate::common::served::{Served, serve_command};
 
 /// Where the takes' headers say they were recorded: a folder of the show
 /// machine's that must not reach a page.
@@ -206,54 +207,11 @@ async fn play_of_a_missing_take_is_not_found_and_names_no_folder() {
     running.shutdown().await;
 }
 
-/// The daemon binary serving `stage` with the takes of `takes`; its
-/// process (killed when dropped) and address.
-struct Serving {
-    child: std::process::Child,
-    address: String,
-}
-
-impl Drop for Serving {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn serve_binary(stage: &Path, takes: &Path) -> Serving {
-    use std::io::BufRead;
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
-        .arg("serve")
-        .arg("--config")
-        .arg(stage)
-        .arg("--takes")
-        .arg(takes)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    out.read_line(&mut line).unwrap();
-    let address = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .to_string();
-    // Keep reading stdout so the daemon never blocks on a full pipe.
-    std::thread::spawn(move || for _ in out.lines() {});
-    Serving { child, address }
-}
-
-/// The peak resident memory of process `pid` so far (VmHWM), in kB.
-fn peak_rss_kb(pid: u32) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-        .expect("VmHWM in /proc/PID/status")
+/// The daemon binary serving `stage` with the takes of `takes`.
+fn serve_binary(stage: &Path, takes: &Path) -> Served {
+    let mut command = serve_command(stage);
+    command.arg("--takes").arg(takes);
+    Served::start(command)
 }
 
 /// The daemon's memory may grow this much at most while refusing: a
@@ -270,20 +228,19 @@ async fn an_export_of_a_long_take_at_a_high_frame_rate_is_refused_before_memory_
     let stage = dir.path().join("stage.toml");
     std::fs::write(&stage, stage_text("")).unwrap();
     let daemon = serve_binary(&stage, &takes);
-    let pid = daemon.child.id();
     // The daemon at rest, having served a page's worth of requests.
     let small = get(
-        &daemon.address,
+        &daemon.http,
         "/takes/long/export?format=glb&fps=1&to=2",
         Some("boss"),
     )
     .await;
     assert_eq!(http_status(&small), 200, "{}", text(&small));
-    let before = peak_rss_kb(pid);
+    let before = daemon.peak_rss_kib();
     for format in ["glb", "spine"] {
         let path = format!("/takes/long/export?format={format}&fps=1000");
-        let answer = get(&daemon.address, &path, Some("boss")).await;
-        let after = peak_rss_kb(pid);
+        let answer = get(&daemon.http, &path, Some("boss")).await;
+        let after = daemon.peak_rss_kib();
         println!(
             "{path}: {} — daemon peak RSS {before} kB before, {after} kB after",
             text(&answer).lines().last().unwrap_or("")
@@ -301,7 +258,7 @@ async fn an_export_of_a_long_take_at_a_high_frame_rate_is_refused_before_memory_
     }
     // A range of it at that rate fits.
     let range = get(
-        &daemon.address,
+        &daemon.http,
         "/takes/long/export?format=glb&fps=1000&to=3",
         Some("boss"),
     )
@@ -351,7 +308,7 @@ async fn an_export_never_writes_through_a_planted_link() {
     let _ = std::fs::remove_file(&planted);
     std::os::unix::fs::symlink(&precious, &planted).unwrap();
     let glb = get(
-        &daemon.address,
+        &daemon.http,
         "/takes/take-001/export?format=glb&fps=10",
         Some("boss"),
     )

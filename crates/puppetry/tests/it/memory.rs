@@ -9,6 +9,7 @@
 //! before `access.max_per_address` existed, say).
 
 use crate::common::daemon::*;
+use crate::common::served::Served;
 
 use futures_util::{SinkExt, StreamExt};
 use serde_json::json;
@@ -20,21 +21,9 @@ const VIEWERS: usize = 200;
 const PEOPLE: &str =
     "[[access.person]]\nname = \"Director\"\nrole = \"director\"\ntoken = \"boss\"\n";
 
-/// The daemon's resident set, KiB.
-fn rss_kib(pid: u32) -> u64 {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.split_whitespace().next())
-        .and_then(|v| v.parse().ok())
-        .expect("VmRSS in /proc/PID/status")
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "a measurement: run it with --ignored --nocapture"]
 async fn memory_per_viewer_at_200_viewers() {
-    use std::io::BufRead;
     let other = std::env::var("PUPPETRY_MEMORY_BIN").ok();
     let idle = std::env::var("PUPPETRY_MEMORY_IDLE").is_ok();
     let bin = other
@@ -50,24 +39,10 @@ async fn memory_per_viewer_at_200_viewers() {
         Some(_) => text = text.replace(PEOPLE, ""),
     }
     std::fs::write(&stage, text).unwrap();
-    let mut child = std::process::Command::new(&bin)
-        .args(["serve", "--config"])
-        .arg(&stage)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
-    let mut line = String::new();
-    out.read_line(&mut line).unwrap();
-    let address = line
-        .split("http://")
-        .nth(1)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .to_string();
-    std::thread::spawn(move || for _ in out.lines() {});
-    let url = format!("ws://{address}/ws");
+    let mut command = std::process::Command::new(&bin);
+    command.args(["serve", "--config"]).arg(&stage);
+    let daemon = Served::start(command);
+    let url = daemon.ws_url();
     let hello = |role: &str| json!({"type": "hello", "role": role, "token": "secret"}).to_string();
 
     // Each viewer reads everything it is sent until told to stop.
@@ -98,13 +73,8 @@ async fn memory_per_viewer_at_200_viewers() {
             }
         }));
     };
-    let (mut performer, stage) = connect(
-        &Running2 {
-            address: address.parse().unwrap(),
-        },
-        &hello("performer"),
-    )
-    .await;
+    let (mut performer, stage) =
+        connect_url(&url, serde_json::from_str(&hello("performer")).unwrap()).await;
     let grab = hand(&placed_mesh(&stage));
     println!(
         "stage message: {} bytes, {} vertices",
@@ -125,13 +95,13 @@ async fn memory_per_viewer_at_200_viewers() {
     connect_viewer().await;
     drag(&mut performer, 200).await;
     tokio::time::sleep(std::time::Duration::from_millis(500)).await;
-    let before = rss_kib(child.id());
+    let before = daemon.rss_kib();
     for _ in 1..VIEWERS {
         connect_viewer().await;
     }
     drag(&mut performer, 500).await;
     tokio::time::sleep(std::time::Duration::from_millis(500)).await;
-    let after = rss_kib(child.id());
+    let after = daemon.rss_kib();
     let per_viewer = (after.saturating_sub(before)) as f64 / (VIEWERS - 1) as f64;
     println!(
         "daemon RSS: {before} KiB with 1 viewer, {after} KiB with {VIEWERS}: {:.3} MB per viewer",
@@ -141,19 +111,4 @@ async fn memory_per_viewer_at_200_viewers() {
     for r in readers {
         let _ = r.await;
     }
-    let _ = child.kill();
-    let _ = child.wait();
-}
-
-/// What `connect` needs of a daemon started elsewhere.
-struct Running2 {
-    address: std::net::SocketAddr,
-}
-
-async fn connect(running: &Running2, hello: &str) -> (Client, serde_json::Value) {
-    let url = format!("ws://{}/ws", running.address);
-    let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
-    ws.send(Message::text(hello.to_string())).await.unwrap();
-    let stage = next_text(&mut ws).await;
-    (ws, stage)
 }

@@ -6,11 +6,8 @@
 //! logs a bounded number of lines, and bad `[osc]` sections are refused
 //! naming the field.
 
-use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Stdio};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures_util::SinkExt;
@@ -24,89 +21,7 @@ use tokio_tungstenite::tungstenite::Message;
 use crate::common::daemon::{
     Client, WAIT, hand, next_message, next_text, placed_mesh, root, stage_text,
 };
-
-/// The binary serving a stage file, its addresses and what it logs.
-struct Served {
-    child: Child,
-    http: String,
-    osc: Option<SocketAddr>,
-    log: Arc<Mutex<Vec<String>>>,
-    stderr: Option<std::thread::JoinHandle<()>>,
-}
-
-/// Starts `puppetry serve` on `stage` (written into `dir`), takes in
-/// `dir/takes`.
-fn serve(dir: &Path, stage: &str) -> Served {
-    let file = dir.join("stage.toml");
-    std::fs::write(&file, stage).unwrap();
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
-        .arg("serve")
-        .arg("--config")
-        .arg(&file)
-        .arg("--takes")
-        .arg(dir.join("takes"))
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let log = Arc::new(Mutex::new(Vec::new()));
-    let lines = log.clone();
-    let stderr = child.stderr.take().unwrap();
-    let stderr = std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines() {
-            let Ok(line) = line else { break };
-            lines.lock().unwrap().push(line);
-        }
-    });
-    let mut out = BufReader::new(child.stdout.take().unwrap());
-    let (mut http, mut osc) = (None, None);
-    loop {
-        let mut line = String::new();
-        if out.read_line(&mut line).unwrap() == 0 {
-            panic!("the daemon stopped: {}", log.lock().unwrap().join("\n"));
-        }
-        if let Some(rest) = line.split("http://").nth(1) {
-            http = rest.split('/').next().map(String::from);
-        }
-        if let Some(rest) = line.split("udp://").nth(1) {
-            osc = rest.split_whitespace().next().map(|a| a.parse().unwrap());
-        }
-        if line.contains("stop with Ctrl-C") {
-            break;
-        }
-    }
-    // Keep reading stdout so the daemon never blocks on a full pipe.
-    std::thread::spawn(move || for _ in out.lines() {});
-    Served {
-        child,
-        http: http.expect("the daemon printed its address"),
-        osc,
-        log,
-        stderr: Some(stderr),
-    }
-}
-
-impl Served {
-    /// Stops the daemon with SIGTERM; returns everything it logged.
-    fn stop(mut self) -> Vec<String> {
-        unsafe { libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM) };
-        let status = self.child.wait().unwrap();
-        if let Some(stderr) = self.stderr.take() {
-            stderr.join().unwrap();
-        }
-        let log = std::mem::take(&mut *self.log.lock().unwrap());
-        assert!(status.success(), "{status}: {}", log.join("\n"));
-        log
-    }
-}
-
-impl Drop for Served {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
+use crate::common::served::serve;
 
 async fn connect(http: &str, hello: Value) -> (Client, Value) {
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{http}/ws"))

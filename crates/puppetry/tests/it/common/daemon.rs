@@ -94,7 +94,12 @@ pub async fn daemon(extra: &str) -> Running {
 }
 
 pub async fn connect(running: &Running, hello: Value) -> (Client, Value) {
-    let url = format!("ws://{}/ws", running.address);
+    connect_url(&format!("ws://{}/ws", running.address), hello).await
+}
+
+/// A client of the WebSocket at `url` that said `hello`, and the stage
+/// message it was answered with.
+pub async fn connect_url(url: &str, hello: Value) -> (Client, Value) {
     let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
     ws.send(Message::text(hello.to_string())).await.unwrap();
     let stage = next_text(&mut ws).await;
