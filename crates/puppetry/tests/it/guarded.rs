@@ -26,7 +26,7 @@ const STAGE_FILE: &str = "/home/show/secret-folder/stage.toml";
 /// Writes a take of the test stage named `name` into `dir`, `seconds`
 /// long: its header, the puppets' rest pose at 0 and an end. Cheap however
 /// long it is: the length is the end's time.
-fn write_take(dir: &Path, name: &str, seconds: f64) -> PathBuf {
+pub(crate) fn write_take(dir: &Path, name: &str, seconds: f64) -> PathBuf {
     std::fs::create_dir_all(dir).unwrap();
     let stage = Stage::from_config(&stage_config("")).unwrap();
     let header = Header::of_stage(name, STAGE_FILE, &stage, true);

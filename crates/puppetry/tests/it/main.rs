@@ -15,6 +15,7 @@ mod edge;
 mod files;
 mod fuzz;
 mod guarded;
+mod hostile;
 mod install;
 mod lineup;
 mod memory;

@@ -16,7 +16,7 @@ use puppetry_daemon::serve::{Options, Running, start_with};
 use puppetry_daemon::stream::{EdgeTimes, WebFiles};
 use serde_json::{Value, json};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpSocket, TcpStream};
+use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
 const PERFORMER: &str = r#"{"type": "hello", "role": "performer", "token": "secret"}"#;
@@ -221,13 +221,6 @@ async fn contacts_held_past_the_budget_or_named_twice_are_refused_whole() {
         }
     }
     running.shutdown().await;
-}
-
-/// Opens a TCP connection from `from` (a loopback address) to `to`.
-async fn connect_from(from: [u8; 4], to: std::net::SocketAddr) -> TcpStream {
-    let socket = TcpSocket::new_v4().unwrap();
-    socket.bind(std::net::SocketAddr::from((from, 0))).unwrap();
-    socket.connect(to).await.unwrap()
 }
 
 /// Reads until the server closes `stream` (or resets it). Whatever the

@@ -97,6 +97,14 @@ pub async fn connect(running: &Running, hello: Value) -> (Client, Value) {
     connect_url(&format!("ws://{}/ws", running.address), hello).await
 }
 
+/// A TCP connection to `to` from the local address `from` (any of
+/// 127.0.0.0/8 on Linux): a second or third "machine" for per-address caps.
+pub async fn connect_from(from: [u8; 4], to: std::net::SocketAddr) -> TcpStream {
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.bind(std::net::SocketAddr::from((from, 0))).unwrap();
+    socket.connect(to).await.unwrap()
+}
+
 /// A client of the WebSocket at `url` that said `hello`, and the stage
 /// message it was answered with.
 pub async fn connect_url(url: &str, hello: Value) -> (Client, Value) {
