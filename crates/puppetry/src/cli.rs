@@ -31,6 +31,8 @@ pub enum CliError {
     Ffd(FfdError, String),
     #[error("{file}: skeleton: {0}", file = .1)]
     Skeleton(SkeletonError, String),
+    #[error(transparent)]
+    File(#[from] puppetry_mesh::file::FileError),
     #[error("{file}: cannot read: {source}")]
     Read {
         file: String,
@@ -134,21 +136,20 @@ fn file_kind(path: &Path) -> Result<Option<&'static str>, CliError> {
     Ok(puppetry_stage::config::picture_kind(&head[..n]))
 }
 
-/// A text file; a picture or other binary file is refused saying what it
-/// is and what `expected` here.
+/// A text file (a polygon or handles file, capped as a mesh file is: a
+/// FIFO or `/dev/zero` is refused, not read forever); a picture or other
+/// binary file is refused saying what it is and what `expected` here.
 fn read(path: &Path, expected: &'static str) -> Result<String, CliError> {
-    std::fs::read_to_string(path).map_err(|source| {
-        let file = path.display().to_string();
-        if source.kind() != std::io::ErrorKind::InvalidData {
-            return CliError::Read { file, source };
-        }
-        let kind = file_kind(path).ok().flatten();
-        CliError::Kind {
+    use puppetry_mesh::file::{self, FileError};
+    match file::read_text(path, file::MESH_FILE) {
+        Ok(text) => Ok(text),
+        Err(FileError::NotText { file }) => Err(CliError::Kind {
+            kind: file_kind(path).ok().flatten().unwrap_or("not UTF-8 text"),
             file,
-            kind: kind.unwrap_or("not UTF-8 text"),
             expected,
-        }
-    })
+        }),
+        Err(e) => Err(CliError::File(e)),
+    }
 }
 
 /// A mesh file; a picture given instead is refused by name, with how to

@@ -1085,3 +1085,29 @@ async fn export_draws_no_progress_bar_into_a_pipe() {
         "a progress bar in a pipe: {stderr:?}"
     );
 }
+
+/// `mesh` and `solve` read the files they are given as every other reader
+/// does (issue 32): a device that never ends is refused by name at once,
+/// where `mesh /dev/zero` used to read until memory ran out.
+#[test]
+fn mesh_and_solve_refuse_a_file_that_never_ends() {
+    let mesh = puppetry_testkit::root().join("assets/gingerbread/gingerbread.mesh.json");
+    for args in [
+        vec!["mesh", "/dev/zero"],
+        vec![
+            "solve",
+            "--mesh",
+            mesh.to_str().unwrap(),
+            "--handles",
+            "/dev/zero",
+        ],
+    ] {
+        let out = puppetry(&args);
+        let said = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?}");
+        assert!(
+            said.contains("/dev/zero: is a character device, not a regular file"),
+            "{args:?}: {said}"
+        );
+    }
+}
