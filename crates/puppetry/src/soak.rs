@@ -141,17 +141,9 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
         );
     }
     if options.relay {
-        let nats = SecuredNats::start("soak")?;
-        extra += &format!(
-            "\n[relay]\nnats = \"{}\"\nstage = \"soak\"\n",
-            nats.daemon_url
-        );
-        // The relay `start_relays` starts first is r0, as its user.
-        tier = Some(Tier {
-            nats: nats.child,
-            nats_url: nats.relay_url,
-            relays: Vec::new(),
-        });
+        let nats = Tier::start("soak", 1)?;
+        extra += &nats.relay_section();
+        tier = Some(nats);
     }
     let stage_file = wave.with_file_name(format!("soak-{pid}.toml"));
     let text = text.replace(
@@ -174,7 +166,7 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     let daemon_child = Child(daemon_child);
     let daemon_pid = daemon_child.0.id();
     if let Some(tier) = &mut tier {
-        tier.start_relays(1, options.viewers + 16, "soak")?;
+        tier.start_relays(options.viewers + 16)?;
     }
     let relay = tier.as_ref().map(|t| t.relays[0].1.clone());
     let relay_pid = tier.as_ref().map(|t| t.relays[0].0.0.id());
@@ -455,94 +447,6 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     Ok(flat)
 }
 
-/// A nats-server on a free loopback port with users and permissions
-/// (`puppetry_daemon::relay::nats`) for the daemon and the relay `r0`.
-struct SecuredNats {
-    child: Child,
-    /// The daemon's address, with its credentials.
-    daemon_url: String,
-    /// The relay r0's address, with its credentials (on its command line:
-    /// a soak's passwords live as long as the soak, on loopback).
-    relay_url: String,
-}
-
-impl SecuredNats {
-    fn start(stage: &str) -> Result<SecuredNats, ViewersError> {
-        use puppetry_daemon::relay::nats::{self as access, Secret};
-        let failed = |e: puppetry_daemon::relay::RelayError| ViewersError::Daemon(e.to_string());
-        let daemon_password = access::random_password().map_err(failed)?;
-        let relay_password = access::random_password().map_err(failed)?;
-        let entries = access::user_entries(
-            stage,
-            &Secret::Literal(daemon_password.clone()),
-            &[("r0", Secret::Literal(relay_password.clone()))],
-        )
-        .map_err(failed)?;
-        let program = std::env::var_os("PATH")
-            .map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
-            .unwrap_or_default()
-            .into_iter()
-            .chain([std::path::PathBuf::from("/usr/sbin")])
-            .map(|d| d.join("nats-server"))
-            .find(|p| p.is_file())
-            .ok_or(ViewersError::NoNats)?;
-        let io = |what: &str| {
-            let what = what.to_string();
-            move |source| ViewersError::Io { what, source }
-        };
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map_err(io("a free port"))?
-            .port();
-        let listen = format!("127.0.0.1:{port}");
-        // Only this user may read the passwords; gone once the server has
-        // read them.
-        let file =
-            std::env::temp_dir().join(format!("puppetry-soak-nats-{}.conf", std::process::id()));
-        let written = {
-            use std::io::Write;
-            use std::os::unix::fs::OpenOptionsExt;
-            std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .mode(0o600)
-                .open(&file)
-                .and_then(|mut f| f.write_all(access::server_config(&listen, &entries).as_bytes()))
-        };
-        written.map_err(io(&file.display().to_string()))?;
-        let spawned = std::process::Command::new(program)
-            .arg("-c")
-            .arg(&file)
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null())
-            .spawn();
-        let nats = spawned.map(Child);
-        let address = std::net::SocketAddr::from(([127, 0, 0, 1], port));
-        let mut listening = false;
-        if nats.is_ok() {
-            for _ in 0..500 {
-                if std::net::TcpStream::connect(address).is_ok() {
-                    listening = true;
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        }
-        let _ = std::fs::remove_file(&file);
-        let nats = nats.map_err(io("starting nats-server"))?;
-        if !listening {
-            return Err(ViewersError::Daemon(format!(
-                "nats-server did not listen on {address}"
-            )));
-        }
-        Ok(SecuredNats {
-            child: nats,
-            daemon_url: format!("nats://{}:{daemon_password}@{listen}", access::DAEMON_USER),
-            relay_url: format!("nats://r0:{relay_password}@{listen}"),
-        })
-    }
-}
-
 /// Reads (and drops) what comes for `span`.
 async fn read_for(ws: &mut crate::viewers_bench::Ws, span: Duration) {
     let _ = tokio::time::timeout(span, async { while let Some(Ok(_)) = ws.next().await {} }).await;
@@ -572,7 +476,7 @@ async fn take_and_export(daemon: &str, name: &str) -> Result<(), ViewersError> {
     } else {
         Err(ViewersError::Daemon(format!(
             "export of {name}: {}",
-            String::from_utf8_lossy(&answer[..answer.len().min(200)])
+            String::from_utf8_lossy(&answer[..answer.len().min(900)])
         )))
     }
 }

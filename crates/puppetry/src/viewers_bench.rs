@@ -190,16 +190,38 @@ impl Drop for Child {
     }
 }
 
-/// The relay tier: a NATS server on a free loopback port and `relays`
-/// relay processes serving the stage `bench` from it.
+/// The relay tier: a nats-server on a free loopback port with users and
+/// permissions (`puppetry_daemon::relay::nats`), as the bundled example
+/// runs it, for the daemon and relays `r0`, `r1`, … of one stage; and the
+/// relay processes once started.
 pub(crate) struct Tier {
     pub(crate) nats: Child,
-    pub(crate) nats_url: String,
+    stage: String,
+    /// The daemon's address, with its credentials.
+    daemon_url: String,
+    /// Each relay's address, with its credentials (on its command line: a
+    /// bench's passwords live as long as the bench, on loopback).
+    relay_urls: Vec<String>,
     pub(crate) relays: Vec<(Child, String)>,
 }
 
 impl Tier {
-    pub(crate) fn start_nats() -> Result<(Child, String), ViewersError> {
+    pub(crate) fn start(stage: &str, relays: usize) -> Result<Tier, ViewersError> {
+        use puppetry_daemon::relay::nats::{self as access, Secret};
+        let failed = |e: puppetry_daemon::relay::RelayError| ViewersError::Daemon(e.to_string());
+        let daemon_password = access::random_password().map_err(failed)?;
+        let mut relay_users = Vec::new();
+        for k in 0..relays {
+            let password = access::random_password().map_err(failed)?;
+            relay_users.push((format!("r{k}"), password));
+        }
+        let named: Vec<(&str, Secret)> = relay_users
+            .iter()
+            .map(|(name, password)| (name.as_str(), Secret::Literal(password.clone())))
+            .collect();
+        let entries =
+            access::user_entries(stage, &Secret::Literal(daemon_password.clone()), &named)
+                .map_err(failed)?;
         let program = std::env::var_os("PATH")
             .map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
             .unwrap_or_default()
@@ -212,45 +234,85 @@ impl Tier {
             .and_then(|l| l.local_addr())
             .map_err(io("a free port"))?
             .port();
-        let child = std::process::Command::new(program)
-            .args(["-a", "127.0.0.1", "-p", &port.to_string()])
+        let listen = format!("127.0.0.1:{port}");
+        // Only this user may read the passwords; gone once the server has
+        // read them.
+        let file =
+            std::env::temp_dir().join(format!("puppetry-bench-nats-{}.conf", std::process::id()));
+        let written = {
+            use std::io::Write;
+            use std::os::unix::fs::OpenOptionsExt;
+            std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .mode(0o600)
+                .open(&file)
+                .and_then(|mut f| f.write_all(access::server_config(&listen, &entries).as_bytes()))
+        };
+        written.map_err(io(&file.display().to_string()))?;
+        let spawned = std::process::Command::new(program)
+            .arg("-c")
+            .arg(&file)
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::null())
-            .spawn()
-            .map_err(io("starting nats-server"))?;
-        let nats = Child(child);
+            .spawn();
+        let nats = spawned.map(Child);
         let address = std::net::SocketAddr::from(([127, 0, 0, 1], port));
-        for _ in 0..500 {
-            if std::net::TcpStream::connect(address).is_ok() {
-                return Ok((nats, format!("nats://{address}")));
+        let mut listening = false;
+        if nats.is_ok() {
+            for _ in 0..500 {
+                if std::net::TcpStream::connect(address).is_ok() {
+                    listening = true;
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(20));
             }
-            std::thread::sleep(Duration::from_millis(20));
         }
-        Err(ViewersError::Daemon(format!(
-            "nats-server did not listen on {address}"
-        )))
+        let _ = std::fs::remove_file(&file);
+        let nats = nats.map_err(io("starting nats-server"))?;
+        if !listening {
+            return Err(ViewersError::Daemon(format!(
+                "nats-server did not listen on {address}"
+            )));
+        }
+        let relay_urls = relay_users
+            .iter()
+            .map(|(name, password)| format!("nats://{name}:{password}@{listen}"))
+            .collect();
+        Ok(Tier {
+            nats,
+            stage: stage.to_string(),
+            daemon_url: format!("nats://{}:{daemon_password}@{listen}", access::DAEMON_USER),
+            relay_urls,
+            relays: Vec::new(),
+        })
     }
 
-    pub(crate) fn start_relays(
-        &mut self,
-        count: usize,
-        viewers: usize,
-        stage: &str,
-    ) -> Result<(), ViewersError> {
-        for k in 0..count {
+    /// The daemon's `[relay]` section for this tier.
+    pub(crate) fn relay_section(&self) -> String {
+        format!(
+            "\n[relay]\nnats = \"{}\"\nstage = \"{}\"\n",
+            self.daemon_url, self.stage
+        )
+    }
+
+    /// Starts one relay per user of the tier, each serving up to
+    /// `viewers` connections.
+    pub(crate) fn start_relays(&mut self, viewers: usize) -> Result<(), ViewersError> {
+        for (k, url) in self.relay_urls.iter().enumerate() {
             let mut relay = std::process::Command::new(this_program()?);
             relay.args([
                 "relay",
                 "--nats",
-                &self.nats_url,
+                url,
                 "--stage",
-                stage,
+                &self.stage,
                 "--listen",
                 "127.0.0.1:0",
                 "--name",
                 &format!("r{k}"),
                 "--max-connections",
-                &(viewers + 16).to_string(),
+                &viewers.to_string(),
             ]);
             let (child, address) = spawn_serving(relay, "puppetry relay")?;
             self.relays.push((Child(child), address));
@@ -457,17 +519,13 @@ pub async fn viewers_case(
     let mut tier = None;
     let mut extra = String::new();
     if relays > 0 {
-        let (nats, nats_url) = Tier::start_nats()?;
-        extra = format!("\n[relay]\nnats = \"{nats_url}\"\nstage = \"bench\"\n");
-        tier = Some(Tier {
-            nats,
-            nats_url,
-            relays: Vec::new(),
-        });
+        let nats = Tier::start("bench", relays)?;
+        extra = nats.relay_section();
+        tier = Some(nats);
     }
     let daemon = Daemon::start(viewers, &extra, daemon_program)?;
     if let Some(tier) = &mut tier {
-        tier.start_relays(relays, viewers, "bench")?;
+        tier.start_relays(viewers + 16)?;
     }
     let origin = Instant::now();
     let (mut performer, stage) = connect(
