@@ -33,7 +33,7 @@ pub mod spine;
 pub mod take;
 pub mod video;
 
-use std::io::{BufReader, BufWriter, Write};
+use std::io::{BufWriter, Write};
 use std::path::Path;
 
 /// An error of an export: which file, field or flag, and what is wrong.
@@ -57,6 +57,10 @@ pub enum ExportError {
     /// `--size`, `--chunk`.
     #[error("{flag}: {problem}")]
     Flag { flag: String, problem: String },
+    /// A picture refused as the stage refuses it (not a regular file, too
+    /// large a file, too many pixels, not a PNG).
+    #[error(transparent)]
+    Picture(#[from] puppetry_mesh::MeshError),
     /// An external program is not installed.
     #[error("{tool} not found on PATH; install it ({install})")]
     ToolMissing { tool: String, install: String },
@@ -375,11 +379,10 @@ pub fn load_png(path: &Path) -> Result<RgbaImage, ExportError> {
             problem: format!("not a valid PNG image: {other}"),
         },
     };
-    let file = std::fs::File::open(path).map_err(io_error(path))?;
-    let mut decoder = png::Decoder::new(BufReader::new(file));
+    // Checked as the stage checks it: a regular file within its cap, its
+    // pixels and decoded bytes within theirs, before anything is decoded.
     // Palette → RGB(A) with tRNS as alpha, low bit depths → 8 bits.
-    decoder.set_transformations(png::Transformations::EXPAND);
-    let mut reader = decoder.read_info().map_err(not_png)?;
+    let mut reader = puppetry_mesh::trace::open_png(path, png::Transformations::EXPAND)?;
     let (width, height) = reader.info().size();
     let size = reader
         .output_buffer_size()

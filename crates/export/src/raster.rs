@@ -600,7 +600,7 @@ pub fn render_frames<T: Send>(
         drop(tx);
         let mut pending = BTreeMap::new();
         let mut expected = 0;
-        let result = (|| {
+        let result: Result<(), ExportError> = (|| {
             for (k, r) in rx.iter() {
                 pending.insert(k, r);
                 while let Some(r) = pending.remove(&expected) {

@@ -188,10 +188,13 @@ pub enum Picture {
 }
 
 impl Picture {
-    /// The picture as PNG bytes (reads the file).
-    pub fn png(&self) -> std::io::Result<Vec<u8>> {
+    /// The picture as PNG bytes: the file, read as every named file is
+    /// (a regular file, at most `MAX_PICTURE_FILE_BYTES`), or a stroke's
+    /// texture. Blocks on the file: async callers run it off the runtime.
+    pub fn png(&self) -> Result<Vec<u8>, puppetry_mesh::file::FileError> {
+        use puppetry_mesh::file;
         match self {
-            Picture::File(path) => std::fs::read(path),
+            Picture::File(path) => file::read(path, file::PICTURE_FILE),
             Picture::Stroke(colour) => Ok(puppetry_mesh::stroke::stroke_texture_png(*colour)),
         }
     }

@@ -623,9 +623,11 @@ impl Answerer {
             let lineup = self.shared.lineup.borrow();
             lineup.description.images.get(request.id as usize).cloned()
         };
-        let read = match &picture {
-            Some(Picture::File(path)) => tokio::fs::read(path).await.ok(),
-            Some(stroke) => stroke.png().ok(),
+        let read = match picture {
+            Some(picture) => tokio::task::spawn_blocking(move || picture.png().ok())
+                .await
+                .ok()
+                .flatten(),
             None => None,
         };
         let mut headers = HeaderMap::new();

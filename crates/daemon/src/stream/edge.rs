@@ -31,7 +31,6 @@ use tower_http::limit::RequestBodyLimitLayer;
 use tower_http::services::ServeDir;
 
 use super::{MAX_CLIENT_MESSAGE, READ_BUFFER, Shared, websocket};
-use puppetry_stage::Picture;
 
 /// The web client, compiled in.
 static WEB_CLIENT: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../clients/web");
@@ -290,9 +289,16 @@ async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> R
     let Some(picture) = path else {
         return not_found();
     };
-    let read = match &picture {
-        Picture::File(path) => tokio::fs::read(path).await,
-        stroke => stroke.png(),
+    let read = {
+        let picture = picture.clone();
+        tokio::task::spawn_blocking(move || picture.png()).await
+    };
+    let read = match read {
+        Ok(read) => read,
+        Err(e) => {
+            tracing::warn!("{picture}: {e}");
+            return not_found();
+        }
     };
     match read {
         Ok(bytes) => with_type(Body::from(bytes), "image/png"),

@@ -246,7 +246,7 @@ fn load_png_expands_every_colour_type() {
     std::fs::write(&not_png, b"hello").unwrap();
     let err = text(load_png(&not_png).unwrap_err());
     assert!(
-        err.starts_with(&format!("{}: not a valid PNG", not_png.display())),
+        err.starts_with(&format!("{}: ", not_png.display())) && err.contains("not a valid PNG"),
         "{err}"
     );
     let missing = dir.path().join("missing.png");
@@ -255,6 +255,30 @@ fn load_png_expands_every_colour_type() {
         err.starts_with(&format!("{}: ", missing.display())),
         "{err}"
     );
+}
+
+/// An export reads pictures as the stage does (issue 32): a small PNG
+/// claiming 16384 × 16384 pixels (1 GiB as RGBA) is refused from its
+/// header, naming the limit, where the decoder used to allocate it; and a
+/// device is not read at all.
+#[test]
+fn load_png_refuses_a_picture_bomb_and_a_device() {
+    let dir = tempfile::tempdir().unwrap();
+    let bomb = dir.path().join("bomb.png");
+    let file = std::io::BufWriter::new(std::fs::File::create(&bomb).unwrap());
+    let mut e = png::Encoder::new(file, 16384, 16384);
+    e.set_color(png::ColorType::Grayscale);
+    e.set_depth(png::BitDepth::One);
+    let mut stream = e.write_header().unwrap().into_stream_writer().unwrap();
+    let row = [0u8; 16384 / 8];
+    for _ in 0..16384 {
+        std::io::Write::write_all(&mut stream, &row).unwrap();
+    }
+    stream.finish().unwrap();
+    let err = text(load_png(&bomb).unwrap_err());
+    assert!(err.contains("MAX_PICTURE_PIXELS"), "{err}");
+    let err = text(load_png(std::path::Path::new("/dev/zero")).unwrap_err());
+    assert!(err.contains("not a regular file"), "{err}");
 }
 
 #[test]
