@@ -643,6 +643,46 @@ async fn connections(served: &Served) -> Row {
     row
 }
 
+/// Row: a performer within every budget (40 contacts a message, the
+/// most allowed) sending as fast as the socket takes it, moving them all
+/// each time: the stage must keep up or drop moves, never fall behind.
+async fn valid_flood(url: &str) -> Row {
+    let mut row = Row::new("contact flood in budget");
+    let (mut ws, stage) = connect_url(url, hello("performer", PERFORMER)).await;
+    let grab = hand(&placed_mesh(&stage));
+    let n = puppetry_limits::contacts::MAX_CONTACTS_PER_MESSAGE as u32;
+    let message = |phase: &str, k: usize| {
+        let contacts: Vec<Value> = (0..n)
+            .map(|id| {
+                let x = grab.x - 40.0 + f64::from(id) * 2.0;
+                json!({"id": 100 + id, "phase": phase, "x": x, "y": grab.y + (k % 30) as f64})
+            })
+            .collect();
+        json!({"type": "contacts", "contacts": contacts}).to_string()
+    };
+    let until = Instant::now() + Duration::from_secs(2 * scale() as u64);
+    let mut k = 0;
+    while Instant::now() < until {
+        let phase = if k == 0 { "down" } else { "move" };
+        if ws.send(Message::text(message(phase, k))).await.is_err() {
+            row.notes.push("the performer was closed".into());
+            break;
+        }
+        // What the daemon says back is read and dropped.
+        while let Ok(Some(Ok(m))) = tokio::time::timeout(Duration::ZERO, ws.next()).await {
+            if let Message::Text(t) = m
+                && t.contains("\"error\"")
+            {
+                row.refused += 1;
+            }
+        }
+        k += 1;
+        row.tries += 1;
+    }
+    let _ = exchange(&mut ws, &message("up", k), -2.0).await;
+    row
+}
+
 /// Row: random and malformed OSC datagrams at the trigger port.
 async fn osc_packets(served: &Served, rng: &mut Dice) -> Row {
     let mut row = Row::new("OSC datagrams");
@@ -1055,7 +1095,7 @@ async fn the_strangers_table() {
     println!("|{}|", ["---"; 9].join("|"));
     let mut rows = Vec::new();
     watch.take_gap_ms();
-    for k in 0..6 {
+    for k in 0..7 {
         let from = served.log().len();
         let mut row = match k {
             0 => bad_numbers(&url, &mut rng).await,
@@ -1063,6 +1103,7 @@ async fn the_strangers_table() {
             2 => token_probes(&url, &mut rng).await,
             3 => connections(&served).await,
             4 => osc_packets(&served, &mut rng).await,
+            5 => valid_flood(&url).await,
             _ => export_bombs(&served).await,
         };
         // Let the last of it land before reading the daemon.
