@@ -8,7 +8,7 @@
 //! [`Stage::apply_change`]: crate::Stage::apply_change
 
 use glam::DVec2;
-use puppetry_input::ContactFrame;
+use puppetry_contact::ContactFrame;
 use serde::{Deserialize, Serialize};
 
 /// One thing the stage thread applied. Everything that changes the stage's

@@ -28,8 +28,8 @@ pub use change::{
     Change, GripEvent, GripRecord, KeyPoseState, PinRecord, PoseRecord, Snapshot, StageEvent,
 };
 use config::{PuppetConfig, SaveWeights, StageConfig};
+use puppetry_contact::{ContactFrame, Phase, SourceId};
 use puppetry_deform::{Anchor, Arap};
-use puppetry_input::{ContactFrame, Phase, SourceId};
 use puppetry_mesh::{MAX_WEIGHT, MIN_WEIGHT, Mesh, MeshError};
 pub use rig::{Grip, Rig};
 

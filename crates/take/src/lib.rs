@@ -28,7 +28,7 @@ use std::io::{self, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 use glam::DVec2;
-use puppetry_input::Phase;
+use puppetry_contact::Phase;
 use puppetry_limits::files::{MAX_TAKE_CONTACTS, MAX_TAKE_SECONDS, MAX_TAKE_STEP_CHANGES};
 use puppetry_mesh::Mesh;
 use puppetry_mesh::file::{self as named_file, FileError};

@@ -5,9 +5,9 @@
 use std::path::Path;
 
 use glam::DVec2;
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_export::spine::{SpineOptions, export_spine};
 use puppetry_export::take::animation_of_take;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, Stage};
 use puppetry_take::{Frame, Header, Record, Step, TakeWriter};

@@ -6,8 +6,8 @@
 use std::path::Path;
 
 use glam::DVec2;
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_deform::depth::triangles_overlap;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, Stage};
 

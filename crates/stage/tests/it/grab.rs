@@ -8,7 +8,7 @@
 use std::collections::HashMap;
 
 use glam::DVec2;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_mesh::Mesh;
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{OUTLINE_REACH_FRACTION, Stage};

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use glam::DVec2;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, HandleKind, Stage};
 

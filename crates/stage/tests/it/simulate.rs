@@ -27,8 +27,8 @@ use std::path::Path;
 
 use glam::DVec2;
 use proptest::prelude::*;
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_deform::Arap;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, HandleKind, Puppet, Rebuild, Rig, Stage};
 use puppetry_testkit::simulate::{Spot, cases, failure_file, spot};

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use glam::DVec2;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_limits::files::{MAX_TAKE_CONTACTS, MAX_TAKE_STEP_CHANGES};
 use puppetry_stage::Change;
 use puppetry_take::{Header, Record, Step, TakeError, TakeReader, TakeWriter};

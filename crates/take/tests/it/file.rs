@@ -1,7 +1,7 @@
 use std::path::Path;
 
 use glam::DVec2;
-use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::{Change, GripEvent, StageEvent};
 use puppetry_take::recorder::Recorder;
 use puppetry_take::{Frame, Header, Record, Step, Tail, TakeError, TakeReader, summarize};
