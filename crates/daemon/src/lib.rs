@@ -21,6 +21,7 @@
 //!                                    newest only)               edge, fed from NATS)
 //! ```
 
+pub mod config;
 pub mod convert;
 pub mod lineup;
 pub mod memory;

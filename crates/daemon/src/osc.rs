@@ -26,7 +26,7 @@ use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, watch};
 use tokio::task::{AbortHandle, JoinHandle};
 
-use puppetry_stage::config::OscConfig;
+use crate::config::OscConfig;
 
 use crate::protocol::{HandleKind, RigDescription};
 use crate::stage_thread::{Command, PublishedHandles};

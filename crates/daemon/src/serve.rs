@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
+use crate::config::ShowConfig;
 use crate::sources::{
     Replays, SOURCE_QUEUE, SourceError, WhenDone, forward, run_replay, supervise,
 };
@@ -19,13 +20,14 @@ use crate::stage_thread::{self, Command, CursorState, TakeSettings};
 use crate::stream::{self, Shared, StreamError, WebFiles};
 use crate::takes::PlayOptions;
 use glam::DVec2;
+use puppetry_input::config::{InputConfig, PacingConfig};
 use puppetry_input::device::{DeviceKind, DeviceMatch};
 use puppetry_input::hotplug::{self, DeviceInput};
 use puppetry_input::mouse::{Cursor, MouseSettings};
 use puppetry_input::replay::{Pacing, ReplaySource, replay};
 use puppetry_input::serial::{self, SerialDecoder};
 use puppetry_input::{Calibration, CalibrationSpec, ContactFrame, SourceId, hid, tuio};
-use puppetry_stage::config::{InputConfig, PacingConfig, StageConfig};
+use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Stage, StageError};
 
 #[derive(Debug, thiserror::Error)]
@@ -172,7 +174,7 @@ impl Options {
 /// Starts the daemon for `config`, serving the web client from `web_files`,
 /// with an extra replay source if given.
 pub async fn start(
-    config: &StageConfig,
+    config: &ShowConfig,
     web_files: WebFiles,
     extra_replay: Option<(PathBuf, Pacing)>,
 ) -> Result<Running, ServeError> {
@@ -182,7 +184,7 @@ pub async fn start(
 }
 
 /// Starts the daemon for `config` with `options`.
-pub async fn start_with(config: &StageConfig, options: Options) -> Result<Running, ServeError> {
+pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running, ServeError> {
     let Options {
         web_files,
         extra_replay,
@@ -227,7 +229,7 @@ pub async fn start_with(config: &StageConfig, options: Options) -> Result<Runnin
         record_from_first_input: record,
     };
     let (outputs, stage_thread) = stage_thread::spawn(
-        config.clone(),
+        config.stage_config.clone(),
         stage,
         commands_rx,
         commands.downgrade(),
@@ -363,7 +365,7 @@ impl ResolvedInputs {
 /// Reads and checks every input of `config` (and an extra replay), so a bad
 /// file or address stops the start with its error.
 async fn resolve_inputs(
-    config: &StageConfig,
+    config: &ShowConfig,
     size: DVec2,
     extra_replay: Option<(PathBuf, Pacing)>,
 ) -> Result<ResolvedInputs, ServeError> {

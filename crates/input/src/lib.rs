@@ -19,6 +19,7 @@
 //! lines and a count.
 
 pub mod calibrate;
+pub mod config;
 pub mod device;
 pub mod evdev;
 pub mod evemu;

@@ -9,6 +9,7 @@ pub mod build;
 pub mod file;
 pub mod grid;
 pub mod json;
+pub mod numbers;
 pub mod polygon;
 pub mod stroke;
 pub mod trace;

@@ -319,7 +319,7 @@ pub async fn connect_viewer(
 /// contact on every point it lists (a finger per puppet), all circling.
 pub async fn end_to_end(
     name: &str,
-    config: &puppetry_stage::config::StageConfig,
+    config: &puppetry_daemon::config::ShowConfig,
     performers: &[Vec<DVec2>],
     clients: usize,
     input_frames: usize,

@@ -103,7 +103,7 @@ pub fn demo_tokens() -> Vec<String> {
         let name = file.path().display().to_string();
         // Parsed only (no file is read): the access section is all we need.
         let Some(config) = text.and_then(|t| {
-            puppetry_stage::config::StageConfig::parse(&name, t, Path::new("/")).ok()
+            puppetry_daemon::config::ShowConfig::parse(&name, t, Path::new("/")).ok()
         }) else {
             continue;
         };

@@ -427,7 +427,7 @@ pub struct Serving {
 pub fn serving(
     file: &Path,
     address: SocketAddr,
-    access: &puppetry_stage::config::Access,
+    access: &puppetry_daemon::config::Access,
     demo_tokens: &[String],
 ) -> Serving {
     let url = url_address(address);
@@ -448,7 +448,7 @@ pub fn serving(
     let director = access
         .people
         .iter()
-        .find(|p| p.role == puppetry_stage::config::AccessRole::Director);
+        .find(|p| p.role == puppetry_daemon::config::AccessRole::Director);
     if let Some(director) = director {
         lines.push(format!(
             "  direct:  http://{url}/?role=director&token={}",
@@ -665,10 +665,11 @@ pub fn depth_bench_command(
 /// The stages `puppetry bench --e2e` runs: the demo stage, and the same
 /// puppet meshed at about 10k vertices (written to a temporary file).
 /// All listen on a free loopback port.
-pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_stage::config::StageConfig)>, CliError> {
-    use puppetry_stage::config::{ConfigError, StageConfig};
+pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_daemon::config::ShowConfig)>, CliError> {
+    use puppetry_daemon::config::ShowConfig;
+    use puppetry_stage::config::ConfigError;
     let load = |path: &Path| {
-        StageConfig::load(path).map_err(|e| match e {
+        ShowConfig::load(path).map_err(|e| match e {
             ConfigError::Read { file, source } => CliError::Read { file, source },
             other => CliError::Mesh(MeshError::Invalid {
                 file: path.display().to_string(),
@@ -735,10 +736,10 @@ pub fn end_to_end_performers(stage: &puppetry_stage::config::StageConfig) -> Vec
 /// it. Unreadable nodes are listed with what to do about them.
 pub fn devices_report(
     dir: &Path,
-    config: Option<&puppetry_stage::config::StageConfig>,
+    config: Option<&puppetry_daemon::config::ShowConfig>,
 ) -> Result<String, puppetry_input::device::DeviceError> {
+    use puppetry_input::config::InputConfig;
     use puppetry_input::device::{DeviceKind, DeviceMatch, scan};
-    use puppetry_stage::config::InputConfig;
     use std::fmt::Write;
 
     // Each device entry of the stage file: what it wants, of which kind.

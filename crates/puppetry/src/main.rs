@@ -368,7 +368,7 @@ fn log_to_stderr() {
 /// arrive, and a warning when demo tokens are open to the network.
 fn print_serving(
     file: &std::path::Path,
-    stage: &puppetry_stage::config::StageConfig,
+    stage: &puppetry_daemon::config::ShowConfig,
     running: &puppetry_daemon::serve::Running,
 ) {
     let said = cli::serving(
@@ -498,7 +498,7 @@ fn run(args: Args) -> anyhow::Result<()> {
                 Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
                 None => puppetry_daemon::stream::WebFiles::Embedded,
             };
-            let mut stage = puppetry_stage::config::StageConfig::load(&path)?;
+            let mut stage = puppetry_daemon::config::ShowConfig::load(&path)?;
             if let Some(listen) = listen {
                 stage.stage.listen = listen;
             }
@@ -649,7 +649,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         }
         Command::Devices { dir, config } => {
             let config = config
-                .map(|path| puppetry_stage::config::StageConfig::load(&path))
+                .map(|path| puppetry_daemon::config::ShowConfig::load(&path))
                 .transpose()?;
             print!("{}", cli::devices_report(&dir, config.as_ref())?);
         }

@@ -1,12 +1,17 @@
-//! The stage file (TOML, in `config/`): the stage's size and listen address,
-//! access tokens, the puppets on it and the input sources. Parsed with
-//! `deny_unknown_fields` so a misspelt key is an error naming it; relative
-//! paths are resolved against the file's own folder.
+//! The stage's part of a stage file (TOML, in `config/`): the stage's size
+//! and listen address, the puppets on it and the keyframing pads. Parsed
+//! with `deny_unknown_fields` so a misspelt key is an error naming it;
+//! relative paths are resolved against the file's own folder. The same
+//! file's input, access, OSC and relay sections are parsed by the layers
+//! that own them (the daemon's `config::ShowConfig` assembles the whole).
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
+pub use puppetry_mesh::numbers::{MAX_COORDINATE, MIN_SIZE};
+use puppetry_mesh::numbers::{coordinates, exactly, pairs, some_pairs, within};
 use serde::Deserialize;
+use serde::de::IgnoredAny;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -28,27 +33,30 @@ pub enum ConfigError {
     },
 }
 
-/// A whole stage file.
+/// The stage's part of a stage file: `[stage]`, the puppets and the pads.
+/// The same file's `[[input]]` (`puppetry_input::config`), `[access]`,
+/// `[osc]` and `[relay]` sections belong to the layers that own them and
+/// are parsed there from the same text (the daemon's `ShowConfig`): here
+/// they are only let through, so the stage crate never builds a device or
+/// network setting.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StageConfig {
     pub stage: StageSection,
-    #[serde(default)]
-    pub access: Access,
     #[serde(default, rename = "puppet")]
     pub puppets: Vec<PuppetConfig>,
-    #[serde(default, rename = "input")]
-    pub inputs: Vec<InputConfig>,
     /// Keyframing pads on input sources (spatial keyframing).
     #[serde(default, rename = "pad")]
     pub pads: Vec<PadConfig>,
-    /// Show control over OSC (`docs/osc.md`); off without the section.
-    #[serde(default)]
-    pub osc: Option<OscConfig>,
-    /// Publishing to relays over NATS (`docs/scaling.md`); off without
-    /// the section.
-    #[serde(default)]
-    pub relay: Option<RelayConfig>,
+    /// Other layers' sections, checked where they are parsed.
+    #[serde(default, rename = "input")]
+    _input: Option<IgnoredAny>,
+    #[serde(default, rename = "access")]
+    _access: Option<IgnoredAny>,
+    #[serde(default, rename = "osc")]
+    _osc: Option<IgnoredAny>,
+    #[serde(default, rename = "relay")]
+    _relay: Option<IgnoredAny>,
     /// Where the file was read from; relative paths are resolved against it.
     #[serde(skip)]
     pub folder: PathBuf,
@@ -126,154 +134,9 @@ fn default_client_timeout() -> f64 {
     10.0
 }
 
-/// Who may connect and what they may do (`[access]`): named people with
-/// roles and tokens, anonymous performer tokens, the WebSocket origins
-/// allowed besides the daemon's own, and a cap per client address.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Access {
-    /// Tokens of anonymous performers ("performer 1", "performer 2", …).
-    #[serde(default)]
-    pub performer_tokens: Vec<String>,
-    /// Origins (`scheme://host[:port]`) whose pages may open the WebSocket
-    /// besides the daemon's own; a client sending no Origin (not a
-    /// browser) is always let in.
-    #[serde(default)]
-    pub allowed_origins: Vec<String>,
-    /// Open WebSocket connections per client IP address at most.
-    #[serde(default = "default_max_per_address")]
-    pub max_per_address: usize,
-    #[serde(default, rename = "person")]
-    pub people: Vec<PersonConfig>,
-}
-
-impl Default for Access {
-    fn default() -> Access {
-        Access {
-            performer_tokens: Vec::new(),
-            allowed_origins: Vec::new(),
-            max_per_address: default_max_per_address(),
-            people: Vec::new(),
-        }
-    }
-}
-
-fn default_max_per_address() -> usize {
-    64
-}
-
-/// `[[access.person]]`: someone who connects with their own token.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PersonConfig {
-    pub name: String,
-    pub role: AccessRole,
-    pub token: String,
-    /// `#RRGGBB`; default: the first palette colour no one connected has.
-    #[serde(default)]
-    pub colour: Option<String>,
-    /// A performer limited to these puppets (by name); default: all.
-    #[serde(default)]
-    pub puppets: Option<Vec<String>>,
-}
-
-/// What a person may do (see `docs/protocol.md`, "Roles").
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum AccessRole {
-    /// Everything: takes, painting, saving, key poses, performing.
-    Director,
-    /// Performing: contacts, pins, poses, cursors.
-    Performer,
-    /// Watching only.
-    Viewer,
-}
-
 /// `#RRGGBB`.
-fn is_colour(text: &str) -> bool {
+pub fn is_colour(text: &str) -> bool {
     text.len() == 7 && text.starts_with('#') && text[1..].chars().all(|c| c.is_ascii_hexdigit())
-}
-
-/// `scheme://host[:port]` with no path, as browsers send `Origin`.
-fn is_origin(text: &str) -> bool {
-    let Some((scheme, rest)) = text.split_once("://") else {
-        return false;
-    };
-    !scheme.is_empty()
-        && scheme
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
-        && !rest.is_empty()
-        && !rest.contains(['/', '?', '#', ' ', '@'])
-}
-
-/// The `[access]` section's checks: each problem names its field.
-fn check_access(config: &StageConfig) -> Result<(), (String, String)> {
-    let access = &config.access;
-    for (i, token) in access.performer_tokens.iter().enumerate() {
-        if token.is_empty() {
-            return Err((format!("access.performer_tokens[{i}]"), "empty".into()));
-        }
-        if access.performer_tokens[..i].contains(token) {
-            return Err((
-                format!("access.performer_tokens[{i}]"),
-                "the same token is listed twice".into(),
-            ));
-        }
-    }
-    for (i, origin) in access.allowed_origins.iter().enumerate() {
-        if !is_origin(origin) {
-            return Err((
-                format!("access.allowed_origins[{i}]"),
-                format!(
-                    "{origin:?} is not an origin like \"https://show.example\" (scheme://host[:port], no path)"
-                ),
-            ));
-        }
-    }
-    if access.max_per_address == 0 {
-        return Err(("access.max_per_address".into(), "must be at least 1".into()));
-    }
-    for (i, person) in access.people.iter().enumerate() {
-        let field = |f: &str| format!("access.person[{i}].{f}");
-        if person.name.trim().is_empty() {
-            return Err((field("name"), "empty".into()));
-        }
-        if access.people[..i].iter().any(|p| p.name == person.name) {
-            return Err((field("name"), "is used by another person".into()));
-        }
-        if person.token.is_empty() {
-            return Err((field("token"), "empty".into()));
-        }
-        if access.people[..i].iter().any(|p| p.token == person.token) {
-            return Err((field("token"), "is used by another person".into()));
-        }
-        if access.performer_tokens.contains(&person.token) {
-            return Err((field("token"), "is also in access.performer_tokens".into()));
-        }
-        if let Some(colour) = &person.colour
-            && !is_colour(colour)
-        {
-            return Err((field("colour"), format!("{colour:?} is not #RRGGBB")));
-        }
-        if let Some(puppets) = &person.puppets {
-            if person.role != AccessRole::Performer {
-                return Err((
-                    field("puppets"),
-                    "only a performer is limited to puppets".into(),
-                ));
-            }
-            for (k, name) in puppets.iter().enumerate() {
-                if !config.puppets.iter().any(|p| &p.name == name) {
-                    return Err((
-                        field(&format!("puppets[{k}]")),
-                        format!("no puppet is named {name:?}"),
-                    ));
-                }
-            }
-        }
-    }
-    Ok(())
 }
 
 /// One puppet: its picture and rest mesh (or, for a curve puppet, its
@@ -610,252 +473,6 @@ pub struct KeyPoseConfig {
     pub roots: Option<Vec<[f64; 2]>>,
 }
 
-/// An input source. Replay files stand in for devices.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
-pub enum InputConfig {
-    /// A recording (`.jsonl`, stage coordinates) or an evemu capture
-    /// (`.event`, device coordinates fitted to the stage).
-    Replay {
-        file: PathBuf,
-        /// The source's name, which owns its contacts' handles; default
-        /// `replay:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Device to stage mapping for an evemu capture; default: the
-        /// device's full axis ranges fitted to the stage. Recordings are
-        /// already in stage coordinates and ignore it.
-        #[serde(default)]
-        calibration: Option<puppetry_input::CalibrationSpec>,
-        #[serde(default)]
-        pacing: PacingConfig,
-        /// Play again from the start when the file ends.
-        #[serde(default)]
-        repeat: bool,
-    },
-    /// TUIO 1.1 (`/tuio/2Dcur`) and 2.0 (`/tuio2/ptr`) over UDP: touch
-    /// tables, reacTIVision, TouchDesigner. Each TUIO source is its own
-    /// input source (`tuio:NAME`, `tuio2:NAME`).
-    Tuio {
-        /// Where to receive; default 127.0.0.1:3333 (use 0.0.0.0:3333 to
-        /// accept a table on the network).
-        #[serde(default = "default_tuio_listen")]
-        listen: SocketAddr,
-        /// Normalised TUIO coordinates (0..1, y down) to stage; default:
-        /// the unit square fitted to the stage, y flipped.
-        #[serde(default)]
-        calibration: Option<puppetry_input::CalibrationSpec>,
-    },
-    /// A serial pad (Arduino/Teensy-style): line CSV or SLIP-framed OSC at a
-    /// baud rate (see `puppetry::input::serial`). If the port goes away the
-    /// daemon lifts its contacts and reopens it every second.
-    Serial {
-        /// The port, e.g. `/dev/ttyACM0`.
-        path: String,
-        #[serde(default = "default_baud")]
-        baud: u32,
-        format: puppetry_input::serial::WireFormat,
-        /// The source's name; default `serial:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Pad units to stage; default: pad units are stage units.
-        #[serde(default)]
-        calibration: Option<puppetry_input::CalibrationSpec>,
-    },
-    /// A touch table or screen (Linux evdev, multi-touch protocol A or B,
-    /// or single touch). Reopened when it comes back after going away.
-    // The device fields are repeated in `Pen` and `Mouse` rather than
-    // shared with `#[serde(flatten)]`, which would silently turn off
-    // `deny_unknown_fields`.
-    Touch {
-        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
-        /// `product`, all of which must match; default: the first device of
-        /// this kind. `puppetry devices` shows each device's values.
-        #[serde(default)]
-        device: puppetry_input::device::DeviceMatch,
-        /// Where device nodes appear; default `/dev/input`.
-        #[serde(default = "default_device_dir")]
-        dir: PathBuf,
-        /// The source's name; default `KIND:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
-        /// also react to it.
-        #[serde(default)]
-        grab: bool,
-        /// Device units to stage; default: the device's full range fitted
-        /// to the stage.
-        #[serde(default)]
-        calibration: Option<puppetry_input::CalibrationSpec>,
-    },
-    /// A pen tablet (Linux evdev): the tip is a contact carrying pressure
-    /// and tilt.
-    Pen {
-        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
-        /// `product`, all of which must match; default: the first device of
-        /// this kind. `puppetry devices` shows each device's values.
-        #[serde(default)]
-        device: puppetry_input::device::DeviceMatch,
-        /// Where device nodes appear; default `/dev/input`.
-        #[serde(default = "default_device_dir")]
-        dir: PathBuf,
-        /// The source's name; default `KIND:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
-        /// also react to it.
-        #[serde(default)]
-        grab: bool,
-        #[serde(default)]
-        calibration: Option<puppetry_input::CalibrationSpec>,
-    },
-    /// A HID digitizer read through hidapi (hidraw on Linux): for touch
-    /// devices without a kernel driver, and hosts without evdev. The report
-    /// descriptor says where the contacts are; parallel and hybrid
-    /// reporting both work, and the Input Mode feature is set to multi-touch.
-    Hid {
-        /// Which device: any of `path` (`/dev/hidraw3`), `vendor_id`,
-        /// `product_id`, `serial`; default: the only touch digitizer.
-        #[serde(default)]
-        device: puppetry_input::hid::HidSelector,
-        /// The source's name; default `hid:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Logical units to stage; default: the contacts' logical range
-        /// fitted to the stage.
-        #[serde(default)]
-        calibration: Option<puppetry_input::CalibrationSpec>,
-    },
-    /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
-    /// pair of points: button-drag moves them, the wheel or a right-button
-    /// drag rotates them.
-    Mouse {
-        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
-        /// `product`, all of which must match; default: the first device of
-        /// this kind. `puppetry devices` shows each device's values.
-        #[serde(default)]
-        device: puppetry_input::device::DeviceMatch,
-        /// Where device nodes appear; default `/dev/input`.
-        #[serde(default = "default_device_dir")]
-        dir: PathBuf,
-        /// The source's name; default `KIND:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
-        /// also react to it.
-        #[serde(default)]
-        grab: bool,
-        /// Stage units per mouse count; default 1.
-        #[serde(default)]
-        speed: Option<f64>,
-        /// Hold a pair of points (default) or one.
-        #[serde(default)]
-        pair: Option<bool>,
-        /// Distance between the pair's points, stage units; default a
-        /// twelfth of the stage's smaller side.
-        #[serde(default)]
-        pair_spacing: Option<f64>,
-        /// Rotation per wheel notch, degrees; default 15.
-        #[serde(default)]
-        rotate_step_deg: Option<f64>,
-        /// Where the cursor starts, stage coordinates; default the centre.
-        #[serde(default, deserialize_with = "some_pair")]
-        start: Option<[f64; 2]>,
-    },
-}
-
-fn default_device_dir() -> PathBuf {
-    PathBuf::from(puppetry_input::device::DEFAULT_DIR)
-}
-
-fn default_baud() -> u32 {
-    115_200
-}
-
-fn default_tuio_listen() -> SocketAddr {
-    SocketAddr::from(([127, 0, 0, 1], puppetry_input::tuio::DEFAULT_PORT))
-}
-
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PacingConfig {
-    #[default]
-    RealTime,
-    AsFastAsPossible,
-}
-
-/// `[osc]`: show control over OSC/UDP (`docs/osc.md`): triggers in on
-/// `listen`, the stage's state out to every `send` host `rate` times a
-/// second, all under `prefix`.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct OscConfig {
-    /// UDP address triggers are received on (none: no triggers).
-    #[serde(default)]
-    pub listen: Option<SocketAddr>,
-    /// `host:port` of each receiver of the stage's state (names are
-    /// resolved when the daemon starts, and again while they fail).
-    #[serde(default)]
-    pub send: Vec<String>,
-    /// State updates a second.
-    #[serde(default = "default_osc_rate")]
-    pub rate: f64,
-    /// What every address starts with.
-    #[serde(default = "default_osc_prefix")]
-    pub prefix: String,
-}
-
-/// `[relay]`: the stage published over NATS, for `puppetry relay`
-/// processes to serve viewers and forward remote performers.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RelayConfig {
-    /// The NATS server, `nats://host:port` (or `tls://…`: tokens of
-    /// remote performers travel over it).
-    pub nats: String,
-    /// The stage's name on NATS (letters, digits, `-` and `_`); relays ask
-    /// for it with `--stage`. Default: the stage file's name without `.toml`.
-    #[serde(default)]
-    pub stage: Option<String>,
-    /// Frames a second of each puppet published to relays at most (an
-    /// audience's display rate, for large audiences: a frame may then
-    /// wait up to one interval); 0, the default: every solve, with no wait.
-    #[serde(default)]
-    pub frame_rate: f64,
-}
-
-impl StageConfig {
-    /// The stage's name on NATS (`[relay].stage`, or the file's stem).
-    pub fn relay_stage_name(&self) -> String {
-        let stem = Path::new(&self.file)
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let named = self.relay.as_ref().and_then(|r| r.stage.clone());
-        named.unwrap_or_else(|| {
-            stem.chars()
-                .map(|c| if is_name_char(c) { c } else { '_' })
-                .collect()
-        })
-    }
-}
-
-/// Whether `c` may be in a stage's NATS name (one subject token).
-pub fn is_name_char(c: char) -> bool {
-    c.is_ascii_alphanumeric() || c == '-' || c == '_'
-}
-
-/// How far from the origin any coordinate of a stage file may be (stage
-/// units, mesh units or device units): ten million, beyond any stage or
-/// device, and far enough inside f64 that squaring and summing never
-/// overflows.
-pub const MAX_COORDINATE: f64 = 1e7;
-
-/// The smallest length a stage file may give a size (stage width, stroke
-/// width, spacing…): a thousandth of a unit. Below it sizes are a typo,
-/// and ratios of them (a curve's length over its spacing) explode.
-pub const MIN_SIZE: f64 = 1e-3;
-
 /// The longest `[stage].client_timeout_s`: an hour. A client silent that
 /// long is gone; `Duration::from_secs_f64(1e20)` panicked.
 pub const MAX_CLIENT_TIMEOUT_S: f64 = 3600.0;
@@ -874,187 +491,6 @@ pub const MAX_CURVE_SAMPLES: f64 = 20_000.0;
 
 /// Connections (`max_connections`, `max_per_address`) at most.
 pub const MAX_CONNECTIONS: usize = 1 << 20;
-
-/// Whether `v` is finite and within `lo..=hi`; the problem otherwise.
-fn within(v: f64, lo: f64, hi: f64) -> Result<(), String> {
-    if v.is_finite() && (lo..=hi).contains(&v) {
-        Ok(())
-    } else {
-        let kind = if lo > 0.0 { "a positive" } else { "a" };
-        Err(format!("{v} is not {kind} finite number from {lo} to {hi}"))
-    }
-}
-
-/// Every number of `values` a coordinate (finite, within
-/// [`MAX_COORDINATE`] of the origin); the first bad one's index otherwise.
-fn coordinates<'a>(values: impl IntoIterator<Item = &'a f64>) -> Result<(), (usize, String)> {
-    for (i, &v) in values.into_iter().enumerate() {
-        within(v, -MAX_COORDINATE, MAX_COORDINATE).map_err(|p| (i, p))?;
-    }
-    Ok(())
-}
-
-/// Exactly `N` numbers, not `N` taken from a longer list (`at = [1, 2, 3]`
-/// was read as `[1, 2]`).
-fn exactly<'de, D: serde::Deserializer<'de>, const N: usize>(d: D) -> Result<[f64; N], D::Error> {
-    let v = Vec::<f64>::deserialize(d)?;
-    let n = v.len();
-    v.try_into()
-        .map_err(|_| serde::de::Error::invalid_length(n, &format!("{N} numbers").as_str()))
-}
-
-/// A list of `[x, y]` pairs, each exactly two numbers.
-fn pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<[f64; 2]>, D::Error> {
-    let v = Vec::<Vec<f64>>::deserialize(d)?;
-    v.into_iter()
-        .map(|p| {
-            let n = p.len();
-            p.try_into()
-                .map_err(|_| serde::de::Error::invalid_length(n, &"2 numbers [x, y]"))
-        })
-        .collect()
-}
-
-/// [`pairs`], optional.
-fn some_pairs<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<Vec<[f64; 2]>>, D::Error> {
-    pairs(d).map(Some)
-}
-
-/// [`exactly`] two, optional.
-fn some_pair<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
-    exactly::<D, 2>(d).map(Some)
-}
-
-/// Bounds of `[osc].rate`: below one a second a show desk looks frozen;
-/// above 120 the updates outrun any display and flood the network.
-pub const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
-
-fn default_osc_rate() -> f64 {
-    30.0
-}
-
-fn default_osc_prefix() -> String {
-    "/puppetry".into()
-}
-
-/// Checks `[osc]`; errors are `(field, problem)`.
-fn check_osc(osc: &OscConfig) -> Result<(), (String, String)> {
-    if osc.listen.is_none() && osc.send.is_empty() {
-        return Err((
-            "osc".into(),
-            "give `listen` (triggers in) or `send` (state out), or leave the section out".into(),
-        ));
-    }
-    if !(osc.rate.is_finite() && OSC_RATE.contains(&osc.rate)) {
-        return Err((
-            "osc.rate".into(),
-            format!(
-                "must be between {} and {} updates a second",
-                OSC_RATE.start(),
-                OSC_RATE.end()
-            ),
-        ));
-    }
-    // OSC 1.0 forbids these in address parts (they are pattern syntax).
-    let reserved = |c: char| " #*,?[]{}".contains(c) || !c.is_ascii_graphic();
-    let p = &osc.prefix;
-    if !p.starts_with('/') || p.ends_with('/') || p.contains("//") || p.chars().any(reserved) {
-        return Err((
-            "osc.prefix".into(),
-            "must be an OSC address like \"/puppetry\": starts with '/', no trailing '/', \
-             printable ASCII without space or any of # * , ? [ ] { }"
-                .into(),
-        ));
-    }
-    for (i, host) in osc.send.iter().enumerate() {
-        if let Err(problem) = check_host_port(host) {
-            return Err((format!("osc.send[{i}]"), problem));
-        }
-    }
-    Ok(())
-}
-
-/// Checks a `host:port` (`[v6]:port` for IPv6 literals) without resolving.
-pub fn check_host_port(text: &str) -> Result<(), String> {
-    let expected = || format!("{text:?}: expected host:port, like \"127.0.0.1:9001\"");
-    let (host, port) = text.rsplit_once(':').ok_or_else(expected)?;
-    let host = host
-        .strip_prefix('[')
-        .and_then(|h| h.strip_suffix(']'))
-        .unwrap_or(host);
-    if host.is_empty() || host.contains(':') && text.parse::<SocketAddr>().is_err() {
-        return Err(expected());
-    }
-    match port.parse::<u16>() {
-        Ok(p) if p > 0 => Ok(()),
-        _ => Err(format!("{text:?}: the port must be 1 to 65535")),
-    }
-}
-
-/// The numbers of `[[input]]` entries: a baud rate a port can run at, a
-/// mouse's speeds and spacing within a coordinate's range, a cursor start
-/// on the stage's scale, every calibration number a coordinate.
-fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
-    for (i, input) in inputs.iter().enumerate() {
-        let field = |f: &str| format!("input[{i}].{f}");
-        let calibration = match input {
-            InputConfig::Serial {
-                baud, calibration, ..
-            } => {
-                if !(1..=20_000_000).contains(baud) {
-                    return Err((field("baud"), format!("{baud} is not 1 to 20000000")));
-                }
-                calibration
-            }
-            InputConfig::Mouse {
-                speed,
-                pair_spacing,
-                rotate_step_deg,
-                start,
-                ..
-            } => {
-                for (name, value, lo, hi) in [
-                    ("speed", *speed, 1e-6, 1e6),
-                    ("pair_spacing", *pair_spacing, MIN_SIZE, MAX_COORDINATE),
-                    ("rotate_step_deg", *rotate_step_deg, -360.0, 360.0),
-                ] {
-                    if let Some(v) = value {
-                        within(v, lo, hi).map_err(|problem| (field(name), problem))?;
-                    }
-                }
-                if let Some(start) = start {
-                    coordinates(start)
-                        .map_err(|(k, problem)| (field(&format!("start[{k}]")), problem))?;
-                }
-                &None
-            }
-            InputConfig::Replay { calibration, .. }
-            | InputConfig::Tuio { calibration, .. }
-            | InputConfig::Touch { calibration, .. }
-            | InputConfig::Pen { calibration, .. }
-            | InputConfig::Hid { calibration, .. } => calibration,
-        };
-        if let Some(spec) = calibration {
-            let numbers =
-                toml::Value::try_from(spec).map_err(|e| (field("calibration"), e.to_string()))?;
-            let mut all = Vec::new();
-            collect_numbers(&numbers, &mut all);
-            coordinates(&all).map_err(|(_, problem)| (field("calibration"), problem))?;
-        }
-    }
-    Ok(())
-}
-
-/// Every number in `value`, depth first.
-fn collect_numbers(value: &toml::Value, out: &mut Vec<f64>) {
-    match value {
-        toml::Value::Float(v) => out.push(*v),
-        toml::Value::Integer(v) => out.push(*v as f64),
-        toml::Value::Array(items) => items.iter().for_each(|v| collect_numbers(v, out)),
-        toml::Value::Table(t) => t.values().for_each(|v| collect_numbers(v, out)),
-        _ => {}
-    }
-}
 
 /// The rig sections' own checks (what the deformers check again on
 /// registration is left to them, so their errors name it precisely).
@@ -1161,19 +597,25 @@ fn check_rigs(i: usize, p: &PuppetConfig) -> Result<(), (String, String)> {
 impl StageConfig {
     /// Reads and checks a stage file.
     pub fn load(path: &Path) -> Result<StageConfig, ConfigError> {
-        let file = path.display().to_string();
-        use puppetry_mesh::file::{self, FileError};
-        let text = file::read_text(path, file::STAGE_FILE).map_err(|e| match e {
-            FileError::Io { file, source } => ConfigError::Read { file, source },
-            other => ConfigError::File(other),
-        })?;
+        let text = StageConfig::read_text(path)?;
         let folder = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-        let config = StageConfig::parse(&file, &text, &folder)?;
+        let config = StageConfig::parse(&path.display().to_string(), &text, &folder)?;
         config.check_files()?;
         Ok(config)
     }
 
-    /// Every picture, mesh and replay file the stage file names can be
+    /// A stage file's text, read as every named file is (a regular file
+    /// within `MAX_STAGE_FILE_BYTES`): for the layers that parse their own
+    /// sections of it.
+    pub fn read_text(path: &Path) -> Result<String, ConfigError> {
+        use puppetry_mesh::file::{self, FileError};
+        file::read_text(path, file::STAGE_FILE).map_err(|e| match e {
+            FileError::Io { file, source } => ConfigError::Read { file, source },
+            other => ConfigError::File(other),
+        })
+    }
+
+    /// Every picture and mesh file the stage file names can be
     /// read — a regular file within its size cap (`puppetry_limits::files`),
     /// so `/dev/zero` or a FIFO is refused here by name, before anything
     /// reads it — and pictures and meshes are what their keys say. A stage file
@@ -1181,7 +623,7 @@ impl StageConfig {
     /// the error says what the path became and that it is relative to the
     /// stage file's folder, not the working one. (Key files may be missing:
     /// `save_keys` creates them.)
-    fn check_files(&self) -> Result<(), ConfigError> {
+    pub fn check_files(&self) -> Result<(), ConfigError> {
         use puppetry_mesh::file::{self, Cap};
         let mut named: Vec<(String, &'static str, &Path, Cap)> = Vec::new();
         for (i, p) in self.puppets.iter().enumerate() {
@@ -1209,49 +651,59 @@ impl StageConfig {
                 }
             }
         }
-        for (i, input) in self.inputs.iter().enumerate() {
-            if let InputConfig::Replay { file, .. } = input {
-                named.push((format!("input[{i}].file"), "file", file, file::REPLAY_FILE));
-            }
-        }
         for (field, key, path, cap) in named {
-            let problem = match head_of(&self.resolve(path), cap) {
-                Err(HeadError::File(e)) => {
-                    return Err(ConfigError::Invalid {
-                        file: self.file.clone(),
-                        field,
-                        problem: e.to_string(),
-                    });
-                }
-                Err(HeadError::Io(e)) => Err(e),
-                Ok(head) => Ok(head),
-            };
-            let problem = match problem {
-                Ok(head) => match wrong_kind(key, picture_kind(&head)) {
-                    Some(problem) => format!("{}: {problem}", path.display()),
-                    None => continue,
-                },
-                Err(error) if path.is_absolute() => {
-                    format!("{}: cannot read: {error}", path.display())
-                }
-                Err(error) => {
-                    let folder = absolute(&self.folder);
-                    format!(
-                        "{}: cannot read {}: {error} (paths in a stage file are relative \
-                         to the stage file's folder, {})",
-                        path.display(),
-                        tidy(&folder.join(path)).display(),
-                        folder.display()
-                    )
-                }
-            };
-            return Err(ConfigError::Invalid {
-                file: self.file.clone(),
-                field,
-                problem,
-            });
+            self.check_file(field, key, path, cap)?;
         }
         Ok(())
+    }
+
+    /// One file the stage file names at `field` (its key `key`: `image`,
+    /// `mesh`, `file`…) is a regular file within `cap` that can be read,
+    /// and of the kind its key says; the error says where a relative path
+    /// led. Other layers check the files of their own sections with it (a
+    /// replay input's `file`).
+    pub fn check_file(
+        &self,
+        field: String,
+        key: &'static str,
+        path: &Path,
+        cap: puppetry_mesh::file::Cap,
+    ) -> Result<(), ConfigError> {
+        let problem = match head_of(&self.resolve(path), cap) {
+            Err(HeadError::File(e)) => {
+                return Err(ConfigError::Invalid {
+                    file: self.file.clone(),
+                    field,
+                    problem: e.to_string(),
+                });
+            }
+            Err(HeadError::Io(e)) => Err(e),
+            Ok(head) => Ok(head),
+        };
+        let problem = match problem {
+            Ok(head) => match wrong_kind(key, picture_kind(&head)) {
+                Some(problem) => format!("{}: {problem}", path.display()),
+                None => return Ok(()),
+            },
+            Err(error) if path.is_absolute() => {
+                format!("{}: cannot read: {error}", path.display())
+            }
+            Err(error) => {
+                let folder = absolute(&self.folder);
+                format!(
+                    "{}: cannot read {}: {error} (paths in a stage file are relative \
+                     to the stage file's folder, {})",
+                    path.display(),
+                    tidy(&folder.join(path)).display(),
+                    folder.display()
+                )
+            }
+        };
+        Err(ConfigError::Invalid {
+            file: self.file.clone(),
+            field,
+            problem,
+        })
     }
 
     /// Parses stage TOML; `file` names it in errors, `folder` anchors its
@@ -1294,40 +746,6 @@ impl StageConfig {
                 &format!("must be 1 to {MAX_CONNECTIONS}"),
             ));
         }
-        if config.access.max_per_address > MAX_CONNECTIONS {
-            return Err(invalid(
-                "access.max_per_address".into(),
-                &format!("must be 1 to {MAX_CONNECTIONS}"),
-            ));
-        }
-        check_inputs(&config.inputs).map_err(|(field, problem)| invalid(field, &problem))?;
-        if let Some(osc) = &config.osc {
-            check_osc(osc).map_err(|(field, problem)| invalid(field, &problem))?;
-        }
-        if let Some(relay) = &config.relay {
-            let scheme = relay.nats.split_once("://").map(|(s, _)| s);
-            if !matches!(scheme, Some("nats" | "tls")) {
-                return Err(invalid(
-                    "relay.nats".into(),
-                    "must be a nats://host:port or tls://host:port address",
-                ));
-            }
-            let rate = relay.frame_rate;
-            if !(rate == 0.0 || (1.0..=1000.0).contains(&rate)) {
-                return Err(invalid(
-                    "relay.frame_rate".into(),
-                    "must be 0 (every solve) or 1 to 1000 frames a second",
-                ));
-            }
-            if let Some(name) = &relay.stage
-                && (name.is_empty() || !name.chars().all(is_name_char))
-            {
-                return Err(invalid(
-                    "relay.stage".into(),
-                    "must be letters, digits, - and _ (one NATS subject token)",
-                ));
-            }
-        }
         for (i, p) in config.puppets.iter().enumerate() {
             range(format!("puppet[{i}].scale"), p.scale, MIN_SIZE, 1e3)?;
             coordinates(&p.at)
@@ -1360,7 +778,6 @@ impl StageConfig {
                 ));
             }
         }
-        check_access(&config).map_err(|(field, problem)| invalid(field, &problem))?;
         Ok(config)
     }
 
@@ -1475,135 +892,4 @@ fn tidy(path: &Path) -> PathBuf {
         }
     }
     out
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    const STAGE: &str = "[stage]\nwidth = 100\nheight = 100\n\
-        [[puppet]]\nname = \"gingerbread\"\nimage = \"g.png\"\nmesh = \"g.mesh.json\"\nat = [50, 50]\n";
-
-    fn parse(access: &str) -> Result<StageConfig, String> {
-        StageConfig::parse("a.toml", &format!("{STAGE}{access}"), Path::new("/"))
-            .map_err(|e| e.to_string())
-    }
-
-    #[test]
-    fn the_relay_section_is_checked() {
-        let config = parse("[relay]\nnats = \"nats://127.0.0.1:4222\"\n").unwrap();
-        assert_eq!(config.relay.unwrap().nats, "nats://127.0.0.1:4222");
-        assert_eq!(
-            StageConfig::parse(
-                "my stage.toml",
-                &format!("{STAGE}[relay]\nnats = \"nats://h:1\"\n"),
-                Path::new("/")
-            )
-            .unwrap()
-            .relay_stage_name(),
-            "my_stage"
-        );
-        let named = parse("[relay]\nnats = \"tls://h:1\"\nstage = \"show-1\"\n").unwrap();
-        assert_eq!(named.relay_stage_name(), "show-1");
-        let bad = parse("[relay]\nnats = \"http://h:1\"\n").unwrap_err();
-        assert!(bad.contains("relay.nats"), "{bad}");
-        let bad = parse("[relay]\nnats = \"nats://h:1\"\nstage = \"a.b\"\n").unwrap_err();
-        assert!(bad.contains("relay.stage"), "{bad}");
-        let bad = parse("[relay]\nnats = \"nats://h:1\"\nframe_rate = 0.5\n").unwrap_err();
-        assert!(bad.contains("relay.frame_rate"), "{bad}");
-        let bad = parse("[relay]\nnats = \"nats://h:1\"\nstages = \"x\"\n").unwrap_err();
-        assert!(bad.contains("stages"), "{bad}");
-    }
-
-    #[test]
-    fn people_roles_and_defaults_are_read() {
-        let config = parse(
-            "[access]\nperformer_tokens = [\"demo\"]\nallowed_origins = [\"https://show.example\"]\n\
-             [[access.person]]\nname = \"Ana\"\nrole = \"director\"\ntoken = \"a\"\ncolour = \"#E69F00\"\n\
-             [[access.person]]\nname = \"Ben\"\nrole = \"performer\"\ntoken = \"b\"\npuppets = [\"gingerbread\"]\n",
-        )
-        .unwrap();
-        let access = &config.access;
-        assert_eq!(access.performer_tokens, ["demo"]);
-        assert_eq!(access.max_per_address, 64);
-        assert_eq!(access.people.len(), 2);
-        assert_eq!(access.people[0].role, AccessRole::Director);
-        assert_eq!(
-            access.people[1].puppets.as_deref(),
-            Some(&["gingerbread".to_string()][..])
-        );
-        // No [access] at all: nobody but viewers, the default cap.
-        assert_eq!(parse("").unwrap().access.max_per_address, 64);
-    }
-
-    #[test]
-    fn bad_access_entries_name_their_field() {
-        let person = |fields: &str| format!("[[access.person]]\n{fields}\n");
-        for (text, expected) in [
-            (
-                "[access]\nperformer_tokens = [\"\"]\n".to_string(),
-                "access.performer_tokens[0]: empty",
-            ),
-            (
-                person("name = \"Ana\"\nrole = \"director\"\ntoken = \"\""),
-                "access.person[0].token: empty",
-            ),
-            (
-                person("name = \"\"\nrole = \"director\"\ntoken = \"t\""),
-                "access.person[0].name: empty",
-            ),
-            (
-                format!(
-                    "{}{}",
-                    person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\""),
-                    person("name = \"Ben\"\nrole = \"performer\"\ntoken = \"t\"")
-                ),
-                "access.person[1].token: is used by another person",
-            ),
-            (
-                format!(
-                    "{}{}",
-                    person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\""),
-                    person("name = \"Ana\"\nrole = \"performer\"\ntoken = \"u\"")
-                ),
-                "access.person[1].name: is used by another person",
-            ),
-            (
-                format!(
-                    "[access]\nperformer_tokens = [\"t\"]\n{}",
-                    person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\"")
-                ),
-                "access.person[0].token: is also in access.performer_tokens",
-            ),
-            (
-                person("name = \"Ana\"\nrole = \"director\"\ntoken = \"t\"\ncolour = \"orange\""),
-                "access.person[0].colour: \"orange\" is not #RRGGBB",
-            ),
-            (
-                person(
-                    "name = \"Ana\"\nrole = \"performer\"\ntoken = \"t\"\npuppets = [\"ghost\"]",
-                ),
-                "access.person[0].puppets[0]: no puppet is named \"ghost\"",
-            ),
-            (
-                person(
-                    "name = \"Ana\"\nrole = \"viewer\"\ntoken = \"t\"\npuppets = [\"gingerbread\"]",
-                ),
-                "access.person[0].puppets: only a performer",
-            ),
-            (
-                "[access]\nallowed_origins = [\"https://show.example/page\"]\n".to_string(),
-                "access.allowed_origins[0]:",
-            ),
-            (
-                "[access]\nmax_per_address = 0\n".to_string(),
-                "access.max_per_address: must be at least 1",
-            ),
-        ] {
-            let error = parse(&text).expect_err(&text);
-            assert!(error.contains(expected), "{error}\nwanted: {expected}");
-        }
-        let error = parse(&person("name = \"Ana\"\nrole = \"boss\"\ntoken = \"t\"")).unwrap_err();
-        assert!(error.contains("boss"), "{error}");
-    }
 }

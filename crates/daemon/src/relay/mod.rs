@@ -81,7 +81,7 @@ pub struct Subjects {
 /// Whether `name` is one NATS subject token of letters, digits, `-`, `_`
 /// (a stage's or a relay's name).
 pub fn is_name(name: &str) -> bool {
-    !name.is_empty() && name.chars().all(puppetry_stage::config::is_name_char)
+    !name.is_empty() && name.chars().all(crate::config::is_name_char)
 }
 
 impl Subjects {

@@ -32,12 +32,12 @@ use super::{
     MessageAnswer, MessageRequest, PART, PictureRequest, RELAY_GONE_AFTER, RelayError, Subjects,
     TOTAL_HEADER,
 };
+use crate::config::RelayConfig;
 use crate::protocol::Role;
 use crate::stream::following::{Following, Payload, STREAMS};
 use crate::stream::guard::{Permissions, Refusal};
 use crate::stream::{Shared, StageLinks, people};
 use puppetry_stage::Picture;
-use puppetry_stage::config::RelayConfig;
 
 /// Answers handled at once, past which the daemon reads no more requests
 /// until one is done (a relay waits for each of its client's answers).

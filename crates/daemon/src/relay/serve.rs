@@ -363,7 +363,7 @@ impl Mirror {
         // Until the daemon says otherwise, a stage file's defaults.
         let (admission, admission_rx) = watch::channel(Admission {
             allowed_origins: Vec::new(),
-            max_per_address: puppetry_stage::config::Access::default().max_per_address,
+            max_per_address: crate::config::Access::default().max_per_address,
         });
         let (boot, boot_rx) = watch::channel(0);
         let started = Instant::now();

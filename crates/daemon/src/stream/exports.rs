@@ -30,10 +30,10 @@ use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
+use crate::config::AccessRole;
 use puppetry_export::budget::BudgetError;
 use puppetry_export::take::{ExportRequest, TakeExportError, export_take_with};
 use puppetry_export::{ExportError, Scratch};
-use puppetry_stage::config::AccessRole;
 use puppetry_take::{TakeError, TakeReader, TakeWriter};
 
 use super::Shared;

@@ -12,8 +12,8 @@ use std::sync::{Arc, Mutex};
 use subtle::ConstantTimeEq;
 use tokio::sync::watch;
 
+use crate::config::{Access, AccessRole};
 use crate::protocol::{Person, PersonRole, Role, ServerMessage};
-use puppetry_stage::config::{Access, AccessRole, StageConfig};
 
 /// Okabe–Ito, without black (the stage's ink).
 pub const PALETTE: [&str; 7] = [
@@ -70,7 +70,7 @@ pub struct People {
 }
 
 impl People {
-    pub fn new(config: &StageConfig, devices: Vec<String>) -> People {
+    pub fn new(config: &crate::config::ShowConfig, devices: Vec<String>) -> People {
         let devices = devices
             .into_iter()
             .map(|name| Person {
@@ -235,7 +235,7 @@ mod tests {
     use std::path::Path;
 
     fn people() -> Arc<People> {
-        let config = StageConfig::parse(
+        let config = crate::config::ShowConfig::parse(
             "t.toml",
             "[stage]\nwidth = 10\nheight = 10\n[access]\nperformer_tokens = [\"demo\"]\n\
              [[access.person]]\nname = \"Ana\"\nrole = \"director\"\ntoken = \"ana\"\n\

@@ -17,6 +17,7 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::config::AccessRole;
 use axum::Extension;
 use axum::body::Body;
 use axum::extract::{ConnectInfo, Query, State};
@@ -24,7 +25,7 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use glam::DVec2;
 use puppetry_mesh::build::{MeshOptions, mesh_picture};
-use puppetry_stage::config::{AccessRole, CurveConfig, PuppetConfig, StageConfig};
+use puppetry_stage::config::{CurveConfig, PuppetConfig, StageConfig};
 use puppetry_stage::{Puppet, Stage};
 use serde::{Deserialize, Serialize};
 

@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+use puppetry_daemon::config::ShowConfig;
 use puppetry_stage::Stage;
-use puppetry_stage::config::StageConfig;
 
 fn config_dir() -> PathBuf {
     puppetry_testkit::root().join("config")
@@ -16,7 +16,7 @@ fn every_stage_file_in_config_parses_and_loads() {
     for entry in std::fs::read_dir(config_dir()).unwrap() {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "toml") {
-            let config = StageConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            let config = ShowConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
             let stage =
                 Stage::from_config(&config).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             assert_eq!(stage.puppets().len(), config.puppets.len());
@@ -31,7 +31,7 @@ async fn every_stage_file_in_config_starts_with_its_inputs() {
     for entry in std::fs::read_dir(config_dir()).unwrap() {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "toml") {
-            let mut config = StageConfig::load(&path).unwrap();
+            let mut config = ShowConfig::load(&path).unwrap();
             config.stage.listen = "127.0.0.1:0".parse().unwrap();
             let web = puppetry_daemon::stream::WebFiles::Embedded;
             let running = puppetry_daemon::serve::start(&config, web, None)
@@ -44,13 +44,13 @@ async fn every_stage_file_in_config_starts_with_its_inputs() {
 
 #[test]
 fn the_demo_stage_pins_the_feet() {
-    let config = StageConfig::load(&config_dir().join("demo.toml")).unwrap();
+    let config = ShowConfig::load(&config_dir().join("demo.toml")).unwrap();
     let stage = Stage::from_config(&config).unwrap();
     assert_eq!(stage.puppets()[0].handles().len(), 2);
 }
 
 fn parse_error(text: &str) -> String {
-    StageConfig::parse("bad.toml", text, Path::new("/"))
+    ShowConfig::parse("bad.toml", text, Path::new("/"))
         .unwrap_err()
         .to_string()
 }
@@ -148,7 +148,7 @@ fn rigs_the_deformers_refuse_are_named_by_file_puppet_and_field() {
             "rig.toml: puppet[0] (g).grid",
         ),
     ] {
-        let config = StageConfig::parse("rig.toml", &demo_puppet(rig), Path::new("/")).unwrap();
+        let config = ShowConfig::parse("rig.toml", &demo_puppet(rig), Path::new("/")).unwrap();
         let message = Stage::from_config(&config)
             .err()
             .expect("refused")
@@ -163,7 +163,7 @@ fn rigs_the_deformers_refuse_are_named_by_file_puppet_and_field() {
 /// so up is a larger y.
 #[test]
 fn the_skeleton_stages_cheer_raises_both_hands() {
-    let config = StageConfig::load(&config_dir().join("skeleton.toml")).unwrap();
+    let config = ShowConfig::load(&config_dir().join("skeleton.toml")).unwrap();
     let mut stage = Stage::from_config(&config).unwrap();
     stage.solve();
     let joints = |stage: &Stage| stage.puppets()[0].rig().points().unwrap().to_vec();

@@ -8,10 +8,11 @@ use std::time::{Duration, Instant};
 
 use futures_util::SinkExt;
 use glam::DVec2;
+use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::serve::{Options, Running, start_with};
 use puppetry_daemon::stream::WebFiles;
+use puppetry_input::config::InputConfig;
 use puppetry_stage::Stage;
-use puppetry_stage::config::{InputConfig, StageConfig};
 use puppetry_take::replay::verify;
 use puppetry_take::{Record, TakeReader};
 use serde_json::{Value, json};
@@ -19,8 +20,8 @@ use tokio_tungstenite::tungstenite::Message;
 
 use crate::common::daemon::*;
 
-fn curve_stage(keep_replay: bool) -> StageConfig {
-    let mut config = StageConfig::load(&root().join("config/curve.toml")).unwrap();
+fn curve_stage(keep_replay: bool) -> ShowConfig {
+    let mut config = ShowConfig::load(&root().join("config/curve.toml")).unwrap();
     config.stage.listen = "127.0.0.1:0".parse().unwrap();
     if keep_replay {
         for input in &mut config.inputs {

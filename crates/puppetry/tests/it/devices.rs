@@ -758,8 +758,8 @@ fn four_taps_on_the_marks_calibrate_a_skewed_table() {
     // The printed line is a stage-file input's calibration as it stands.
     let entry = format!("[stage]\nwidth = 1280\nheight = 720\n[[input]]\nkind = \"touch\"\n{line}");
     let parsed =
-        puppetry_stage::config::StageConfig::parse("t.toml", &entry, Path::new("/")).unwrap();
-    let puppetry_stage::config::InputConfig::Touch {
+        puppetry_daemon::config::ShowConfig::parse("t.toml", &entry, Path::new("/")).unwrap();
+    let puppetry_input::config::InputConfig::Touch {
         calibration: Some(spec),
         ..
     } = &parsed.inputs[0]

@@ -14,6 +14,7 @@ mod devices;
 mod edge;
 mod files;
 mod fuzz;
+mod graph;
 mod guarded;
 mod hostile;
 mod install;

@@ -532,8 +532,8 @@ async fn malformed_osc_panics_nothing_and_logs_a_bounded_number_of_lines() {
     );
 }
 
-fn parse(text: &str) -> Result<puppetry_stage::config::StageConfig, String> {
-    puppetry_stage::config::StageConfig::parse("osc.toml", text, Path::new("/"))
+fn parse(text: &str) -> Result<puppetry_daemon::config::ShowConfig, String> {
+    puppetry_daemon::config::ShowConfig::parse("osc.toml", text, Path::new("/"))
         .map_err(|e| e.to_string())
 }
 

@@ -121,7 +121,7 @@ async fn newer_frame(ws: &mut Client, after: u64) -> u64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn relays_serve_the_daemons_bytes_and_outlive_each_other_and_nats() {
     let mut nats = NatsServer::start();
-    let config = puppetry_stage::config::StageConfig::parse(
+    let config = puppetry_daemon::config::ShowConfig::parse(
         "relay.toml",
         &stage(&nats.url()),
         std::path::Path::new("/"),

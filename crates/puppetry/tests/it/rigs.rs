@@ -10,12 +10,12 @@ use std::path::{Path, PathBuf};
 
 use futures_util::SinkExt;
 use glam::DVec2;
+use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::serve::{Running, start};
 use puppetry_deform::ffd::{GridSpec, LpFfd, LpParams};
 use puppetry_deform::skeleton::{ShapeAware, Skeleton, SkeletonParams};
 use puppetry_deform::{Anchor, Arap, Steps};
 use puppetry_mesh::{Locator, Mesh};
-use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Rig, Stage};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
@@ -100,7 +100,7 @@ fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
 
 /// A stage file with the demo puppet (mesh `mesh`) and `rig` appended to
 /// its table, plus a replay input if given.
-fn config(mesh: &Path, pins: bool, rig: &str, replay: Option<&Path>) -> StageConfig {
+fn config(mesh: &Path, pins: bool, rig: &str, replay: Option<&Path>) -> ShowConfig {
     let assets = root().join("assets/gingerbread");
     let mut text = format!(
         r#"
@@ -140,7 +140,7 @@ scale = 1.2
             file.display()
         );
     }
-    StageConfig::parse("rigs.toml", &text, Path::new("/")).unwrap()
+    ShowConfig::parse("rigs.toml", &text, Path::new("/")).unwrap()
 }
 
 fn demo_mesh() -> PathBuf {
@@ -174,7 +174,7 @@ fn drag(id: u32, from: DVec2, to: DVec2, steps: usize) -> Vec<(u32, &'static str
         .collect()
 }
 
-async fn run(config: &StageConfig) -> Running {
+async fn run(config: &ShowConfig) -> Running {
     start(config, puppetry_daemon::stream::WebFiles::Embedded, None)
         .await
         .unwrap()
@@ -203,7 +203,7 @@ fn anchor_at(mesh: &Mesh, p: DVec2) -> Anchor {
 }
 
 /// The stage's own view of the config, for rest positions to aim at.
-fn staged(config: &StageConfig) -> Stage {
+fn staged(config: &ShowConfig) -> Stage {
     Stage::from_config(config).unwrap()
 }
 

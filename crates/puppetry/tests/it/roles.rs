@@ -237,7 +237,7 @@ fn on_puppet(stage: &Value, i: usize) -> DVec2 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_performer_limited_to_a_puppet_grabs_nothing_on_another() {
-    let config = puppetry_stage::config::StageConfig::parse(
+    let config = puppetry_daemon::config::ShowConfig::parse(
         "two.toml",
         &two_puppets(),
         std::path::Path::new("/"),

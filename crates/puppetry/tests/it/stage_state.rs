@@ -9,11 +9,11 @@ use std::path::Path;
 
 use futures_util::SinkExt;
 use glam::DVec2;
+use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::protocol::{FrameKind, decode_frame};
 use puppetry_daemon::serve::{Options, Running, start_with};
 use puppetry_daemon::stream::WebFiles;
 use puppetry_stage::Stage;
-use puppetry_stage::config::StageConfig;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
@@ -202,7 +202,7 @@ async fn handle_dots_follow_the_finger_on_the_puppet_during_a_drag() {
 
 /// The test stage with the demo mesh copied into `dir` (so saving cannot
 /// touch the shared asset).
-fn stage_in(dir: &Path, extra: &str) -> StageConfig {
+fn stage_in(dir: &Path, extra: &str) -> ShowConfig {
     let assets = root().join("assets/gingerbread");
     let mesh = dir.join("gingerbread.mesh.json");
     std::fs::copy(assets.join("gingerbread.mesh.json"), &mesh).unwrap();
@@ -210,7 +210,7 @@ fn stage_in(dir: &Path, extra: &str) -> StageConfig {
         &assets.join("gingerbread.mesh.json").display().to_string(),
         &mesh.display().to_string(),
     );
-    StageConfig::parse("edits.toml", &text, Path::new("/")).unwrap()
+    ShowConfig::parse("edits.toml", &text, Path::new("/")).unwrap()
 }
 
 fn weights(m: &Value) -> Vec<u64> {
@@ -338,16 +338,16 @@ async fn edits_are_bounded_saved_beside_the_mesh_and_undone_exactly() {
 }
 
 /// `config/skeleton.toml` on a free port, its skeleton in `mode`.
-fn skeleton(mode: &str) -> StageConfig {
+fn skeleton(mode: &str) -> ShowConfig {
     let dir = root().join("config");
     let text = std::fs::read_to_string(dir.join("skeleton.toml"))
         .unwrap()
         .replace("127.0.0.1:8080", "127.0.0.1:0")
         .replace("mode = \"fk\"", &format!("mode = \"{mode}\""));
-    StageConfig::parse("skeleton.toml", &text, &dir).unwrap()
+    ShowConfig::parse("skeleton.toml", &text, &dir).unwrap()
 }
 
-async fn paused(config: &StageConfig) -> Running {
+async fn paused(config: &ShowConfig) -> Running {
     let mut options = Options::new(WebFiles::Embedded);
     options.paused_replays = true;
     start_with(config, options).await.unwrap()

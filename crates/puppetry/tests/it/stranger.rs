@@ -29,7 +29,7 @@ fn performer() -> Value {
 async fn daemon_with(
     extra: &str,
     times: EdgeTimes,
-    adjust: impl FnOnce(&mut puppetry_stage::config::StageConfig),
+    adjust: impl FnOnce(&mut puppetry_daemon::config::ShowConfig),
 ) -> Running {
     let mut config = stage_config(extra);
     adjust(&mut config);

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use futures_util::SinkExt;
+use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::serve::{Options, Running, start_with};
 use puppetry_daemon::stream::WebFiles;
-use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, Stage};
 use puppetry_take::replay::verify;
 use puppetry_take::{Frame, Record, Tail, TakeReader, summarize};
@@ -218,7 +218,7 @@ fn a_killed_daemon_leaves_a_take_that_reads_back() {
         summary.ending
     );
     assert!(summary.frames >= 20);
-    let config = StageConfig::load(&dir.path().join("stage.toml")).unwrap();
+    let config = ShowConfig::load(&dir.path().join("stage.toml")).unwrap();
     let v = verify(&take, Stage::from_config(&config).unwrap()).unwrap();
     assert_eq!(v.first_mismatch, None, "what was kept replays exactly");
     assert!(!matches!(v.tail, Tail::Ended(_)));
@@ -861,7 +861,7 @@ fn sigterm_ends_the_take_cleanly() {
 /// (the take ends with it down, as a take stopped with a finger down did
 /// before such takes let go at their end). With `last`, a step that
 /// changes nothing comes at that time.
-fn write_held_take(config: &StageConfig, dir: &Path, name: &str, last: Option<f64>) {
+fn write_held_take(config: &ShowConfig, dir: &Path, name: &str, last: Option<f64>) {
     use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
     let stage = Stage::from_config(config).unwrap();
     let header = puppetry_take::Header::of_stage(name, "test.toml", &stage, true);
@@ -977,7 +977,7 @@ async fn a_played_take_lets_go_of_what_it_holds_when_it_ends_or_is_stopped() {
 
 /// Replays a take's steps into a fresh stage: the owners of the handles
 /// left at its end, but the stage file's pins.
-fn held_after_replay(config: &StageConfig, take: &Path) -> Vec<String> {
+fn held_after_replay(config: &ShowConfig, take: &Path) -> Vec<String> {
     let mut replayer = puppetry_take::replay::Replayer::new(Stage::from_config(config).unwrap());
     for step in frames_and_steps(take).1 {
         replayer.apply(&step).unwrap();

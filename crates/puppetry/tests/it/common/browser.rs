@@ -8,9 +8,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::serve::{Options, start_with};
 use puppetry_daemon::stream::WebFiles;
-use puppetry_stage::config::StageConfig;
 
 /// Whether browser tests are on (always, unless `PUPPETRY_BROWSER_TESTS=0`).
 /// When they are not, says so where it is seen: libtest hides a passing
@@ -71,7 +71,7 @@ pub async fn run_page_as(
     let root = puppetry_testkit::root();
     let node_modules = root.join("tests/web/node_modules");
     check_tools(&node_modules);
-    let mut config = StageConfig::load(&root.join(format!("config/{stage}.toml"))).unwrap();
+    let mut config = ShowConfig::load(&root.join(format!("config/{stage}.toml"))).unwrap();
     config.stage.listen = "127.0.0.1:0".parse().unwrap();
     let takes = tempfile::tempdir().unwrap();
     let mut options = Options::new(WebFiles::Embedded);

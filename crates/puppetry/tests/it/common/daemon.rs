@@ -6,10 +6,10 @@ use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
 use glam::DVec2;
+use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::protocol::{FrameKind, decode_frame};
 use puppetry_daemon::serve::{Running, start};
 use puppetry_mesh::Mesh;
-use puppetry_stage::config::StageConfig;
 use serde_json::Value;
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
@@ -30,8 +30,8 @@ pub fn root() -> PathBuf {
 }
 
 /// A stage with the demo puppet, its feet pinned, on a free port.
-pub fn stage_config(extra: &str) -> StageConfig {
-    StageConfig::parse("test.toml", &stage_text(extra), Path::new("/")).unwrap()
+pub fn stage_config(extra: &str) -> ShowConfig {
+    ShowConfig::parse("test.toml", &stage_text(extra), Path::new("/")).unwrap()
 }
 
 /// The stage file text of [`stage_config`] (for tests that run the binary

@@ -186,7 +186,7 @@ async fn daemon_on(nats: &SecureNats) -> (puppetry_daemon::serve::Running, tempf
     .replace("\"secret\"", &format!("\"{PERFORMER_TOKEN}\""))
     .replace("\"boss\"", &format!("\"{DIRECTOR_TOKEN}\""));
     let config =
-        puppetry_stage::config::StageConfig::parse("t.toml", &text, std::path::Path::new("/"))
+        puppetry_daemon::config::ShowConfig::parse("t.toml", &text, std::path::Path::new("/"))
             .unwrap();
     let takes = tempfile::tempdir().unwrap();
     let mut options =

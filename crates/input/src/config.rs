@@ -1,0 +1,250 @@
+//! The `[[input]]` sections of a stage file: which devices, sockets and
+//! files feed the stage, with their calibrations, as the daemon opens
+//! them. Parsed from the same file as the stage (each layer reads its own
+//! sections, `deny_unknown_fields` within each), so the stage crate never
+//! sees a device setting.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use puppetry_mesh::numbers::{MAX_COORDINATE, MIN_SIZE, coordinates, some_pair, within};
+use serde::Deserialize;
+
+/// An input source. Replay files stand in for devices.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
+pub enum InputConfig {
+    /// A recording (`.jsonl`, stage coordinates) or an evemu capture
+    /// (`.event`, device coordinates fitted to the stage).
+    Replay {
+        file: PathBuf,
+        /// The source's name, which owns its contacts' handles; default
+        /// `replay:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Device to stage mapping for an evemu capture; default: the
+        /// device's full axis ranges fitted to the stage. Recordings are
+        /// already in stage coordinates and ignore it.
+        #[serde(default)]
+        calibration: Option<crate::CalibrationSpec>,
+        #[serde(default)]
+        pacing: PacingConfig,
+        /// Play again from the start when the file ends.
+        #[serde(default)]
+        repeat: bool,
+    },
+    /// TUIO 1.1 (`/tuio/2Dcur`) and 2.0 (`/tuio2/ptr`) over UDP: touch
+    /// tables, reacTIVision, TouchDesigner. Each TUIO source is its own
+    /// input source (`tuio:NAME`, `tuio2:NAME`).
+    Tuio {
+        /// Where to receive; default 127.0.0.1:3333 (use 0.0.0.0:3333 to
+        /// accept a table on the network).
+        #[serde(default = "default_tuio_listen")]
+        listen: SocketAddr,
+        /// Normalised TUIO coordinates (0..1, y down) to stage; default:
+        /// the unit square fitted to the stage, y flipped.
+        #[serde(default)]
+        calibration: Option<crate::CalibrationSpec>,
+    },
+    /// A serial pad (Arduino/Teensy-style): line CSV or SLIP-framed OSC at a
+    /// baud rate (see `puppetry::input::serial`). If the port goes away the
+    /// daemon lifts its contacts and reopens it every second.
+    Serial {
+        /// The port, e.g. `/dev/ttyACM0`.
+        path: String,
+        #[serde(default = "default_baud")]
+        baud: u32,
+        format: crate::serial::WireFormat,
+        /// The source's name; default `serial:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Pad units to stage; default: pad units are stage units.
+        #[serde(default)]
+        calibration: Option<crate::CalibrationSpec>,
+    },
+    /// A touch table or screen (Linux evdev, multi-touch protocol A or B,
+    /// or single touch). Reopened when it comes back after going away.
+    // The device fields are repeated in `Pen` and `Mouse` rather than
+    // shared with `#[serde(flatten)]`, which would silently turn off
+    // `deny_unknown_fields`.
+    Touch {
+        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+        /// `product`, all of which must match; default: the first device of
+        /// this kind. `puppetry devices` shows each device's values.
+        #[serde(default)]
+        device: crate::device::DeviceMatch,
+        /// Where device nodes appear; default `/dev/input`.
+        #[serde(default = "default_device_dir")]
+        dir: PathBuf,
+        /// The source's name; default `KIND:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+        /// also react to it.
+        #[serde(default)]
+        grab: bool,
+        /// Device units to stage; default: the device's full range fitted
+        /// to the stage.
+        #[serde(default)]
+        calibration: Option<crate::CalibrationSpec>,
+    },
+    /// A pen tablet (Linux evdev): the tip is a contact carrying pressure
+    /// and tilt.
+    Pen {
+        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+        /// `product`, all of which must match; default: the first device of
+        /// this kind. `puppetry devices` shows each device's values.
+        #[serde(default)]
+        device: crate::device::DeviceMatch,
+        /// Where device nodes appear; default `/dev/input`.
+        #[serde(default = "default_device_dir")]
+        dir: PathBuf,
+        /// The source's name; default `KIND:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+        /// also react to it.
+        #[serde(default)]
+        grab: bool,
+        #[serde(default)]
+        calibration: Option<crate::CalibrationSpec>,
+    },
+    /// A HID digitizer read through hidapi (hidraw on Linux): for touch
+    /// devices without a kernel driver, and hosts without evdev. The report
+    /// descriptor says where the contacts are; parallel and hybrid
+    /// reporting both work, and the Input Mode feature is set to multi-touch.
+    Hid {
+        /// Which device: any of `path` (`/dev/hidraw3`), `vendor_id`,
+        /// `product_id`, `serial`; default: the only touch digitizer.
+        #[serde(default)]
+        device: crate::hid::HidSelector,
+        /// The source's name; default `hid:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Logical units to stage; default: the contacts' logical range
+        /// fitted to the stage.
+        #[serde(default)]
+        calibration: Option<crate::CalibrationSpec>,
+    },
+    /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
+    /// pair of points: button-drag moves them, the wheel or a right-button
+    /// drag rotates them.
+    Mouse {
+        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+        /// `product`, all of which must match; default: the first device of
+        /// this kind. `puppetry devices` shows each device's values.
+        #[serde(default)]
+        device: crate::device::DeviceMatch,
+        /// Where device nodes appear; default `/dev/input`.
+        #[serde(default = "default_device_dir")]
+        dir: PathBuf,
+        /// The source's name; default `KIND:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+        /// also react to it.
+        #[serde(default)]
+        grab: bool,
+        /// Stage units per mouse count; default 1.
+        #[serde(default)]
+        speed: Option<f64>,
+        /// Hold a pair of points (default) or one.
+        #[serde(default)]
+        pair: Option<bool>,
+        /// Distance between the pair's points, stage units; default a
+        /// twelfth of the stage's smaller side.
+        #[serde(default)]
+        pair_spacing: Option<f64>,
+        /// Rotation per wheel notch, degrees; default 15.
+        #[serde(default)]
+        rotate_step_deg: Option<f64>,
+        /// Where the cursor starts, stage coordinates; default the centre.
+        #[serde(default, deserialize_with = "some_pair")]
+        start: Option<[f64; 2]>,
+    },
+}
+
+fn default_device_dir() -> PathBuf {
+    PathBuf::from(crate::device::DEFAULT_DIR)
+}
+
+fn default_baud() -> u32 {
+    115_200
+}
+
+fn default_tuio_listen() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], crate::tuio::DEFAULT_PORT))
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PacingConfig {
+    #[default]
+    RealTime,
+    AsFastAsPossible,
+}
+
+/// The numbers of `[[input]]` entries: a baud rate a port can run at, a
+/// mouse's speeds and spacing within a coordinate's range, a cursor start
+/// on the stage's scale, every calibration number a coordinate.
+pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
+    for (i, input) in inputs.iter().enumerate() {
+        let field = |f: &str| format!("input[{i}].{f}");
+        let calibration = match input {
+            InputConfig::Serial {
+                baud, calibration, ..
+            } => {
+                if !(1..=20_000_000).contains(baud) {
+                    return Err((field("baud"), format!("{baud} is not 1 to 20000000")));
+                }
+                calibration
+            }
+            InputConfig::Mouse {
+                speed,
+                pair_spacing,
+                rotate_step_deg,
+                start,
+                ..
+            } => {
+                for (name, value, lo, hi) in [
+                    ("speed", *speed, 1e-6, 1e6),
+                    ("pair_spacing", *pair_spacing, MIN_SIZE, MAX_COORDINATE),
+                    ("rotate_step_deg", *rotate_step_deg, -360.0, 360.0),
+                ] {
+                    if let Some(v) = value {
+                        within(v, lo, hi).map_err(|problem| (field(name), problem))?;
+                    }
+                }
+                if let Some(start) = start {
+                    coordinates(start)
+                        .map_err(|(k, problem)| (field(&format!("start[{k}]")), problem))?;
+                }
+                &None
+            }
+            InputConfig::Replay { calibration, .. }
+            | InputConfig::Tuio { calibration, .. }
+            | InputConfig::Touch { calibration, .. }
+            | InputConfig::Pen { calibration, .. }
+            | InputConfig::Hid { calibration, .. } => calibration,
+        };
+        if let Some(spec) = calibration {
+            let numbers =
+                toml::Value::try_from(spec).map_err(|e| (field("calibration"), e.to_string()))?;
+            let mut all = Vec::new();
+            collect_numbers(&numbers, &mut all);
+            coordinates(&all).map_err(|(_, problem)| (field("calibration"), problem))?;
+        }
+    }
+    Ok(())
+}
+
+/// Every number in `value`, depth first.
+fn collect_numbers(value: &toml::Value, out: &mut Vec<f64>) {
+    match value {
+        toml::Value::Float(v) => out.push(*v),
+        toml::Value::Integer(v) => out.push(*v as f64),
+        toml::Value::Array(items) => items.iter().for_each(|v| collect_numbers(v, out)),
+        toml::Value::Table(t) => t.values().for_each(|v| collect_numbers(v, out)),
+        _ => {}
+    }
+}
