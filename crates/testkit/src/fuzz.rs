@@ -444,3 +444,19 @@ pub fn mutated_toml(seeds: Vec<String>) -> impl Strategy<Value = String> {
 pub fn deep(open: &str, inner: &str, close: &str, depth: usize) -> String {
     format!("{}{inner}{}", open.repeat(depth), close.repeat(depth))
 }
+
+/// The text of every stage file in `config/`: the seeds of the stage
+/// file parsers (the stage's and the daemon's), so a new example stage is
+/// fuzzed as soon as it is added.
+pub fn stage_file_seeds() -> Vec<String> {
+    let dir = crate::root().join("config");
+    let mut seeds: Vec<String> = std::fs::read_dir(&dir)
+        .expect("config/")
+        .map(|entry| entry.expect("a config entry").path())
+        .filter(|path| path.extension().is_some_and(|e| e == "toml"))
+        .map(|path| std::fs::read_to_string(path).expect("a stage file"))
+        .collect();
+    seeds.sort();
+    assert!(seeds.len() >= 5, "the stage files of config/ are the seeds");
+    seeds
+}

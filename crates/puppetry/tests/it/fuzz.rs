@@ -107,19 +107,6 @@ proptest! {
     }
 }
 
-/// Every stage file of `config/`, the seeds of the whole-file parser.
-fn show_seeds() -> Vec<String> {
-    let dir = puppetry_testkit::root().join("config");
-    let mut seeds: Vec<String> = std::fs::read_dir(&dir)
-        .expect("config/")
-        .map(|entry| entry.expect("a config entry").path())
-        .filter(|path| path.extension().is_some_and(|e| e == "toml"))
-        .map(|path| std::fs::read_to_string(path).expect("a stage file"))
-        .collect();
-    seeds.sort();
-    seeds
-}
-
 /// The daemon's reading of a whole stage file (its `[[input]]`, `[access]`,
 /// `[osc]` and `[relay]` sections on top of the stage's): a value or an
 /// error naming the file.
@@ -139,12 +126,12 @@ proptest! {
     #![proptest_config(config())]
 
     #[test]
-    fn fuzz_show_toml_mutated(text in fuzz::mutated_toml(show_seeds())) {
+    fn fuzz_show_toml_mutated(text in fuzz::mutated_toml(fuzz::stage_file_seeds())) {
         check_show(&text);
     }
 
     #[test]
-    fn fuzz_show_toml_mutated_bytes(text in fuzz::mutated_text(show_seeds())) {
+    fn fuzz_show_toml_mutated_bytes(text in fuzz::mutated_text(fuzz::stage_file_seeds())) {
         check_show(&text);
     }
 }

@@ -11,19 +11,6 @@ use puppetry_stage::config::{ConfigError, StageConfig};
 use puppetry_stage::keys::{KeyFile, KeySet, KeysError};
 use puppetry_testkit::fuzz::{self, config};
 
-fn stage_seeds() -> Vec<String> {
-    let dir = puppetry_testkit::root().join("config");
-    let mut seeds: Vec<String> = std::fs::read_dir(&dir)
-        .expect("config/")
-        .map(|entry| entry.expect("a config entry").path())
-        .filter(|path| path.extension().is_some_and(|e| e == "toml"))
-        .map(|path| std::fs::read_to_string(path).expect("a stage file"))
-        .collect();
-    seeds.sort();
-    assert!(seeds.len() >= 5, "the stage files of config/ are the seeds");
-    seeds
-}
-
 fn check_stage(text: &str) {
     match StageConfig::parse("fuzz.toml", text, Path::new("/nonexistent")) {
         Ok(config) => {
@@ -97,12 +84,12 @@ proptest! {
     }
 
     #[test]
-    fn fuzz_stage_toml_mutated(text in fuzz::mutated_toml(stage_seeds())) {
+    fn fuzz_stage_toml_mutated(text in fuzz::mutated_toml(fuzz::stage_file_seeds())) {
         check_stage(&text);
     }
 
     #[test]
-    fn fuzz_stage_toml_mutated_bytes(text in fuzz::mutated_text(stage_seeds())) {
+    fn fuzz_stage_toml_mutated_bytes(text in fuzz::mutated_text(fuzz::stage_file_seeds())) {
         check_stage(&text);
     }
 
