@@ -18,6 +18,7 @@ use puppetry_limits::exports::{MAX_EXPORT_FILE_BYTES, MAX_EXPORT_FRAMES, MAX_EXP
 use puppetry_take::{TakeError, TakeReader};
 
 use crate::ExportError;
+use crate::format::Format;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BudgetError {
@@ -74,7 +75,7 @@ const SPINE_PER_PUPPET_FRAME: u64 = 64;
 /// (seconds; none: the take's start and end).
 pub fn estimate(
     take: &Path,
-    format: &str,
+    format: Format,
     fps: f64,
     from: Option<f64>,
     to: Option<f64>,
@@ -123,10 +124,11 @@ pub fn estimate(
                 .saturating_add(puppets * per_puppet),
         )
     };
-    let file_bytes = match format.to_ascii_lowercase().as_str() {
-        "glb" => Some(per_frame(GLB_PER_VERTEX, GLB_PER_PUPPET_FRAME)),
-        "spine" => Some(per_frame(SPINE_PER_VERTEX, SPINE_PER_PUPPET_FRAME)),
-        _ => None,
+    // Videos and PNG frames are compressed: their size does not follow.
+    let file_bytes = match format {
+        Format::Glb => Some(per_frame(GLB_PER_VERTEX, GLB_PER_PUPPET_FRAME)),
+        Format::Spine => Some(per_frame(SPINE_PER_VERTEX, SPINE_PER_PUPPET_FRAME)),
+        Format::Png | Format::Mp4 | Format::Mov | Format::Webm => None,
     };
     Ok(Estimate {
         frames,
@@ -139,7 +141,7 @@ pub fn estimate(
 /// [`estimate`], refused past a limit of `puppetry_limits::exports`.
 pub fn check(
     take: &Path,
-    format: &str,
+    format: Format,
     fps: f64,
     from: Option<f64>,
     to: Option<f64>,

@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::format::Format;
 use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 use puppetry_stage::Stage;
 use puppetry_stage::config::StageConfig;
@@ -24,21 +25,18 @@ pub enum TakeExportError {
     Stage(#[from] puppetry_stage::StageError),
     #[error("{file}: {problem}")]
     Mismatch { file: String, problem: String },
-    #[error("--format: {0:?} is not one of glb, png, mp4, mov, webm, spine")]
-    Format(String),
+    #[error("--format: {0}")]
+    Format(#[from] crate::format::UnknownFormat),
     #[error("-o {path}: {problem}")]
     Output { path: String, problem: String },
 }
-
-/// The formats, as `--format` names them.
-pub const FORMATS: [&str; 6] = ["glb", "png", "mp4", "mov", "webm", "spine"];
 
 /// What to export.
 #[derive(Debug, Clone)]
 pub struct ExportRequest {
     pub take: PathBuf,
     pub config: PathBuf,
-    pub format: String,
+    pub format: Format,
     pub fps: f64,
     pub from: Option<f64>,
     pub to: Option<f64>,
@@ -187,9 +185,6 @@ pub fn export_take(
     request: &ExportRequest,
     progress: &mut dyn Progress,
 ) -> Result<String, TakeExportError> {
-    if !FORMATS.contains(&request.format.to_ascii_lowercase().as_str()) {
-        return Err(TakeExportError::Format(request.format.clone()));
-    }
     let config = StageConfig::load(&request.config)?;
     export_take_with(request, &config, progress)
 }
@@ -200,27 +195,23 @@ pub fn export_take_with(
     config: &StageConfig,
     progress: &mut dyn Progress,
 ) -> Result<String, TakeExportError> {
-    let format = request.format.to_ascii_lowercase();
-    if !FORMATS.contains(&format.as_str()) {
-        return Err(TakeExportError::Format(request.format.clone()));
-    }
     let animation =
         animation_of_take(&request.take, config, request.fps, request.from, request.to)?;
     let out = &request.output;
     let (width, height) = request.size;
-    match format.as_str() {
-        "glb" => {
+    match request.format {
+        Format::Glb => {
             let options = crate::gltf::GltfOptions {
                 chunk: 32,
                 animation_name: "take".into(),
             };
             crate::gltf::export_glb(&animation, &options, progress, out)?;
         }
-        "png" => {
+        Format::Png => {
             let options = crate::frames::PngOptions { width, height };
             crate::frames::export_png_sequence(&animation, &options, progress, out)?;
         }
-        "spine" => {
+        Format::Spine => {
             crate::spine::export_spine(
                 &animation,
                 &crate::spine::SpineOptions::default(),
@@ -228,9 +219,9 @@ pub fn export_take_with(
                 out,
             )?;
         }
-        video => {
+        video @ (Format::Mp4 | Format::Mov | Format::Webm) => {
             let wanted = out.extension().and_then(|e| e.to_str()).unwrap_or("");
-            if !wanted.eq_ignore_ascii_case(video) {
+            if !wanted.eq_ignore_ascii_case(video.name()) {
                 return Err(TakeExportError::Output {
                     path: out.display().to_string(),
                     problem: format!("--format {video} writes a .{video} file"),

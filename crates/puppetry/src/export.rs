@@ -28,7 +28,7 @@ pub fn export(
 ) -> Result<String, ExportCommandError> {
     puppetry_export::budget::check(
         &request.take,
-        &request.format,
+        request.format,
         request.fps,
         request.from,
         request.to,

@@ -133,7 +133,7 @@ enum Command {
     Export {
         take: PathBuf,
         #[arg(long)]
-        format: String,
+        format: puppetry_export::format::Format,
         /// The stage file the take was recorded on (default: the bundled
         /// demo stage).
         #[arg(long)]
@@ -621,7 +621,7 @@ fn run(args: Args) -> anyhow::Result<()> {
             let request = puppetry_export::take::ExportRequest {
                 take,
                 config,
-                format: format.clone(),
+                format,
                 fps,
                 from,
                 to,

@@ -32,6 +32,7 @@ use axum::response::{IntoResponse, Response};
 
 use crate::config::AccessRole;
 use puppetry_export::budget::BudgetError;
+use puppetry_export::format::Format;
 use puppetry_export::take::{ExportRequest, TakeExportError, export_take_with};
 use puppetry_export::{ExportError, Scratch};
 use puppetry_take::{TakeError, TakeReader, TakeWriter};
@@ -39,16 +40,6 @@ use puppetry_take::{TakeError, TakeReader, TakeWriter};
 use super::Shared;
 use super::people::{Credential, credential};
 use crate::protocol::{ExportState, ServerMessage};
-
-/// Formats a browser can download as one file (a PNG sequence is a folder:
-/// `puppetry export` makes those).
-const DOWNLOADABLE: [(&str, &str, &str); 5] = [
-    ("glb", "glb", "model/gltf-binary"),
-    ("mp4", "mp4", "video/mp4"),
-    ("mov", "mov", "video/quicktime"),
-    ("webm", "webm", "video/webm"),
-    ("spine", "json", "application/json"),
-];
 
 /// The export's query parameters; any other is refused (400).
 const PARAMETERS: [&str; 5] = ["format", "fps", "size", "from", "to"];
@@ -266,7 +257,11 @@ pub async fn export(
         Ok(r) => r,
         Err(problem) => return plain(StatusCode::BAD_REQUEST, &problem),
     };
-    let (format, extension, mime) = request;
+    let Download {
+        format,
+        extension,
+        mime,
+    } = request;
     if let Err(problem) = check_numbers(&query, format) {
         return plain(StatusCode::BAD_REQUEST, &problem);
     }
@@ -304,7 +299,7 @@ pub async fn export(
     let export = ExportRequest {
         take,
         config: PathBuf::new(),
-        format: format.to_string(),
+        format,
         fps,
         from,
         to,
@@ -328,7 +323,7 @@ pub async fn export(
             let mut progress = Broadcast {
                 links,
                 take: label.clone(),
-                format: export.format.clone(),
+                format: export.format.to_string(),
                 shown: usize::MAX,
             };
             let result = run_export(&export, &config, &mut progress).map_err(|failed| {
@@ -342,7 +337,7 @@ pub async fn export(
             links.export_state.send_replace(Arc::from(
                 ServerMessage::Export(ExportState {
                     take: label,
-                    format: export.format.clone(),
+                    format: export.format.to_string(),
                     done: 1,
                     total: 1,
                     finished: true,
@@ -406,7 +401,7 @@ fn run_export(
     };
     let checked = puppetry_export::budget::check(
         &export.take,
-        &export.format,
+        export.format,
         export.fps,
         export.from,
         export.to,
@@ -428,27 +423,34 @@ fn run_export(
     }
 }
 
-type Parsed = (&'static str, &'static str, &'static str);
+/// A format the page can download, with the file it comes as.
+struct Download {
+    format: Format,
+    extension: &'static str,
+    mime: &'static str,
+}
 
-fn parse(query: &HashMap<String, String>, name: &str) -> Result<Parsed, String> {
-    let format = query
+fn parse(query: &HashMap<String, String>, name: &str) -> Result<Download, String> {
+    let text = query
         .get("format")
         .map(String::as_str)
         .ok_or("format: required (glb, mp4, mov, webm or spine)")?;
-    DOWNLOADABLE
-        .iter()
-        .find(|(f, _, _)| *f == format)
-        .copied()
-        .ok_or_else(|| {
-            format!(
-                "format {format:?} of {name}: the page downloads glb, mp4, mov, webm or spine (png sequences: puppetry export)"
-            )
-        })
+    let format = text.parse::<Format>().ok();
+    match format.and_then(|f| Some((f, f.download()?))) {
+        Some((format, (extension, mime))) => Ok(Download {
+            format,
+            extension,
+            mime,
+        }),
+        None => Err(format!(
+            "format {text:?} of {name}: the page downloads glb, mp4, mov, webm or spine (png sequences: puppetry export)"
+        )),
+    }
 }
 
 /// The query's numbers, checked here so a bad one is a 400 naming the
 /// parameter (the exporters name command-line flags).
-fn check_numbers(query: &HashMap<String, String>, format: &str) -> Result<(), String> {
+fn check_numbers(query: &HashMap<String, String>, format: Format) -> Result<(), String> {
     let get = |key: &str| match number(query, key) {
         None => Ok(None),
         Some(Ok(v)) if v.is_finite() => Ok(Some(v)),
@@ -469,7 +471,7 @@ fn check_numbers(query: &HashMap<String, String>, format: &str) -> Result<(), St
         if w == 0 || h == 0 || w > 16384 || h > 16384 {
             return Err(format!("size: {text} is not from 1x1 to 16384x16384"));
         }
-        if format == "mp4" && (w % 2 == 1 || h % 2 == 1) {
+        if format == Format::Mp4 && (w % 2 == 1 || h % 2 == 1) {
             return Err(format!(
                 "size: {text}: H.264 needs an even width and height"
             ));
