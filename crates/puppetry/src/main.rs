@@ -1,5 +1,7 @@
-//! The `puppetry` command line: argument parsing and error reporting only;
-//! the work is in the library (`puppetry::cli` and below).
+//! The `puppetry` command line: the arguments (one `clap::Args` struct per
+//! command), one short function per command that hands its arguments to
+//! the library (`puppetry::cli` and below, where the work is), and error
+//! reporting.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -25,302 +27,341 @@ enum Command {
     /// Run the daemon: inputs to handles, the solver at the input rate, and
     /// the web renderer and WebSocket stream on one port. Without --config,
     /// serves the bundled demo stage.
-    Serve {
-        /// Stage file (TOML, see config/). Default: the bundled demo stage,
-        /// compiled into the binary.
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Also play this recording (.jsonl) or evemu capture (.event).
-        #[arg(long)]
-        replay: Option<PathBuf>,
-        /// Play --replay as fast as possible instead of in real time.
-        #[arg(long)]
-        fast: bool,
-        /// Listen here instead of the stage file's address: HOST:PORT
-        /// (localhost:8080, 192.168.1.20:8080, 0.0.0.0:8080 for every
-        /// interface, [::1]:8080) or a port alone (on 127.0.0.1, this
-        /// machine only).
-        #[arg(long, value_name = "ADDR", value_parser = cli::parse_listen)]
-        listen: Option<std::net::SocketAddr>,
-        /// Serve the web client from this folder instead of the copy
-        /// compiled into the binary (for client development).
-        #[arg(long)]
-        web_root: Option<PathBuf>,
-        /// Record a take into this folder from the first input to shutdown
-        /// (and list and play takes from it).
-        #[arg(long, value_name = "DIR")]
-        record: Option<PathBuf>,
-        /// Where takes are recorded, listed and played from (default
-        /// ./takes; --record sets it too).
-        #[arg(long, value_name = "DIR", conflicts_with = "record")]
-        takes: Option<PathBuf>,
-        /// Play this take (.take) into the stage at start (with --fast, as
-        /// fast as the stage takes it).
-        #[arg(long, value_name = "TAKE")]
-        play: Option<PathBuf>,
-        /// Start the stage file's replay inputs paused: a director plays
-        /// them from the page (a `replay` message).
-        #[arg(long)]
-        no_replay: bool,
-        /// Where pictures a director adds from the page are kept, with
-        /// their meshes and placements (default ./puppets); they come back
-        /// on stage when the daemon starts again.
-        #[arg(long, value_name = "DIR")]
-        puppets: Option<PathBuf>,
-    },
+    Serve(ServeArgs),
     /// Serve a daemon's stage to viewers from NATS (the daemon's stage file
     /// has `[relay] nats = "…"`): the same web page and protocol, on any
     /// machine; remote performers' messages go to the daemon, which checks
     /// them as it checks direct ones (docs/scaling.md).
-    Relay {
-        /// The NATS server the daemon publishes to, with this relay's
-        /// credentials: nats://USER:PASSWORD@HOST:PORT, or nats://USER@HOST:PORT
-        /// and the password in PUPPETRY_NATS_PASSWORD (docs/scaling.md).
-        #[arg(long, value_name = "URL")]
-        nats: String,
-        /// The stage's name on NATS: `[relay].stage`, or the daemon's stage
-        /// file name without `.toml`.
-        #[arg(long)]
-        stage: String,
-        /// Serve viewers here: HOST:PORT or a port alone (on 127.0.0.1).
-        #[arg(long, default_value = "127.0.0.1:8090", value_name = "ADDR",
-              value_parser = cli::parse_listen)]
-        listen: std::net::SocketAddr,
-        /// This relay's name (letters, digits, - and _): remote performers
-        /// are `relay:<name>:<n>` on the stage. Default: the NATS user, or
-        /// relay-<pid> without one.
-        #[arg(long)]
-        name: Option<String>,
-        /// Serve the web client from this folder instead of the copy
-        /// compiled into the binary.
-        #[arg(long)]
-        web_root: Option<PathBuf>,
-        /// Open connections at most.
-        #[arg(long, default_value_t = 4096)]
-        max_connections: usize,
-        /// Clients that stop reading are dropped after this many seconds.
-        #[arg(long, default_value_t = 10.0)]
-        client_timeout: f64,
-    },
+    Relay(RelayArgs),
     /// Run the daemon (and with --relay a nats-server and a relay) under a
     /// show's churn on loopback for a set time, printing memory, open
     /// descriptors, frames/s and p99 latency; exits 1 unless memory and
     /// descriptors stay flat after the warm-up. Not in CI: run it before a
     /// release.
-    Soak {
-        /// How long to run.
-        #[arg(long, default_value_t = 30.0)]
-        minutes: f64,
-        /// Seconds between rows.
-        #[arg(long, default_value_t = 60.0)]
-        every: f64,
-        /// Viewers connected at once, each connecting, reading, stalling
-        /// and dropping in turn.
-        #[arg(long, default_value_t = 40)]
-        viewers: usize,
-        /// Also through the relay tier (needs nats-server).
-        #[arg(long)]
-        relay: bool,
-        /// Also loop this device capture (evemu .event) or recording
-        /// (.jsonl) on the stage.
-        #[arg(long, value_name = "FILE")]
-        capture: Option<PathBuf>,
-    },
+    Soak(SoakArgs),
     /// Export a take: glb (glTF 2.0 binary, morph-target chunks), png (a
     /// sequence, rendered here), mp4 (H.264), mov (ProRes 4444 with
     /// alpha), webm (VP9 with alpha) — videos through ffmpeg — or spine
     /// (Spine 4.x JSON with a deform timeline).
-    Export {
-        take: PathBuf,
-        #[arg(long)]
-        format: puppetry_export::format::Format,
-        /// The stage file the take was recorded on (default: the bundled
-        /// demo stage).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        #[arg(long, default_value_t = 30.0)]
-        fps: f64,
-        /// Seconds into the take (default: its start).
-        #[arg(long)]
-        from: Option<f64>,
-        /// Seconds into the take (default: its end).
-        #[arg(long)]
-        to: Option<f64>,
-        /// Picture size of png and video exports.
-        #[arg(long, default_value = "1280x720", value_parser = parse_size)]
-        size: (u32, u32),
-        #[arg(short, long)]
-        output: PathBuf,
-    },
+    Export(ExportArgs),
     /// List the takes in a folder: name, length, steps, frames, how each
     /// ended. With --verify, replay each into the stage (--config, default
     /// the bundled demo) and check its frames bit for bit.
-    Takes {
-        dir: PathBuf,
-        #[arg(long)]
-        verify: bool,
-        #[arg(long)]
-        config: Option<PathBuf>,
-    },
+    Takes(TakesArgs),
     /// Build a triangle mesh from a PNG (traced from its alpha channel) or a
     /// polygon JSON file; writes `.mesh.json` (see docs/mesh-format.md).
-    Mesh {
-        /// A .png picture or a .json polygon.
-        input: PathBuf,
-        /// Target vertex count; the result lands within ±15% unless the outline
-        /// itself needs more (many islands, thin parts) or fewer. Default: about
-        /// 1000, fewer for tiny shapes.
-        #[arg(long, value_parser = clap::value_parser!(u32).range(3..=2_000_000))]
-        vertices: Option<u32>,
-        /// Output file, replaced if it exists; `-` for standard output.
-        /// Default: NAME.mesh.json beside the input (PICTURE.png gives
-        /// PICTURE.mesh.json), never replacing a file that is there.
-        #[arg(short, long, value_name = "OUT.mesh.json")]
-        output: Option<PathBuf>,
-    },
+    Mesh(MeshArgs),
     /// Deform a mesh by handles and print {"vertices": [[x, y], …]}.
-    Solve {
-        /// The rest mesh (.mesh.json, see docs/mesh-format.md).
-        #[arg(long)]
-        mesh: PathBuf,
-        /// {"handles": [{"vertex": i, "to": [x, y]} | {"point": [x, y], "to": [x, y]}, …]}
-        #[arg(long)]
-        handles: PathBuf,
-        /// Print the scale-free intermediate result of step 1.
-        #[arg(long)]
-        step1_only: bool,
-        /// Also draw the rest and deformed meshes to this SVG file.
-        #[arg(long)]
-        svg: Option<PathBuf>,
-    },
+    Solve(SolveArgs),
     /// List the input devices this machine has (name, path, kind, ids, axes
     /// and ranges) and which entry of a stage file would use each.
-    Devices {
-        /// Where device nodes are (or a folder of evemu captures).
-        #[arg(long, default_value = puppetry_input::device::DEFAULT_DIR)]
-        dir: PathBuf,
-        /// Show which of this stage file's inputs would take each device.
-        #[arg(long)]
-        config: Option<PathBuf>,
-    },
+    Devices(DevicesArgs),
     /// Capture a device's raw events to an evemu file (play it back with
     /// `serve --replay FILE` or a `kind = "replay"` input).
-    Record {
-        /// The device node, e.g. /dev/input/event5 or a /dev/input/by-id link.
-        device: PathBuf,
-        /// The capture to write (.event).
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Stop after this many seconds (default: at Ctrl-C).
-        #[arg(long)]
-        duration: Option<f64>,
-        /// Take the device exclusively while recording.
-        #[arg(long)]
-        grab: bool,
-    },
+    Record(RecordArgs),
     /// Make a `corners` calibration from a capture of four taps on the marks
     /// the web page shows at `/?calibrate` (see docs/calibration.md).
-    Calibrate {
-        /// The capture (`puppetry record DEVICE -o taps.event`).
-        capture: PathBuf,
-        /// The stage file whose stage the marks were on.
-        #[arg(long)]
-        config: PathBuf,
-        /// How far in from the stage's edges the marks are, as a fraction
-        /// of its size (the page's `?calibrate=` value).
-        #[arg(long, default_value_t = 0.1)]
-        inset: f64,
-    },
+    Calibrate(CalibrateArgs),
     /// Time ARAP updates on a given mesh, handle vertices and per-frame
     /// targets, to compare with another solver on the same problem (see
     /// benches/peers/README.md). Prints one JSON line.
-    BenchCase {
-        /// {"mesh": "<.mesh.json, relative to this file>", "handles":
-        /// [vertex, …], "frames": [[[x, y] per handle], …]}
-        case: PathBuf,
-        /// Write every frame's pose here as little-endian f64 x, y pairs.
-        #[arg(long)]
-        poses: Option<PathBuf>,
-    },
+    BenchCase(BenchCaseArgs),
     /// The lp-FFD paper's comparison (its Table 1): direct FFD (Hsu et al.),
     /// ARAP followed by inverse FFD, plain ARAP and lp-FFD on one layered
     /// figure, one grid and one set of vertex handles; prints the mean
     /// angular and area distortion of each (see docs/measures.md).
-    Compare {
-        /// Grid handles, COLUMNSxROWS.
-        #[arg(long, default_value = "10x10", value_name = "COLUMNSxROWS", value_parser = cli::parse_grid)]
-        grid: (usize, usize),
-        /// Run on this mesh (.mesh.json) instead of the bundled layered figure.
-        #[arg(long, requires = "handles")]
-        mesh: Option<PathBuf>,
-        /// The vertex handles and targets for --mesh (the `solve` format).
-        #[arg(long, requires = "mesh")]
-        handles: Option<PathBuf>,
-        /// One JSON object instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Also draw each method's result to DIR/<method>.svg.
-        #[arg(long, value_name = "DIR")]
-        svg: Option<PathBuf>,
-    },
+    Compare(CompareArgs),
     /// Time registration, compilation, updates and handle changes of the
     /// ARAP solver, then whole frames of the two rigs (lp-FFD on a 10×10
     /// grid, the 15-bone skeleton).
-    Bench {
-        /// One JSON object per case, one per line.
-        #[arg(long)]
-        json: bool,
-        /// Bench this mesh instead of the demo puppet at several sizes (the
-        /// skeleton, drawn for the demo puppet, is left out).
-        #[arg(long)]
-        mesh: Option<PathBuf>,
-        /// Vertex counts to mesh the demo puppet at [default: 1000,10000,100000
-        /// for ARAP, 1000,10000 for the rigs].
-        #[arg(long, value_delimiter = ',')]
-        sizes: Option<Vec<usize>>,
-        /// Only the rig cases (lp-FFD and skeleton).
-        #[arg(long, conflicts_with = "e2e")]
-        rigs: bool,
-        /// Only the depth order: per-frame overlap detection and front/back
-        /// assignment without overlap and with a fold, beside the ARAP update
-        /// of the same mesh [default sizes: 1000,10000].
-        #[arg(long, conflicts_with_all = ["e2e", "rigs"])]
-        depth: bool,
-        /// Bench as-rigid-as-possible curve editing instead: updates of
-        /// curves of 1k and 10k points, and peeling drags' recompiles.
-        #[arg(long, conflicts_with_all = ["e2e", "rigs", "takes", "depth"])]
-        curves: bool,
-        /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
-        /// as possible into it, with 1 and 16 WebSocket clients on loopback.
-        #[arg(long)]
-        e2e: bool,
-        /// Bench the daemon from outside instead: `puppetry serve` on the
-        /// demo stage in a process of its own, this many WebSocket viewers
-        /// (comma-separated counts, one case each) and a performer dragging
-        /// at 120 Hz; latency, the daemon's memory and CPU.
-        #[arg(long, value_delimiter = ',', conflicts_with_all = ["e2e", "rigs", "depth", "curves"])]
-        viewers: Option<Vec<usize>>,
-        /// With --viewers: spread the viewers over this many `puppetry
-        /// relay` processes fed by a nats-server (the relay tier; 60 Hz
-        /// input); their CPU and memory per viewer, and a remote
-        /// performer's ping.
-        #[arg(long, default_value_t = 0, requires = "viewers")]
-        relays: usize,
-        /// With --viewers: time this program's `puppetry serve` instead of
-        /// this one's, to compare two builds in one run (a build whose
-        /// `pong` carries no clock has its latency printed as NaN).
-        #[arg(long, requires = "viewers", value_name = "PROGRAM")]
-        daemon: Option<PathBuf>,
-        /// Bench takes instead: what recording costs the live path, and
-        /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
-        #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
-        takes: bool,
-        /// Handle counts to bench (at most 200: each handle change inverts a
-        /// dense system of about that size).
-        #[arg(long, value_delimiter = ',', default_value = "2,10,40",
-              value_parser = clap::value_parser!(u32).range(1..=200))]
-        handles: Vec<u32>,
-    },
+    Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct ServeArgs {
+    /// Stage file (TOML, see config/). Default: the bundled demo stage,
+    /// compiled into the binary.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Also play this recording (.jsonl) or evemu capture (.event).
+    #[arg(long)]
+    replay: Option<PathBuf>,
+    /// Play --replay as fast as possible instead of in real time.
+    #[arg(long)]
+    fast: bool,
+    /// Listen here instead of the stage file's address: HOST:PORT
+    /// (localhost:8080, 192.168.1.20:8080, 0.0.0.0:8080 for every
+    /// interface, [::1]:8080) or a port alone (on 127.0.0.1, this
+    /// machine only).
+    #[arg(long, value_name = "ADDR", value_parser = cli::parse_listen)]
+    listen: Option<std::net::SocketAddr>,
+    /// Serve the web client from this folder instead of the copy
+    /// compiled into the binary (for client development).
+    #[arg(long)]
+    web_root: Option<PathBuf>,
+    /// Record a take into this folder from the first input to shutdown
+    /// (and list and play takes from it).
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+    /// Where takes are recorded, listed and played from (default
+    /// ./takes; --record sets it too).
+    #[arg(long, value_name = "DIR", conflicts_with = "record")]
+    takes: Option<PathBuf>,
+    /// Play this take (.take) into the stage at start (with --fast, as
+    /// fast as the stage takes it).
+    #[arg(long, value_name = "TAKE")]
+    play: Option<PathBuf>,
+    /// Start the stage file's replay inputs paused: a director plays
+    /// them from the page (a `replay` message).
+    #[arg(long)]
+    no_replay: bool,
+    /// Where pictures a director adds from the page are kept, with
+    /// their meshes and placements (default ./puppets); they come back
+    /// on stage when the daemon starts again.
+    #[arg(long, value_name = "DIR")]
+    puppets: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct RelayArgs {
+    /// The NATS server the daemon publishes to, with this relay's
+    /// credentials: nats://USER:PASSWORD@HOST:PORT, or nats://USER@HOST:PORT
+    /// and the password in PUPPETRY_NATS_PASSWORD (docs/scaling.md).
+    #[arg(long, value_name = "URL")]
+    nats: String,
+    /// The stage's name on NATS: `[relay].stage`, or the daemon's stage
+    /// file name without `.toml`.
+    #[arg(long)]
+    stage: String,
+    /// Serve viewers here: HOST:PORT or a port alone (on 127.0.0.1).
+    #[arg(long, default_value = "127.0.0.1:8090", value_name = "ADDR",
+          value_parser = cli::parse_listen)]
+    listen: std::net::SocketAddr,
+    /// This relay's name (letters, digits, - and _): remote performers
+    /// are `relay:<name>:<n>` on the stage. Default: the NATS user, or
+    /// relay-<pid> without one.
+    #[arg(long)]
+    name: Option<String>,
+    /// Serve the web client from this folder instead of the copy
+    /// compiled into the binary.
+    #[arg(long)]
+    web_root: Option<PathBuf>,
+    /// Open connections at most.
+    #[arg(long, default_value_t = 4096)]
+    max_connections: usize,
+    /// Clients that stop reading are dropped after this many seconds.
+    #[arg(long, default_value_t = 10.0)]
+    client_timeout: f64,
+}
+
+#[derive(clap::Args)]
+struct SoakArgs {
+    /// How long to run.
+    #[arg(long, default_value_t = 30.0)]
+    minutes: f64,
+    /// Seconds between rows.
+    #[arg(long, default_value_t = 60.0)]
+    every: f64,
+    /// Viewers connected at once, each connecting, reading, stalling
+    /// and dropping in turn.
+    #[arg(long, default_value_t = 40)]
+    viewers: usize,
+    /// Also through the relay tier (needs nats-server).
+    #[arg(long)]
+    relay: bool,
+    /// Also loop this device capture (evemu .event) or recording
+    /// (.jsonl) on the stage.
+    #[arg(long, value_name = "FILE")]
+    capture: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct ExportArgs {
+    take: PathBuf,
+    #[arg(long)]
+    format: puppetry_export::format::Format,
+    /// The stage file the take was recorded on (default: the bundled
+    /// demo stage).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// Seconds into the take (default: its start).
+    #[arg(long)]
+    from: Option<f64>,
+    /// Seconds into the take (default: its end).
+    #[arg(long)]
+    to: Option<f64>,
+    /// Picture size of png and video exports.
+    #[arg(long, default_value = "1280x720", value_parser = parse_size)]
+    size: (u32, u32),
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+#[derive(clap::Args)]
+struct TakesArgs {
+    dir: PathBuf,
+    #[arg(long)]
+    verify: bool,
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct MeshArgs {
+    /// A .png picture or a .json polygon.
+    input: PathBuf,
+    /// Target vertex count; the result lands within ±15% unless the outline
+    /// itself needs more (many islands, thin parts) or fewer. Default: about
+    /// 1000, fewer for tiny shapes.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(3..=2_000_000))]
+    vertices: Option<u32>,
+    /// Output file, replaced if it exists; `-` for standard output.
+    /// Default: NAME.mesh.json beside the input (PICTURE.png gives
+    /// PICTURE.mesh.json), never replacing a file that is there.
+    #[arg(short, long, value_name = "OUT.mesh.json")]
+    output: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct SolveArgs {
+    /// The rest mesh (.mesh.json, see docs/mesh-format.md).
+    #[arg(long)]
+    mesh: PathBuf,
+    /// {"handles": [{"vertex": i, "to": [x, y]} | {"point": [x, y], "to": [x, y]}, …]}
+    #[arg(long)]
+    handles: PathBuf,
+    /// Print the scale-free intermediate result of step 1.
+    #[arg(long)]
+    step1_only: bool,
+    /// Also draw the rest and deformed meshes to this SVG file.
+    #[arg(long)]
+    svg: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct DevicesArgs {
+    /// Where device nodes are (or a folder of evemu captures).
+    #[arg(long, default_value = puppetry_input::device::DEFAULT_DIR)]
+    dir: PathBuf,
+    /// Show which of this stage file's inputs would take each device.
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct RecordArgs {
+    /// The device node, e.g. /dev/input/event5 or a /dev/input/by-id link.
+    device: PathBuf,
+    /// The capture to write (.event).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Stop after this many seconds (default: at Ctrl-C).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Take the device exclusively while recording.
+    #[arg(long)]
+    grab: bool,
+}
+
+#[derive(clap::Args)]
+struct CalibrateArgs {
+    /// The capture (`puppetry record DEVICE -o taps.event`).
+    capture: PathBuf,
+    /// The stage file whose stage the marks were on.
+    #[arg(long)]
+    config: PathBuf,
+    /// How far in from the stage's edges the marks are, as a fraction
+    /// of its size (the page's `?calibrate=` value).
+    #[arg(long, default_value_t = 0.1)]
+    inset: f64,
+}
+
+#[derive(clap::Args)]
+struct BenchCaseArgs {
+    /// {"mesh": "<.mesh.json, relative to this file>", "handles":
+    /// [vertex, …], "frames": [[[x, y] per handle], …]}
+    case: PathBuf,
+    /// Write every frame's pose here as little-endian f64 x, y pairs.
+    #[arg(long)]
+    poses: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct CompareArgs {
+    /// Grid handles, COLUMNSxROWS.
+    #[arg(long, default_value = "10x10", value_name = "COLUMNSxROWS", value_parser = cli::parse_grid)]
+    grid: (usize, usize),
+    /// Run on this mesh (.mesh.json) instead of the bundled layered figure.
+    #[arg(long, requires = "handles")]
+    mesh: Option<PathBuf>,
+    /// The vertex handles and targets for --mesh (the `solve` format).
+    #[arg(long, requires = "mesh")]
+    handles: Option<PathBuf>,
+    /// One JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Also draw each method's result to DIR/<method>.svg.
+    #[arg(long, value_name = "DIR")]
+    svg: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// One JSON object per case, one per line.
+    #[arg(long)]
+    json: bool,
+    /// Bench this mesh instead of the demo puppet at several sizes (the
+    /// skeleton, drawn for the demo puppet, is left out).
+    #[arg(long)]
+    mesh: Option<PathBuf>,
+    /// Vertex counts to mesh the demo puppet at [default: 1000,10000,100000
+    /// for ARAP, 1000,10000 for the rigs].
+    #[arg(long, value_delimiter = ',')]
+    sizes: Option<Vec<usize>>,
+    /// Only the rig cases (lp-FFD and skeleton).
+    #[arg(long, conflicts_with = "e2e")]
+    rigs: bool,
+    /// Only the depth order: per-frame overlap detection and front/back
+    /// assignment without overlap and with a fold, beside the ARAP update
+    /// of the same mesh [default sizes: 1000,10000].
+    #[arg(long, conflicts_with_all = ["e2e", "rigs"])]
+    depth: bool,
+    /// Bench as-rigid-as-possible curve editing instead: updates of
+    /// curves of 1k and 10k points, and peeling drags' recompiles.
+    #[arg(long, conflicts_with_all = ["e2e", "rigs", "takes", "depth"])]
+    curves: bool,
+    /// Bench the daemon end to end instead: a 1 kHz drag replayed as fast
+    /// as possible into it, with 1 and 16 WebSocket clients on loopback.
+    #[arg(long)]
+    e2e: bool,
+    /// Bench the daemon from outside instead: `puppetry serve` on the
+    /// demo stage in a process of its own, this many WebSocket viewers
+    /// (comma-separated counts, one case each) and a performer dragging
+    /// at 120 Hz; latency, the daemon's memory and CPU.
+    #[arg(long, value_delimiter = ',', conflicts_with_all = ["e2e", "rigs", "depth", "curves"])]
+    viewers: Option<Vec<usize>>,
+    /// With --viewers: spread the viewers over this many `puppetry
+    /// relay` processes fed by a nats-server (the relay tier; 60 Hz
+    /// input); their CPU and memory per viewer, and a remote
+    /// performer's ping.
+    #[arg(long, default_value_t = 0, requires = "viewers")]
+    relays: usize,
+    /// With --viewers: time this program's `puppetry serve` instead of
+    /// this one's, to compare two builds in one run (a build whose
+    /// `pong` carries no clock has its latency printed as NaN).
+    #[arg(long, requires = "viewers", value_name = "PROGRAM")]
+    daemon: Option<PathBuf>,
+    /// Bench takes instead: what recording costs the live path, and
+    /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
+    #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
+    takes: bool,
+    /// Handle counts to bench (at most 200: each handle change inverts a
+    /// dense system of about that size).
+    #[arg(long, value_delimiter = ',', default_value = "2,10,40",
+          value_parser = clap::value_parser!(u32).range(1..=200))]
+    handles: Vec<u32>,
 }
 
 /// The "input" column of `bench --e2e`: how fast, from how many performers.
@@ -474,461 +515,570 @@ fn main() -> ExitCode {
     }
 }
 
+/// Hands each command to its function.
 fn run(args: Args) -> anyhow::Result<()> {
     match args.command {
-        Command::Serve {
-            config,
-            replay,
-            fast,
-            listen,
-            web_root,
-            record,
-            takes,
-            play,
-            no_replay,
-            puppets,
-        } => {
-            log_to_stderr();
-            puppetry_daemon::memory::for_a_long_run();
-            let path = match config {
-                Some(path) => path,
-                None => puppetry::bundled::demo_stage()?,
+        Command::Serve(args) => serve_command(args),
+        Command::Relay(args) => relay_command(args),
+        Command::Soak(args) => soak_command(args),
+        Command::Export(args) => export_command(args),
+        Command::Takes(args) => takes_command(args),
+        Command::Devices(args) => devices_command(args),
+        Command::Calibrate(args) => calibrate_command(args),
+        Command::Record(args) => record_command(args),
+        Command::Mesh(args) => mesh_command(args),
+        Command::Solve(args) => solve_command(args),
+        Command::BenchCase(args) => bench_case_command(args),
+        Command::Compare(args) => compare_command(args),
+        Command::Bench(args) => bench_command(args),
+    }
+}
+
+/// `puppetry serve`.
+fn serve_command(
+    ServeArgs {
+        config,
+        replay,
+        fast,
+        listen,
+        web_root,
+        record,
+        takes,
+        play,
+        no_replay,
+        puppets,
+    }: ServeArgs,
+) -> anyhow::Result<()> {
+    log_to_stderr();
+    puppetry_daemon::memory::for_a_long_run();
+    let path = match config {
+        Some(path) => path,
+        None => puppetry::bundled::demo_stage()?,
+    };
+    let web_files = match web_root {
+        Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
+        None => puppetry_daemon::stream::WebFiles::Embedded,
+    };
+    let mut stage = puppetry_daemon::config::ShowConfig::load(&path)?;
+    if let Some(listen) = listen {
+        stage.stage.listen = listen;
+    }
+    let pacing = if fast {
+        puppetry_input::replay::Pacing::AsFastAsPossible
+    } else {
+        puppetry_input::replay::Pacing::RealTime
+    };
+    let runtime = tokio::runtime::Runtime::new()?;
+    runtime.block_on(async {
+        let mut options = puppetry_daemon::serve::Options::new(web_files);
+        options.extra_replay = replay.map(|file| (file, pacing));
+        options.record = record.is_some();
+        options.paused_replays = no_replay;
+        if let Some(dir) = puppets {
+            options.puppets_dir = dir;
+        }
+        if let Some(dir) = record.or(takes) {
+            options.takes_dir = dir;
+        }
+        options.play = play.map(|take| {
+            let play = puppetry_daemon::takes::PlayOptions {
+                fast,
+                ..Default::default()
             };
-            let web_files = match web_root {
-                Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
-                None => puppetry_daemon::stream::WebFiles::Embedded,
-            };
-            let mut stage = puppetry_daemon::config::ShowConfig::load(&path)?;
-            if let Some(listen) = listen {
-                stage.stage.listen = listen;
-            }
-            let pacing = if fast {
-                puppetry_input::replay::Pacing::AsFastAsPossible
-            } else {
-                puppetry_input::replay::Pacing::RealTime
-            };
-            let runtime = tokio::runtime::Runtime::new()?;
-            runtime.block_on(async {
-                let mut options = puppetry_daemon::serve::Options::new(web_files);
-                options.extra_replay = replay.map(|file| (file, pacing));
-                options.record = record.is_some();
-                options.paused_replays = no_replay;
-                if let Some(dir) = puppets {
-                    options.puppets_dir = dir;
-                }
-                if let Some(dir) = record.or(takes) {
-                    options.takes_dir = dir;
-                }
-                options.play = play.map(|take| {
-                    let play = puppetry_daemon::takes::PlayOptions {
-                        fast,
-                        ..Default::default()
-                    };
-                    (take, play)
-                });
-                let running = puppetry_daemon::serve::start_with(&stage, options).await?;
-                print_serving(&path, &stage, &running);
-                // Either way a take being recorded is ended cleanly.
-                until_stopped().await?;
-                running.shutdown().await;
-                anyhow::Ok(())
-            })?;
+            (take, play)
+        });
+        let running = puppetry_daemon::serve::start_with(&stage, options).await?;
+        print_serving(&path, &stage, &running);
+        // Either way a take being recorded is ended cleanly.
+        until_stopped().await?;
+        running.shutdown().await;
+        anyhow::Ok(())
+    })?;
+
+    Ok(())
+}
+
+/// `puppetry relay`.
+fn relay_command(
+    RelayArgs {
+        nats,
+        stage,
+        listen,
+        name,
+        web_root,
+        max_connections,
+        client_timeout,
+    }: RelayArgs,
+) -> anyhow::Result<()> {
+    log_to_stderr();
+    puppetry_daemon::memory::for_a_long_run();
+    if !(client_timeout.is_finite() && client_timeout > 0.0) {
+        anyhow::bail!("--client-timeout must be a positive number of seconds");
+    }
+    // Named as its NATS user, whose permissions name its subjects.
+    let name = name.or_else(|| {
+        let address = puppetry_daemon::relay::nats::NatsAddress::parse(&nats);
+        address.ok()?.user().map(str::to_string)
+    });
+    let options = puppetry_daemon::relay::RelayOptions {
+        nats,
+        stage,
+        name: name.unwrap_or_else(|| format!("relay-{}", std::process::id())),
+        listen,
+        web_files: match web_root {
+            Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
+            None => puppetry_daemon::stream::WebFiles::Embedded,
+        },
+        max_connections,
+        client_timeout: std::time::Duration::from_secs_f64(client_timeout),
+    };
+    let runtime = tokio::runtime::Runtime::new()?;
+    runtime.block_on(async {
+        let stage = options.stage.clone();
+        let running = puppetry_daemon::relay::serve::start(options).await?;
+        println!(
+            "puppetry: relaying stage {stage} at http://{}/",
+            cli::url_address(running.address)
+        );
+        println!("  stop with Ctrl-C (or SIGTERM)");
+        until_stopped().await?;
+        running.shutdown().await;
+        anyhow::Ok(())
+    })?;
+
+    Ok(())
+}
+
+/// `puppetry soak`.
+fn soak_command(
+    SoakArgs {
+        minutes,
+        every,
+        viewers,
+        relay,
+        capture,
+    }: SoakArgs,
+) -> anyhow::Result<()> {
+    let valid = |v: f64| v.is_finite() && v > 0.0;
+    if !(valid(minutes) && valid(every)) {
+        anyhow::bail!("--minutes and --every must be positive numbers");
+    }
+    let options = puppetry::soak::SoakOptions {
+        duration: std::time::Duration::from_secs_f64(minutes * 60.0),
+        every: std::time::Duration::from_secs_f64(every),
+        viewers,
+        relay,
+        capture,
+    };
+    let runtime = tokio::runtime::Runtime::new()?;
+    let flat = runtime.block_on(puppetry::soak::soak(options, |line| println!("{line}")))?;
+    if !flat {
+        std::process::exit(1);
+    }
+
+    Ok(())
+}
+
+/// `puppetry export`.
+fn export_command(
+    ExportArgs {
+        take,
+        format,
+        config,
+        fps,
+        from,
+        to,
+        size,
+        output,
+    }: ExportArgs,
+) -> anyhow::Result<()> {
+    let config = match config {
+        Some(path) => path,
+        None => puppetry::bundled::demo_stage()?,
+    };
+    let request = puppetry_export::take::ExportRequest {
+        take,
+        config,
+        format,
+        fps,
+        from,
+        to,
+        size,
+        output,
+    };
+    let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
+    println!("{}", puppetry::export::export(&request, &mut bar)?);
+
+    Ok(())
+}
+
+/// `puppetry takes`.
+fn takes_command(
+    TakesArgs {
+        dir,
+        verify,
+        config,
+    }: TakesArgs,
+) -> anyhow::Result<()> {
+    let config = match config {
+        Some(path) => path,
+        None => puppetry::bundled::demo_stage()?,
+    };
+    let (report, ok) = puppetry::takes::takes_command(&dir, verify.then_some(config.as_path()))?;
+    print!("{report}");
+    if !ok {
+        anyhow::bail!("a take did not replay exactly (see above)");
+    }
+
+    Ok(())
+}
+
+/// `puppetry devices`.
+fn devices_command(DevicesArgs { dir, config }: DevicesArgs) -> anyhow::Result<()> {
+    let config = config
+        .map(|path| puppetry_daemon::config::ShowConfig::load(&path))
+        .transpose()?;
+    print!("{}", cli::devices_report(&dir, config.as_ref())?);
+
+    Ok(())
+}
+
+/// `puppetry calibrate`.
+fn calibrate_command(
+    CalibrateArgs {
+        capture,
+        config,
+        inset,
+    }: CalibrateArgs,
+) -> anyhow::Result<()> {
+    let stage = puppetry_stage::config::StageConfig::load(&config)?;
+    let size = glam::DVec2::new(stage.stage.width, stage.stage.height);
+    let spec = puppetry_input::calibrate::from_capture(&capture, size, inset)?;
+    println!("{}", puppetry_input::calibrate::toml_line(&spec));
+
+    Ok(())
+}
+
+/// `puppetry record`.
+fn record_command(
+    RecordArgs {
+        device,
+        output,
+        duration,
+        grab,
+    }: RecordArgs,
+) -> anyhow::Result<()> {
+    if let Some(d) = duration.filter(|d| !(d.is_finite() && *d > 0.0)) {
+        anyhow::bail!("--duration: {d} is not a positive number of seconds");
+    }
+    let runtime = tokio::runtime::Runtime::new()?;
+    let recorded = runtime.block_on(async {
+        let opened = puppetry_input::device::Device::open(&device, grab)?;
+        eprintln!(
+            "recording {} (\"{}\") to {}; stop with Ctrl-C",
+            device.display(),
+            opened.info().name,
+            output.display()
+        );
+        let stop = async {
+            let _ = tokio::signal::ctrl_c().await;
+        };
+        puppetry_input::record::record(
+            opened,
+            &output,
+            duration.map(std::time::Duration::from_secs_f64),
+            stop,
+        )
+        .await
+    })?;
+    eprintln!(
+        "recorded {} events{}",
+        recorded.events,
+        if recorded.device_gone {
+            " (the device went away)"
+        } else {
+            ""
         }
-        Command::Relay {
-            nats,
-            stage,
-            listen,
-            name,
-            web_root,
-            max_connections,
-            client_timeout,
-        } => {
-            log_to_stderr();
-            puppetry_daemon::memory::for_a_long_run();
-            if !(client_timeout.is_finite() && client_timeout > 0.0) {
-                anyhow::bail!("--client-timeout must be a positive number of seconds");
-            }
-            // Named as its NATS user, whose permissions name its subjects.
-            let name = name.or_else(|| {
-                let address = puppetry_daemon::relay::nats::NatsAddress::parse(&nats);
-                address.ok()?.user().map(str::to_string)
-            });
-            let options = puppetry_daemon::relay::RelayOptions {
-                nats,
-                stage,
-                name: name.unwrap_or_else(|| format!("relay-{}", std::process::id())),
-                listen,
-                web_files: match web_root {
-                    Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
-                    None => puppetry_daemon::stream::WebFiles::Embedded,
-                },
-                max_connections,
-                client_timeout: std::time::Duration::from_secs_f64(client_timeout),
-            };
-            let runtime = tokio::runtime::Runtime::new()?;
-            runtime.block_on(async {
-                let stage = options.stage.clone();
-                let running = puppetry_daemon::relay::serve::start(options).await?;
-                println!(
-                    "puppetry: relaying stage {stage} at http://{}/",
-                    cli::url_address(running.address)
-                );
-                println!("  stop with Ctrl-C (or SIGTERM)");
-                until_stopped().await?;
-                running.shutdown().await;
-                anyhow::Ok(())
-            })?;
-        }
-        Command::Soak {
-            minutes,
-            every,
-            viewers,
-            relay,
-            capture,
-        } => {
-            let valid = |v: f64| v.is_finite() && v > 0.0;
-            if !(valid(minutes) && valid(every)) {
-                anyhow::bail!("--minutes and --every must be positive numbers");
-            }
-            let options = puppetry::soak::SoakOptions {
-                duration: std::time::Duration::from_secs_f64(minutes * 60.0),
-                every: std::time::Duration::from_secs_f64(every),
-                viewers,
-                relay,
-                capture,
-            };
-            let runtime = tokio::runtime::Runtime::new()?;
-            let flat =
-                runtime.block_on(puppetry::soak::soak(options, |line| println!("{line}")))?;
-            if !flat {
-                std::process::exit(1);
-            }
-        }
-        Command::Export {
-            take,
-            format,
-            config,
-            fps,
-            from,
-            to,
-            size,
-            output,
-        } => {
-            let config = match config {
-                Some(path) => path,
-                None => puppetry::bundled::demo_stage()?,
-            };
-            let request = puppetry_export::take::ExportRequest {
-                take,
-                config,
-                format,
-                fps,
-                from,
-                to,
-                size,
-                output,
-            };
-            let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
-            println!("{}", puppetry::export::export(&request, &mut bar)?);
-        }
-        Command::Takes {
-            dir,
-            verify,
-            config,
-        } => {
-            let config = match config {
-                Some(path) => path,
-                None => puppetry::bundled::demo_stage()?,
-            };
-            let (report, ok) =
-                puppetry::takes::takes_command(&dir, verify.then_some(config.as_path()))?;
-            print!("{report}");
-            if !ok {
-                anyhow::bail!("a take did not replay exactly (see above)");
-            }
-        }
-        Command::Devices { dir, config } => {
-            let config = config
-                .map(|path| puppetry_daemon::config::ShowConfig::load(&path))
-                .transpose()?;
-            print!("{}", cli::devices_report(&dir, config.as_ref())?);
-        }
-        Command::Calibrate {
-            capture,
-            config,
-            inset,
-        } => {
-            let stage = puppetry_stage::config::StageConfig::load(&config)?;
-            let size = glam::DVec2::new(stage.stage.width, stage.stage.height);
-            let spec = puppetry_input::calibrate::from_capture(&capture, size, inset)?;
-            println!("{}", puppetry_input::calibrate::toml_line(&spec));
-        }
-        Command::Record {
-            device,
-            output,
-            duration,
-            grab,
-        } => {
-            if let Some(d) = duration.filter(|d| !(d.is_finite() && *d > 0.0)) {
-                anyhow::bail!("--duration: {d} is not a positive number of seconds");
-            }
-            let runtime = tokio::runtime::Runtime::new()?;
-            let recorded = runtime.block_on(async {
-                let opened = puppetry_input::device::Device::open(&device, grab)?;
-                eprintln!(
-                    "recording {} (\"{}\") to {}; stop with Ctrl-C",
-                    device.display(),
-                    opened.info().name,
-                    output.display()
-                );
-                let stop = async {
-                    let _ = tokio::signal::ctrl_c().await;
-                };
-                puppetry_input::record::record(
-                    opened,
-                    &output,
-                    duration.map(std::time::Duration::from_secs_f64),
-                    stop,
-                )
-                .await
-            })?;
-            eprintln!(
-                "recorded {} events{}",
-                recorded.events,
-                if recorded.device_gone {
-                    " (the device went away)"
-                } else {
-                    ""
-                }
-            );
-        }
-        Command::Mesh {
-            input,
-            vertices,
-            output,
-        } => mesh(&input, vertices, output.as_deref())?,
-        Command::Solve {
-            mesh,
-            handles,
-            step1_only,
-            svg,
-        } => {
-            let out = cli::solve_command(&mesh, &handles, step1_only, svg.as_deref())?;
-            println!("{out}");
-        }
-        Command::BenchCase { case, poses } => {
-            println!(
-                "{}",
-                puppetry::peers::bench_case_command(&case, poses.as_deref())?
-            );
-        }
-        Command::Compare {
-            grid,
-            mesh,
-            handles,
-            json,
-            svg,
-        } => {
-            let figure = mesh.as_deref().zip(handles.as_deref());
-            let comparison = cli::compare_command(figure, grid, svg.as_deref())?;
+    );
+
+    Ok(())
+}
+
+/// `puppetry mesh`.
+fn mesh_command(
+    MeshArgs {
+        input,
+        vertices,
+        output,
+    }: MeshArgs,
+) -> anyhow::Result<()> {
+    mesh(&input, vertices, output.as_deref())?;
+    Ok(())
+}
+
+/// `puppetry solve`.
+fn solve_command(
+    SolveArgs {
+        mesh,
+        handles,
+        step1_only,
+        svg,
+    }: SolveArgs,
+) -> anyhow::Result<()> {
+    let out = cli::solve_command(&mesh, &handles, step1_only, svg.as_deref())?;
+    println!("{out}");
+
+    Ok(())
+}
+
+/// `puppetry bench-case`.
+fn bench_case_command(BenchCaseArgs { case, poses }: BenchCaseArgs) -> anyhow::Result<()> {
+    println!(
+        "{}",
+        puppetry::peers::bench_case_command(&case, poses.as_deref())?
+    );
+
+    Ok(())
+}
+
+/// `puppetry compare`.
+fn compare_command(
+    CompareArgs {
+        grid,
+        mesh,
+        handles,
+        json,
+        svg,
+    }: CompareArgs,
+) -> anyhow::Result<()> {
+    let figure = mesh.as_deref().zip(handles.as_deref());
+    let comparison = cli::compare_command(figure, grid, svg.as_deref())?;
+    if json {
+        println!("{}", serde_json::to_string(&comparison)?);
+    } else {
+        print!("{}", compare::table(&comparison));
+    }
+
+    Ok(())
+}
+
+/// `puppetry bench`: the case its flags pick, the solvers by default.
+fn bench_command(args: BenchArgs) -> anyhow::Result<()> {
+    if args.curves {
+        return bench_curves(args);
+    }
+    if args.viewers.is_some() {
+        return bench_viewers(args);
+    }
+    if args.takes {
+        return bench_takes(args);
+    }
+    if args.e2e {
+        return bench_end_to_end(args);
+    }
+    bench_solvers(args)
+}
+
+fn bench_curves(BenchArgs { json, .. }: BenchArgs) -> anyhow::Result<()> {
+    if !json {
+        println!("{}", bench::curve_table_header());
+    }
+    for points in [1000, 10_000] {
+        for handles in [2, 3] {
+            let frames = if points > 5000 { 3000 } else { 10_000 };
+            let drags = if points > 5000 { 10 } else { 50 };
+            let result = bench::curve_bench(points, handles, frames, drags)?;
             if json {
-                println!("{}", serde_json::to_string(&comparison)?);
+                println!("{}", serde_json::to_string(&result)?);
             } else {
-                print!("{}", compare::table(&comparison));
+                println!("{}", bench::curve_table_row(&result));
             }
-        }
-        Command::Bench {
-            curves: true, json, ..
-        } => {
-            if !json {
-                println!("{}", bench::curve_table_header());
-            }
-            for points in [1000, 10_000] {
-                for handles in [2, 3] {
-                    let frames = if points > 5000 { 3000 } else { 10_000 };
-                    let drags = if points > 5000 { 10 } else { 50 };
-                    let result = bench::curve_bench(points, handles, frames, drags)?;
-                    if json {
-                        println!("{}", serde_json::to_string(&result)?);
-                    } else {
-                        println!("{}", bench::curve_table_row(&result));
-                    }
-                }
-            }
-        }
-        Command::Bench {
-            viewers: Some(counts),
-            relays,
-            daemon,
-            json,
-            ..
-        } => {
-            use puppetry::viewers_bench as vb;
-            let runtime = tokio::runtime::Runtime::new()?;
-            if !json {
-                if relays > 0 {
-                    println!("{}", vb::relays_table_header());
-                } else {
-                    println!("{}", vb::viewers_table_header());
-                }
-            }
-            for viewers in counts {
-                let r = runtime.block_on(vb::viewers_case(viewers, relays, daemon.as_deref()))?;
-                if json {
-                    println!("{}", serde_json::to_string(&r)?);
-                } else if relays > 0 {
-                    println!("{}", vb::relays_table_row(&r));
-                } else {
-                    println!("{}", vb::viewers_table_row(&r));
-                }
-            }
-        }
-        Command::Bench { takes: true, .. } => {
-            let stages = cli::end_to_end_stages()?;
-            let print = |line: &str| println!("{line}");
-            puppetry::take_bench::take_bench(&stages[0].1, &print).map_err(anyhow::Error::msg)?;
-        }
-        Command::Bench {
-            json, e2e: true, ..
-        } => {
-            let stages = cli::end_to_end_stages()?;
-            let runtime = tokio::runtime::Runtime::new()?;
-            let mut breakdown = Vec::new();
-            if !json {
-                println!(
-                    "{:<20} {:>8} {:>7} {:>24} {:>12} {:>8} {:>10} {:>14} {:>14}",
-                    "stage",
-                    "vertices",
-                    "clients",
-                    "input",
-                    "input frames",
-                    "solves",
-                    "solves/s",
-                    "latency µs p50",
-                    "latency µs p99"
-                );
-            }
-            for (name, stage) in &stages {
-                let performers = cli::end_to_end_performers(stage);
-                use puppetry_input::replay::Pacing;
-                let mut cases = vec![(1, Pacing::RealTime), (16, Pacing::RealTime)];
-                if stage.puppets.len() == 1 {
-                    cases.extend([
-                        (1, Pacing::AsFastAsPossible),
-                        (16, Pacing::AsFastAsPossible),
-                    ]);
-                }
-                for (clients, pacing) in cases {
-                    let frames = if pacing == Pacing::RealTime {
-                        2000
-                    } else {
-                        20000
-                    };
-                    let r = runtime
-                        .block_on(bench::end_to_end(
-                            name,
-                            stage,
-                            &performers,
-                            clients,
-                            frames,
-                            pacing,
-                        ))
-                        .map_err(anyhow::Error::msg)?;
-                    if json {
-                        println!("{}", serde_json::to_string(&r)?);
-                    } else {
-                        let input = input_label(&r);
-                        println!(
-                            "{:<20} {:>8} {:>7} {:>24} {:>12} {:>8} {:>10.0} {:>14.0} {:>14.0}",
-                            r.mesh,
-                            r.vertices,
-                            r.clients,
-                            input,
-                            r.input_frames,
-                            r.solves,
-                            r.solves_per_s,
-                            r.latency_us_p50,
-                            r.latency_us_p99
-                        );
-                    }
-                    breakdown.push(r);
-                }
-            }
-            if !json {
-                println!();
-                println!(
-                    "where the time goes, µs per solve on the stage thread (and per client send):"
-                );
-                println!(
-                    "{:<20} {:>7} {:>24} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10} {:>10}",
-                    "stage",
-                    "clients",
-                    "input",
-                    "commands",
-                    "solve",
-                    "frames",
-                    "messages",
-                    "record",
-                    "stage busy",
-                    "stage cpu",
-                    "send"
-                );
-                for r in &breakdown {
-                    println!(
-                        "{:<20} {:>7} {:>24} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>9.0}% {:>10.1}",
-                        r.mesh,
-                        r.clients,
-                        input_label(r),
-                        r.commands_us,
-                        r.solve_us,
-                        r.frames_us,
-                        r.messages_us,
-                        r.record_us,
-                        100.0 * r.stage_busy,
-                        100.0 * r.stage_cpu,
-                        r.send_us
-                    );
-                }
-            }
-        }
-        Command::Bench {
-            json,
-            mesh,
-            sizes,
-            handles,
-            rigs,
-            depth,
-            e2e: false,
-            ..
-        } => {
-            let stdout = std::io::stdout();
-            let print = |line: &str| {
-                let mut out = stdout.lock();
-                let _ = writeln!(out, "{line}");
-                let _ = out.flush();
-            };
-            if depth {
-                let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
-                let meshes =
-                    cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
-                cli::depth_bench_command(&meshes, json, print)?;
-                return Ok(());
-            }
-            if !rigs {
-                let sizes = sizes.clone().unwrap_or_else(|| vec![1000, 10_000, 100_000]);
-                let meshes =
-                    cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
-                let handles: Vec<usize> = handles.into_iter().map(|h| h as usize).collect();
-                cli::bench_command(&meshes, &handles, json, print)?;
-                if !json {
-                    print("");
-                }
-            }
-            let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
-            let meshes =
-                cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
-            cli::rig_bench_command(&meshes, mesh.is_none(), json, print)?;
         }
     }
+
+    Ok(())
+}
+
+fn bench_viewers(
+    BenchArgs {
+        viewers,
+        relays,
+        daemon,
+        json,
+        ..
+    }: BenchArgs,
+) -> anyhow::Result<()> {
+    let counts = viewers.unwrap_or_default();
+    use puppetry::viewers_bench as vb;
+    let runtime = tokio::runtime::Runtime::new()?;
+    if !json {
+        if relays > 0 {
+            println!("{}", vb::relays_table_header());
+        } else {
+            println!("{}", vb::viewers_table_header());
+        }
+    }
+    for viewers in counts {
+        let r = runtime.block_on(vb::viewers_case(viewers, relays, daemon.as_deref()))?;
+        if json {
+            println!("{}", serde_json::to_string(&r)?);
+        } else if relays > 0 {
+            println!("{}", vb::relays_table_row(&r));
+        } else {
+            println!("{}", vb::viewers_table_row(&r));
+        }
+    }
+
+    Ok(())
+}
+
+fn bench_takes(_: BenchArgs) -> anyhow::Result<()> {
+    let stages = cli::end_to_end_stages()?;
+    let print = |line: &str| println!("{line}");
+    puppetry::take_bench::take_bench(&stages[0].1, &print).map_err(anyhow::Error::msg)?;
+
+    Ok(())
+}
+
+fn bench_end_to_end(BenchArgs { json, .. }: BenchArgs) -> anyhow::Result<()> {
+    let stages = cli::end_to_end_stages()?;
+    let runtime = tokio::runtime::Runtime::new()?;
+    let mut breakdown = Vec::new();
+    if !json {
+        println!(
+            "{:<20} {:>8} {:>7} {:>24} {:>12} {:>8} {:>10} {:>14} {:>14}",
+            "stage",
+            "vertices",
+            "clients",
+            "input",
+            "input frames",
+            "solves",
+            "solves/s",
+            "latency µs p50",
+            "latency µs p99"
+        );
+    }
+    for (name, stage) in &stages {
+        let performers = cli::end_to_end_performers(stage);
+        use puppetry_input::replay::Pacing;
+        let mut cases = vec![(1, Pacing::RealTime), (16, Pacing::RealTime)];
+        if stage.puppets.len() == 1 {
+            cases.extend([
+                (1, Pacing::AsFastAsPossible),
+                (16, Pacing::AsFastAsPossible),
+            ]);
+        }
+        for (clients, pacing) in cases {
+            let frames = if pacing == Pacing::RealTime {
+                2000
+            } else {
+                20000
+            };
+            let r = runtime
+                .block_on(bench::end_to_end(
+                    name,
+                    stage,
+                    &performers,
+                    clients,
+                    frames,
+                    pacing,
+                ))
+                .map_err(anyhow::Error::msg)?;
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                let input = input_label(&r);
+                println!(
+                    "{:<20} {:>8} {:>7} {:>24} {:>12} {:>8} {:>10.0} {:>14.0} {:>14.0}",
+                    r.mesh,
+                    r.vertices,
+                    r.clients,
+                    input,
+                    r.input_frames,
+                    r.solves,
+                    r.solves_per_s,
+                    r.latency_us_p50,
+                    r.latency_us_p99
+                );
+            }
+            breakdown.push(r);
+        }
+    }
+    if !json {
+        println!();
+        println!("where the time goes, µs per solve on the stage thread (and per client send):");
+        println!(
+            "{:<20} {:>7} {:>24} {:>9} {:>8} {:>8} {:>9} {:>8} {:>11} {:>10} {:>10}",
+            "stage",
+            "clients",
+            "input",
+            "commands",
+            "solve",
+            "frames",
+            "messages",
+            "record",
+            "stage busy",
+            "stage cpu",
+            "send"
+        );
+        for r in &breakdown {
+            println!(
+                "{:<20} {:>7} {:>24} {:>9.1} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.0}% {:>9.0}% {:>10.1}",
+                r.mesh,
+                r.clients,
+                input_label(r),
+                r.commands_us,
+                r.solve_us,
+                r.frames_us,
+                r.messages_us,
+                r.record_us,
+                100.0 * r.stage_busy,
+                100.0 * r.stage_cpu,
+                r.send_us
+            );
+        }
+    }
+
+    Ok(())
+}
+
+fn bench_solvers(
+    BenchArgs {
+        json,
+        mesh,
+        sizes,
+        handles,
+        rigs,
+        depth,
+        ..
+    }: BenchArgs,
+) -> anyhow::Result<()> {
+    let stdout = std::io::stdout();
+    let print = |line: &str| {
+        let mut out = stdout.lock();
+        let _ = writeln!(out, "{line}");
+        let _ = out.flush();
+    };
+    if depth {
+        let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
+        let meshes =
+            cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+        cli::depth_bench_command(&meshes, json, print)?;
+        return Ok(());
+    }
+    if !rigs {
+        let sizes = sizes.clone().unwrap_or_else(|| vec![1000, 10_000, 100_000]);
+        let meshes =
+            cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+        let handles: Vec<usize> = handles.into_iter().map(|h| h as usize).collect();
+        cli::bench_command(&meshes, &handles, json, print)?;
+        if !json {
+            print("");
+        }
+    }
+    let sizes = sizes.unwrap_or_else(|| vec![1000, 10_000]);
+    let meshes = cli::bench_meshes(mesh.as_deref(), &sizes).context("preparing bench meshes")?;
+    cli::rig_bench_command(&meshes, mesh.is_none(), json, print)?;
+
     Ok(())
 }
