@@ -239,7 +239,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         resolved
             .replays
             .iter()
-            .map(|r| (r.0.to_string(), !(paused_replays && r.4)))
+            .map(|r| (r.source.to_string(), !(paused_replays && r.from_stage_file)))
             .collect(),
     ));
     let export_state = watch::channel(Arc::<str>::from("")).0;
@@ -329,30 +329,55 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
 
 /// The stage file's inputs, opened or checked: replays read, TUIO sockets
 /// bound, devices resolved.
+#[derive(Default)]
 struct ResolvedInputs {
-    /// Name, source, pacing, whether it repeats, whether the stage file
-    /// names it (`--no-replay` pauses those).
-    replays: Vec<(SourceId, ReplaySource, Pacing, bool, bool)>,
-    tuio: Vec<(tokio::net::UdpSocket, Calibration)>,
-    serials: Vec<(
-        String,
-        u32,
-        puppetry_input::serial::WireFormat,
-        SourceId,
-        Calibration,
-    )>,
+    replays: Vec<ReplayInput>,
+    tuio: Vec<TuioInput>,
+    serials: Vec<SerialInput>,
     devices: Vec<DeviceInput>,
-    hids: Vec<(hid::HidSelector, SourceId, Option<Calibration>)>,
+    hids: Vec<HidInput>,
+}
+
+/// A replay input, its file read.
+struct ReplayInput {
+    source: SourceId,
+    file: ReplaySource,
+    pacing: Pacing,
+    repeat: bool,
+    /// Named by the stage file (`--no-replay` pauses these), not `--replay`.
+    from_stage_file: bool,
+}
+
+/// A TUIO input, its socket bound (so a bad address stops the start).
+struct TuioInput {
+    socket: tokio::net::UdpSocket,
+    calibration: Calibration,
+}
+
+/// A serial pad input.
+struct SerialInput {
+    path: String,
+    baud: u32,
+    format: puppetry_input::serial::WireFormat,
+    source: SourceId,
+    calibration: Calibration,
+}
+
+/// A HID digitizer input.
+struct HidInput {
+    selector: hid::HidSelector,
+    source: SourceId,
+    calibration: Option<Calibration>,
 }
 
 impl ResolvedInputs {
     /// The input sources' names, as handles name their owners (TUIO
     /// sources are named by their senders, so are not known yet).
     fn source_names(&self) -> Vec<String> {
-        let replays = self.replays.iter().map(|r| &r.0);
-        let serials = self.serials.iter().map(|s| &s.3);
+        let replays = self.replays.iter().map(|r| &r.source);
+        let serials = self.serials.iter().map(|s| &s.source);
         let devices = self.devices.iter().map(|d| &d.source);
-        let hids = self.hids.iter().map(|h| &h.1);
+        let hids = self.hids.iter().map(|h| &h.source);
         replays
             .chain(serials)
             .chain(devices)
@@ -369,22 +394,52 @@ async fn resolve_inputs(
     size: DVec2,
     extra_replay: Option<(PathBuf, Pacing)>,
 ) -> Result<ResolvedInputs, ServeError> {
-    let mut replays = Vec::new();
-    let mut tuio = Vec::new();
-    let mut serials = Vec::new();
-    let mut devices = Vec::new();
-    let mut hids = Vec::new();
+    let mut resolved = ResolvedInputs::default();
     for (index, input) in config.inputs.iter().enumerate() {
         if let Some(name) = input_name(input) {
             reserved_name(name)
                 .map_err(|e| ServeError::Input(format!("input[{index}].name: {e}")))?;
         }
-        let calibration = |spec: &Option<puppetry_input::CalibrationSpec>| {
-            spec.clone()
-                .map(Calibration::new)
-                .transpose()
-                .map_err(|e| ServeError::Input(format!("input[{index}].calibration: {e}")))
-        };
+        resolved.add(config, size, index, input).await?;
+    }
+    if let Some((file, pacing)) = extra_replay {
+        let source =
+            ReplaySource::open(&file, size).map_err(|e| ServeError::Input(e.to_string()))?;
+        resolved.replays.push(ReplayInput {
+            source: SourceId::from("replay"),
+            file: source,
+            pacing,
+            repeat: false,
+            from_stage_file: false,
+        });
+    }
+    Ok(resolved)
+}
+
+/// An input's calibration as the stage file gives it (none: the kind's
+/// default), or the error naming `input[index].calibration`.
+fn calibration_of(
+    index: usize,
+    spec: &Option<puppetry_input::CalibrationSpec>,
+) -> Result<Option<Calibration>, ServeError> {
+    spec.clone()
+        .map(Calibration::new)
+        .transpose()
+        .map_err(|e| ServeError::Input(format!("input[{index}].calibration: {e}")))
+}
+
+impl ResolvedInputs {
+    /// Opens or checks `input`, the stage file's `input[index]`, and adds
+    /// it to its kind's list. Longer than most functions here: one short
+    /// arm per input kind, kept in one match so a new kind is one arm
+    /// (and the compiler asks for it).
+    async fn add(
+        &mut self,
+        config: &ShowConfig,
+        size: DVec2,
+        index: usize,
+        input: &InputConfig,
+    ) -> Result<(), ServeError> {
         match input {
             InputConfig::Replay {
                 file,
@@ -399,20 +454,26 @@ async fn resolve_inputs(
                     &config.resolve(file),
                     source_id.clone(),
                     size,
-                    calibration(spec)?,
+                    calibration_of(index, spec)?,
                 )
                 .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?;
                 let pacing = match pacing {
                     PacingConfig::RealTime => Pacing::RealTime,
                     PacingConfig::AsFastAsPossible => Pacing::AsFastAsPossible,
                 };
-                replays.push((source_id, source, pacing, *repeat, true));
+                self.replays.push(ReplayInput {
+                    source: source_id,
+                    file: source,
+                    pacing,
+                    repeat: *repeat,
+                    from_stage_file: true,
+                });
             }
             InputConfig::Tuio {
                 listen,
                 calibration: spec,
             } => {
-                let calibration = match calibration(spec)? {
+                let calibration = match calibration_of(index, spec)? {
                     Some(c) => c,
                     None => tuio::default_calibration(size)
                         .map_err(|e| ServeError::Input(format!("input[{index}]: {e}")))?,
@@ -422,7 +483,10 @@ async fn resolve_inputs(
                         "input[{index}]: cannot receive TUIO on {listen}: {e}"
                     ))
                 })?;
-                tuio.push((socket, calibration));
+                self.tuio.push(TuioInput {
+                    socket,
+                    calibration,
+                });
             }
             InputConfig::Serial {
                 path,
@@ -431,7 +495,7 @@ async fn resolve_inputs(
                 name,
                 calibration: spec,
             } => {
-                let calibration = match calibration(spec)? {
+                let calibration = match calibration_of(index, spec)? {
                     Some(c) => c,
                     // Pad units are stage units.
                     None => Calibration::new(CalibrationSpec::Range {
@@ -445,7 +509,13 @@ async fn resolve_inputs(
                 };
                 let source =
                     SourceId::from(name.clone().unwrap_or_else(|| format!("serial:{index}")));
-                serials.push((path.clone(), *baud, *format, source, calibration));
+                self.serials.push(SerialInput {
+                    path: path.clone(),
+                    baud: *baud,
+                    format: *format,
+                    source,
+                    calibration,
+                });
             }
             InputConfig::Touch {
                 device,
@@ -465,14 +535,14 @@ async fn resolve_inputs(
                     InputConfig::Pen { .. } => (DeviceKind::Pen, "pen"),
                     _ => (DeviceKind::Touch, "touch"),
                 };
-                devices.push(DeviceInput {
+                self.devices.push(DeviceInput {
                     dir: config.resolve(dir),
                     wanted: resolve_match(config, device),
                     kind: Some(kind),
                     source: SourceId::from(
                         name.clone().unwrap_or_else(|| format!("{label}:{index}")),
                     ),
-                    calibration: calibration(spec)?,
+                    calibration: calibration_of(index, spec)?,
                     grab: *grab,
                     mouse: MouseSettings::for_stage(size),
                     stage_size: size,
@@ -484,7 +554,11 @@ async fn resolve_inputs(
                 calibration: spec,
             } => {
                 let source = SourceId::from(name.clone().unwrap_or_else(|| format!("hid:{index}")));
-                hids.push((device.clone(), source, calibration(spec)?));
+                self.hids.push(HidInput {
+                    selector: device.clone(),
+                    source,
+                    calibration: calibration_of(index, spec)?,
+                });
             }
             InputConfig::Mouse {
                 device,
@@ -503,7 +577,7 @@ async fn resolve_inputs(
                 mouse.pair = pair.unwrap_or(mouse.pair);
                 mouse.pair_spacing = pair_spacing.unwrap_or(mouse.pair_spacing);
                 mouse.rotate_step = rotate_step_deg.map_or(mouse.rotate_step, f64::to_radians);
-                devices.push(DeviceInput {
+                self.devices.push(DeviceInput {
                     dir: config.resolve(dir),
                     wanted: resolve_match(config, device),
                     kind: Some(DeviceKind::Mouse),
@@ -517,19 +591,8 @@ async fn resolve_inputs(
                 });
             }
         }
+        Ok(())
     }
-    if let Some((file, pacing)) = extra_replay {
-        let source =
-            ReplaySource::open(&file, size).map_err(|e| ServeError::Input(e.to_string()))?;
-        replays.push((SourceId::from("replay"), source, pacing, false, false));
-    }
-    Ok(ResolvedInputs {
-        replays,
-        tuio,
-        serials,
-        devices,
-        hids,
-    })
 }
 
 /// Prefixes of the sources the daemon names itself: its WebSocket clients
@@ -573,7 +636,10 @@ struct Spawned {
     tuio_addresses: Vec<SocketAddr>,
 }
 
-/// Starts every resolved input under the one supervision policy.
+/// Spawns every resolved input under the one supervision policy
+/// (`sources::supervise`), each kind its own loop; replays under their
+/// play/pause control. One function though long: each loop is short and
+/// shares the supervision closure, and a new kind is one more loop here.
 fn spawn_sources(
     resolved: ResolvedInputs,
     commands: &mpsc::Sender<Command>,
@@ -602,7 +668,13 @@ fn spawn_sources(
     // Replays run while they play (see `sources::run_replay`); they never
     // end by themselves, so `inputs_done` asks whether any plays.
     let mut replay_tasks = Vec::new();
-    for (index, (_, source, pacing, repeat, _)) in replays.into_iter().enumerate() {
+    for (index, input) in replays.into_iter().enumerate() {
+        let ReplayInput {
+            file: source,
+            pacing,
+            repeat,
+            ..
+        } = input;
         replay_tasks.push(tokio::spawn(run_replay(
             replay_controls.clone(),
             index,
@@ -618,7 +690,14 @@ fn spawn_sources(
         )));
     }
     let mut tuio_addresses = Vec::new();
-    for (index, (socket, calibration)) in tuio.into_iter().enumerate() {
+    for (
+        index,
+        TuioInput {
+            socket,
+            calibration,
+        },
+    ) in tuio.into_iter().enumerate()
+    {
         let address = socket
             .local_addr()
             .map_err(|e| ServeError::Input(e.to_string()))?;
@@ -644,7 +723,14 @@ fn spawn_sources(
             }),
         ));
     }
-    for (path, baud, format, source, calibration) in serials {
+    for SerialInput {
+        path,
+        baud,
+        format,
+        source,
+        calibration,
+    } in serials
+    {
         inputs.push(supervised(
             source.clone(),
             WhenDone::Stop,
@@ -684,7 +770,12 @@ fn spawn_sources(
             }),
         ));
     }
-    for (selector, source, calibration) in hids {
+    for HidInput {
+        selector,
+        source,
+        calibration,
+    } in hids
+    {
         let name = source.clone();
         inputs.push(supervised(
             name,

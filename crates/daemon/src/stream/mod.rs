@@ -686,14 +686,19 @@ async fn ask<T>(
         })
 }
 
-/// Acts on one text message of a connected client; `Ok` may carry an
-/// answer for this client, `Err` is the problem to report back.
+/// What a client message comes to: an answer for this client (or none),
+/// or the problem to report back.
+type Handled = Result<Option<String>, guard::Refusal>;
+
+/// Acts on one text message of a connected client: parsed, checked (role,
+/// ranges, contacts budget), then answered if it only reads, handed to the
+/// stage as a `Change` if it is one (`crate::convert`), or acted on.
 pub(crate) async fn handle_message(
     text: &str,
     who: &guard::Permissions,
     source: &str,
     shared: &Shared,
-) -> Result<Option<String>, guard::Refusal> {
+) -> Handled {
     use crate::protocol::ErrorCode;
     if text.len() > MAX_CLIENT_MESSAGE {
         return Err(too_large_refusal());
@@ -703,29 +708,8 @@ pub(crate) async fn handle_message(
     guard::allowed(who, &message)?;
     guard::check_ranges(&message)?;
     guard::check_contacts(&message)?;
-    if let ClientMessage::Ping { t } = message {
-        let clock = shared.started.elapsed().as_secs_f64();
-        return Ok(Some(ServerMessage::Pong { t, clock }.to_text()));
-    }
-    if let ClientMessage::ExportGrid { puppet } = message {
-        // Read-only: viewers may ask too.
-        return ask(shared, |reply| Command::ExportGrid { puppet, reply })
-            .await
-            .map(|g| {
-                Some(
-                    ServerMessage::Grid {
-                        puppet: g.puppet,
-                        columns: g.columns,
-                        rows: g.rows,
-                        rest: g.rest,
-                        grid: g.grid,
-                    }
-                    .to_text(),
-                )
-            });
-    }
-    if let ClientMessage::ListTakes = message {
-        return Ok(Some(list_takes(shared).await?));
+    if let Some(answer) = read_only(&message, shared).await {
+        return answer;
     }
     if let ClientMessage::Unpin { puppet, .. } = message {
         // The stage takes an unpin without a reply (it is input-rate, like
@@ -733,80 +717,107 @@ pub(crate) async fn handle_message(
         on_stage(shared, puppet)?;
     }
     let now = shared.started.elapsed().as_secs_f64();
-    let message = match crate::convert::client(message, source, now) {
+    match crate::convert::client(message, source, now) {
         Ok(Converted::Change {
             change,
             received,
-            wait: true,
-        }) => {
-            ask(shared, |reply| Command::Change {
-                change,
-                received,
-                reply: Some(reply),
-            })
-            .await?;
-            return Ok(None);
-        }
-        Ok(Converted::Change {
-            change,
-            received,
-            wait: false,
-        }) => {
-            let links = shared.links()?;
-            if let puppetry_stage::Change::Contacts { frame } = &change {
-                links.held.take(source, &frame.contacts)?;
-            }
-            let command = Command::Change {
-                change,
-                received,
-                reply: None,
-            };
-            return links
-                .commands
-                .send(command)
-                .await
-                .map(|()| None)
-                .map_err(|_| "the stage is shutting down".into());
-        }
-        Ok(Converted::Other(message)) => message,
+            wait,
+        }) => send_change(shared, source, change, received, wait).await,
+        Ok(Converted::Other(message)) => act(shared, message).await,
         Err(e) => {
             let refusal = guard::Refusal::new(ErrorCode::BadMessage, e.problem);
-            return Err(match e.field {
+            Err(match e.field {
                 Some(field) => refusal.at(field),
                 None => refusal,
-            });
+            })
         }
+    }
+}
+
+/// The answer to a message that only reads (any role may send these), or
+/// `None` for any other.
+async fn read_only(message: &ClientMessage, shared: &Shared) -> Option<Handled> {
+    match *message {
+        ClientMessage::Ping { t } => {
+            let clock = shared.started.elapsed().as_secs_f64();
+            Some(Ok(Some(ServerMessage::Pong { t, clock }.to_text())))
+        }
+        ClientMessage::ExportGrid { puppet } => Some(
+            ask(shared, |reply| Command::ExportGrid { puppet, reply })
+                .await
+                .map(|g| {
+                    Some(
+                        ServerMessage::Grid {
+                            puppet: g.puppet,
+                            columns: g.columns,
+                            rows: g.rows,
+                            rest: g.rest,
+                            grid: g.grid,
+                        }
+                        .to_text(),
+                    )
+                }),
+        ),
+        ClientMessage::ListTakes => Some(list_takes(shared).await.map(Some).map_err(Into::into)),
+        _ => None,
+    }
+}
+
+/// Hands a change to the stage thread: waiting for its answer when the
+/// client is owed one (`wait`), else queued at input rate with the
+/// source's held contacts counted against its budget first.
+async fn send_change(
+    shared: &Shared,
+    source: &str,
+    change: puppetry_stage::Change,
+    received: Option<f64>,
+    wait: bool,
+) -> Handled {
+    if wait {
+        ask(shared, |reply| Command::Change {
+            change,
+            received,
+            reply: Some(reply),
+        })
+        .await?;
+        return Ok(None);
+    }
+    let links = shared.links()?;
+    if let puppetry_stage::Change::Contacts { frame } = &change {
+        links.held.take(source, &frame.contacts)?;
+    }
+    let command = Command::Change {
+        change,
+        received,
+        reply: None,
     };
+    links
+        .commands
+        .send(command)
+        .await
+        .map(|()| None)
+        .map_err(|_| "the stage is shutting down".into())
+}
+
+/// Acts on a message that is neither a read nor a stage change: edits
+/// with undo, files saved, takes, the line-up.
+async fn act(shared: &Shared, message: ClientMessage) -> Handled {
+    use crate::protocol::ErrorCode;
     match message {
         // A client's mistake, not something busy: it counts.
         ClientMessage::Hello { .. } => Err(guard::Refusal::new(
             ErrorCode::BadMessage,
             "already said hello: a connection says hello once",
         )),
-        ClientMessage::Undo { puppet } => return edit(shared, puppet, Edit::Undo).await,
-        ClientMessage::Redo { puppet } => return edit(shared, puppet, Edit::Redo).await,
-        ClientMessage::Reset { puppet } => return edit(shared, puppet, Edit::Reset).await,
+        ClientMessage::Undo { puppet } => edit(shared, puppet, Edit::Undo).await,
+        ClientMessage::Redo { puppet } => edit(shared, puppet, Edit::Redo).await,
+        ClientMessage::Reset { puppet } => edit(shared, puppet, Edit::Reset).await,
         ClientMessage::Replay { source, playing } => {
             shared.links()?.replays.set(&source, playing)?;
             Ok(None)
         }
-        ClientMessage::SaveWeights { puppet } => {
-            let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
-            // A new versioned file beside the mesh, unless the stage file
-            // says to overwrite it (`WeightsFile::save`).
-            let written = tokio::task::spawn_blocking(move || file.save());
-            let path = written
-                .await
-                .map_err(|e| format!("save_weights: {e}"))?
-                .map_err(|e| format!("save_weights: {e}"))?;
-            Ok(Some(
-                ServerMessage::WeightsSaved {
-                    puppet,
-                    file: path.display().to_string(),
-                }
-                .to_text(),
-            ))
-        }
+        ClientMessage::SaveWeights { puppet } => save_weights(shared, puppet).await,
+        ClientMessage::SaveKeys { puppet } => save_keys(shared, puppet).await,
         ClientMessage::ExportGrid { .. }
         | ClientMessage::ListTakes
         | ClientMessage::Ping { .. } => {
@@ -842,21 +853,7 @@ pub(crate) async fn handle_message(
             play_take(shared, &take, overdub, replace, replace_sources).await?;
             Ok(None)
         }
-        ClientMessage::SaveKeys { puppet } => {
-            let (path, file) = ask(shared, |reply| Command::SaveKeys { puppet, reply }).await?;
-            let target = path.clone();
-            tokio::task::spawn_blocking(move || file.save(&target))
-                .await
-                .map_err(|e| format!("save_keys: {e}"))?
-                .map_err(|e| format!("save_keys: {e}"))?;
-            Ok(Some(
-                ServerMessage::KeysSaved {
-                    puppet,
-                    file: path.display().to_string(),
-                }
-                .to_text(),
-            ))
-        }
+        ClientMessage::StopPlaying => stop_playing(shared).await,
         ClientMessage::AddCurve {
             name,
             points,
@@ -866,41 +863,83 @@ pub(crate) async fn handle_message(
             let added = uploads::add_curve(shared, name, points, width, colour).await?;
             Ok(Some(added.to_text()))
         }
-        ClientMessage::RemovePuppet { puppet } => {
-            let entry = shared
-                .lineup
-                .borrow()
-                .config
-                .puppets
-                .get(puppet as usize)
-                .cloned();
-            change_lineup(shared, LineupChange::Remove(puppet)).await?;
-            // Gone for good: a restart must not bring it back.
-            if let (Some(entry), Ok(links)) = (entry, shared.links()) {
-                uploads::forget(&links.puppets_dir, &entry).await;
-            }
-            Ok(None)
-        }
+        ClientMessage::RemovePuppet { puppet } => remove_puppet(shared, puppet).await,
         ClientMessage::OrderPuppets { order } => {
             change_lineup(shared, LineupChange::Order(order)).await?;
             Ok(None)
         }
-        ClientMessage::StopPlaying => {
-            let player = shared
-                .links()?
-                .player
-                .lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .take();
-            match player {
-                Some(player) => {
-                    player.stop();
-                    let _ = tokio::task::spawn_blocking(move || player.join()).await;
-                }
-                None => return Err("no take is playing".into()),
-            }
+    }
+}
+
+/// `save_weights`: the stage hands over the puppet's weights; written off
+/// the runtime as a new versioned file beside the mesh, unless the stage
+/// file says to overwrite it (`WeightsFile::save`).
+async fn save_weights(shared: &Shared, puppet: u32) -> Handled {
+    let file = ask(shared, |reply| Command::SaveWeights { puppet, reply }).await?;
+    let written = tokio::task::spawn_blocking(move || file.save());
+    let path = written
+        .await
+        .map_err(|e| format!("save_weights: {e}"))?
+        .map_err(|e| format!("save_weights: {e}"))?;
+    Ok(Some(
+        ServerMessage::WeightsSaved {
+            puppet,
+            file: path.display().to_string(),
+        }
+        .to_text(),
+    ))
+}
+
+/// `save_keys`: the puppet's key poses written to its key file, off the
+/// runtime.
+async fn save_keys(shared: &Shared, puppet: u32) -> Handled {
+    let (path, file) = ask(shared, |reply| Command::SaveKeys { puppet, reply }).await?;
+    let target = path.clone();
+    tokio::task::spawn_blocking(move || file.save(&target))
+        .await
+        .map_err(|e| format!("save_keys: {e}"))?
+        .map_err(|e| format!("save_keys: {e}"))?;
+    Ok(Some(
+        ServerMessage::KeysSaved {
+            puppet,
+            file: path.display().to_string(),
+        }
+        .to_text(),
+    ))
+}
+
+/// `remove_puppet`: off the stage, and its uploaded files forgotten so a
+/// restart does not bring it back.
+async fn remove_puppet(shared: &Shared, puppet: u32) -> Handled {
+    let entry = shared
+        .lineup
+        .borrow()
+        .config
+        .puppets
+        .get(puppet as usize)
+        .cloned();
+    change_lineup(shared, LineupChange::Remove(puppet)).await?;
+    if let (Some(entry), Ok(links)) = (entry, shared.links()) {
+        uploads::forget(&links.puppets_dir, &entry).await;
+    }
+    Ok(None)
+}
+
+/// `stop_playing`: the player stopped and joined off the runtime.
+async fn stop_playing(shared: &Shared) -> Handled {
+    let player = shared
+        .links()?
+        .player
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .take();
+    match player {
+        Some(player) => {
+            player.stop();
+            let _ = tokio::task::spawn_blocking(move || player.join()).await;
             Ok(None)
         }
+        None => Err("no take is playing".into()),
     }
 }
 
