@@ -9,6 +9,7 @@ mod edge;
 mod exports;
 pub(crate) mod following;
 pub mod guard;
+mod origin;
 pub mod people;
 mod uploads;
 pub use uploads::restore_pictures;

@@ -29,8 +29,8 @@ use puppetry_stage::config::{CurveConfig, PuppetConfig, StageConfig};
 use puppetry_stage::{Puppet, Stage};
 use serde::{Deserialize, Serialize};
 
-use super::edge::{LocalAddr, PeerAddr, own_origin};
 use super::guard::Refusal;
+use super::origin::{LocalAddr, PeerAddr, own_origin};
 use super::people::{Credential, credential};
 use super::{Shared, change_lineup};
 use crate::lineup::LineupChange;
