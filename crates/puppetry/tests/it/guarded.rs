@@ -354,3 +354,38 @@ async fn an_export_never_writes_through_a_planted_link() {
     names.sort();
     assert_eq!(names, ["precious.txt", "stage.toml", "take.glb", "takes"]);
 }
+
+/// A take recorded before a puppet was added exports (found by `puppetry
+/// soak`: the daemon exported with the line-up of now, one puppet more
+/// than the take's, and answered 422 "recorded with 1 puppets, the stage
+/// has 2"). Puppet ids are never reused, so those added later come after
+/// the take's own.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_take_exports_after_a_puppet_was_added() {
+    use futures_util::SinkExt;
+    use tokio_tungstenite::tungstenite::Message;
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    write_take(&takes, "before-the-rope", 1.0);
+    let running = start_with(&stage_config(""), options(&takes))
+        .await
+        .unwrap();
+    let hello = json!({"type": "hello", "role": "director", "token": "boss"});
+    let (mut director, _) = crate::common::daemon::connect(&running, hello).await;
+    let points: Vec<[f64; 2]> = (0..20).map(|k| [100.0 + 10.0 * k as f64, 600.0]).collect();
+    let add = json!({"type": "add_curve", "name": "rope", "points": points, "width": 6.0, "colour": "#336699"});
+    director.send(Message::text(add.to_string())).await.unwrap();
+    loop {
+        let m = crate::common::daemon::next_text(&mut director).await;
+        assert_ne!(m["type"], "error", "{m}");
+        if m["type"] == "puppet_added" {
+            break;
+        }
+    }
+    for format in ["glb", "spine"] {
+        let path = format!("/takes/before-the-rope/export?format={format}&fps=10");
+        let answer = get(running.address, &path, Some("boss")).await;
+        assert_eq!(http_status(&answer), 200, "{format}: {}", text(&answer));
+    }
+    running.shutdown().await;
+}
