@@ -88,8 +88,6 @@ pub const MAX_BUNDLE_DEPTH: usize = 8;
 /// Address patterns (`*`, `?`, `[…]`, `{…}`) longer than this are refused:
 /// matching cost grows with them.
 const MAX_PATTERN: usize = 256;
-/// Echoed input (addresses, strings) is cut to this many characters.
-const ECHO: usize = 200;
 /// Bundles are cut to stay in one Ethernet frame (no IP fragmentation).
 const MAX_DATAGRAM: usize = 1400;
 /// Everything is sent again this often, changed or not.
@@ -99,13 +97,10 @@ const MAX_BLEND_SECONDS: f64 = 3600.0;
 /// Coordinates a trigger may give (as the WebSocket accepts).
 const MAX_COORDINATE: f64 = 1e6;
 
-/// `text`, cut to [`ECHO`] characters with "…" when longer, so a hostile
-/// datagram cannot make a log line or error of any length.
+/// `text`, cut to `MAX_ECHO` characters with "…" when longer, so a
+/// hostile datagram cannot make a log line or error of any length.
 pub fn clip(text: &str) -> String {
-    match text.char_indices().nth(ECHO) {
-        Some((end, _)) => format!("{}…", &text[..end]),
-        None => text.to_string(),
-    }
+    puppetry_input::log_limit::clip(text, puppetry_limits::net::MAX_ECHO)
 }
 
 /// Lets a few log lines through per window and counts the rest, so a flood

@@ -35,13 +35,10 @@ pub(crate) fn time(text: &str) -> Result<f64, String> {
     text.parse().map_err(|_| bad())
 }
 
-/// Keeps quoted input short in messages.
+/// Keeps quoted input short in messages: a field's value, shorter than
+/// the budget's `MAX_ECHO` since a message may quote several.
 pub(crate) fn clip(text: &str) -> String {
-    const MAX: usize = 40;
-    match text.char_indices().nth(MAX) {
-        Some((cut, _)) => format!("{}…", &text[..cut]),
-        None => text.to_string(),
-    }
+    crate::log_limit::clip(text, 40)
 }
 
 /// An OSC argument as a message quotes it: its type tag and value, clipped.

@@ -10,8 +10,8 @@
 use std::time::{Duration, Instant};
 
 /// Longest echoed input in a warning, in characters (an ellipsis marks the
-/// cut).
-pub const MAX_ECHO: usize = 200;
+/// cut): the budget's.
+pub use puppetry_limits::net::MAX_ECHO;
 
 /// Warnings let through at once before the limiter starts counting.
 pub const BURST: u32 = 5;

@@ -29,3 +29,9 @@ pub const HTTP_PER_ADDRESS: usize = 16;
 /// `[stage] client_timeout_s`: this catches the one that reads nothing
 /// while the stage is still.
 pub const WEBSOCKET_PING_EVERY: Duration = Duration::from_secs(20);
+
+/// The most characters of a stranger's input (a client message's field, a
+/// datagram's address, a device's line) quoted back in an error or a log
+/// line; longer input is cut with "…". One limit for every door, so no
+/// input of any length makes a message of that length.
+pub const MAX_ECHO: usize = 200;

@@ -18,7 +18,7 @@ use crate::protocol::{ClientMessage, ErrorCode, Role, ServerMessage};
 pub const MAX_COORDINATE: f64 = 1e6;
 
 /// Most characters of a client's input echoed back or logged.
-pub const MAX_ECHO: usize = 200;
+pub use puppetry_limits::net::MAX_ECHO;
 
 /// Why a message was refused: the `error` message sent back.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -75,13 +75,9 @@ impl From<&str> for Refusal {
     }
 }
 
-/// `text` cut to `limit` characters, with "…" when cut.
-pub fn clip(text: &str, limit: usize) -> String {
-    match text.char_indices().nth(limit) {
-        Some((end, _)) => format!("{}…", &text[..end]),
-        None => text.to_string(),
-    }
-}
+/// `text` cut to `limit` characters, with "…" when cut (one clip for
+/// every door: the input crate's).
+pub use puppetry_input::log_limit::clip;
 
 /// A message with every quoted part (between backticks or double quotes,
 /// where serde and this daemon put echoed input) clipped to [`MAX_ECHO`]
@@ -405,13 +401,14 @@ mod tests {
         let clipped = Refusal::new(ErrorCode::BadMessage, serde).message;
         assert!(clipped.chars().count() <= 3 * MAX_ECHO + 1, "{clipped}");
         assert!(
-            clipped.contains(&format!("`{}…`", "x".repeat(MAX_ECHO))),
+            clipped.contains(&format!("`{}…`", "x".repeat(MAX_ECHO - 1))),
             "{clipped}"
         );
         // The list of types after the echo survives.
         assert!(clipped.contains("expected one of"), "{clipped}");
         assert_eq!(clip("short", 200), "short");
-        assert_eq!(clip("ééé", 2), "éé…");
+        // At most the limit, the ellipsis included.
+        assert_eq!(clip("ééé", 2), "é…");
     }
 
     #[test]
