@@ -28,7 +28,7 @@ use tokio::task::{AbortHandle, JoinHandle};
 
 use crate::config::OscConfig;
 
-use crate::protocol::{HandleKind, RigDescription};
+use crate::protocol::{HandleKind, KeyView, RigDescription, ServerMessage, TakeState};
 use crate::stage_thread::{Command, PublishedHandles};
 use crate::stream::Shared;
 
@@ -679,43 +679,30 @@ pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
     })
 }
 
-/// The "keys" message's parts that show control reads.
-#[derive(Debug, Default, Deserialize)]
-struct KeysText {
-    #[serde(default)]
-    keys: Vec<KeyText>,
-    #[serde(default)]
-    cursor: Option<[f64; 2]>,
+/// A puppet's key poses and cursor, from its published "keys" message
+/// (read with the protocol's own types; none published yet: none).
+fn keys_of(text: &str) -> (Vec<KeyView>, Option<[f64; 2]>) {
+    match parse_text(text) {
+        Some(ServerMessage::Keys { keys, cursor, .. }) => (keys, cursor),
+        _ => (Vec::new(), None),
+    }
 }
 
-#[derive(Debug, Deserialize)]
-struct KeyText {
-    name: String,
-    at: [f64; 2],
+/// A skeleton's key-pose blend, from its published "pose" message: from,
+/// to and how far (none published yet: `None`).
+fn pose_of(text: &str) -> Option<(Option<String>, Option<String>, f64)> {
+    match parse_text(text) {
+        Some(ServerMessage::Pose { from, to, t, .. }) => Some((from, to, t)),
+        _ => None,
+    }
 }
 
-/// The "pose" message's parts that show control reads.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-struct PoseText {
-    /// Left out at rest.
-    #[serde(default)]
-    from: Option<String>,
-    #[serde(default)]
-    to: Option<String>,
-    t: f64,
-}
-
-/// The "take" message's parts that show control reads.
-#[derive(Debug, Default, Deserialize)]
-struct TakeText {
-    #[serde(default)]
-    recording: Option<String>,
-    #[serde(default)]
-    elapsed: f64,
-    #[serde(default)]
-    playing: Option<String>,
-    #[serde(default)]
-    error: Option<String>,
+/// The take state, from the published "take" message.
+fn take_of(text: &str) -> TakeState {
+    match parse_text(text) {
+        Some(ServerMessage::Take(take)) => take,
+        _ => TakeState::default(),
+    }
 }
 
 /// Parses a published message (empty: nothing published yet).
@@ -864,11 +851,11 @@ impl Receiver {
         };
         let blend: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> =
             if link.poses.contains(&name) {
-                let now: Option<PoseText> = parse_text(&link.pose.borrow());
+                let now = pose_of(&link.pose.borrow());
                 // A blend of two poses is not a pose to start from: start
                 // from the nearer of the two.
                 let start = now
-                    .and_then(|p| if p.t >= 0.5 { p.to } else { p.from })
+                    .and_then(|(from, to, t)| if t >= 0.5 { to } else { from })
                     .filter(|start| *start != name);
                 let Some(start) = start.filter(|_| steps > 1) else {
                     return key_pose(&commands, puppet, name.clone(), name, 0.0)
@@ -888,8 +875,8 @@ impl Receiver {
                     }
                 })
             } else {
-                let keys: KeysText = parse_text(&link.keys.borrow()).unwrap_or_default();
-                let Some(target) = keys.keys.iter().find(|k| k.name == name) else {
+                let (keys, at) = keys_of(&link.keys.borrow());
+                let Some(target) = keys.iter().find(|k| k.name == name) else {
                     let list = |names: Vec<&str>| {
                         if names.is_empty() {
                             "none".to_string()
@@ -902,11 +889,11 @@ impl Receiver {
                         name: "name",
                         key: clip(&name),
                         poses: list(link.poses.iter().map(String::as_str).collect()),
-                        keys: list(keys.keys.iter().map(|k| k.name.as_str()).collect()),
+                        keys: list(keys.iter().map(|k| k.name.as_str()).collect()),
                     });
                 };
                 let to = DVec2::from(target.at);
-                let Some(from) = keys.cursor.map(DVec2::from).filter(|_| steps > 1) else {
+                let Some(from) = at.map(DVec2::from).filter(|_| steps > 1) else {
                     return cursor(&commands, puppet, Some(to)).await.map_err(refused);
                 };
                 Box::pin(async move {
@@ -1012,7 +999,7 @@ struct Sender {
     /// When the take being recorded started (daemon clock), from the
     /// newest take message.
     recording_since: Option<Instant>,
-    take: TakeText,
+    take: TakeState,
     /// Host names being looked up, off the tick: a slow resolver never
     /// holds up the state to the other hosts.
     resolving: Option<JoinHandle<Vec<Resolved>>>,
@@ -1047,7 +1034,7 @@ impl Sender {
             sent: HashMap::new(),
             slots: vec![0; puppets],
             recording_since: None,
-            take: TakeText::default(),
+            take: TakeState::default(),
             resolving: None,
         })
     }
@@ -1191,27 +1178,25 @@ impl Sender {
                 ));
             }
             self.slots[i] = count;
-            let keys: KeysText = parse_text(&link.keys.borrow_and_update()).unwrap_or_default();
-            let cursor = match keys.cursor {
+            let (_, at) = keys_of(&link.keys.borrow_and_update());
+            let cursor = match at {
                 Some([x, y]) => vec![OscType::Int(1), f(x), f(y)],
                 None => vec![OscType::Int(0), f(0.0), f(0.0)],
             };
             out.push((self.space.puppet_address(i, "cursor"), cursor));
-            let pose: Option<PoseText> = parse_text(&link.pose.borrow_and_update());
-            if let Some(p) = pose {
+            if let Some((from, to, t)) = pose_of(&link.pose.borrow_and_update()) {
                 out.push((
                     self.space.puppet_address(i, "pose"),
                     vec![
-                        s(p.from.as_deref().unwrap_or("")),
-                        s(p.to.as_deref().unwrap_or("")),
-                        f(p.t),
+                        s(from.as_deref().unwrap_or("")),
+                        s(to.as_deref().unwrap_or("")),
+                        f(t),
                     ],
                 ));
             }
         }
         if self.links.take.has_changed().unwrap_or(false) || self.recording_since.is_none() {
-            let take: TakeText =
-                parse_text(&self.links.take.borrow_and_update()).unwrap_or_default();
+            let take = take_of(&self.links.take.borrow_and_update());
             self.recording_since = Some(now - Duration::from_secs_f64(take.elapsed.max(0.0)));
             self.take = take;
         }

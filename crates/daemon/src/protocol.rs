@@ -513,7 +513,7 @@ pub struct Region {
 }
 
 /// The take state every client sees.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TakeState {
     /// The take being recorded.
