@@ -206,6 +206,28 @@ fn as_recorded<'a>(
     std::borrow::Cow::Owned(cut)
 }
 
+/// A take is a performance that cannot be repeated: an output that is
+/// the take itself (the same file, by any path or link) is refused before
+/// anything is read or written. `export T.take -o T.take` used to replace
+/// the take with the export, exit 0.
+fn refuse_the_take_itself(take: &Path, output: &Path) -> Result<(), TakeExportError> {
+    use std::os::unix::fs::MetadataExt;
+    let same = match (std::fs::metadata(take), std::fs::metadata(output)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    };
+    if same {
+        return Err(TakeExportError::Output {
+            path: output.display().to_string(),
+            problem: format!(
+                "is the take being exported ({}); give the export another name",
+                take.display()
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// Runs an export; returns what was written, for the user.
 pub fn export_take(
     request: &ExportRequest,
@@ -221,6 +243,7 @@ pub fn export_take_with(
     config: &StageConfig,
     progress: &mut dyn Progress,
 ) -> Result<String, TakeExportError> {
+    refuse_the_take_itself(&request.take, &request.output)?;
     let animation =
         animation_of_take(&request.take, config, request.fps, request.from, request.to)?;
     let out = &request.output;

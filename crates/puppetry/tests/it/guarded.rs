@@ -389,3 +389,34 @@ async fn a_take_exports_after_a_puppet_was_added() {
     }
     running.shutdown().await;
 }
+
+/// `export T.take -o T.take` (or through a link to it) is refused and the
+/// take is kept byte for byte (issue 34: it was replaced by the glb, exit 0).
+#[test]
+fn an_export_never_replaces_the_take_it_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let takes = dir.path().join("takes");
+    let take = write_take(&takes, "take-001", 1.0);
+    let stage = dir.path().join("stage.toml");
+    std::fs::write(&stage, stage_text("")).unwrap();
+    let link = dir.path().join("link.take");
+    std::os::unix::fs::symlink(&take, &link).unwrap();
+    let before = std::fs::read(&take).unwrap();
+    for output in [&take, &link] {
+        for format in ["glb", "spine"] {
+            let cli = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+                .arg("export")
+                .arg(&take)
+                .arg("--config")
+                .arg(&stage)
+                .args(["--format", format, "--fps", "10", "-o"])
+                .arg(output)
+                .output()
+                .unwrap();
+            let said = String::from_utf8_lossy(&cli.stderr);
+            assert!(!cli.status.success(), "{format} -o {}", output.display());
+            assert!(said.contains("is the take being exported"), "{said}");
+            assert_eq!(std::fs::read(&take).unwrap(), before, "the take changed");
+        }
+    }
+}
