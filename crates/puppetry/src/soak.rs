@@ -182,222 +182,41 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     let (stop_tx, stop) = watch::channel(false);
     let counts = Arc::new(Counts::default());
     let seen = Arc::new(std::sync::Mutex::new(Seen::default()));
+    let crew = Crew {
+        edges,
+        daemon: daemon.clone(),
+        counts: counts.clone(),
+        seen: seen.clone(),
+        stop,
+    };
     let mut tasks = Vec::new();
     // The reference viewer: at the far end (the relay, when there is one).
-    {
-        let edge = relay.clone().unwrap_or_else(|| daemon.clone());
-        let seen = seen.clone();
-        let counts = counts.clone();
-        let mut stop = stop.clone();
-        tasks.push(tokio::spawn(async move {
-            while !*stop.borrow() {
-                let origin = Instant::now();
-                let Ok((mut ws, _)) =
-                    connect_staged(&edge, json!({"type": "hello", "role": "viewer"})).await
-                else {
-                    counts.failures.fetch_add(1, Ordering::Relaxed);
-                    tokio::time::sleep(Duration::from_secs(1)).await;
-                    continue;
-                };
-                let Ok(zero) = daemon_clock_origin(&mut ws, origin).await else {
-                    counts.failures.fetch_add(1, Ordering::Relaxed);
-                    continue;
-                };
-                loop {
-                    tokio::select! {
-                        _ = stop.changed() => return,
-                        m = ws.next() => match m {
-                            Some(Ok(Message::Binary(bytes))) => {
-                                if let Ok(h) = FrameHeader::decode(&bytes)
-                                    && h.kind == FrameKind::Vertices
-                                {
-                                    let now = origin.elapsed().as_secs_f64();
-                                    let mut seen = seen.lock().unwrap_or_else(|p| p.into_inner());
-                                    seen.frames += 1;
-                                    if h.input_time > 0.0 {
-                                        seen.latencies_us.push((now - (zero + h.input_time)) * 1e6);
-                                    }
-                                }
-                            }
-                            Some(Ok(_)) => {}
-                            _ => {
-                                counts.failures.fetch_add(1, Ordering::Relaxed);
-                                break;
-                            }
-                        },
-                    }
-                }
-            }
-        }));
-    }
+    tasks.push(reference_viewer(
+        crew.clone(),
+        relay.clone().unwrap_or_else(|| daemon.clone()),
+    ));
     // Viewers churning.
     for slot in 0..options.viewers {
-        let edges = edges.clone();
-        let counts = counts.clone();
-        let stop = stop.clone();
-        tasks.push(tokio::spawn(async move {
-            let mut dice = Dice(0x9E37_79B9_7F4A_7C15 ^ (slot as u64 + 1));
-            while !*stop.borrow() {
-                let edge = &edges[dice.roll(edges.len() as u64) as usize];
-                let Ok((mut ws, _)) =
-                    connect(edge, json!({"type": "hello", "role": "viewer"})).await
-                else {
-                    counts.failures.fetch_add(1, Ordering::Relaxed);
-                    tokio::time::sleep(Duration::from_secs(1)).await;
-                    continue;
-                };
-                counts.viewer_connects.fetch_add(1, Ordering::Relaxed);
-                match dice.roll(5) {
-                    // Stalls: stops reading past the client timeout (the
-                    // stage's 10 s), then goes without a word.
-                    0 => {
-                        counts.stalls.fetch_add(1, Ordering::Relaxed);
-                        tokio::time::sleep(Duration::from_secs(12)).await;
-                        drop(ws);
-                    }
-                    // Reads a while, then drops the connection unclosed.
-                    1 => {
-                        read_for(&mut ws, Duration::from_millis(500 + 100 * dice.roll(20))).await;
-                        drop(ws);
-                    }
-                    // Fetches the picture as a page does, reads a while,
-                    // then closes properly.
-                    2 => {
-                        let picture = http(edge, b"GET /puppets/0/texture.png HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await;
-                        match picture {
-                            Ok(answer) if answer.starts_with(b"HTTP/1.1 200") => {
-                                counts.pictures.fetch_add(1, Ordering::Relaxed);
-                            }
-                            _ => {
-                                counts.failures.fetch_add(1, Ordering::Relaxed);
-                            }
-                        }
-                        read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
-                        let _ = ws.close(None).await;
-                    }
-                    // Reads a while, then closes properly.
-                    _ => {
-                        read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
-                        let _ = ws.close(None).await;
-                    }
-                }
-            }
-        }));
+        tasks.push(churning_viewer(crew.clone(), slot));
     }
     // Performers joining, dragging and leaving (on either edge).
     for performer in 0..2u64 {
-        let edges = edges.clone();
-        let counts = counts.clone();
-        let stop = stop.clone();
-        tasks.push(tokio::spawn(async move {
-            let mut dice = Dice(0xD1B5_4A32_D192_ED03 ^ (performer + 7));
-            while !*stop.borrow() {
-                let edge = &edges[dice.roll(edges.len() as u64) as usize];
-                let hello = json!({"type": "hello", "role": "performer", "token": "demo"});
-                let Ok((ws, stage)) = connect_staged(edge, hello).await else {
-                    counts.failures.fetch_add(1, Ordering::Relaxed);
-                    tokio::time::sleep(Duration::from_secs(1)).await;
-                    continue;
-                };
-                counts.performer_sessions.fetch_add(1, Ordering::Relaxed);
-                let rest: Vec<f64> =
-                    serde_json::from_value(stage["puppets"][0]["rest"].clone()).unwrap_or_default();
-                let at = rest
-                    .get(2 * (dice.roll((rest.len() / 2) as u64) as usize)..)
-                    .and_then(|p| Some(DVec2::new(*p.first()?, *p.get(1)?)))
-                    .unwrap_or(DVec2::new(640.0, 360.0));
-                let (mut sink, mut stream) = ws.split();
-                let drag = async {
-                    let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / 60.0));
-                    for k in 0..180 {
-                        tick.tick().await;
-                        let phase = if k == 0 { "down" } else { "move" };
-                        let p = at + DVec2::new((k as f64 * 0.1).sin(), (k as f64 * 0.07).cos()) * 20.0;
-                        let m = json!({"type": "contacts", "contacts": [{"id": performer + 1, "phase": phase, "x": p.x, "y": p.y}]});
-                        sink.send(Message::text(m.to_string())).await?;
-                    }
-                    let up = json!({"type": "contacts", "contacts": [{"id": performer + 1, "phase": "up"}]});
-                    sink.send(Message::text(up.to_string())).await?;
-                    // Some leave cleanly, some just go.
-                    if dice.roll(2) == 0 {
-                        sink.close().await?;
-                    }
-                    Ok::<_, tokio_tungstenite::tungstenite::Error>(())
-                };
-                let reading = async { while let Some(Ok(_)) = stream.next().await {} };
-                tokio::select! {
-                    done = drag => if done.is_err() { counts.failures.fetch_add(1, Ordering::Relaxed); },
-                    _ = reading => {}
-                }
-                tokio::time::sleep(Duration::from_millis(500 + 100 * dice.roll(10))).await;
-            }
-        }));
+        tasks.push(performing(crew.clone(), performer));
     }
     // Malformed messages, from a client that is dropped for them.
-    {
-        let edges = edges.clone();
-        let counts = counts.clone();
-        let stop = stop.clone();
-        tasks.push(tokio::spawn(async move {
-            let mut dice = Dice(0xA076_1D64_78BD_642F);
-            while !*stop.borrow() {
-                let edge = &edges[dice.roll(edges.len() as u64) as usize];
-                let hello = json!({"type": "hello", "role": "performer", "token": "demo"});
-                let Ok((mut ws, _)) = connect(edge, hello).await else {
-                    tokio::time::sleep(Duration::from_secs(1)).await;
-                    continue;
-                };
-                for _ in 0..25 {
-                    let bad = MALFORMED[dice.roll(MALFORMED.len() as u64) as usize];
-                    if ws.send(Message::text(bad)).await.is_err() {
-                        break;
-                    }
-                    counts.bad_messages.fetch_add(1, Ordering::Relaxed);
-                    read_for(&mut ws, Duration::from_millis(100)).await;
-                }
-                drop(ws);
-            }
-        }));
-    }
+    tasks.push(malformed_messages(crew.clone()));
     // Takes: recorded for a few seconds, exported, deleted.
-    {
-        let daemon = daemon.clone();
-        let counts = counts.clone();
-        let stop = stop.clone();
-        let takes = takes.clone();
-        let every = (options.duration / 6).clamp(Duration::from_secs(20), Duration::from_secs(300));
-        tasks.push(tokio::spawn(async move {
-            let mut n = 0;
-            while !*stop.borrow() {
-                tokio::time::sleep(every).await;
-                n += 1;
-                let name = format!("soak-{n}");
-                if take_and_export(&daemon, &name).await.is_ok() {
-                    counts.takes_exported.fetch_add(1, Ordering::Relaxed);
-                } else {
-                    counts.failures.fetch_add(1, Ordering::Relaxed);
-                }
-                let _ = std::fs::remove_file(takes.join(format!("{name}.take")));
-            }
-        }));
-    }
+    tasks.push(takes_exported(
+        crew.clone(),
+        takes.clone(),
+        (options.duration / 6).clamp(Duration::from_secs(20), Duration::from_secs(300)),
+    ));
 
     // A curve puppet added and taken off again: a new lineup each time.
-    {
-        let daemon = daemon.clone();
-        let counts = counts.clone();
-        let stop = stop.clone();
-        let every = (options.duration / 30).clamp(Duration::from_secs(5), Duration::from_secs(60));
-        tasks.push(tokio::spawn(async move {
-            while !*stop.borrow() {
-                tokio::time::sleep(every).await;
-                match add_and_remove_a_curve(&daemon).await {
-                    Ok(()) => counts.lineups.fetch_add(2, Ordering::Relaxed),
-                    Err(_) => counts.failures.fetch_add(1, Ordering::Relaxed),
-                };
-            }
-        }));
-    }
+    tasks.push(lineup_changes(
+        crew.clone(),
+        (options.duration / 30).clamp(Duration::from_secs(5), Duration::from_secs(60)),
+    ));
 
     print(&table_header());
     let start = Instant::now();
@@ -447,6 +266,256 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     Ok(flat)
 }
 
+/// What every task of a soak shares: the edges to connect to, the daemon,
+/// the counters and the reference viewer's frames, and the stop signal.
+#[derive(Clone)]
+struct Crew {
+    edges: Arc<Vec<String>>,
+    daemon: String,
+    counts: Arc<Counts>,
+    seen: Arc<std::sync::Mutex<Seen>>,
+    stop: watch::Receiver<bool>,
+}
+
+/// The reference viewer: at the far end (the relay, when there is one).
+fn reference_viewer(crew: Crew, edge: String) -> tokio::task::JoinHandle<()> {
+    let Crew {
+        seen,
+        counts,
+        mut stop,
+        ..
+    } = crew;
+    tokio::spawn(async move {
+        while !*stop.borrow() {
+            let origin = Instant::now();
+            let Ok((mut ws, _)) =
+                connect_staged(&edge, json!({"type": "hello", "role": "viewer"})).await
+            else {
+                counts.failures.fetch_add(1, Ordering::Relaxed);
+                tokio::time::sleep(Duration::from_secs(1)).await;
+                continue;
+            };
+            let Ok(zero) = daemon_clock_origin(&mut ws, origin).await else {
+                counts.failures.fetch_add(1, Ordering::Relaxed);
+                continue;
+            };
+            loop {
+                tokio::select! {
+                    _ = stop.changed() => return,
+                    m = ws.next() => match m {
+                        Some(Ok(Message::Binary(bytes))) => {
+                            if let Ok(h) = FrameHeader::decode(&bytes)
+                                && h.kind == FrameKind::Vertices
+                            {
+                                let now = origin.elapsed().as_secs_f64();
+                                let mut seen = seen.lock().unwrap_or_else(|p| p.into_inner());
+                                seen.frames += 1;
+                                if h.input_time > 0.0 {
+                                    seen.latencies_us.push((now - (zero + h.input_time)) * 1e6);
+                                }
+                            }
+                        }
+                        Some(Ok(_)) => {}
+                        _ => {
+                            counts.failures.fetch_add(1, Ordering::Relaxed);
+                            break;
+                        }
+                    },
+                }
+            }
+        }
+    })
+}
+
+/// Viewers churning.
+fn churning_viewer(crew: Crew, slot: usize) -> tokio::task::JoinHandle<()> {
+    let Crew {
+        edges,
+        counts,
+        stop,
+        ..
+    } = crew;
+    tokio::spawn(async move {
+        let mut dice = Dice(0x9E37_79B9_7F4A_7C15 ^ (slot as u64 + 1));
+        while !*stop.borrow() {
+            let edge = &edges[dice.roll(edges.len() as u64) as usize];
+            let Ok((mut ws, _)) = connect(edge, json!({"type": "hello", "role": "viewer"})).await
+            else {
+                counts.failures.fetch_add(1, Ordering::Relaxed);
+                tokio::time::sleep(Duration::from_secs(1)).await;
+                continue;
+            };
+            counts.viewer_connects.fetch_add(1, Ordering::Relaxed);
+            match dice.roll(5) {
+                // Stalls: stops reading past the client timeout (the
+                // stage's 10 s), then goes without a word.
+                0 => {
+                    counts.stalls.fetch_add(1, Ordering::Relaxed);
+                    tokio::time::sleep(Duration::from_secs(12)).await;
+                    drop(ws);
+                }
+                // Reads a while, then drops the connection unclosed.
+                1 => {
+                    read_for(&mut ws, Duration::from_millis(500 + 100 * dice.roll(20))).await;
+                    drop(ws);
+                }
+                // Fetches the picture as a page does, reads a while,
+                // then closes properly.
+                2 => {
+                    let picture = http(edge, b"GET /puppets/0/texture.png HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await;
+                    match picture {
+                        Ok(answer) if answer.starts_with(b"HTTP/1.1 200") => {
+                            counts.pictures.fetch_add(1, Ordering::Relaxed);
+                        }
+                        _ => {
+                            counts.failures.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                    read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
+                    let _ = ws.close(None).await;
+                }
+                // Reads a while, then closes properly.
+                _ => {
+                    read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
+                    let _ = ws.close(None).await;
+                }
+            }
+        }
+    })
+}
+
+/// Performers joining, dragging and leaving (on either edge).
+fn performing(crew: Crew, performer: u64) -> tokio::task::JoinHandle<()> {
+    let Crew {
+        edges,
+        counts,
+        stop,
+        ..
+    } = crew;
+    tokio::spawn(async move {
+        let mut dice = Dice(0xD1B5_4A32_D192_ED03 ^ (performer + 7));
+        while !*stop.borrow() {
+            let edge = &edges[dice.roll(edges.len() as u64) as usize];
+            let hello = json!({"type": "hello", "role": "performer", "token": "demo"});
+            let Ok((ws, stage)) = connect_staged(edge, hello).await else {
+                counts.failures.fetch_add(1, Ordering::Relaxed);
+                tokio::time::sleep(Duration::from_secs(1)).await;
+                continue;
+            };
+            counts.performer_sessions.fetch_add(1, Ordering::Relaxed);
+            let rest: Vec<f64> =
+                serde_json::from_value(stage["puppets"][0]["rest"].clone()).unwrap_or_default();
+            let at = rest
+                .get(2 * (dice.roll((rest.len() / 2) as u64) as usize)..)
+                .and_then(|p| Some(DVec2::new(*p.first()?, *p.get(1)?)))
+                .unwrap_or(DVec2::new(640.0, 360.0));
+            let (mut sink, mut stream) = ws.split();
+            let drag = async {
+                let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / 60.0));
+                for k in 0..180 {
+                    tick.tick().await;
+                    let phase = if k == 0 { "down" } else { "move" };
+                    let p = at + DVec2::new((k as f64 * 0.1).sin(), (k as f64 * 0.07).cos()) * 20.0;
+                    let m = json!({"type": "contacts", "contacts": [{"id": performer + 1, "phase": phase, "x": p.x, "y": p.y}]});
+                    sink.send(Message::text(m.to_string())).await?;
+                }
+                let up =
+                    json!({"type": "contacts", "contacts": [{"id": performer + 1, "phase": "up"}]});
+                sink.send(Message::text(up.to_string())).await?;
+                // Some leave cleanly, some just go.
+                if dice.roll(2) == 0 {
+                    sink.close().await?;
+                }
+                Ok::<_, tokio_tungstenite::tungstenite::Error>(())
+            };
+            let reading = async { while let Some(Ok(_)) = stream.next().await {} };
+            tokio::select! {
+                done = drag => if done.is_err() { counts.failures.fetch_add(1, Ordering::Relaxed); },
+                _ = reading => {}
+            }
+            tokio::time::sleep(Duration::from_millis(500 + 100 * dice.roll(10))).await;
+        }
+    })
+}
+
+/// Malformed messages, from a client that is dropped for them.
+fn malformed_messages(crew: Crew) -> tokio::task::JoinHandle<()> {
+    let Crew {
+        edges,
+        counts,
+        stop,
+        ..
+    } = crew;
+    tokio::spawn(async move {
+        let mut dice = Dice(0xA076_1D64_78BD_642F);
+        while !*stop.borrow() {
+            let edge = &edges[dice.roll(edges.len() as u64) as usize];
+            let hello = json!({"type": "hello", "role": "performer", "token": "demo"});
+            let Ok((mut ws, _)) = connect(edge, hello).await else {
+                tokio::time::sleep(Duration::from_secs(1)).await;
+                continue;
+            };
+            for _ in 0..25 {
+                let bad = MALFORMED[dice.roll(MALFORMED.len() as u64) as usize];
+                if ws.send(Message::text(bad)).await.is_err() {
+                    break;
+                }
+                counts.bad_messages.fetch_add(1, Ordering::Relaxed);
+                read_for(&mut ws, Duration::from_millis(100)).await;
+            }
+            drop(ws);
+        }
+    })
+}
+
+/// Takes: recorded for a few seconds, exported, deleted.
+fn takes_exported(
+    crew: Crew,
+    takes: std::path::PathBuf,
+    every: Duration,
+) -> tokio::task::JoinHandle<()> {
+    let Crew {
+        daemon,
+        counts,
+        stop,
+        ..
+    } = crew;
+    tokio::spawn(async move {
+        let mut n = 0;
+        while !*stop.borrow() {
+            tokio::time::sleep(every).await;
+            n += 1;
+            let name = format!("soak-{n}");
+            if take_and_export(&daemon, &name).await.is_ok() {
+                counts.takes_exported.fetch_add(1, Ordering::Relaxed);
+            } else {
+                counts.failures.fetch_add(1, Ordering::Relaxed);
+            }
+            let _ = std::fs::remove_file(takes.join(format!("{name}.take")));
+        }
+    })
+}
+
+/// A curve puppet added and taken off again: a new lineup each time.
+fn lineup_changes(crew: Crew, every: Duration) -> tokio::task::JoinHandle<()> {
+    let Crew {
+        daemon,
+        counts,
+        stop,
+        ..
+    } = crew;
+    tokio::spawn(async move {
+        while !*stop.borrow() {
+            tokio::time::sleep(every).await;
+            match add_and_remove_a_curve(&daemon).await {
+                Ok(true) => counts.lineups.fetch_add(2, Ordering::Relaxed),
+                Ok(false) => 0,
+                Err(_) => counts.failures.fetch_add(1, Ordering::Relaxed),
+            };
+        }
+    })
+}
+
 /// Reads (and drops) what comes for `span`.
 async fn read_for(ws: &mut crate::viewers_bench::Ws, span: Duration) {
     let _ = tokio::time::timeout(span, async { while let Some(Ok(_)) = ws.next().await {} }).await;
@@ -481,8 +550,9 @@ async fn take_and_export(daemon: &str, name: &str) -> Result<(), ViewersError> {
     }
 }
 
-/// A director adds a rope, waits for it, and takes it off the stage.
-async fn add_and_remove_a_curve(daemon: &str) -> Result<(), ViewersError> {
+/// A director adds a rope, waits for it, and takes it off the stage;
+/// `false` if it was refused because a take is recording.
+async fn add_and_remove_a_curve(daemon: &str) -> Result<bool, ViewersError> {
     let hello = json!({"type": "hello", "role": "director", "token": "director"});
     let (mut ws, _) = connect(daemon, hello).await?;
     let points: Vec<[f64; 2]> = (0..40).map(|k| [100.0 + 5.0 * k as f64, 600.0]).collect();
@@ -501,6 +571,11 @@ async fn add_and_remove_a_curve(daemon: &str) -> Result<(), ViewersError> {
     })
     .await
     .unwrap_or_default();
+    // While a take records the line-up is fixed (refused `busy`, as
+    // designed): not a failure, nothing changed.
+    if added["code"] == "busy" {
+        return Ok(false);
+    }
     let Some(puppet) = added["puppet"].as_u64() else {
         return Err(ViewersError::Daemon(format!("add_curve: {added}")));
     };
@@ -511,7 +586,7 @@ async fn add_and_remove_a_curve(daemon: &str) -> Result<(), ViewersError> {
     .await?;
     read_for(&mut ws, Duration::from_millis(500)).await;
     let _ = ws.close(None).await;
-    Ok(())
+    Ok(true)
 }
 
 async fn http(address: &str, request: &[u8]) -> Result<Vec<u8>, ViewersError> {
