@@ -428,6 +428,11 @@ impl Seat {
 /// the client's place under its address's cap. The client is pinged every
 /// `times.ping_every`; one that has not answered by the next ping has
 /// stopped reading, and is closed.
+///
+/// Longer than the rooms' rule: one `select!` loop over every feed the
+/// client follows, its pings and its own messages, sharing the loop's
+/// state (pings answered, bad messages in a row); each arm is a few lines,
+/// and what a message does is `Seat::handle`'s.
 async fn websocket(
     mut ws: Ws,
     shared: Arc<Shared>,
