@@ -184,6 +184,10 @@ pub async fn start(
 }
 
 /// Starts the daemon for `config` with `options`.
+#[expect(
+    clippy::too_many_lines,
+    reason = "the daemon's assembly in order (stage thread, inputs, edge, OSC, relays, shutdown), each step a few lines; it reads top to bottom as the start does"
+)]
 pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running, ServeError> {
     let Options {
         web_files,
@@ -433,6 +437,10 @@ impl ResolvedInputs {
     /// it to its kind's list. Longer than most functions here: one short
     /// arm per input kind, kept in one match so a new kind is one arm
     /// (and the compiler asks for it).
+    #[expect(
+        clippy::too_many_lines,
+        reason = "one short arm per input kind, kept in one match so a new kind is one arm and the compiler asks for it"
+    )]
     async fn add(
         &mut self,
         config: &ShowConfig,
@@ -640,6 +648,10 @@ struct Spawned {
 /// (`sources::supervise`), each kind its own loop; replays under their
 /// play/pause control. One function though long: each loop is short and
 /// shares the supervision closure, and a new kind is one more loop here.
+#[expect(
+    clippy::too_many_lines,
+    reason = "one short loop per input kind sharing the supervision closure; a new kind is one more loop here"
+)]
 fn spawn_sources(
     resolved: ResolvedInputs,
     commands: &mpsc::Sender<Command>,

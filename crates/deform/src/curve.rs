@@ -644,6 +644,10 @@ impl Curve {
         self.compile_with(anchors, free, true)
     }
 
+    #[expect(
+        clippy::too_many_lines,
+        reason = "both steps' KKT systems are numbered, assembled and factored together from one numbering; off the update path"
+    )]
     fn compile_with(
         &mut self,
         anchors: &[CurveAnchor],
@@ -832,6 +836,10 @@ impl Curve {
     /// then only the arms' last columns and the new ones are factored.
     /// False when the joint would take more than [`JOINT`] unknowns or the
     /// split system is singular (the caller compiles it whole).
+    #[expect(
+        clippy::too_many_lines,
+        reason = "the split's numbering, the arms' growth and the joint's Schur complement share the split's state; off the update path"
+    )]
     fn compile_split(
         &mut self,
         anchors: &[CurveAnchor],

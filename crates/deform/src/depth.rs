@@ -364,6 +364,10 @@ impl DepthOrder {
     /// nearer, at most [`MAX_LAYER`]) or, without it, the piece index in
     /// [`Mesh::pieces`] order. `mesh`'s vertices are the rest positions the
     /// tie rule measures movement from.
+    #[expect(
+        clippy::too_many_lines,
+        reason = "registration's steps in order (triangles, boundary, pieces, layers, scratch sizes) on shared locals; it runs once per mesh, off the update path"
+    )]
     pub fn register(mesh: &Mesh, layers: Option<&[u16]>) -> Result<DepthOrder, DepthError> {
         let triangles = Triangles::new(mesh.triangles().to_vec(), mesh.vertices().len());
         let count = triangles.len();
@@ -1599,6 +1603,10 @@ impl DepthOrder {
     /// Groups the pairs into patches (two sides each) and decides which side
     /// of each goes in front; rewrites `pairs` as `(back, front)` and sets
     /// the new roles.
+    #[expect(
+        clippy::too_many_lines,
+        reason = "grouping the pairs into patches and deciding each patch's front share the scratch buffers; split, the halves would hand most of `Scratch` to each other"
+    )]
     fn decide(&mut self, positions: &[DVec2], link: Link) {
         let s = &mut self.scratch;
         let n = s.pairs.len();

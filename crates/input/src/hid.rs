@@ -390,6 +390,10 @@ struct FingerParts {
 }
 
 impl TouchLayout {
+    #[expect(
+        clippy::too_many_lines,
+        reason = "a report descriptor is a stream of items whose global and local state (usage page, report size and count, collections) each item updates; one loop keeps that state together, as the HID specification describes the parse"
+    )]
     pub fn parse(descriptor: &[u8]) -> Result<TouchLayout, HidError> {
         if descriptor.is_empty() {
             return Err(layout("the descriptor is empty"));

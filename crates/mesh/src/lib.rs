@@ -137,6 +137,10 @@ pub fn cross(a: DVec2, b: DVec2, c: DVec2) -> f64 {
 impl Mesh {
     /// Validates and builds a mesh. `source` names where the data came from,
     /// for error messages. `weights` defaults to 1 for every triangle.
+    #[expect(
+        clippy::too_many_lines,
+        reason = "one check per rule of the format, each naming its field, in the format's order; they share the vertex and triangle counts"
+    )]
     pub fn new(
         source: &str,
         vertices: Vec<DVec2>,

@@ -32,6 +32,10 @@ pub enum StrokeError {
 /// `C`/`S`/`Q`/`T` commands (absolute or relative), with Béziers flattened so
 /// no flattened segment is longer than `step` (about). Closed paths,
 /// several subpaths and arcs are refused: a curve puppet is one open stroke.
+#[expect(
+    clippy::too_many_lines,
+    reason = "one arm per SVG path command, sharing the current point and the last control point as the SVG grammar does"
+)]
 pub fn parse_svg_path(d: &str, step: f64) -> Result<Vec<DVec2>, StrokeError> {
     let mut parser = PathParser {
         text: d.as_bytes(),

@@ -326,6 +326,10 @@ fn trace_alpha(
 /// contour closes. Each segment is oriented with the opaque side on its left
 /// (y-up), so islands come out counter-clockwise and holes clockwise.
 /// None past `MAX_OUTLINE_SEGMENTS` segments, before their memory is spent.
+#[expect(
+    clippy::too_many_lines,
+    reason = "marching squares: the sixteen cases and the joining of segments into rings in one pass over the pixels, the tracer's hot loop"
+)]
 fn march(width: u32, height: u32, alpha: &[u16]) -> Option<Vec<Vec<DVec2>>> {
     let (w, h) = (width as usize, height as usize);
     let sx = w + 2;

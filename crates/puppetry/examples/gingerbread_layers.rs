@@ -10,6 +10,11 @@
 //! `assets/gingerbread-layers/handles.json`. Run with
 //! `cargo run --release --example gingerbread_layers`.
 
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test or example is one scenario, read top to bottom"
+)]
+
 use std::f64::consts::TAU;
 use std::path::Path;
 

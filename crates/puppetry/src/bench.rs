@@ -317,6 +317,10 @@ pub async fn connect_viewer(
 /// replays drags of `input_frames` frames (1 ms apart) into it with
 /// `pacing`: one input source per entry of `performers`, each holding a
 /// contact on every point it lists (a finger per puppet), all circling.
+#[expect(
+    clippy::too_many_lines,
+    reason = "a bench case read top to bottom (start the daemon, connect the clients, drag, measure); a tool, not the show's path"
+)]
 pub async fn end_to_end(
     name: &str,
     config: &puppetry_daemon::config::ShowConfig,

@@ -118,6 +118,10 @@ impl Dice {
 
 /// Runs the soak, printing a header and a row every `options.every`;
 /// whether memory and descriptors stayed flat after the warm-up.
+#[expect(
+    clippy::too_many_lines,
+    reason = "the soak's setup, then its measuring loop; each kind of task it starts is a function of its own"
+)]
 pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, ViewersError> {
     let wave = crate::bundled::root()?.join("config/wave.toml");
     let text = std::fs::read_to_string(&wave).map_err(|e| ViewersError::Io {

@@ -229,6 +229,10 @@ impl Failed {
 }
 
 /// `GET /takes/NAME/export?format=glb&fps=30&size=1280x720&from=S&to=S`.
+#[expect(
+    clippy::too_many_lines,
+    reason = "the route's steps in order (token, take, parameters, budget, scratch folder, the export thread, the file streamed back), each a few lines ending in its own HTTP status"
+)]
 pub async fn export(
     State(shared): State<Arc<Shared>>,
     Path(name): Path<String>,

@@ -433,6 +433,10 @@ impl Seat {
 /// client follows, its pings and its own messages, sharing the loop's
 /// state (pings answered, bad messages in a row); each arm is a few lines,
 /// and what a message does is `Seat::handle`'s.
+#[expect(
+    clippy::too_many_lines,
+    reason = "one select! loop over every feed the client follows, its pings and its own messages, sharing the loop's state; each arm is a few lines and what a message does is Seat::handle's"
+)]
 async fn websocket(
     mut ws: Ws,
     shared: Arc<Shared>,

@@ -3,6 +3,11 @@
 //! stage file of `config/`; the rigs live; the web page in headless
 //! Chromium; show control over OSC; and the command line.
 
+#![allow(
+    clippy::too_many_lines,
+    reason = "a test or example is one scenario, read top to bottom"
+)]
+
 mod common;
 
 mod bad_input;
