@@ -485,7 +485,7 @@ impl Arap {
     /// triangle, four in one triangle, or a finger a hair from a pin ask the
     /// mesh for constraints that are linearly dependent, or so nearly that
     /// the small systems lose every digit and the pose flies off (see
-    /// [`independent`]). Leaving the older handle out keeps the pose where
+    /// `independent`). Leaving the older handle out keeps the pose where
     /// the newer one puts it, which is what a finger landing on a held point
     /// means.
     pub fn compile(&mut self, anchors: &[Anchor]) -> Result<(), ArapError> {

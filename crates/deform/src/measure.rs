@@ -2,7 +2,7 @@
 //! deformers the way the lp-FFD paper's Table 1 does (angular and area
 //! distortion, averaged over triangles).
 //!
-//! The paper only cites its measures ("as defined in [WLZS16]", ARAP++) and
+//! The paper only cites its measures ("as defined in \[WLZS16\]", ARAP++) and
 //! the restatement in `shared/design/algorithms.md` gives no formulas, so
 //! these are our standard definitions; the paper's numbers are a guide to
 //! orders of magnitude, not directly comparable:

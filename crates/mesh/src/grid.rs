@@ -19,7 +19,7 @@ pub struct BucketGrid {
 impl BucketGrid {
     /// A grid of square cells of side `cell` from `lo` covering `hi`, filled
     /// with `count` items; `cells_of(i, visit)` calls `visit(cell)` for each
-    /// cell item `i` touches (see [`BucketGrid::column`], [`BucketGrid::row`]).
+    /// cell item `i` touches (see `BucketGrid::column`, `BucketGrid::row`).
     pub fn new(
         lo: DVec2,
         hi: DVec2,

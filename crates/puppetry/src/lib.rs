@@ -1,5 +1,5 @@
 //! The `puppetry` command's own work: the commands that are not the daemon
-//! ([`cli`]: mesh, solve, devices, calibrate), the benchmarks ([`bench`],
+//! ([`cli`]: mesh, solve, devices, calibrate), the benchmarks ([`bench`](mod@bench),
 //! [`viewers_bench`] with the relay tier's fan-out), the long-run leak
 //! check ([`soak`]), the lp-FFD paper's comparison ([`compare`]) and what
 //! stderr may be drawn with ([`terminal`]). `main.rs` parses the

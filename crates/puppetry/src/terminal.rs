@@ -2,7 +2,7 @@
 //! carriage returns) and coloured log levels are for a person watching a
 //! terminal; in a file, a pipe or a service's log they are noise, so they
 //! are drawn only when stderr is a terminal, and colour not at all when
-//! `NO_COLOR` is set (https://no-color.org).
+//! `NO_COLOR` is set (<https://no-color.org>).
 
 use std::io::IsTerminal;
 

@@ -57,7 +57,7 @@ pub enum KeyGrip {
 pub struct KeyEntry {
     /// Unique within the set, not empty.
     pub name: String,
-    /// Where the key sits on the pad, in [0,1]².
+    /// Where the key sits on the pad, in `[0, 1]²`.
     pub at: [f64; 2],
     /// The pose, as the grips lay it out.
     pub values: Vec<f64>,

@@ -17,7 +17,7 @@
 //! the contacts it lands or holds, so a crafted take cannot make a replay
 //! panic or stall. [`recorder`] writes on a thread of its own so the
 //! stage thread only hands records over; [`replay`] replays a take into a
-//! [`Stage`](puppetry_stage::Stage).
+//! [`Stage`].
 
 pub mod recorder;
 pub mod replay;

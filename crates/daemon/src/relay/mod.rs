@@ -2,7 +2,7 @@
 //! processes that serve it to viewers on any number of machines and
 //! forward remote performers to the daemon. It owns the subjects, the
 //! messages between a daemon and its relays, and cutting large messages
-//! into parts under NATS's payload limit; [`publish`] is the daemon's
+//! into parts under NATS's payload limit; [`publish`](mod@publish) is the daemon's
 //! side, [`serve`] the relay's, [`nats`] connecting with credentials and
 //! the nats-server configuration that binds each party to its subjects,
 //! [`proof`] how a relayed performer's token is checked without crossing

@@ -656,7 +656,7 @@ enum RestoreError {
 /// Brings back the pictures directors added that `dir` keeps (`NAME.png`,
 /// `NAME.mesh.json` and `NAME.puppet.json`; one without a placement file
 /// goes in free stage space), oldest first and on top of the stage file's
-/// puppets, at most [`MAX_RESTORED`] of them; each goes into `config` as
+/// puppets, at most `MAX_RESTORED` of them; each goes into `config` as
 /// the lineup's entries do. A file that cannot be read, is too large or
 /// does not load is logged and skipped. Blocking: meshes load here.
 /// Returns how many came back.
