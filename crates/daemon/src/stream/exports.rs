@@ -62,11 +62,7 @@ enum DownloadError {
 /// TOKEN`, checked as the WebSocket's hello is (every token compared in
 /// constant time). The answer to anyone else.
 fn not_a_director(links: &super::StageLinks, headers: &HeaderMap) -> Option<Response> {
-    let token = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
+    let token = super::people::bearer(headers);
     let access = links.people.access();
     match token.and_then(|t| credential(access, t)) {
         Some(Credential::Person(i)) if access.people[i].role == AccessRole::Director => None,

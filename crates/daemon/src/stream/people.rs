@@ -32,6 +32,16 @@ pub enum Credential {
     Anonymous,
 }
 
+/// The token of an `Authorization: Bearer TOKEN` header, if any: how
+/// HTTP routes that need a person (exports, uploads) are given one.
+pub fn bearer(headers: &axum::http::HeaderMap) -> Option<&str> {
+    headers
+        .get(axum::http::header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim)
+}
+
 /// The credential `token` opens, if any. Every token of the stage is
 /// compared, each in constant time, whatever matched before.
 pub fn credential(access: &Access, token: &str) -> Option<Credential> {

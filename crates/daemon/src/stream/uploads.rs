@@ -200,11 +200,7 @@ fn check_director(
             ));
         }
     }
-    let token = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
+    let token = super::people::bearer(headers);
     let access = links.people.access();
     match token.and_then(|t| credential(access, t)) {
         None => Err(refused(

@@ -14,7 +14,7 @@ pub struct NatsServer {
 }
 
 /// Where `nats-server` is: on PATH, or where Debian puts it.
-fn program() -> PathBuf {
+pub fn program() -> PathBuf {
     let on_path = std::env::var_os("PATH")
         .map(|p| {
             std::env::split_paths(&p)
@@ -32,12 +32,30 @@ fn program() -> PathBuf {
         )
 }
 
+/// A free loopback port for a server of the test's own.
+pub fn free_port() -> u16 {
+    TcpListener::bind((Ipv4Addr::LOCALHOST, 0))
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
+}
+
+/// Waits (up to 20 s) until a server listens on loopback `port`.
+pub fn wait_listening(port: u16) {
+    let address = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while TcpStream::connect_timeout(&address, Duration::from_millis(200)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "nats-server did not listen on {address}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 impl NatsServer {
     pub fn start() -> NatsServer {
-        let port = TcpListener::bind((Ipv4Addr::LOCALHOST, 0))
-            .and_then(|l| l.local_addr())
-            .expect("a free port")
-            .port();
+        let port = free_port();
         let mut server = NatsServer { port, child: None };
         server.spawn();
         server
@@ -55,15 +73,7 @@ impl NatsServer {
             .spawn()
             .expect("nats-server starts");
         self.child = Some(child);
-        let address = SocketAddr::from((Ipv4Addr::LOCALHOST, self.port));
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while TcpStream::connect_timeout(&address, Duration::from_millis(200)).is_err() {
-            assert!(
-                Instant::now() < deadline,
-                "nats-server did not listen on {address}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_listening(self.port);
     }
 
     pub fn stop(&mut self) {

@@ -6,12 +6,10 @@
 //! daemon, a wrong one refused, and no token crosses NATS (an
 //! all-powerful user reading `>` sees none).
 
-use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
-use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
 use serde_json::json;
@@ -19,6 +17,7 @@ use tokio_tungstenite::tungstenite::Message;
 
 use super::{join, until};
 use crate::common::daemon::*;
+use crate::common::nats;
 use puppetry_daemon::relay::nats::{Secret, server_config, user_entries};
 use puppetry_daemon::relay::{RelayOptions, RelayRunning, serve};
 
@@ -27,22 +26,6 @@ const DIRECTOR_TOKEN: &str = "director-token-9e27b4";
 /// The all-powerful user of these tests (not in any configuration the
 /// docs give): reads and may publish everything.
 const MONITOR: &str = "monitor";
-
-/// Where `nats-server` is: on PATH, or where Debian puts it.
-fn nats_server_program() -> PathBuf {
-    let on_path = std::env::var_os("PATH")
-        .map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
-        .unwrap_or_default();
-    on_path
-        .into_iter()
-        .chain([PathBuf::from("/usr/sbin")])
-        .map(|d| d.join("nats-server"))
-        .find(|p| p.is_file())
-        .expect(
-            "the relay tests need nats-server, and there is none on PATH or in /usr/sbin: \
-             install it (apt-get install nats-server)",
-        )
-}
 
 /// A nats-server of the test's own on a free loopback port, with a
 /// configuration file; killed when dropped.
@@ -58,11 +41,8 @@ impl SecureNats {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("nats-server.conf");
         std::fs::write(&file, config).unwrap();
-        let port = TcpListener::bind((Ipv4Addr::LOCALHOST, 0))
-            .and_then(|l| l.local_addr())
-            .expect("a free port")
-            .port();
-        let child = Command::new(nats_server_program())
+        let port = nats::free_port();
+        let child = Command::new(nats::program())
             .arg("-c")
             .arg(&file)
             .args(["-a", "127.0.0.1", "-p", &port.to_string()])
@@ -76,15 +56,7 @@ impl SecureNats {
             child,
             _dir: dir,
         };
-        let address = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while TcpStream::connect_timeout(&address, Duration::from_millis(200)).is_err() {
-            assert!(
-                Instant::now() < deadline,
-                "nats-server did not listen on {address}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        nats::wait_listening(port);
         server
     }
 
