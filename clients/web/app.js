@@ -11,7 +11,7 @@
 // surface.
 
 import {
-  ERROR_CODE, CLOSE_CODE, FRAME_KIND_DEPTH, FRAME_KIND_HANDLES, FRAME_KIND_RIG, FRAME_KIND_VERTICES, HANDLE_KIND,
+  ERROR_CODE, CLOSE_CODE, FRAME_KIND, HANDLE_KIND,
   RIG_KIND, ROLE, SERVER_MESSAGE,
   canDirect, canPerform, clientOwner, decodeFrameHeader, depthOrder, encodeClientMessage, frameDepths, framePoints,
   helloMessage,
@@ -632,10 +632,10 @@ function onFrame(buf) {
   api.framesReceived++;
   const header = decodeFrameHeader(buf);
   if (!header) return reportError('short frame');
-  if (header.kind === FRAME_KIND_RIG) return onRigFrame(header, buf);
-  if (header.kind === FRAME_KIND_HANDLES) return onHandleFrame(header, buf);
-  if (header.kind === FRAME_KIND_DEPTH) return onDepthFrame(header, buf);
-  if (header.kind !== FRAME_KIND_VERTICES) return; // a newer kind
+  if (header.kind === FRAME_KIND.RIG) return onRigFrame(header, buf);
+  if (header.kind === FRAME_KIND.HANDLES) return onHandleFrame(header, buf);
+  if (header.kind === FRAME_KIND.DEPTH) return onDepthFrame(header, buf);
+  if (header.kind !== FRAME_KIND.VERTICES) return; // a newer kind
   const id = header.puppet;
   const p = puppetById(id);
   // Puppet ids are never reused: a frame of a puppet not on stage was on its

@@ -1,70 +1,18 @@
-// The wire protocol (docs/protocol.md), the browser's one mirror of the
-// daemon's crates/daemon/src/protocol.rs: message type names, a builder for
-// every client → server message, parsing of the server's text messages and
-// decoding of its binary frames. No DOM, no state: only the protocol.
+// The wire protocol (docs/protocol.md) for the browser: a builder for every
+// client → server message, parsing of the server's text messages and
+// decoding of its binary frames. The names and numbers (message types, error
+// codes, kinds, frame header offsets, limits) are not written here: they
+// come from wire.js, which the daemon's Rust types write (see its head), and
+// are re-exported so the page imports the protocol from one place. No DOM,
+// no state: only the protocol.
+
+import {
+  CLIENT_MESSAGE, CONTACT_PHASE, FRAME_HEADER, FRAME_HEADER_BYTES, ROLE, SERVER_MESSAGE, PUPPETS_PATH,
+} from './wire.js';
+
+export * from './wire.js';
 
 // ---------------------------------------------------------------- text messages
-
-/** `type` of the messages a client sends. */
-export const CLIENT_MESSAGE = Object.freeze({
-  HELLO: 'hello',
-  CONTACTS: 'contacts',
-  PIN: 'pin',
-  DEPTH_FLIP: 'depth_flip',
-  UNPIN: 'unpin',
-  PAINT: 'paint',
-  PAINT_DEPTH: 'paint_depth',
-  ADD_CURVE: 'add_curve',
-  SAVE_WEIGHTS: 'save_weights',
-  EXPORT_GRID: 'export_grid',
-  POSE: 'pose',
-  RECORD: 'record',
-  STOP_RECORDING: 'stop_recording',
-  LIST_TAKES: 'list_takes',
-  PLAY: 'play',
-  STOP_PLAYING: 'stop_playing',
-  KEY_ADD: 'key_add',
-  KEY_MOVE: 'key_move',
-  KEY_DELETE: 'key_delete',
-  CURSOR: 'cursor',
-  SAVE_KEYS: 'save_keys',
-  PING: 'ping',
-  UNDO: 'undo',
-  REDO: 'redo',
-  RESET: 'reset',
-  REPLAY: 'replay',
-  REMOVE_PUPPET: 'remove_puppet',
-  ORDER_PUPPETS: 'order_puppets',
-});
-
-/** `type` of the text messages the server sends. */
-export const SERVER_MESSAGE = Object.freeze({
-  STAGE: 'stage',
-  HANDLES: 'handles',
-  CURSORS: 'cursors',
-  WEIGHTS: 'weights',
-  WEIGHTS_SAVED: 'weights_saved',
-  GRID: 'grid',
-  TAKE: 'take',
-  TAKES: 'takes',
-  EXPORT: 'export',
-  KEYS: 'keys',
-  KEYS_SAVED: 'keys_saved',
-  ERROR: 'error',
-  PEOPLE: 'people',
-  HISTORY: 'history',
-  POSE: 'pose',
-  INPUTS: 'inputs',
-  PONG: 'pong',
-  LIVE: 'live',
-});
-
-/**
- * A connection's role (hello, stage and people messages): a `director` may
- * do everything, a `performer` perform, a `viewer` only watch. `device` is
- * the role of the stage's input sources in the people list.
- */
-export const ROLE = Object.freeze({ VIEWER: 'viewer', PERFORMER: 'performer', DIRECTOR: 'director', DEVICE: 'device' });
 
 /** Whether a role may perform (send contacts, pins, poses, cursors, undo/redo/reset). */
 export function canPerform(role) {
@@ -75,49 +23,6 @@ export function canPerform(role) {
 export function canDirect(role) {
   return role === ROLE.DIRECTOR;
 }
-
-/** `code` of an `error` message. */
-export const ERROR_CODE = Object.freeze({
-  BAD_MESSAGE: 'bad_message',
-  TOO_LARGE: 'too_large',
-  BINARY: 'binary',
-  FORBIDDEN: 'forbidden',
-  BAD_TOKEN: 'bad_token',
-  OUT_OF_RANGE: 'out_of_range',
-  TOO_MANY: 'too_many',
-  NOT_FOUND: 'not_found',
-  BUSY: 'busy',
-  FAILED: 'failed',
-  HELLO: 'hello',
-  // Answers of `POST /puppets` (adding a puppet) also use these:
-  BAD_IMAGE: 'bad_image',
-  BAD_REQUEST: 'bad_request',
-});
-
-/** Close frame codes the server closes with. */
-export const CLOSE_CODE = Object.freeze({
-  POLICY: 1008,          // origin refused
-  TOO_LARGE: 1009,
-  TRY_AGAIN_LATER: 1013, // too many connections
-  TOKEN_REFUSED: 4001,
-});
-
-export const CONTACT_PHASE = Object.freeze({ DOWN: 'down', MOVE: 'move', UP: 'up' });
-
-/** A handle's `kind` (handles and stage messages). */
-export const HANDLE_KIND = Object.freeze({ CONTACT: 'contact', PIN: 'pin', KEY: 'key' });
-
-/** What a handle holds (`grip`, handles and stage messages); `grid`, `joint` and `bone` come with an `index`. */
-export const HANDLE_GRIP = Object.freeze({ POINT: 'point', GRID: 'grid', JOINT: 'joint', BONE: 'bone' });
-
-/** A puppet's `rig.kind` (stage message). */
-export const RIG_KIND = Object.freeze({ FREE: 'free', GRID: 'grid', SKELETON: 'skeleton', CURVE: 'curve' });
-
-/** The `owner` of the stage file's pins. */
-export const CONFIG_OWNER = 'config';
-
-/** The `owner` of the handles the keyframing cursor's blend of key poses holds. */
-export const KEYS_OWNER = 'keys';
 
 /**
  * The keyframing pad is the unit square: pad points are [u, v] with both in
@@ -348,17 +253,8 @@ export function parseServerMessage(text) {
 // not what was hoped for) or an `error` as on the socket. Every page then
 // gets a new `stage` message with the puppet in it.
 
-/** The path puppets are added at. */
-export const PUPPETS_PATH = '/puppets';
-
 /** `type` of the answer to a puppet that was added. */
-export const PUPPET_ADDED = 'puppet_added';
-
-/** The vertex counts a new puppet's mesh may ask for, and the page's default. */
-export const PUPPET_VERTICES = Object.freeze({ MIN: 50, MAX: 20000, DEFAULT: 1000 });
-
-/** The largest picture the daemon takes (bytes). */
-export const MAX_PICTURE_BYTES = 16 * 1024 * 1024;
+export const PUPPET_ADDED = SERVER_MESSAGE.PUPPET_ADDED;
 
 /**
  * The address to POST a picture to: `name` and `vertices` always; `x`, `y`
@@ -375,31 +271,8 @@ export function addPuppetPath({ name, vertices, x, y, scale }) {
 
 // ---------------------------------------------------------------- binary frames
 
-/** Every binary frame starts with a header of this many bytes, then f32 x, y pairs. */
-export const FRAME_HEADER_BYTES = 32;
-
-/** Frame kind: a puppet's deformed vertices. */
-export const FRAME_KIND_VERTICES = 1;
-
-/** Frame kind: a rigged puppet's deformed grid handles or posed joints. */
-export const FRAME_KIND_RIG = 2;
-
 /**
- * Frame kind: where a puppet's handles are on the solved puppet, one point
- * per handle in the order of the `handles` message whose `generation` the
- * header's `generation` names.
- */
-export const FRAME_KIND_HANDLES = 3;
-
-/**
- * Frame kind: the depth of each triangle of a puppet (u16, larger is
- * nearer), `count` of them, padded to whole 4-byte words; sent when the
- * depth changes (a part folded over another).
- */
-export const FRAME_KIND_DEPTH = 4;
-
-/**
- * The 32-byte little-endian header at the start of `buffer` (an ArrayBuffer):
+ * The little-endian header (FRAME_HEADER) at the start of `buffer` (an ArrayBuffer):
  * {kind, puppet, sequence, inputTime, count, generation}, or null when the
  * buffer is shorter than a header. `kind` may be one this client does not
  * know. `generation` is the handle set's generation in handle frames (the
@@ -409,12 +282,12 @@ export function decodeFrameHeader(buffer) {
   if (buffer.byteLength < FRAME_HEADER_BYTES) return null;
   const view = new DataView(buffer, 0, FRAME_HEADER_BYTES);
   return {
-    kind: view.getUint32(0, true),
-    puppet: view.getUint32(4, true),
-    sequence: Number(view.getBigUint64(8, true)),
-    inputTime: view.getFloat64(16, true), // seconds since the daemon started
-    count: view.getUint32(24, true),
-    generation: view.getUint32(28, true),
+    kind: view.getUint32(FRAME_HEADER.KIND, true),
+    puppet: view.getUint32(FRAME_HEADER.PUPPET, true),
+    sequence: Number(view.getBigUint64(FRAME_HEADER.SEQUENCE, true)),
+    inputTime: view.getFloat64(FRAME_HEADER.INPUT_TIME, true), // seconds since the daemon started
+    count: view.getUint32(FRAME_HEADER.COUNT, true),
+    generation: view.getUint32(FRAME_HEADER.GENERATION, true),
   };
 }
 

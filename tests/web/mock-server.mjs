@@ -18,6 +18,7 @@
 //   PORT=8080 MOCK_TOKEN=T node mock-server.mjs   (PORT 0 or unset: any free port)
 // Prints one JSON line {"url": …} when listening.
 
+import { MAX_PICTURE_BYTES, PUPPET_VERTICES } from '../../clients/web/wire.js';
 import http from 'node:http';
 import fs from 'node:fs';
 import path from 'node:path';
@@ -85,8 +86,7 @@ const server = http.createServer((req, res) => {
 
 // ---------------------------------------------------------------- puppets from the page
 
-const MAX_PICTURE_BYTES = 16 * 1024 * 1024;
-const VERTICES = { min: 50, max: 20000 };
+const VERTICES = { min: PUPPET_VERTICES.MIN, max: PUPPET_VERTICES.MAX };
 const added = new Map(); // id -> {name, png, rest, uv, triangles, weights}: puppets added from the page
 let lineup = [0];        // the ids on stage, bottom to top
 let nextPuppet = 1;      // ids are never reused

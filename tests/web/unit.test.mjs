@@ -10,7 +10,7 @@
 import test from 'node:test';
 import assert from 'node:assert/strict';
 
-import { FRAME_KIND_HANDLES, decodeFrameHeader, framePoints, paintMessage, pingMessage } from '../../clients/web/protocol.js';
+import { FRAME_KIND, decodeFrameHeader, framePoints, paintMessage, pingMessage } from '../../clients/web/protocol.js';
 import { TOKEN_KEY, forgetToken, parseSize, takeAccess, viewOptions } from '../../clients/web/session.js';
 import { FpsMeter, LatencyMeter, median } from '../../clients/web/hud.js';
 import { CONFIG_COLOUR, People, UNKNOWN_COLOUR, parseHex, withAlpha } from '../../clients/web/people.js';
@@ -130,7 +130,7 @@ test('owner colours come from the people list; others are neutral', () => {
 function handleFrame(puppet, sequence, generation, points) {
   const buf = new ArrayBuffer(32 + 4 * points.length);
   const v = new DataView(buf);
-  v.setUint32(0, FRAME_KIND_HANDLES, true);
+  v.setUint32(0, FRAME_KIND.HANDLES, true);
   v.setUint32(4, puppet, true);
   v.setBigUint64(8, BigInt(sequence), true);
   v.setFloat64(16, 1.5, true);

@@ -35,3 +35,13 @@ pub const WEBSOCKET_PING_EVERY: Duration = Duration::from_secs(20);
 /// line; longer input is cut with "…". One limit for every door, so no
 /// input of any length makes a message of that length.
 pub const MAX_ECHO: usize = 200;
+
+/// The longest text message a client may send on the WebSocket (or a
+/// relay take from a viewer); a longer one closes the connection with
+/// 1009. The largest real message, 40 contacts, is under 4 KiB.
+pub const MAX_CLIENT_MESSAGE_BYTES: usize = 64 * 1024;
+
+/// The largest picture a director may POST to add a puppet; the body is
+/// not read past it. Its pixels are then checked against
+/// `files::MAX_PICTURE_PIXELS` from the header before it is decoded.
+pub const MAX_UPLOAD_BYTES: usize = 16 << 20;

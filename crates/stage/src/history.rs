@@ -153,7 +153,7 @@ impl Stage {
                     continue;
                 }
                 let owner = match pin.owner.as_str() {
-                    "config" => Owner::Config,
+                    crate::CONFIG_OWNER => Owner::Config,
                     other => Owner::Source(other.to_string()),
                 };
                 self.insert_handle(

@@ -155,7 +155,7 @@ impl Stage {
                     let offset = DVec2::ZERO;
                     let id = self.add_handle(
                         index,
-                        Owner::Source("keys".into()),
+                        Owner::Source(crate::KEYS_OWNER.into()),
                         HandleKind::Key,
                         grip,
                         at,

@@ -169,6 +169,13 @@ pub const OUTLINE_REACH_FRACTION: f64 = GRAB_RADIUS_FRACTION / 2.0;
 /// its coordinates) must not decide whether a point on the outline is.
 const ON_OUTLINE: f64 = 1e-6;
 
+/// The owner name of the stage file's pins ([`Owner::Config`]).
+pub const CONFIG_OWNER: &str = "config";
+
+/// The owner name of the handles a keyframing cursor's blend of key poses
+/// holds.
+pub const KEYS_OWNER: &str = "keys";
+
 /// Who holds a handle.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub enum Owner {
@@ -182,7 +189,7 @@ impl std::fmt::Display for Owner {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Owner::Source(id) => f.write_str(id),
-            Owner::Config => f.write_str("config"),
+            Owner::Config => f.write_str(CONFIG_OWNER),
         }
     }
 }

@@ -492,7 +492,7 @@ impl Answerer {
                 Ok(request) => Some(json(&self.join(links, relay, request).await)),
                 Err(e) => Some(json(&JoinAnswer::Refused {
                     refusal: Refusal::from(format!("bad join: {e}")),
-                    close: crate::stream::close::POLICY,
+                    close: crate::protocol::close::POLICY,
                     reason: "bad join".into(),
                 })),
             },
@@ -544,7 +544,7 @@ impl Answerer {
                             crate::protocol::ErrorCode::Failed,
                             "the join's nonce is spent, expired or not this relay's: try again",
                         ),
-                        close: crate::stream::close::TRY_LATER,
+                        close: crate::protocol::close::TRY_AGAIN_LATER,
                         reason: "stale nonce".into(),
                     };
                 }

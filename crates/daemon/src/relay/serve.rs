@@ -737,7 +737,7 @@ impl RelayLink {
         }
         let refused_for = |refusal: Refusal| JoinRefused {
             refusal,
-            close: stream::close::TRY_LATER,
+            close: crate::protocol::close::TRY_AGAIN_LATER,
             reason: "the stage is not reachable".into(),
         };
         // The token stays here: the daemon gets a proof of it, on a nonce

@@ -90,7 +90,7 @@ pub fn router(shared: Arc<Shared>) -> Router {
         // body against its own limit and answers JSON past it.
         .merge(
             Router::new()
-                .route("/puppets", post(super::uploads::add))
+                .route(crate::protocol::upload::PATH, post(super::uploads::add))
                 .with_state(shared),
         )
 }
@@ -139,7 +139,7 @@ async fn upgrade(
                 tracing::debug!(%peer, "WebSocket refused: too many from this address");
                 super::close_with(
                     &mut socket,
-                    super::close::TRY_LATER,
+                    super::close::TRY_AGAIN_LATER,
                     "too many connections from this address",
                 )
                 .await;

@@ -44,7 +44,7 @@ pub enum StreamError {
 }
 
 /// Largest message a client may send.
-pub const MAX_CLIENT_MESSAGE: usize = 64 * 1024;
+pub use puppetry_limits::net::MAX_CLIENT_MESSAGE_BYTES as MAX_CLIENT_MESSAGE;
 /// Read buffer of a client connection (see `serve_connection`).
 const READ_BUFFER: usize = 4 * 1024;
 /// Bad messages in a row before a client is disconnected.
@@ -178,18 +178,7 @@ pub async fn run_with(
 
 type Ws = WebSocket;
 
-/// Close codes the daemon sends (RFC 6455 and the application range).
-pub mod close {
-    /// A rule was broken: a foreign origin, no hello, too many bad
-    /// messages, a ping left unanswered (the client stopped reading).
-    pub const POLICY: u16 = 1008;
-    /// A message too large to read.
-    pub const TOO_LARGE: u16 = 1009;
-    /// Too many connections (from this address, or in total).
-    pub const TRY_LATER: u16 = 1013;
-    /// The hello's token was refused.
-    pub const TOKEN: u16 = 4001;
-}
+pub use crate::protocol::close;
 
 /// Sends a close frame with `code` and `reason`; the connection ends after.
 async fn close_with(ws: &mut Ws, code: u16, reason: &str) {
@@ -311,7 +300,7 @@ pub(crate) fn bad_token() -> JoinRefused {
             crate::protocol::ErrorCode::BadToken,
             "token refused: this connection may only view (say hello as a viewer)",
         ),
-        close: close::TOKEN,
+        close: close::TOKEN_REFUSED,
         reason: "token refused".into(),
     }
 }

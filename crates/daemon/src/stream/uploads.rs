@@ -36,14 +36,8 @@ use super::{Shared, change_lineup};
 use crate::lineup::LineupChange;
 use crate::protocol::{ErrorCode, ServerMessage};
 
-/// The largest picture accepted.
-pub const MAX_UPLOAD: usize = 16 << 20;
-
-/// The vertex counts a director may ask for: enough to bend, few enough
-/// that the stage keeps its frame rate.
-pub const MIN_VERTICES: usize = 50;
-pub const MAX_VERTICES: usize = 20_000;
-pub const DEFAULT_VERTICES: usize = 1000;
+use crate::protocol::upload::{DEFAULT_VERTICES, MAX_VERTICES, MIN_VERTICES};
+use puppetry_limits::net::MAX_UPLOAD_BYTES as MAX_UPLOAD;
 
 /// A new puppet fits in this fraction of the stage (it is never enlarged).
 const FIT: f64 = 0.5;

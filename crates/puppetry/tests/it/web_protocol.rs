@@ -1,47 +1,60 @@
-//! The web client's mirror of the wire protocol (`clients/web/protocol.js`)
-//! names every message type and every value of the fields clients branch on
-//! that `docs/protocol.md` shows. Every JSON example there is a real message
-//! (the daemon's tests parse each), so a message or kind added to the
-//! protocol and its documentation but not to the page fails here. No
-//! browser needed.
+//! The web client speaks the daemon's protocol. Its names and numbers
+//! (`clients/web/wire.js`) are written from the Rust types by the daemon's
+//! own test; here the page's builders (`clients/web/protocol.js`) are run
+//! under Node and every message they make is read into the daemon's
+//! `ClientMessage`, which refuses an unknown, missing or mistyped field: the
+//! page and the daemon agree on every message's shape, and a message type
+//! no builder makes fails. No browser needed.
 
-/// The fields whose values the page's code compares against constants.
-const FIELDS: [&str; 5] = ["type", "kind", "grip", "role", "phase"];
+use puppetry_daemon::protocol::ClientMessage;
+use strum::VariantNames;
 
 #[test]
-fn the_web_protocol_mirror_names_every_documented_value() {
+fn every_message_the_page_builds_is_a_client_message_and_every_type_has_a_builder() {
     let root = puppetry_testkit::root();
-    let docs = std::fs::read_to_string(root.join("docs/protocol.md")).unwrap();
-    let mirror = std::fs::read_to_string(root.join("clients/web/protocol.js")).unwrap();
-    let mut seen = std::collections::BTreeSet::new();
-    for field in FIELDS {
-        let key = format!("\"{field}\":");
-        let mut rest = docs.as_str();
-        while let Some(at) = rest.find(&key) {
-            rest = &rest[at + key.len()..];
-            let value = rest.trim_start();
-            // Only string values ("kind": 1 of a frame header table is not JSON).
-            let Some(value) = value.strip_prefix('"') else {
-                continue;
-            };
-            let end = value.find('"').unwrap();
-            seen.insert((field, value[..end].to_string()));
-        }
-    }
+    let output = std::process::Command::new("node")
+        .arg(root.join("tests/web/builders.mjs"))
+        .output()
+        .expect("node runs (install Node.js: apt-get install nodejs)");
     assert!(
-        seen.iter().any(|(f, v)| *f == "type" && v == "hello"),
-        "no message types found in docs/protocol.md"
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
     );
-    let missing: Vec<String> = seen
+    let mut built = std::collections::BTreeSet::new();
+    for line in String::from_utf8(output.stdout).unwrap().lines() {
+        let message: ClientMessage = serde_json::from_str(line)
+            .unwrap_or_else(|e| panic!("the page builds {line}, which the daemon refuses: {e}"));
+        // Written back, the message is what the page sent: no field the
+        // daemon would drop or default differently.
+        let back = as_floats(serde_json::to_value(&message).unwrap());
+        let sent = as_floats(serde_json::from_str(line).unwrap());
+        assert_eq!(back, sent, "the page's {line} reads back differently");
+        built.insert(<&'static str>::from(&message));
+    }
+    let missing: Vec<&str> = ClientMessage::VARIANTS
         .iter()
-        .filter(|(_, value)| !mirror.contains(&format!("'{value}'")))
-        .map(|(field, value)| format!("{field} {value:?}"))
+        .copied()
+        .filter(|name| !built.contains(name))
         .collect();
     assert!(
         missing.is_empty(),
-        "clients/web/protocol.js does not name these values of docs/protocol.md: {}",
-        missing.join(", ")
+        "tests/web/builders.mjs makes no message of these types (add a builder to clients/web/protocol.js and a line there): {missing:?}"
     );
+}
+
+/// The value with every number as a float (JavaScript writes `10` where
+/// the daemon writes `10.0`).
+fn as_floats(value: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match value {
+        Value::Number(n) => Value::from(n.as_f64().unwrap()),
+        Value::Array(items) => Value::Array(items.into_iter().map(as_floats).collect()),
+        Value::Object(fields) => {
+            Value::Object(fields.into_iter().map(|(k, v)| (k, as_floats(v))).collect())
+        }
+        other => other,
+    }
 }
 
 /// The page's pure pieces (`tests/web/unit.test.mjs`: the address's view

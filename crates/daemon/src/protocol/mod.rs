@@ -2,7 +2,9 @@
 //! typed text messages each way ([`ServerMessage`], [`ClientMessage`]) and
 //! the binary frame ([`FrameHeader`], [`encode_frame`], [`decode_frame`]).
 //! `docs/protocol.md` describes it and a test parses every example there
-//! into these types; `clients/web/protocol.js` mirrors it for the browser.
+//! into these types; [`javascript`] writes the browser's names and numbers
+//! of it (`clients/web/wire.js`) from these types, and
+//! `clients/web/protocol.js` builds and reads messages with them.
 //! The daemon, the benchmark client and the tests all speak through here,
 //! so no message is built or read by hand anywhere else.
 
@@ -11,8 +13,49 @@ use glam::DVec2;
 use puppetry_input::Phase;
 use serde::{Deserialize, Serialize};
 
+pub mod javascript;
+
 /// Size of a binary frame's header.
 pub const FRAME_HEADER_BYTES: usize = 32;
+
+/// Where each field of a frame header starts (bytes, little-endian):
+/// `kind` u32, `puppet` u32, `sequence` u64, `input_time` f64, `count`
+/// u32, `generation` u32.
+pub mod header {
+    pub const KIND: usize = 0;
+    pub const PUPPET: usize = 4;
+    pub const SEQUENCE: usize = 8;
+    pub const INPUT_TIME: usize = 16;
+    pub const COUNT: usize = 24;
+    pub const GENERATION: usize = 28;
+}
+
+/// Adding a puppet over HTTP: a director POSTs a PNG to [`upload::PATH`]
+/// (`?name=…&vertices=…[&x=…&y=…&scale=…]`, the director's bearer token);
+/// the answer is [`ServerMessage::PuppetAdded`] or an `error`.
+pub mod upload {
+    /// Where the picture is POSTed.
+    pub const PATH: &str = "/puppets";
+    /// The vertex counts a director may ask for: enough to bend, few
+    /// enough that the stage keeps its frame rate.
+    pub const MIN_VERTICES: usize = 50;
+    pub const MAX_VERTICES: usize = 20_000;
+    /// The count when none is asked for (the page's default too).
+    pub const DEFAULT_VERTICES: usize = 1000;
+}
+
+/// Close frame codes the daemon sends (RFC 6455 and the application range).
+pub mod close {
+    /// A rule was broken: a foreign origin, no hello, too many bad
+    /// messages, a ping left unanswered (the client stopped reading).
+    pub const POLICY: u16 = 1008;
+    /// A message too large to read.
+    pub const TOO_LARGE: u16 = 1009;
+    /// Too many connections (from this address, or in total).
+    pub const TRY_AGAIN_LATER: u16 = 1013;
+    /// The hello's token was refused.
+    pub const TOKEN_REFUSED: u16 = 4001;
+}
 
 /// What a binary frame carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -34,6 +77,14 @@ pub enum FrameKind {
 }
 
 impl FrameKind {
+    /// Every kind this build sends.
+    pub const KNOWN: [FrameKind; 4] = [
+        FrameKind::Vertices,
+        FrameKind::Rig,
+        FrameKind::Handles,
+        FrameKind::Depth,
+    ];
+
     pub fn code(self) -> u32 {
         match self {
             FrameKind::Vertices => 1,
@@ -73,7 +124,8 @@ pub struct FrameHeader {
 }
 
 impl FrameHeader {
-    /// Appends the header to `out`.
+    /// Appends the header to `out` (in the order of [`header`]'s offsets;
+    /// a test reads each field back at its offset).
     pub fn encode_into(&self, out: &mut BytesMut) {
         out.put_u32_le(self.kind.code());
         out.put_u32_le(self.puppet);
@@ -95,12 +147,12 @@ impl FrameHeader {
             |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
         let eight = |o: usize| -> [u8; 8] { head[o..o + 8].try_into().expect("8 bytes") };
         Ok(FrameHeader {
-            kind: FrameKind::from_code(u32_at(0)),
-            puppet: u32_at(4),
-            sequence: u64::from_le_bytes(eight(8)),
-            input_time: f64::from_le_bytes(eight(16)),
-            count: u32_at(24),
-            generation: u32_at(28),
+            kind: FrameKind::from_code(u32_at(header::KIND)),
+            puppet: u32_at(header::PUPPET),
+            sequence: u64::from_le_bytes(eight(header::SEQUENCE)),
+            input_time: f64::from_le_bytes(eight(header::INPUT_TIME)),
+            count: u32_at(header::COUNT),
+            generation: u32_at(header::GENERATION),
         })
     }
 }
@@ -273,8 +325,20 @@ pub enum Role {
 
 /// A role in the `people` list: a client's, or `device` for the stage's
 /// own input sources.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Serialize,
+    Deserialize,
+    strum::EnumIter,
+    strum::IntoStaticStr,
+    strum::EnumMessage,
+)]
 #[serde(rename_all = "snake_case")]
+#[strum(serialize_all = "snake_case")]
 pub enum PersonRole {
     Viewer,
     Performer,
@@ -306,8 +370,20 @@ pub struct Person {
 }
 
 /// Why something a client sent was refused (`error` messages' `code`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Serialize,
+    Deserialize,
+    strum::EnumIter,
+    strum::IntoStaticStr,
+    strum::EnumMessage,
+)]
 #[serde(rename_all = "snake_case")]
+#[strum(serialize_all = "snake_case")]
 pub enum ErrorCode {
     /// Not JSON, or not a message of the protocol.
     BadMessage,
@@ -339,8 +415,11 @@ pub enum ErrorCode {
 }
 
 /// What a client sends (text).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, PartialEq, Serialize, Deserialize, strum::VariantNames, strum::IntoStaticStr,
+)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[strum(serialize_all = "snake_case")]
 pub enum ClientMessage {
     /// The first message of every connection.
     Hello {
@@ -572,8 +651,11 @@ pub struct ClientContact {
 }
 
 /// What the daemon sends (text).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, PartialEq, Serialize, Deserialize, strum::VariantNames, strum::IntoStaticStr,
+)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+#[strum(serialize_all = "snake_case")]
 pub enum ServerMessage {
     /// The answer to `hello`: the stage and every puppet on it.
     Stage {
@@ -745,8 +827,11 @@ pub struct PadArea {
 }
 
 /// How a puppet is rigged.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, PartialEq, Serialize, Deserialize, strum::VariantNames, strum::IntoStaticStr,
+)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[strum(serialize_all = "snake_case")]
 pub enum RigDescription {
     Free,
     Grid {
@@ -808,8 +893,20 @@ pub struct HandleView {
     pub index: Option<usize>,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Serialize,
+    Deserialize,
+    strum::EnumIter,
+    strum::IntoStaticStr,
+    strum::EnumMessage,
+)]
 #[serde(rename_all = "snake_case")]
+#[strum(serialize_all = "snake_case")]
 pub enum HandleKind {
     Contact,
     Pin,
@@ -818,8 +915,20 @@ pub enum HandleKind {
 }
 
 /// What a handle holds.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Serialize,
+    Deserialize,
+    strum::EnumIter,
+    strum::IntoStaticStr,
+    strum::EnumMessage,
+)]
 #[serde(rename_all = "snake_case")]
+#[strum(serialize_all = "snake_case")]
 pub enum GripKind {
     /// A material point of the mesh.
     Point,
@@ -882,6 +991,74 @@ mod tests {
         assert_eq!(FrameKind::from_code(7), FrameKind::Other(7));
     }
 
+    /// The header's fields sit at the offsets `header` names (and
+    /// `clients/web/wire.js` tells the page).
+    #[test]
+    fn header_fields_sit_at_their_offsets() {
+        let bytes = encode_frame_of(
+            FrameKind::Handles,
+            0x0102_0304,
+            0x0a0b_0c0d_0e0f,
+            2.5,
+            9,
+            &[DVec2::ZERO],
+        );
+        let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+        let eight = |o: usize| -> [u8; 8] { bytes[o..o + 8].try_into().unwrap() };
+        assert_eq!(u32_at(header::KIND), FrameKind::Handles.code());
+        assert_eq!(u32_at(header::PUPPET), 0x0102_0304);
+        assert_eq!(
+            u64::from_le_bytes(eight(header::SEQUENCE)),
+            0x0a0b_0c0d_0e0f
+        );
+        assert_eq!(f64::from_le_bytes(eight(header::INPUT_TIME)), 2.5);
+        assert_eq!(u32_at(header::COUNT), 1);
+        assert_eq!(u32_at(header::GENERATION), 9);
+        assert_eq!(header::GENERATION + 4, FRAME_HEADER_BYTES);
+        for kind in FrameKind::KNOWN {
+            assert_eq!(FrameKind::from_code(kind.code()), kind);
+        }
+    }
+
+    /// strum's names (what `clients/web/wire.js` is written from) are
+    /// serde's (what the wire carries), variant for variant.
+    #[test]
+    fn the_generated_names_are_the_wire_names() {
+        use strum::{IntoEnumIterator, VariantNames};
+        let sorted = |names: &[&str]| {
+            let mut names: Vec<String> = names.iter().map(|n| n.to_string()).collect();
+            names.sort();
+            names
+        };
+        let serde_sorted = |mut names: Vec<String>| {
+            names.sort();
+            names
+        };
+        assert_eq!(
+            sorted(ClientMessage::VARIANTS),
+            serde_sorted(type_names::<ClientMessage>())
+        );
+        assert_eq!(
+            sorted(ServerMessage::VARIANTS),
+            serde_sorted(type_names::<ServerMessage>())
+        );
+        assert_eq!(
+            sorted(RigDescription::VARIANTS),
+            serde_sorted(tag_names::<RigDescription>("kind"))
+        );
+        fn units<T: IntoEnumIterator + Serialize + Into<&'static str>>() {
+            for variant in T::iter() {
+                let wire = serde_json::to_value(&variant).unwrap();
+                let name: &'static str = variant.into();
+                assert_eq!(wire, serde_json::Value::from(name));
+            }
+        }
+        units::<PersonRole>();
+        units::<ErrorCode>();
+        units::<HandleKind>();
+        units::<GripKind>();
+    }
+
     #[test]
     fn unknown_fields_and_types_are_refused() {
         let ok = r#"{"type": "pin", "x": 1.0, "y": 2.0}"#;
@@ -896,7 +1073,7 @@ mod tests {
     }
 
     /// `docs/protocol.md`, compiled in so editing it reruns this test.
-    const DOC: &str = include_str!("../../../docs/protocol.md");
+    const DOC: &str = include_str!("../../../../docs/protocol.md");
 
     /// The JSON values of every ```json block of the document.
     fn documented_values() -> Vec<serde_json::Value> {
@@ -937,7 +1114,12 @@ mod tests {
     /// The `type` names a message enum accepts, read from serde's own
     /// "expected one of" list, so a new variant is never missed.
     fn type_names<T: serde::de::DeserializeOwned>() -> Vec<String> {
-        let error = serde_json::from_str::<T>(r#"{"type": "?"}"#)
+        tag_names::<T>("type")
+    }
+
+    /// The names an internally tagged enum accepts in its `tag` field.
+    fn tag_names<T: serde::de::DeserializeOwned>(tag: &str) -> Vec<String> {
+        let error = serde_json::from_value::<T>(serde_json::json!({ tag: "?" }))
             .err()
             .expect("no variant is called ?")
             .to_string();
