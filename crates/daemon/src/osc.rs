@@ -21,13 +21,14 @@ use bytes::Bytes;
 use glam::DVec2;
 use rosc::address::{Matcher, OscAddress};
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
-use serde::Deserialize;
+
 use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, watch};
 use tokio::task::{AbortHandle, JoinHandle};
 
 use crate::config::OscConfig;
 
+use crate::outputs::{Published, State};
 use crate::protocol::{HandleKind, KeyView, RigDescription, ServerMessage, TakeState};
 use crate::stage_thread::{Command, PublishedHandles};
 use crate::stream::Shared;
@@ -552,9 +553,9 @@ pub struct PuppetLink {
     pub poses: Vec<String>,
     pub handles: watch::Receiver<Arc<PublishedHandles>>,
     /// The "keys" message (keyframing keys and cursor).
-    pub keys: watch::Receiver<Arc<str>>,
+    pub keys: State,
     /// The "pose" message (a skeleton's key-pose blend), empty until set.
-    pub pose: watch::Receiver<Arc<str>>,
+    pub pose: State,
     /// Handle frames (binary kind 3: where each handle's point is on the
     /// solved puppet), when the stage publishes them; else the handles'
     /// `at` stands in.
@@ -568,7 +569,7 @@ pub struct Links {
     pub names: Vec<String>,
     pub puppets: Vec<PuppetLink>,
     /// The "take" message.
-    pub take: watch::Receiver<Arc<str>>,
+    pub take: State,
     pub commands: mpsc::Sender<Command>,
 }
 
@@ -593,7 +594,7 @@ impl Links {
                 pose: o
                     .pose
                     .clone()
-                    .unwrap_or_else(|| watch::channel(Arc::<str>::from("")).1),
+                    .unwrap_or_else(|| watch::channel(Published::nothing()).1),
                 handle_frames: Some(o.handle_frame.clone()),
             })
             .collect();
@@ -680,43 +681,28 @@ pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
 }
 
 /// A puppet's key poses and cursor, from its published "keys" message
-/// (read with the protocol's own types; none published yet: none).
-fn keys_of(text: &str) -> (Vec<KeyView>, Option<[f64; 2]>) {
-    match parse_text(text) {
-        Some(ServerMessage::Keys { keys, cursor, .. }) => (keys, cursor),
+/// (none published yet: none).
+fn keys_of(published: &Published) -> (Vec<KeyView>, Option<[f64; 2]>) {
+    match &published.message {
+        Some(ServerMessage::Keys { keys, cursor, .. }) => (keys.clone(), *cursor),
         _ => (Vec::new(), None),
     }
 }
 
 /// A skeleton's key-pose blend, from its published "pose" message: from,
 /// to and how far (none published yet: `None`).
-fn pose_of(text: &str) -> Option<(Option<String>, Option<String>, f64)> {
-    match parse_text(text) {
-        Some(ServerMessage::Pose { from, to, t, .. }) => Some((from, to, t)),
+fn pose_of(published: &Published) -> Option<(Option<String>, Option<String>, f64)> {
+    match &published.message {
+        Some(ServerMessage::Pose { from, to, t, .. }) => Some((from.clone(), to.clone(), *t)),
         _ => None,
     }
 }
 
 /// The take state, from the published "take" message.
-fn take_of(text: &str) -> TakeState {
-    match parse_text(text) {
-        Some(ServerMessage::Take(take)) => take,
+fn take_of(published: &Published) -> TakeState {
+    match &published.message {
+        Some(ServerMessage::Take(take)) => take.clone(),
         _ => TakeState::default(),
-    }
-}
-
-/// Parses a published message (empty: nothing published yet).
-fn parse_text<T: for<'de> Deserialize<'de>>(text: &str) -> Option<T> {
-    if text.is_empty() {
-        return None;
-    }
-    match serde_json::from_str(text) {
-        Ok(v) => Some(v),
-        Err(e) => {
-            // The stage thread made it: a mismatch is this build's bug.
-            tracing::error!("cannot read a published message: {e}");
-            None
-        }
     }
 }
 

@@ -10,7 +10,45 @@ use std::time::Instant;
 use bytes::Bytes;
 use tokio::sync::watch;
 
-use crate::protocol::HandleView;
+use crate::protocol::{HandleView, ServerMessage};
+
+/// A state message as published: the typed message, which show control
+/// and the daemon's own code read (no JSON parsed back), and its text,
+/// which connections and relays send, made from it once.
+#[derive(Debug)]
+pub struct Published {
+    /// The message; none before anything is published, and none on a
+    /// relay, which forwards a text it does not read.
+    pub message: Option<ServerMessage>,
+    pub text: Arc<str>,
+}
+
+impl Published {
+    pub fn of(message: ServerMessage) -> Arc<Published> {
+        Arc::new(Published {
+            text: Arc::from(message.to_text()),
+            message: Some(message),
+        })
+    }
+
+    /// Nothing published yet (an empty text, which nobody sends).
+    pub fn nothing() -> Arc<Published> {
+        Published::relayed(Arc::from(""))
+    }
+
+    /// A text a relay received and forwards as it is.
+    pub fn relayed(text: Arc<str>) -> Arc<Published> {
+        Arc::new(Published {
+            message: None,
+            text,
+        })
+    }
+}
+
+/// A published state message's channel, as read.
+pub type State = watch::Receiver<Arc<Published>>;
+/// A published state message's channel, as written.
+pub type Feed = watch::Sender<Arc<Published>>;
 
 /// A puppet's handle set as published: the typed list (newcomers' stage
 /// messages include it) and the `handles` message made from it once.
@@ -32,16 +70,16 @@ pub struct PuppetOutput {
     /// The newest handle set and its "handles" message.
     pub handles: watch::Receiver<Arc<PublishedHandles>>,
     /// The newest "weights" message (changes when a performer paints).
-    pub weights: watch::Receiver<Arc<str>>,
+    pub weights: State,
     /// The newest "keys" message (key poses and the cursor).
-    pub keys: watch::Receiver<Arc<str>>,
+    pub keys: State,
     /// The newest handles frame: where each handle is on the solved
     /// puppet (none before the first solve with handles).
     pub handle_frame: watch::Receiver<Option<Bytes>>,
     /// The newest "history" message (undo and redo steps).
-    pub history: watch::Receiver<Arc<str>>,
+    pub history: State,
     /// The newest "pose" message (skeleton puppets only).
-    pub pose: Option<watch::Receiver<Arc<str>>>,
+    pub pose: Option<State>,
     /// The newest depth frame (none until the depth first differs from
     /// the mesh's order, or with `depth = "off"`).
     pub depth: watch::Receiver<Option<Bytes>>,

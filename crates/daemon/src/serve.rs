@@ -13,6 +13,7 @@ use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
 use crate::config::ShowConfig;
+use crate::outputs::Published;
 use crate::sources::{
     Replays, SOURCE_QUEUE, SourceError, WhenDone, forward, run_replay, supervise,
 };
@@ -246,7 +247,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
             .map(|r| (r.source.to_string(), !(paused_replays && r.from_stage_file)))
             .collect(),
     ));
-    let export_state = watch::channel(Arc::<str>::from("")).0;
+    let export_state = watch::channel(Published::nothing()).0;
     let shared = Arc::new(Shared {
         lineup: outputs.lineup,
         log: Default::default(),
@@ -259,7 +260,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         people: people.subscribe(),
         inputs: replays.message(),
         // A daemon never loses its own stage.
-        notice: watch::channel(Arc::<str>::from("")).1,
+        notice: watch::channel(Published::nothing()).1,
         changes: outputs.changes,
         timings: outputs.timings,
         client_timeout: Duration::from_secs_f64(config.stage.client_timeout_s),

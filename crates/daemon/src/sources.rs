@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::{mpsc, watch};
 
+use crate::outputs::{Feed, Published, State};
 use crate::stage_thread::Command;
 use puppetry_input::hid::HidError;
 use puppetry_input::serial::SerialError;
@@ -124,7 +125,7 @@ pub async fn supervise<F, Fut>(
 pub struct Replays {
     names: Vec<String>,
     playing: Vec<watch::Sender<bool>>,
-    message: watch::Sender<Arc<str>>,
+    message: Feed,
 }
 
 impl Replays {
@@ -137,14 +138,14 @@ impl Replays {
         let replays = Replays {
             names,
             playing,
-            message: watch::channel(Arc::<str>::from("")).0,
+            message: watch::channel(Published::nothing()).0,
         };
         replays.publish();
         replays
     }
 
     /// The newest `inputs` message.
-    pub fn message(&self) -> watch::Receiver<Arc<str>> {
+    pub fn message(&self) -> State {
         self.message.subscribe()
     }
 
@@ -180,8 +181,10 @@ impl Replays {
                 playing: *playing.borrow(),
             })
             .collect();
-        let text = crate::protocol::ServerMessage::Inputs { replays }.to_text();
-        self.message.send_replace(Arc::from(text));
+        self.message
+            .send_replace(Published::of(crate::protocol::ServerMessage::Inputs {
+                replays,
+            }));
     }
 }
 

@@ -33,6 +33,7 @@ use super::{
     TOTAL_HEADER,
 };
 use crate::config::RelayConfig;
+use crate::outputs::State;
 use crate::protocol::Role;
 use crate::stream::following::{Following, Payload, STREAMS};
 use crate::stream::guard::{Permissions, Refusal};
@@ -236,7 +237,7 @@ impl Publisher {
                 ];
                 for (name, feed) in texts {
                     if feed.has_changed().unwrap_or(false) {
-                        let text = feed.borrow_and_update().clone();
+                        let text = feed.borrow_and_update().text.clone();
                         self.send(self.subjects.stage_text(name), text_bytes(&text))
                             .await;
                     }
@@ -360,7 +361,7 @@ fn text_bytes(text: &Arc<str>) -> Bytes {
 fn everything_again(
     following: &mut Following,
     lineup: &watch::Receiver<Arc<crate::lineup::Lineup>>,
-    texts: &mut [&mut watch::Receiver<Arc<str>>],
+    texts: &mut [&mut State],
 ) {
     *following = Following::of(lineup.borrow().clone());
     for feed in texts {

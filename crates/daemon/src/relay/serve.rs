@@ -28,6 +28,7 @@ use super::{
     STAGE_GONE_AFTER, Subjects, TOTAL_HEADER,
 };
 use crate::lineup::{Lineup, StageDescription};
+use crate::outputs::{Feed, Published, State};
 use crate::protocol::{
     ErrorCode, Person, PersonRole, RigDescription, Role, ServerMessage, StageSize,
 };
@@ -184,12 +185,12 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
 /// The relay's ends of the daemon's state, for the stream module.
 struct Feeds {
     lineup: watch::Receiver<Arc<Lineup>>,
-    cursors: watch::Receiver<Arc<str>>,
-    take: watch::Receiver<Arc<str>>,
-    export: watch::Receiver<Arc<str>>,
-    people: watch::Receiver<Arc<str>>,
-    inputs: watch::Receiver<Arc<str>>,
-    notice: watch::Receiver<Arc<str>>,
+    cursors: State,
+    take: State,
+    export: State,
+    people: State,
+    inputs: State,
+    notice: State,
     changes: watch::Receiver<u64>,
     admission: watch::Receiver<Admission>,
     boot: watch::Receiver<u64>,
@@ -205,18 +206,18 @@ struct PuppetFeeds {
     frame: watch::Sender<Option<Bytes>>,
     rig: watch::Sender<Option<Bytes>>,
     handles: watch::Sender<Arc<PublishedHandles>>,
-    weights: watch::Sender<Arc<str>>,
-    keys: watch::Sender<Arc<str>>,
+    weights: Feed,
+    keys: Feed,
     handle_frame: watch::Sender<Option<Bytes>>,
-    history: watch::Sender<Arc<str>>,
-    pose: Option<watch::Sender<Arc<str>>>,
+    history: Feed,
+    pose: Option<Feed>,
     depth: watch::Sender<Option<Bytes>>,
 }
 
 impl PuppetFeeds {
     fn new(skeleton: bool) -> (PuppetFeeds, PuppetOutput) {
-        fn text() -> (watch::Sender<Arc<str>>, watch::Receiver<Arc<str>>) {
-            watch::channel(Arc::from(""))
+        fn text() -> (Feed, State) {
+            watch::channel(Published::nothing())
         }
         let (frame, frame_rx) = watch::channel(None);
         let (rig, rig_rx) = watch::channel(None);
@@ -269,15 +270,9 @@ impl PuppetFeeds {
                 news
             })
         };
-        let text = |feed: &watch::Sender<Arc<str>>| -> Result<bool, String> {
+        let text = |feed: &Feed| -> Result<bool, String> {
             let text = std::str::from_utf8(&payload).map_err(|e| e.to_string())?;
-            Ok(feed.send_if_modified(|now| {
-                let news = &**now != text;
-                if news {
-                    *now = Arc::from(text);
-                }
-                news
-            }))
+            Ok(relay_text(feed, text))
         };
         match stream {
             "frame" => Ok(binary(&self.frame)),
@@ -321,8 +316,8 @@ struct Mirror {
     lineup: watch::Sender<Arc<Lineup>>,
     /// The outputs of the lineup now, by puppet id.
     puppets: Vec<PuppetFeeds>,
-    texts: HashMap<&'static str, watch::Sender<Arc<str>>>,
-    notice: watch::Sender<Arc<str>>,
+    texts: HashMap<&'static str, Feed>,
+    notice: Feed,
     changes: watch::Sender<u64>,
     admission: watch::Sender<Admission>,
     boot: watch::Sender<u64>,
@@ -353,12 +348,12 @@ impl Mirror {
         let mut texts = HashMap::new();
         let mut receivers = HashMap::new();
         for name in TEXTS {
-            let (tx, rx) = watch::channel(Arc::<str>::from(""));
+            let (tx, rx) = watch::channel(Published::nothing());
             texts.insert(name, tx);
             receivers.insert(name, rx);
         }
         let mut text = |name| receivers.remove(name).expect("every text has a channel");
-        let (notice, notice_rx) = watch::channel(Arc::<str>::from(""));
+        let (notice, notice_rx) = watch::channel(Published::nothing());
         let (changes, changes_rx) = watch::channel(0);
         // Until the daemon says otherwise, a stage file's defaults.
         let (admission, admission_rx) = watch::channel(Admission {
@@ -488,16 +483,15 @@ impl Mirror {
             *now = lost.is_none();
             news
         });
-        let text = ServerMessage::Live {
+        let notice = Published::of(ServerMessage::Live {
             live: lost.is_none(),
             reason: lost.map(str::to_string),
-        }
-        .to_text();
+        });
         self.notice.send_if_modified(|now| {
-            if (now.is_empty() && lost.is_none()) || **now == *text {
+            if (now.text.is_empty() && lost.is_none()) || now.text == notice.text {
                 return false;
             }
-            *now = Arc::from(text.as_str());
+            *now = notice;
             true
         });
     }
@@ -525,13 +519,7 @@ impl Mirror {
             self.take_heartbeat(&payload)
         } else if let Some(text) = name.strip_prefix("s.") {
             match (self.texts.get(text), std::str::from_utf8(&payload)) {
-                (Some(feed), Ok(text)) => Ok(feed.send_if_modified(|now| {
-                    let news = &**now != text;
-                    if news {
-                        *now = Arc::from(text);
-                    }
-                    news
-                })),
+                (Some(feed), Ok(text)) => Ok(relay_text(feed, text)),
                 _ => Err(format!("no stage message {text:?}")),
             }
         } else if let Some(puppet) = name.strip_prefix("p.") {
@@ -967,4 +955,16 @@ impl Drop for Session {
             });
         }
     }
+}
+
+/// Forwards a text the daemon published to the relay's viewers; whether it
+/// was news (the daemon publishes its whole state again when a relay asks).
+fn relay_text(feed: &Feed, text: &str) -> bool {
+    feed.send_if_modified(|now| {
+        let news = &*now.text != text;
+        if news {
+            *now = Published::relayed(Arc::from(text));
+        }
+        news
+    })
 }

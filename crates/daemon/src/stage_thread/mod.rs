@@ -32,7 +32,7 @@ use batch::Batch;
 use publish::Publisher;
 use taking::Taking;
 
-pub use crate::outputs::{PublishedHandles, PuppetOutput, Timings};
+pub use crate::outputs::{Published, PublishedHandles, PuppetOutput, State, Timings};
 pub use publish::{
     cursors_message, handle_views, history_message, keys_message, pose_message, published_handles,
     weights_message,
@@ -43,9 +43,9 @@ pub struct Outputs {
     /// The puppets on stage and each one's outputs.
     pub lineup: watch::Receiver<Arc<Lineup>>,
     /// The newest "cursors" message.
-    pub cursors: watch::Receiver<Arc<str>>,
+    pub cursors: State,
     /// The newest "take" message (recording and playing now).
-    pub take: watch::Receiver<Arc<str>>,
+    pub take: State,
     /// Bumped after each publish, so clients wait on one signal.
     pub changes: watch::Receiver<u64>,
     pub timings: Arc<Timings>,
@@ -383,7 +383,7 @@ impl StageLoop {
     fn new(config: StageConfig, stage: &mut Stage, takes: TakeSettings) -> StageLoop {
         let (changes, changes_rx) = watch::channel(0u64);
         let cursors = BTreeMap::new();
-        let (cursors_tx, cursors_rx) = watch::channel(Arc::<str>::from(cursors_message(&cursors)));
+        let (cursors_tx, cursors_rx) = watch::channel(cursors_message(&cursors));
         let mut publisher = Publisher {
             frames: Vec::new(),
             rigs: Vec::new(),
@@ -413,7 +413,7 @@ impl StageLoop {
             .collect();
         let (lineup_tx, lineup_rx) =
             watch::channel(Lineup::of(stage, outputs, 0, Arc::new(config)));
-        let (state_tx, state_rx) = watch::channel(Arc::<str>::from(""));
+        let (state_tx, state_rx) = watch::channel(Published::nothing());
         let taking = Taking {
             settings: takes,
             recorder: None,
@@ -429,7 +429,7 @@ impl StageLoop {
             error: None,
             state: state_tx,
         };
-        taking.state.send_replace(Arc::from(taking.state_message()));
+        taking.state.send_replace(taking.state_message());
         let solved = stage.solve();
         publisher.publish(stage, &solved, 0.0);
         let timings = Arc::new(Timings::default());

@@ -18,10 +18,10 @@ use crate::protocol::{
 };
 
 use super::CursorState;
-use crate::outputs::{PublishedHandles, PuppetOutput};
+use crate::outputs::{Feed, Published, PublishedHandles, PuppetOutput};
 
 /// The "cursors" message: every mouse cursor on the stage.
-pub fn cursors_message(cursors: &BTreeMap<String, CursorState>) -> String {
+pub fn cursors_message(cursors: &BTreeMap<String, CursorState>) -> Arc<Published> {
     let cursors = cursors
         .iter()
         .map(|(source, c)| CursorView {
@@ -32,7 +32,7 @@ pub fn cursors_message(cursors: &BTreeMap<String, CursorState>) -> String {
             holding: c.holding,
         })
         .collect();
-    ServerMessage::Cursors { cursors }.to_text()
+    Published::of(ServerMessage::Cursors { cursors })
 }
 
 /// A puppet's handles as clients see them.
@@ -81,37 +81,35 @@ pub fn published_handles(stage: &Stage, puppet: u32) -> Arc<PublishedHandles> {
 }
 
 /// The "weights" message of a puppet: its per-triangle weights now.
-pub fn weights_message(stage: &Stage, puppet: u32) -> String {
+pub fn weights_message(stage: &Stage, puppet: u32) -> Arc<Published> {
     let p = &stage.puppets()[puppet as usize];
-    ServerMessage::Weights {
+    Published::of(ServerMessage::Weights {
         puppet,
         weights: p.weights().to_vec(),
-    }
-    .to_text()
+    })
 }
 
 /// The "history" message of a puppet: its undo and redo steps.
-pub fn history_message(stage: &Stage, puppet: u32) -> String {
+pub fn history_message(stage: &Stage, puppet: u32) -> Arc<Published> {
     let (undo, redo) = stage.puppets()[puppet as usize].history();
-    ServerMessage::History { puppet, undo, redo }.to_text()
+    Published::of(ServerMessage::History { puppet, undo, redo })
 }
 
 /// The "pose" message of a skeleton puppet: its key-pose blend now.
-pub fn pose_message(stage: &Stage, puppet: u32) -> String {
+pub fn pose_message(stage: &Stage, puppet: u32) -> Arc<Published> {
     let (key, _) = stage.puppets()[puppet as usize].key_pose();
-    ServerMessage::Pose {
+    Published::of(ServerMessage::Pose {
         puppet,
         from: key.map(|k| k.from.clone()),
         to: key.map(|k| k.to.clone()),
         t: key.map_or(0.0, |k| k.t),
-    }
-    .to_text()
+    })
 }
 
 /// The "keys" message of a puppet: its key poses and cursor now.
-pub fn keys_message(stage: &Stage, puppet: u32) -> String {
+pub fn keys_message(stage: &Stage, puppet: u32) -> Arc<Published> {
     let k = stage.puppets()[puppet as usize].keying();
-    ServerMessage::Keys {
+    Published::of(ServerMessage::Keys {
         puppet,
         keys: k
             .keys()
@@ -122,8 +120,7 @@ pub fn keys_message(stage: &Stage, puppet: u32) -> String {
             })
             .collect(),
         cursor: k.cursor().map(|c| c.to_array()),
-    }
-    .to_text()
+    })
 }
 
 /// The stage thread's publishing ends: per puppet its newest frame and
@@ -133,17 +130,17 @@ pub(super) struct Publisher {
     pub(super) frames: Vec<watch::Sender<Option<Bytes>>>,
     pub(super) rigs: Vec<watch::Sender<Option<Bytes>>>,
     pub(super) handles: Vec<watch::Sender<Arc<PublishedHandles>>>,
-    pub(super) weights: Vec<watch::Sender<Arc<str>>>,
+    pub(super) weights: Vec<Feed>,
     /// Per puppet, the weights generation last published.
     pub(super) weights_published: Vec<u64>,
-    pub(super) keys: Vec<watch::Sender<Arc<str>>>,
+    pub(super) keys: Vec<watch::Sender<Arc<Published>>>,
     pub(super) keys_published: Vec<u64>,
     pub(super) handle_frames: Vec<watch::Sender<Option<Bytes>>>,
     /// Scratch for handle positions, reused by every publish.
     pub(super) handle_points: Vec<DVec2>,
-    pub(super) history: Vec<watch::Sender<Arc<str>>>,
+    pub(super) history: Vec<Feed>,
     pub(super) history_published: Vec<(usize, usize)>,
-    pub(super) poses: Vec<Option<watch::Sender<Arc<str>>>>,
+    pub(super) poses: Vec<Option<watch::Sender<Arc<Published>>>>,
     pub(super) poses_published: Vec<u64>,
     pub(super) depths: Vec<watch::Sender<Option<Bytes>>>,
     /// Per puppet, the depth generation last published.
@@ -154,7 +151,7 @@ pub(super) struct Publisher {
     /// earlier frame has been sent and dropped, so its storage comes back
     /// ([`encode_frame_into`]) and a steady stream does not allocate.
     pub(super) arenas: Vec<[[BytesMut; 2]; 3]>,
-    pub(super) cursors: watch::Sender<Arc<str>>,
+    pub(super) cursors: Feed,
     pub(super) changes: watch::Sender<u64>,
 }
 
@@ -227,7 +224,7 @@ impl Publisher {
             let i = p.id as usize;
             if p.keying().generation != self.keys_published[i] {
                 self.keys_published[i] = p.keying().generation;
-                self.keys[i].send_replace(Arc::from(keys_message(stage, p.id)));
+                self.keys[i].send_replace(keys_message(stage, p.id));
                 any = true;
             }
         }
@@ -235,7 +232,7 @@ impl Publisher {
             let i = p.id as usize;
             if p.history() != self.history_published[i] {
                 self.history_published[i] = p.history();
-                self.history[i].send_replace(Arc::from(history_message(stage, p.id)));
+                self.history[i].send_replace(history_message(stage, p.id));
                 any = true;
             }
             let (_, generation) = p.key_pose();
@@ -243,12 +240,12 @@ impl Publisher {
                 && let Some(pose) = &self.poses[i]
             {
                 self.poses_published[i] = generation;
-                pose.send_replace(Arc::from(pose_message(stage, p.id)));
+                pose.send_replace(pose_message(stage, p.id));
                 any = true;
             }
             if p.weights_generation() != self.weights_published[i] {
                 self.weights_published[i] = p.weights_generation();
-                self.weights[i].send_replace(Arc::from(weights_message(stage, p.id)));
+                self.weights[i].send_replace(weights_message(stage, p.id));
                 any = true;
             }
         }
@@ -266,21 +263,21 @@ impl Publisher {
         self.frames.push(frame_tx);
         let (rig_tx, rig_rx) = watch::channel(None);
         self.rigs.push(rig_tx);
-        let (weights_tx, weights_rx) = watch::channel(Arc::<str>::from(weights_message(stage, id)));
+        let (weights_tx, weights_rx) = watch::channel(weights_message(stage, id));
         self.weights.push(weights_tx);
         self.weights_published.push(p.weights_generation());
-        let (keys_tx, keys_rx) = watch::channel(Arc::<str>::from(keys_message(stage, id)));
+        let (keys_tx, keys_rx) = watch::channel(keys_message(stage, id));
         self.keys.push(keys_tx);
         self.keys_published.push(p.keying().generation);
         let (handles_tx, handles_rx) = watch::channel(published_handles(stage, id));
         self.handles.push(handles_tx);
         let (handle_frame_tx, handle_frame_rx) = watch::channel(None);
         self.handle_frames.push(handle_frame_tx);
-        let (history_tx, history_rx) = watch::channel(Arc::<str>::from(history_message(stage, id)));
+        let (history_tx, history_rx) = watch::channel(history_message(stage, id));
         self.history.push(history_tx);
         self.history_published.push(p.history());
         let pose = matches!(p.rig(), puppetry_stage::Rig::Skeleton(_))
-            .then(|| watch::channel(Arc::<str>::from(pose_message(stage, id))));
+            .then(|| watch::channel(pose_message(stage, id)));
         let (pose_tx, pose_rx) = pose.unzip();
         self.poses.push(pose_tx);
         self.poses_published.push(p.key_pose().1);
@@ -304,8 +301,7 @@ impl Publisher {
     }
 
     pub(super) fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorState>) {
-        self.cursors
-            .send_replace(Arc::from(cursors_message(cursors)));
+        self.cursors.send_replace(cursors_message(cursors));
         self.changes.send_modify(|c| *c += 1);
     }
 }

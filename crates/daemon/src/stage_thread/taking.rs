@@ -14,6 +14,7 @@ use puppetry_stage::{Change, Stage, StageEvent};
 use puppetry_take::recorder::Recorder;
 use puppetry_take::{Frame, Header, Record, Step};
 
+use crate::outputs::Published;
 use crate::protocol::{ServerMessage, TakeState};
 
 use super::TakeSettings;
@@ -45,22 +46,21 @@ pub(super) struct Taking {
     /// take started by the first input): publish after the next solve.
     pub(super) announce: bool,
     pub(super) error: Option<String>,
-    pub(super) state: watch::Sender<Arc<str>>,
+    pub(super) state: watch::Sender<Arc<Published>>,
 }
 
 impl Taking {
-    pub(super) fn state_message(&self) -> String {
-        ServerMessage::Take(TakeState {
+    pub(super) fn state_message(&self) -> Arc<Published> {
+        Published::of(ServerMessage::Take(TakeState {
             recording: self.recorder.as_ref().map(|r| r.name().to_string()),
             elapsed: self.recorder.as_ref().map_or(0.0, |r| r.elapsed()),
             playing: self.playing.clone(),
             error: self.error.clone(),
-        })
-        .to_text()
+        }))
     }
 
     pub(super) fn publish(&self, changes: &watch::Sender<u64>) {
-        self.state.send_replace(Arc::from(self.state_message()));
+        self.state.send_replace(self.state_message());
         changes.send_modify(|c| *c += 1);
     }
 

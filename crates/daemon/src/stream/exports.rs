@@ -39,6 +39,7 @@ use puppetry_take::{TakeError, TakeReader, TakeWriter};
 
 use super::Shared;
 use super::people::{Credential, credential};
+use crate::outputs::Published;
 use crate::protocol::{ExportState, ServerMessage};
 
 /// The export's query parameters; any other is refused (400).
@@ -334,17 +335,16 @@ pub async fn export(
                     Failed::Export(_) => Failed::Export(text),
                 }
             });
-            links.export_state.send_replace(Arc::from(
-                ServerMessage::Export(ExportState {
+            links
+                .export_state
+                .send_replace(Published::of(ServerMessage::Export(ExportState {
                     take: label,
                     format: export.format.to_string(),
                     done: 1,
                     total: 1,
                     finished: true,
                     error: result.as_ref().err().map(|f| f.text().to_string()),
-                })
-                .to_text(),
-            ));
+                })));
             links.exporting.store(false, Ordering::Release);
             // The folder goes with the answer (or here, if no one waits).
             let _ = done.send((result, scratch));
@@ -515,17 +515,16 @@ impl puppetry_export::Progress for Broadcast<'_> {
             return;
         }
         self.shown = percent;
-        self.links.export_state.send_replace(Arc::from(
-            ServerMessage::Export(ExportState {
+        self.links
+            .export_state
+            .send_replace(Published::of(ServerMessage::Export(ExportState {
                 take: self.take.clone(),
                 format: self.format.clone(),
                 done,
                 total,
                 finished: false,
                 error: None,
-            })
-            .to_text(),
-        ));
+            })));
     }
 }
 

@@ -14,6 +14,7 @@ use tokio::sync::watch;
 
 use super::{Ws, feed, flush};
 use crate::lineup::Lineup;
+use crate::outputs::State;
 use crate::protocol::{Person, Role};
 use crate::stage_thread::PublishedHandles;
 
@@ -26,11 +27,11 @@ pub(crate) struct Following {
     frames: Vec<watch::Receiver<Option<Bytes>>>,
     rigs: Vec<watch::Receiver<Option<Bytes>>>,
     handles: Vec<watch::Receiver<Arc<PublishedHandles>>>,
-    weights: Vec<watch::Receiver<Arc<str>>>,
-    keys: Vec<watch::Receiver<Arc<str>>>,
+    weights: Vec<State>,
+    keys: Vec<State>,
     handle_frames: Vec<watch::Receiver<Option<Bytes>>>,
-    history: Vec<watch::Receiver<Arc<str>>>,
-    poses: Vec<Option<watch::Receiver<Arc<str>>>>,
+    history: Vec<State>,
+    poses: Vec<Option<State>>,
     depths: Vec<watch::Receiver<Option<Bytes>>>,
 }
 
@@ -186,10 +187,10 @@ fn newest(frame: &mut watch::Receiver<Option<Bytes>>) -> Option<Bytes> {
 
 /// The newest text message, if it changed since last seen and is not
 /// empty.
-fn newest_text(text: &mut watch::Receiver<Arc<str>>) -> Option<Arc<str>> {
+fn newest_text(text: &mut State) -> Option<Arc<str>> {
     if !text.has_changed().unwrap_or(false) {
         return None;
     }
-    let text = text.borrow_and_update().clone();
+    let text = text.borrow_and_update().text.clone();
     (!text.is_empty()).then_some(text)
 }

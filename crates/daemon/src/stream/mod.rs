@@ -30,6 +30,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::convert::Converted;
 use crate::lineup::{Lineup, LineupChange};
+use crate::outputs::{Feed, State};
 use crate::protocol::{ClientMessage, Role, ServerMessage};
 use crate::stage_thread::{Command, Edit};
 use following::Following;
@@ -64,18 +65,18 @@ pub struct Shared {
     /// Open connections past which new ones are refused.
     pub max_connections: usize,
     /// The newest "cursors" message (mouse cursors on the stage).
-    pub cursors: watch::Receiver<Arc<str>>,
+    pub cursors: State,
     /// The newest "take" message (recording and playing now).
-    pub take: watch::Receiver<Arc<str>>,
+    pub take: State,
     /// The newest "export" message.
-    pub export: watch::Receiver<Arc<str>>,
+    pub export: State,
     /// The newest "people" message.
-    pub people: watch::Receiver<Arc<str>>,
+    pub people: State,
     /// The newest "inputs" message (the stage's replays).
-    pub inputs: watch::Receiver<Arc<str>>,
+    pub inputs: State,
     /// The newest "live" notice; empty while there is none (a daemon never
     /// has one: only a relay loses its stage).
-    pub notice: watch::Receiver<Arc<str>>,
+    pub notice: State,
     /// Bumped after each publish (by the stage thread, or a relay's feed).
     pub changes: watch::Receiver<u64>,
     /// Where the stage thread's and the client tasks' time goes.
@@ -109,7 +110,7 @@ pub struct StageLinks {
     /// An export is running (one at a time).
     pub exporting: std::sync::atomic::AtomicBool,
     /// The newest "export" message.
-    pub export_state: watch::Sender<Arc<str>>,
+    pub export_state: Feed,
     /// The stage's replay inputs, played and paused from the page.
     pub replays: Arc<crate::sources::Replays>,
     /// The contacts each client holds down, counted at the door.
@@ -602,11 +603,7 @@ async fn websocket(
 
 /// Sends a text feed's newest message if it changed since last sent;
 /// an empty message is nothing to send.
-async fn send_if_changed(
-    ws: &mut Ws,
-    feed: &mut watch::Receiver<Arc<str>>,
-    timeout: Duration,
-) -> std::io::Result<()> {
+async fn send_if_changed(ws: &mut Ws, feed: &mut State, timeout: Duration) -> std::io::Result<()> {
     if feed.has_changed().unwrap_or(false) {
         send_text(ws, feed, timeout).await?;
     }
@@ -615,12 +612,8 @@ async fn send_if_changed(
 
 /// Sends a text feed's newest message (marking it seen); an empty one is
 /// nothing to send.
-async fn send_text(
-    ws: &mut Ws,
-    feed: &mut watch::Receiver<Arc<str>>,
-    timeout: Duration,
-) -> std::io::Result<()> {
-    let text = feed.borrow_and_update().clone();
+async fn send_text(ws: &mut Ws, feed: &mut State, timeout: Duration) -> std::io::Result<()> {
+    let text = feed.borrow_and_update().text.clone();
     if text.is_empty() {
         return Ok(());
     }
@@ -1128,9 +1121,10 @@ async fn list_takes(shared: &Shared) -> Result<String, String> {
     .map_err(|e| e.to_string())?;
     // The take being recorded reads as unended: say what it is instead
     // (it cannot be played until it stops).
-    let recording = serde_json::from_str::<serde_json::Value>(&shared.take.borrow())
-        .ok()
-        .and_then(|m| m["recording"].as_str().map(str::to_string));
+    let recording = match &shared.take.borrow().message {
+        Some(ServerMessage::Take(take)) => take.recording.clone(),
+        _ => None,
+    };
     let takes = listed
         .into_iter()
         .filter_map(|t| match t {

@@ -13,6 +13,7 @@ use subtle::ConstantTimeEq;
 use tokio::sync::watch;
 
 use crate::config::{Access, AccessRole};
+use crate::outputs::{Feed, Published, State};
 use crate::protocol::{Person, PersonRole, Role, ServerMessage};
 
 /// Okabe–Ito, without black (the stage's ink).
@@ -76,7 +77,7 @@ pub struct People {
     /// The stage's input sources, listed as role `device`.
     devices: Vec<Person>,
     connected: Mutex<Vec<Person>>,
-    message: watch::Sender<Arc<str>>,
+    message: Feed,
 }
 
 impl People {
@@ -95,7 +96,7 @@ impl People {
             puppet_names: config.puppets.iter().map(|p| p.name.clone()).collect(),
             devices,
             connected: Mutex::new(Vec::new()),
-            message: watch::channel(Arc::<str>::from("")).0,
+            message: watch::channel(Published::nothing()).0,
         };
         people.publish(&people.lock());
         people
@@ -110,14 +111,14 @@ impl People {
     }
 
     /// The newest `people` message, to watch.
-    pub fn subscribe(&self) -> watch::Receiver<Arc<str>> {
+    pub fn subscribe(&self) -> State {
         self.message.subscribe()
     }
 
     fn publish(&self, connected: &[Person]) {
         let people = connected.iter().chain(&self.devices).cloned().collect();
-        let text = ServerMessage::People { people }.to_text();
-        self.message.send_replace(Arc::from(text));
+        self.message
+            .send_replace(Published::of(ServerMessage::People { people }));
     }
 
     /// Who `owner` is, having said hello as `role` with `token` (already
@@ -290,14 +291,14 @@ mod tests {
         distinct.dedup();
         assert_eq!(distinct.len(), colours.len(), "{colours:?}");
         assert!(colours.iter().all(|c| PALETTE.contains(&c.as_str())));
-        let listed: serde_json::Value = serde_json::from_str(&p.subscribe().borrow()).unwrap();
+        let listed: serde_json::Value = serde_json::from_str(&p.subscribe().borrow().text).unwrap();
         assert_eq!(listed["people"].as_array().unwrap().len(), 7);
         assert_eq!(listed["people"][6]["role"], "device");
         // A viewer is not listed; one who leaves gives up their colour.
         let (viewer, none) = p.join("client:10", Role::Viewer, credential(p.access(), "ana"));
         assert_eq!((viewer.role, none.is_none()), (Role::Viewer, true));
         drop(ana_place);
-        let listed: serde_json::Value = serde_json::from_str(&p.subscribe().borrow()).unwrap();
+        let listed: serde_json::Value = serde_json::from_str(&p.subscribe().borrow().text).unwrap();
         assert_eq!(listed["people"].as_array().unwrap().len(), 6);
         let (next, _next_place) = p.join("client:11", Role::Performer, Some(Credential::Anonymous));
         assert_eq!(next.person.colour, ana.person.colour);
