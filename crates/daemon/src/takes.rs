@@ -51,8 +51,8 @@ pub enum PlayError {
     #[error("{file}: {problem}")]
     Stage { file: String, problem: String },
     /// The take asked for is the one being recorded.
-    #[error("take {take} is being recorded: stop recording before playing it")]
-    Recording { take: String },
+    #[error(transparent)]
+    Recording(#[from] crate::stage_thread::BeingRecorded),
     #[error("{file}: the stage stopped")]
     StageStopped { file: String },
     #[error("cannot start a player: {0}")]
@@ -144,11 +144,12 @@ pub fn play(
                 reply,
             });
             let taken = match asked {
-                Ok(()) => taken.blocking_recv().unwrap_or_else(|_| {
-                    Err(PlayError::StageStopped {
+                Ok(()) => match taken.blocking_recv() {
+                    Ok(started) => started.map_err(PlayError::from),
+                    Err(_) => Err(PlayError::StageStopped {
                         file: label.clone(),
-                    })
-                }),
+                    }),
+                },
                 Err(_) => Err(PlayError::StageStopped {
                     file: label.clone(),
                 }),

@@ -34,7 +34,9 @@ use crate::protocol::{
 };
 use crate::stage_thread::{PublishedHandles, PuppetOutput, Timings};
 use crate::stream::guard::Refusal;
+use crate::stream::upstream::UpstreamSeat;
 use crate::stream::{self, Admission, Backend, JoinRefused, Joined, Shared, WebFiles};
+use futures_util::future::BoxFuture;
 
 /// How a relay runs.
 #[derive(Debug, Clone)]
@@ -144,7 +146,7 @@ pub async fn start(options: RelayOptions) -> Result<RelayRunning, RelayError> {
         client_timeout: options.client_timeout,
         started: Instant::now(),
         next_client: AtomicU64::new(1),
-        backend: Backend::Relay(link.clone()),
+        backend: Backend::Upstream(Arc::new(link.clone())),
     });
     let listener = stream::bind(options.listen).await?;
     let address = listener
@@ -926,9 +928,38 @@ impl Session {
         let clock = self.link.started.elapsed().as_secs_f64() + offset;
         Some(ServerMessage::Pong { t, clock }.to_text())
     }
+}
 
-    /// The client is gone.
-    pub fn leave(self) {}
+impl stream::upstream::Upstream for RelayLink {
+    fn admission(&self) -> Admission {
+        RelayLink::admission(self)
+    }
+
+    fn join(
+        &self,
+        client: u64,
+        asked: Role,
+        token: Option<String>,
+    ) -> BoxFuture<'_, stream::upstream::Seated> {
+        Box::pin(async move {
+            let (session, joined) = RelayLink::join(self, client, asked, token).await?;
+            Ok((Box::new(session) as Box<dyn UpstreamSeat>, joined))
+        })
+    }
+
+    fn picture(&self, id: u32) -> BoxFuture<'_, Option<Bytes>> {
+        Box::pin(RelayLink::picture(self, id))
+    }
+}
+
+impl UpstreamSeat for Session {
+    fn source(&self) -> &str {
+        Session::source(self)
+    }
+
+    fn handle<'a>(&'a self, text: &'a str) -> BoxFuture<'a, Result<Option<String>, Refusal>> {
+        Box::pin(Session::handle(self, text))
+    }
 }
 
 impl Drop for Session {

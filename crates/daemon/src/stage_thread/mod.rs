@@ -30,6 +30,7 @@ use puppetry_stage::config::StageConfig;
 
 use batch::Batch;
 use publish::Publisher;
+pub use taking::BeingRecorded;
 use taking::Taking;
 
 pub use crate::outputs::{Published, PublishedHandles, PuppetOutput, State, Timings};
@@ -126,7 +127,7 @@ pub enum Command {
     PlayStarting {
         name: String,
         path: PathBuf,
-        reply: oneshot::Sender<Result<(), crate::takes::PlayError>>,
+        reply: oneshot::Sender<Result<(), taking::BeingRecorded>>,
     },
     /// The take playing ended (played out, stopped or failed): what its
     /// sources still hold lets go, and an overdub of it stops.

@@ -19,6 +19,14 @@ use crate::protocol::{ServerMessage, TakeState};
 
 use super::TakeSettings;
 
+/// The take asked to play is the one being recorded: played into itself it
+/// would read what it is writing.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("take {take} is being recorded: stop recording before playing it")]
+pub struct BeingRecorded {
+    pub take: String,
+}
+
 /// The take side of the stage thread: the take being recorded, the step
 /// being gathered for it, and the take state every client sees.
 pub(super) struct Taking {
@@ -129,12 +137,12 @@ impl Taking {
         name: String,
         path: &std::path::Path,
         changes: &watch::Sender<u64>,
-    ) -> Result<(), crate::takes::PlayError> {
+    ) -> Result<(), BeingRecorded> {
         if let Some(r) = &self.recorder
             && (r.name() == name || r.path() == path)
         {
             let take = r.name().to_string();
-            return Err(crate::takes::PlayError::Recording { take });
+            return Err(BeingRecorded { take });
         }
         self.playing = Some(name);
         self.publish(changes);

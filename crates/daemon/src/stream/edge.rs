@@ -191,7 +191,7 @@ impl Drop for AddressPlace {
 }
 
 async fn texture(State(shared): State<Arc<Shared>>, Path(id): Path<String>) -> Response {
-    if let super::Backend::Relay(link) = &shared.backend {
+    if let super::Backend::Upstream(link) = &shared.backend {
         let picture = match id.parse::<u32>() {
             Ok(id) => link.picture(id).await,
             Err(_) => None,

@@ -12,6 +12,7 @@ pub mod guard;
 mod origin;
 pub mod people;
 mod uploads;
+pub mod upstream;
 pub use uploads::restore_pictures;
 
 pub use edge::{EdgeTimes, WebFiles};
@@ -93,7 +94,7 @@ pub enum Backend {
     /// This process runs the stage.
     Stage(StageLinks),
     /// This process is a relay: the stage is a daemon reached over NATS.
-    Relay(crate::relay::RelayLink),
+    Upstream(std::sync::Arc<dyn upstream::Upstream>),
 }
 
 /// What only the process running the stage has.
@@ -132,7 +133,7 @@ impl Shared {
     pub fn links(&self) -> Result<&StageLinks, String> {
         match &self.backend {
             Backend::Stage(links) => Ok(links),
-            Backend::Relay(_) => {
+            Backend::Upstream(_) => {
                 Err("a relay does not serve this: connect to the daemon itself".to_string())
             }
         }
@@ -145,7 +146,7 @@ impl Shared {
                 allowed_origins: links.people.access().allowed_origins.clone(),
                 max_per_address: links.people.access().max_per_address,
             },
-            Backend::Relay(link) => link.admission(),
+            Backend::Upstream(link) => link.admission(),
         }
     }
 }
@@ -276,18 +277,18 @@ enum Seat {
         _member: Option<people::Member>,
     },
     /// On a relay: the daemon keeps the session, and checks every message.
-    Relay(crate::relay::Session),
+    Upstream(Box<dyn upstream::UpstreamSeat>),
 }
 
 /// A hello that was refused: what to tell the client, and how to close.
-pub(crate) struct JoinRefused {
+pub struct JoinRefused {
     pub refusal: guard::Refusal,
     pub close: u16,
     pub reason: String,
 }
 
 /// What the stage says of a client it let in.
-pub(crate) struct Joined {
+pub struct Joined {
     pub role: Role,
     pub you: crate::protocol::Person,
     /// Ids of the puppets a limited performer plays; `None`: all.
@@ -378,9 +379,9 @@ impl Seat {
                 };
                 Ok((seat, joined))
             }
-            Backend::Relay(link) => {
-                let (session, joined) = link.join(client, asked, token).await?;
-                Ok((Seat::Relay(session), joined))
+            Backend::Upstream(link) => {
+                let (seat, joined) = link.join(client, asked, token).await?;
+                Ok((Seat::Upstream(seat), joined))
             }
         }
     }
@@ -388,7 +389,7 @@ impl Seat {
     fn source(&self) -> &str {
         match self {
             Seat::Stage { source, .. } => source,
-            Seat::Relay(session) => session.source(),
+            Seat::Upstream(seat) => seat.source(),
         }
     }
 
@@ -399,7 +400,7 @@ impl Seat {
                 permissions,
                 ..
             } => handle_message(text, permissions, source, shared).await,
-            Seat::Relay(session) => session.handle(text).await,
+            Seat::Upstream(seat) => seat.handle(text).await,
         }
     }
 
@@ -408,8 +409,8 @@ impl Seat {
             (Seat::Stage { source, .. }, Backend::Stage(links)) => {
                 leave_stage(links, &source, joined.role, joined.puppets.is_some()).await;
             }
-            (Seat::Relay(session), _) => session.leave(),
-            (Seat::Stage { .. }, Backend::Relay(_)) => {}
+            // Dropping the seat lets the stage know.
+            (Seat::Upstream(_), _) | (Seat::Stage { .. }, Backend::Upstream(_)) => {}
         }
     }
 }
@@ -1096,7 +1097,7 @@ async fn play_take(
                 let _ = stop_take(shared).await;
             }
             let code = match e {
-                crate::takes::PlayError::Recording { .. } => crate::protocol::ErrorCode::Busy,
+                crate::takes::PlayError::Recording(_) => crate::protocol::ErrorCode::Busy,
                 _ => crate::protocol::ErrorCode::Failed,
             };
             return Err(guard::Refusal::new(code, e.to_string()));

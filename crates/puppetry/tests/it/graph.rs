@@ -123,3 +123,83 @@ fn the_graph_as_read_has_the_device_crates_where_they_live() {
             .any(|d| d == "puppetry-contact")
     );
 }
+
+/// The daemon's top-level modules, and the others each names as
+/// `crate::module` (its tests left out: a test may reach anywhere).
+fn daemon_module_uses() -> BTreeMap<String, BTreeSet<String>> {
+    let src = puppetry_testkit::root().join("crates/daemon/src");
+    let mut uses = BTreeMap::new();
+    for entry in std::fs::read_dir(&src).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_stem().unwrap().to_string_lossy().to_string();
+        if name == "lib" {
+            continue;
+        }
+        let mut files = vec![path.clone()];
+        let mut named = BTreeSet::new();
+        while let Some(file) = files.pop() {
+            if file.is_dir() {
+                files.extend(std::fs::read_dir(&file).unwrap().map(|e| e.unwrap().path()));
+                continue;
+            }
+            let text = std::fs::read_to_string(&file).unwrap();
+            // Test modules sit at the end of a file; comments (doc links
+            // among them) are not uses.
+            let code: String = text
+                .split("#[cfg(test)]")
+                .next()
+                .unwrap_or_default()
+                .lines()
+                .filter(|line| !line.trim_start().starts_with("//"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            let mut rest = code.as_str();
+            while let Some(at) = rest.find("crate::") {
+                rest = &rest[at + "crate::".len()..];
+                let module: String = rest
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect();
+                if let Some(list) = rest.strip_prefix('{') {
+                    // `use crate::{a::X, b};`
+                    let list = &list[..list.find('}').unwrap_or(list.len())];
+                    named.extend(
+                        list.split(',')
+                            .map(|m| m.trim().split("::").next().unwrap_or_default().to_string()),
+                    );
+                } else {
+                    named.insert(module);
+                }
+            }
+        }
+        named.remove(&name);
+        uses.insert(name, named);
+    }
+    uses
+}
+
+/// No two of the daemon's modules use each other (ARCHITECTURE.md): a
+/// cycle is where a module's concern has leaked into another, and a
+/// newcomer cannot read one without the other. The relay reaches the stream
+/// through `stream::upstream`'s traits, the player the stage thread through
+/// its commands.
+#[test]
+fn no_two_daemon_modules_use_each_other() {
+    let uses = daemon_module_uses();
+    assert!(
+        uses.get("stream").is_some_and(|u| u.contains("protocol")),
+        "the module scan found nothing: {uses:?}"
+    );
+    let mut cycles = Vec::new();
+    for (a, named) in &uses {
+        for b in named {
+            if a < b && uses.get(b).is_some_and(|u| u.contains(a)) {
+                cycles.push(format!("{a} ↔ {b}"));
+            }
+        }
+    }
+    assert!(
+        cycles.is_empty(),
+        "daemon modules that use each other: {cycles:?}"
+    );
+}
