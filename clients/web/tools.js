@@ -10,7 +10,7 @@
 // message and change when a refused token falls back to viewing.
 
 import {
-  HANDLE_KIND, RIG_KIND,
+  EXPORT_FORMATS, HANDLE_KIND, RIG_KIND,
   addCurveMessage, depthFlipMessage, paintDepthMessage, paintMessage, pinMessage, poseMessage, redoMessage, replaceRegion, replayMessage, resetMessage,
   saveWeightsMessage, undoMessage, unpinMessage,
 } from './protocol.js';
@@ -655,6 +655,13 @@ export class TakeControls {
     for (const b of this.buttons()) b.hidden = true;
     this.el.controls.hidden = true;
     this.exporting = null; // the newest `export` message while one runs
+    // The daemon's downloadable formats, after the take itself.
+    for (const f of EXPORT_FORMATS) {
+      const option = document.createElement('option');
+      option.value = f.name;
+      option.textContent = f.label;
+      this.el.format.append(option);
+    }
     setInterval(() => this.showElapsed(), 250);
     this.listen();
   }
@@ -740,7 +747,8 @@ export class TakeControls {
       this.showElapsed();
     };
     let blob;
-    let file = `${take}.${format === 'spine' ? 'json' : format}`;
+    const extension = EXPORT_FORMATS.find((f) => f.name === format)?.extension ?? 'take';
+    let file = `${take}.${extension}`;
     try {
       const answer = await fetch(path, { headers: { Authorization: `Bearer ${this.token()}` }, cache: 'no-store' });
       if (!answer.ok) {

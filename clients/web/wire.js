@@ -195,3 +195,14 @@ export const FRAME_HEADER = Object.freeze({
   COUNT: 24,
   GENERATION: 28,
 });
+
+// ---------------------------------------------------------------- exports
+
+/** The formats a director downloads a take as (`Format`): `name` is the export route's `format=`, the file is `extension`, served as `mime`; `label` is for people. */
+export const EXPORT_FORMATS = Object.freeze([
+  Object.freeze({ name: 'glb', extension: 'glb', mime: 'model/gltf-binary', label: 'glTF (.glb)' }),
+  Object.freeze({ name: 'mp4', extension: 'mp4', mime: 'video/mp4', label: 'video (.mp4)' }),
+  Object.freeze({ name: 'mov', extension: 'mov', mime: 'video/quicktime', label: 'ProRes 4444 with alpha (.mov)' }),
+  Object.freeze({ name: 'webm', extension: 'webm', mime: 'video/webm', label: 'video with alpha (.webm)' }),
+  Object.freeze({ name: 'spine', extension: 'json', mime: 'application/json', label: 'Spine (.json)' }),
+]);

@@ -67,6 +67,19 @@ impl Format {
         }
     }
 
+    /// What it is, for people: the page's list of downloads and `puppetry
+    /// export --help`.
+    pub fn label(self) -> &'static str {
+        match self {
+            Format::Glb => "glTF (.glb)",
+            Format::Png => "PNG frames (a folder)",
+            Format::Mp4 => "video (.mp4)",
+            Format::Mov => "ProRes 4444 with alpha (.mov)",
+            Format::Webm => "video with alpha (.webm)",
+            Format::Spine => "Spine (.json)",
+        }
+    }
+
     /// Whether ffmpeg encodes it (the output's extension must then be the
     /// format's name: ffmpeg picks its container by it).
     pub fn is_video(self) -> bool {

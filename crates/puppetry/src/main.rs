@@ -3,6 +3,7 @@
 //! the library (`puppetry::cli` and below, where the work is), and error
 //! reporting.
 
+use puppetry_export::format::Format;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -178,8 +179,8 @@ struct SoakArgs {
 #[derive(clap::Args)]
 struct ExportArgs {
     take: PathBuf,
-    #[arg(long)]
-    format: puppetry_export::format::Format,
+    #[arg(long, ignore_case = true)]
+    format: FormatArg,
     /// The stage file the take was recorded on (default: the bundled
     /// demo stage).
     #[arg(long)]
@@ -679,6 +680,24 @@ fn soak_command(
     Ok(())
 }
 
+/// `--format`: clap lists (in `--help`, with each one's label) and checks
+/// the names of `Format::ALL`, so a format added there is offered here.
+#[derive(Clone, Copy)]
+struct FormatArg(Format);
+
+static FORMAT_ARGS: std::sync::LazyLock<Vec<FormatArg>> =
+    std::sync::LazyLock::new(|| Format::ALL.into_iter().map(FormatArg).collect());
+
+impl clap::ValueEnum for FormatArg {
+    fn value_variants<'a>() -> &'a [Self] {
+        &FORMAT_ARGS
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(self.0.name()).help(self.0.label()))
+    }
+}
+
 /// `puppetry export`.
 fn export_command(
     ExportArgs {
@@ -699,13 +718,14 @@ fn export_command(
     let request = puppetry_export::take::ExportRequest {
         take,
         config,
-        format,
+        format: format.0,
         fps,
         from,
         to,
         size,
         output,
     };
+    let format = format.0;
     let mut bar = puppetry::export::Bar::new(&format!("export {format}"));
     println!("{}", puppetry::export::export(&request, &mut bar)?);
 

@@ -43,7 +43,35 @@ pub fn wire_js() -> String {
     text_messages(&mut out);
     adding_puppets(&mut out);
     binary_frames(&mut out);
+    exports(&mut out);
     out
+}
+
+/// The formats a take downloads as from the page, in `Format::ALL`'s order.
+fn exports(out: &mut String) {
+    section(out, "exports");
+    out.push('\n');
+    doc_comment(
+        out,
+        "",
+        "The formats a director downloads a take as (`Format`): `name` is the export \
+         route's `format=`, the file is `extension`, served as `mime`; `label` is for people.",
+    );
+    out.push_str("export const EXPORT_FORMATS = Object.freeze([\n");
+    for format in puppetry_export::format::Format::ALL {
+        let Some((extension, mime)) = format.download() else {
+            continue;
+        };
+        let _ = writeln!(
+            out,
+            "  Object.freeze({{ name: {}, extension: {}, mime: {}, label: {} }}),",
+            quoted(format.name()),
+            quoted(extension),
+            quoted(mime),
+            quoted(format.label()),
+        );
+    }
+    out.push_str("]);\n");
 }
 
 /// The names of the text messages and their fields' values.

@@ -1111,3 +1111,27 @@ fn mesh_and_solve_refuse_a_file_that_never_ends() {
         );
     }
 }
+
+/// `export --format` offers every format the export crate has, with its
+/// label, takes any case, and names the formats when given another.
+#[test]
+fn export_offers_every_format_by_name() {
+    use puppetry_export::format::Format;
+    let help = puppetry(&["export", "--help"]);
+    let help = String::from_utf8_lossy(&help.stdout);
+    for format in Format::ALL {
+        assert!(
+            help.contains(&format!("{}:", format.name())) && help.contains(format.label()),
+            "export --help does not offer {format}: {help}"
+        );
+    }
+    let refused = failure(&["export", "t.take", "--format", "avi", "--output", "t.avi"]);
+    assert!(
+        refused.contains("invalid value 'avi'")
+            && Format::ALL.iter().all(|f| refused.contains(f.name())),
+        "{refused}"
+    );
+    // Any case: the take is what is missing, not the format.
+    let missing = failure(&["export", "t.take", "--format", "GLB", "--output", "t.glb"]);
+    assert!(missing.contains("t.take"), "{missing}");
+}
