@@ -22,6 +22,7 @@ use glam::DVec2;
 use rosc::address::{Matcher, OscAddress};
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 
+use puppetry_input::log_limit::LogLimiter;
 use tokio::net::UdpSocket;
 use tokio::sync::{mpsc, watch};
 use tokio::task::{AbortHandle, JoinHandle};
@@ -104,61 +105,11 @@ pub fn clip(text: &str) -> String {
     puppetry_input::log_limit::clip(text, puppetry_limits::net::MAX_ECHO)
 }
 
-/// Lets a few log lines through per window and counts the rest, so a flood
-/// of bad datagrams (or a host that is down) costs a bounded number of
-/// lines: at most `per_window` plus one "… more" line per window.
-#[derive(Debug)]
-pub struct LogLimit {
-    per_window: u32,
-    window: Duration,
-    started: Option<Instant>,
-    logged: u32,
-    suppressed: u64,
-}
-
-impl LogLimit {
-    pub fn new(per_window: u32, window: Duration) -> LogLimit {
-        LogLimit {
-            per_window,
-            window,
-            started: None,
-            logged: 0,
-            suppressed: 0,
-        }
-    }
-
-    /// Whether a line may be logged at `now`; `Some(n)` if so, `n` being
-    /// the lines held back since the last one let through.
-    pub fn allow(&mut self, now: Instant) -> Option<u64> {
-        let fresh = self
-            .started
-            .is_none_or(|s| now.saturating_duration_since(s) >= self.window);
-        if fresh {
-            self.started = Some(now);
-            self.logged = 0;
-        }
-        if self.logged < self.per_window {
-            self.logged += 1;
-            Some(std::mem::take(&mut self.suppressed))
-        } else {
-            self.suppressed += 1;
-            None
-        }
-    }
-
-    /// Logs `line` as a warning if the window allows it.
-    pub fn warn(&mut self, line: impl std::fmt::Display) {
-        if let Some(held) = self.allow(Instant::now()) {
-            if held > 0 {
-                tracing::warn!("{held} more like the next were not logged");
-            }
-            tracing::warn!("{line}");
-        }
-    }
-}
-
-fn limiter() -> LogLimit {
-    LogLimit::new(5, Duration::from_secs(10))
+/// The log of one OSC door: five lines at once, then one every two
+/// seconds, the rest counted (a flood of bad datagrams, or a host that is
+/// down, costs a bounded number of lines).
+fn limiter() -> LogLimiter {
+    LogLimiter::with_rate(5, Duration::from_secs(2), Instant::now())
 }
 
 /// A trigger received over OSC, as the stage thread is asked to do it.
@@ -714,7 +665,7 @@ struct Receiver {
     /// Per puppet, the `key` blend under way (a newer trigger on the
     /// puppet stops it: the last word wins).
     blends: Arc<Mutex<Vec<Option<AbortHandle>>>>,
-    log: Arc<Mutex<LogLimit>>,
+    log: Arc<Mutex<LogLimiter>>,
 }
 
 impl Receiver {
@@ -968,7 +919,7 @@ async fn reset(commands: &mpsc::Sender<Command>, puppet: u32) -> Result<(), Stri
 struct Host {
     name: String,
     address: Option<SocketAddr>,
-    log: LogLimit,
+    log: LogLimiter,
 }
 
 /// Sends the stage's state to the `send` hosts.
@@ -1577,16 +1528,5 @@ mod tests {
             back.extend(decode(d).unwrap());
         }
         assert_eq!(back, messages);
-    }
-
-    #[test]
-    fn the_log_limit_lets_a_few_lines_through_per_window() {
-        let mut limit = LogLimit::new(3, Duration::from_secs(10));
-        let t0 = Instant::now();
-        let allowed = (0..1000).filter(|_| limit.allow(t0).is_some()).count();
-        assert_eq!(allowed, 3);
-        // The next window's first line reports what was held back.
-        assert_eq!(limit.allow(t0 + Duration::from_secs(10)), Some(997));
-        assert_eq!(limit.allow(t0 + Duration::from_secs(11)), Some(0));
     }
 }

@@ -4,8 +4,10 @@
 //! everything else and cost more than the packets. Each source keeps one
 //! [`LogLimiter`], a token bucket: a burst of warnings gets through, then
 //! one every few seconds; the rest are counted, and once a quiet spell has
-//! passed one summary line says how many were left out. [`clip`] keeps the
-//! input a message echoes short.
+//! passed one summary line says how many were left out (or, through
+//! [`LogLimiter::warn`], the next line let through says it). It is the one
+//! limiter of log lines: devices, OSC and the relays all use it. [`clip`]
+//! keeps the input a message echoes short.
 
 use std::time::{Duration, Instant};
 
@@ -106,6 +108,20 @@ impl LogLimiter {
         }
         self.suppressed_since = None;
         Some(std::mem::take(&mut self.suppressed))
+    }
+
+    /// Logs `line` as a warning if the bucket lets it through, saying first
+    /// how many were left out since the last line; otherwise counts it.
+    /// For callers without a summary timer (OSC, the relays): what was left
+    /// out is told with the next line let through.
+    pub fn warn(&mut self, line: impl std::fmt::Display) {
+        if !self.allow(Instant::now()) {
+            return;
+        }
+        if let Some(held) = self.take_remaining() {
+            tracing::warn!("{held} more like the next were not logged");
+        }
+        tracing::warn!("{line}");
     }
 
     /// How many warnings were left out and not yet summarised, whatever the

@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 use async_nats::{Client, HeaderMap, Subject};
 use bytes::Bytes;
 use futures_util::StreamExt;
+use puppetry_input::log_limit::LogLimiter;
 use tokio::sync::{Semaphore, mpsc, watch};
 use tokio::task::JoinHandle;
 
@@ -381,25 +382,25 @@ struct Answerer {
     dropped: Dropped,
 }
 
-/// Messages dropped since the last line about them.
-#[derive(Default)]
-struct Dropped(Mutex<(Option<Instant>, u64)>);
+/// The log of messages dropped: one line at once, then one per
+/// `DROPPED_LOG_EVERY`, the rest counted.
+struct Dropped(Mutex<LogLimiter>);
+
+impl Default for Dropped {
+    fn default() -> Dropped {
+        Dropped(Mutex::new(LogLimiter::with_rate(
+            1,
+            DROPPED_LOG_EVERY,
+            Instant::now(),
+        )))
+    }
+}
 
 impl Dropped {
     /// Logs `why` unless a line was logged lately (then counts it).
     fn note(&self, why: std::fmt::Arguments<'_>) {
-        let mut state = self.0.lock().unwrap_or_else(|p| p.into_inner());
-        let (last, since) = &mut *state;
-        if last.is_some_and(|t| t.elapsed() < DROPPED_LOG_EVERY) {
-            *since += 1;
-            return;
-        }
-        if *since > 0 {
-            tracing::warn!("NATS: dropped {why} (and {since} more since the last such line)");
-        } else {
-            tracing::warn!("NATS: dropped {why}");
-        }
-        *state = (Some(Instant::now()), 0);
+        let mut limiter = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        limiter.warn(format_args!("NATS: dropped {why}"));
     }
 }
 
