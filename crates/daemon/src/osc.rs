@@ -105,11 +105,11 @@ pub fn clip(text: &str) -> String {
     puppetry_input::log_limit::clip(text, puppetry_limits::net::MAX_ECHO)
 }
 
-/// The log of one OSC door: five lines at once, then one every two
-/// seconds, the rest counted (a flood of bad datagrams, or a host that is
-/// down, costs a bounded number of lines).
+/// The log of one OSC door, as a device's: five lines at once, then one
+/// every five seconds, the rest counted (a flood of bad datagrams, or a
+/// host that is down, costs a bounded number of lines).
 fn limiter() -> LogLimiter {
-    LogLimiter::with_rate(5, Duration::from_secs(2), Instant::now())
+    LogLimiter::new(Instant::now())
 }
 
 /// A trigger received over OSC, as the stage thread is asked to do it.

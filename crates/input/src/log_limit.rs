@@ -110,18 +110,18 @@ impl LogLimiter {
         Some(std::mem::take(&mut self.suppressed))
     }
 
-    /// Logs `line` as a warning if the bucket lets it through, saying first
-    /// how many were left out since the last line; otherwise counts it.
-    /// For callers without a summary timer (OSC, the relays): what was left
-    /// out is told with the next line let through.
+    /// Logs `line` as a warning if the bucket lets it through, with how
+    /// many were left out since the last line; otherwise counts it. For
+    /// callers without a summary timer (OSC, the relays): what was left out
+    /// is told with the next line let through.
     pub fn warn(&mut self, line: impl std::fmt::Display) {
         if !self.allow(Instant::now()) {
             return;
         }
-        if let Some(held) = self.take_remaining() {
-            tracing::warn!("{held} more like the next were not logged");
+        match self.take_remaining() {
+            Some(held) => tracing::warn!("{line} (and {held} more not logged since the last line)"),
+            None => tracing::warn!("{line}"),
         }
-        tracing::warn!("{line}");
     }
 
     /// How many warnings were left out and not yet summarised, whatever the
