@@ -23,6 +23,7 @@
 
 pub mod config;
 pub mod convert;
+pub mod inputs;
 pub mod lineup;
 pub mod memory;
 pub mod osc;

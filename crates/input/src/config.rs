@@ -184,6 +184,15 @@ pub enum PacingConfig {
     AsFastAsPossible,
 }
 
+impl From<PacingConfig> for crate::replay::Pacing {
+    fn from(pacing: PacingConfig) -> crate::replay::Pacing {
+        match pacing {
+            PacingConfig::RealTime => crate::replay::Pacing::RealTime,
+            PacingConfig::AsFastAsPossible => crate::replay::Pacing::AsFastAsPossible,
+        }
+    }
+}
+
 /// The numbers of `[[input]]` entries: a baud rate a port can run at, a
 /// mouse's speeds and spacing within a coordinate's range, a cursor start
 /// on the stage's scale, every calibration number a coordinate.

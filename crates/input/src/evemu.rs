@@ -5,7 +5,7 @@
 //! default calibration, its events replay through it. Every complaint names
 //! the file, the line and the field.
 
-use super::fields::{self, clip};
+use super::fields::{Fields, clip};
 use puppetry_mesh::file;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -20,14 +20,10 @@ use super::{Calibration, SourceId};
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvemuError {
-    #[error("{file}: cannot read: {source}")]
-    Read {
-        file: String,
-        source: std::io::Error,
-    },
-    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    /// Cannot be read, not a regular file, or past
+    /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(file::FileError),
+    File(#[from] file::FileError),
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
         file: String,
@@ -37,16 +33,6 @@ pub enum EvemuError {
     },
     #[error("{file}: {source}")]
     Device { file: String, source: EvdevError },
-}
-
-/// A file that cannot be opened stays a `Read` error, as before the cap.
-impl From<file::FileError> for EvemuError {
-    fn from(e: file::FileError) -> EvemuError {
-        match e {
-            file::FileError::Io { file, source } => EvemuError::Read { file, source },
-            other => EvemuError::File(other),
-        }
-    }
 }
 
 /// The `I:` line.
@@ -133,6 +119,14 @@ struct Parser<'a> {
     line: usize,
     device: EvemuDevice,
     events: Vec<InputEvent>,
+}
+
+impl Fields for Parser<'_> {
+    type Error = EvemuError;
+
+    fn field_error(&self, field: &'static str, problem: String) -> EvemuError {
+        self.error(field, problem)
+    }
 }
 
 impl Parser<'_> {
@@ -260,31 +254,7 @@ impl Parser<'_> {
                 ));
             }
         }
-        match fields.next() {
-            Some(extra) => {
-                Err(self.error("line", format!("unexpected `{}` at the end", clip(extra))))
-            }
-            None => Ok(()),
-        }
-    }
-
-    fn hex<T: TryFrom<u64>>(
-        &self,
-        text: Option<&str>,
-        field: &'static str,
-    ) -> Result<T, EvemuError> {
-        let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        fields::hex(text).map_err(|problem| self.error(field, problem))
-    }
-
-    fn decimal(&self, text: Option<&str>, field: &'static str) -> Result<i32, EvemuError> {
-        let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        fields::decimal(text).map_err(|problem| self.error(field, problem))
-    }
-
-    fn time(&self, text: Option<&str>) -> Result<f64, EvemuError> {
-        let text = text.ok_or_else(|| self.error("time", "missing"))?;
-        fields::time(text).map_err(|problem| self.error("time", problem))
+        self.no_more(fields)
     }
 }
 

@@ -35,6 +35,52 @@ pub(crate) fn time(text: &str) -> Result<f64, String> {
     text.parse().map_err(|_| bad())
 }
 
+/// A line-based capture parser, which names the file, line and field of
+/// every problem: the field readers come with it, written once for evemu
+/// and hid-recorder files.
+pub(crate) trait Fields {
+    type Error;
+
+    /// The error for `field` of the line being read.
+    fn field_error(&self, field: &'static str, problem: String) -> Self::Error;
+
+    /// A hexadecimal field (see [`hex`]); a missing one is an error.
+    fn hex<T: TryFrom<u64>>(
+        &self,
+        text: Option<&str>,
+        field: &'static str,
+    ) -> Result<T, Self::Error> {
+        let text = text.ok_or_else(|| self.field_error(field, "missing".into()))?;
+        hex(text).map_err(|problem| self.field_error(field, problem))
+    }
+
+    /// A decimal field (see [`decimal`]).
+    fn decimal<T: std::str::FromStr>(
+        &self,
+        text: Option<&str>,
+        field: &'static str,
+    ) -> Result<T, Self::Error> {
+        let text = text.ok_or_else(|| self.field_error(field, "missing".into()))?;
+        decimal(text).map_err(|problem| self.field_error(field, problem))
+    }
+
+    /// The `time` field (see [`time`]).
+    fn time(&self, text: Option<&str>) -> Result<f64, Self::Error> {
+        let text = text.ok_or_else(|| self.field_error("time", "missing".into()))?;
+        time(text).map_err(|problem| self.field_error("time", problem))
+    }
+
+    /// Nothing is left on the line.
+    fn no_more<'t>(&self, mut rest: impl Iterator<Item = &'t str>) -> Result<(), Self::Error> {
+        match rest.next() {
+            Some(extra) => {
+                Err(self.field_error("line", format!("unexpected `{}` at the end", clip(extra))))
+            }
+            None => Ok(()),
+        }
+    }
+}
+
 /// Keeps quoted input short in messages: a field's value, shorter than
 /// the budget's `MAX_ECHO` since a message may quote several.
 pub(crate) fn clip(text: &str) -> String {

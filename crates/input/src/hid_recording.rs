@@ -13,21 +13,17 @@
 //! two devices' reports. Every complaint names the file, the line and the
 //! field.
 
-use super::fields::{self, clip};
+use super::fields::{Fields, clip};
 use puppetry_mesh::file;
 use std::io::Write;
 use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
 pub enum HidRecordingError {
-    #[error("{file}: cannot read: {source}")]
-    Read {
-        file: String,
-        source: std::io::Error,
-    },
-    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    /// Cannot be read, not a regular file, or past
+    /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(file::FileError),
+    File(#[from] file::FileError),
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
         file: String,
@@ -37,16 +33,6 @@ pub enum HidRecordingError {
     },
     #[error("{file}: no `R:` line; a hid-recorder capture starts with the report descriptor")]
     NoDescriptor { file: String },
-}
-
-/// A file that cannot be opened stays a `Read` error, as before the cap.
-impl From<file::FileError> for HidRecordingError {
-    fn from(e: file::FileError) -> HidRecordingError {
-        match e {
-            file::FileError::Io { file, source } => HidRecordingError::Read { file, source },
-            other => HidRecordingError::File(other),
-        }
-    }
 }
 
 /// One device's capture.
@@ -172,6 +158,14 @@ struct Parser<'a> {
     /// The `D:` index in force, once one is seen.
     device: Option<u32>,
     open: Option<OpenBytes>,
+}
+
+impl Fields for Parser<'_> {
+    type Error = HidRecordingError;
+
+    fn field_error(&self, field: &'static str, problem: String) -> HidRecordingError {
+        self.error(field, problem)
+    }
 }
 
 impl Parser<'_> {
@@ -352,40 +346,5 @@ impl Parser<'_> {
             }
         }
         Ok(())
-    }
-
-    fn no_more<'t>(
-        &self,
-        mut fields: impl Iterator<Item = &'t str>,
-    ) -> Result<(), HidRecordingError> {
-        match fields.next() {
-            Some(extra) => {
-                Err(self.error("line", format!("unexpected `{}` at the end", clip(extra))))
-            }
-            None => Ok(()),
-        }
-    }
-
-    fn hex<T: TryFrom<u64>>(
-        &self,
-        text: Option<&str>,
-        field: &'static str,
-    ) -> Result<T, HidRecordingError> {
-        let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        fields::hex(text).map_err(|problem| self.error(field, problem))
-    }
-
-    fn decimal<T: std::str::FromStr>(
-        &self,
-        text: Option<&str>,
-        field: &'static str,
-    ) -> Result<T, HidRecordingError> {
-        let text = text.ok_or_else(|| self.error(field, "missing"))?;
-        fields::decimal(text).map_err(|problem| self.error(field, problem))
-    }
-
-    fn time(&self, text: Option<&str>) -> Result<f64, HidRecordingError> {
-        let text = text.ok_or_else(|| self.error("time", "missing"))?;
-        fields::time(text).map_err(|problem| self.error("time", problem))
     }
 }

@@ -20,14 +20,10 @@ pub const MAX_LINE_BYTES: usize = 1 << 20;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
-    #[error("{file}: cannot read: {source}")]
-    Read {
-        file: String,
-        source: std::io::Error,
-    },
-    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    /// Cannot be read, not a regular file, or past
+    /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(file::FileError),
+    File(#[from] file::FileError),
     #[error("cannot write the recording: {0}")]
     Write(#[from] std::io::Error),
     #[error("{file}:{line}: {problem}")]
@@ -42,16 +38,6 @@ pub enum RecordingError {
         field: &'static str,
         value: f64,
     },
-}
-
-/// A file that cannot be opened stays a `Read` error, as before the cap.
-impl From<file::FileError> for RecordingError {
-    fn from(e: file::FileError) -> RecordingError {
-        match e {
-            file::FileError::Io { file, source } => RecordingError::Read { file, source },
-            other => RecordingError::File(other),
-        }
-    }
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -178,7 +164,7 @@ impl<R: BufRead> RecordingReader<R> {
             let limit = MAX_LINE_BYTES as u64 + 1;
             let read = Read::take(&mut self.input, limit)
                 .read_until(b'\n', &mut self.buffer)
-                .map_err(|source| RecordingError::Read {
+                .map_err(|source| file::FileError::Io {
                     file: self.file.clone(),
                     source,
                 })?;

@@ -25,14 +25,10 @@ use super::{Calibration, ContactFrame, SourceId};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
-    #[error("{file}: cannot read: {source}")]
-    Read {
-        file: String,
-        source: std::io::Error,
-    },
-    /// Not a regular file, or past `MAX_REPLAY_FILE_BYTES`.
+    /// Cannot be read, not a regular file, or past
+    /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
-    File(file::FileError),
+    File(#[from] file::FileError),
     #[error(transparent)]
     Evemu(#[from] EvemuError),
     #[error(transparent)]
@@ -49,16 +45,6 @@ pub enum ReplayError {
         time: f64,
         source: HidError,
     },
-}
-
-/// A file that cannot be opened stays a `Read` error, as before the cap.
-impl From<file::FileError> for ReplayError {
-    fn from(e: file::FileError) -> ReplayError {
-        match e {
-            file::FileError::Io { file, source } => ReplayError::Read { file, source },
-            other => ReplayError::File(other),
-        }
-    }
 }
 
 /// How fast [`replay`] plays.

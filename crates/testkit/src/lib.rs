@@ -3,8 +3,8 @@
 //! allocation counter for the no-allocation tests ([`alloc`]), a
 //! pseudo-terminal standing in for a serial pad ([`pty`]), TUIO bundles as a
 //! table sends them ([`tuio`]), the fuzz tests' case count and input makers
-//! ([`fuzz`]), what the simulated shows share ([`simulate`]), and where
-//! the checkout's files are
+//! ([`fuzz`]), what the simulated shows share ([`simulate`]), the stage
+//! files tests write ([`stage_text`]), and where the checkout's files are
 //! ([`root`]). A dev-dependency only: nothing here ships.
 
 pub mod alloc;
@@ -12,6 +12,7 @@ pub mod fixtures;
 pub mod fuzz;
 pub mod pty;
 pub mod simulate;
+pub mod stage_text;
 pub mod tuio;
 
 pub use fixtures::*;

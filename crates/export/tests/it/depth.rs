@@ -13,16 +13,16 @@ use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, Stage};
 use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
 
-use crate::fixture::root;
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 const FPS: f64 = 30.0;
 
 fn config(depth: &str) -> StageConfig {
-    let assets = root().join("assets/gingerbread");
     let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"gingerbread\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\npins = [[168, 58], [344, 58], [256, 250]]\ndepth = \"{depth}\"\n",
-        assets.join("gingerbread.png").display(),
-        assets.join("gingerbread.mesh.json").display()
+        "{STAGE}{}",
+        Gingerbread::new("gingerbread")
+            .pins("[[168, 58], [344, 58], [256, 250]]")
+            .with(&format!("depth = \"{depth}\""))
     );
     StageConfig::parse("depth-take.toml", &text, Path::new("/")).unwrap()
 }

@@ -13,18 +13,13 @@ use puppetry_stage::{Change, Stage};
 use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
 
 use crate::common::{arg, node_script};
-use crate::fixture::root;
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 const FPS: f64 = 30.0;
 const STEPS: usize = 24;
 
 fn config() -> StageConfig {
-    let assets = root().join("assets/gingerbread");
-    let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"gingerbread\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\npins = [[168, 58], [344, 58]]\n",
-        assets.join("gingerbread.png").display(),
-        assets.join("gingerbread.mesh.json").display()
-    );
+    let text = format!("{STAGE}{}", Gingerbread::new("gingerbread").hand_pins());
     StageConfig::parse("take-test.toml", &text, Path::new("/")).unwrap()
 }
 
@@ -119,19 +114,11 @@ fn a_take_exports_its_own_frames_and_spine_plays_them() {
 /// the others bottom to top in the new order.
 #[test]
 fn a_take_draws_the_lineup_it_was_recorded_with() {
-    let assets = root().join("assets/gingerbread");
-    let puppet = |name: &str, x: f64, pins: &str| {
-        format!(
-            "[[puppet]]\nname = \"{name}\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [{x}, 360]\n{pins}",
-            assets.join("gingerbread.png").display(),
-            assets.join("gingerbread.mesh.json").display()
-        )
-    };
     let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n{}{}{}",
-        puppet("a", 300.0, ""),
-        puppet("b", 640.0, "pins = [[168, 58], [344, 58]]\n"),
-        puppet("c", 980.0, ""),
+        "{STAGE}{}{}{}",
+        Gingerbread::new("a").at(300.0, 360.0),
+        Gingerbread::new("b").hand_pins(),
+        Gingerbread::new("c").at(980.0, 360.0),
     );
     let config = StageConfig::parse("lineup-take.toml", &text, Path::new("/")).unwrap();
     let mut stage = Stage::from_config(&config).unwrap();

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use puppetry_daemon::config::ShowConfig;
 use puppetry_stage::Stage;
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 fn config_dir() -> PathBuf {
     puppetry_testkit::root().join("config")
@@ -79,12 +80,7 @@ fn bad_stage_files_are_named_and_explained() {
 }
 
 fn demo_puppet(rig: &str) -> String {
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
-    format!(
-        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"g\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\n{rig}",
-        assets.join("gingerbread.png").display(),
-        assets.join("gingerbread.mesh.json").display(),
-    )
+    format!("{STAGE}{}{rig}", Gingerbread::new("g"))
 }
 
 #[test]

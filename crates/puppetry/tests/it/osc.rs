@@ -22,6 +22,7 @@ use crate::common::daemon::{
     Client, WAIT, hand, next_message, next_text, placed_mesh, root, stage_text,
 };
 use crate::common::served::serve;
+use puppetry_testkit::stage_text::Gingerbread;
 
 async fn connect(http: &str, hello: Value) -> (Client, Value) {
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{http}/ws"))
@@ -273,24 +274,14 @@ width = 1280
 height = 720
 listen = "127.0.0.1:0"
 
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-pins = [[168, 58], [344, 58]]
-keys = "{keys}"
-
-[[puppet]]
-name = "dancer"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-{rig}
+{keyed}
+{dancer}
 {osc}"#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
-        keys = assets.join("gingerbread.keys.json").display(),
+        keyed = Gingerbread::new("gingerbread").hand_pins().with(&format!(
+            "keys = \"{}\"",
+            assets.join("gingerbread.keys.json").display()
+        )),
+        dancer = Gingerbread::new("dancer").with(rig),
         osc = osc_section(&[send.to_string()]),
     )
 }

@@ -17,6 +17,7 @@ use puppetry_deform::skeleton::{ShapeAware, Skeleton, SkeletonParams};
 use puppetry_deform::{Anchor, Arap, Steps};
 use puppetry_mesh::{Locator, Mesh};
 use puppetry_stage::{Rig, Stage};
+use puppetry_testkit::stage_text::Gingerbread;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
@@ -101,7 +102,10 @@ fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
 /// A stage file with the demo puppet (mesh `mesh`) and `rig` appended to
 /// its table, plus a replay input if given.
 fn config(mesh: &Path, pins: bool, rig: &str, replay: Option<&Path>) -> ShowConfig {
-    let assets = root().join("assets/gingerbread");
+    let mut puppet = Gingerbread::new("gingerbread").mesh(mesh).scale(1.2);
+    if pins {
+        puppet = puppet.hand_pins();
+    }
     let mut text = format!(
         r#"
 [stage]
@@ -117,22 +121,9 @@ name = "Director"
 role = "director"
 token = "boss"
 
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-scale = 1.2
-{pins}
-{rig}
+{puppet}{rig}
 "#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = mesh.display(),
-        pins = if pins {
-            "pins = [[168, 58], [344, 58]]"
-        } else {
-            ""
-        },
+        puppet = puppet.with(""),
     );
     if let Some(file) = replay {
         text += &format!(

@@ -12,6 +12,7 @@ use futures_util::SinkExt;
 use glam::DVec2;
 use puppetry_daemon::serve::{Options, Running, start_with};
 use puppetry_daemon::stream::WebFiles;
+use puppetry_testkit::stage_text::Gingerbread;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
@@ -191,7 +192,6 @@ async fn a_performer_cannot_paint_save_or_record_and_a_director_can() {
 
 /// Two gingerbread puppets side by side; Ana plays only the left one.
 fn two_puppets() -> String {
-    let assets = root().join("assets/gingerbread");
     format!(
         r#"
 [stage]
@@ -206,22 +206,10 @@ role = "performer"
 token = "ana"
 puppets = ["left"]
 
-[[puppet]]
-name = "left"
-image = "{image}"
-mesh = "{mesh}"
-at = [320, 360]
-scale = 0.8
-
-[[puppet]]
-name = "right"
-image = "{image}"
-mesh = "{mesh}"
-at = [960, 360]
-scale = 0.8
-"#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
+{left}
+{right}"#,
+        left = Gingerbread::new("left").at(320.0, 360.0).scale(0.8),
+        right = Gingerbread::new("right").at(960.0, 360.0).scale(0.8),
     )
 }
 

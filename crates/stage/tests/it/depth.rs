@@ -10,13 +10,14 @@ use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_deform::depth::triangles_overlap;
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, Stage};
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 fn demo(extra: &str) -> StageConfig {
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
     let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"gingerbread\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\npins = [[168, 58], [344, 58], [256, 250]]\n{extra}\n",
-        assets.join("gingerbread.png").display(),
-        assets.join("gingerbread.mesh.json").display(),
+        "{STAGE}{}",
+        Gingerbread::new("gingerbread")
+            .pins("[[168, 58], [344, 58], [256, 250]]")
+            .with(extra)
     );
     StageConfig::parse("depth-test.toml", &text, Path::new("/")).unwrap()
 }

@@ -9,24 +9,14 @@ use glam::DVec2;
 use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, CommandError, Grip, Rig, Stage};
+use puppetry_testkit::stage_text::{Gingerbread, STAGE, gingerbread_mesh};
 
 fn config(extra_puppet: &str) -> StageConfig {
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
     let text = format!(
-        r#"
-[stage]
-width = 1280
-height = 720
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-pins = [[168, 58], [344, 58]]
-{extra_puppet}
-"#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
+        "{STAGE}{}",
+        Gingerbread::new("gingerbread")
+            .hand_pins()
+            .with(extra_puppet)
     );
     StageConfig::parse("edits-test.toml", &text, Path::new("/")).unwrap()
 }
@@ -296,15 +286,10 @@ fn a_bad_restore_from_a_take_is_refused_and_changes_nothing() {
 #[test]
 fn weights_are_saved_to_a_new_version_beside_the_mesh() {
     let dir = tempfile::tempdir().unwrap();
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
     let mesh = dir.path().join("gingerbread.mesh.json");
-    std::fs::copy(assets.join("gingerbread.mesh.json"), &mesh).unwrap();
+    std::fs::copy(gingerbread_mesh(), &mesh).unwrap();
     let original = std::fs::read(&mesh).unwrap();
-    let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"g\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\n",
-        assets.join("gingerbread.png").display(),
-        mesh.display()
-    );
+    let text = format!("{STAGE}{}", Gingerbread::new("g").mesh(&mesh));
     let config = StageConfig::parse("v.toml", &text, Path::new("/")).unwrap();
     let mut stage = Stage::from_config(&config).unwrap();
     stage.solve();

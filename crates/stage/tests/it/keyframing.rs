@@ -9,25 +9,14 @@ use glam::DVec2;
 use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, HandleKind, Stage};
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 fn config(extra_puppet: &str, extra: &str) -> StageConfig {
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
     let text = format!(
-        r#"
-[stage]
-width = 1280
-height = 720
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-pins = [[168, 58], [344, 58]]
-{extra_puppet}
-{extra}
-"#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
+        "{STAGE}{}{extra}\n",
+        Gingerbread::new("gingerbread")
+            .hand_pins()
+            .with(extra_puppet)
     );
     StageConfig::parse("keys-test.toml", &text, Path::new("/")).unwrap()
 }
@@ -365,12 +354,7 @@ fn bad_key_files_and_pads_are_named() {
         );
     }
     let pad = "[[pad]]\npuppet = \"nobody\"\narea = [0, 0, 10, 10]\n";
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
-    let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n[[puppet]]\nname = \"g\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\n{pad}",
-        assets.join("gingerbread.png").display(),
-        assets.join("gingerbread.mesh.json").display()
-    );
+    let text = format!("{STAGE}{}{pad}", Gingerbread::new("g"));
     let err = StageConfig::parse("pads.toml", &text, Path::new("/"))
         .err()
         .unwrap()

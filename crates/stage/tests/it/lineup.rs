@@ -8,21 +8,14 @@ use glam::DVec2;
 use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, CommandError, Puppet, Stage};
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 /// Two gingerbread puppets on the same spot (1 on top).
 fn two() -> StageConfig {
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
-    let puppet = |name: &str| {
-        format!(
-            "[[puppet]]\nname = \"{name}\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [640, 360]\n",
-            assets.join("gingerbread.png").display(),
-            assets.join("gingerbread.mesh.json").display(),
-        )
-    };
     let text = format!(
-        "[stage]\nwidth = 1280\nheight = 720\n{}{}",
-        puppet("under"),
-        puppet("over")
+        "{STAGE}{}{}",
+        Gingerbread::new("under"),
+        Gingerbread::new("over")
     );
     StageConfig::parse("lineup-test.toml", &text, Path::new("/")).unwrap()
 }

@@ -10,20 +10,15 @@ use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_stage::Stage;
 use puppetry_stage::config::StageConfig;
 use puppetry_testkit::alloc;
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 /// Eight gingerbread puppets in two rows of four, with depth ordering on.
 fn eight() -> StageConfig {
-    let assets = puppetry_testkit::root().join("assets/gingerbread");
-    let mut text = String::from("[stage]\nwidth = 1280\nheight = 720\n");
+    let mut text = String::from(STAGE);
     for k in 0..8 {
         let at = centre(k);
-        text.push_str(&format!(
-            "[[puppet]]\nname = \"g{k}\"\nimage = \"{}\"\nmesh = \"{}\"\nat = [{}, {}]\nscale = 0.7\n",
-            assets.join("gingerbread.png").display(),
-            assets.join("gingerbread.mesh.json").display(),
-            at.x,
-            at.y
-        ));
+        let puppet = Gingerbread::new(&format!("g{k}")).at(at.x, at.y).scale(0.7);
+        text.push_str(&puppet.to_string());
     }
     StageConfig::parse("eight.toml", &text, Path::new("/")).unwrap()
 }

@@ -32,6 +32,7 @@ use puppetry_deform::Arap;
 use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, HandleKind, Puppet, Rebuild, Rig, Stage};
 use puppetry_testkit::simulate::{Spot, cases, failure_file, spot};
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 use serde::{Deserialize, Serialize};
 
 /// The stages a show is simulated on: every rig the project has.
@@ -159,16 +160,18 @@ struct Sequence {
 fn config(stage: &str) -> StageConfig {
     let root = puppetry_testkit::root();
     if stage == "two" {
-        let assets = root.join("assets/gingerbread");
         let text = format!(
-            "[stage]\nwidth = 1280\nheight = 720\n\
-             [[puppet]]\nname = \"left\"\nimage = \"{png}\"\nmesh = \"{mesh}\"\nat = [400, 360]\nscale = 0.8\npins = [[168, 58]]\n\
-             [[puppet]]\nname = \"right\"\nimage = \"{png}\"\nmesh = \"{mesh}\"\nat = [800, 360]\nscale = 0.8\n\
-             [puppet.grid]\ncolumns = 6\nrows = 6\n\
+            "{STAGE}{}{}\
              [[puppet]]\nname = \"ribbon\"\nat = [1100, 300]\npins = [[0, 0]]\n\
              [puppet.curve]\npoints = [[0, 0], [60, 30], [120, 40], [180, 30]]\nwidth = 10\ncolour = \"#1f5fa8\"\n",
-            png = assets.join("gingerbread.png").display(),
-            mesh = assets.join("gingerbread.mesh.json").display(),
+            Gingerbread::new("left")
+                .at(400.0, 360.0)
+                .scale(0.8)
+                .pins("[[168, 58]]"),
+            Gingerbread::new("right")
+                .at(800.0, 360.0)
+                .scale(0.8)
+                .with("[puppet.grid]\ncolumns = 6\nrows = 6"),
         );
         return StageConfig::parse("two.toml", &text, Path::new("/")).unwrap();
     }

@@ -10,6 +10,7 @@ use puppetry_daemon::config::ShowConfig;
 use puppetry_daemon::protocol::{FrameKind, decode_frame};
 use puppetry_daemon::serve::{Running, start};
 use puppetry_mesh::Mesh;
+use puppetry_testkit::stage_text::Gingerbread;
 use serde_json::Value;
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
@@ -37,7 +38,6 @@ pub fn stage_config(extra: &str) -> ShowConfig {
 /// The stage file text of [`stage_config`] (for tests that run the binary
 /// on a file).
 pub fn stage_text(extra: &str) -> String {
-    let assets = root().join("assets/gingerbread");
     format!(
         r#"
 [stage]
@@ -53,16 +53,9 @@ name = "Director"
 role = "director"
 token = "boss"
 
-[[puppet]]
-name = "gingerbread"
-image = "{image}"
-mesh = "{mesh}"
-at = [640, 360]
-pins = [[168, 58], [344, 58]]
-{extra}
+{puppet}{extra}
 "#,
-        image = assets.join("gingerbread.png").display(),
-        mesh = assets.join("gingerbread.mesh.json").display(),
+        puppet = Gingerbread::new("gingerbread").hand_pins(),
     )
 }
 
