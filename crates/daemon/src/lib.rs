@@ -1,7 +1,9 @@
 //! The daemon: everything of `puppetry serve` that is not numeric. It runs
 //! the stage on a thread of its own ([`stage_thread`]), feeds it from the
-//! configured input sources ([`serve`]), and serves the web renderer and the
-//! WebSocket protocol ([`stream`]) to renderer and performer clients;
+//! configured input sources ([`inputs`], under [`sources`]' supervision;
+//! [`serve`] assembles it all), and serves the web renderer and the
+//! WebSocket protocol ([`protocol`], [`stream`]) to renderer and performer
+//! clients;
 //! show-control desks read its state and trigger it over OSC ([`osc`]).
 //! Which puppets are on stage, and where each one's output is, is the
 //! [`lineup`]: fixed by the stage file until a director adds, removes or
@@ -11,8 +13,8 @@
 //!
 //! ```text
 //!   puppetry-input ──► stage_thread ──────────────► stream ──► clients
-//!   (sources, under    (owns the puppetry-stage      (HTTP + WebSocket: newest
-//!    serve's care)      Stage; solves with            frame per client; the
+//!   (inputs, under     (owns the puppetry-stage      (HTTP + WebSocket: newest
+//!    supervision)       Stage; solves with            frame per client; the
 //!                       puppetry-deform; encodes      web page)
 //!                       each frame once)
 //!                              │

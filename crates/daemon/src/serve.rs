@@ -173,11 +173,9 @@ pub async fn start(
     start_with(config, options).await
 }
 
-/// Starts the daemon for `config` with `options`.
-#[expect(
-    clippy::too_many_lines,
-    reason = "the daemon's assembly in order (stage thread, inputs, edge, OSC, relays, shutdown), each step a few lines; it reads top to bottom as the start does"
-)]
+/// Starts the daemon for `config` with `options`: the stage loaded, its
+/// thread, the inputs read, the edge bound, show control and relays, then
+/// the inputs and the edge running.
 pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running, ServeError> {
     let Options {
         web_files,
@@ -190,20 +188,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         edge,
     } = options;
     let started = Instant::now();
-    // Loading meshes and factoring their solvers takes seconds on a big
-    // mesh: not on a tokio worker.
-    let (config, stage) = {
-        let mut config = config.clone();
-        let puppets_dir = puppets_dir.clone();
-        tokio::task::spawn_blocking(move || {
-            let mut stage = Stage::from_config(&config)?;
-            // Pictures directors added before a restart come back.
-            stream::restore_pictures(&mut config, &mut stage, &puppets_dir);
-            Ok::<_, StageError>((config, stage))
-        })
-        .await
-        .map_err(|e| ServeError::Loading(e.to_string()))??
-    };
+    let (config, stage) = load_stage(config, &puppets_dir).await?;
     let config = &config;
     let (commands, commands_rx) = mpsc::channel(COMMAND_QUEUE);
     let listener = stream::bind(config.stage.listen).await?;
@@ -269,36 +254,14 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
     });
 
     // Before the sources, so a bad OSC address stops the start cleanly.
-    let osc = match &config.osc {
-        Some(osc) => {
-            Some(crate::osc::start(osc, crate::osc::Links::of(&shared, commands.clone())).await?)
-        }
-        None => None,
-    };
-    // NATS need not be up: the daemon serves its own clients regardless.
-    let relay = match &config.relay {
-        Some(relay) => Some(
-            crate::relay::publish::start(relay, &config.relay_stage_name(), shared.clone()).await?,
-        ),
-        None => None,
-    };
+    let (osc, relay) = show_control(config, &shared, &commands).await?;
     let crate::inputs::Spawned {
         inputs,
         replays: replay_tasks,
         tuio_addresses,
     } = crate::inputs::spawn(resolved, &commands, started, &replays);
     if let Some((path, play_options)) = play {
-        let player = crate::takes::play(
-            &path,
-            &shared.lineup.borrow().take_puppets.clone(),
-            play_options,
-            commands.clone(),
-            started,
-        )
-        .map_err(|e| ServeError::Input(e.to_string()))?;
-        if let Ok(links) = shared.links() {
-            *links.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
-        }
+        play_at_start(&path, play_options, &shared, &commands, started)?;
     }
     let (shutdown, shutdown_rx) = oneshot::channel();
     let server = tokio::spawn(stream::run_with(listener, shared.clone(), edge, async {
@@ -319,6 +282,76 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         stage_thread,
         shared,
     })
+}
+
+/// Loads the stage (and the pictures directors added before a restart) off
+/// the tokio workers: meshes and their solvers' factoring take seconds on a
+/// big mesh.
+async fn load_stage(
+    config: &ShowConfig,
+    puppets_dir: &std::path::Path,
+) -> Result<(ShowConfig, Stage), ServeError> {
+    let mut config = config.clone();
+    let puppets_dir = puppets_dir.to_path_buf();
+    tokio::task::spawn_blocking(move || {
+        let mut stage = Stage::from_config(&config)?;
+        stream::restore_pictures(&mut config, &mut stage, &puppets_dir);
+        Ok::<_, StageError>((config, stage))
+    })
+    .await
+    .map_err(|e| ServeError::Loading(e.to_string()))?
+    .map_err(ServeError::from)
+}
+
+/// Starts OSC and the relay tier's publishing, if the stage file asks.
+/// NATS need not be up: the daemon serves its own clients regardless.
+async fn show_control(
+    config: &ShowConfig,
+    shared: &Arc<Shared>,
+    commands: &mpsc::Sender<Command>,
+) -> Result<
+    (
+        Option<crate::osc::Osc>,
+        Option<crate::relay::publish::Publishing>,
+    ),
+    ServeError,
+> {
+    let osc = match &config.osc {
+        Some(osc) => {
+            Some(crate::osc::start(osc, crate::osc::Links::of(shared, commands.clone())).await?)
+        }
+        None => None,
+    };
+    let relay = match &config.relay {
+        Some(relay) => Some(
+            crate::relay::publish::start(relay, &config.relay_stage_name(), shared.clone()).await?,
+        ),
+        None => None,
+    };
+    Ok((osc, relay))
+}
+
+/// Plays the take `serve --play` names; its player is the stage's take
+/// playing, stopped from the page like any other.
+fn play_at_start(
+    path: &std::path::Path,
+    options: PlayOptions,
+    shared: &Arc<Shared>,
+    commands: &mpsc::Sender<Command>,
+    started: Instant,
+) -> Result<(), ServeError> {
+    let player = crate::takes::play(
+        path,
+        &shared.lineup.borrow().take_puppets.clone(),
+        options,
+        commands.clone(),
+        started,
+    )
+    .map_err(|e| ServeError::Input(e.to_string()))?;
+    if let Ok(links) = shared.links() {
+        *links.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
+    }
+    Ok(())
 }
 
 /// Plays one replay source into the stage thread; returns the frames played.

@@ -225,11 +225,10 @@ impl Failed {
     }
 }
 
-/// `GET /takes/NAME/export?format=glb&fps=30&size=1280x720&from=S&to=S`.
-#[expect(
-    clippy::too_many_lines,
-    reason = "the route's steps in order (token, take, parameters, budget, scratch folder, the export thread, the file streamed back), each a few lines ending in its own HTTP status"
-)]
+/// `GET /takes/NAME/export?format=glb&fps=30&size=1280x720&from=S&to=S`:
+/// the route's steps in order (token, take, parameters, one export at a
+/// time, a scratch folder, the export thread, the file streamed back), each
+/// ending in its own HTTP status.
 pub async fn export(
     State(shared): State<Arc<Shared>>,
     Path(name): Path<String>,
@@ -248,36 +247,19 @@ pub async fn export(
     if !take.exists() {
         return plain(StatusCode::NOT_FOUND, &format!("no take {name}"));
     }
-    if let Some(unknown) = query.keys().find(|k| !PARAMETERS.contains(&k.as_str())) {
-        return plain(
-            StatusCode::BAD_REQUEST,
-            &format!("{unknown}: not a parameter (format, fps, size, from, to)"),
-        );
-    }
-    let request = match parse(&query, &name) {
-        Ok(r) => r,
-        Err(problem) => return plain(StatusCode::BAD_REQUEST, &problem),
-    };
-    let Download {
-        format,
-        extension,
-        mime,
-    } = request;
-    if let Err(problem) = check_numbers(&query, format) {
-        return plain(StatusCode::BAD_REQUEST, &problem);
-    }
-    let fps = number(&query, "fps").unwrap_or(Ok(30.0));
-    let (width, height) = match query.get("size").map(|s| size(s)) {
-        Some(Ok(s)) => s,
-        Some(Err(p)) => return plain(StatusCode::BAD_REQUEST, &p),
-        None => (1280, 720),
-    };
-    let (Ok(fps), Ok(from), Ok(to)) = (
+    let Parameters {
+        download: Download {
+            format,
+            extension,
+            mime,
+        },
         fps,
-        number(&query, "from").transpose(),
-        number(&query, "to").transpose(),
-    ) else {
-        return plain(StatusCode::BAD_REQUEST, "fps, from and to must be numbers");
+        from,
+        to,
+        size: (width, height),
+    } = match parameters(&query, &name) {
+        Ok(p) => p,
+        Err(problem) => return plain(StatusCode::BAD_REQUEST, &problem),
     };
     if links.exporting.swap(true, Ordering::AcqRel) {
         return plain(
@@ -356,29 +338,7 @@ pub async fn export(
     }
     match finished.await {
         Ok((Ok(()), scratch)) => {
-            // Opened, then the folder removed: the file lives on while open.
-            let file = tokio::fs::File::open(&out).await;
-            let length = match &file {
-                Ok(f) => f.metadata().await.map(|m| m.len()).ok(),
-                Err(_) => None,
-            };
-            let _ = tokio::task::spawn_blocking(move || drop(scratch)).await;
-            match file {
-                Ok(file) => {
-                    let mut answer = attachment(
-                        Body::from_stream(read_stream(file)),
-                        mime,
-                        &format!("{name}.{extension}"),
-                    );
-                    if let Some(length) = length {
-                        answer
-                            .headers_mut()
-                            .insert(header::CONTENT_LENGTH, HeaderValue::from(length));
-                    }
-                    answer
-                }
-                Err(_) => plain(StatusCode::INTERNAL_SERVER_ERROR, "the export went missing"),
-            }
+            send_back(&out, scratch, mime, &format!("{name}.{extension}")).await
         }
         Ok((Err(failed), _)) => match failed {
             Failed::Request(t) => plain(StatusCode::BAD_REQUEST, &t),
@@ -387,6 +347,70 @@ pub async fn export(
         },
         Err(_) => plain(StatusCode::INTERNAL_SERVER_ERROR, "the export stopped"),
     }
+}
+
+/// What an export request asks for.
+struct Parameters {
+    download: Download,
+    fps: f64,
+    from: Option<f64>,
+    to: Option<f64>,
+    size: (u32, u32),
+}
+
+/// The query's parameters, or what is wrong with them (a 400).
+fn parameters(query: &HashMap<String, String>, name: &str) -> Result<Parameters, String> {
+    if let Some(unknown) = query.keys().find(|k| !PARAMETERS.contains(&k.as_str())) {
+        return Err(format!(
+            "{unknown}: not a parameter (format, fps, size, from, to)"
+        ));
+    }
+    let download = parse(query, name)?;
+    check_numbers(query, download.format)?;
+    let size = match query.get("size").map(|s| size(s)) {
+        Some(s) => s?,
+        None => (1280, 720),
+    };
+    let (Ok(fps), Ok(from), Ok(to)) = (
+        number(query, "fps").unwrap_or(Ok(30.0)),
+        number(query, "from").transpose(),
+        number(query, "to").transpose(),
+    ) else {
+        return Err("fps, from and to must be numbers".into());
+    };
+    Ok(Parameters {
+        download,
+        fps,
+        from,
+        to,
+        size,
+    })
+}
+
+/// The finished export as the answer: opened, then its folder removed (the
+/// file lives on while open), streamed from disk.
+async fn send_back(
+    out: &std::path::Path,
+    scratch: Scratch,
+    mime: &str,
+    file_name: &str,
+) -> Response {
+    let file = tokio::fs::File::open(out).await;
+    let length = match &file {
+        Ok(f) => f.metadata().await.map(|m| m.len()).ok(),
+        Err(_) => None,
+    };
+    let _ = tokio::task::spawn_blocking(move || drop(scratch)).await;
+    let Ok(file) = file else {
+        return plain(StatusCode::INTERNAL_SERVER_ERROR, "the export went missing");
+    };
+    let mut answer = attachment(Body::from_stream(read_stream(file)), mime, file_name);
+    if let Some(length) = length {
+        answer
+            .headers_mut()
+            .insert(header::CONTENT_LENGTH, HeaderValue::from(length));
+    }
+    answer
 }
 
 /// The export, after its cost is checked against the limits. A flag error
