@@ -4,6 +4,9 @@
 //! to the stage's. Plain data with no I/O, so the stage, takes and exports
 //! share it without building a device driver or an async runtime; the
 //! decoders and device loops that make frames live in `puppetry-input`.
+//! Every public item is documented (`missing_docs` is on here).
+
+#![warn(missing_docs)]
 
 use std::fmt;
 use std::sync::Arc;
@@ -31,6 +34,7 @@ pub enum Phase {
 pub struct Contact {
     /// Identifies the contact within its source from its `Down` to its `Up`.
     pub id: u32,
+    /// What happened to it in this frame.
     pub phase: Phase,
     /// Stage coordinates (y-up). An `Up` carries the last known position.
     pub position: DVec2,
@@ -69,10 +73,12 @@ impl Contact {
 pub struct SourceId(Arc<str>);
 
 impl SourceId {
+    /// A source called `name`.
     pub fn new(name: impl AsRef<str>) -> SourceId {
         SourceId(Arc::from(name.as_ref()))
     }
 
+    /// The name.
     pub fn as_str(&self) -> &str {
         &self.0
     }
@@ -107,19 +113,25 @@ impl AsRef<str> for SourceId {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContactFrame {
+    /// The source all its contacts come from.
     pub source: SourceId,
     /// Seconds, on the source's own clock (kernel time for devices, file
     /// time for replays); only differences between frames of one source mean
     /// anything.
     pub time: f64,
+    /// The contacts that changed.
     pub contacts: Vec<Contact>,
 }
 
+/// A calibration that cannot map a device onto the stage.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibrationError {
+    /// A field of the calibration, and what is wrong with it.
     #[error("calibration: {field}: {problem}")]
     Invalid {
+        /// The field's name in the stage file (`x`, `corners`, …).
         field: &'static str,
+        /// Why it cannot be used.
         problem: String,
     },
 }
@@ -145,17 +157,23 @@ pub enum CalibrationSpec {
         /// Device y that lands on the stage's top and bottom edges when
         /// `flip_y` (devices count y downwards), bottom and top otherwise.
         y: [f64; 2],
+        /// The device counts y downwards (the default), as screens do.
         #[serde(default = "yes")]
         flip_y: bool,
+        /// The stage rectangle's lower-left corner.
         stage_min: [f64; 2],
+        /// The stage rectangle's upper-right corner.
         stage_max: [f64; 2],
     },
     /// Where the stage's corners are on the device, in the order the
     /// performer sees them: top-left, top-right, bottom-right, bottom-left.
     /// Fixes a surface that sits skewed or in perspective under a projection.
     Corners {
+        /// Device points of the stage's corners, in that order.
         corners: [[f64; 2]; 4],
+        /// The stage rectangle's lower-left corner.
         stage_min: [f64; 2],
+        /// The stage rectangle's upper-right corner.
         stage_max: [f64; 2],
     },
 }
@@ -178,6 +196,7 @@ pub struct Calibration {
 }
 
 impl Calibration {
+    /// Checks `spec` and works out its map, or says which field is wrong.
     pub fn new(spec: CalibrationSpec) -> Result<Calibration, CalibrationError> {
         let (matrix, centre) = match &spec {
             CalibrationSpec::Range {
@@ -259,6 +278,7 @@ impl Calibration {
         })
     }
 
+    /// The calibration as the stage file gave it.
     pub fn spec(&self) -> &CalibrationSpec {
         &self.spec
     }
