@@ -1,5 +1,7 @@
-//! The web client is compiled in (`src/stream/edge.rs`): rebuild when it
-//! changes.
+//! The web client (`src/stream/edge.rs`) and the bundled stage files and
+//! assets (`src/bundled.rs`) are compiled in: rebuild when they change.
 fn main() {
     println!("cargo:rerun-if-changed=../../clients/web");
+    println!("cargo:rerun-if-changed=../../config");
+    println!("cargo:rerun-if-changed=../../assets");
 }

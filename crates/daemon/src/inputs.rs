@@ -3,10 +3,10 @@
 //! one stops the start naming `input[N]`; then every input runs under the
 //! one supervision policy (`sources::supervise`). Replays are played and
 //! paused from the page (`sources::run_replay`); every other kind is a
-//! [`Supervised`] input: its own struct, and how one attempt of it runs.
+//! `Supervised` input: its own struct, and how one attempt of it runs.
 //! `spawn` has one loop over them. A new input kind is its decoder in
 //! `puppetry-input`, its variant of `InputConfig`, an arm of
-//! [`ResolvedInputs::add`] and a `Supervised` impl here.
+//! `ResolvedInputs::add` and a `Supervised` impl here.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;

@@ -23,6 +23,7 @@
 //!                                    newest only)               edge, fed from NATS)
 //! ```
 
+pub mod bundled;
 pub mod config;
 pub mod convert;
 pub mod inputs;

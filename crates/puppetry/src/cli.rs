@@ -10,8 +10,8 @@ use std::path::Path;
 use glam::DVec2;
 use serde::Deserialize;
 
-use crate::bench;
-use crate::compare::{self, CompareError, Comparison};
+use puppetry_bench::bench;
+use puppetry_bench::compare::{self, CompareError, Comparison};
 use puppetry_deform::ffd::{Basis, FfdError, MAX_GRID_HANDLES};
 use puppetry_deform::skeleton::SkeletonError;
 use puppetry_deform::{Anchor, Arap, ArapError, Steps};
@@ -46,7 +46,7 @@ pub enum CliError {
     #[error("{file}: depth: {0}", file = .1)]
     Depth(bench::DepthBenchError, String),
     #[error(transparent)]
-    Bundle(#[from] crate::bundled::BundleError),
+    Bundle(#[from] puppetry_daemon::bundled::BundleError),
     #[error("the bundled demo: {0}")]
     Demo(String),
     #[error("{file}: this is {kind}; {expected}")]
@@ -512,7 +512,7 @@ pub fn compare_command(
     let (mesh_path, handles_path) = match figure {
         Some(figure) => figure,
         None => {
-            bundled = crate::bundled::layered_figure()?;
+            bundled = puppetry_daemon::bundled::layered_figure()?;
             (bundled.0.as_path(), bundled.1.as_path())
         }
     };
@@ -561,7 +561,7 @@ pub fn bench_meshes(mesh: Option<&Path>, sizes: &[usize]) -> Result<Vec<(String,
     if let Some(path) = mesh {
         return Ok(vec![(path.display().to_string(), load_mesh(path)?)]);
     }
-    let image = crate::bundled::demo_image()?;
+    let image = puppetry_daemon::bundled::demo_image()?;
     sizes
         .iter()
         .map(|&n| {
@@ -612,7 +612,7 @@ pub fn rig_bench_command(
     if !json {
         print(&bench::rig_table_header());
     }
-    let skeleton = crate::bundled::demo_skeleton().map_err(CliError::Demo)?;
+    let skeleton = puppetry_daemon::bundled::demo_skeleton().map_err(CliError::Demo)?;
     let mut results = Vec::new();
     let mut show = |result: bench::RigResult, results: &mut Vec<_>| {
         if json {
@@ -678,11 +678,11 @@ pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_daemon::config::ShowC
             }),
         })
     };
-    let mut demo = load(&crate::bundled::demo_stage()?)?;
+    let mut demo = load(&puppetry_daemon::bundled::demo_stage()?)?;
     demo.stage.listen = std::net::SocketAddr::from(([127, 0, 0, 1], 0));
     let mut large = demo.clone();
     let mesh = mesh_png(
-        &crate::bundled::demo_image()?,
+        &puppetry_daemon::bundled::demo_image()?,
         &MeshOptions {
             target_vertices: Some(10_000),
         },

@@ -10,7 +10,8 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use puppetry::{bench, cli, compare};
+use puppetry::cli;
+use puppetry_bench::{bench, compare};
 
 #[derive(Parser)]
 #[command(
@@ -417,7 +418,7 @@ fn print_serving(
         file,
         running.address,
         &stage.access,
-        &puppetry::bundled::demo_tokens(),
+        &puppetry_daemon::bundled::demo_tokens(),
     );
     if let Some(warning) = &said.warning {
         // Logged (a service's log keeps it) and on the terminal both.
@@ -554,7 +555,7 @@ fn serve_command(
     puppetry_daemon::memory::for_a_long_run();
     let path = match config {
         Some(path) => path,
-        None => puppetry::bundled::demo_stage()?,
+        None => puppetry_daemon::bundled::demo_stage()?,
     };
     let web_files = match web_root {
         Some(dir) => puppetry_daemon::stream::WebFiles::Folder(dir),
@@ -664,7 +665,7 @@ fn soak_command(
     if !(valid(minutes) && valid(every)) {
         anyhow::bail!("--minutes and --every must be positive numbers");
     }
-    let options = puppetry::soak::SoakOptions {
+    let options = puppetry_bench::soak::SoakOptions {
         duration: std::time::Duration::from_secs_f64(minutes * 60.0),
         every: std::time::Duration::from_secs_f64(every),
         viewers,
@@ -672,7 +673,9 @@ fn soak_command(
         capture,
     };
     let runtime = tokio::runtime::Runtime::new()?;
-    let flat = runtime.block_on(puppetry::soak::soak(options, |line| println!("{line}")))?;
+    let flat = runtime.block_on(puppetry_bench::soak::soak(options, |line| {
+        println!("{line}")
+    }))?;
     if !flat {
         std::process::exit(1);
     }
@@ -713,7 +716,7 @@ fn export_command(
 ) -> anyhow::Result<()> {
     let config = match config {
         Some(path) => path,
-        None => puppetry::bundled::demo_stage()?,
+        None => puppetry_daemon::bundled::demo_stage()?,
     };
     let request = puppetry_export::take::ExportRequest {
         take,
@@ -742,7 +745,7 @@ fn takes_command(
 ) -> anyhow::Result<()> {
     let config = match config {
         Some(path) => path,
-        None => puppetry::bundled::demo_stage()?,
+        None => puppetry_daemon::bundled::demo_stage()?,
     };
     let (report, ok) = puppetry::takes::takes_command(&dir, verify.then_some(config.as_path()))?;
     print!("{report}");
@@ -855,7 +858,7 @@ fn solve_command(
 fn bench_case_command(BenchCaseArgs { case, poses }: BenchCaseArgs) -> anyhow::Result<()> {
     println!(
         "{}",
-        puppetry::peers::bench_case_command(&case, poses.as_deref())?
+        puppetry_bench::peers::bench_case_command(&case, poses.as_deref())?
     );
 
     Ok(())
@@ -929,7 +932,7 @@ fn bench_viewers(
     }: BenchArgs,
 ) -> anyhow::Result<()> {
     let counts = viewers.unwrap_or_default();
-    use puppetry::viewers_bench as vb;
+    use puppetry_bench::viewers_bench as vb;
     let runtime = tokio::runtime::Runtime::new()?;
     if !json {
         if relays > 0 {
@@ -955,7 +958,7 @@ fn bench_viewers(
 fn bench_takes(_: BenchArgs) -> anyhow::Result<()> {
     let stages = cli::end_to_end_stages()?;
     let print = |line: &str| println!("{line}");
-    puppetry::take_bench::take_bench(&stages[0].1, &print).map_err(anyhow::Error::msg)?;
+    puppetry_bench::take_bench::take_bench(&stages[0].1, &print).map_err(anyhow::Error::msg)?;
 
     Ok(())
 }

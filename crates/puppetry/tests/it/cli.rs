@@ -372,10 +372,10 @@ fn layered_figure() -> (Mesh, Vec<Anchor>, Vec<DVec2>) {
 }
 
 const METHODS: [&str; 4] = [
-    puppetry::compare::DIRECT_FFD,
-    puppetry::compare::ARAP_INVERSE_FFD,
-    puppetry::compare::PLAIN_ARAP,
-    puppetry::compare::LP_FFD,
+    puppetry_bench::compare::DIRECT_FFD,
+    puppetry_bench::compare::ARAP_INVERSE_FFD,
+    puppetry_bench::compare::PLAIN_ARAP,
+    puppetry_bench::compare::LP_FFD,
 ];
 
 #[test]
@@ -440,7 +440,7 @@ fn compare_prints_all_four_methods_on_the_layered_figure() {
     let size = mesh.size();
     for m in methods {
         let error = m["handle_error"].as_f64().unwrap();
-        if m["method"] == puppetry::compare::PLAIN_ARAP {
+        if m["method"] == puppetry_bench::compare::PLAIN_ARAP {
             assert!(error < 1e-9 * size, "{m}");
         } else {
             assert!(error < 0.05 * size, "{m}");
@@ -454,7 +454,7 @@ fn arap_plus_inverse_ffd_is_the_grid_fit_of_the_arap_result() {
     use puppetry_deform::{Arap, Steps};
 
     let (mesh, anchors, targets) = layered_figure();
-    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let comparison = puppetry_bench::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
     let by_name = |name| {
         comparison
             .methods
@@ -466,13 +466,13 @@ fn arap_plus_inverse_ffd_is_the_grid_fit_of_the_arap_result() {
     let mut arap = Arap::register(&mesh).unwrap();
     arap.compile(&anchors).unwrap();
     let arap_pose = arap.update(&targets, Steps::Both).unwrap().to_vec();
-    let plain = by_name(puppetry::compare::PLAIN_ARAP);
+    let plain = by_name(puppetry_bench::compare::PLAIN_ARAP);
     assert!(crate::common::max_distance(&plain.pose, &arap_pose) < 1e-9 * mesh.size());
 
     // The fitted grid satisfies the normal equations of
     // λ_mp Σ_v |W_v P − a_v|² + λ_gr Σ_k |P_k − P⁰_k|², with W's columns
     // read off plain FFD by moving one grid handle at a time.
-    let fitted = by_name(puppetry::compare::ARAP_INVERSE_FFD);
+    let fitted = by_name(puppetry_bench::compare::ARAP_INVERSE_FFD);
     let grid = fitted.grid.clone().expect("a grid method");
     let params = LpParams::default();
     let rig = LpFfd::register(
@@ -653,7 +653,7 @@ fn the_lp_ffd_row_minimises_the_lp_ffd_energy() {
     use puppetry_deform::ffd::{Basis, GridSpec, LpFfd, LpParams};
 
     let (mesh, anchors, targets) = layered_figure();
-    let comparison = puppetry::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
+    let comparison = puppetry_bench::compare::compare(&mesh, &anchors, &targets, 10, 10).unwrap();
     let grid_of = |name| {
         comparison
             .methods
@@ -672,16 +672,16 @@ fn the_lp_ffd_row_minimises_the_lp_ffd_energy() {
     .unwrap();
     rig.compile(&anchors, &[]).unwrap();
     let energy = |grid: &[DVec2]| rig.energy(grid, &targets, &[]).unwrap();
-    let best = energy(&grid_of(puppetry::compare::LP_FFD));
+    let best = energy(&grid_of(puppetry_bench::compare::LP_FFD));
     for other in [
-        puppetry::compare::DIRECT_FFD,
-        puppetry::compare::ARAP_INVERSE_FFD,
+        puppetry_bench::compare::DIRECT_FFD,
+        puppetry_bench::compare::ARAP_INVERSE_FFD,
     ] {
         let e = energy(&grid_of(other));
         assert!(best < e, "lp-FFD {best}, {other} {e}");
     }
     // A local minimum: nudging any grid handle a little costs energy.
-    let grid = grid_of(puppetry::compare::LP_FFD);
+    let grid = grid_of(puppetry_bench::compare::LP_FFD);
     let step = 1e-3 * mesh.size();
     for k in (0..grid.len()).step_by(7) {
         for d in [DVec2::X, DVec2::Y, -DVec2::X, -DVec2::Y] {

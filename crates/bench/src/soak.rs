@@ -123,7 +123,7 @@ impl Dice {
     reason = "the soak's setup, then its measuring loop; each kind of task it starts is a function of its own"
 )]
 pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, ViewersError> {
-    let wave = crate::bundled::root()?.join("config/wave.toml");
+    let wave = puppetry_daemon::bundled::root()?.join("config/wave.toml");
     let text = std::fs::read_to_string(&wave).map_err(|e| ViewersError::Io {
         what: wave.display().to_string(),
         source: e,

@@ -102,9 +102,9 @@ pub fn demo_tokens() -> Vec<String> {
         let text = file.contents_utf8().filter(|_| is_stage);
         let name = file.path().display().to_string();
         // Parsed only (no file is read): the access section is all we need.
-        let Some(config) = text.and_then(|t| {
-            puppetry_daemon::config::ShowConfig::parse(&name, t, Path::new("/")).ok()
-        }) else {
+        let Some(config) =
+            text.and_then(|t| crate::config::ShowConfig::parse(&name, t, Path::new("/")).ok())
+        else {
             continue;
         };
         let access = config.access;

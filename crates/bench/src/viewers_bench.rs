@@ -74,7 +74,7 @@ pub struct ViewersResult {
 #[derive(Debug, thiserror::Error)]
 pub enum ViewersError {
     #[error("the demo stage: {0}")]
-    Bundle(#[from] crate::bundled::BundleError),
+    Bundle(#[from] puppetry_daemon::bundled::BundleError),
     #[error("{what}: {source}")]
     Io {
         what: String,
@@ -115,7 +115,7 @@ impl Daemon {
     /// `viewers` connections from this one address, with `program` (this
     /// one when `None`).
     fn start(viewers: usize, extra: &str, program: Option<&Path>) -> Result<Daemon, ViewersError> {
-        let demo = crate::bundled::demo_stage()?;
+        let demo = puppetry_daemon::bundled::demo_stage()?;
         let text = std::fs::read_to_string(&demo).map_err(io(demo.display().to_string()))?;
         // Beside the demo stage, so its relative paths hold.
         let stage_file = demo.with_file_name(format!("bench-viewers-{}.toml", std::process::id()));
