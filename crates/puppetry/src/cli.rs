@@ -731,48 +731,61 @@ pub fn end_to_end_performers(stage: &puppetry_stage::config::StageConfig) -> Vec
         .collect()
 }
 
+/// An evdev entry of the stage file: `input[index]`, its name, what device
+/// it wants and of which kind.
+struct DeviceEntry {
+    index: usize,
+    name: String,
+    wanted: puppetry_input::device::DeviceMatch,
+    kind: puppetry_input::device::DeviceKind,
+}
+
+/// The stage file's touch, pen and mouse entries, their paths resolved.
+fn device_entries(config: Option<&puppetry_daemon::config::ShowConfig>) -> Vec<DeviceEntry> {
+    use puppetry_input::config::InputConfig;
+    use puppetry_input::device::DeviceKind;
+    let Some(c) = config else {
+        return Vec::new();
+    };
+    c.inputs
+        .iter()
+        .enumerate()
+        .filter_map(|(index, input)| {
+            let (kind, device, name, label) = match input {
+                InputConfig::Touch { device, name, .. } => {
+                    (DeviceKind::Touch, device, name, "touch")
+                }
+                InputConfig::Pen { device, name, .. } => (DeviceKind::Pen, device, name, "pen"),
+                InputConfig::Mouse { device, name, .. } => {
+                    (DeviceKind::Mouse, device, name, "mouse")
+                }
+                _ => return None,
+            };
+            let mut wanted = device.clone();
+            wanted.path = wanted.path.map(|p| c.resolve(&p));
+            let name = name.clone().unwrap_or_else(|| format!("{label}:{index}"));
+            Some(DeviceEntry {
+                index,
+                name,
+                wanted,
+                kind,
+            })
+        })
+        .collect()
+}
+
 /// `puppetry devices`: every input device in `dir` — name, path, kind,
 /// ids, axes and ranges — and which entry of `config` (if given) would take
-/// it. Unreadable nodes are listed with what to do about them.
-#[expect(
-    clippy::too_many_lines,
-    reason = "a report read top to bottom (devices, then HID devices, then the stage file's entries each matched); a tool, not the show's path"
-)]
+/// it; then the HID digitizers; then the entries no device took.
+/// Unreadable nodes are listed with what to do about them.
 pub fn devices_report(
     dir: &Path,
     config: Option<&puppetry_daemon::config::ShowConfig>,
 ) -> Result<String, puppetry_input::device::DeviceError> {
-    use puppetry_input::config::InputConfig;
-    use puppetry_input::device::{DeviceKind, DeviceMatch, scan};
+    use puppetry_input::device::scan;
     use std::fmt::Write;
 
-    // Each device entry of the stage file: what it wants, of which kind.
-    let entries: Vec<(usize, String, DeviceMatch, DeviceKind)> = config
-        .map(|c| {
-            c.inputs
-                .iter()
-                .enumerate()
-                .filter_map(|(i, input)| {
-                    let (kind, device, name, label) = match input {
-                        InputConfig::Touch { device, name, .. } => {
-                            (DeviceKind::Touch, device, name, "touch")
-                        }
-                        InputConfig::Pen { device, name, .. } => {
-                            (DeviceKind::Pen, device, name, "pen")
-                        }
-                        InputConfig::Mouse { device, name, .. } => {
-                            (DeviceKind::Mouse, device, name, "mouse")
-                        }
-                        _ => return None,
-                    };
-                    let mut device = device.clone();
-                    device.path = device.path.map(|p| c.resolve(&p));
-                    let name = name.clone().unwrap_or_else(|| format!("{label}:{i}"));
-                    Some((i, name, device, kind))
-                })
-                .collect()
-        })
-        .unwrap_or_default();
+    let entries = device_entries(config);
     let mut taken = vec![false; entries.len()];
     let mut out = String::new();
     let found = match scan(dir) {
@@ -796,60 +809,84 @@ pub fn devices_report(
                 continue;
             }
         };
-        let _ = writeln!(
-            out,
-            "{}  {}{}  \"{}\"",
-            path.display(),
-            info.kind,
-            match (info.kind, info.capabilities.direct) {
-                (DeviceKind::Touch, true) => " (direct)",
-                _ => "",
-            },
-            info.name
-        );
-        let _ = writeln!(
-            out,
-            "    id: bus {:04x} vendor {:04x} product {:04x}{}{}{}",
-            info.id.bus,
-            info.id.vendor,
-            info.id.product,
-            info.phys
-                .as_ref()
-                .map(|p| format!("  phys \"{p}\""))
-                .unwrap_or_default(),
-            info.uniq
-                .as_ref()
-                .map(|u| format!("  uniq \"{u}\""))
-                .unwrap_or_default(),
-            if info.capture {
-                "  (evemu capture)"
-            } else {
-                ""
-            },
-        );
-        for (code, axis) in &info.capabilities.absolute {
-            let _ = writeln!(
-                out,
-                "    {:<18} {} .. {}{}",
-                abs_name(*code),
-                axis.min,
-                axis.max,
-                if axis.resolution > 0 {
-                    format!("  ({} per mm or radian)", axis.resolution)
-                } else {
-                    String::new()
-                }
-            );
-        }
+        describe_device(&mut out, path, info);
         // An entry takes the first device that matches it.
-        for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
-            if !taken[k] && *kind == info.kind && wanted.matches(info) {
+        for (k, entry) in entries.iter().enumerate() {
+            if !taken[k] && entry.kind == info.kind && entry.wanted.matches(info) {
                 taken[k] = true;
-                let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+                let _ = writeln!(out, "    used by input[{}] \"{}\"", entry.index, entry.name);
             }
         }
     }
-    // HID digitizers (hidapi), for `kind = "hid"` entries.
+    hid_report(&mut out, config);
+    for (entry, taken) in entries.iter().zip(taken) {
+        if !taken {
+            let _ = writeln!(
+                out,
+                "input[{}] \"{}\" ({}, {}): no such device now; the daemon waits for it",
+                entry.index, entry.name, entry.kind, entry.wanted
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// One evdev device's lines: path, kind and name; ids; every absolute axis.
+fn describe_device(out: &mut String, path: &Path, info: &puppetry_input::device::DeviceInfo) {
+    use puppetry_input::device::DeviceKind;
+    use std::fmt::Write;
+    let _ = writeln!(
+        out,
+        "{}  {}{}  \"{}\"",
+        path.display(),
+        info.kind,
+        match (info.kind, info.capabilities.direct) {
+            (DeviceKind::Touch, true) => " (direct)",
+            _ => "",
+        },
+        info.name
+    );
+    let _ = writeln!(
+        out,
+        "    id: bus {:04x} vendor {:04x} product {:04x}{}{}{}",
+        info.id.bus,
+        info.id.vendor,
+        info.id.product,
+        info.phys
+            .as_ref()
+            .map(|p| format!("  phys \"{p}\""))
+            .unwrap_or_default(),
+        info.uniq
+            .as_ref()
+            .map(|u| format!("  uniq \"{u}\""))
+            .unwrap_or_default(),
+        if info.capture {
+            "  (evemu capture)"
+        } else {
+            ""
+        },
+    );
+    for (code, axis) in &info.capabilities.absolute {
+        let _ = writeln!(
+            out,
+            "    {:<18} {} .. {}{}",
+            abs_name(*code),
+            axis.min,
+            axis.max,
+            if axis.resolution > 0 {
+                format!("  ({} per mm or radian)", axis.resolution)
+            } else {
+                String::new()
+            }
+        );
+    }
+}
+
+/// The HID touch digitizers (hidapi), and which `kind = "hid"` entry of
+/// `config` each would feed.
+fn hid_report(out: &mut String, config: Option<&puppetry_daemon::config::ShowConfig>) {
+    use puppetry_input::config::InputConfig;
+    use std::fmt::Write;
     let hid_entries: Vec<(usize, String, puppetry_input::hid::HidSelector)> = config
         .map(|c| {
             c.inputs
@@ -866,49 +903,40 @@ pub fn devices_report(
                 .collect()
         })
         .unwrap_or_default();
-    match puppetry_input::hid::list_devices() {
-        Ok(hids) => {
-            let touch: Vec<_> = hids.iter().filter(|h| h.is_touch()).collect();
-            if touch.is_empty() {
-                let _ = writeln!(out, "no HID touch digitizers (hidraw)");
-            }
-            for h in &touch {
-                let _ = writeln!(
-                    out,
-                    "{}  hid touch  \"{}\"\n    vendor_id {:#06x} product_id {:#06x}{}{}",
-                    h.path,
-                    h.product.as_deref().unwrap_or("?"),
-                    h.vendor_id,
-                    h.product_id,
-                    h.serial
-                        .as_ref()
-                        .map(|s| format!("  serial \"{s}\""))
-                        .unwrap_or_default(),
-                    match h.check_access() {
-                        Ok(()) => String::new(),
-                        Err(e) => format!("\n    not readable: {e}"),
-                    }
-                );
-                for (i, name, selector) in &hid_entries {
-                    if selector.matches(h) {
-                        let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
-                    }
-                }
-            }
-        }
+    let hids = match puppetry_input::hid::list_devices() {
+        Ok(hids) => hids,
         Err(e) => {
             let _ = writeln!(out, "HID devices: {e}");
+            return;
+        }
+    };
+    let touch: Vec<_> = hids.iter().filter(|h| h.is_touch()).collect();
+    if touch.is_empty() {
+        let _ = writeln!(out, "no HID touch digitizers (hidraw)");
+    }
+    for h in &touch {
+        let _ = writeln!(
+            out,
+            "{}  hid touch  \"{}\"\n    vendor_id {:#06x} product_id {:#06x}{}{}",
+            h.path,
+            h.product.as_deref().unwrap_or("?"),
+            h.vendor_id,
+            h.product_id,
+            h.serial
+                .as_ref()
+                .map(|s| format!("  serial \"{s}\""))
+                .unwrap_or_default(),
+            match h.check_access() {
+                Ok(()) => String::new(),
+                Err(e) => format!("\n    not readable: {e}"),
+            }
+        );
+        for (i, name, selector) in &hid_entries {
+            if selector.matches(h) {
+                let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+            }
         }
     }
-    for (k, (i, name, wanted, kind)) in entries.iter().enumerate() {
-        if !taken[k] {
-            let _ = writeln!(
-                out,
-                "input[{i}] \"{name}\" ({kind}, {wanted}): no such device now; the daemon waits for it"
-            );
-        }
-    }
-    Ok(out)
 }
 
 /// The kernel's name of an absolute axis.
