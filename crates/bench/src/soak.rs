@@ -118,10 +118,6 @@ impl Dice {
 
 /// Runs the soak, printing a header and a row every `options.every`;
 /// whether memory and descriptors stayed flat after the warm-up.
-#[expect(
-    clippy::too_many_lines,
-    reason = "the soak's setup, then its measuring loop; each kind of task it starts is a function of its own"
-)]
 pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, ViewersError> {
     let wave = puppetry_daemon::bundled::root()?.join("config/wave.toml");
     let text = std::fs::read_to_string(&wave).map_err(|e| ViewersError::Io {
@@ -131,24 +127,7 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     let pid = std::process::id();
     let takes = std::env::temp_dir().join(format!("puppetry-soak-takes-{pid}"));
     let _ = std::fs::create_dir_all(&takes);
-    let mut tier = None;
-    let mut extra = String::new();
-    if let Some(capture) = &options.capture {
-        let capture = std::path::absolute(capture).map_err(|e| ViewersError::Io {
-            what: capture.display().to_string(),
-            source: e,
-        })?;
-        // Its contacts' own range over the stage (a capture knows its axes).
-        extra += &format!(
-            "\n[[input]]\nkind = \"replay\"\nname = \"capture\"\nfile = {:?}\nrepeat = true\n",
-            capture.display().to_string()
-        );
-    }
-    if options.relay {
-        let nats = Tier::start("soak", 1)?;
-        extra += &nats.relay_section();
-        tier = Some(nats);
-    }
+    let (extra, mut tier) = extra_sections(&options)?;
     let stage_file = wave.with_file_name(format!("soak-{pid}.toml"));
     let text = text.replace(
         "[access]\n",
@@ -193,34 +172,8 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
         seen: seen.clone(),
         stop,
     };
-    let mut tasks = Vec::new();
-    // The reference viewer: at the far end (the relay, when there is one).
-    tasks.push(reference_viewer(
-        crew.clone(),
-        relay.clone().unwrap_or_else(|| daemon.clone()),
-    ));
-    // Viewers churning.
-    for slot in 0..options.viewers {
-        tasks.push(churning_viewer(crew.clone(), slot));
-    }
-    // Performers joining, dragging and leaving (on either edge).
-    for performer in 0..2u64 {
-        tasks.push(performing(crew.clone(), performer));
-    }
-    // Malformed messages, from a client that is dropped for them.
-    tasks.push(malformed_messages(crew.clone()));
-    // Takes: recorded for a few seconds, exported, deleted.
-    tasks.push(takes_exported(
-        crew.clone(),
-        takes.clone(),
-        (options.duration / 6).clamp(Duration::from_secs(20), Duration::from_secs(300)),
-    ));
-
-    // A curve puppet added and taken off again: a new lineup each time.
-    tasks.push(lineup_changes(
-        crew.clone(),
-        (options.duration / 30).clamp(Duration::from_secs(5), Duration::from_secs(60)),
-    ));
+    let far_end = relay.clone().unwrap_or_else(|| daemon.clone());
+    let tasks = start_tasks(&crew, &options, far_end, &takes);
 
     print(&table_header());
     let start = Instant::now();
@@ -268,6 +221,64 @@ pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, Vi
     let (flat, verdict) = judge(&rows, options.viewers);
     print(&verdict);
     Ok(flat)
+}
+
+/// The stage file's sections the options add: a looped capture, and the
+/// relay tier (started here: its nats-server and credentials).
+fn extra_sections(options: &SoakOptions) -> Result<(String, Option<Tier>), ViewersError> {
+    let mut extra = String::new();
+    if let Some(capture) = &options.capture {
+        let capture = std::path::absolute(capture).map_err(|e| ViewersError::Io {
+            what: capture.display().to_string(),
+            source: e,
+        })?;
+        // Its contacts' own range over the stage (a capture knows its axes).
+        extra += &format!(
+            "\n[[input]]\nkind = \"replay\"\nname = \"capture\"\nfile = {:?}\nrepeat = true\n",
+            capture.display().to_string()
+        );
+    }
+    let mut tier = None;
+    if options.relay {
+        let nats = Tier::start("soak", 1)?;
+        extra += &nats.relay_section();
+        tier = Some(nats);
+    }
+    Ok((extra, tier))
+}
+
+/// Every task of the soak, started: the reference viewer at `far_end`,
+/// churning viewers, performers, a malformed client, takes exported and
+/// lineup changes.
+fn start_tasks(
+    crew: &Crew,
+    options: &SoakOptions,
+    far_end: String,
+    takes: &std::path::Path,
+) -> Vec<tokio::task::JoinHandle<()>> {
+    let mut tasks = vec![reference_viewer(crew.clone(), far_end)];
+    // Viewers churning.
+    for slot in 0..options.viewers {
+        tasks.push(churning_viewer(crew.clone(), slot));
+    }
+    // Performers joining, dragging and leaving (on either edge).
+    for performer in 0..2u64 {
+        tasks.push(performing(crew.clone(), performer));
+    }
+    // Malformed messages, from a client that is dropped for them.
+    tasks.push(malformed_messages(crew.clone()));
+    // Takes: recorded for a few seconds, exported, deleted.
+    tasks.push(takes_exported(
+        crew.clone(),
+        takes.to_path_buf(),
+        (options.duration / 6).clamp(Duration::from_secs(20), Duration::from_secs(300)),
+    ));
+    // A curve puppet added and taken off again: a new lineup each time.
+    tasks.push(lineup_changes(
+        crew.clone(),
+        (options.duration / 30).clamp(Duration::from_secs(5), Duration::from_secs(60)),
+    ));
+    tasks
 }
 
 /// What every task of a soak shares: the edges to connect to, the daemon,
