@@ -129,6 +129,152 @@ pub fn thickness(a: DVec2, b: DVec2, c: DVec2) -> f64 {
     }
 }
 
+/// Every vertex a finite point within the coordinates' range.
+fn check_vertices(file: &str, vertices: &[DVec2]) -> Result<(), MeshError> {
+    for (i, v) in vertices.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(invalid(
+                file,
+                format!("vertices[{i}]"),
+                format!(
+                    "coordinate is not a finite number: {}",
+                    json::show_point(*v)
+                ),
+            ));
+        }
+        if v.abs().max_element() > json::MAX_COORDINATE {
+            return Err(invalid(
+                file,
+                format!("vertices[{i}]"),
+                format!(
+                    "{} is too far out: coordinates must stay within ±{:e}",
+                    json::show_point(*v),
+                    json::MAX_COORDINATE
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Every triangle three distinct vertices of the mesh, counter-clockwise
+/// and not too thin; every vertex used by one.
+fn check_triangles(
+    file: &str,
+    vertices: &[DVec2],
+    triangles: &[[u32; 3]],
+) -> Result<(), MeshError> {
+    let n = vertices.len();
+    let mut used = vec![false; n];
+    for (t, tri) in triangles.iter().enumerate() {
+        for &i in tri {
+            if i as usize >= n {
+                return Err(invalid(
+                    file,
+                    format!("triangles[{t}]"),
+                    format!("vertex index {i} is out of range (the mesh has {n} vertices)"),
+                ));
+            }
+            used[i as usize] = true;
+        }
+        if tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2] {
+            return Err(invalid(
+                file,
+                format!("triangles[{t}]"),
+                format!("repeats a vertex: {tri:?}"),
+            ));
+        }
+        let [a, b, c] = tri.map(|i| vertices[i as usize]);
+        let thickness = thickness(a, b, c);
+        if thickness.abs() <= 1e-12 {
+            return Err(invalid(
+                file,
+                format!("triangles[{t}]"),
+                format!("has zero area: {tri:?}"),
+            ));
+        }
+        if thickness < 0.0 {
+            return Err(invalid(
+                file,
+                format!("triangles[{t}]"),
+                format!("is clockwise (inverted); triangles must be counter-clockwise: {tri:?}"),
+            ));
+        }
+        if thickness < MIN_THICKNESS {
+            return Err(invalid(
+                file,
+                format!("triangles[{t}]"),
+                format!(
+                    "is too thin to deform stably: its height is {thickness:.1e} of its \
+                     longest edge, below {MIN_THICKNESS:e} {tri:?}"
+                ),
+            ));
+        }
+    }
+    if let Some(i) = used.iter().position(|u| !u) {
+        return Err(invalid(
+            file,
+            format!("vertices[{i}]"),
+            "is not used by any triangle",
+        ));
+    }
+    Ok(())
+}
+
+/// One finite texture coordinate per vertex.
+fn check_uv(file: &str, uv: &[DVec2], n: usize) -> Result<(), MeshError> {
+    if uv.len() != n {
+        return Err(invalid(
+            file,
+            "uv",
+            format!("has {} entries, expected one per vertex ({n})", uv.len()),
+        ));
+    }
+    if let Some(i) = uv.iter().position(|p| !p.is_finite()) {
+        return Err(invalid(file, format!("uv[{i}]"), "is not a finite number"));
+    }
+    Ok(())
+}
+
+/// The triangles' weights, one each within the weights' range, or 1 for
+/// every triangle when the file gives none.
+fn weights_or_ones(
+    file: &str,
+    weights: Option<Vec<f64>>,
+    triangles: usize,
+) -> Result<Vec<f64>, MeshError> {
+    match weights {
+        None => Ok(vec![1.0; triangles]),
+        Some(w) => {
+            if w.len() != triangles {
+                return Err(invalid(
+                    file,
+                    "weights",
+                    format!(
+                        "has {} entries, expected one per triangle ({})",
+                        w.len(),
+                        triangles
+                    ),
+                ));
+            }
+            if let Some(i) = w
+                .iter()
+                .position(|x| !(MIN_WEIGHT..=MAX_WEIGHT).contains(x))
+            {
+                return Err(invalid(
+                    file,
+                    format!("weights[{i}]"),
+                    format!(
+                        "must be between {MIN_WEIGHT:e} and {MAX_WEIGHT:e}, got {}",
+                        json::show(w[i])
+                    ),
+                ));
+            }
+            Ok(w)
+        }
+    }
+}
+
 /// Twice the signed area of triangle `abc` (positive when counter-clockwise).
 pub fn cross(a: DVec2, b: DVec2, c: DVec2) -> f64 {
     (b - a).perp_dot(c - a)
@@ -136,11 +282,9 @@ pub fn cross(a: DVec2, b: DVec2, c: DVec2) -> f64 {
 
 impl Mesh {
     /// Validates and builds a mesh. `source` names where the data came from,
-    /// for error messages. `weights` defaults to 1 for every triangle.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "one check per rule of the format, each naming its field, in the format's order; they share the vertex and triangle counts"
-    )]
+    /// for error messages. `weights` defaults to 1 for every triangle. One
+    /// check per rule of the format, each naming its field, in the format's
+    /// order.
     pub fn new(
         source: &str,
         vertices: Vec<DVec2>,
@@ -155,131 +299,17 @@ impl Mesh {
         if triangles.is_empty() {
             return Err(invalid(file, "triangles", "the mesh has no triangles"));
         }
-        for (i, v) in vertices.iter().enumerate() {
-            if !v.is_finite() {
-                return Err(invalid(
-                    file,
-                    format!("vertices[{i}]"),
-                    format!(
-                        "coordinate is not a finite number: {}",
-                        json::show_point(*v)
-                    ),
-                ));
-            }
-            if v.abs().max_element() > json::MAX_COORDINATE {
-                return Err(invalid(
-                    file,
-                    format!("vertices[{i}]"),
-                    format!(
-                        "{} is too far out: coordinates must stay within ±{:e}",
-                        json::show_point(*v),
-                        json::MAX_COORDINATE
-                    ),
-                ));
-            }
-        }
+        check_vertices(file, &vertices)?;
         let n = vertices.len();
         if n > u32::MAX as usize / 2 {
             return Err(invalid(file, "vertices", "too many vertices"));
         }
-        let mut used = vec![false; n];
-        for (t, tri) in triangles.iter().enumerate() {
-            for &i in tri {
-                if i as usize >= n {
-                    return Err(invalid(
-                        file,
-                        format!("triangles[{t}]"),
-                        format!("vertex index {i} is out of range (the mesh has {n} vertices)"),
-                    ));
-                }
-                used[i as usize] = true;
-            }
-            if tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2] {
-                return Err(invalid(
-                    file,
-                    format!("triangles[{t}]"),
-                    format!("repeats a vertex: {tri:?}"),
-                ));
-            }
-            let [a, b, c] = tri.map(|i| vertices[i as usize]);
-            let thickness = thickness(a, b, c);
-            if thickness.abs() <= 1e-12 {
-                return Err(invalid(
-                    file,
-                    format!("triangles[{t}]"),
-                    format!("has zero area: {tri:?}"),
-                ));
-            }
-            if thickness < 0.0 {
-                return Err(invalid(
-                    file,
-                    format!("triangles[{t}]"),
-                    format!(
-                        "is clockwise (inverted); triangles must be counter-clockwise: {tri:?}"
-                    ),
-                ));
-            }
-            if thickness < MIN_THICKNESS {
-                return Err(invalid(
-                    file,
-                    format!("triangles[{t}]"),
-                    format!(
-                        "is too thin to deform stably: its height is {thickness:.1e} of its \
-                         longest edge, below {MIN_THICKNESS:e} {tri:?}"
-                    ),
-                ));
-            }
-        }
-        if let Some(i) = used.iter().position(|u| !u) {
-            return Err(invalid(
-                file,
-                format!("vertices[{i}]"),
-                "is not used by any triangle",
-            ));
-        }
+        check_triangles(file, &vertices, &triangles)?;
         check_manifold(file, &triangles, n)?;
         if let Some(uv) = &uv {
-            if uv.len() != n {
-                return Err(invalid(
-                    file,
-                    "uv",
-                    format!("has {} entries, expected one per vertex ({n})", uv.len()),
-                ));
-            }
-            if let Some(i) = uv.iter().position(|p| !p.is_finite()) {
-                return Err(invalid(file, format!("uv[{i}]"), "is not a finite number"));
-            }
+            check_uv(file, uv, n)?;
         }
-        let weights = match weights {
-            None => vec![1.0; triangles.len()],
-            Some(w) => {
-                if w.len() != triangles.len() {
-                    return Err(invalid(
-                        file,
-                        "weights",
-                        format!(
-                            "has {} entries, expected one per triangle ({})",
-                            w.len(),
-                            triangles.len()
-                        ),
-                    ));
-                }
-                if let Some(i) = w
-                    .iter()
-                    .position(|x| !(MIN_WEIGHT..=MAX_WEIGHT).contains(x))
-                {
-                    return Err(invalid(
-                        file,
-                        format!("weights[{i}]"),
-                        format!(
-                            "must be between {MIN_WEIGHT:e} and {MAX_WEIGHT:e}, got {}",
-                            json::show(w[i])
-                        ),
-                    ));
-                }
-                w
-            }
-        };
+        let weights = weights_or_ones(file, weights, triangles.len())?;
         Ok(Mesh {
             vertices,
             triangles,
