@@ -29,10 +29,11 @@ pub enum ServeError {
     Stage(#[from] StageError),
     #[error(transparent)]
     Stream(#[from] StreamError),
-    #[error("{0}")]
-    Input(String),
     #[error(transparent)]
     Inputs(#[from] crate::inputs::InputError),
+    /// The take `serve --play` names cannot be played.
+    #[error(transparent)]
+    Play(#[from] crate::takes::PlayError),
     #[error(transparent)]
     Osc(#[from] crate::osc::OscError),
     #[error(transparent)]
@@ -346,8 +347,7 @@ fn play_at_start(
         options,
         commands.clone(),
         started,
-    )
-    .map_err(|e| ServeError::Input(e.to_string()))?;
+    )?;
     if let Ok(links) = shared.links() {
         *links.player.lock().unwrap_or_else(|p| p.into_inner()) = Some(player);
     }
