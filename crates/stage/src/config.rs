@@ -13,22 +13,40 @@ use puppetry_mesh::numbers::{coordinates, exactly, pairs, some_pairs, within};
 use serde::Deserialize;
 use serde::de::IgnoredAny;
 
+/// Why a stage file could not be used. Each names the file, and the field
+/// where there is one, so the message says what to fix.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    /// The stage file could not be opened or read.
     #[error("{file}: cannot read: {source}")]
     Read {
+        /// The stage file, as named.
         file: String,
+        /// The operating system's error.
         source: std::io::Error,
     },
     /// Not a regular file, or past its size cap.
     #[error(transparent)]
     File(puppetry_mesh::file::FileError),
+    /// Not TOML, or not the stage file's shape (a misspelt or unknown key,
+    /// a value of the wrong type).
     #[error("{file}: {message}")]
-    Syntax { file: String, message: String },
+    Syntax {
+        /// The stage file, as named.
+        file: String,
+        /// The toml crate's message: several lines, with the line of the
+        /// file and a `^` under the fault.
+        message: String,
+    },
+    /// A value out of its range, a name used twice, a missing or unreadable
+    /// file, a rig that contradicts itself…
     #[error("{file}: {field}: {problem}")]
     Invalid {
+        /// The stage file, as named.
         file: String,
+        /// The field at fault, as a path (`puppet[2].grid.columns`).
         field: String,
+        /// What is wrong, and what would be right.
         problem: String,
     },
 }
@@ -42,7 +60,10 @@ pub enum ConfigError {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StageConfig {
+    /// `[stage]`: the stage's size and the server's listen settings.
     pub stage: StageSection,
+    /// The `[[puppet]]` entries, in file order: puppet ids follow it, and
+    /// the last starts on top.
     #[serde(default, rename = "puppet")]
     pub puppets: Vec<PuppetConfig>,
     /// Keyframing pads on input sources (spatial keyframing).
@@ -66,11 +87,13 @@ pub struct StageConfig {
     pub file: String,
 }
 
+/// `[stage]`: the stage's size, and where and how the server listens.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StageSection {
     /// Stage size in stage units (y-up, origin bottom-left).
     pub width: f64,
+    /// The stage's height in stage units (see `width`).
     pub height: f64,
     /// HTTP and WebSocket address; port 0 picks a free port. Written as
     /// `serve --listen` takes it ([`parse_listen`]).
@@ -144,6 +167,7 @@ pub fn is_colour(text: &str) -> bool {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PuppetConfig {
+    /// Unique within the file; pads and key files name the puppet by it.
     pub name: String,
     /// The picture (PNG). A curve puppet's is optional: a texture run along
     /// its length (u along, v across), else the stroke is drawn in `colour`.
@@ -380,27 +404,42 @@ fn one() -> f64 {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridConfig {
+    /// Grid handles along x: 2 to [`MAX_GRID_SIDE`].
     pub columns: usize,
+    /// Grid handles along y: 2 to [`MAX_GRID_SIDE`].
     pub rows: usize,
+    /// How vertices blend the handles (default: `bernstein`).
     #[serde(default)]
     pub basis: BasisConfig,
+    /// λ_ml, how strongly the shape is kept (0 is plain FFD; default 1).
     #[serde(default)]
     pub locality: Option<f64>,
+    /// λ_mp, how hard held material points pull (default 100).
     #[serde(default)]
     pub vertex: Option<f64>,
+    /// λ_gp, how hard held grid handles pull (default 100; must be
+    /// positive).
     #[serde(default)]
     pub grid: Option<f64>,
+    /// λ_gr, how hard handles no one holds are pulled back to rest
+    /// (default 0.01; must be positive).
     #[serde(default)]
     pub regular: Option<f64>,
+    /// Solver iterations per frame: 1 to [`MAX_ITERATIONS`] (default 4).
     #[serde(default)]
     pub iterations: Option<usize>,
 }
 
+/// `basis` of a `[puppet.grid]`: how each vertex follows the grid handles.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BasisConfig {
+    /// Bernstein polynomials over the whole grid, as in the paper: smooth,
+    /// and every handle moves every vertex. The default.
     #[default]
     Bernstein,
+    /// Bilinear within the vertex's grid cell: each vertex follows only the
+    /// four handles around it.
     Lattice,
 }
 
@@ -409,13 +448,18 @@ pub enum BasisConfig {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkeletonConfig {
+    /// Joint positions, in the mesh's own coordinates.
     #[serde(deserialize_with = "pairs")]
     pub joints: Vec<[f64; 2]>,
+    /// Bones as `[parent joint, child joint]` indices into `joints`.
     pub bones: Vec<[usize; 2]>,
+    /// How contacts drive the skeleton (default: `free`).
     #[serde(default)]
     pub mode: SkeletonMode,
+    /// Solver settings; those left out are the paper's.
     #[serde(default)]
     pub params: SkeletonParamsConfig,
+    /// Named key poses that a `pose` request blends between.
     #[serde(default)]
     pub poses: Vec<KeyPoseConfig>,
 }
@@ -436,16 +480,26 @@ pub enum SkeletonMode {
 #[derive(Debug, Clone, Copy, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkeletonParamsConfig {
+    /// Stiffness factor of the triangles a bone crosses (default 100).
     #[serde(default)]
     pub bone_weight: Option<f64>,
+    /// Weight of the joints' positions in the solve (default 100).
     #[serde(default)]
     pub joint_weight: Option<f64>,
+    /// Shape-matching rounds per frame: 1 to [`MAX_ITERATIONS`] (default
+    /// `puppetry_deform::skeleton::DEFAULT_ROUNDS`, 8).
     #[serde(default)]
     pub rounds: Option<usize>,
+    /// How far from its bone a bone's virtual joint sits, over the bone's
+    /// length: the scale across the bone (default 1).
     #[serde(default)]
     pub perpendicular_scale: Option<f64>,
+    /// Start each frame from the previous frame's rotations (default
+    /// false; overrides `bone_start`).
     #[serde(default)]
     pub warm_start: Option<bool>,
+    /// Start each frame's triangles at the rotation of the nearest bone
+    /// rather than the identity (default true).
     #[serde(default)]
     pub bone_start: Option<bool>,
 }
@@ -456,6 +510,8 @@ pub struct SkeletonParamsConfig {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeyPoseConfig {
+    /// What a `pose` request calls it: not empty, unique within the
+    /// skeleton.
     pub name: String,
     /// `[bone, degrees]` pairs: turn these bones (relative to their rest
     /// angle, or to `angles` if given) counter-clockwise.
@@ -478,7 +534,7 @@ pub struct KeyPoseConfig {
 pub const MAX_CLIENT_TIMEOUT_S: f64 = 3600.0;
 
 /// Grid rig columns and rows at most (each way): a 64×64 lattice already
-/// has 4,225 handles.
+/// has 4,096 handles.
 pub const MAX_GRID_SIDE: usize = 64;
 
 /// Solver iterations and skeleton rounds at most, per frame.

@@ -35,6 +35,7 @@ pub struct KeyFile {
     pub puppet: String,
     /// What each key's values drive, in order.
     pub grips: Vec<KeyGrip>,
+    /// The key poses, in index order.
     pub keys: Vec<KeyEntry>,
 }
 
@@ -44,9 +45,15 @@ pub struct KeyFile {
 pub enum KeyGrip {
     /// A material point, by its rest position in the mesh's own
     /// coordinates; two values (x, y, mesh coordinates).
-    Point { at: [f64; 2] },
+    Point {
+        /// The point's rest position, in the mesh's own coordinates.
+        at: [f64; 2],
+    },
     /// An lp-FFD grid handle by index; two values (mesh coordinates).
-    GridHandle { index: usize },
+    GridHandle {
+        /// The handle's index, row by row from the lower left.
+        index: usize,
+    },
     /// A whole skeleton pose; the stage says how many values.
     Skeleton,
 }
@@ -66,68 +73,133 @@ pub struct KeyEntry {
 /// What is wrong with a field of a key file or a key.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum Problem {
+    /// A number is NaN or infinite.
     #[error("not a finite number")]
     NotFinite,
+    /// A key's pad point is outside `[0, 1]²`.
     #[error("outside the pad [0,1]²")]
     OutsidePad,
+    /// A key's pad point is within [`SAME_POINT`] of an earlier key's.
     #[error("same point as keys[{other}] ({name:?})")]
-    SamePoint { other: usize, name: String },
+    SamePoint {
+        /// The earlier key's index.
+        other: usize,
+        /// The earlier key's name.
+        name: String,
+    },
+    /// A name is blank, the file has no grips, or a new key would key
+    /// nothing (no contact holds the puppet).
     #[error("empty")]
     Empty,
+    /// A key's name is an earlier key's.
     #[error("same name as keys[{other}]")]
-    SameName { other: usize },
+    SameName {
+        /// The earlier key's index.
+        other: usize,
+    },
+    /// With a skeleton grip, a key's value count differs from the first
+    /// key's (the file alone cannot say how many a skeleton takes).
     #[error("has {count} values, keys[{other}] has {expected}")]
     ValueCount {
+        /// The values this key has.
         count: usize,
+        /// The key it is measured against (the first).
         other: usize,
+        /// The values that key has.
         expected: usize,
     },
+    /// A key's value count is not what the grips take.
     #[error("has {count} values, the grips take {expected}")]
-    Width { count: usize, expected: usize },
+    Width {
+        /// The values this key has.
+        count: usize,
+        /// The values the grips take.
+        expected: usize,
+    },
+    /// A grip repeats an earlier one.
     #[error("same grip as grips[{other}]")]
-    SameGrip { other: usize },
+    SameGrip {
+        /// The earlier grip's index.
+        other: usize,
+    },
+    /// A file with two skeleton grips (one keys the whole skeleton).
     #[error("a second skeleton grip (grips[{other}] is one)")]
-    SecondSkeleton { other: usize },
+    SecondSkeleton {
+        /// The first skeleton grip's index.
+        other: usize,
+    },
     /// The JSON has the wrong shape here: a missing or unknown field, a
     /// value of the wrong type.
     #[error("{0}")]
     Shape(String),
 }
 
+/// Why a key file could not be read, checked or written, or why a live
+/// [`KeySet`] refused an edit.
 #[derive(Debug, thiserror::Error)]
 pub enum KeysError {
+    /// The key file could not be opened or read.
     #[error("{file}: cannot read: {source}")]
-    Read { file: String, source: io::Error },
+    Read {
+        /// The key file, as named.
+        file: String,
+        /// The operating system's error.
+        source: io::Error,
+    },
     /// Not a regular file, or past `MAX_KEYS_FILE_BYTES`.
     #[error(transparent)]
     File(puppetry_mesh::file::FileError),
+    /// Writing the key file (or its temporary file) failed; the old file,
+    /// if any, is untouched.
     #[error("{file}: cannot write: {source}")]
-    Write { file: String, source: io::Error },
+    Write {
+        /// The key file, as named.
+        file: String,
+        /// The operating system's error.
+        source: io::Error,
+    },
     /// Not JSON, with where (1-based line and column).
     #[error("{file}:{line}:{column}: {problem}")]
     Syntax {
+        /// The key file, as named.
         file: String,
+        /// The line, from 1.
         line: usize,
+        /// The column, from 1.
         column: usize,
+        /// What is wrong there.
         problem: String,
     },
     /// A field of a key file, by its path (`keys[2].values[5]`).
     #[error("{file}: {path}: {problem}")]
     Invalid {
+        /// The key file, as named.
         file: String,
+        /// The field's path in the file.
         path: String,
+        /// What is wrong with it.
         problem: Problem,
     },
     /// A key of a live set (`field` within the key: `at`, `values[5]`…).
     #[error("keys[{index}] ({name:?}).{field}: {problem}")]
     Key {
+        /// The key's index in the set.
         index: usize,
+        /// The key's name.
         name: String,
+        /// The field at fault, within the key.
         field: String,
+        /// What is wrong with it.
         problem: Problem,
     },
+    /// An edit named a key index past the end of the set.
     #[error("keys[{index}]: no such key (the set has {count})")]
-    NoSuchKey { index: usize, count: usize },
+    NoSuchKey {
+        /// The index asked for.
+        index: usize,
+        /// How many keys the set has.
+        count: usize,
+    },
     /// Not expected once the keys are checked (they are far enough apart);
     /// an error rather than a panic all the same.
     #[error("keys: {0}")]
@@ -588,10 +660,12 @@ impl KeySet {
         self.width
     }
 
+    /// How many keys there are.
     pub fn len(&self) -> usize {
         self.entries.len()
     }
 
+    /// Whether there are no keys (then nothing blends).
     pub fn is_empty(&self) -> bool {
         self.entries.is_empty()
     }

@@ -21,7 +21,10 @@
 //! Plain synchronous state, with no tokio and no wire format in reach (the
 //! crate cannot build them: see ARCHITECTURE.md): the daemon's stage
 //! thread runs it, with the solvers, on a thread of its own, and turns
-//! what it holds into protocol messages.
+//! what it holds into protocol messages. Every public item is documented
+//! (`missing_docs` is on here).
+
+#![warn(missing_docs)]
 
 pub mod change;
 pub mod config;
@@ -52,91 +55,204 @@ pub use rig::{Grip, Rig};
 /// Why a performer's request (paint, pose, export, save) could not be done.
 #[derive(Debug, thiserror::Error)]
 pub enum CommandError {
+    /// The id names no puppet on stage: past the last, or removed.
     #[error("puppet {puppet}: no such puppet (the stage has {count})")]
-    NoSuchPuppet { puppet: u32, count: usize },
+    NoSuchPuppet {
+        /// The id asked for.
+        puppet: u32,
+        /// How many puppets are on stage now.
+        count: usize,
+    },
+    /// A grid export asked of a puppet whose rig is not an lp-FFD grid.
     #[error("puppet {puppet}: has no grid")]
-    NoGrid { puppet: u32 },
+    NoGrid {
+        /// The puppet asked.
+        puppet: u32,
+    },
+    /// A key-pose blend asked of a puppet that has no skeleton.
     #[error("puppet {puppet}: has no skeleton")]
-    NoSkeleton { puppet: u32 },
+    NoSkeleton {
+        /// The puppet asked.
+        puppet: u32,
+    },
+    /// Saving weights asked of a curve puppet, whose mesh is built from
+    /// its curve and has no file to write them to.
     #[error(
         "puppet {puppet}: a curve puppet has no weights to save (its mesh is built from its curve)"
     )]
-    NoWeights { puppet: u32 },
+    NoWeights {
+        /// The puppet asked.
+        puppet: u32,
+    },
+    /// A depth-layer dab on a puppet whose stage file says `depth = "off"`.
     #[error("puppet {puppet}: has no depth to paint (depth = \"off\")")]
-    NoDepth { puppet: u32 },
+    NoDepth {
+        /// The puppet asked.
+        puppet: u32,
+    },
+    /// A brush dab whose centre is NaN or infinite.
     #[error("paint needs finite x and y")]
     BadBrush,
     /// A number outside its documented range; `field` names it as the
     /// message does (`radius`, `strength`).
     #[error("{field}: {problem}")]
     OutOfRange {
+        /// The request's field: `radius`, `strength` or `layer`.
         field: &'static str,
+        /// The range it must be in, and the value given.
         problem: String,
     },
+    /// Undo, redo, reset or a recorded [`Change::Restore`] brought a state
+    /// that does not fit the puppet (wrong counts, a grip it does not
+    /// have, a non-finite point); nothing was changed. Also a depth-layer
+    /// dab the depth order refused.
     #[error("puppet {puppet}: cannot restore: {problem}")]
-    Restore { puppet: u32, problem: String },
+    Restore {
+        /// The puppet the state was for.
+        puppet: u32,
+        /// What does not fit.
+        problem: String,
+    },
+    /// Writing a painted-weights file failed.
     #[error("{file}: {source}")]
     Write {
+        /// The file being written.
         file: String,
+        /// The operating system's error.
         source: std::io::Error,
     },
+    /// The puppet's rig refused the request (a key pose name the skeleton
+    /// does not have, a pose it cannot take).
     #[error("puppet {puppet}: {source}")]
-    Rig { puppet: u32, source: rig::RigError },
+    Rig {
+        /// The puppet asked.
+        puppet: u32,
+        /// What the rig said.
+        source: rig::RigError,
+    },
+    /// The mesh refused the painted weights or depth layers while the
+    /// weights file's text was made ([`WeightsFile::text`]).
     #[error("{file}: {source}")]
-    Weights { file: String, source: MeshError },
+    Weights {
+        /// The mesh file the weights are for.
+        file: String,
+        /// What the mesh said.
+        source: MeshError,
+    },
+    /// [`Stage::apply_change`] was given a [`Change::Rebuilt`], which needs
+    /// the rebuilt solver: the caller swaps it in with [`Stage::install`].
     #[error("puppet {puppet}: a rebuilt solver is swapped in with install, not applied")]
-    NeedsSolver { puppet: u32 },
+    NeedsSolver {
+        /// The puppet whose solver was rebuilt.
+        puppet: u32,
+    },
+    /// A key-pose edit (add, move, delete) the puppet's key set refused, or
+    /// one asked of a puppet that has no keys yet.
     #[error("puppet {puppet}: {source}")]
     Keys {
+        /// The puppet asked.
         puppet: u32,
+        /// What the key set said.
         source: keys::KeysError,
     },
+    /// Saving keys asked of a puppet whose stage-file entry names no key
+    /// file (`keys`), so there is nowhere to write them.
     #[error("puppet {puppet}: no key file is named for it in the stage file (`keys`)")]
-    NoKeyFile { puppet: u32 },
-    #[error("pad point [{x}, {y}] is not finite")]
-    BadPadPoint { x: f64, y: f64 },
-    /// Something else is under way (a take recording) that this would spoil.
-    #[error("{problem}")]
-    Busy { problem: String },
-    /// A puppet could not be put on the stage.
-    #[error("{problem}")]
-    Load { problem: String },
-    /// A draw order that is not every puppet on stage once.
-    #[error("order: {problem}")]
-    BadOrder { problem: String },
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum StageError {
-    #[error(transparent)]
-    Mesh(#[from] MeshError),
-    #[error("{file}: puppet[{index}] ({puppet}).{field}: {problem}")]
-    Rig {
-        file: String,
-        index: usize,
-        puppet: String,
-        field: String,
-        problem: String,
+    NoKeyFile {
+        /// The puppet asked.
+        puppet: u32,
     },
-    #[error("puppet {puppet}: pin {index} at [{x}, {y}] is not on the puppet")]
-    PinOutside {
-        puppet: String,
-        index: usize,
+    /// A keyframing cursor set to a NaN or infinite pad point.
+    #[error("pad point [{x}, {y}] is not finite")]
+    BadPadPoint {
+        /// The point's x, as given.
         x: f64,
+        /// The point's y, as given.
         y: f64,
     },
-    #[error(transparent)]
-    KeyFile(#[from] keys::KeysError),
-    #[error("{file}: {field}: {problem}")]
-    Keys {
-        file: String,
-        field: String,
+    /// Something else is under way (a take recording) that this would spoil.
+    #[error("{problem}")]
+    Busy {
+        /// What is under way, and what to do about it.
         problem: String,
     },
+    /// A puppet could not be put on the stage.
+    #[error("{problem}")]
+    Load {
+        /// Why (the [`StageError`], as text).
+        problem: String,
+    },
+    /// A draw order that is not every puppet on stage once.
+    #[error("order: {problem}")]
+    BadOrder {
+        /// Which puppet is unknown or listed twice, or how many are missing.
+        problem: String,
+    },
+}
+
+/// Why a puppet of a stage file could not be put on the stage (at start-up,
+/// or when one is added at runtime). Errors name the file and the field.
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    /// The puppet's mesh file could not be read or is not a valid mesh, or
+    /// the mesh refused its placement on the stage.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// The puppet's rig, curve or depth as the stage file gives it was
+    /// refused, by this crate's checks or by the deformer registering it
+    /// (bones that are no skeleton, a centre line that folds back, a mesh a
+    /// solver cannot register…).
+    #[error("{file}: puppet[{index}] ({puppet}).{field}: {problem}")]
+    Rig {
+        /// The stage file, as named to [`config::StageConfig::parse`].
+        file: String,
+        /// The puppet's place among the file's `[[puppet]]` entries.
+        index: usize,
+        /// The puppet's name.
+        puppet: String,
+        /// The field at fault, within the puppet (`curve.points`,
+        /// `skeleton.joints`, `grid`, `depth`…).
+        field: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// One of the stage file's `pins` lands on no triangle of the puppet.
+    #[error("puppet {puppet}: pin {index} at [{x}, {y}] is not on the puppet")]
+    PinOutside {
+        /// The puppet's name.
+        puppet: String,
+        /// The pin's place in the puppet's `pins`.
+        index: usize,
+        /// The pin's x, as the file gives it (mesh coordinates).
+        x: f64,
+        /// The pin's y, as the file gives it (mesh coordinates).
+        y: f64,
+    },
+    /// The puppet's key file exists but could not be read or is not a
+    /// valid key file.
+    #[error(transparent)]
+    KeyFile(#[from] keys::KeysError),
+    /// The puppet's key file is valid but does not fit the puppet: it
+    /// names another puppet, or its grips are not on this one's mesh or rig.
+    #[error("{file}: {field}: {problem}")]
+    Keys {
+        /// The key file, resolved against the stage file's folder.
+        file: String,
+        /// The key file's field at fault (`puppet`, `grips[1].at`, `keys`).
+        field: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// The puppet's picture cannot be used. Nothing in this crate returns
+    /// it (pictures are checked by [`config::StageConfig::check_files`]);
+    /// it is kept for callers that check a picture themselves.
     #[error("puppet {puppet}: image {path}: {problem}")]
     Image {
+        /// The puppet's name.
         puppet: String,
+        /// The picture's path, as named.
         path: String,
+        /// What is wrong with it.
         problem: String,
     },
 }
@@ -145,6 +261,8 @@ pub enum StageError {
 /// 1000 or divides it by 1000 (three of the weight range's seven orders of
 /// magnitude per dab).
 pub const MIN_STRENGTH: f64 = 1e-3;
+/// The top of the brush's `strength` range (see [`MIN_STRENGTH`]): a dab
+/// at most multiplies a weight by 1000.
 pub const MAX_STRENGTH: f64 = 1e3;
 
 /// Undo steps kept per puppet; older ones are forgotten.
@@ -194,9 +312,14 @@ impl std::fmt::Display for Owner {
     }
 }
 
+/// What a handle is, which decides how long it lasts and who may end it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum HandleKind {
+    /// Held by a contact: made when it lands, moved as it moves, gone when
+    /// it lifts (or its source goes away).
     Contact,
+    /// Stays where it was put until unpinned (by a client, undo or reset);
+    /// the stage file's pins are these too.
     Pin,
     /// Held by the keyframing cursor's blend of key poses.
     Key,
@@ -206,7 +329,9 @@ pub enum HandleKind {
 /// stroke (a curve puppet without an image) is drawn with.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Picture {
+    /// A PNG file, resolved against the stage file's folder.
     File(PathBuf),
+    /// A curve puppet with no image: its stroke's colour (RGB).
     Stroke([u8; 3]),
 }
 
@@ -235,14 +360,20 @@ impl std::fmt::Display for Picture {
 /// A handle on a puppet.
 #[derive(Debug, Clone)]
 pub struct Handle {
+    /// Unique on the stage (across puppets); a pin put back by undo or a
+    /// take keeps the id it had.
     pub id: u64,
+    /// Who made it; contacts of other owners never move it.
     pub owner: Owner,
+    /// Contact, pin or key handle.
     pub kind: HandleKind,
+    /// What it holds on the puppet.
     pub grip: Grip,
     /// Where the handle is held now (stage coordinates).
     pub target: DVec2,
-    /// From where the contact landed to the grid handle or joint it grabbed:
-    /// the rig point keeps that offset, so it does not jump to the finger.
+    /// From where the contact landed to what it grabbed (a grid handle or
+    /// joint, or the nearest point of an outline it landed just outside):
+    /// that point keeps the offset, so it does not jump to the finger.
     pub offset: DVec2,
 }
 
@@ -255,8 +386,13 @@ impl Handle {
 
 /// A puppet on the stage, with its rig.
 pub struct Puppet {
+    /// Its index in [`Stage::puppets`]: the order it was loaded or added
+    /// in. Never reused, even after the puppet is removed.
     pub id: u32,
+    /// The stage file's `name`, unique on the stage; pads and key files
+    /// name the puppet by it.
     pub name: String,
+    /// What it is drawn with.
     pub picture: Picture,
     /// The rest mesh, placed on the stage (with the stage file's weights).
     pub mesh: Mesh,
@@ -416,16 +552,24 @@ fn barycentric_in(a: DVec2, b: DVec2, c: DVec2, p: DVec2) -> [f64; 3] {
 /// A free-form puppet's solver rebuild with painted weights: the mesh to
 /// register, and the weights generation it carries.
 pub struct Rebuild {
+    /// The puppet to rebuild.
     pub puppet: u32,
+    /// The weights generation `mesh` has: give it back to
+    /// [`Stage::install`] with the solver, so a newer paint is not lost.
     pub generation: u64,
+    /// The puppet's mesh on the stage, with its painted weights: register
+    /// the new solver on it.
     pub mesh: Mesh,
 }
 
 /// A grid puppet's grid, as an export request is answered.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridExport {
+    /// The puppet exported.
     pub puppet: u32,
+    /// Grid handles along x (per row).
     pub columns: usize,
+    /// Grid handles along y (rows of handles).
     pub rows: usize,
     /// Rest grid handles, row by row from the lower left.
     pub rest: Vec<[f64; 2]>,
@@ -492,7 +636,9 @@ fn write_atomically(path: &std::path::Path, text: &str) -> std::io::Result<()> {
 
 /// All puppets and the contacts holding them.
 pub struct Stage {
+    /// The stage's width in stage units (`[stage].width`).
     pub width: f64,
+    /// The stage's height in stage units (`[stage].height`); y is up.
     pub height: f64,
     puppets: Vec<Puppet>,
     /// (source, contact id) → (puppet, handle id) for contacts that grabbed
@@ -691,6 +837,9 @@ impl Stage {
         self.order.iter().map(|&i| &self.puppets[i])
     }
 
+    /// Every puppet loaded, indexed by id, removed ones included (see
+    /// [`Puppet::removed`]); [`Stage::on_stage`] gives only those on stage,
+    /// in draw order.
     pub fn puppets(&self) -> &[Puppet] {
         &self.puppets
     }

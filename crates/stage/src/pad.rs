@@ -23,16 +23,23 @@ use crate::rig::{Grip, Rig};
 /// Where a puppet's mesh sits on the stage: `stage = at + (mesh − centre) · scale`.
 #[derive(Debug, Clone, Copy)]
 pub struct Placement {
+    /// The stage point the mesh's bounding-box centre lands on (the stage
+    /// file's `at`).
     pub at: DVec2,
+    /// Stage units per mesh unit (the stage file's `scale`).
     pub scale: f64,
+    /// The mesh's bounding-box centre, in its own coordinates.
     pub centre: DVec2,
 }
 
 impl Placement {
+    /// A point in the mesh's own coordinates, on the stage.
     pub fn to_stage(&self, p: DVec2) -> DVec2 {
         self.at + (p - self.centre) * self.scale
     }
 
+    /// A stage point, in the mesh's own coordinates (the inverse of
+    /// [`Placement::to_stage`]).
     pub fn to_mesh(&self, q: DVec2) -> DVec2 {
         self.centre + (q - self.at) / self.scale
     }
@@ -63,7 +70,9 @@ pub struct Keying {
 }
 
 impl Keying {
-    pub fn empty(file: Option<PathBuf>) -> Keying {
+    /// No keys and no cursor yet; `file` is where saving will write (none
+    /// when the stage file names no key file for the puppet).
+    pub(crate) fn empty(file: Option<PathBuf>) -> Keying {
         Keying {
             file,
             grips: Vec::new(),
@@ -83,6 +92,8 @@ impl Keying {
         self.set.as_ref().map_or(&[], |s| s.keys())
     }
 
+    /// The control cursor, in pad coordinates (`[0, 1]²`); `None` when no
+    /// one holds it, and then the keys drive nothing.
     pub fn cursor(&self) -> Option<DVec2> {
         self.cursor
     }
@@ -302,14 +313,20 @@ impl Keying {
 /// Configured pads of input sources, resolved to puppet indices.
 #[derive(Debug, Clone)]
 pub struct Pad {
+    /// The puppet whose cursor it moves (its index, which is its id).
     pub puppet: usize,
+    /// Only this input source's contacts use the pad; `None`: any source's.
     pub source: Option<String>,
+    /// The pad's lower-left corner, in stage coordinates.
     pub min: DVec2,
+    /// The pad's upper-right corner, in stage coordinates.
     pub max: DVec2,
 }
 
 impl Pad {
-    pub fn from_config(config: &PadConfig, puppet: usize) -> Pad {
+    /// A `[[pad]]` for the puppet at index `puppet`, its corners put in
+    /// order (the file may give them either way round).
+    pub(crate) fn from_config(config: &PadConfig, puppet: usize) -> Pad {
         let [x0, y0, x1, y1] = config.area;
         Pad {
             puppet,
@@ -319,7 +336,10 @@ impl Pad {
         }
     }
 
-    pub fn takes(&self, source: &str, at: DVec2) -> bool {
+    /// Whether a contact of `source` landing at `at` (stage coordinates)
+    /// moves this pad's cursor: the pad takes that source, and `at` is in
+    /// its area, edges included.
+    pub(crate) fn takes(&self, source: &str, at: DVec2) -> bool {
         self.source.as_deref().is_none_or(|s| s == source)
             && at.cmpge(self.min).all()
             && at.cmple(self.max).all()

@@ -138,6 +138,8 @@ impl Puppet {
         self.removed
     }
 
+    /// The handles on it now (contacts, pins, key handles), oldest first:
+    /// the order [`Puppet::handle_points`] reports them in.
     pub fn handles(&self) -> &[Handle] {
         &self.handles
     }
@@ -311,6 +313,8 @@ impl Puppet {
         }
     }
 
+    /// The deformer that drives it, with its own points to draw (grid
+    /// handles, joints).
     pub fn rig(&self) -> &Rig {
         &self.rig
     }

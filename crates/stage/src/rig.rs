@@ -36,8 +36,11 @@ pub enum Grip {
     /// (stage units, to the left). FK turns the bone about its parent joint
     /// so the point follows the finger; free mode moves both joints with it.
     Bone {
+        /// The bone's index.
         index: usize,
+        /// Along the bone: 0 at its parent joint, 1 at its child.
         along: f64,
+        /// Across the bone, in stage units, to the left.
         across: f64,
     },
 }
@@ -52,6 +55,8 @@ pub struct FreeRig {
     pub(super) rebuilding: bool,
 }
 
+/// A grid puppet's rig: the lp-FFD solver, and the handles it was last
+/// compiled with.
 pub struct GridRig {
     pub(super) ffd: LpFfd,
     vertex_anchors: Vec<Anchor>,
@@ -60,6 +65,8 @@ pub struct GridRig {
     grid_targets: Vec<DVec2>,
 }
 
+/// A skeleton puppet's rig: the shape-aware deformer, how contacts drive
+/// it, both modes' state and the stage file's key poses.
 pub struct SkeletonRig {
     pub(super) deformer: ShapeAware,
     pub(super) mode: SkeletonMode,
@@ -105,22 +112,40 @@ struct Drag {
 /// Why a rig could not solve, take weights or take a pose.
 #[derive(Debug, thiserror::Error)]
 pub enum RigError {
+    /// The free-form (ARAP) solver refused the handles or their targets.
     #[error(transparent)]
     Arap(#[from] puppetry_deform::ArapError),
+    /// The lp-FFD solver refused the handles, targets or weights.
     #[error("lp-FFD: {0}")]
     Ffd(#[from] puppetry_deform::ffd::FfdError),
+    /// The skeletal deformer refused the joints, weights or a pose (one
+    /// that does not fit the skeleton, a non-finite one).
     #[error("skeleton: {0}")]
     Skeleton(#[from] puppetry_deform::skeleton::SkeletonError),
+    /// The curve solver refused the drags or a pose.
     #[error("curve: {0}")]
     Curve(#[from] puppetry_deform::curve::CurveError),
+    /// A key-pose blend named a pose the stage file does not give the
+    /// skeleton.
     #[error("no key pose named {name:?}")]
-    UnknownPose { name: String },
+    UnknownPose {
+        /// The name asked for.
+        name: String,
+    },
 }
 
+/// The deformer that drives a puppet, chosen by its stage-file entry: a
+/// `curve`, a `grid`, a `skeleton`, or else free-form.
 pub enum Rig {
+    /// Free-form: ARAP on the mesh, held by material points.
     Free(FreeRig),
+    /// lp-FFD: a grid of handles over the mesh, held by its handles or by
+    /// material points.
     Grid(Box<GridRig>),
+    /// Shape-aware skeletal deformation, held by joints and bones.
     Skeleton(Box<SkeletonRig>),
+    /// A curve puppet's ribbon, laid along a centre line that
+    /// as-rigid-as-possible curve editing bends.
     Curve(Box<CurveRig>),
 }
 
@@ -249,6 +274,8 @@ impl Rig {
         }))
     }
 
+    /// The rig's kind as a word (`free`, `grid`, `skeleton` or `curve`),
+    /// for messages.
     pub fn kind(&self) -> &'static str {
         match self {
             Rig::Free(_) => "free",
@@ -518,6 +545,7 @@ impl SkeletonRig {
         &self.deformer
     }
 
+    /// How contacts drive the skeleton (the stage file's `mode`).
     pub fn mode(&self) -> SkeletonMode {
         self.mode
     }
@@ -577,6 +605,8 @@ impl SkeletonRig {
         Ok(())
     }
 
+    /// The key poses' names, in the stage file's order: what a `pose`
+    /// request may name.
     pub fn pose_names(&self) -> Vec<&str> {
         self.key_poses.iter().map(|(n, _)| n.as_str()).collect()
     }
