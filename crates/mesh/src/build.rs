@@ -89,7 +89,11 @@ pub fn mesh_png(path: &Path, options: &MeshOptions) -> Result<Mesh, MeshError> {
 /// A mesh of a picture, and what its maker should hear about the picture.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Meshed {
+    /// The mesh, in the picture's pixels (y-up), with uv mapping the
+    /// picture onto it.
     pub mesh: Mesh,
+    /// What to tell whoever chose the picture; empty when nothing is worth
+    /// saying.
     pub warnings: Vec<PictureWarning>,
 }
 
@@ -117,12 +121,17 @@ pub struct Quality {
     pub min_angle_deg: f64,
     /// Largest triangle angle, in degrees.
     pub max_angle_deg: f64,
+    /// Shortest edge length, in the mesh's units.
     pub min_edge: f64,
+    /// Longest edge length, in the mesh's units.
     pub max_edge: f64,
+    /// Mean edge length, in the mesh's units.
     pub mean_edge: f64,
     /// Standard deviation of edge lengths over their mean.
     pub edge_spread: f64,
+    /// Smallest triangle area, in square mesh units.
     pub min_area: f64,
+    /// Largest triangle area, in square mesh units.
     pub max_area: f64,
     /// Standard deviation of triangle areas over their mean.
     pub area_spread: f64,

@@ -17,24 +17,43 @@ use std::path::Path;
 /// Why a named file was not read: which file, and which limit or check.
 #[derive(Debug, thiserror::Error)]
 pub enum FileError {
+    /// The file could not be inspected, opened or read (it is missing, not
+    /// permitted, or reading it failed).
     #[error("{file}: cannot read: {source}")]
     Io {
+        /// The file's path, as given.
         file: String,
+        /// What the operating system said; see [`FileError::io_kind`].
         source: std::io::Error,
     },
+    /// The path names a folder, FIFO, device or socket: refused before it
+    /// is opened, since opening a FIFO blocks and a device may never end.
     #[error("{file}: is {kind}, not a regular file; only regular files are read")]
-    NotAFile { file: String, kind: &'static str },
+    NotAFile {
+        /// The file's path, as given.
+        file: String,
+        /// What it is instead, in words: "a folder", "a FIFO (named pipe)"…
+        kind: &'static str,
+    },
+    /// The file is larger than its [`Cap`], by the size the file system
+    /// gives or by what reading it yielded.
     #[error("{file}: larger than {limit} bytes, the most read from a {what} ({name})")]
     TooLarge {
+        /// The file's path, as given.
         file: String,
+        /// The cap, in bytes.
         limit: u64,
         /// What kind of file the limit is for ("stage file", "picture", …).
         what: &'static str,
         /// The limit's name in `puppetry_limits`, as `docs/limits.md` lists it.
         name: &'static str,
     },
+    /// [`read_text`] read the file but its bytes are not UTF-8.
     #[error("{file}: not UTF-8 text")]
-    NotText { file: String },
+    NotText {
+        /// The file's path, as given.
+        file: String,
+    },
 }
 
 impl FileError {
@@ -51,8 +70,12 @@ impl FileError {
 /// A file's size cap, with its names for the error past it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Cap {
+    /// The most bytes read from such a file; a file with more is refused.
     pub bytes: u64,
+    /// What kind of file it is, for the error ("stage file", "picture", …).
     pub what: &'static str,
+    /// The limit's constant in `puppetry_limits::files`, named in the error
+    /// so it can be looked up in `docs/limits.md`.
     pub name: &'static str,
 }
 

@@ -5,6 +5,10 @@
 
 use glam::DVec2;
 
+/// Items (by index, below the count the grid was built with) bucketed by
+/// the square cells they touch, in two flat arrays whatever the item count.
+/// Built once, then only read: [`BucketGrid::members`] of a cell index from
+/// [`BucketGrid::shape`].
 #[derive(Debug, Clone)]
 pub struct BucketGrid {
     lo: DVec2,
@@ -19,7 +23,7 @@ pub struct BucketGrid {
 impl BucketGrid {
     /// A grid of square cells of side `cell` from `lo` covering `hi`, filled
     /// with `count` items; `cells_of(i, visit)` calls `visit(cell)` for each
-    /// cell item `i` touches (see `BucketGrid::column`, `BucketGrid::row`).
+    /// cell item `i` touches (see [`GridShape::column`], [`GridShape::row`]).
     pub fn new(
         lo: DVec2,
         hi: DVec2,
@@ -59,6 +63,7 @@ impl BucketGrid {
         }
     }
 
+    /// Where the grid's cells are, to turn points into cell indices.
     pub fn shape(&self) -> GridShape {
         GridShape {
             lo: self.lo,
@@ -68,6 +73,8 @@ impl BucketGrid {
         }
     }
 
+    /// How many cells the grid has (columns × rows): every cell index is
+    /// below it.
     pub fn cell_count(&self) -> usize {
         self.columns * self.rows
     }
@@ -78,12 +85,17 @@ impl BucketGrid {
     }
 }
 
-/// The geometry of a grid: where its cells are.
+/// The geometry of a grid: where its cells are. Cell `k` is in row
+/// `k / columns`, column `k % columns`, counted from `lo`.
 #[derive(Debug, Clone, Copy)]
 pub struct GridShape {
+    /// The corner with the lowest x and y, where row 0, column 0 starts.
     pub lo: DVec2,
+    /// The side of every cell, in the items' coordinate units.
     pub cell: f64,
+    /// Cells along x; at least 1.
     pub columns: usize,
+    /// Cells along y; at least 1.
     pub rows: usize,
 }
 

@@ -4,10 +4,13 @@
 //! [`build`] and [`trace`]; deformers only ever see a validated [`Mesh`].
 //!
 //! Plain synchronous code over data: no I/O beyond the explicit `load`/`save`.
+//! Every public item is documented (`missing_docs` is on here).
+
+#![warn(missing_docs)]
 
 pub mod build;
 pub mod file;
-pub mod grid;
+pub(crate) mod grid;
 pub mod json;
 pub mod numbers;
 pub mod polygon;
@@ -24,25 +27,44 @@ use serde::{Deserialize, Serialize};
 /// An error in a mesh: which file, which field, what is wrong.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
+    /// The file could not be opened or read; so is a picture that does not
+    /// decode as a PNG, or whose image data is cut short.
     #[error("{file}: cannot read: {source}")]
     Io {
+        /// The file's path, as given.
         file: String,
+        /// What the operating system (or the PNG decoder) said.
         source: std::io::Error,
     },
     /// Not a regular file, or past its size cap.
     #[error(transparent)]
     File(file::FileError),
+    /// The text is not JSON, or not JSON of the expected form (an unknown
+    /// field, a point that is not `[x, y]`, an index that is negative).
     #[error("{file}: line {line}, column {column}: {message}")]
     Syntax {
+        /// What the text is called in messages: its path, or the name the
+        /// caller gave it.
         file: String,
+        /// The line of the problem, counting from 1.
         line: usize,
+        /// The column of the problem within its line, counting from 1.
         column: usize,
+        /// serde's complaint, without the position it repeats.
         message: String,
     },
+    /// The data was read but breaks a rule: of the mesh format
+    /// (`docs/mesh-format.md`), of a shape, of a picture (too large, nothing
+    /// opaque) or of a meshing option.
     #[error("{file}: {field}: {problem}")]
     Invalid {
+        /// Where the data came from: a path, or the name the caller gave it.
         file: String,
+        /// The offending field as the file spells it (`triangles[12]`,
+        /// `weights`, `polygons[2].outer`), or the input it concerns
+        /// (`size`, `alpha`, `target_vertices`).
         field: String,
+        /// What is wrong, in words a person can act on.
         problem: String,
     },
 }
@@ -103,10 +125,13 @@ pub(crate) fn invalid(
     }
 }
 
-/// The range of per-triangle rigidity weights: wide enough for the paper's
-/// 10000 for stiff parts and for soft ones, narrow enough that the solver
-/// keeps its precision.
+/// The softest per-triangle rigidity weight a mesh may hold (1 is the
+/// default). The range from here to [`MAX_WEIGHT`] is wide enough for the
+/// paper's 10000 for stiff parts and for soft ones, narrow enough that the
+/// solver keeps its precision.
 pub const MIN_WEIGHT: f64 = 1e-2;
+/// The stiffest per-triangle rigidity weight a mesh may hold; see
+/// [`MIN_WEIGHT`].
 pub const MAX_WEIGHT: f64 = 1e5;
 
 /// The highest depth layer a triangle may be painted with.
@@ -400,15 +425,24 @@ impl Mesh {
         serde_json::to_string(&file).expect("a validated mesh serialises")
     }
 
+    /// The rest positions, y-up, in the mesh's units (pixels for a mesh
+    /// made from a picture). Never empty; every one is used by a triangle.
     pub fn vertices(&self) -> &[DVec2] {
         &self.vertices
     }
+    /// Each triangle's three vertex indices, counter-clockwise in the y-up
+    /// frame. Never empty.
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
     }
+    /// One texture coordinate per vertex into the source picture (image
+    /// convention: v grows down from the top edge), or `None` when the mesh
+    /// has no picture (made from a polygon, or a file without `uv`).
     pub fn uv(&self) -> Option<&[DVec2]> {
         self.uv.as_deref()
     }
+    /// One rigidity weight per triangle, from [`MIN_WEIGHT`] to
+    /// [`MAX_WEIGHT`]; larger is stiffer, and 1 where none was given.
     pub fn weights(&self) -> &[f64] {
         &self.weights
     }
@@ -492,7 +526,9 @@ impl Mesh {
 /// One connected piece of a mesh.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Piece {
+    /// Indices of its vertices into the mesh's, in increasing order.
     pub vertices: Vec<u32>,
+    /// Indices of its triangles into the mesh's, in increasing order.
     pub triangles: Vec<u32>,
 }
 
@@ -586,11 +622,16 @@ pub struct Locator {
 /// A point inside a mesh, as its triangle and barycentric coordinates.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Location {
+    /// Index of the triangle holding the point.
     pub triangle: u32,
+    /// The point's barycentric coordinates in that triangle, one per corner
+    /// in the triangle's vertex order: each at least 0, summing to 1.
     pub bary: [f64; 3],
 }
 
 impl Locator {
+    /// Buckets `mesh`'s triangles by bounding box into a grid of about one
+    /// triangle per cell. [`Locator::locate`] must be given the same mesh.
     pub fn new(mesh: &Mesh) -> Locator {
         let verts = mesh.vertices();
         let mut lo = DVec2::splat(f64::INFINITY);

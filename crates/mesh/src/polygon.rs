@@ -23,7 +23,11 @@ pub use super::json::MAX_COORDINATE;
 /// implicitly (the last point connects back to the first).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Polygon {
+    /// The island's boundary: at least 3 distinct points, either orientation
+    /// (counter-clockwise once [`Shape::normalized`]).
     pub outer: Vec<DVec2>,
+    /// Rings cut out of the island, each inside `outer` and none inside
+    /// another (clockwise once normalised).
     pub holes: Vec<Vec<DVec2>>,
 }
 
@@ -31,6 +35,8 @@ pub struct Polygon {
 /// island's hole, but islands never overlap.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Shape {
+    /// The islands; at least one for a valid shape. A traced picture lists
+    /// its largest island first.
     pub polygons: Vec<Polygon>,
 }
 

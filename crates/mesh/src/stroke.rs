@@ -16,16 +16,40 @@ use super::{Mesh, MeshError};
 /// What is wrong with an SVG path, and where (byte offset in the `d` text).
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum StrokeError {
+    /// [`parse_svg_path`] cannot read the `d` text as one open stroke: bad
+    /// syntax, a closed path, a second subpath, an arc, or a flattening
+    /// step that is not a finite positive number (at byte 0).
     #[error("svg path: at byte {at}: {problem}")]
-    Path { at: usize, problem: String },
+    Path {
+        /// Byte offset into the `d` text where the problem starts.
+        at: usize,
+        /// What is wrong there.
+        problem: String,
+    },
+    /// The width given to [`ribbon_mesh`] is not a finite positive number.
     #[error("width {width} must be finite and positive")]
-    BadWidth { width: f64 },
+    BadWidth {
+        /// The width as given.
+        width: f64,
+    },
+    /// The centre line bends tighter than half the width somewhere, so the
+    /// ribbon's inner edge would fold over itself.
     #[error(
         "width {width} is too wide for the curve's bend near point {point}: the stroke's inner edge folds over itself (use a narrower width or a gentler curve)"
     )]
-    TooWide { width: f64, point: usize },
+    TooWide {
+        /// The width as given, in the centre line's units.
+        width: f64,
+        /// Index of the centre-line point that starts the segment where the
+        /// ribbon folds.
+        point: usize,
+    },
+    /// The ribbon failed [`Mesh::new`]'s checks for any other reason.
     #[error("the stroke's ribbon: {problem}")]
-    Ribbon { problem: String },
+    Ribbon {
+        /// The mesh's complaint, its field first.
+        problem: String,
+    },
 }
 
 /// The centre line of an SVG path `d`: one open subpath of `M`/`L`/`H`/`V`/

@@ -25,8 +25,12 @@ use super::{MeshError, cross, file, invalid};
 /// An outline traced from a picture, with the picture's size (for uv).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Traced {
+    /// The outline in the mesh frame: y-up pixels, the picture spanning
+    /// [0, width] × [0, height]; largest island first.
     pub shape: Shape,
+    /// The picture's width, in pixels.
     pub width: u32,
+    /// The picture's height, in pixels.
     pub height: u32,
     /// What the user should hear about the picture although it traced.
     pub warnings: Vec<PictureWarning>,
@@ -46,8 +50,11 @@ pub enum PictureWarning {
          transparent background (PNG with alpha)"
     )]
     FullyOpaque {
+        /// The picture: its path, or the name given to [`trace_rgba`].
         file: String,
+        /// The picture's width, in pixels.
         width: u32,
+        /// The picture's height, in pixels.
         height: u32,
     },
 }

@@ -17,7 +17,9 @@
 //! the contacts it lands or holds, so a crafted take cannot make a replay
 //! panic or stall. [`recorder`] writes on a thread of its own so the
 //! stage thread only hands records over; [`replay`] replays a take into a
-//! [`Stage`].
+//! [`Stage`]. Every public item is documented (`missing_docs` is on here).
+
+#![warn(missing_docs)]
 
 pub mod recorder;
 pub mod replay;
@@ -48,28 +50,68 @@ const KIND_STEP: u8 = 2;
 const KIND_FRAME: u8 = 3;
 const KIND_END: u8 = 4;
 
+/// Why a take could not be written, read or replayed; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum TakeError {
+    /// A take (or, for [`list`], its folder) could not be created, opened,
+    /// read or written, or the recorder's writer thread could not start.
     #[error("{file}: {source}")]
-    Io { file: String, source: io::Error },
+    Io {
+        /// The take's path (the folder's, for [`list`]), as given.
+        file: String,
+        /// What the operating system said.
+        source: io::Error,
+    },
     /// Not a regular file (a FIFO would block the reader for ever).
     #[error(transparent)]
     File(#[from] FileError),
+    /// The file does not start with [`MAGIC`].
     #[error("{file}: not a take (it does not start with the take magic)")]
-    NotATake { file: String },
+    NotATake {
+        /// The file's path, as given.
+        file: String,
+    },
+    /// A record is damaged (an impossible length, a checksum mismatch with
+    /// more of the take after it, a payload that does not decode or holds
+    /// impossible values), breaks the take budget of
+    /// `puppetry_limits::files` (times, changes, contacts), or the header
+    /// is missing.
     #[error("{file}: record {index} at byte {offset}: {problem}")]
     Corrupt {
+        /// The take's path, as given.
         file: String,
+        /// The record's place in the take, the header being record 0.
         index: usize,
+        /// Where the record starts in the file (its length field), in bytes.
         offset: u64,
+        /// What is wrong with it.
         problem: String,
     },
+    /// The header's version is newer than [`VERSION`], the newest this
+    /// build reads.
     #[error("{file}: take version {version} is newer than this build reads ({VERSION})")]
-    Version { file: String, version: u32 },
+    Version {
+        /// The take's path, as given.
+        file: String,
+        /// The version the take's header gives.
+        version: u32,
+    },
+    /// The take does not fit the stage it is replayed into (see
+    /// [`Header::check_stage`]), or one of its steps cannot be replayed.
     #[error("{file}: {problem}")]
-    Stage { file: String, problem: String },
+    Stage {
+        /// The take's path, as given.
+        file: String,
+        /// What does not fit, naming the puppet or the step.
+        problem: String,
+    },
+    /// [`TakeWriter::create`] found a file at the path: a take is never
+    /// overwritten.
     #[error("{file}: already exists")]
-    Exists { file: String },
+    Exists {
+        /// The path, as given.
+        file: String,
+    },
 }
 
 /// The take format's version, in every header.
@@ -80,8 +122,11 @@ pub const VERSION: u32 = 1;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PuppetInfo {
+    /// The puppet's name on the stage.
     pub name: String,
+    /// Its rest mesh's vertex count: the points each of its frames holds.
     pub vertices: usize,
+    /// Its rest mesh's triangle count.
     pub triangles: usize,
     /// FNV-1a 64 of the rest mesh on the stage (vertices' f64 bits, then
     /// triangles), in hex.
@@ -96,12 +141,20 @@ pub struct PuppetInfo {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Header {
+    /// The format version the take was written in ([`VERSION`] when
+    /// written by this build); a reader refuses a newer one.
     pub version: u32,
+    /// The name the take was recorded under (listings name a take by its
+    /// file instead, see [`TakeSummary::name`]).
     pub name: String,
     /// The stage file the daemon ran, as it named it.
     pub stage_file: String,
+    /// The stage's width when the take began, in stage units.
     pub stage_width: f64,
+    /// The stage's height when the take began, in stage units.
     pub stage_height: f64,
+    /// Every puppet of the stage, in id order (removed ones included): a
+    /// frame's `puppet` indexes it.
     pub puppets: Vec<PuppetInfo>,
     /// Wall-clock start, seconds since the Unix epoch.
     pub started_unix: f64,
@@ -296,7 +349,10 @@ impl Fnv {
 pub struct Step {
     /// Seconds since the take began.
     pub t: f64,
+    /// What the stage thread applied before this solve, in order.
     pub changes: Vec<Change>,
+    /// The handle events those changes caused (handles made, moved,
+    /// removed), in order; left out of the file when there are none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub events: Vec<StageEvent>,
 }
@@ -304,9 +360,12 @@ pub struct Step {
 /// A puppet's solved vertices after a step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
+    /// The puppet's id: its index in [`Header::puppets`].
     pub puppet: u32,
     /// Seconds since the take began.
     pub t: f64,
+    /// The puppet's deformed vertices in stage coordinates, in rest-mesh
+    /// order, as f32 `[x, y]` the way clients receive them.
     pub points: Vec<[f32; 2]>,
 }
 
@@ -325,16 +384,25 @@ impl Frame {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct End {
+    /// Seconds since the take began.
     pub t: f64,
     /// Why: "stopped", "shutdown", or the error that stopped it.
     pub reason: String,
 }
 
+/// One record of a take, in the order a take holds them: a [`Header`]
+/// first, then each [`Step`] followed by the [`Frame`]s its solve produced,
+/// and an [`End`] when the take was stopped rather than killed.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Record {
+    /// The first record: the stage the take was recorded on.
     Header(Header),
+    /// One solve's changes and the handle events they caused (JSON).
     Step(Step),
+    /// A puppet's vertices after the step before it (binary, so a large
+    /// mesh's frames stay compact).
     Frame(Frame),
+    /// The last record: when and why the take stopped.
     End(End),
 }
 
@@ -446,6 +514,9 @@ impl TakeWriter {
         Ok(writer)
     }
 
+    /// Appends one record, framed with its length and CRC-32, to the
+    /// buffer; it reaches the operating system at the next
+    /// [`TakeWriter::flush`] or when the buffer fills.
     pub fn write(&mut self, record: &Record) -> Result<(), TakeError> {
         record.encode(&mut self.scratch);
         self.out
@@ -477,16 +548,24 @@ pub enum Tail {
     /// The last record is partial or damaged (the daemon was killed while
     /// writing it): it and what follows were skipped.
     Truncated {
+        /// Where the skipped record starts in the file, in bytes.
         offset: u64,
+        /// How many bytes, from there to the end of the file, were skipped.
         bytes: u64,
+        /// What was wrong with it: a partial length, a record shorter than
+        /// its length says, a checksum mismatch.
         problem: String,
     },
 }
 
-/// Reads a take record by record, in bounded memory.
+/// Reads a take record by record, in bounded memory. [`TakeReader::open`]
+/// reads the header; iterating yields the records after it. An `Err` item
+/// for a damaged record may be followed by more records (the framing held
+/// past it); once the iterator ends, [`TakeReader::tail`] says how.
 pub struct TakeReader {
     file: String,
     input: BufReader<File>,
+    /// The take's header, read by [`TakeReader::open`].
     pub header: Header,
     offset: u64,
     index: usize,
@@ -498,6 +577,9 @@ pub struct TakeReader {
 }
 
 impl TakeReader {
+    /// Opens the take at `path`: a regular file (of any size: each record
+    /// is bounded instead) that starts with [`MAGIC`] and a header of a
+    /// version this build reads.
     pub fn open(path: &Path) -> Result<TakeReader, TakeError> {
         let file = path.display().to_string();
         let io = |source| TakeError::Io {
@@ -556,6 +638,7 @@ impl TakeReader {
         }
     }
 
+    /// The take's path as given to [`TakeReader::open`], for messages.
     pub fn file(&self) -> &str {
         &self.file
     }
@@ -773,18 +856,29 @@ impl Iterator for TakeReader {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TakeSummary {
+    /// The take's name: its file name without `.take` (how takes are
+    /// played and downloaded).
     pub name: String,
+    /// The take's path.
     pub file: PathBuf,
+    /// When recording began, in seconds since the Unix epoch.
     pub started_unix: f64,
     /// Seconds from the start to the last step or frame.
     pub duration: f64,
+    /// How many steps the take holds.
     pub steps: usize,
+    /// How many vertex frames the take holds.
     pub frames: usize,
+    /// The names of the stage's puppets when it was recorded, in id order.
     pub puppets: Vec<String>,
+    /// Whether it began on a stage fresh from its file, so it replays
+    /// exactly (see [`Header::fresh`]).
     pub fresh: bool,
     /// "stopped"/"shutdown"/an error, "unended" (killed between records)
     /// or "truncated: …" (killed mid-record; the tail was skipped).
     pub ending: String,
+    /// Takes played into this one while it was recorded (overdub), as
+    /// [`Header::layers`].
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub layers: Vec<String>,
 }

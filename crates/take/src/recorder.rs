@@ -27,10 +27,21 @@ pub const QUEUE: usize = 4096;
 /// Why a take stopped before it was asked to.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RecordError {
+    /// [`QUEUE`] records were already waiting: the disk is not keeping up.
     #[error("take {name}: the disk is not keeping up ({QUEUE} records waiting); the take stopped")]
-    Behind { name: String },
+    Behind {
+        /// The take's name, from its header.
+        name: String,
+    },
+    /// The writer thread failed to write (a full disk, the folder gone)
+    /// or is no longer running.
     #[error("take {name}: {problem}; the take stopped")]
-    Write { name: String, problem: String },
+    Write {
+        /// The take's name, from its header.
+        name: String,
+        /// The writer's error.
+        problem: String,
+    },
 }
 
 /// A take being recorded.
@@ -96,10 +107,12 @@ impl Recorder {
         })
     }
 
+    /// The take's name, from its header.
     pub fn name(&self) -> &str {
         &self.name
     }
 
+    /// The take's file.
     pub fn path(&self) -> &Path {
         &self.path
     }

@@ -32,6 +32,7 @@ impl Replayer {
         }
     }
 
+    /// The stage as the steps applied so far left it.
     pub fn stage(&self) -> &Stage {
         &self.stage
     }
@@ -71,11 +72,15 @@ impl Replayer {
 /// What [`verify`] found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Verification {
+    /// How many steps were replayed.
     pub steps: usize,
+    /// How many recorded frames were read (compared until the first
+    /// mismatch).
     pub frames: usize,
     /// The first frame that differs: (frame index, puppet, vertex, recorded,
     /// replayed).
     pub first_mismatch: Option<String>,
+    /// How the take's file ended.
     pub tail: Tail,
 }
 

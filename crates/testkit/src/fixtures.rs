@@ -45,6 +45,8 @@ pub fn grid(
     (vertices, triangles)
 }
 
+/// A validated [`grid`] mesh from the origin: a `width` × `height`
+/// rectangle of `cols` × `rows` squares, a bar to bend.
 pub fn bar(cols: usize, rows: usize, width: f64, height: f64) -> Mesh {
     let (v, t) = grid(cols, rows, width, height, DVec2::ZERO);
     Mesh::new("bar", v, t, None, None).unwrap()
@@ -264,6 +266,9 @@ pub fn dense_reference(
     (step1, (0..n).map(|i| DVec2::new(x[i], y[i])).collect())
 }
 
+/// The largest distance between corresponding points of two poses: how
+/// far apart two solutions are at their worst. Panics unless both have the
+/// same length.
 pub fn max_distance(a: &[DVec2], b: &[DVec2]) -> f64 {
     assert_eq!(a.len(), b.len());
     a.iter()

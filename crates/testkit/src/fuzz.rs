@@ -82,14 +82,20 @@ pub fn bytes(max: usize) -> impl Strategy<Value = Vec<u8>> {
 /// any input and shrinks well.
 #[derive(Debug, Clone)]
 pub enum Edit {
+    /// Cut the input short at a position.
     Truncate(Index),
+    /// Remove up to this many bytes from a position.
     Delete(Index, u8),
+    /// Insert these bytes at a position.
     Insert(Index, Vec<u8>),
+    /// Replace the byte at a position with this one.
     Overwrite(Index, u8),
     /// Replace the n-th token (a run of letters, digits, `.`, `+`, `-`) with
     /// one of [`NASTY_TOKENS`].
     Token(Index, Index),
+    /// Repeat a line right after itself.
     DuplicateLine(Index),
+    /// Remove a line with its `\n`.
     DeleteLine(Index),
     /// Copy a slice of the input elsewhere in it.
     Splice(Index, Index, u16),
@@ -228,13 +234,23 @@ pub fn text(max: usize) -> impl Strategy<Value = String> {
 /// A replacement value for one node of a document.
 #[derive(Debug, Clone)]
 pub enum Replacement {
+    /// A finite float: ±1e308, the smallest normal and subnormal, ±0, or
+    /// any.
     Number(f64),
+    /// An integer: -1, the i64 and i32 bounds, 2³², or any.
     Integer(i64),
+    /// An unsigned integer: `u64::MAX`, or any.
     Unsigned(u64),
+    /// A string: empty, 5000 characters, `"NaN"`, one holding NUL, a BOM,
+    /// `é` and U+10FFFF, or a short identifier.
     Text(String),
+    /// `true` or `false`.
     Bool(bool),
+    /// `null`.
     Null,
+    /// `[]`.
     EmptyArray,
+    /// `{}`.
     EmptyObject,
     /// `[[[…0…]]]`, this deep.
     Nested(u16),

@@ -5,7 +5,10 @@
 //! table sends them ([`tuio`]), the fuzz tests' case count and input makers
 //! ([`fuzz`]), what the simulated shows share ([`simulate`]), the stage
 //! files tests write ([`stage_text`]), and where the checkout's files are
-//! ([`root`]). A dev-dependency only: nothing here ships.
+//! ([`root`]). A dev-dependency only: nothing here ships. Every public item
+//! is documented (`missing_docs` is on here).
+
+#![warn(missing_docs)]
 
 pub mod alloc;
 pub mod fixtures;

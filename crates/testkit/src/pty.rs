@@ -5,12 +5,18 @@
 /// A pseudo-terminal pair: the master plays the pad, the slave's path is the
 /// "serial port".
 pub struct Pty {
+    /// The pad's end: what the test writes here, the code under test reads
+    /// from `path`; dropping it is the pad unplugged.
     pub master: std::fs::File,
     /// Held open so the pair lives until the test drops it.
     _slave: std::fs::File,
+    /// The slave's device path (`/dev/pts/N`), opened as the serial port.
     pub path: String,
 }
 
+/// Opens a pseudo-terminal pair with the slave in raw mode (no echo, no
+/// line editing), so bytes written to the master before the port is opened
+/// arrive as written. Panics when the system gives no pseudo-terminal.
 pub fn open_pty() -> Pty {
     use std::os::fd::FromRawFd;
     let (mut master, mut slave) = (0, 0);

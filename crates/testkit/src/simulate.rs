@@ -13,13 +13,22 @@ use serde::{Deserialize, Serialize};
 #[serde(tag = "on", rename_all = "snake_case")]
 pub enum Spot {
     /// Anywhere on (or a little off) the stage, as fractions of its size.
-    Stage { x: f64, y: f64 },
+    Stage {
+        /// Fraction of the stage's width; -0.1..1.1 from [`spot`].
+        x: f64,
+        /// Fraction of the stage's height (y up); -0.1..1.1 from [`spot`].
+        y: f64,
+    },
     /// On a puppet's rest vertex (indices taken modulo the counts), plus a
     /// small offset: the outline, pins and other fingers a hair away.
     Vertex {
+        /// Which puppet, taken modulo the stage's puppet count.
         puppet: u8,
+        /// Which rest vertex, taken modulo the puppet's vertex count.
         vertex: u32,
+        /// Offset added to the vertex's x, in its units.
         dx: f64,
+        /// Offset added to the vertex's y, in its units.
         dy: f64,
     },
 }

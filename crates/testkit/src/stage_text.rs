@@ -38,6 +38,8 @@ pub struct Gingerbread {
 }
 
 impl Gingerbread {
+    /// The section of a puppet called `name`, as the struct says: at
+    /// (640, 360), the repository's mesh, no `scale`, no pins.
     pub fn new(name: &str) -> Gingerbread {
         Gingerbread {
             name: name.to_string(),
@@ -49,11 +51,14 @@ impl Gingerbread {
         }
     }
 
+    /// Sets its `at`, where on the stage it stands (stage units).
     pub fn at(mut self, x: f64, y: f64) -> Gingerbread {
         self.at = [x, y];
         self
     }
 
+    /// Sets its `scale`; without this the section has no `scale` key, so
+    /// the stage file's default applies.
     pub fn scale(mut self, scale: f64) -> Gingerbread {
         self.scale = Some(scale);
         self

@@ -2,6 +2,7 @@
 
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 
+/// An OSC message to `addr` carrying `args`.
 pub fn msg(addr: &str, args: Vec<OscType>) -> OscPacket {
     OscPacket::Message(OscMessage {
         addr: addr.to_owned(),
@@ -9,6 +10,8 @@ pub fn msg(addr: &str, args: Vec<OscType>) -> OscPacket {
     })
 }
 
+/// `content` encoded as one OSC bundle timed "immediately": the bytes of
+/// one UDP datagram from a table.
 pub fn bundle(content: Vec<OscPacket>) -> Vec<u8> {
     rosc::encoder::encode(&OscPacket::Bundle(OscBundle {
         timetag: OscTime::from((0, 1)),
@@ -17,6 +20,8 @@ pub fn bundle(content: Vec<OscPacket>) -> Vec<u8> {
     .unwrap()
 }
 
+/// A `/tuio/2Dcur` message: `command` (`source`, `alive`, `set`, `fseq`)
+/// followed by `args`.
 pub fn cur(command: &str, mut args: Vec<OscType>) -> OscPacket {
     args.insert(0, OscType::String(command.to_owned()));
     msg("/tuio/2Dcur", args)
