@@ -689,6 +689,8 @@ impl TakeReader {
                 bytes: self.length - start,
                 problem: format!("a record length of {length} bytes"),
             });
+            // Counted, so the error names this record (see `corrupt`).
+            self.index += 1;
             return Some(Err(self.corrupt(
                 start,
                 format!(

@@ -149,6 +149,43 @@ fn a_damaged_record_mid_take_is_an_error_not_a_cut_tail() {
     assert!(summary.contains("damaged"), "{summary}");
 }
 
+/// Both kinds of damage name the damaged record itself: a wrong length
+/// field named the record before it (the index was counted after the
+/// error was made).
+#[test]
+fn damage_names_the_damaged_record() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("t1.take");
+    record(&path, 10);
+    let whole = std::fs::read(&path).unwrap();
+    // Record k's framing: its length field's offset (the header is 0).
+    let mut starts = Vec::new();
+    let mut at = puppetry_take::MAGIC.len();
+    while at < whole.len() {
+        starts.push(at);
+        let length = u32::from_le_bytes(whole[at..at + 4].try_into().unwrap()) as usize;
+        at += 4 + length + 4;
+    }
+    let damaged_index = |bytes: &[u8]| {
+        std::fs::write(&path, bytes).unwrap();
+        let mut reader = TakeReader::open(&path).unwrap();
+        reader
+            .by_ref()
+            .find_map(|r| match r {
+                Err(TakeError::Corrupt { index, .. }) => Some(index),
+                _ => None,
+            })
+            .expect("an error names the damage")
+    };
+    let k = 5;
+    let mut bad_length = whole.clone();
+    bad_length[starts[k]..starts[k] + 4].copy_from_slice(&0u32.to_le_bytes());
+    assert_eq!(damaged_index(&bad_length), k);
+    let mut bad_sum = whole.clone();
+    bad_sum[starts[k] + 5] ^= 0x40;
+    assert_eq!(damaged_index(&bad_sum), k);
+}
+
 #[test]
 fn foreign_files_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
