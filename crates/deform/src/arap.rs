@@ -56,7 +56,12 @@ pub enum Anchor {
     Vertex(u32),
     /// A point inside a triangle, as barycentric weights of its corners
     /// (non-negative, summing to 1).
-    Point { triangle: u32, bary: [f64; 3] },
+    Point {
+        /// Index into the mesh's triangles.
+        triangle: u32,
+        /// Weights of the triangle's corners, in its corner order.
+        bary: [f64; 3],
+    },
 }
 
 /// Which steps an update runs.
@@ -68,32 +73,70 @@ pub enum Steps {
     Both,
 }
 
+/// Why [`Arap`] refused a mesh, a handle set or a frame's targets. A
+/// `handle` is the handle's index in the slice given to [`Arap::compile`]
+/// (or [`Arap::update`]).
 #[derive(Debug, thiserror::Error)]
 pub enum ArapError {
+    /// [`Arap::compile`]: an [`Anchor::Vertex`] names a vertex the mesh
+    /// does not have.
     #[error("handle {handle}: vertex {vertex} is out of range (the mesh has {count} vertices)")]
     VertexOutOfRange {
+        /// The offending handle's index.
         handle: usize,
+        /// The vertex it named.
         vertex: u32,
+        /// How many vertices the mesh has.
         count: usize,
     },
+    /// [`Arap::compile`]: an [`Anchor::Point`] names a triangle the mesh
+    /// does not have.
     #[error(
         "handle {handle}: triangle {triangle} is out of range (the mesh has {count} triangles)"
     )]
     TriangleOutOfRange {
+        /// The offending handle's index.
         handle: usize,
+        /// The triangle it named.
         triangle: u32,
+        /// How many triangles the mesh has.
         count: usize,
     },
+    /// [`Arap::compile`]: an [`Anchor::Point`]'s weights are not finite,
+    /// dip below zero, or do not sum to 1 (to within 1e-9).
     #[error(
         "handle {handle}: barycentric weights {bary:?} must be finite, non-negative and sum to 1"
     )]
-    BadBarycentric { handle: usize, bary: [f64; 3] },
+    BadBarycentric {
+        /// The offending handle's index.
+        handle: usize,
+        /// The weights it gave.
+        bary: [f64; 3],
+    },
+    /// [`Arap::update`]: the targets are not one per anchor of the last
+    /// [`Arap::compile`].
     #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
-    TargetCount { expected: usize, got: usize },
+    TargetCount {
+        /// How many anchors were compiled.
+        expected: usize,
+        /// How many targets came.
+        got: usize,
+    },
+    /// [`Arap::update`]: a target is NaN, infinite or farther out than the
+    /// mesh format's coordinate limit.
     #[error("handle {handle}: target is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    TargetNotFinite { handle: usize },
+    TargetNotFinite {
+        /// The first offending handle's index.
+        handle: usize,
+    },
+    /// [`Arap::register`]: a piece's matrices could not be factored.
     #[error("piece {piece}: {source}")]
-    Factor { piece: usize, source: FactorError },
+    Factor {
+        /// Index of the connected piece, in the mesh's piece order.
+        piece: usize,
+        /// Why the factorisation failed.
+        source: FactorError,
+    },
 }
 
 /// One triangle of a piece, in the piece's local vertex numbering.
@@ -604,6 +647,7 @@ impl Arap {
         &self.pose
     }
 
+    /// The rest vertex positions the solver was registered with.
     pub fn rest(&self) -> &[DVec2] {
         &self.rest
     }

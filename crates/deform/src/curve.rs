@@ -64,79 +64,202 @@ pub enum CurveAnchor {
     Point(u32),
     /// A point along segment `segment` (from point `segment` to
     /// `segment + 1`), at parameter `t` in `[0, 1]`.
-    Along { segment: u32, t: f64 },
+    Along {
+        /// Index of the segment, i.e. of its first point.
+        segment: u32,
+        /// Where along it: 0 at point `segment`, 1 at point `segment + 1`.
+        t: f64,
+    },
 }
 
+/// Why a rest curve, a resampling, a handle set, a pose, a frame's targets
+/// or a peel was refused. Points and segments are indices along the curve;
+/// a `handle` is the handle's index in the slice given to compile (or
+/// update).
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CurveError {
+    /// The rest curve has fewer than 3 points ([`resample_evenly`]: fewer
+    /// than 2).
     #[error("a curve needs at least 3 points, got {count}")]
-    TooFewPoints { count: usize },
+    TooFewPoints {
+        /// How many points it has.
+        count: usize,
+    },
+    /// A rest point (or a [`Curve::set_pose`] point) is NaN, infinite or
+    /// beyond the mesh format's coordinate limit.
     #[error("point {point} is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    PointNotFinite { point: usize },
+    PointNotFinite {
+        /// The first offending point.
+        point: usize,
+    },
+    /// Two consecutive rest points are equal ([`resample_evenly`]: the
+    /// whole polyline has zero length).
     #[error("point {point} repeats point {previous}: segment {previous} has zero length")]
-    RepeatedPoint { point: usize, previous: usize },
+    RepeatedPoint {
+        /// The repeating point.
+        point: usize,
+        /// The point before it, which it repeats.
+        previous: usize,
+    },
+    /// The two segments meeting at a point lie along one line and turn
+    /// straight back over each other.
     #[error("the curve folds back on itself at point {point}: segments {} and {point} overlap", point - 1)]
-    FoldsBack { point: usize },
+    FoldsBack {
+        /// The point where the curve turns back.
+        point: usize,
+    },
+    /// A segment is shorter than [`MIN_LENGTH_RATIO`] times its
+    /// neighbour; [`resample_evenly`] fixes this.
     #[error(
         "segment {segment} is under {limit:e} of the length of its neighbour {neighbour}: spacing this uneven makes the solve singular (resample the curve evenly)",
         limit = MIN_LENGTH_RATIO
     )]
-    UnevenSpacing { segment: usize, neighbour: usize },
+    UnevenSpacing {
+        /// The short segment.
+        segment: usize,
+        /// The longer segment next to it.
+        neighbour: usize,
+    },
+    /// A point's two neighbours are closer than [`MIN_LENGTH_RATIO`] of
+    /// the longer segment between them: a hairpin, nearly a fold-back.
     #[error(
         "the curve turns almost straight back at point {point}: its neighbours are under {limit:e} of a segment apart, which makes the solve singular",
         limit = MIN_LENGTH_RATIO
     )]
-    NearlyFoldsBack { point: usize },
+    NearlyFoldsBack {
+        /// The point at the hairpin's tip.
+        point: usize,
+    },
+    /// Two non-adjacent segments cross or touch.
     #[error("segments {first} and {second} cross or touch: the curve intersects itself")]
-    SelfIntersection { first: usize, second: usize },
+    SelfIntersection {
+        /// The lower-numbered segment of the first such pair.
+        first: usize,
+        /// The other segment.
+        second: usize,
+    },
+    /// [`resample_evenly`] was asked for a spacing that is zero, negative
+    /// or not finite.
     #[error("resampling spacing {spacing} must be finite and positive")]
-    BadSpacing { spacing: f64 },
+    BadSpacing {
+        /// The spacing asked for.
+        spacing: f64,
+    },
+    /// A [`CurveAnchor::Point`] names a point the curve does not have.
     #[error("handle {handle}: point {point} is out of range (the curve has {count} points)")]
     PointOutOfRange {
+        /// The offending handle's index.
         handle: usize,
+        /// The point it named.
         point: u32,
+        /// How many points the curve has.
         count: usize,
     },
+    /// A [`CurveAnchor::Along`] names a segment the curve does not have.
     #[error("handle {handle}: segment {segment} is out of range (the curve has {count} segments)")]
     SegmentOutOfRange {
+        /// The offending handle's index.
         handle: usize,
+        /// The segment it named.
         segment: u32,
+        /// How many segments the curve has (one fewer than points).
         count: usize,
     },
+    /// A [`CurveAnchor::Along`]'s `t` is not finite or outside `[0, 1]`.
     #[error("handle {handle}: parameter t = {t} must be finite and within [0, 1]")]
-    BadParameter { handle: usize, t: f64 },
+    BadParameter {
+        /// The offending handle's index.
+        handle: usize,
+        /// The parameter it gave.
+        t: f64,
+    },
+    /// [`Curve::compile_within`]: a handle holds no free point, so it
+    /// could not move anything.
     #[error("handle {handle} lies outside the free points {start}..={end}: it cannot move")]
     HandleFixed {
+        /// The offending handle's index.
         handle: usize,
+        /// First free point.
         start: usize,
+        /// Last free point (inclusive).
         end: usize,
     },
+    /// [`Curve::compile_within`]: the free range is empty (start after
+    /// end) or runs past the last point.
     #[error("free points {start}..={end} are not within the curve's {count} points")]
     BadFreeRange {
+        /// First free point asked for.
         start: usize,
+        /// Last free point asked for (inclusive).
         end: usize,
+        /// How many points the curve has.
         count: usize,
     },
+    /// Compile could not factor a step's system: the handles and held
+    /// points leave the curve free to move. The curve keeps its pose and
+    /// has no live handles until a compile succeeds.
     #[error("step {step}: the handles and fixed points do not determine the curve (add a handle)")]
-    Underdetermined { step: u8 },
+    Underdetermined {
+        /// Which step's system failed: 1 or 2.
+        step: u8,
+    },
+    /// [`Curve::update`]: the targets are not one per anchor of the last
+    /// compile; [`Curve::set_pose`]: the points are not one per rest point.
     #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
-    TargetCount { expected: usize, got: usize },
+    TargetCount {
+        /// How many were expected.
+        expected: usize,
+        /// How many came.
+        got: usize,
+    },
+    /// [`Curve::update`]: a target is NaN, infinite or beyond the mesh
+    /// format's coordinate limit.
     #[error("handle {handle}: target is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    TargetNotFinite { handle: usize },
+    TargetNotFinite {
+        /// The first offending handle's index.
+        handle: usize,
+    },
+    /// [`Peel::new`]: the grab is not finite or off the rest curve's arc
+    /// length range.
     #[error("grab at arc length {at} is not on the curve (0..={length})")]
-    GrabOffCurve { at: f64, length: f64 },
-    #[error("pushpin {pushpin} at arc length {at} is not on the curve (0..={length})")]
-    PushpinOffCurve {
-        pushpin: usize,
+    GrabOffCurve {
+        /// The grab's arc length.
         at: f64,
+        /// The rest curve's total length.
         length: f64,
     },
+    /// [`Peel::new`]: a pushpin is not finite or off the rest curve's arc
+    /// length range.
+    #[error("pushpin {pushpin} at arc length {at} is not on the curve (0..={length})")]
+    PushpinOffCurve {
+        /// The pushpin's index in the slice given.
+        pushpin: usize,
+        /// Its arc length.
+        at: f64,
+        /// The rest curve's total length.
+        length: f64,
+    },
+    /// [`Peel::new`]: a pushpin is exactly at the grab, which would pin
+    /// the grabbed point itself.
     #[error("pushpin {pushpin} sits at the grab point: nothing could move")]
-    PushpinAtGrab { pushpin: usize },
+    PushpinAtGrab {
+        /// The pushpin's index in the slice given.
+        pushpin: usize,
+    },
+    /// [`Peel::new`]: a [`PeelParams`] field is negative or not finite.
     #[error("peel {field} = {value} must be finite and non-negative")]
-    BadPeelParameter { field: &'static str, value: f64 },
+    BadPeelParameter {
+        /// The field's name (`initial_radius` or `growth_rate`).
+        field: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// [`Peel::drag`]: the distance is negative or not finite.
     #[error("drag distance {distance} must be finite and non-negative")]
-    BadDragDistance { distance: f64 },
+    BadDragDistance {
+        /// The distance given.
+        distance: f64,
+    },
 }
 
 mod banded;
@@ -530,14 +653,18 @@ impl Curve {
         })
     }
 
+    /// Number of points (at least 3 for a registered curve).
     pub fn len(&self) -> usize {
         self.rest.len()
     }
 
+    /// Always false for a registered curve (it has at least 3 points);
+    /// here because a `len` wants one.
     pub fn is_empty(&self) -> bool {
         self.rest.is_empty()
     }
 
+    /// The rest points the curve was registered with.
     pub fn rest(&self) -> &[DVec2] {
         &self.rest
     }
@@ -1356,7 +1483,11 @@ impl Curve {
 /// (arc length) for drag distance `d`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PeelParams {
+    /// Region radius at the grab, as arc length in the curve's units
+    /// (default 0: just the grabbed segment). Finite and non-negative.
     pub initial_radius: f64,
+    /// Arc length the region gains per unit of drag distance (default
+    /// 1.5). Finite and non-negative.
     pub growth_rate: f64,
 }
 

@@ -92,27 +92,66 @@ enum Certificate {
     NothingOverlaps,
 }
 
+/// Why [`DepthOrder`] refused a static order, a frame or a pin.
 #[derive(Debug, thiserror::Error)]
 pub enum DepthError {
+    /// [`DepthOrder::register`]: the layers given are not one per triangle.
     #[error("layers: has {got} entries, expected one per triangle ({expected})")]
-    LayerCount { expected: usize, got: usize },
+    LayerCount {
+        /// How many triangles the mesh has.
+        expected: usize,
+        /// How many layers came.
+        got: usize,
+    },
+    /// [`DepthOrder::register`]: a layer given is above [`MAX_LAYER`].
     #[error("layers[{triangle}]: {layer} is above the highest layer, {max}", max = MAX_LAYER)]
-    LayerTooHigh { triangle: usize, layer: u16 },
+    LayerTooHigh {
+        /// The first triangle with too high a layer.
+        triangle: usize,
+        /// The layer it was given.
+        layer: u16,
+    },
+    /// [`DepthOrder::register`] without layers: the mesh has more pieces
+    /// than there are layers, so one layer per piece cannot be the default.
     #[error(
         "the mesh has {count} pieces, but the default order (one layer per piece) allows at most {max}; give layers explicitly",
         max = MAX_LAYER as usize + 1
     )]
-    TooManyPieces { count: usize },
+    TooManyPieces {
+        /// How many pieces the mesh has.
+        count: usize,
+    },
+    /// [`DepthOrder::update`]: the positions are not one per rest vertex.
     #[error("expected {expected} positions (one per vertex), got {got}")]
-    PositionCount { expected: usize, got: usize },
+    PositionCount {
+        /// How many vertices the mesh has.
+        expected: usize,
+        /// How many positions came.
+        got: usize,
+    },
+    /// [`DepthOrder::update`]: a position is NaN or infinite.
     #[error("position {vertex} is not a finite point")]
-    PositionNotFinite { vertex: usize },
+    PositionNotFinite {
+        /// The first offending vertex.
+        vertex: usize,
+    },
+    /// [`DepthOrder::pin_front`]: the triangle is not in the mesh.
     #[error("triangle {triangle} is out of range (the mesh has {count} triangles)")]
-    TriangleOutOfRange { triangle: u32, count: usize },
+    TriangleOutOfRange {
+        /// The triangle asked for.
+        triangle: u32,
+        /// How many triangles the mesh has.
+        count: usize,
+    },
+    /// [`DepthOrder::pin_front`]: the triangle overlapped nothing in the
+    /// last update, so there is no region to put in front.
     #[error(
         "triangle {triangle} overlaps nothing in the last frame: only an overlapping region can be pinned in front"
     )]
-    NotOverlapping { triangle: u32 },
+    NotOverlapping {
+        /// The triangle asked for.
+        triangle: u32,
+    },
 }
 
 /// A mesh edge used by one triangle only, directed as in that triangle.

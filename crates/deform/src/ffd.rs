@@ -115,8 +115,13 @@ pub struct GridSpec {
     pub columns: usize,
     /// N, handles along y (at least 2).
     pub rows: usize,
+    /// The box's lower corner, in the mesh's coordinates: where handle 0
+    /// rests. Every rest vertex must lie inside the box.
     pub min: DVec2,
+    /// The box's upper corner (greater than `min` on both axes): where the
+    /// last handle rests.
     pub max: DVec2,
+    /// How vertices blend the handles.
     pub basis: Basis,
 }
 
@@ -239,66 +244,148 @@ impl LpParams {
     }
 }
 
+/// Why [`LpFfd`] refused a grid, parameters, weights, a handle set or a
+/// set of targets. A `handle` is the handle's index in the slice given to
+/// [`LpFfd::compile`] (or [`LpFfd::direct_ffd`]).
 #[derive(Debug, thiserror::Error)]
 pub enum FfdError {
+    /// The grid has fewer than 2 handles along x or y.
     #[error("grid: {columns}×{rows} handles; it needs at least 2 in each direction")]
-    GridSize { columns: usize, rows: usize },
+    GridSize {
+        /// Handles along x asked for.
+        columns: usize,
+        /// Handles along y asked for.
+        rows: usize,
+    },
+    /// The grid has more than [`MAX_GRID_HANDLES`] handles.
     #[error("grid: {count} handles is more than the {max} the dense solver takes")]
-    GridTooLarge { count: usize, max: usize },
+    GridTooLarge {
+        /// `columns × rows` asked for.
+        count: usize,
+        /// The limit, [`MAX_GRID_HANDLES`].
+        max: usize,
+    },
+    /// The grid box is not finite (within the mesh format's coordinate
+    /// limit) or is empty along an axis.
     #[error("grid: box {min}..{max} must be finite with min < max on both axes")]
-    GridBox { min: DVec2, max: DVec2 },
-    #[error("vertex {vertex} at {at} lies outside the grid box {min}..{max}")]
-    VertexOutsideGrid {
-        vertex: usize,
-        at: DVec2,
+    GridBox {
+        /// The box's lower corner as given.
         min: DVec2,
+        /// The box's upper corner as given.
         max: DVec2,
     },
+    /// [`LpFfd::register`]: a rest vertex lies outside the grid box (by
+    /// more than 1e-9 of the box's size).
+    #[error("vertex {vertex} at {at} lies outside the grid box {min}..{max}")]
+    VertexOutsideGrid {
+        /// The first vertex outside.
+        vertex: usize,
+        /// Its rest position.
+        at: DVec2,
+        /// The box's lower corner.
+        min: DVec2,
+        /// The box's upper corner.
+        max: DVec2,
+    },
+    /// An [`LpParams`] weight is not finite, above 1000 times the mesh's
+    /// `MAX_WEIGHT`, negative, or zero where it must be positive (`grid`,
+    /// `regular`).
     #[error("parameter {name} = {value}: must be finite and {}", if *name == "grid" || *name == "regular" { "positive" } else { "non-negative" })]
-    Param { name: &'static str, value: f64 },
+    Param {
+        /// The field's name: `locality`, `vertex`, `grid` or `regular`.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// [`LpParams::iterations`] is 0.
     #[error("parameter iterations: must be at least 1")]
     Iterations,
+    /// An [`Anchor::Vertex`] names a vertex the mesh does not have.
     #[error(
         "vertex handle {handle}: vertex {vertex} is out of range (the mesh has {count} vertices)"
     )]
     VertexOutOfRange {
+        /// The offending vertex handle's index.
         handle: usize,
+        /// The vertex it named.
         vertex: u32,
+        /// How many vertices the mesh has.
         count: usize,
     },
+    /// An [`Anchor::Point`] names a triangle the mesh does not have.
     #[error(
         "vertex handle {handle}: triangle {triangle} is out of range (the mesh has {count} triangles)"
     )]
     TriangleOutOfRange {
+        /// The offending vertex handle's index.
         handle: usize,
+        /// The triangle it named.
         triangle: u32,
+        /// How many triangles the mesh has.
         count: usize,
     },
+    /// An [`Anchor::Point`]'s weights are not finite, dip below zero, or do
+    /// not sum to 1 (to within 1e-9).
     #[error(
         "vertex handle {handle}: barycentric weights {bary:?} must be finite, non-negative and sum to 1"
     )]
-    BadBarycentric { handle: usize, bary: [f64; 3] },
+    BadBarycentric {
+        /// The offending vertex handle's index.
+        handle: usize,
+        /// The weights it gave.
+        bary: [f64; 3],
+    },
+    /// A grid handle index is not below `columns × rows`.
     #[error("grid handle {handle}: index {index} is out of range (the grid has {count} handles)")]
     GridHandleOutOfRange {
+        /// The offending grid handle's position in the slice given.
         handle: usize,
+        /// The grid index it named.
         index: usize,
+        /// How many handles the grid has.
         count: usize,
     },
+    /// A slice of targets, positions or weights has the wrong length.
     #[error("expected {expected} {what} (one per {per}), got {got}")]
     Count {
+        /// What came, plural (e.g. `vertex targets`).
         what: &'static str,
+        /// What there must be one of each per (e.g. `compiled vertex handle`).
         per: &'static str,
+        /// How many were expected.
         expected: usize,
+        /// How many came.
         got: usize,
     },
+    /// A target or position is NaN, infinite or beyond the mesh format's
+    /// coordinate limit.
     #[error("{what} {index}: not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    NotFinite { what: &'static str, index: usize },
+    NotFinite {
+        /// What it is (e.g. `grid target`).
+        what: &'static str,
+        /// The first offending index in its slice.
+        index: usize,
+    },
+    /// [`LpFfd::set_weights`]: a rigidity weight is outside the mesh's
+    /// `MIN_WEIGHT..=MAX_WEIGHT`.
     #[error("weights[{triangle}] = {value}: must be between {MIN_WEIGHT:e} and {MAX_WEIGHT:e}")]
-    BadWeight { triangle: usize, value: f64 },
+    BadWeight {
+        /// The first offending triangle.
+        triangle: usize,
+        /// Its weight.
+        value: f64,
+    },
+    /// The dense global matrix could not be factored or inverted: the
+    /// weights are too extreme for double precision. The rig is left as
+    /// it was.
     #[error(
         "the global matrix is not positive definite (pivot {pivot}); the weights are too extreme"
     )]
-    NotPositiveDefinite { pivot: usize },
+    NotPositiveDefinite {
+        /// The grid handle whose pivot failed (0 when the inverse came out
+        /// non-finite).
+        pivot: usize,
+    },
 }
 
 /// The blending matrix `W`, one row per vertex: dense rows of K for
@@ -465,6 +552,7 @@ impl LpFfd {
     pub fn handle_count(&self) -> usize {
         self.rest_grid.len()
     }
+    /// The grid the rig was registered with.
     pub fn spec(&self) -> &GridSpec {
         &self.spec
     }
@@ -474,6 +562,7 @@ impl LpFfd {
         self.params.iterations = iterations;
     }
 
+    /// The energy weights and iteration count in effect.
     pub fn params(&self) -> &LpParams {
         &self.params
     }
@@ -489,6 +578,7 @@ impl LpFfd {
     pub fn pose(&self) -> &[DVec2] {
         &self.pose
     }
+    /// The rest vertex positions the rig was registered with.
     pub fn rest(&self) -> &[DVec2] {
         &self.rest
     }

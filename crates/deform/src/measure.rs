@@ -24,18 +24,34 @@ use glam::DVec2;
 use puppetry_mesh::Mesh;
 use puppetry_mesh::json::MAX_COORDINATE;
 
+/// Why a deformed pose could not be measured against its mesh.
 #[derive(Debug, thiserror::Error)]
 pub enum MeasureError {
+    /// The pose is not one position per mesh vertex.
     #[error("expected {expected} deformed vertices (one per mesh vertex), got {got}")]
-    VertexCount { expected: usize, got: usize },
+    VertexCount {
+        /// How many vertices the mesh has.
+        expected: usize,
+        /// How many positions came.
+        got: usize,
+    },
+    /// A position is NaN, infinite or beyond the mesh format's coordinate
+    /// limit.
     #[error("deformed vertex {vertex}: not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    NotFinite { vertex: usize },
+    NotFinite {
+        /// The first offending vertex.
+        vertex: usize,
+    },
 }
 
 /// Angular (radians) and area distortion, for one triangle or a mean.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Distortion {
+    /// Mean absolute change of the interior angles, in radians (0 for a
+    /// rigid or uniformly scaled triangle).
     pub angular: f64,
+    /// `|A'/A − 1|` with signed areas: 0 when the area is kept, above 1
+    /// when the triangle inverted.
     pub area: f64,
 }
 

@@ -57,25 +57,44 @@ use glam::DVec2;
 /// or so badly conditioned that the weights between them would swing wildly.
 pub const MIN_RELATIVE_SEPARATION: f64 = 1e-9;
 
+/// Why [`RbfBlend::new`] refused a set of key points.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RbfError {
+    /// The set is empty.
     #[error("no key points: blending needs at least one")]
     NoPoints,
+    /// A key point has a NaN or infinite coordinate.
     #[error("key point {index} is not finite ({x}, {y})")]
-    NotFinite { index: usize, x: f64, y: f64 },
+    NotFinite {
+        /// The first offending key.
+        index: usize,
+        /// Its x coordinate on the pad.
+        x: f64,
+        /// Its y coordinate on the pad.
+        y: f64,
+    },
+    /// Two keys are within [`MIN_RELATIVE_SEPARATION`] of the points'
+    /// extent of each other (or every key is at one point).
     #[error(
         "key points {first} and {second} are the same point ({distance:e} apart, within {tolerance:e})"
     )]
     SamePoint {
+        /// The earlier key of the first such pair.
         first: usize,
+        /// The later key.
         second: usize,
+        /// How far apart they are, in pad units.
         distance: f64,
+        /// The separation they needed to exceed, in pad units.
         tolerance: f64,
     },
     /// Not expected for distinct points (see the module documentation); kept
     /// so that a numerical breakdown is an error and never a NaN weight.
     #[error("the interpolation system of {count} key points could not be solved")]
-    Singular { count: usize },
+    Singular {
+        /// How many key points there were.
+        count: usize,
+    },
 }
 
 /// Interpolating RBF weights over fixed key points (see the module

@@ -62,60 +62,146 @@ use puppetry_mesh::{Locator, MAX_WEIGHT, MIN_WEIGHT, Mesh};
 /// An error in a skeleton, a pose or the deformer's inputs: what and where.
 #[derive(Debug, thiserror::Error)]
 pub enum SkeletonError {
+    /// [`Skeleton::new`]: no bones were given.
     #[error("the skeleton has no bones")]
     NoBones,
+    /// A joint position (rest or posed) is NaN, infinite or beyond the
+    /// mesh format's coordinate limit.
     #[error("joint {joint}: position is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    JointNotFinite { joint: usize },
+    JointNotFinite {
+        /// The first offending joint.
+        joint: usize,
+    },
+    /// [`Skeleton::new`]: a bone names a joint that was not given.
     #[error("bone {bone}: joint {joint} is out of range (the skeleton has {count} joints)")]
     BoneJointOutOfRange {
+        /// The offending bone.
         bone: usize,
+        /// The joint it named.
         joint: usize,
+        /// How many joints were given.
         count: usize,
     },
+    /// [`Skeleton::new`]: a bone's parent and child are the same joint.
     #[error("bone {bone}: joins joint {joint} to itself")]
-    BoneJoinsJointToItself { bone: usize, joint: usize },
+    BoneJoinsJointToItself {
+        /// The offending bone.
+        bone: usize,
+        /// The joint at both its ends.
+        joint: usize,
+    },
+    /// [`Skeleton::new`]: a bone's two joints are within 1e-9 of the
+    /// joints' extent of each other at rest.
     #[error("bone {bone}: has zero length (joints {parent} and {child} coincide)")]
     ZeroLengthBone {
+        /// The offending bone.
         bone: usize,
+        /// Its parent joint.
         parent: usize,
+        /// Its child joint.
         child: usize,
     },
+    /// [`Skeleton::new`]: two bones end at the same joint.
     #[error(
         "joint {joint}: is the child of both bone {first} and bone {second}; a joint has one parent bone"
     )]
     TwoParents {
+        /// The joint with two parent bones.
         joint: usize,
+        /// The earlier bone ending there.
         first: usize,
+        /// The later one.
         second: usize,
     },
+    /// [`Skeleton::new`]: a joint is on no bone.
     #[error("joint {joint}: belongs to no bone")]
-    UnusedJoint { joint: usize },
+    UnusedJoint {
+        /// The first such joint.
+        joint: usize,
+    },
+    /// [`Skeleton::new`]: the bones are not a forest.
     #[error("bone {bone}: lies on a cycle; the bones must form a forest")]
-    Cycle { bone: usize },
+    Cycle {
+        /// The first bone no root reaches.
+        bone: usize,
+    },
+    /// [`ShapeAware::register`]: a rest joint is not on the mesh (its
+    /// boundary counts as on it).
     #[error("joint {joint}: rest position {point:?} is not inside the mesh")]
-    JointOutsideMesh { joint: usize, point: [f64; 2] },
+    JointOutsideMesh {
+        /// The first such joint.
+        joint: usize,
+        /// Its rest position, `[x, y]`.
+        point: [f64; 2],
+    },
+    /// A [`SkeletonParams`] field, an interpolation `t`, a rotation or an
+    /// aim point is out of range or not finite.
     #[error("parameter {name}: {problem}, got {value}")]
     BadParameter {
+        /// The parameter's name (a field or argument name).
         name: &'static str,
+        /// What is wrong with it.
         problem: &'static str,
+        /// Its value (for a point, `x + y`).
         value: f64,
     },
+    /// Posed joints (or an output slice for them) are not one per skeleton
+    /// joint.
     #[error("expected {expected} joint positions (one per skeleton joint), got {got}")]
-    JointCount { expected: usize, got: usize },
-    #[error("pose: {field} has {got} entries, the skeleton needs {expected}")]
-    PoseShape {
-        field: &'static str,
+    JointCount {
+        /// How many joints the skeleton has.
         expected: usize,
+        /// How many came.
         got: usize,
     },
+    /// A [`Pose`] field has the wrong length for the skeleton (or, for
+    /// [`Pose::interpolate`], for the other pose).
+    #[error("pose: {field} has {got} entries, the skeleton needs {expected}")]
+    PoseShape {
+        /// The field: `roots`, `angles` or `lengths`.
+        field: &'static str,
+        /// How many entries it needs.
+        expected: usize,
+        /// How many it has.
+        got: usize,
+    },
+    /// A [`Pose`] entry is not finite (or beyond the coordinate limit, for
+    /// a root), or a bone length is negative.
     #[error("pose: {field}[{index}] is not a finite number (bone lengths must also be ≥ 0)")]
-    PoseNotFinite { field: &'static str, index: usize },
+    PoseNotFinite {
+        /// The field: `roots`, `angles` or `lengths`.
+        field: &'static str,
+        /// The first offending entry.
+        index: usize,
+    },
+    /// A bone index is not below the number of bones.
     #[error("bone {bone} is out of range (the skeleton has {count} bones)")]
-    BoneOutOfRange { bone: usize, count: usize },
+    BoneOutOfRange {
+        /// The bone asked for.
+        bone: usize,
+        /// How many bones there are.
+        count: usize,
+    },
+    /// [`ShapeAware::set_weights`]: the weights are not one per mesh
+    /// triangle.
     #[error("weights: has {got} entries, expected one per triangle ({expected})")]
-    WeightCount { expected: usize, got: usize },
+    WeightCount {
+        /// How many triangles the mesh has.
+        expected: usize,
+        /// How many weights came.
+        got: usize,
+    },
+    /// [`ShapeAware::set_weights`]: a weight is outside the mesh's
+    /// `MIN_WEIGHT..=MAX_WEIGHT`.
     #[error("weights[{index}]: must be between {MIN_WEIGHT:e} and {MAX_WEIGHT:e}, got {value}")]
-    BadWeight { index: usize, value: f64 },
+    BadWeight {
+        /// The first offending triangle.
+        index: usize,
+        /// Its weight.
+        value: f64,
+    },
+    /// [`ShapeAware::register`] or [`ShapeAware::set_weights`]: the
+    /// stitching matrix could not be factored.
     #[error(transparent)]
     Factor(#[from] FactorError),
 }
@@ -146,8 +232,13 @@ pub struct Skeleton {
 /// The skeleton may be a forest, so there is one root position per tree.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pose {
+    /// Each tree's root joint position, in mesh coordinates, in the order
+    /// of [`Skeleton::roots`].
     pub roots: Vec<DVec2>,
+    /// Per bone, its angle in radians: absolute for a bone leaving a root,
+    /// relative to its parent bone otherwise.
     pub angles: Vec<f64>,
+    /// Per bone, its length in mesh units (finite, at least 0).
     pub lengths: Vec<f64>,
 }
 
@@ -1418,10 +1509,12 @@ impl ShapeAware {
         &self.energies
     }
 
+    /// The skeleton the deformer was registered with (its rest joints).
     pub fn skeleton(&self) -> &Skeleton {
         &self.skeleton
     }
 
+    /// The tunables the deformer was registered with.
     pub fn params(&self) -> &SkeletonParams {
         &self.params
     }

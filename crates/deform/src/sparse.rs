@@ -136,14 +136,18 @@ impl UpperPattern {
         UpperPattern { col_ptr, rows }
     }
 
+    /// Stored entries (diagonal included): the length of the value array
+    /// the matrix is assembled into.
     pub fn len(&self) -> usize {
         self.rows.len()
     }
 
+    /// Whether the pattern has no entries at all (no unknowns).
     pub fn is_empty(&self) -> bool {
         self.rows.is_empty()
     }
 
+    /// Number of unknowns: the matrix is `dim × dim`.
     pub fn dim(&self) -> usize {
         self.col_ptr.len() - 1
     }
@@ -668,6 +672,7 @@ impl RealCholesky {
         })
     }
 
+    /// Number of unknowns: the length a right-hand side must have.
     pub fn dim(&self) -> usize {
         self.inverse_diagonal.len()
     }
@@ -685,6 +690,8 @@ impl RealCholesky {
         }
     }
 
+    /// Stored entries of `L`, diagonal included: the factor's size (fill),
+    /// which the benchmark reports.
     pub fn factor_entries(&self) -> usize {
         self.dim()
             + match &self.layout {
@@ -821,6 +828,7 @@ impl PairSolve {
         }
     }
 
+    /// Number of unknowns: the length a right-hand side must have.
     pub fn dim(&self) -> usize {
         self.inverse_diagonal.len()
     }
@@ -1023,7 +1031,10 @@ fn backward_solve<L: Copy, V>(
 /// `b` with few non-zeros, which is non-zero only on their reach.
 #[derive(Debug, Clone, Default)]
 pub struct SparseVector<T> {
+    /// The unknowns the vector may be non-zero at (the right-hand side's
+    /// reach in the elimination tree), in increasing order.
     pub indices: Vec<u32>,
+    /// The entry at each of `indices`, in the same order.
     pub values: Vec<T>,
 }
 
@@ -1077,10 +1088,12 @@ impl ComplexCholesky {
         })
     }
 
+    /// Number of unknowns: the length a right-hand side must have.
     pub fn dim(&self) -> usize {
         self.inverse_diagonal.len()
     }
 
+    /// Stored entries of `L`, diagonal included: the factor's size (fill).
     pub fn factor_entries(&self) -> usize {
         self.values.len() + self.dim()
     }
