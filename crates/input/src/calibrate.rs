@@ -12,16 +12,36 @@ use glam::DVec2;
 use super::evemu::{EvemuError, EvemuFile};
 use super::{Calibration, CalibrationSpec, Phase};
 
+/// Why [`from_capture`] made no calibration; each message says what to do
+/// differently.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrateError {
+    /// The capture cannot be read or parsed, or its device has no position
+    /// axes to decode touches from.
     #[error(transparent)]
     Capture(#[from] EvemuError),
+    /// The capture holds fewer than four touch-downs: the performer missed
+    /// marks, or the recording stopped early.
     #[error("{file}: {found} touch(es) found; touch the four marks, one at a time")]
-    TooFewTouches { file: String, found: usize },
+    TooFewTouches {
+        /// The capture, as messages name it.
+        file: String,
+        /// How many touch-downs it holds.
+        found: usize,
+    },
+    /// The `inset` (the `--inset` option) is outside 0..=0.45, so the marks
+    /// would not be four distinct points inside the stage.
     #[error("--inset: {0} is not between 0 and 0.45")]
     Inset(f64),
+    /// The first four touches give a calibration that would not load: three
+    /// taps in a line, or corners out of order.
     #[error("{file}: the four touches do not make a usable calibration: {problem}")]
-    Degenerate { file: String, problem: String },
+    Degenerate {
+        /// The capture, as messages name it.
+        file: String,
+        /// What the calibration check refused.
+        problem: String,
+    },
 }
 
 /// The stage points of the four marks, in the order they are touched:

@@ -17,6 +17,8 @@ pub enum InputConfig {
     /// A recording (`.jsonl`, stage coordinates) or an evemu capture
     /// (`.event`, device coordinates fitted to the stage).
     Replay {
+        /// The file to play, relative to the stage file's folder. A
+        /// hid-recorder capture (`.hid`) plays too, like an evemu one.
         file: PathBuf,
         /// The source's name, which owns its contacts' handles; default
         /// `replay:N` for the N-th input.
@@ -27,6 +29,7 @@ pub enum InputConfig {
         /// already in stage coordinates and ignore it.
         #[serde(default)]
         calibration: Option<crate::CalibrationSpec>,
+        /// How fast to play; default `real_time`, the recorded pace.
         #[serde(default)]
         pacing: PacingConfig,
         /// Play again from the start when the file ends.
@@ -47,13 +50,17 @@ pub enum InputConfig {
         calibration: Option<crate::CalibrationSpec>,
     },
     /// A serial pad (Arduino/Teensy-style): line CSV or SLIP-framed OSC at a
-    /// baud rate (see `puppetry::input::serial`). If the port goes away the
+    /// baud rate (see [`serial`](crate::serial)). If the port goes away the
     /// daemon lifts its contacts and reopens it every second.
     Serial {
         /// The port, e.g. `/dev/ttyACM0`.
         path: String,
+        /// Bits per second, as the firmware sets them; default 115200, at
+        /// most 20 000 000.
         #[serde(default = "default_baud")]
         baud: u32,
+        /// What the firmware sends, `csv` or `slip_osc` (no default): see
+        /// [`WireFormat`](crate::serial::WireFormat).
         format: crate::serial::WireFormat,
         /// The source's name; default `serial:N` for the N-th input.
         #[serde(default)]
@@ -106,6 +113,8 @@ pub enum InputConfig {
         /// also react to it.
         #[serde(default)]
         grab: bool,
+        /// Device units to stage; default: the tablet's full range fitted
+        /// to the stage.
         #[serde(default)]
         calibration: Option<crate::CalibrationSpec>,
     },
@@ -176,11 +185,16 @@ fn default_tuio_listen() -> SocketAddr {
     SocketAddr::from(([127, 0, 0, 1], crate::tuio::DEFAULT_PORT))
 }
 
+/// A replay input's `pacing` as the stage file spells it; the daemon turns
+/// it into a [`Pacing`](crate::replay::Pacing).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PacingConfig {
+    /// `real_time` (the default): each frame as long after the first as the
+    /// file's timestamps say.
     #[default]
     RealTime,
+    /// `as_fast_as_possible`: each frame as soon as the daemon takes it.
     AsFastAsPossible,
 }
 

@@ -37,25 +37,55 @@ const BTN_LEFT: u16 = 0x110;
 const INPUT_PROP_DIRECT: u16 = 0x01;
 
 /// What to do when a node is not readable.
-pub const PERMISSION_ADVICE: &str = "add your user to the `input` group \
+pub(crate) const PERMISSION_ADVICE: &str = "add your user to the `input` group \
 (`sudo usermod -aG input $USER`, then log in again), or install a udev rule such as \
 `SUBSYSTEM==\"input\", KERNEL==\"event*\", ATTRS{name}==\"<device name>\", MODE=\"0660\", GROUP=\"input\"` \
 in /etc/udev/rules.d/70-puppetry.rules and run `sudo udevadm trigger`";
 
+/// Why a device could not be listed, described, opened or read.
 #[derive(Debug, thiserror::Error)]
 pub enum DeviceError {
+    /// The node is there but this user may not open it; the message says
+    /// how to fix that (the `input` group or a udev rule).
     #[error("{path}: permission denied; {PERMISSION_ADVICE}")]
-    PermissionDenied { path: String },
+    PermissionDenied {
+        /// The node.
+        path: String,
+    },
+    /// Any other failure to open or read the node (it does not exist, say).
     #[error("{path}: {source}")]
-    Io { path: String, source: io::Error },
+    Io {
+        /// The node.
+        path: String,
+        /// What the system said.
+        source: io::Error,
+    },
+    /// A regular file standing in for a device is not a usable evemu
+    /// capture.
     #[error(transparent)]
     Capture(#[from] EvemuError),
+    /// The path is neither a regular file nor a node the evdev ioctls work
+    /// on (a terminal or a hidraw node, say).
     #[error("{path}: not an input device node or evemu capture")]
-    NotADevice { path: String },
+    NotADevice {
+        /// The path.
+        path: String,
+    },
+    /// The device was unplugged (`ENODEV`, or its node was removed): a
+    /// reader lifts its contacts and waits for it to come back.
     #[error("{path}: the device went away")]
-    Gone { path: String },
+    Gone {
+        /// The node.
+        path: String,
+    },
+    /// The device folder cannot be read.
     #[error("{dir}: cannot list devices: {source}")]
-    List { dir: String, source: io::Error },
+    List {
+        /// The folder.
+        dir: String,
+        /// What the system said.
+        source: io::Error,
+    },
 }
 
 impl DeviceError {
@@ -72,8 +102,13 @@ impl DeviceError {
 /// What a device can report.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Capabilities {
+    /// Key and button codes (`EV_KEY`): `BTN_TOUCH`, `BTN_TOOL_PEN`,
+    /// `BTN_LEFT`, ….
     pub keys: BTreeSet<u16>,
+    /// Relative axis codes (`EV_REL`): a mouse's motion and wheels.
     pub relative: BTreeSet<u16>,
+    /// Absolute axes (`EV_ABS`) with their ranges: positions, pressure,
+    /// tilt, slots.
     pub absolute: AbsAxes,
     /// `INPUT_PROP_DIRECT`: a touch screen or table (positions are on the
     /// display), as opposed to a touchpad.
@@ -95,6 +130,10 @@ pub enum DeviceKind {
 }
 
 impl DeviceKind {
+    /// Classifies a device by what it reports, first match winning: a pen
+    /// tool with x/y is a pen (even on a tablet that also reports touch);
+    /// multi-touch positions, or x/y with `BTN_TOUCH`, a touch surface; x/y
+    /// motion with a left button a mouse; anything else other.
     pub fn of(caps: &Capabilities) -> DeviceKind {
         let abs = |code| caps.absolute.contains_key(&code);
         if caps.keys.contains(&BTN_TOOL_PEN) && abs(ABS_X) && abs(ABS_Y) {
@@ -128,14 +167,22 @@ impl fmt::Display for DeviceKind {
 /// Everything puppetry needs to know about a device before reading it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DeviceInfo {
+    /// The node (or capture file) it was found at.
     pub path: PathBuf,
+    /// The name the device gives itself, which a stage file's `name` must
+    /// equal.
     pub name: String,
     /// Physical path (`usb-0000:00:14.0-2/input0`): tells identical devices
     /// apart, stably across restarts as long as they stay in their ports.
     pub phys: Option<String>,
+    /// Unique id (often a serial number); `None` when the device reports
+    /// none, and for captures.
     pub uniq: Option<String>,
+    /// Bus, vendor, product and version ids.
     pub id: InputId,
+    /// How puppetry would use it, from its capabilities.
     pub kind: DeviceKind,
+    /// What it can report.
     pub capabilities: Capabilities,
     /// An evemu capture standing in for a node.
     pub capture: bool,
@@ -184,27 +231,29 @@ impl DeviceInfo {
 #[derive(Debug, Clone, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DeviceMatch {
+    /// The node; symlinks on either side are resolved before comparing.
     #[serde(default)]
     pub path: Option<PathBuf>,
+    /// The device's name, exactly.
     #[serde(default)]
     pub name: Option<String>,
+    /// Physical path, exactly: tells identical devices apart by port.
     #[serde(default)]
     pub phys: Option<String>,
+    /// Unique id (a serial number), exactly.
     #[serde(default)]
     pub uniq: Option<String>,
+    /// Vendor id; TOML takes hex too (`vendor = 0x0eef`).
     #[serde(default)]
     pub vendor: Option<u16>,
+    /// Product id.
     #[serde(default)]
     pub product: Option<u16>,
 }
 
 impl DeviceMatch {
-    /// True when nothing is asked for (the entry would take any device of
-    /// its kind).
-    pub fn is_empty(&self) -> bool {
-        *self == DeviceMatch::default()
-    }
-
+    /// Whether `info` is a device this entry means: every field given is
+    /// equal; fields left out match anything.
     pub fn matches(&self, info: &DeviceInfo) -> bool {
         let same_path = |wanted: &PathBuf| {
             let resolve = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
@@ -266,7 +315,7 @@ pub fn probe(path: &Path) -> Result<DeviceInfo, DeviceError> {
 }
 
 /// A folder entry and what it turned out to be.
-pub type Scanned = (PathBuf, Result<DeviceInfo, DeviceError>);
+pub(crate) type Scanned = (PathBuf, Result<DeviceInfo, DeviceError>);
 
 /// Every `event*` entry in `dir`, in number order, each described or with
 /// the reason it could not be (typically permissions).
@@ -292,7 +341,7 @@ pub fn scan(dir: &Path) -> Result<Vec<Scanned>, DeviceError> {
 
 /// The first device in `dir` (or at the entry's `path`) that `wanted`
 /// matches and is of `kind` (any usable kind when `None`).
-pub fn find(
+pub(crate) fn find(
     dir: &Path,
     wanted: &DeviceMatch,
     kind: Option<DeviceKind>,
@@ -481,12 +530,13 @@ impl Device {
         })
     }
 
+    /// What the device is, as read when it was opened.
     pub fn info(&self) -> &DeviceInfo {
         &self.info
     }
 
     /// The next raw event; waits for it.
-    pub async fn next_event(&mut self) -> Result<InputEvent, DeviceError> {
+    pub(crate) async fn next_event(&mut self) -> Result<InputEvent, DeviceError> {
         match &mut self.inner {
             Inner::Node(stream) => {
                 let event = stream
@@ -510,7 +560,7 @@ impl Device {
     }
 
     /// The device's state now, as the kernel holds it.
-    pub fn state(&self) -> Result<DeviceState, DeviceError> {
+    pub(crate) fn state(&self) -> Result<DeviceState, DeviceError> {
         match &self.inner {
             Inner::Node(stream) => node_state(stream.device(), &self.info)
                 .map_err(|e| DeviceError::io(&self.info.path, e)),
@@ -520,7 +570,7 @@ impl Device {
 
     /// Seconds on the device's clock now, to stamp frames the reader makes
     /// itself (on open, after a drop, when the device goes away).
-    pub fn now(&self) -> f64 {
+    pub(crate) fn now(&self) -> f64 {
         match &self.inner {
             Inner::Node(_) => SystemTime::now()
                 .duration_since(UNIX_EPOCH)

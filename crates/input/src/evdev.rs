@@ -19,62 +19,111 @@ use glam::DVec2;
 
 use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceId};
 
-pub const EV_SYN: u16 = 0x00;
-pub const EV_KEY: u16 = 0x01;
-pub const EV_REL: u16 = 0x02;
-pub const EV_ABS: u16 = 0x03;
-pub const EV_MSC: u16 = 0x04;
-pub const EV_MAX: u16 = 0x1f;
+// Event types.
 
+/// Event type: report markers (the `SYN_*` codes).
+pub const EV_SYN: u16 = 0x00;
+/// Event type: keys and buttons; value 1 pressed, 0 released, 2 autorepeat.
+pub const EV_KEY: u16 = 0x01;
+/// Event type: relative axes (a mouse's motion and wheels); value the change.
+pub const EV_REL: u16 = 0x02;
+/// Event type: absolute axes (positions, pressure, slots); value the reading.
+pub const EV_ABS: u16 = 0x03;
+/// Event type: miscellany such as scan codes and hardware timestamps;
+/// decoders skip it, captures keep it.
+pub const EV_MSC: u16 = 0x04;
+pub(crate) const EV_MAX: u16 = 0x1f;
+
+// `EV_SYN` codes.
+
+/// Ends a report: the events since the previous one happened together.
 pub const SYN_REPORT: u16 = 0;
-pub const SYN_CONFIG: u16 = 1;
+/// Ends one contact within a protocol A report.
 pub const SYN_MT_REPORT: u16 = 2;
+/// The kernel's event buffer overflowed and events were lost: discard up to
+/// the next `SYN_REPORT`, then read the device's state back.
 pub const SYN_DROPPED: u16 = 3;
 
-pub const BTN_TOOL_PEN: u16 = 0x140;
-pub const BTN_TOOL_RUBBER: u16 = 0x141;
-pub const BTN_TOOL_FINGER: u16 = 0x145;
-pub const BTN_TOUCH: u16 = 0x14a;
-pub const KEY_MAX: u16 = 0x2ff;
+// `EV_KEY` codes.
 
+/// A pen is in range; with x/y axes it makes a device a pen tablet.
+pub const BTN_TOOL_PEN: u16 = 0x140;
+pub(crate) const BTN_TOOL_RUBBER: u16 = 0x141;
+/// Something touches the surface: the single-touch protocol's down and up.
+pub const BTN_TOUCH: u16 = 0x14a;
+pub(crate) const KEY_MAX: u16 = 0x2ff;
+
+// `EV_ABS` codes. Positions are in device units over the axis's range. The
+// codes marked "not decoded" are here so `puppetry devices` can name every
+// axis a device has.
+
+/// Single-touch (and pen) x position; also the pointer emulation a
+/// multi-touch device sends alongside its slots, which is ignored.
 pub const ABS_X: u16 = 0x00;
+/// Single-touch (and pen) y position, growing downwards.
 pub const ABS_Y: u16 = 0x01;
+/// Single-touch and pen pressure, normalised over its range.
 pub const ABS_PRESSURE: u16 = 0x18;
+/// Pen tilt along x: the axis resolution's units per radian, or degrees
+/// when it declares no resolution.
 pub const ABS_TILT_X: u16 = 0x1a;
+/// Pen tilt along y, counted as [`ABS_TILT_X`] is.
 pub const ABS_TILT_Y: u16 = 0x1b;
+/// Which protocol B slot the following `ABS_MT_*` events describe; a
+/// device with this axis speaks protocol B.
 pub const ABS_MT_SLOT: u16 = 0x2f;
+/// A contact's long-axis length; not decoded.
 pub const ABS_MT_TOUCH_MAJOR: u16 = 0x30;
+/// A contact's short-axis length; not decoded.
 pub const ABS_MT_TOUCH_MINOR: u16 = 0x31;
+/// The approaching tool's long-axis length; not decoded.
 pub const ABS_MT_WIDTH_MAJOR: u16 = 0x32;
+/// The approaching tool's short-axis length; not decoded.
 pub const ABS_MT_WIDTH_MINOR: u16 = 0x33;
+/// A contact's long-axis direction, clockwise from the device's up, `max`
+/// being a quarter turn (along +x): becomes [`Contact::angle`].
 pub const ABS_MT_ORIENTATION: u16 = 0x34;
+/// A multi-touch contact's x position.
 pub const ABS_MT_POSITION_X: u16 = 0x35;
+/// A multi-touch contact's y position, growing downwards.
 pub const ABS_MT_POSITION_Y: u16 = 0x36;
+/// Finger, pen or palm, per contact; not decoded.
 pub const ABS_MT_TOOL_TYPE: u16 = 0x37;
+/// Groups several contacts into one blob; not decoded.
 pub const ABS_MT_BLOB_ID: u16 = 0x38;
+/// The device's id for a slot's contact, -1 when the slot empties. The
+/// decoder gives contacts ids of its own.
 pub const ABS_MT_TRACKING_ID: u16 = 0x39;
+/// A contact's pressure, normalised over its range into
+/// [`Contact::pressure`].
 pub const ABS_MT_PRESSURE: u16 = 0x3a;
+/// How far a hovering contact is above the surface; not decoded.
 pub const ABS_MT_DISTANCE: u16 = 0x3b;
-pub const ABS_MAX: u16 = 0x3f;
+pub(crate) const ABS_MAX: u16 = 0x3f;
 
 /// Devices have at most a few dozen slots; a header claiming more is
 /// corrupt, and the cap keeps it from sizing an allocation.
-pub const MAX_SLOTS: usize = 256;
+pub(crate) const MAX_SLOTS: usize = 256;
 /// Protocol A contacts beyond this many in one report are ignored, for the
 /// same reason.
-pub const MAX_ANONYMOUS_CONTACTS: usize = 64;
+pub(crate) const MAX_ANONYMOUS_CONTACTS: usize = 64;
 
 /// One raw event, as read from the device or a capture.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InputEvent {
     /// Seconds (the kernel's timestamp).
     pub time: f64,
+    /// The event type (`EV_*`).
     pub ev_type: u16,
+    /// The code within the type (`SYN_*`, `BTN_*`, `ABS_*`, `REL_*`).
     pub code: u16,
+    /// A key's state, an absolute axis's reading or a relative axis's
+    /// change.
     pub value: i32,
 }
 
 impl InputEvent {
+    /// An event at `time` seconds.
     pub fn new(time: f64, ev_type: u16, code: u16, value: i32) -> InputEvent {
         InputEvent {
             time,
@@ -89,9 +138,13 @@ impl InputEvent {
 /// without the current value).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct AbsInfo {
+    /// The smallest value the axis reports.
     pub min: i32,
+    /// The largest value the axis reports (inclusive).
     pub max: i32,
+    /// Jitter the kernel filters out; kept for captures, unused here.
     pub fuzz: i32,
+    /// A joystick's dead zone; kept for captures, unused here.
     pub flat: i32,
     /// Units per millimetre for positions, per radian for tilt; 0 = unknown.
     pub resolution: i32,
@@ -103,11 +156,16 @@ pub type AbsAxes = BTreeMap<u16, AbsInfo>;
 /// One multi-touch slot as the device holds it now (`EVIOCGMTSLOTS`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SlotState {
+    /// The slot's index, from 0.
     pub slot: usize,
     /// -1: the slot is empty.
     pub tracking_id: i32,
+    /// x position, device units (left over from the last contact when the
+    /// slot is empty).
     pub x: i32,
+    /// y position, device units.
     pub y: i32,
+    /// `ABS_MT_PRESSURE`; `None` when the device has no such axis.
     pub pressure: Option<i32>,
 }
 
@@ -124,10 +182,15 @@ pub struct DeviceState {
     pub slots: Vec<SlotState>,
 }
 
+/// Why a device's axes cannot be decoded or fitted to the stage.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EvdevError {
+    /// Neither multi-touch nor single-touch positions: not a touch surface
+    /// or pen (a mouse or a keyboard, say).
     #[error("the device has no position axes (neither ABS_MT_POSITION_X/Y nor ABS_X/Y)")]
     NoPositionAxes,
+    /// The position ranges cannot be stretched over the stage: a range
+    /// whose min equals its max, say.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
 }
@@ -146,7 +209,7 @@ pub enum Protocol {
 impl Protocol {
     /// The kernel gives every protocol B device an `ABS_MT_SLOT` axis, so
     /// the axes alone tell the protocols apart.
-    pub fn detect(axes: &AbsAxes) -> Option<Protocol> {
+    pub(crate) fn detect(axes: &AbsAxes) -> Option<Protocol> {
         let has = |code| axes.contains_key(&code);
         if has(ABS_MT_POSITION_X) && has(ABS_MT_POSITION_Y) {
             Some(if has(ABS_MT_SLOT) {
@@ -331,18 +394,9 @@ impl TouchDecoder {
         })
     }
 
+    /// How the device reports touches, as its axes told.
     pub fn protocol(&self) -> Protocol {
         self.protocol
-    }
-
-    pub fn source(&self) -> &SourceId {
-        &self.source
-    }
-
-    /// How far (device units) a protocol A contact may move between reports
-    /// and still be the same contact. Default: a tenth of the diagonal.
-    pub fn set_match_distance(&mut self, device_units: f64) {
-        self.match_distance = device_units;
     }
 
     /// How many contacts the stage currently believes are down.
@@ -398,7 +452,7 @@ impl TouchDecoder {
     /// True after the `SYN_REPORT` that ends a drop, until
     /// [`restore`](TouchDecoder::restore) or the next report: the reader
     /// should read the device's state back now.
-    pub fn needs_resync(&self) -> bool {
+    pub(crate) fn needs_resync(&self) -> bool {
         self.sync == SyncState::Resyncing
     }
 

@@ -18,41 +18,63 @@ use super::evdev::{
 };
 use super::{Calibration, SourceId};
 
+/// Why an evemu capture cannot be read or used.
 #[derive(Debug, thiserror::Error)]
 pub enum EvemuError {
     /// Cannot be read, not a regular file, or past
     /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
     File(#[from] file::FileError),
+    /// A line that does not parse, or breaks a rule of the format (an
+    /// axis described twice, time going backwards, …).
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
+        /// The capture, as messages name it.
         file: String,
+        /// The line number, from 1.
         line: usize,
+        /// Which field of the line (`event type`, `min`, `time`, …).
         field: &'static str,
+        /// What is wrong with it.
         problem: String,
     },
+    /// The captured device cannot be decoded or fitted to the stage: it
+    /// has no position axes, say.
     #[error("{file}: {source}")]
-    Device { file: String, source: EvdevError },
+    Device {
+        /// The capture, as messages name it.
+        file: String,
+        /// Why.
+        source: EvdevError,
+    },
 }
 
-/// The `I:` line.
+/// A device's ids, as the kernel gives them and a capture's `I:` line
+/// holds them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct InputId {
+    /// Bus type (`BUS_USB` 0x03, `BUS_BLUETOOTH` 0x05, `BUS_I2C` 0x18, …).
     pub bus: u16,
+    /// Vendor id (the USB one on USB).
     pub vendor: u16,
+    /// Product id.
     pub product: u16,
+    /// Version number the driver reports.
     pub version: u16,
 }
 
 /// What the header says about the device.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct EvemuDevice {
+    /// The device's name (`N:`).
     pub name: String,
+    /// Its ids (`I:`).
     pub id: InputId,
     /// `INPUT_PROP_*` bits, bytes in file order.
     pub properties: Vec<u8>,
     /// Supported codes per event type, bytes in file order.
     pub event_bits: BTreeMap<u16, Vec<u8>>,
+    /// Absolute axes with their ranges (`A:`).
     pub axes: AbsAxes,
 }
 
@@ -61,11 +83,15 @@ pub struct EvemuDevice {
 pub struct EvemuFile {
     /// How errors name the file.
     pub file: String,
+    /// The header: what the device is and can report.
     pub device: EvemuDevice,
+    /// Every `E:` event in file order; times never go backwards.
     pub events: Vec<InputEvent>,
 }
 
 impl EvemuFile {
+    /// Reads and parses the capture at `path`, refusing one past the size
+    /// limit every replay file has (`MAX_REPLAY_FILE_BYTES`).
     pub fn read(path: &Path) -> Result<EvemuFile, EvemuError> {
         let file = path.display().to_string();
         let text = file::read_text(path, file::REPLAY_FILE)?;

@@ -50,47 +50,96 @@ const USAGE_INPUT_MODE: u16 = 0x52;
 const USAGE_CONTACT_COUNT: u16 = 0x54;
 const USAGE_SCAN_TIME: u16 = 0x56;
 
+/// What went wrong with a HID digitizer: its descriptor, one of its
+/// reports, or the device itself.
 #[derive(Debug, thiserror::Error)]
 pub enum HidError {
+    /// `hidreport` could not parse the report descriptor.
     #[error("hid: report descriptor: {0}")]
     Descriptor(#[from] hidreport::ParserError),
+    /// The descriptor has no multi-touch report: the interface is a pen, a
+    /// mouse fallback or a keyboard, not the touch collection.
     #[error(
         "hid: report descriptor has no touch screen or touch pad collection \
          (usage page 0x0D, usage 0x04 or 0x05) with Finger collections in an input report"
     )]
     NoTouchCollection,
+    /// The descriptor's touch report cannot be used (a finger without X,
+    /// fingers in different units, a field wider than 32 bits), or the
+    /// descriptor is past the budgets that keep a hostile one from
+    /// exhausting memory.
     #[error("hid: report descriptor: {problem}")]
-    Layout { problem: String },
+    Layout {
+        /// What is wrong, and where.
+        problem: String,
+    },
+    /// A zero-length input report.
     #[error("hid: empty input report")]
     EmptyReport,
+    /// An input report whose id the descriptor does not declare: garbage.
     #[error("hid: input report id {id} is not declared by the report descriptor")]
-    UnknownReport { id: u8 },
+    UnknownReport {
+        /// The report's first byte.
+        id: u8,
+    },
+    /// A report shorter than the descriptor declares: a truncated input
+    /// report, or a feature buffer too small for [`InputMode::set`].
     #[error("hid: {}: {got} bytes, the descriptor declares {expected}", report_name(*report_id))]
     ShortReport {
+        /// The report's id; `None` when the descriptor numbers no reports.
         report_id: Option<u8>,
+        /// Bytes the descriptor declares, report id byte included.
         expected: usize,
+        /// Bytes there were.
         got: usize,
     },
+    /// One frame names a contact id twice; the whole report is refused.
     #[error("hid: {}: contact id {id} is reported twice in one frame", report_name(*report_id))]
-    DuplicateContact { report_id: Option<u8>, id: u32 },
+    DuplicateContact {
+        /// The touch report's id; `None` when the descriptor numbers no
+        /// reports.
+        report_id: Option<u8>,
+        /// The repeated contact id.
+        id: u32,
+    },
+    /// The fingers' logical X/Y ranges cannot be stretched over the stage:
+    /// a range whose minimum equals its maximum, say.
     #[error("hid: {0}")]
     Calibration(#[from] CalibrationError),
+    /// hidapi failed to list, open, configure or read the device; on a read,
+    /// the device most likely went away.
     #[error("hid: {what}: {source}")]
     Device {
+        /// What was being done (`opening /dev/hidraw3`, `reading an input
+        /// report`, …).
         what: String,
+        /// hidapi's error.
         source: hidapi::HidError,
     },
+    /// The node is there but this user may not open it.
     #[error("hid: {path}: permission denied; {hint}")]
-    Permission { path: String, hint: String },
+    Permission {
+        /// The node.
+        path: String,
+        /// How to fix it: see [`permission_hint`].
+        hint: String,
+    },
+    /// No listed interface matches the selector.
     #[error("hid: no HID device matches {selector}")]
-    NotFound { selector: String },
+    NotFound {
+        /// The selector, as text.
+        selector: String,
+    },
+    /// Several device paths match the selector equally well.
     #[error(
         "hid: {} devices match {selector} ({}); add a serial or a path to pick one",
         paths.len(),
         paths.join(", ")
     )]
     Ambiguous {
+        /// The selector, as text.
         selector: String,
+        /// Every path that matches.
         paths: Vec<String>,
     },
 }
@@ -233,8 +282,13 @@ fn layout(problem: impl Into<String>) -> HidError {
 /// including the report id byte when the descriptor uses report ids.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct HidField {
+    /// The bits holding the value, least significant first; 1 to 32 of
+    /// them.
     pub bits: Range<usize>,
+    /// The smallest value the device declares; below zero makes the field
+    /// signed.
     pub logical_min: i32,
+    /// The largest value the device declares.
     pub logical_max: i32,
 }
 
@@ -289,16 +343,26 @@ impl HidField {
 /// The fields of one Finger collection: one contact slot of the report.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Finger {
+    /// Tip Switch: non-zero while the finger touches.
     pub tip_switch: HidField,
+    /// Contact Identifier: the device's id for the finger, kept while it
+    /// is down.
     pub contact_id: HidField,
+    /// X, in logical units.
     pub x: HidField,
+    /// Y, in logical units, growing downwards.
     pub y: HidField,
+    /// Tip Pressure, when the device reports it; normalised over its
+    /// logical range.
     pub tip_pressure: Option<HidField>,
 }
 
+/// What kind of surface the touch collection says it is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Surface {
+    /// A touch screen (usage 0x04): positions are on a display.
     TouchScreen,
+    /// A touch pad (usage 0x05): positions are on a pad of their own.
     TouchPad,
 }
 
@@ -307,9 +371,12 @@ pub enum Surface {
 /// [`InputMode::MULTI_INPUT`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct InputMode {
+    /// The feature report's id; `None` when the descriptor numbers no
+    /// reports.
     pub report_id: Option<u8>,
     /// Bytes of the whole feature report, report id byte included.
     pub report_len: usize,
+    /// Where the Input Mode value sits in the report.
     pub field: HidField,
 }
 
@@ -349,6 +416,7 @@ impl InputMode {
 /// What a digitizer's report descriptor says about its touch reports.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct TouchLayout {
+    /// Touch screen or touch pad.
     pub surface: Surface,
     /// The input report carrying the fingers; `None` when the descriptor
     /// uses no report ids (and reports have no id byte).
@@ -357,8 +425,15 @@ pub struct TouchLayout {
     pub report_len: usize,
     /// Contact slots, in report order.
     pub fingers: Vec<Finger>,
+    /// Contact Count: how many slots the frame starting with this report
+    /// fills (0 in a hybrid frame's later reports). `None`: every report is
+    /// a whole frame of its tip-down slots.
     pub contact_count: Option<HidField>,
+    /// Scan Time, which tells a hybrid frame's reports from the next
+    /// frame's; `None` when the device has none.
     pub scan_time: Option<HidField>,
+    /// The Input Mode feature, when the device has one to switch it to
+    /// multi-touch.
     pub input_mode: Option<InputMode>,
     /// Every input report id the descriptor declares, so reports for other
     /// collections (a mouse fallback, a pen) can be told from garbage.
@@ -390,6 +465,9 @@ struct FingerParts {
 }
 
 impl TouchLayout {
+    /// Reads the touch layout out of a report descriptor, as the device
+    /// gives it. A descriptor with no touch report, or one that would make
+    /// the parser allocate without bound, is refused.
     #[expect(
         clippy::too_many_lines,
         reason = "a report descriptor is a stream of items whose global and local state (usage page, report size and count, collections) each item updates; one loop keeps that state together, as the HID specification describes the parse"
@@ -548,7 +626,7 @@ impl TouchLayout {
 
     /// Stretches the device's logical X/Y ranges over a `size.x` × `size.y`
     /// stage, flipping y because HID y grows downwards.
-    pub fn default_calibration(&self, stage_size: DVec2) -> Result<Calibration, HidError> {
+    pub(crate) fn default_calibration(&self, stage_size: DVec2) -> Result<Calibration, HidError> {
         let first = &self.fingers[0];
         Ok(Calibration::fit(
             first.x.range(),
@@ -596,8 +674,10 @@ pub struct HidTouchDecoder {
 
 impl HidTouchDecoder {
     /// Reads the layout from `descriptor`. Without a `calibration`, the
-    /// device's logical X/Y ranges are fitted to a stage of `stage_size`
-    /// (see [`TouchLayout::default_calibration`]).
+    /// device's logical X/Y ranges are stretched over a stage of
+    /// `stage_size`, y flipped because HID y grows downwards. Fails when
+    /// the fingers count X or Y over different ranges, since one
+    /// calibration serves them all.
     pub fn new(
         descriptor: &[u8],
         source: SourceId,
@@ -626,7 +706,7 @@ impl HidTouchDecoder {
         })
     }
 
-    pub fn layout(&self) -> &TouchLayout {
+    pub(crate) fn layout(&self) -> &TouchLayout {
         &self.layout
     }
 
@@ -837,12 +917,20 @@ pub struct HidDeviceInfo {
     /// What [`open`] needs: `/dev/hidraw3` on Linux, a platform path
     /// elsewhere.
     pub path: String,
+    /// Vendor id.
     pub vendor_id: u16,
+    /// Product id.
     pub product_id: u16,
+    /// Serial number; `None` when the device has none (or an empty one).
     pub serial: Option<String>,
+    /// Manufacturer name; `None` when empty.
     pub manufacturer: Option<String>,
+    /// Product name; `None` when empty.
     pub product: Option<String>,
+    /// Usage page of the interface's top-level collection (0x0D:
+    /// digitizers).
     pub usage_page: u16,
+    /// Usage of that collection (0x04 touch screen, 0x05 touch pad, …).
     pub usage: u16,
     /// USB interface number; -1 when the bus has none.
     pub interface: i32,
@@ -937,13 +1025,20 @@ pub fn list_devices() -> Result<Vec<HidDeviceInfo>, HidError> {
 #[derive(Debug, Clone, PartialEq, Eq, Default, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct HidSelector {
+    /// The platform path (`/dev/hidraw3`), exactly; [`open`] tries it even
+    /// when the platform does not list it.
     pub path: Option<String>,
+    /// Vendor id.
     pub vendor_id: Option<u16>,
+    /// Product id.
     pub product_id: Option<u16>,
+    /// Serial number, exactly.
     pub serial: Option<String>,
 }
 
 impl HidSelector {
+    /// Whether `info` is an interface this selector names: every field
+    /// given is equal.
     pub fn matches(&self, info: &HidDeviceInfo) -> bool {
         self.path.as_ref().is_none_or(|p| *p == info.path)
             && self.vendor_id.is_none_or(|v| v == info.vendor_id)
@@ -1035,6 +1130,7 @@ pub fn open(selector: &HidSelector) -> Result<hidapi::HidDevice, HidError> {
 /// What [`run_device`] needs from a device; [`hidapi::HidDevice`] is one,
 /// a test double another.
 pub trait ReportDevice {
+    /// The device's raw report descriptor.
     fn descriptor(&self) -> Result<Vec<u8>, HidError>;
     /// Sends a feature report; the first byte is the report id, 0 when the
     /// device does not number its reports (hidapi's convention).

@@ -18,31 +18,51 @@ use puppetry_mesh::file;
 use std::io::Write;
 use std::path::Path;
 
+/// Why a hid-recorder capture cannot be read.
 #[derive(Debug, thiserror::Error)]
 pub enum HidRecordingError {
     /// Cannot be read, not a regular file, or past
     /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
     File(#[from] file::FileError),
+    /// A line that does not parse, or breaks a rule of the format (a byte
+    /// count that does not add up, a second device, time going backwards,
+    /// …).
     #[error("{file}:{line}: {field}: {problem}")]
     Line {
+        /// The capture, as messages name it.
         file: String,
+        /// The line number, from 1; for bytes that fall short, the `R:` or
+        /// `E:` line that declared them.
         line: usize,
+        /// Which field of the line (`length`, `report bytes`, `time`, …).
         field: &'static str,
+        /// What is wrong with it.
         problem: String,
     },
+    /// The capture has no report descriptor, without which its reports
+    /// cannot be decoded.
     #[error("{file}: no `R:` line; a hid-recorder capture starts with the report descriptor")]
-    NoDescriptor { file: String },
+    NoDescriptor {
+        /// The capture, as messages name it.
+        file: String,
+    },
 }
 
 /// One device's capture.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct HidRecording {
+    /// The device's name (`N:`).
     pub name: String,
+    /// Its physical path (`P:`).
     pub phys: String,
+    /// Bus type (`I:`, as in [`InputId::bus`](crate::evemu::InputId::bus)).
     pub bus: u16,
+    /// Vendor id (`I:`).
     pub vendor: u16,
+    /// Product id (`I:`).
     pub product: u16,
+    /// The raw report descriptor (`R:`).
     pub descriptor: Vec<u8>,
     /// Input reports as read from hidraw (report id byte first when the
     /// descriptor numbers its reports), with their time in seconds.
@@ -50,6 +70,8 @@ pub struct HidRecording {
 }
 
 impl HidRecording {
+    /// Reads and parses the capture at `path`, refusing one past the size
+    /// limit every replay file has (`MAX_REPLAY_FILE_BYTES`).
     pub fn read(path: &Path) -> Result<HidRecording, HidRecordingError> {
         let file = path.display().to_string();
         let text = file::read_text(path, file::REPLAY_FILE)?;

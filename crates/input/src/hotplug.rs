@@ -34,15 +34,22 @@ const RETRY_INTERVAL: Duration = Duration::from_secs(5);
 pub struct DeviceInput {
     /// Where to look for nodes (`/dev/input`).
     pub dir: PathBuf,
+    /// Which device: every field given must match.
     pub wanted: DeviceMatch,
     /// Only devices of this kind; `None`: any usable one.
     pub kind: Option<DeviceKind>,
+    /// The source the device's frames carry, the same after every reopen.
     pub source: SourceId,
     /// Device to stage; `None`: the device's position range fitted to the
     /// stage (touch and pen; mice ignore it).
     pub calibration: Option<Calibration>,
+    /// Open the device exclusively (`EVIOCGRAB`), so the desktop does not
+    /// also react to it.
     pub grab: bool,
+    /// How the device puppeteers if it turns out to be a mouse.
     pub mouse: MouseSettings,
+    /// The stage's width and height, stage units: what a default
+    /// calibration stretches the device over and a mouse's cursor stays in.
     pub stage_size: DVec2,
 }
 
@@ -57,7 +64,7 @@ impl DeviceInput {
 }
 
 #[derive(Debug, thiserror::Error)]
-pub enum HotplugError {
+pub(crate) enum HotplugError {
     #[error(transparent)]
     Device(#[from] DeviceError),
     #[error("{path}: {source}")]

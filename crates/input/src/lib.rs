@@ -16,7 +16,10 @@
 //! frame log, which [`replay`] plays into the daemon. [`record`] writes
 //! captures and [`calibrate`] turns four taps into a calibration.
 //! [`log_limit`] keeps each source's warnings about bad input to a few
-//! lines and a count.
+//! lines and a count. Every public item is documented (`missing_docs` is
+//! on here).
+
+#![warn(missing_docs)]
 
 pub mod calibrate;
 pub mod config;

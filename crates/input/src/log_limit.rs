@@ -13,13 +13,13 @@ use std::time::{Duration, Instant};
 
 /// Longest echoed input in a warning, in characters (an ellipsis marks the
 /// cut): the budget's.
-pub use puppetry_limits::net::MAX_ECHO;
+pub(crate) use puppetry_limits::net::MAX_ECHO;
 
 /// Warnings let through at once before the limiter starts counting.
-pub const BURST: u32 = 5;
+pub(crate) const BURST: u32 = 5;
 
 /// One more warning is let through per this much time.
-pub const REFILL: Duration = Duration::from_secs(5);
+pub(crate) const REFILL: Duration = Duration::from_secs(5);
 
 /// `text` cut to at most `max` characters, with "…" at the cut.
 pub fn clip(text: &str, max: usize) -> String {
@@ -49,11 +49,14 @@ pub struct LogLimiter {
 }
 
 impl LogLimiter {
-    /// [`BURST`] at once, then one per [`REFILL`].
+    /// The usual rate: `BURST` (5) warnings at once, then one per `REFILL`
+    /// (5 s).
     pub fn new(now: Instant) -> LogLimiter {
         LogLimiter::with_rate(BURST, REFILL, now)
     }
 
+    /// `burst` warnings at once, then one per `refill`; `now` starts the
+    /// refill clock.
     pub fn with_rate(burst: u32, refill: Duration, now: Instant) -> LogLimiter {
         LogLimiter {
             burst,
@@ -81,7 +84,7 @@ impl LogLimiter {
 
     /// Whether to log the warning at hand; if not, it is counted for the
     /// next summary.
-    pub fn allow(&mut self, now: Instant) -> bool {
+    pub(crate) fn allow(&mut self, now: Instant) -> bool {
         self.top_up(now);
         if self.tokens > 0 {
             self.tokens -= 1;
@@ -93,7 +96,7 @@ impl LogLimiter {
     }
 
     /// When a summary will be due, if warnings were left out.
-    pub fn summary_due(&self) -> Option<Instant> {
+    pub(crate) fn summary_due(&self) -> Option<Instant> {
         self.suppressed_since.map(|since| since + self.refill)
     }
 
@@ -101,7 +104,7 @@ impl LogLimiter {
     /// (and then the count starts again); the caller logs the summary line.
     ///
     /// [`summary_due`]: LogLimiter::summary_due
-    pub fn take_summary(&mut self, now: Instant) -> Option<u64> {
+    pub(crate) fn take_summary(&mut self, now: Instant) -> Option<u64> {
         let due = self.summary_due()?;
         if now < due {
             return None;
@@ -126,7 +129,7 @@ impl LogLimiter {
 
     /// How many warnings were left out and not yet summarised, whatever the
     /// time: for a source that is ending.
-    pub fn take_remaining(&mut self) -> Option<u64> {
+    pub(crate) fn take_remaining(&mut self) -> Option<u64> {
         self.suppressed_since = None;
         let n = std::mem::take(&mut self.suppressed);
         (n > 0).then_some(n)
@@ -135,7 +138,7 @@ impl LogLimiter {
 
 /// Sleeps until `due`, or forever when there is nothing due: a `select!`
 /// arm that fires when a summary is due.
-pub async fn summary_timer(due: Option<Instant>) {
+pub(crate) async fn summary_timer(due: Option<Instant>) {
     match due {
         Some(due) => tokio::time::sleep_until(due.into()).await,
         None => std::future::pending().await,

@@ -20,18 +20,34 @@ use glam::DVec2;
 use super::evdev::{EV_KEY, EV_REL, EV_SYN, InputEvent, SYN_DROPPED, SYN_REPORT};
 use super::{Contact, ContactFrame, Phase, SourceId};
 
+// `EV_REL` codes, from `linux/input-event-codes.h`.
+
+/// Horizontal motion, counts, + to the right.
 pub const REL_X: u16 = 0x00;
+/// Vertical motion, counts, + down the screen (the stage is y-up, so the
+/// decoder flips it).
 pub const REL_Y: u16 = 0x01;
+/// The horizontal wheel, often a sideways tilt of the main one; ignored.
 pub const REL_HWHEEL: u16 = 0x06;
+/// Wheel notches, + rolled away from the user: turns the pair
+/// counter-clockwise. Ignored once the mouse has sent `REL_WHEEL_HI_RES`.
 pub const REL_WHEEL: u16 = 0x08;
+/// The wheel in 120ths of a notch, on mice that have it; used instead of
+/// `REL_WHEEL` once seen.
 pub const REL_WHEEL_HI_RES: u16 = 0x0b;
 
+// `EV_KEY` codes.
+
+/// Held, the mouse holds its contacts (the pair, or one point) at the
+/// cursor.
 pub const BTN_LEFT: u16 = 0x110;
+/// Held, horizontal motion turns the pair instead of moving the cursor.
 pub const BTN_RIGHT: u16 = 0x111;
+/// Ignored.
 pub const BTN_MIDDLE: u16 = 0x112;
 
 /// `REL_WHEEL_HI_RES` units in one wheel notch (fixed by the kernel ABI).
-pub const HI_RES_PER_NOTCH: f64 = 120.0;
+pub(crate) const HI_RES_PER_NOTCH: f64 = 120.0;
 
 /// Horizontal counts of a right-button drag that turn the pair by one
 /// `rotate_step`. Ten counts is a few millimetres on a typical 800–1600 cpi
@@ -39,11 +55,17 @@ pub const HI_RES_PER_NOTCH: f64 = 120.0;
 /// set to a degree or two.
 pub const TWIST_COUNTS_PER_STEP: f64 = 10.0;
 
+/// Settings [`MouseDecoder::new`] refuses.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MouseError {
+    /// A setting, or the stage size, is out of range: not finite, not above
+    /// zero, a rotation step over a full turn, or a start off the stage.
     #[error("mouse: {field}: {problem}")]
     Invalid {
+        /// The setting (`speed`, `pair_spacing`, `rotate_step`, `start`,
+        /// `stage_size`).
         field: &'static str,
+        /// What is wrong with its value.
         problem: String,
     },
 }
@@ -224,14 +246,6 @@ impl MouseDecoder {
         })
     }
 
-    pub fn source(&self) -> &SourceId {
-        &self.source
-    }
-
-    pub fn settings(&self) -> &MouseSettings {
-        &self.settings
-    }
-
     /// Where the cursor is, as of the last complete report.
     pub fn cursor(&self) -> Cursor {
         Cursor {
@@ -297,7 +311,7 @@ impl MouseDecoder {
 
     /// True right after the `SYN_REPORT` that ends a drop: the reader should
     /// read the buttons back and call [`resync`](MouseDecoder::resync).
-    pub fn needs_resync(&self) -> bool {
+    pub(crate) fn needs_resync(&self) -> bool {
         self.resync_due
     }
 

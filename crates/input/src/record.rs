@@ -11,13 +11,19 @@ use std::time::Duration;
 use super::device::{Device, DeviceError};
 use super::evemu::write_event;
 
+/// Why [`record`] stopped before its end.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
+    /// Reading the device failed, other than by its going away (which just
+    /// ends the capture).
     #[error(transparent)]
     Device(#[from] DeviceError),
+    /// The capture file cannot be created or written.
     #[error("{file}: cannot write: {source}")]
     Write {
+        /// The capture file.
         file: String,
+        /// What the system said.
         source: std::io::Error,
     },
 }
@@ -25,6 +31,7 @@ pub enum RecordError {
 /// What a recording captured.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Recorded {
+    /// Events written, `EV_SYN` markers included.
     pub events: usize,
     /// The device went away before the end.
     pub device_gone: bool,

@@ -1,7 +1,7 @@
 //! The project's own recording format: one [`ContactFrame`] per line as a
 //! JSON object, in stage coordinates (see `docs/recording-format.md`). It
-//! owns the line schema, the [`RecordingWriter`] and the
-//! [`RecordingReader`]; a reader's complaint names the file, the line and,
+//! owns the line schema, the [`RecordingWriter`] and the reader behind
+//! [`read_recording`]; a reader's complaint names the file, the line and,
 //! where serde can tell, the column and field.
 
 use puppetry_mesh::file;
@@ -16,26 +16,39 @@ use puppetry_mesh::json::MAX_COORDINATE;
 
 /// A longer line is refused rather than buffered: a recording line is a
 /// frame of a few contacts, so this is a corrupt file.
-pub const MAX_LINE_BYTES: usize = 1 << 20;
+pub(crate) const MAX_LINE_BYTES: usize = 1 << 20;
 
+/// Why a recording could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
     /// Cannot be read, not a regular file, or past
     /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
     File(#[from] file::FileError),
+    /// Writing or flushing failed.
     #[error("cannot write the recording: {0}")]
     Write(#[from] std::io::Error),
+    /// A line is not a frame: not UTF-8 or JSON, an unknown field, a number
+    /// out of range, a contact named twice, or longer than 1 MiB. Reading
+    /// stops there.
     #[error("{file}:{line}: {problem}")]
     Line {
+        /// The recording, as messages name it.
         file: String,
+        /// The line number, from 1.
         line: usize,
+        /// What is wrong, with the column or field where known.
         problem: String,
     },
+    /// A frame to write holds a number JSON cannot (NaN or an infinity);
+    /// nothing of it is written.
     #[error("cannot record frame at t = {time}: {field} is {value}, not a finite number")]
     NotFinite {
+        /// The frame's time, seconds.
         time: f64,
+        /// Which number (`t`, `x`, `y`, `pressure`, `tilt`, `angle`).
         field: &'static str,
+        /// Its value.
         value: f64,
     },
 }
@@ -70,6 +83,7 @@ pub struct RecordingWriter<W: Write> {
 }
 
 impl<W: Write> RecordingWriter<W> {
+    /// A writer onto `out`, which gets one line per frame.
     pub fn new(out: W) -> RecordingWriter<W> {
         RecordingWriter { out }
     }
@@ -120,17 +134,20 @@ impl<W: Write> RecordingWriter<W> {
         Ok(())
     }
 
+    /// Flushes `out`, reporting what buffered writes could not do.
     pub fn flush(&mut self) -> Result<(), RecordingError> {
         Ok(self.out.flush()?)
     }
 
+    /// Gives `out` back without flushing it (a `Vec<u8>` holding the
+    /// text, say).
     pub fn into_inner(self) -> W {
         self.out
     }
 }
 
 /// Reads frames one line at a time; blank lines are skipped.
-pub struct RecordingReader<R: BufRead> {
+pub(crate) struct RecordingReader<R: BufRead> {
     file: String,
     input: R,
     line: usize,

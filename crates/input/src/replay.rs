@@ -23,26 +23,42 @@ use super::hid_recording::{HidRecording, HidRecordingError};
 use super::recording::{RecordingError, parse_recording};
 use super::{Calibration, ContactFrame, SourceId};
 
+/// Why a file cannot be replayed. Everything is checked when the file is
+/// opened, so playing it never fails.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
     /// Cannot be read, not a regular file, or past
     /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
     File(#[from] file::FileError),
+    /// An evemu capture does not parse, or its device cannot be decoded.
     #[error(transparent)]
     Evemu(#[from] EvemuError),
+    /// A recording line is not a valid frame.
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    /// A hid-recorder capture does not parse.
     #[error(transparent)]
     HidRecording(#[from] HidRecordingError),
+    /// A hid-recorder capture's report descriptor is unusable: not a touch
+    /// digitizer, say.
     #[error("{file}: {source}")]
-    HidDevice { file: String, source: HidError },
+    HidDevice {
+        /// The capture, as messages name it.
+        file: String,
+        /// Why.
+        source: HidError,
+    },
+    /// The decoder refuses one of a hid-recorder capture's reports.
     #[error("{file}: report {index} (at {time} s): {source}")]
     HidReport {
+        /// The capture, as messages name it.
         file: String,
         /// Counting from 1, in file order.
         index: usize,
+        /// The report's time in the capture, seconds.
         time: f64,
+        /// Why.
         source: HidError,
     },
 }
@@ -132,6 +148,9 @@ impl ReplaySource {
         ReplaySource::from_evemu(&capture, source, calibration)
     }
 
+    /// A capture already parsed, decoded through a fresh [`TouchDecoder`]
+    /// that reports as `source`; fails when the captured device has no
+    /// position axes.
     pub fn from_evemu(
         capture: &EvemuFile,
         source: SourceId,
@@ -182,6 +201,7 @@ impl ReplaySource {
         Ok(ReplaySource::from_frames(frames))
     }
 
+    /// Frames already in stage coordinates, played as they are.
     pub fn from_frames(frames: Vec<ContactFrame>) -> ReplaySource {
         ReplaySource {
             inner: Arc::new(Inner::Recording(frames)),
@@ -266,6 +286,7 @@ impl Iterator for Frames {
 /// How a [`replay`] ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ReplaySummary {
+    /// Frames the receiver took.
     pub frames_sent: usize,
     /// The receiver went away before the end; the replay stopped there.
     pub sink_closed: bool,

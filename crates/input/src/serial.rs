@@ -81,12 +81,30 @@ const ESC: u8 = 0xDB;
 const ESC_END: u8 = 0xDC;
 const ESC_ESC: u8 = 0xDD;
 
+/// What went wrong on a serial pad: a bad record, which is skipped while
+/// reading goes on, or the port itself, which ends the reading.
 #[derive(Debug, thiserror::Error)]
 pub enum SerialError {
+    /// A `csv` line that is not a record, or lifts a contact that is not
+    /// down.
     #[error("serial: line {line}: {problem}")]
-    Line { line: u64, problem: String },
+    Line {
+        /// The line number, counted from 1 since the decoder was made.
+        line: u64,
+        /// What is wrong, naming the field.
+        problem: String,
+    },
+    /// A `slip_osc` packet that is not OSC, breaks SLIP, or holds a bad
+    /// message (the packet's other messages still apply).
     #[error("serial: packet at byte {offset}: {problem}")]
-    Packet { offset: u64, problem: String },
+    Packet {
+        /// Where the packet starts, in bytes from the decoder's first.
+        offset: u64,
+        /// What is wrong; for a bad message, which one and which argument.
+        problem: String,
+    },
+    /// A line or packet longer than [`MAX_RECORD`]; skipped up to the next
+    /// delimiter.
     #[error(
         "serial: {record} starting at byte {offset} is longer than {limit} bytes; \
          skipped to the next delimiter"
@@ -94,19 +112,27 @@ pub enum SerialError {
     TooLong {
         /// `line N` or `packet`.
         record: String,
+        /// Where it starts, in bytes from the decoder's first.
         offset: u64,
+        /// The limit it passed, [`MAX_RECORD`].
         limit: usize,
     },
+    /// The pad's calibration cannot be made: an empty range, say.
     #[error("serial: {0}")]
     Calibration(#[from] CalibrationError),
+    /// The port cannot be opened: missing, busy, or not permitted.
     #[error("serial: opening {path}: {source}")]
     Open {
+        /// The port.
         path: String,
+        /// What the serial library said.
         #[source]
         source: tokio_serial::Error,
     },
+    /// Reading the port failed: the pad was unplugged, say.
     #[error("serial: reading the port: {0}")]
     Read(#[source] std::io::Error),
+    /// The port reported the end of its stream.
     #[error("serial: the port closed (end of stream)")]
     Closed,
 }
@@ -115,7 +141,11 @@ pub enum SerialError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WireFormat {
+    /// `csv`: text lines `id,phase,x,y[,pressure]`, `f` or an empty line
+    /// ending a frame.
     Csv,
+    /// `slip_osc`: SLIP-framed OSC, `/pad/contact` messages and a
+    /// `/pad/frame` ending each frame.
     SlipOsc,
 }
 
@@ -150,6 +180,9 @@ pub struct SerialDecoder {
 }
 
 impl SerialDecoder {
+    /// A decoder for a pad speaking `format`, mapping pad units to the
+    /// stage through `calibration` and reporting as `source`. Its clock
+    /// starts now: frames carry seconds since.
     pub fn new(format: WireFormat, calibration: Calibration, source: SourceId) -> SerialDecoder {
         SerialDecoder {
             format,
@@ -165,10 +198,6 @@ impl SerialDecoder {
             pending: Vec::new(),
             down: BTreeMap::new(),
         }
-    }
-
-    pub fn format(&self) -> WireFormat {
-        self.format
     }
 
     /// Decodes `bytes`, which may start or end mid-record: the unfinished

@@ -39,32 +39,54 @@ pub const MAX_SOURCES: usize = 64;
 /// Largest UDP payload; one buffer of this size serves every datagram.
 const MAX_DATAGRAM: usize = 65_536;
 
+/// Why a datagram was refused (leaving the tracker as it was), or why
+/// reading the socket stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum TuioError {
+    /// The datagram is not OSC; the text is the OSC decoder's complaint.
     #[error("tuio: not an OSC packet: {0}")]
     Osc(String),
+    /// A TUIO message is malformed or out of place: an argument missing or
+    /// of the wrong type, a `ptr` outside a frame, an unknown 2Dcur command.
     #[error("tuio: message {index} ({address}): {problem}")]
     Message {
         /// Position of the message within the datagram, counting from 0
         /// through nested bundles in order.
         index: usize,
+        /// The message's address, clipped.
         address: String,
+        /// What is wrong, naming the argument.
         problem: String,
     },
+    /// The datagram ends in the middle of a frame: 2Dcur messages without
+    /// their `fseq`, or a `frm` without its `alv`.
     #[error("tuio: {problem}")]
-    Bundle { problem: String },
+    Bundle {
+        /// Which frame is unfinished.
+        problem: String,
+    },
+    /// The datagram names a new source when [`MAX_SOURCES`] are already
+    /// tracked.
     #[error("tuio: already tracking {MAX_SOURCES} sources; refusing new source `{name}`")]
-    TooManySources { name: String },
+    TooManySources {
+        /// The refused source, clipped.
+        name: String,
+    },
     /// Past the contacts budget (`puppetry_limits::contacts`): the whole
     /// datagram is skipped, never cut (a cut frame would lose a lift).
     #[error("tuio: {count} {what}: at most {limit} (docs/limits.md)")]
     TooManyContacts {
+        /// Which count is over.
         what: &'static str,
+        /// The count.
         count: usize,
+        /// Its limit.
         limit: usize,
     },
+    /// The calibration cannot be made: an empty range, say.
     #[error("tuio: {0}")]
     Calibration(#[from] CalibrationError),
+    /// Receiving failed, for a reason other than a bounced earlier send.
     #[error("tuio: receiving from the socket: {0}")]
     Socket(#[source] std::io::Error),
 }
@@ -164,6 +186,8 @@ pub struct TuioTracker {
 }
 
 impl TuioTracker {
+    /// A tracker with no sources yet, mapping TUIO's normalised
+    /// coordinates to the stage through `calibration`.
     pub fn new(calibration: Calibration) -> TuioTracker {
         TuioTracker {
             calibration,
