@@ -1,14 +1,18 @@
 // Spine's own runtime (spine-core 4.2) on an exported skeleton:
 //   node export-spine.mjs FILE.json ANIMATION T1,T2,…
-// reads the JSON with SkeletonJson (an attachment loader that makes mesh
-// attachments without an atlas), applies the animation at each time and
+// reads the JSON with SkeletonJson — through the atlas beside it (FILE with
+// .atlas) and spine-core's AtlasAttachmentLoader when there is one, as a
+// player loads it (a region missing from the atlas fails), else an
+// attachment loader that makes mesh attachments without one — applies the
+// animation at each time and
 // prints one JSON line {ok, samples: [{t, slots: {SLOT: [x0, y0, x1, y1, …]}}]} of
-// world vertices, in the attachment's vertex order.
+// world vertices, in the attachment's vertex order, the animation's duration
+// and the atlas's pages ({name, width, height}).
 
 import fs from 'node:fs';
 import {
-  BoundingBoxAttachment, ClippingAttachment, MeshAttachment, MixBlend, MixDirection, PathAttachment,
-  Physics, PointAttachment, RegionAttachment, Skeleton, SkeletonJson,
+  AtlasAttachmentLoader, BoundingBoxAttachment, ClippingAttachment, MeshAttachment, MixBlend, MixDirection, PathAttachment,
+  Physics, PointAttachment, RegionAttachment, Skeleton, SkeletonJson, TextureAtlas,
 } from '@esotericsoftware/spine-core';
 import { run } from './export-common.mjs';
 
@@ -23,7 +27,10 @@ const noAtlas = {
 
 run(async () => {
   const [file, name, list] = process.argv.slice(2);
-  const data = new SkeletonJson(noAtlas).readSkeletonData(fs.readFileSync(file, 'utf8'));
+  const atlasFile = file.replace(/\.json$/, '.atlas');
+  const atlas = fs.existsSync(atlasFile) ? new TextureAtlas(fs.readFileSync(atlasFile, 'utf8')) : null;
+  const loader = atlas ? new AtlasAttachmentLoader(atlas) : noAtlas;
+  const data = new SkeletonJson(loader).readSkeletonData(fs.readFileSync(file, 'utf8'));
   const animation = data.findAnimation(name);
   if (!animation) throw new Error(`no animation ${name}`);
   const skeleton = new Skeleton(data);
@@ -46,5 +53,6 @@ run(async () => {
     version: data.version, duration: animation.duration, hull: Object.fromEntries(
       skeleton.slots.map((s) => [s.data.name, s.getAttachment()?.hullLength / 2])),
     samples,
+    atlas: atlas && atlas.pages.map((p) => ({ name: p.name, width: p.width, height: p.height })),
   };
 });

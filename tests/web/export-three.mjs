@@ -1,11 +1,13 @@
 // three.js plays an exported .glb in headless Chromium:
-//   node export-three.mjs FILE.glb T1,T2,…
+//   node export-three.mjs FILE.glb T1,T2,… [indices]
 // GLTFLoader loads it, an AnimationMixer sets the first animation to each
 // time, and for every puppet (a child of the scene) the chunk nodes shown
 // (scale ≠ 0) are morphed on the CPU: base + Σ influence · target, from
 // the mesh's morphTargetInfluences and geometry.morphAttributes (relative
 // targets, as glTF's). Prints one JSON line {ok, samples: [{t, puppets:
-// [{name, shown: [chunk names], positions: [x, y, z, …] of the first shown}]}]}.
+// [{name, z, shown: [chunk names], positions: [x, y, z, …] of the first shown,
+// indices: its triangles' vertex indices in draw order (with `indices`)}]}],
+// duration} — z is the puppet node's, the depth three.js sorts it by.
 
 import fs from 'node:fs';
 import path from 'node:path';
@@ -16,7 +18,7 @@ const PAGE = `<!doctype html><meta charset="utf-8"><title>export check</title><l
 <script type="module">
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
-window.sample = async (url, times) => {
+window.sample = async (url, times, withIndices) => {
   const gltf = await new GLTFLoader().loadAsync(url);
   const clip = gltf.animations[0];
   const samples = [];
@@ -49,7 +51,11 @@ window.sample = async (url, times) => {
         }
         if (!m.geometry.morphTargetsRelative && targets.length) throw new Error('targets are not relative');
       }
-      return { name: puppet.name, chunks: chunks.length, shown: shown.map((m) => m.name), positions };
+      const indices = withIndices && shown.length ? Array.from(shown[0].geometry.index.array) : undefined;
+      return {
+        name: puppet.name, z: puppet.position.z, chunks: chunks.length,
+        shown: shown.map((m) => m.name), positions, indices,
+      };
     });
     samples.push({ t, puppets });
     mixer.stopAllAction();
@@ -60,7 +66,7 @@ window.ready = true;
 </script>`;
 
 run(async () => {
-  const [file, list] = process.argv.slice(2);
+  const [file, list, extra] = process.argv.slice(2);
   const times = list.split(',').map(Number);
   const { server, url } = await serve({
     '/': { body: PAGE, type: 'text/html' },
@@ -71,7 +77,9 @@ run(async () => {
   try {
     await browser.page.goto(`${url}/`);
     await browser.page.waitForFunction(() => window.ready === true);
-    const result = await browser.page.evaluate(([u, ts]) => window.sample(u, ts), [`${url}/model.glb`, times]);
+    const result = await browser.page.evaluate(
+      ([u, ts, ix]) => window.sample(u, ts, ix), [`${url}/model.glb`, times, extra === 'indices'],
+    );
     if (browser.errors.length) throw new Error(browser.errors.join('\n'));
     return result;
   } finally {

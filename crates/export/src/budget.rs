@@ -80,7 +80,7 @@ pub fn estimate(
     from: Option<f64>,
     to: Option<f64>,
 ) -> Result<Estimate, BudgetError> {
-    let mut reader = TakeReader::open(take)?;
+    let reader = TakeReader::open(take)?;
     let puppets = reader.header.puppets.len() as u64;
     let vertices: u64 = reader
         .header
@@ -88,17 +88,10 @@ pub fn estimate(
         .iter()
         .map(|p| p.vertices as u64)
         .sum();
-    // The take's length: its last step, frame or end.
-    let mut end = 0.0f64;
-    for record in reader.by_ref() {
-        let t = match record? {
-            puppetry_take::Record::Step(s) => s.t,
-            puppetry_take::Record::Frame(f) => f.t,
-            puppetry_take::Record::End(e) => e.t,
-            puppetry_take::Record::Header(_) => continue,
-        };
-        end = end.max(t);
-    }
+    drop(reader);
+    // The take's length: its last intact step, frame or end (damage is
+    // the exporter's to refuse or salvage).
+    let end = crate::take::survey(take)?.duration;
     crate::check_fps(fps, "--fps")?;
     let from = from.unwrap_or(0.0);
     let last = end + 1.0 / fps;

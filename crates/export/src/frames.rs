@@ -7,7 +7,7 @@
 //! `Compression::Fast` (fdeflate with adaptive row filters), which keeps a
 //! 1280×720 frame of one puppet at a few milliseconds.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::raster::{check_size, render_frames};
 use crate::{Animation, ExportError, Progress, io_error};
@@ -51,11 +51,14 @@ pub fn export_png_sequence(
     )
 }
 
-fn write_frame(path: &PathBuf, w: u32, h: u32, pixels: &[u8]) -> Result<(), ExportError> {
+/// One frame's PNG, made new ([`crate::write_new`]): encoded in memory,
+/// written under a fresh name in the folder and renamed onto its own, so a
+/// link planted at a frame's name is replaced, never followed.
+fn write_frame(path: &Path, w: u32, h: u32, pixels: &[u8]) -> Result<(), ExportError> {
     let mut bytes = Vec::with_capacity(pixels.len() / 8);
     crate::write_png(&mut bytes, w, h, pixels).map_err(|e| ExportError::File {
         file: path.display().to_string(),
         problem: format!("cannot encode PNG: {e}"),
     })?;
-    std::fs::write(path, bytes).map_err(io_error(path))
+    crate::write_new(path, |out| out.write_all(&bytes).map_err(io_error(path)))
 }

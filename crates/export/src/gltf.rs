@@ -10,10 +10,19 @@
 //! convention, so the coordinates go in unflipped.
 //!
 //! **Units and placement.** Positions are stage coordinates (x right, y
-//! up, as glTF's y-up), with z = 0: one stage unit is one glTF unit
-//! ("metre"). Puppets are nodes in drawing order; they all lie at z = 0, so
-//! a viewer that depth-sorts transparent meshes decides for itself which
-//! overlapping puppet is in front.
+//! up, as glTF's y-up): one stage unit is one glTF unit ("metre").
+//!
+//! **Drawing order.** Puppets are nodes in drawing order, bottom first,
+//! puppet `i` lifted to `z = i ×` [`z_step`] (a thousandth of the stage's
+//! larger side): three.js sorts transparent meshes by depth and so draws
+//! them in the stage's order, and a depth-buffered render (Blender) does
+//! not z-fight. Where a puppet overlaps itself (`docs/depth.md`) its
+//! triangles are listed back to front in each chunk's drawing order, and
+//! a chunk ends where the order changes ([`spans`]), so a viewer drawing a
+//! mesh's triangles in index order (three.js, with BLEND materials not
+//! writing depth) shows the part in front in front, frame by frame. A
+//! renderer that depth-tests within one mesh sees all of a puppet at one
+//! z and keeps its own order there.
 //!
 //! **The motion, in chunks of morph targets.** glTF animates vertices only
 //! through morph targets: `POSITION = base + Σ wᵢ · targetᵢ`, with the
@@ -32,7 +41,8 @@
 //! linearly would. A `STEP` scale channel (1 while the chunk plays, 0
 //! otherwise) shows each chunk's node only during its own chunk; at a seam
 //! either chunk shows the same shared frame, so a player's rounding of the
-//! switch time cannot show a wrong pose. Weights cost about M floats per
+//! switch time cannot show a wrong pose; the last chunk stays shown to
+//! `frame_count / fps`, so a clip lasts as long as the take's video. Weights cost about M floats per
 //! frame, the positions one vertex array per frame, and a player blends
 //! only M targets. Without animation (a still viewer), chunk 0 shows frame 0
 //! and the other chunks have scale 0.
@@ -210,6 +220,54 @@ pub fn chunks(frame_count: usize, chunk: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
+/// [`chunks`] of a puppet whose drawing order changes (`draw_orders`, one
+/// per frame; empty: mesh order throughout), cut further where it does:
+/// every frame a chunk shows (its first up to, not including, its last,
+/// which the next chunk shows) has the chunk's first frame's order, so the
+/// chunk's triangles can be listed in it. A last frame whose order is
+/// not its chunk's gets a chunk of its own.
+pub fn spans(
+    frame_count: usize,
+    chunk: usize,
+    draw_orders: &[std::sync::Arc<[u32]>],
+) -> Vec<(usize, usize)> {
+    if draw_orders.is_empty() {
+        return chunks(frame_count, chunk);
+    }
+    if frame_count <= 1 {
+        return vec![(0, 0)];
+    }
+    let last = frame_count - 1;
+    let mut spans = Vec::new();
+    let mut first = 0;
+    while first < last {
+        let mut end = (first + chunk).min(last);
+        if let Some(j) = (first + 1..end).find(|&j| draw_orders[j] != draw_orders[first]) {
+            end = j;
+        }
+        spans.push((first, end));
+        first = end;
+    }
+    // The last frame is its chunk's last, shown by no next chunk: a chunk
+    // of its own where its order is not the chunk's.
+    if spans
+        .last()
+        .is_some_and(|&(first, _)| draw_orders[last] != draw_orders[first])
+    {
+        spans.push((last, last));
+    }
+    spans
+}
+
+/// How far apart puppets lie in z: puppet `i` in drawing order (0 at the
+/// bottom) is at `z = i × step`, a thousandth of the stage's larger side,
+/// so a viewer that sorts transparent meshes by depth (three.js) draws
+/// them in the stage's order, and one with a depth buffer (Blender) does
+/// not z-fight, while the stage still looks flat.
+pub fn z_step(animation: &Animation) -> f64 {
+    animation.stage_width.max(animation.stage_height) / 1000.0
+}
+
 /// Writes `animation` as a `.glb` file at `path`. `progress` counts chunks.
 /// The file is written beside `path` under a fresh name and renamed onto it
 /// when whole ([`crate::write_new`]): a link at `path` is replaced, never
@@ -245,7 +303,8 @@ pub fn write_glb(
     let times: Vec<f32> = (0..animation.frame_count)
         .map(|k| (k as f64 / fps) as f32)
         .collect();
-    if times.windows(2).any(|w| w[1] <= w[0]) {
+    let end = animation.duration() as f32;
+    if times.windows(2).any(|w| w[1] <= w[0]) || times.last().is_some_and(|&t| end <= t) {
         return Err(flag(
             "--fps",
             "the take is too long for glTF's 32-bit times at this frame rate",
@@ -264,6 +323,7 @@ pub fn write_glb(
         animation,
         options,
         times: &times,
+        end,
         pictures: &pictures,
     };
 
@@ -317,6 +377,8 @@ struct Pass<'a> {
     options: &'a GltfOptions,
     /// Each frame's time, `k / fps`, as glTF keeps it.
     times: &'a [f32],
+    /// The clip's end, `frame_count / fps`: the last frame is held to it.
+    end: f32,
     /// Each puppet's picture as PNG.
     pictures: &'a [Vec<u8>],
 }
@@ -339,25 +401,42 @@ impl Pass<'_> {
     /// chunk; returns the file's JSON.
     fn run(&self, b: &mut Builder, progress: &mut dyn Progress) -> Result<Value, ExportError> {
         let animation = self.animation;
-        let chunks = chunks(animation.frame_count, self.options.chunk);
-        let total = chunks.len() * animation.puppets.len();
+        let spans: Vec<Vec<(usize, usize)>> = animation
+            .puppets
+            .iter()
+            .map(|p| spans(animation.frame_count, self.options.chunk, &p.draw_orders))
+            .collect();
+        let total = spans.iter().map(Vec::len).sum();
         let mut done = 0;
         let mut arrays = Arrays::default();
         for (i, p) in animation.puppets.iter().enumerate() {
-            let (uv, indices) = self.puppet(b, &mut arrays, i)?;
+            let uv = self.puppet(b, &mut arrays, i)?;
+            // One index accessor per drawing order the puppet takes.
+            let mut orders: Vec<(Option<&std::sync::Arc<[u32]>>, usize)> = Vec::new();
             let mut children = Vec::new();
-            for (c, &span) in chunks.iter().enumerate() {
+            for (c, &span) in spans[i].iter().enumerate() {
+                let order = p.draw_orders.get(span.0);
+                let indices = match orders.iter().find(|(o, _)| *o == order) {
+                    Some(&(_, indices)) => indices,
+                    None => {
+                        let indices = self.indices(b, i, span.0)?;
+                        orders.push((order, indices));
+                        indices
+                    }
+                };
                 let shown = Shown {
                     index: c,
-                    last_chunk: c + 1 == chunks.len(),
+                    last_chunk: c + 1 == spans[i].len(),
                 };
                 children.push(self.chunk(b, &mut arrays, i, span, shown, uv, indices)?);
                 done += 1;
                 progress.step(done, total);
             }
-            arrays
-                .nodes
-                .push(json!({"name": p.name, "children": children}));
+            let mut node = json!({"name": p.name, "children": children});
+            if i > 0 {
+                node["translation"] = json!([0.0, 0.0, i as f64 * z_step(animation)]);
+            }
+            arrays.nodes.push(node);
             arrays.scene_nodes.push(arrays.nodes.len() - 1);
         }
         b.align()?;
@@ -383,15 +462,9 @@ impl Pass<'_> {
     }
 
     /// Puppet `i`'s picture, texture and material, and what every chunk of
-    /// it shares: its texture coordinates and triangles (accessors).
-    fn puppet(
-        &self,
-        b: &mut Builder,
-        arrays: &mut Arrays,
-        i: usize,
-    ) -> Result<(usize, usize), ExportError> {
+    /// it shares: its texture coordinates (accessor).
+    fn puppet(&self, b: &mut Builder, arrays: &mut Arrays, i: usize) -> Result<usize, ExportError> {
         let p = &self.animation.puppets[i];
-        let n = p.vertex_count();
         let view = b.view(&self.pictures[i], None, None)?;
         arrays
             .images
@@ -411,8 +484,17 @@ impl Pass<'_> {
             "extensions": {"KHR_materials_unlit": {}},
         }));
         let uv: Vec<f32> = p.uv.iter().flatten().copied().collect();
-        let uv = b.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false)?;
-        let flat = p.triangles.iter().flatten();
+        b.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false)
+    }
+
+    /// Puppet `i`'s triangles (an index accessor) in frame `k`'s drawing
+    /// order, back to front: a viewer draws a mesh's triangles in index
+    /// order, so where the puppet overlaps itself the part in front is
+    /// drawn last, as on the stage.
+    fn indices(&self, b: &mut Builder, i: usize, k: usize) -> Result<usize, ExportError> {
+        let p = &self.animation.puppets[i];
+        let n = p.vertex_count();
+        let flat = p.triangles_drawn(k).flatten();
         let (bytes, component): (Vec<u8>, u32) = if n <= u16::MAX as usize {
             let v: Vec<u8> = flat.flat_map(|&i| (i as u16).to_le_bytes()).collect();
             (v, UNSIGNED_SHORT)
@@ -424,7 +506,7 @@ impl Pass<'_> {
             "bufferView": view, "componentType": component,
             "count": p.triangles.len() * 3, "type": "SCALAR",
         }));
-        Ok((uv, indices))
+        Ok(indices)
     }
 
     /// One chunk `first..=last` of puppet `i`: its mesh of morph targets,
@@ -517,10 +599,19 @@ impl Pass<'_> {
             keys.push(0.0);
             scales.extend([0.0; 3]);
         }
-        keys.push(times[first]);
+        keys.push(if shown.index > 0 {
+            just_before(times[first])
+        } else {
+            times[first]
+        });
         scales.extend([1.0; 3]);
-        if !shown.last_chunk {
-            keys.push(times[last]);
+        if shown.last_chunk {
+            // The last frame is held for its frame's time: the clip lasts
+            // n / fps like the take's video, not (n − 1) / fps.
+            keys.push(self.end);
+            scales.extend([1.0; 3]);
+        } else {
+            keys.push(just_before(times[last]));
             scales.extend([0.0; 3]);
         }
         let input = b.floats(&keys, "SCALAR", None, true)?;
@@ -533,6 +624,19 @@ impl Pass<'_> {
             "target": {"node": node_index, "path": "scale"},
         }));
         Ok(node_index)
+    }
+}
+
+/// The 32-bit time one step before `t`: where a chunk hands over to the
+/// next. A player asked for frame k at `k / fps` in double precision can
+/// land a hair below the 32-bit key `k / fps` (0.1666…67 < 0.16666667f);
+/// switching one step early shows frame k's own chunk, with frame k's
+/// drawing order, at that instant. (Both chunks hold frame k's pose there.)
+fn just_before(t: f32) -> f32 {
+    if t > 0.0 {
+        f32::from_bits(t.to_bits() - 1)
+    } else {
+        t
     }
 }
 

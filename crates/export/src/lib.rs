@@ -28,6 +28,7 @@ pub mod budget;
 pub mod format;
 pub mod frames;
 pub mod gltf;
+pub mod output;
 pub mod raster;
 pub mod resample;
 pub mod spine;
@@ -62,6 +63,11 @@ pub enum ExportError {
     /// large a file, too many pixels, not a PNG).
     #[error(transparent)]
     Picture(#[from] puppetry_mesh::MeshError),
+    /// Where the export would write is not usable: the take itself, a
+    /// missing folder, or files already there (without `--force`); see
+    /// [`output`].
+    #[error("-o {path}: {problem}")]
+    Output { path: String, problem: String },
     /// An external program is not installed.
     #[error("{tool} not found on PATH; install it ({install})")]
     ToolMissing { tool: String, install: String },

@@ -85,12 +85,26 @@ impl Viewport {
     }
 }
 
-/// Checks an output size (`--size WxH`).
+/// Checks an output size (`--size WxH`) against the limits of what is
+/// drawn in memory (`puppetry_limits::exports`), before anything is read.
 pub fn check_size(width: u32, height: u32) -> Result<(), ExportError> {
-    if width == 0 || height == 0 || width > 16384 || height > 16384 {
+    use puppetry_limits::exports::{MAX_EXPORT_PIXELS, MAX_EXPORT_SIDE};
+    if width == 0 || height == 0 || width > MAX_EXPORT_SIDE || height > MAX_EXPORT_SIDE {
         return Err(flag(
             "--size",
-            format!("{width}x{height}: width and height must be 1 to 16384 pixels"),
+            format!(
+                "{width}x{height}: width and height must be 1 to {MAX_EXPORT_SIDE} pixels \
+                 (MAX_EXPORT_SIDE)"
+            ),
+        ));
+    }
+    if u64::from(width) * u64::from(height) > MAX_EXPORT_PIXELS {
+        return Err(flag(
+            "--size",
+            format!(
+                "{width}x{height}: more than {MAX_EXPORT_PIXELS} pixels a frame \
+                 (MAX_EXPORT_PIXELS, 8192x4320)"
+            ),
         ));
     }
     Ok(())

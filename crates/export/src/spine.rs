@@ -44,12 +44,18 @@ use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 pub struct SpineOptions {
     /// The animation's name.
     pub animation_name: String,
+    /// What each picture's name starts with: [`export_spine`] uses the
+    /// JSON file's name and a dash (`walk-gingerbread.png` beside
+    /// `walk.json`), so pictures of two exports in one folder, or a
+    /// picture of the user's own, are never the same file.
+    pub image_prefix: String,
 }
 
 impl Default for SpineOptions {
     fn default() -> Self {
         SpineOptions {
             animation_name: "take".into(),
+            image_prefix: String::new(),
         }
     }
 }
@@ -138,8 +144,9 @@ fn vertex_order(p: &AnimatedPuppet) -> (Vec<u32>, usize) {
     (order, hull.len())
 }
 
-/// A file-name-safe, unique name for each puppet.
-fn names(animation: &Animation) -> Vec<(String, String)> {
+/// A unique name for each puppet (its slot and attachment), and its
+/// picture's file-name-safe path, `prefix` first.
+fn names(animation: &Animation, prefix: &str) -> Vec<(String, String)> {
     let mut taken = HashSet::new();
     animation
         .puppets
@@ -157,8 +164,9 @@ fn names(animation: &Animation) -> Vec<(String, String)> {
                 name = format!("{base} {n}");
                 n += 1;
             }
-            let path = name
+            let path = prefix
                 .chars()
+                .chain(name.chars())
                 .map(|c| {
                     if c.is_alphanumeric() || "-_ .".contains(c) {
                         c
@@ -194,7 +202,7 @@ pub fn write_spine(
         file: "Spine output".into(),
         source,
     };
-    let names = names(animation);
+    let names = names(animation, &options.image_prefix);
     let mut layout = SpineLayout {
         puppets: Vec::new(),
     };
@@ -287,6 +295,16 @@ pub fn write_spine(
                 out.write_all(b",").map_err(err)?;
             }
             serde_json::to_writer(&mut *out, &key).map_err(|e| err(e.into()))?;
+            // The last frame is held for its frame's time, so the clip
+            // lasts n / fps like the take's video, not (n − 1) / fps.
+            if k + 1 == animation.frame_count {
+                let hold = Key {
+                    time: animation.duration(),
+                    ..key
+                };
+                out.write_all(b",").map_err(err)?;
+                serde_json::to_writer(&mut *out, &hold).map_err(|e| err(e.into()))?;
+            }
             done += 1;
             progress.step(done, total);
         }
@@ -296,17 +314,68 @@ pub fn write_spine(
     Ok(layout)
 }
 
-/// Writes `animation` as Spine JSON at `path`, and each puppet's picture
-/// beside it as `PATH.png` (see [`SpinePuppet::path`]). Each file is made
-/// new ([`crate::write_new`]): a link in its place is replaced, never
-/// followed.
+/// The atlas (`.atlas`, libGDX's text format as spine-core 4.2 reads it)
+/// of the pictures: one page per puppet's picture, holding one region of
+/// its whole size named as the attachment's `path`. Straight alpha
+/// (`pma: false`), linear filtering.
+pub fn atlas(animation: &Animation, layout: &SpineLayout) -> String {
+    let mut text = String::new();
+    for (p, placed) in animation.puppets.iter().zip(&layout.puppets) {
+        let (w, h) = (p.image.width, p.image.height);
+        text.push_str(&format!(
+            "{path}.png\nsize: {w},{h}\nfilter: Linear,Linear\npma: false\n{path}\nbounds: 0,0,{w},{h}\n\n",
+            path = placed.path
+        ));
+    }
+    text
+}
+
+/// The prefix of the pictures of an export to `path`: its file name
+/// without extension and a dash.
+fn image_prefix(path: &Path) -> String {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    format!("{stem}-")
+}
+
+/// Every file [`export_spine`] writes for `animation` at `path`: the JSON,
+/// its atlas (`path` with the extension `.atlas`) and each picture.
+pub fn files(animation: &Animation, path: &Path) -> Vec<std::path::PathBuf> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut files = vec![path.to_path_buf(), path.with_extension("atlas")];
+    files.extend(
+        names(animation, &image_prefix(path))
+            .into_iter()
+            .map(|(_, picture)| dir.join(format!("{picture}.png"))),
+    );
+    files
+}
+
+/// Writes `animation` as Spine JSON at `path`, its atlas beside it
+/// (`path` with the extension `.atlas`, see [`atlas`]) and each puppet's
+/// picture as `PATH.png`, PATH the JSON's name, a dash and the puppet's
+/// (see [`SpinePuppet::path`]): the Spine editor's Import Data finds the
+/// pictures (`skeleton.images` is `./`), spine-player and the runtimes
+/// load the atlas. Each file is made new ([`crate::write_new`]): a link
+/// in its place is replaced, never followed.
 pub fn export_spine(
     animation: &Animation,
     options: &SpineOptions,
     progress: &mut dyn Progress,
     path: &Path,
 ) -> Result<SpineLayout, ExportError> {
-    let layout = crate::write_new(path, |out| write_spine(animation, options, progress, out))?;
+    let options = SpineOptions {
+        image_prefix: image_prefix(path),
+        ..options.clone()
+    };
+    let layout = crate::write_new(path, |out| write_spine(animation, &options, progress, out))?;
+    let atlas_path = path.with_extension("atlas");
+    crate::write_new(&atlas_path, |out| {
+        out.write_all(atlas(animation, &layout).as_bytes())
+            .map_err(crate::io_error(&atlas_path))
+    })?;
     let dir = path.parent().unwrap_or(Path::new("."));
     for (p, placed) in animation.puppets.iter().zip(&layout.puppets) {
         let image = dir.join(format!("{}.png", placed.path));

@@ -11,41 +11,156 @@ use crate::format::Format;
 use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 use puppetry_stage::Stage;
 use puppetry_stage::config::StageConfig;
-use puppetry_take::{Record, TakeError, TakeReader};
+use puppetry_take::{Record, Tail, TakeError, TakeReader};
 
 #[derive(Debug, thiserror::Error)]
 pub enum TakeExportError {
+    /// The take cannot be opened or read.
     #[error(transparent)]
     Take(#[from] TakeError),
+    /// The exporter refused the animation, a flag or the output.
     #[error(transparent)]
     Export(#[from] ExportError),
+    /// The stage file cannot be read.
     #[error(transparent)]
     Config(#[from] puppetry_stage::config::ConfigError),
+    /// The stage file's puppets cannot be built.
     #[error(transparent)]
     Stage(#[from] puppetry_stage::StageError),
+    /// The take was recorded on another stage than the one given.
     #[error("{file}: {problem}")]
     Mismatch { file: String, problem: String },
+    /// The take is damaged (refused unless salvaged, saying what
+    /// `--salvage` would keep) or holds no frame at all.
+    #[error("{file}: {problem}")]
+    Damaged { file: String, problem: String },
+    /// `--format` names no format.
     #[error("--format: {0}")]
     Format(#[from] crate::format::UnknownFormat),
-    #[error("-o {path}: {problem}")]
-    Output { path: String, problem: String },
 }
 
 /// What to export.
 #[derive(Debug, Clone)]
 pub struct ExportRequest {
+    /// The take file.
     pub take: PathBuf,
+    /// The stage file the take was recorded on.
     pub config: PathBuf,
+    /// What to write.
     pub format: Format,
+    /// Frames per second of the export (the take is sampled at them).
     pub fps: f64,
+    /// Seconds into the take (none: its start).
     pub from: Option<f64>,
+    /// Seconds into the take (none: its end, included).
     pub to: Option<f64>,
+    /// Pixels, for the formats drawn here (PNG frames and videos).
     pub size: (u32, u32),
+    /// The file (or a PNG sequence's folder) to write.
     pub output: PathBuf,
+    /// Whether files already at the output may be replaced (`--force`).
+    pub overwrite: crate::output::Overwrite,
+    /// Export what is intact of a damaged take (`--salvage`) instead of
+    /// refusing it.
+    pub salvage: bool,
+}
+
+/// A take read through once before it is exported: its length and
+/// frames, and every damaged record or cut tail found on the way (the
+/// reader goes on past a damaged record whose framing held).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Survey {
+    /// Seconds from the start to the last intact step, frame or end.
+    pub duration: f64,
+    /// Intact vertex frames (of any puppet).
+    pub frames: usize,
+    /// What is damaged, one line each; empty for a whole take.
+    pub damage: Vec<String>,
+}
+
+/// Reads `take` through for its [`Survey`]; only an unreadable file or
+/// header is an error.
+pub fn survey(take: &Path) -> Result<Survey, TakeError> {
+    let mut reader = TakeReader::open(take)?;
+    let mut survey = Survey {
+        duration: 0.0,
+        frames: 0,
+        damage: Vec::new(),
+    };
+    for record in reader.by_ref() {
+        let t = match record {
+            Ok(Record::Step(s)) => s.t,
+            Ok(Record::Frame(f)) => {
+                survey.frames += 1;
+                f.t
+            }
+            Ok(Record::End(e)) => e.t,
+            Ok(Record::Header(_)) => continue,
+            Err(e @ TakeError::Corrupt { .. }) => {
+                survey.damage.push(e.to_string());
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
+        survey.duration = survey.duration.max(t);
+    }
+    if let Some(Tail::Truncated { bytes, problem, .. }) = reader.tail() {
+        survey.damage.push(format!(
+            "its last {bytes} bytes cannot be read ({problem}): the daemon stopped while \
+             writing, or the file was damaged"
+        ));
+    }
+    Ok(survey)
+}
+
+/// Refuses a take with no frame to show, and a damaged one unless
+/// `salvage`; returns, for a salvaged one, what was kept.
+fn judge(take: &Path, survey: &Survey, salvage: bool) -> Result<Option<String>, TakeExportError> {
+    let damaged = |problem: String| TakeExportError::Damaged {
+        file: take.display().to_string(),
+        problem,
+    };
+    if survey.frames == 0 {
+        return Err(damaged(if survey.damage.is_empty() {
+            "the take has no frames (nothing moved while it recorded): nothing to export".into()
+        } else {
+            format!(
+                "no frame of the take can be read: {}",
+                survey.damage.join("; ")
+            )
+        }));
+    }
+    if survey.damage.is_empty() {
+        return Ok(None);
+    }
+    let kept = format!(
+        "{} intact frame(s) over {:.2} s",
+        survey.frames, survey.duration
+    );
+    if !salvage {
+        return Err(damaged(format!(
+            "the take is damaged: {}; --salvage exports what is intact ({kept})",
+            survey.damage.join("; ")
+        )));
+    }
+    Ok(Some(format!(
+        "salvaged {kept}; skipped: {}",
+        survey.damage.join("; ")
+    )))
+}
+
+/// A take read into an [`Animation`], and for a salvaged take what was
+/// kept and skipped.
+#[derive(Debug, Clone)]
+pub struct TakeAnimation {
+    /// The frames at the export's rate.
+    pub animation: Animation,
+    /// For a damaged take read with `salvage`: what was kept and skipped.
+    pub salvaged: Option<String>,
 }
 
 /// The take as an animation at `fps` over `from..to` (default: the whole
-/// take, its last frame included).
+/// take, its last frame included); a damaged or empty take is refused.
 pub fn animation_of_take(
     take: &Path,
     config: &StageConfig,
@@ -53,7 +168,22 @@ pub fn animation_of_take(
     from: Option<f64>,
     to: Option<f64>,
 ) -> Result<Animation, TakeExportError> {
-    let summary = puppetry_take::summarize(take)?;
+    read_take(take, config, fps, from, to, false).map(|read| read.animation)
+}
+
+/// [`animation_of_take`], keeping what is intact of a damaged take when
+/// `salvage` is set (its damaged records are skipped, a cut tail left
+/// out).
+pub fn read_take(
+    take: &Path,
+    config: &StageConfig,
+    fps: f64,
+    from: Option<f64>,
+    to: Option<f64>,
+    salvage: bool,
+) -> Result<TakeAnimation, TakeExportError> {
+    let survey = survey(take)?;
+    let salvaged = judge(take, &survey, salvage)?;
     let mut reader = TakeReader::open(take)?;
     let stage = Stage::from_config(&as_recorded(config, &reader.header))?;
     reader
@@ -63,41 +193,7 @@ pub fn animation_of_take(
             file: take.display().to_string(),
             problem,
         })?;
-    let end = summary.duration;
-    let from = from.unwrap_or(0.0);
-    if from < 0.0 {
-        return Err(ExportError::Flag {
-            flag: "--from".into(),
-            problem: format!("{from} s is before the take's start (0 s)"),
-        }
-        .into());
-    }
-    if from >= end && end > 0.0 {
-        return Err(ExportError::Flag {
-            flag: "--from".into(),
-            problem: format!("{from} s is past the take's end ({end:.3} s)"),
-        }
-        .into());
-    }
-    // Past the end, every frame would hold the last pose: refuse rather
-    // than pad silently (one frame's slack for rounding).
-    if let Some(to) = to
-        && to > end + 1.0 / fps
-    {
-        return Err(ExportError::Flag {
-            flag: "--to".into(),
-            problem: format!("{to} s is past the take's end ({end:.3} s)"),
-        }
-        .into());
-    }
-    // Up to and including the take's end (a frame recorded at its very
-    // last instant is shown).
-    let to = to.unwrap_or(if end > from {
-        end + 1e-6
-    } else {
-        from + 1.0 / fps
-    });
-    let n = crate::resample::frame_count(fps, from, to)?;
+    let (from, n) = range(survey.duration, fps, from, to)?;
     // Before the first recorded frame a puppet shows its pose at the start.
     let replayer = puppetry_take::replay::Replayer::new(stage);
     let stage = replayer.stage();
@@ -109,8 +205,12 @@ pub fn animation_of_take(
     let mut frames: Vec<Vec<Vec<[f32; 2]>>> = vec![Vec::with_capacity(n); current.len()];
     let instant = |k: usize| from + k as f64 / fps;
     for record in reader.by_ref() {
-        let Record::Frame(frame) = record? else {
-            continue;
+        let frame = match record {
+            Ok(Record::Frame(frame)) => frame,
+            Ok(_) => continue,
+            // A damaged record: `judge` refused the take unless salvaging.
+            Err(TakeError::Corrupt { .. }) if salvage => continue,
+            Err(e) => return Err(e.into()),
         };
         let p = frame.puppet as usize;
         if p >= current.len() || frame.points.len() != current[p].len() {
@@ -171,13 +271,61 @@ pub fn animation_of_take(
             frames: motion,
         });
     }
-    Ok(Animation {
-        stage_width: stage.width,
-        stage_height: stage.height,
-        fps,
-        puppets,
-        frame_count: n,
+    Ok(TakeAnimation {
+        animation: Animation {
+            stage_width: stage.width,
+            stage_height: stage.height,
+            fps,
+            puppets,
+            frame_count: n,
+        },
+        salvaged,
     })
+}
+
+/// The export's start and frame count over `from..to` of a take `end`
+/// seconds long (default: all of it, its last instant included); a range
+/// outside the take is refused, naming its flag.
+fn range(
+    end: f64,
+    fps: f64,
+    from: Option<f64>,
+    to: Option<f64>,
+) -> Result<(f64, usize), TakeExportError> {
+    let from = from.unwrap_or(0.0);
+    if from < 0.0 {
+        return Err(ExportError::Flag {
+            flag: "--from".into(),
+            problem: format!("{from} s is before the take's start (0 s)"),
+        }
+        .into());
+    }
+    if from >= end && end > 0.0 {
+        return Err(ExportError::Flag {
+            flag: "--from".into(),
+            problem: format!("{from} s is past the take's end ({end:.3} s)"),
+        }
+        .into());
+    }
+    // Past the end, every frame would hold the last pose: refuse rather
+    // than pad silently (one frame's slack for rounding).
+    if let Some(to) = to
+        && to > end + 1.0 / fps
+    {
+        return Err(ExportError::Flag {
+            flag: "--to".into(),
+            problem: format!("{to} s is past the take's end ({end:.3} s)"),
+        }
+        .into());
+    }
+    // Up to and including the take's end (a frame recorded at its very
+    // last instant is shown).
+    let to = to.unwrap_or(if end > from {
+        end + 1e-6
+    } else {
+        from + 1.0 / fps
+    });
+    Ok((from, crate::resample::frame_count(fps, from, to)?))
 }
 
 /// The stage file as the take knew it: puppets added to the stage after
@@ -206,28 +354,6 @@ fn as_recorded<'a>(
     std::borrow::Cow::Owned(cut)
 }
 
-/// A take is a performance that cannot be repeated: an output that is
-/// the take itself (the same file, by any path or link) is refused before
-/// anything is read or written. `export T.take -o T.take` used to replace
-/// the take with the export, exit 0.
-fn refuse_the_take_itself(take: &Path, output: &Path) -> Result<(), TakeExportError> {
-    use std::os::unix::fs::MetadataExt;
-    let same = match (std::fs::metadata(take), std::fs::metadata(output)) {
-        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
-        _ => false,
-    };
-    if same {
-        return Err(TakeExportError::Output {
-            path: output.display().to_string(),
-            problem: format!(
-                "is the take being exported ({}); give the export another name",
-                take.display()
-            ),
-        });
-    }
-    Ok(())
-}
-
 /// Runs an export; returns what was written, for the user.
 pub fn export_take(
     request: &ExportRequest,
@@ -243,10 +369,25 @@ pub fn export_take_with(
     config: &StageConfig,
     progress: &mut dyn Progress,
 ) -> Result<String, TakeExportError> {
-    refuse_the_take_itself(&request.take, &request.output)?;
-    let animation =
-        animation_of_take(&request.take, config, request.fps, request.from, request.to)?;
+    preflight(request)?;
+    let read = read_take(
+        &request.take,
+        config,
+        request.fps,
+        request.from,
+        request.to,
+        request.salvage,
+    )?;
+    let animation = &read.animation;
     let out = &request.output;
+    let files = match request.format {
+        Format::Png => (0..animation.frame_count)
+            .map(|k| out.join(crate::frames::frame_name(k)))
+            .collect(),
+        Format::Spine => crate::spine::files(animation, out),
+        Format::Glb | Format::Mp4 | Format::Mov | Format::Webm => vec![out.clone()],
+    };
+    crate::output::check_new(out, &files, request.overwrite)?;
     let (width, height) = request.size;
     match request.format {
         Format::Glb => {
@@ -254,40 +395,64 @@ pub fn export_take_with(
                 chunk: 32,
                 animation_name: "take".into(),
             };
-            crate::gltf::export_glb(&animation, &options, progress, out)?;
+            crate::gltf::export_glb(animation, &options, progress, out)?;
         }
         Format::Png => {
             let options = crate::frames::PngOptions { width, height };
-            crate::frames::export_png_sequence(&animation, &options, progress, out)?;
+            crate::frames::export_png_sequence(animation, &options, progress, out)?;
         }
         Format::Spine => {
             crate::spine::export_spine(
-                &animation,
+                animation,
                 &crate::spine::SpineOptions::default(),
                 progress,
                 out,
             )?;
         }
-        video @ (Format::Mp4 | Format::Mov | Format::Webm) => {
-            let wanted = out.extension().and_then(|e| e.to_str()).unwrap_or("");
-            if !wanted.eq_ignore_ascii_case(video.name()) {
-                return Err(TakeExportError::Output {
-                    path: out.display().to_string(),
-                    problem: format!("--format {video} writes a .{video} file"),
-                });
-            }
+        Format::Mp4 | Format::Mov | Format::Webm => {
             let options = crate::video::VideoOptions::new(width, height);
-            crate::video::export_video(&animation, &options, progress, out)?;
+            crate::video::export_video(animation, &options, progress, out)?;
         }
     }
-    Ok(format!(
+    let mut written = format!(
         "{}: {} frames at {} fps ({:.2} s) of {} puppet(s)",
         out.display(),
         animation.frame_count,
         animation.fps,
         animation.duration(),
         animation.puppets.len()
-    ))
+    );
+    if let Some(salvaged) = &read.salvaged {
+        written.push('\n');
+        written.push_str(salvaged);
+    }
+    Ok(written)
+}
+
+/// What can be refused before the take is read or a frame drawn: an
+/// output that is the take, a missing folder, a video whose extension is
+/// not its format's, a picture size past the format's limits.
+pub fn preflight(request: &ExportRequest) -> Result<(), TakeExportError> {
+    let out = &request.output;
+    crate::output::refuse_the_take_itself(&request.take, out)?;
+    let (width, height) = request.size;
+    match request.format {
+        Format::Glb | Format::Spine => crate::output::check_folder(out)?,
+        Format::Png => crate::raster::check_size(width, height)?,
+        video @ (Format::Mp4 | Format::Mov | Format::Webm) => {
+            crate::output::check_folder(out)?;
+            let kind = crate::video::VideoFormat::of(out)?;
+            if crate::video::VideoFormat::of_format(video) != Some(kind) {
+                return Err(ExportError::Output {
+                    path: out.display().to_string(),
+                    problem: format!("--format {video} writes a .{video} file"),
+                }
+                .into());
+            }
+            kind.check_size(width, height)?;
+        }
+    }
+    Ok(())
 }
 
 /// Each frame's triangle order, back to front, as the live stage draws it

@@ -41,3 +41,14 @@ pub const MAX_EXPORT_MOTION_BYTES: u64 = 1 << 28;
 /// refused (HTTP 413; `puppetry export` fails) naming the size and the
 /// limit.
 pub const MAX_EXPORT_FILE_BYTES: u64 = 1 << 30;
+
+/// Pixels one frame of a drawn export (PNG frames, videos) may have: 8K
+/// (8192 × 4320), the largest picture libx264, libvpx-vp9 and prores_ks
+/// each encoded here. A frame is drawn whole in memory, 4 bytes a pixel
+/// and one per core: `--size 16384x16384` drew two 1 GiB frames (2.8 GB
+/// peak) before ffmpeg refused the size. Past it `--size` is refused
+/// before the take is read.
+pub const MAX_EXPORT_PIXELS: u64 = 8192 * 4320;
+
+/// Pixels one side of a drawn export's frame may have (`--size WxH`).
+pub const MAX_EXPORT_SIDE: u32 = 8192;

@@ -7,6 +7,7 @@
 //! output is written beside `-o` under a fresh name and renamed onto it.
 
 use std::io::Write;
+use std::path::{Path, PathBuf};
 
 use puppetry_export::Progress;
 use puppetry_export::budget::BudgetError;
@@ -14,18 +15,75 @@ use puppetry_export::take::{ExportRequest, TakeExportError, export_take};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ExportCommandError {
+    /// The export would pass a limit, or the take cannot be read for its
+    /// cost.
     #[error(transparent)]
     Budget(#[from] BudgetError),
+    /// The export failed.
     #[error(transparent)]
     Export(#[from] TakeExportError),
+    /// No `--config`, and the stage file the take's header names is not
+    /// to be found.
+    #[error(
+        "{take} was recorded on the stage file {recorded:?}, which is not here (looked for {looked}); give it with --config"
+    )]
+    NoStageFile {
+        take: String,
+        recorded: String,
+        looked: String,
+    },
 }
 
-/// Runs `puppetry export`: the budget, then the export; returns what was
-/// written, for the user.
+/// The stage file a take was recorded on, for `export` without
+/// `--config`: the file its header names (`stage_file`, as the daemon was
+/// given it: relative to the folder the daemon ran in, which is usually
+/// this one or the takes folder's parent), or, for a take of the bundled
+/// demo (whose unpacked folder a newer build moves) or a downloaded take
+/// (whose header keeps the file's name only), the bundled stage file of
+/// that name. The export then checks the take against it, puppet by
+/// puppet, as with `--config`.
+pub fn recorded_stage_file(
+    take: &Path,
+    bundled_config: Option<&Path>,
+) -> Result<PathBuf, ExportCommandError> {
+    let header = puppetry_take::TakeReader::open(take)
+        .map_err(|e| ExportCommandError::Export(e.into()))?
+        .header;
+    let recorded = Path::new(&header.stage_file);
+    let takes = take.parent().unwrap_or(Path::new(""));
+    let mut candidates = vec![recorded.to_path_buf()];
+    if recorded.is_relative() {
+        candidates.push(takes.join(recorded));
+        if let Some(above) = takes.parent() {
+            candidates.push(above.join(recorded));
+        }
+    }
+    if let (Some(folder), Some(name)) = (bundled_config, recorded.file_name()) {
+        candidates.push(folder.join(name));
+    }
+    candidates.dedup();
+    match candidates.iter().find(|c| c.is_file()) {
+        Some(found) => Ok(found.clone()),
+        None => Err(ExportCommandError::NoStageFile {
+            take: take.display().to_string(),
+            recorded: header.stage_file.clone(),
+            looked: candidates
+                .iter()
+                .map(|c| c.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        }),
+    }
+}
+
+/// Runs `puppetry export`: what can be refused at once (the output, the
+/// size), the budget, then the export; returns what was written, for the
+/// user.
 pub fn export(
     request: &ExportRequest,
     progress: &mut dyn Progress,
 ) -> Result<String, ExportCommandError> {
+    puppetry_export::take::preflight(request)?;
     puppetry_export::budget::check(
         &request.take,
         request.format,
@@ -49,6 +107,16 @@ impl Bar {
             what: what.to_string(),
             shown: usize::MAX,
             draw: crate::terminal::stderr_is_terminal(),
+        }
+    }
+}
+
+/// A bar left mid-line (the export failed) is ended, so the error that
+/// follows starts a line of its own ("(1/299)error: …" before).
+impl Drop for Bar {
+    fn drop(&mut self) {
+        if self.draw && self.shown != usize::MAX && self.shown < 100 {
+            eprintln!();
         }
     }
 }

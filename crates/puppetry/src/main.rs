@@ -182,10 +182,12 @@ struct ExportArgs {
     take: PathBuf,
     #[arg(long, ignore_case = true)]
     format: FormatArg,
-    /// The stage file the take was recorded on (default: the bundled
-    /// demo stage).
+    /// The stage file the take was recorded on (default: the one its
+    /// header names, or the bundled stage file of that name).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Frames per second (29.97, 23.976 and 59.94 reach videos as
+    /// 30000/1001, 24000/1001 and 60000/1001).
     #[arg(long, default_value_t = 30.0)]
     fps: f64,
     /// Seconds into the take (default: its start).
@@ -197,8 +199,17 @@ struct ExportArgs {
     /// Picture size of png and video exports.
     #[arg(long, default_value = "1280x720", value_parser = parse_size)]
     size: (u32, u32),
+    /// The file to write (a folder for png). Files already there are
+    /// never replaced without --force.
     #[arg(short, long)]
     output: PathBuf,
+    /// Replace files already where the export writes.
+    #[arg(long)]
+    force: bool,
+    /// Export what is intact of a damaged take (otherwise refused, naming
+    /// the damage), saying what was kept.
+    #[arg(long)]
+    salvage: bool,
 }
 
 #[derive(clap::Args)]
@@ -712,11 +723,20 @@ fn export_command(
         to,
         size,
         output,
+        force,
+        salvage,
     }: ExportArgs,
 ) -> anyhow::Result<()> {
     let config = match config {
         Some(path) => path,
-        None => puppetry_daemon::bundled::demo_stage()?,
+        None => {
+            let bundled = puppetry_daemon::bundled::root()
+                .ok()
+                .map(|root| root.join("config"));
+            let found = puppetry::export::recorded_stage_file(&take, bundled.as_deref())?;
+            eprintln!("stage file: {} (from the take's header)", found.display());
+            found
+        }
     };
     let request = puppetry_export::take::ExportRequest {
         take,
@@ -727,6 +747,12 @@ fn export_command(
         to,
         size,
         output,
+        overwrite: if force {
+            puppetry_export::output::Overwrite::Replace
+        } else {
+            puppetry_export::output::Overwrite::Never
+        },
+        salvage,
     };
     let format = format.0;
     let mut bar = puppetry::export::Bar::new(&format!("export {format}"));

@@ -288,6 +288,11 @@ pub async fn export(
         to,
         size: (width, height),
         output: out.clone(),
+        // A fresh scratch folder: nothing there to replace.
+        overwrite: puppetry_export::output::Overwrite::Never,
+        // A damaged take is refused, naming the damage; the command
+        // line's --salvage exports what is intact.
+        salvage: false,
     };
     let (done, finished) = tokio::sync::oneshot::channel();
     let runner = shared.clone();
@@ -492,13 +497,13 @@ fn check_numbers(query: &HashMap<String, String>, format: Format) -> Result<(), 
     }
     if let Some(text) = query.get("size") {
         let (w, h) = size(text)?;
-        if w == 0 || h == 0 || w > 16384 || h > 16384 {
-            return Err(format!("size: {text} is not from 1x1 to 16384x16384"));
-        }
-        if format == Format::Mp4 && (w % 2 == 1 || h % 2 == 1) {
-            return Err(format!(
-                "size: {text}: H.264 needs an even width and height"
-            ));
+        // The exporter's own checks (its limits, H.264's even sizes).
+        let checked = match puppetry_export::video::VideoFormat::of_format(format) {
+            Some(video) => video.check_size(w, h),
+            None => puppetry_export::raster::check_size(w, h),
+        };
+        if let Err(ExportError::Flag { problem, .. }) = checked {
+            return Err(format!("size: {problem}"));
         }
     }
     Ok(())

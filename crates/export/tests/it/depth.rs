@@ -175,3 +175,65 @@ fn without_depth_the_export_interleaves_the_fold() {
     let (near, far) = overlap_pixels("off");
     assert!(far * 5 >= near, "near {near}, far {far}");
 }
+
+/// glTF carries the fold too: three.js draws a mesh's triangles in index
+/// order, and each chunk of the exported puppet lists them in its frames'
+/// drawing order, so at every sampled frame the triangles three.js draws
+/// are the stage's, back to front (they were mesh order throughout).
+#[test]
+fn the_glb_lists_each_frames_triangles_in_its_drawing_order() {
+    if !crate::common::browser_enabled("the_glb_lists_each_frames_triangles_in_its_drawing_order") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let take = dir.path().join("fold.take");
+    let config = config("pieces");
+    record_fold(&take, &config);
+    let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
+    let p = &animation.puppets[0];
+    let mesh_order: Vec<[u32; 3]> = p.triangles.clone();
+    let frames: Vec<usize> = (0..animation.frame_count).collect();
+    let folded = frames
+        .iter()
+        .filter(|&&k| p.triangles_drawn(k).copied().collect::<Vec<_>>() != mesh_order)
+        .count();
+    assert!(folded > 0, "the take never folds: nothing to check");
+    let glb = dir.path().join("fold.glb");
+    let options = puppetry_export::gltf::GltfOptions {
+        chunk: 4,
+        ..Default::default()
+    };
+    puppetry_export::gltf::export_glb(&animation, &options, &mut (), &glb).unwrap();
+    // Chunks cut where the order changes, each with its own indices: the
+    // file still validates clean.
+    let report = crate::common::node_script(
+        "export-validate.mjs",
+        &["gltf-validator"],
+        &[crate::common::arg(&glb)],
+    );
+    assert_eq!(report["issues"]["numErrors"], 0, "{report}");
+    assert_eq!(report["issues"]["numWarnings"], 0, "{report}");
+    let times: Vec<String> = frames
+        .iter()
+        .map(|&k| (k as f64 / FPS).to_string())
+        .collect();
+    let result = crate::common::node_script(
+        "export-three.mjs",
+        &["three", "playwright-core"],
+        &[crate::common::arg(&glb), &times.join(","), "indices"],
+    );
+    for (&k, sample) in frames.iter().zip(result["samples"].as_array().unwrap()) {
+        let drawn: Vec<u32> = sample["puppets"][0]["indices"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap() as u32)
+            .collect();
+        let expected: Vec<u32> = p.triangles_drawn(k).flatten().copied().collect();
+        assert_eq!(drawn, expected, "frame {k}: three.js draws another order");
+    }
+    crate::common::note(&format!(
+        "three.js draws the stage's order at all {} frames, {folded} of them folded",
+        frames.len()
+    ));
+}

@@ -48,6 +48,20 @@ fn chunks_share_their_seam_frames() {
     assert_eq!(chunks(33, 32), vec![(0, 32)]);
     assert_eq!(chunks(34, 32), vec![(0, 32), (32, 33)]);
     assert_eq!(chunks(30, 8), vec![(0, 8), (8, 16), (16, 24), (24, 29)]);
+    // Where the drawing order changes (at 3, and at the last frame), a
+    // chunk ends; a frame a chunk shows has its first frame's order.
+    let a: std::sync::Arc<[u32]> = vec![0, 1].into();
+    let b: std::sync::Arc<[u32]> = vec![1, 0].into();
+    let orders = [&a, &a, &a, &b, &b, &b, &b, &a].map(|o| o.clone());
+    assert_eq!(
+        puppetry_export::gltf::spans(8, 32, &orders),
+        vec![(0, 3), (3, 7), (7, 7)]
+    );
+    assert_eq!(
+        puppetry_export::gltf::spans(8, 2, &orders),
+        vec![(0, 2), (2, 3), (3, 5), (5, 7), (7, 7)]
+    );
+    assert_eq!(puppetry_export::gltf::spans(30, 8, &[]), chunks(30, 8));
 }
 
 #[test]
@@ -161,6 +175,26 @@ fn three_js_plays_the_glb_back_to_the_frames() {
     );
     let samples = result["samples"].as_array().unwrap();
     assert_eq!(samples.len(), exact.len() + between.len());
+    // The clip lasts as long as the take's video: the last frame is held
+    // for its frame's time (it lasted (n − 1) / fps).
+    let duration = result["duration"].as_f64().unwrap();
+    assert!(
+        (duration - FRAMES as f64 / FPS).abs() < 1e-5,
+        "clip of {duration} s, expected {} s",
+        FRAMES as f64 / FPS
+    );
+    // Stacked in drawing order: the later puppet nearer, so three.js
+    // (sorting transparent meshes by depth) draws it on top.
+    let z: Vec<f64> = samples[0]["puppets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["z"].as_f64().unwrap())
+        .collect();
+    assert!(
+        z[0] < z[1],
+        "puppets at z {z:?}: the top one must be nearer"
+    );
     let mut worst_all = 0.0f64;
     for (s, sample) in samples.iter().enumerate() {
         let puppets = sample["puppets"].as_array().unwrap();

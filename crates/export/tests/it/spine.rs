@@ -31,6 +31,33 @@ fn spine_runtime_poses_the_frames() {
         &[arg(&path), "take", &times.join(",")],
     );
     assert_eq!(result["version"], puppetry_export::spine::SPINE_VERSION);
+    // The clip lasts as long as the take's video (it lasted (n − 1) / fps).
+    let duration = result["duration"].as_f64().unwrap();
+    assert!(
+        (duration - FRAMES as f64 / FPS).abs() < 1e-9,
+        "{duration} s"
+    );
+    // The atlas beside the JSON: spine-core found every attachment's
+    // region in it, one page per picture, each page the picture written.
+    let pages = result["atlas"]
+        .as_array()
+        .expect("an atlas beside the JSON");
+    assert_eq!(pages.len(), layout.puppets.len());
+    for (page, (p, placed)) in pages
+        .iter()
+        .zip(animation.puppets.iter().zip(&layout.puppets))
+    {
+        assert_eq!(page["name"], format!("{}.png", placed.path));
+        assert_eq!(
+            (page["width"].as_u64(), page["height"].as_u64()),
+            (Some(p.image.width as u64), Some(p.image.height as u64))
+        );
+        let written =
+            puppetry_export::load_png(&dir.path().join(format!("{}.png", placed.path))).unwrap();
+        assert_eq!(written, p.image);
+    }
+    // Named after the export, never a picture of the user's own.
+    assert!(layout.puppets.iter().all(|p| p.path.starts_with("take-")));
     for p in &layout.puppets {
         assert_eq!(result["hull"][&p.slot], p.hull as u64, "hull of {}", p.slot);
     }
@@ -97,4 +124,34 @@ fn the_hull_is_the_boundary_loop_and_comes_first() {
     let mut sorted = layout.puppets[0].order.clone();
     sorted.sort_unstable();
     assert_eq!(sorted, (0..p.vertex_count() as u32).collect::<Vec<_>>());
+}
+
+/// spine-player, Esoteric's web player, opens the export as it is in
+/// Chromium: the atlas and its pages load (no request answered 404, as
+/// the atlas did before there was one) and the puppets are drawn.
+#[test]
+fn spine_player_opens_the_export_as_it_is() {
+    if !crate::common::browser_enabled("spine_player_opens_the_export_as_it_is") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("take.json");
+    export_spine(
+        &two_figures(FRAMES, FPS),
+        &SpineOptions::default(),
+        &mut (),
+        &path,
+    )
+    .unwrap();
+    let result = node_script(
+        "export-player.mjs",
+        &["@esotericsoftware/spine-player", "playwright-core"],
+        &[arg(dir.path()), "take", "take"],
+    );
+    assert_eq!(result["loaded"], true, "{result}");
+    assert_eq!(result["failed"], serde_json::json!([]), "{result}");
+    assert_eq!(result["errors"], serde_json::json!([]), "{result}");
+    let drawn = result["drawn"].as_u64().unwrap();
+    assert!(drawn > 1000, "the player drew {drawn} pixels: {result}");
+    note(&format!("spine-player: loaded, {drawn} pixels drawn"));
 }

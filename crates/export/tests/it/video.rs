@@ -28,7 +28,7 @@ fn probe(path: &Path) -> serde_json::Value {
         .args(["-select_streams", "v:0", "-count_frames"])
         .args([
             "-show_entries",
-            "stream=codec_name,profile,pix_fmt,r_frame_rate,nb_read_frames,width,height:stream_tags:format=duration",
+            "stream=codec_name,profile,pix_fmt,r_frame_rate,nb_read_frames,width,height,color_space,color_primaries,color_transfer,color_range:stream_tags:format=duration",
         ])
         .args(["-of", "json"])
         .arg(path)
@@ -124,6 +124,15 @@ fn check(
         "{info}"
     );
     assert_eq!(stream["r_frame_rate"], "24/1", "{info}");
+    // BT.709, limited range, tagged: what browsers assume of untagged video.
+    for (tag, value) in [
+        ("color_space", "bt709"),
+        ("color_primaries", "bt709"),
+        ("color_transfer", "bt709"),
+        ("color_range", "tv"),
+    ] {
+        assert_eq!(stream[tag], value, "{ext}: {tag} in {info}");
+    }
     assert_eq!(
         (stream["width"].as_u64(), stream["height"].as_u64()),
         (Some(W as u64), Some(H as u64))
@@ -192,6 +201,11 @@ fn frame_rates_reach_ffmpeg_as_exact_fractions() {
     assert_eq!(frame_rate_arg(30.0), "30/1");
     assert_eq!(frame_rate_arg(30000.0 / 1001.0), "30000/1001");
     assert_eq!(frame_rate_arg(12.5), "12500/1000");
+    // NTSC rates as people write them (was 2997/100 for 29.97).
+    assert_eq!(frame_rate_arg(29.97), "30000/1001");
+    assert_eq!(frame_rate_arg(23.976), "24000/1001");
+    assert_eq!(frame_rate_arg(59.94), "60000/1001");
+    assert_eq!(frame_rate_arg(29.9), "29900/1000");
 }
 
 #[test]
@@ -215,4 +229,74 @@ fn a_failing_ffmpeg_is_quoted() {
     assert!(text.contains(arg(&out)), "{text}");
     assert!(text.contains("Unknown encoder libx264"), "{text}");
     assert!(text.contains("exit status: 3"), "{text}");
+}
+
+/// A red square filling the stage: the colour a player shows. Decoded as
+/// a browser decodes it (BT.709, whatever the file says), the red comes
+/// back within a few levels; converted with ffmpeg's default BT.601 and
+/// untagged, Chromium showed (231, 55, 52) for (214, 38, 52).
+#[test]
+fn colours_come_back_as_a_bt709_player_shows_them() {
+    tools();
+    const RED: [u8; 3] = [214, 38, 52];
+    let still: Vec<[f32; 2]> = vec![
+        [-10.0, -10.0],
+        [810.0, -10.0],
+        [810.0, 610.0],
+        [-10.0, 610.0],
+    ];
+    let animation = puppetry_export::Animation {
+        stage_width: 800.0,
+        stage_height: 600.0,
+        fps: FPS,
+        frame_count: 2,
+        puppets: vec![puppetry_export::AnimatedPuppet {
+            name: "red".into(),
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            uv: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+            image: puppetry_export::RgbaImage {
+                width: 4,
+                height: 4,
+                pixels: [RED[0], RED[1], RED[2], 255].repeat(16),
+            },
+            frames: vec![still.clone(), still],
+            draw_orders: Vec::new(),
+        }],
+    };
+    let dir = tempfile::tempdir().unwrap();
+    for (ext, decoder) in [("mp4", None), ("mov", None), ("webm", Some("libvpx-vp9"))] {
+        let path = dir.path().join(format!("red.{ext}"));
+        export_video(&animation, &VideoOptions::new(W, H), &mut (), &path).unwrap();
+        let mut cmd = Command::new("ffmpeg");
+        cmd.args(["-v", "error", "-nostdin"]);
+        if let Some(d) = decoder {
+            cmd.args(["-c:v", d]);
+        }
+        let out = cmd
+            .arg("-i")
+            .arg(&path)
+            .args([
+                "-frames:v",
+                "1",
+                "-vf",
+                "scale=in_color_matrix=bt709:in_range=tv",
+            ])
+            .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let centre = ((H / 2 * W + W / 2) * 3) as usize;
+        let got = &out.stdout[centre..centre + 3];
+        let off = got
+            .iter()
+            .zip(RED)
+            .map(|(&g, r)| (g as i32 - r as i32).abs())
+            .max()
+            .unwrap();
+        assert!(off <= 4, "{ext}: red {RED:?} shows as {got:?}");
+    }
 }

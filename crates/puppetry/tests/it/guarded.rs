@@ -322,18 +322,30 @@ async fn an_export_never_writes_through_a_planted_link() {
         "the export wrote through the link"
     );
 
-    // `-o` itself a link: replaced by the export, its target untouched.
+    // `-o` itself a link: refused as a file already there; with --force
+    // replaced by the export, its target untouched.
     let out = dir.path().join("take.glb");
     std::os::unix::fs::symlink(&precious, &out).unwrap();
-    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
-        .arg("export")
-        .arg(&take)
-        .arg("--config")
-        .arg(&stage)
-        .args(["--format", "glb", "--fps", "10", "-o"])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let export = |force: bool| {
+        let mut cli = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"));
+        cli.arg("export")
+            .arg(&take)
+            .arg("--config")
+            .arg(&stage)
+            .args(["--format", "glb", "--fps", "10", "-o"])
+            .arg(&out);
+        if force {
+            cli.arg("--force");
+        }
+        cli.output().unwrap()
+    };
+    let cli = export(false);
+    assert!(
+        !cli.status.success(),
+        "a link at -o replaced without --force"
+    );
+    assert!(std::fs::symlink_metadata(&out).unwrap().is_symlink());
+    let cli = export(true);
     assert!(
         cli.status.success(),
         "{}",

@@ -17,6 +17,7 @@ mod curves;
 mod depth;
 mod devices;
 mod edge;
+mod exports;
 mod files;
 mod fuzz;
 mod graph;
