@@ -31,20 +31,38 @@ use puppetry_mesh::Mesh;
 /// One measured case, as printed by `puppetry bench --json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct CaseResult {
+    /// The mesh's name as the caller gave it: `puppetry bench` uses the
+    /// file's path, or `gingerbread@N` for the demo picture meshed at about
+    /// N vertices.
     pub mesh: String,
+    /// Vertices of the mesh: what the times scale with.
     pub vertices: usize,
+    /// Triangles of the mesh.
     pub triangles: usize,
+    /// Point handles held in the plain update frames; the handle-change
+    /// frames hold one more, then this many again.
     pub handles: usize,
+    /// Registration (`Arap::register`, the rest shape's precomputation),
+    /// ms: the median of 3 runs, or the only run on meshes over 50k
+    /// vertices.
     pub register_ms: f64,
+    /// Compiling the handles (`Arap::compile`), µs, timed once.
     pub compile_us: f64,
+    /// Median update (both steps) while the handles wander, µs.
     pub update_us_median: f64,
+    /// 99th percentile of the same updates, µs.
     pub update_us_p99: f64,
-    /// Median of all frames that add or remove a handle.
+    /// Median of all frames that add or remove a handle (a compile and an
+    /// update), µs: what a frame costs when a finger lands or lifts.
     pub handle_change_frame_us: f64,
+    /// 99th percentile of the same frames, µs.
     pub handle_change_frame_us_p99: f64,
-    /// Medians of the adding and the removing frames alone.
+    /// Median of the frames that add a handle alone, µs.
     pub handle_add_frame_us: f64,
+    /// Median of the frames that remove a handle alone, µs.
     pub handle_remove_frame_us: f64,
+    /// Plain update frames timed; the handle-change frames come after them,
+    /// about a quarter as many adds and as many removes (at least 5 each).
     pub frames: usize,
 }
 
@@ -62,7 +80,7 @@ impl Lcg {
 
 /// `count` point handles spread over the mesh: random triangles, random
 /// interior points, the first few as far apart as possible.
-pub fn spread_anchors(mesh: &Mesh, count: usize, seed: u64) -> Vec<Anchor> {
+fn spread_anchors(mesh: &Mesh, count: usize, seed: u64) -> Vec<Anchor> {
     let mut rng = Lcg(seed);
     let tris = mesh.triangles().len();
     (0..count)
@@ -198,7 +216,7 @@ pub fn frames_for(vertices: usize) -> usize {
     (2_000_000 / vertices.max(1)).clamp(20, 2000)
 }
 
-/// The header and one row of the human-readable table.
+/// The header of the human-readable table of [`CaseResult`]s.
 pub fn table_header() -> String {
     format!(
         "{:<20} {:>8} {:>7} {:>11} {:>11} {:>13} {:>13} {:>10} {:>10}",
@@ -214,6 +232,7 @@ pub fn table_header() -> String {
     )
 }
 
+/// One [`CaseResult`] as a row under [`table_header`]'s columns.
 pub fn table_row(r: &CaseResult) -> String {
     format!(
         "{:<20} {:>8} {:>7} {:>11.2} {:>11.1} {:>13.1} {:>13.1} {:>10.1} {:>10.1}",
@@ -232,43 +251,56 @@ pub fn table_row(r: &CaseResult) -> String {
 /// One end-to-end case, as printed by `puppetry bench --e2e --json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct EndToEndResult {
+    /// The stage's name as the caller gave it (`puppetry bench --e2e`: the
+    /// demo stage, the demo puppet at 10k vertices, eight puppets).
     pub mesh: String,
-    /// Vertices of each puppet.
+    /// Vertices of each puppet (the first one's count: the bench's stages
+    /// give all their puppets one mesh).
     pub vertices: usize,
+    /// Puppets on the stage.
     pub puppets: usize,
     /// Input sources, each holding one contact per puppet it plays, all
     /// sending a frame every millisecond of input time.
     pub performers: usize,
+    /// Viewers connected on loopback, each reading every frame.
     pub clients: usize,
     /// "real_time" (1 kHz input) or "as_fast_as_possible".
     pub pacing: &'static str,
-    /// Input frames replayed (a contact dragged at 1 kHz of input time,
-    /// played as fast as possible).
+    /// Input frames each performer sent, 1 ms apart in input time (played
+    /// at the pace `pacing` names).
     pub input_frames: usize,
-    /// Solves the stage thread published of the least solved puppet (it
-    /// solves the newest state when inputs arrive faster than it solves),
-    /// and per second.
+    /// Solves the stage thread published of the least solved puppet, from
+    /// the first client's frame sequence numbers (it solves the newest
+    /// state when inputs arrive faster than it solves, so this can be
+    /// fewer than `input_frames`).
     pub solves: u64,
+    /// Those solves per second, between that puppet's first and last frame.
     pub solves_per_s: f64,
-    /// From an input frame reaching the daemon to a client holding the
-    /// frame it caused, over every frame every client received.
+    /// Median µs from an input frame reaching the daemon to a client
+    /// holding the frame it caused, over every frame every client received.
     pub latency_us_p50: f64,
+    /// 99th percentile of the same latencies, µs.
     pub latency_us_p99: f64,
-    /// Where the stage thread's time went, per solve (µs): applying
-    /// commands, solving, encoding the frames and waking the clients,
-    /// building text messages, recording.
+    /// Stage-thread µs per solve applying commands (contacts to handles,
+    /// pins, edits).
     pub commands_us: f64,
+    /// Stage-thread µs per solve solving.
     pub solve_us: f64,
+    /// Stage-thread µs per solve encoding the binary frames and waking the
+    /// clients.
     pub frames_us: f64,
+    /// Stage-thread µs per solve building the text messages that changed.
     pub messages_us: f64,
+    /// Stage-thread µs per solve writing into a take being recorded.
     pub record_us: f64,
-    /// A client task's send of what changed after a wake, on average (µs),
-    /// and the stage thread's busy share of the run's wall time (its
-    /// phases' clock time: the CPU's, plus any time the thread was
-    /// preempted inside a phase) and its CPU share (from the kernel's
-    /// accounting, 10 ms ticks).
+    /// A client task's send of what changed after a wake, on average, µs.
     pub send_us: f64,
+    /// The stage thread's busy share of the replay's wall time (1.0 = busy
+    /// throughout): its phases' clock time, the CPU's plus any time the
+    /// thread was preempted inside a phase.
     pub stage_busy: f64,
+    /// The stage thread's CPU share of the same wall time, from the
+    /// kernel's accounting (10 ms ticks, so coarse on a short run).
     pub stage_cpu: f64,
 }
 
@@ -301,7 +333,7 @@ fn thread_cpu_by_name(name: &str) -> f64 {
 /// tungstenite zero-fills its whole read buffer (128 KiB by default) before
 /// every read, which would make the bench's own viewers, not the daemon,
 /// most of the CPU being spent.
-pub async fn connect_viewer(
+pub(crate) async fn connect_viewer(
     url: &str,
 ) -> Result<
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>,
@@ -316,7 +348,9 @@ pub async fn connect_viewer(
 /// Runs the daemon on `config`, connects `clients` viewers on loopback and
 /// replays drags of `input_frames` frames (1 ms apart) into it with
 /// `pacing`: one input source per entry of `performers`, each holding a
-/// contact on every point it lists (a finger per puppet), all circling.
+/// contact on every point it lists (stage units: a finger per puppet), all
+/// circling. The daemon runs in this process on a runtime of its own (two
+/// workers); errors come back as text.
 #[expect(
     clippy::too_many_lines,
     reason = "a bench case read top to bottom (start the daemon, connect the clients, drag, measure); a tool, not the show's path"
@@ -547,30 +581,34 @@ fn feed_in_real_time(
 }
 
 /// The grid the rig cases use (the paper's size).
-pub const RIG_GRID: (usize, usize) = (10, 10);
+const RIG_GRID: (usize, usize) = (10, 10);
 
 /// Vertex handles the lp-FFD cases drag.
-pub const RIG_VERTEX_HANDLES: usize = 4;
+const RIG_VERTEX_HANDLES: usize = 4;
 
 /// One measured rig case, as printed by `puppetry bench --json` (tagged by
 /// `"rig"`).
 #[derive(Debug, Clone, Serialize)]
 #[serde(tag = "rig")]
 pub enum RigResult {
+    /// An lp-FFD case, from [`run_lp_ffd_case`].
     #[serde(rename = "lp-ffd")]
     LpFfd {
+        /// The mesh's name, as in [`CaseResult::mesh`].
         mesh: String,
-        /// "bernstein" or "lattice".
+        /// The grid's basis: "bernstein" or "lattice".
         basis: &'static str,
+        /// The timings, flattened into the same JSON object.
         #[serde(flatten)]
         bench: FfdBench,
     },
+    /// A skeleton case, from [`run_skeleton_case`].
     #[serde(rename = "skeleton")]
     Skeleton(SkeletonBench),
 }
 
-/// An lp-FFD case: a [`RIG_GRID`] grid around `mesh` with the paper's
-/// weights and [`RIG_VERTEX_HANDLES`] handles, over `frames` frames.
+/// An lp-FFD case: a 10×10 grid around `mesh` with `basis`, the paper's
+/// weights and 4 vertex handles wandering, over `frames` frames.
 pub fn run_lp_ffd_case(
     name: &str,
     mesh: &Mesh,
@@ -652,20 +690,34 @@ pub fn rig_table_row(r: &RigResult) -> String {
     )
 }
 
-/// Timings of the lp-FFD phases on one mesh, from [`ffd_bench`].
+/// Timings of the lp-FFD phases on one mesh. Every update time is 0 when
+/// no frame was timed.
 #[derive(Debug, Clone, Serialize)]
 pub struct FfdBench {
+    /// Vertices of the mesh.
     pub vertices: usize,
+    /// Triangles of the mesh.
     pub triangles: usize,
+    /// Grid handles along x.
     pub grid_columns: usize,
+    /// Grid handles along y.
     pub grid_rows: usize,
+    /// Vertex handles dragged, spread evenly by vertex index.
     pub vertex_handles: usize,
+    /// Local/global iterations per update (the paper's default in the rig
+    /// cases).
     pub iterations: usize,
+    /// Registration (`LpFfd::register`), ms, timed once.
     pub register_ms: f64,
+    /// Compiling the vertex handles, µs, timed once.
     pub compile_us: f64,
+    /// The fastest update, µs: the least disturbed by a shared machine.
     pub update_us_min: f64,
+    /// Median update, µs.
     pub update_us_median: f64,
+    /// 99th percentile of the updates, µs.
     pub update_us_p99: f64,
+    /// Update frames timed.
     pub frames: usize,
     /// After the last frame: `(E − E*)/E*`, with `E*` the energy after 200
     /// more iterations on the same targets — how far the warm-started
@@ -676,7 +728,7 @@ pub struct FfdBench {
 /// Times `frames` updates of an lp-FFD rig over `mesh` with
 /// `vertex_handles` vertex handles (spread by index) wandering on small
 /// circles, like the ARAP bench's handles.
-pub fn ffd_bench(
+fn ffd_bench(
     mesh: &Mesh,
     spec: GridSpec,
     params: LpParams,
@@ -740,23 +792,32 @@ pub fn ffd_bench(
 /// One measured skeleton case.
 #[derive(Debug, Clone, Serialize)]
 pub struct SkeletonBench {
+    /// The mesh's name, as in [`CaseResult::mesh`].
     pub mesh: String,
+    /// Vertices of the mesh.
     pub vertices: usize,
+    /// Triangles of the mesh.
     pub triangles: usize,
+    /// Bones of the skeleton (15 for the demo's gingerbread).
     pub bones: usize,
     /// Stitches per frame (`rounds + 1`).
     pub stitches: usize,
+    /// Entries of the stitching factor: its memory and per-stitch work.
     pub factor_entries: usize,
+    /// Registration (`ShapeAware::register`), ms: the median of 3 runs.
     pub register_ms: f64,
-    /// A whole frame: bone transforms and every propagation round.
+    /// Median whole frame, µs: bone transforms and every propagation round.
     pub update_us_median: f64,
+    /// 99th percentile of the frames, µs.
     pub update_us_p99: f64,
-    /// The same frames in this thread's CPU time: on a shared machine, the
-    /// cost without the time other processes held the core.
+    /// The median frame in this thread's CPU time, µs: on a shared machine,
+    /// the cost without the time other processes held the core.
     pub update_cpu_us_median: f64,
+    /// 99th percentile of the frames' CPU time, µs.
     pub update_cpu_us_p99: f64,
-    /// The fastest frame: the least disturbed by a shared machine.
+    /// The fastest frame, µs: the least disturbed by a shared machine.
     pub update_us_min: f64,
+    /// Frames timed (at least 1).
     pub frames: usize,
 }
 
@@ -773,7 +834,7 @@ fn thread_cpu_seconds() -> f64 {
 
 /// Times registration and `frames` FK-animated frames (every bone swinging
 /// on its own phase) of `skeleton` driving `mesh`.
-pub fn skeleton_bench(
+fn skeleton_bench(
     name: &str,
     mesh: &Mesh,
     skeleton: &Skeleton,
@@ -832,38 +893,58 @@ pub fn skeleton_bench(
 /// order's frames beside the ARAP updates that produced the same poses.
 #[derive(Debug, Clone, Serialize)]
 pub struct DepthResult {
+    /// The mesh's name, as in [`CaseResult::mesh`].
     pub mesh: String,
+    /// Vertices of the mesh.
     pub vertices: usize,
+    /// Triangles of the mesh.
     pub triangles: usize,
+    /// Registering the depth order (`DepthOrder::register`), ms, timed once.
     pub register_ms: f64,
-    /// ARAP updates of every timed frame (3 handles).
+    /// Median ARAP update (3 handles) over every frame, the ramp between
+    /// the phases included, µs.
     pub arap_us_median: f64,
+    /// Mean of the same updates, µs: what the table's `mean/arap` divides by.
     pub arap_us_mean: f64,
+    /// 99th percentile of the same updates, µs.
     pub arap_us_p99: f64,
-    /// Depth frames while the handles wander without any overlap.
+    /// Median depth frame while the handles wander without any overlap, µs.
     pub flat_us_median: f64,
+    /// 99th percentile of those frames, µs.
     pub flat_us_p99: f64,
-    /// Depth frames while a foot is held folded over the body.
+    /// Median depth frame while a foot is held folded over the body, µs.
     pub fold_us_median: f64,
+    /// Mean of those frames, µs.
     pub fold_us_mean: f64,
+    /// 99th percentile of those frames, µs.
     pub fold_us_p99: f64,
-    /// Of the fold frames, how many overlapped; the median of the pairs
-    /// listed (frames the sheets settle list none) and of the middle
-    /// sheet's triangles (on frames the sheets settle).
+    /// Fold frames on which triangles overlapped.
     pub fold_frames_overlapping: usize,
+    /// Median overlapping pairs listed per fold frame (frames the sheets
+    /// settle list none).
     pub fold_pairs_median: usize,
+    /// Median triangles in the middle sheet per fold frame (0 on frames
+    /// the sheets do not settle).
     pub fold_middle_median: usize,
-    /// Fold frames settled by the sheets of an earlier exact frame, and of
-    /// those how many first widened the middle.
+    /// Fold frames settled by the sheets of an earlier exact frame (see
+    /// `docs/depth.md`, "Sheets").
     pub fold_frames_certified: usize,
+    /// Of the fold frames the sheets settled, those that first widened the
+    /// middle sheet.
     pub fold_frames_widened: usize,
-    /// Frames that tested all triangles (more than 32 inverted triangles,
-    /// or a piece inside another), without and with the fold.
+    /// No-overlap frames that tested all triangles (more than 32 inverted
+    /// triangles, or a piece inside another) instead of growing from
+    /// boundary crossings.
     pub flat_frames_scanning_all: usize,
+    /// Fold frames that tested all triangles.
     pub fold_frames_scanning_all: usize,
+    /// Frames of the no-overlap phase on which an overlap was found all the
+    /// same: a check that the phase is what it says.
     pub flat_frames_overlapping: usize,
     /// Frames of the no-overlap phase settled by the motion bound alone.
     pub flat_frames_skipped: usize,
+    /// Frames of each phase, no-overlap and fold (the 60-frame ramp between
+    /// them is not counted).
     pub frames: usize,
 }
 
@@ -879,10 +960,13 @@ struct DepthFrame {
     widened: bool,
 }
 
+/// Why a depth case could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum DepthBenchError {
+    /// The ARAP solver posing the mesh refused it, its handles or a frame.
     #[error(transparent)]
     Solve(#[from] ArapError),
+    /// The depth order refused the mesh or a pose.
     #[error(transparent)]
     Depth(#[from] DepthError),
 }
@@ -1055,25 +1139,34 @@ pub fn depth_table_row(r: &DepthResult) -> String {
 /// One measured curve case, as printed by `puppetry bench --curves --json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct CurveBench {
+    /// Points of the wavy curve (about 1 apart).
     pub points: usize,
+    /// Handles held: the two ends, and the middle when 3.
     pub handles: usize,
+    /// Registration (`Curve::register`), ms: the median of 5 runs.
     pub register_ms: f64,
-    /// Whole curve free, both steps.
+    /// Median compile of the handles with the whole curve free (both
+    /// steps), over 20 runs, µs.
     pub compile_us_median: f64,
+    /// Median update (both steps) while the handles circle, µs.
     pub update_us_median: f64,
+    /// 99th percentile of the same updates, µs.
     pub update_us_p99: f64,
-    /// A peeling drag: recompiling for a grown region (all sizes up to the
-    /// whole curve), and the frames in between.
+    /// Median recompile when a peeling drag's region grew (every region
+    /// size up to the whole curve), µs.
     pub peel_change_us_median: f64,
+    /// 99th percentile of those recompiles, µs.
     pub peel_change_us_p99: f64,
+    /// Median update during the peeling drags, between the recompiles, µs.
     pub peel_update_us_median: f64,
-    /// Recompiles timed, updates timed.
+    /// Recompiles timed over all the peeling drags.
     pub peel_changes: usize,
+    /// Plain update frames timed.
     pub frames: usize,
 }
 
 /// A wavy curve of `points` points, evenly spaced (about 1 apart).
-pub fn bench_curve(points: usize) -> Vec<DVec2> {
+fn bench_curve(points: usize) -> Vec<DVec2> {
     (0..points)
         .map(|i| {
             let x = i as f64 * 0.8;

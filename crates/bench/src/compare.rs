@@ -24,38 +24,57 @@ use puppetry_deform::ffd::{Basis, FfdError, GridSpec, LpFfd, LpParams};
 use puppetry_deform::measure::{MeasureError, mesh_distortion};
 use puppetry_mesh::Mesh;
 
-/// The grid size the paper's Table 1 uses.
-pub const DEFAULT_GRID: (usize, usize) = (10, 10);
-
 /// lp-FFD stops iterating when no vertex moved farther than this fraction
 /// of the mesh size in one iteration, or after [`MAX_LP_ITERATIONS`].
-pub const CONVERGED: f64 = 1e-10;
-pub const MAX_LP_ITERATIONS: usize = 5000;
+const CONVERGED: f64 = 1e-10;
+const MAX_LP_ITERATIONS: usize = 5000;
 
+/// Why the comparison could not run. Each variant but the last names the
+/// method that failed, as the table does ([`DIRECT_FFD`] and the rest).
 #[derive(Debug, thiserror::Error)]
 pub enum CompareError {
+    /// The grid rig refused the mesh or the handles, or a grid method's
+    /// solve failed.
     #[error("{method}: {source}")]
     Ffd {
+        /// The method being run ([`LP_FFD`] too while registering the rig
+        /// the three grid methods share).
         method: &'static str,
+        /// What the rig said.
         source: FfdError,
     },
+    /// The ARAP solver refused the mesh, the handles or the solve.
     #[error("{method}: {source}")]
     Arap {
+        /// Always [`PLAIN_ARAP`] (method 2 starts from the same solve).
         method: &'static str,
+        /// What the solver said.
         source: ArapError,
     },
+    /// A method's pose could not be measured (not one finite point per
+    /// vertex).
     #[error("{method}: measuring the result: {source}")]
     Measure {
+        /// The method whose result it was.
         method: &'static str,
+        /// What the measure said.
         source: MeasureError,
     },
+    /// The handles and their targets differ in number.
     #[error("expected one target per handle: {anchors} handles, {targets} targets")]
-    TargetCount { anchors: usize, targets: usize },
+    TargetCount {
+        /// Handles given.
+        anchors: usize,
+        /// Targets given.
+        targets: usize,
+    },
 }
 
 /// One method's result.
 #[derive(Debug, Clone, Serialize)]
 pub struct MethodResult {
+    /// Which method: [`DIRECT_FFD`], [`ARAP_INVERSE_FFD`], [`PLAIN_ARAP`]
+    /// or [`LP_FFD`].
     pub method: &'static str,
     /// Mean over triangles of the mean absolute corner-angle change, radians.
     pub angular: f64,
@@ -63,10 +82,11 @@ pub struct MethodResult {
     pub area: f64,
     /// Farthest any handle's point ended from its target, in mesh units.
     pub handle_error: f64,
-    /// The deformed vertices.
+    /// The deformed vertices, in mesh units (not in the JSON).
     #[serde(skip)]
     pub pose: Vec<DVec2>,
-    /// The deformed grid, for the grid methods.
+    /// The deformed grid's handles for the grid methods; `None` for plain
+    /// ARAP (not in the JSON).
     #[serde(skip)]
     pub grid: Option<Vec<DVec2>>,
 }
@@ -74,20 +94,32 @@ pub struct MethodResult {
 /// The whole comparison.
 #[derive(Debug, Clone, Serialize)]
 pub struct Comparison {
+    /// Vertices of the mesh.
     pub vertices: usize,
+    /// Triangles of the mesh.
     pub triangles: usize,
+    /// Separate pieces of the mesh (the bundled figure's layers).
     pub pieces: usize,
+    /// Handles dragged, the same for every method.
     pub handles: usize,
+    /// Grid handles along x.
     pub grid_columns: usize,
+    /// Grid handles along y.
     pub grid_rows: usize,
-    /// Local/global iterations lp-FFD took to converge.
+    /// Local/global iterations lp-FFD took to converge (at most 5000).
     pub lp_ffd_iterations: usize,
+    /// One result per method, in the paper's order: direct FFD, ARAP +
+    /// inverse FFD, plain ARAP, lp-FFD.
     pub methods: Vec<MethodResult>,
 }
 
+/// Method 1's name in the table, the JSON and errors: direct FFD.
 pub const DIRECT_FFD: &str = "direct FFD (Hsu et al.)";
+/// Method 2's name: the ARAP result fitted by a grid.
 pub const ARAP_INVERSE_FFD: &str = "ARAP + inverse FFD";
+/// Method 3's name: the ARAP mesh result itself.
 pub const PLAIN_ARAP: &str = "ARAP";
+/// Method 4's name: lp-FFD iterated to convergence.
 pub const LP_FFD: &str = "lp-FFD";
 
 /// The point a handle holds, in `pose`.

@@ -5,7 +5,10 @@
 //! problem ([`peers`]); the long-run leak check ([`soak`]); and the lp-FFD
 //! paper's comparison of four methods ([`compare`]). A crate of its own so
 //! the binary's crate holds only its commands; `puppetry bench`, `soak`,
-//! `compare` and `bench-case` call into it.
+//! `compare` and `bench-case` call into it. Every public item is
+//! documented (`missing_docs` is on here).
+
+#![warn(missing_docs)]
 
 pub mod bench;
 pub mod compare;

@@ -26,60 +26,82 @@ use puppetry_mesh::{Mesh, MeshError};
 /// The problem to time, as read from the case file.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct Case {
+struct Case {
     /// The rest mesh (`.mesh.json`), relative to the case file's folder.
-    pub mesh: PathBuf,
+    mesh: PathBuf,
     /// The handle vertices, in the order of each frame's targets.
-    pub handles: Vec<u32>,
-    /// Per frame, one target `[x, y]` per handle.
-    pub frames: Vec<Vec<[f64; 2]>>,
+    handles: Vec<u32>,
+    /// Per frame, one target `[x, y]` per handle, in mesh units.
+    frames: Vec<Vec<[f64; 2]>>,
 }
 
 /// What `puppetry bench-case` prints.
 #[derive(Debug, Serialize)]
-pub struct CaseTimes {
-    pub vertices: usize,
-    pub triangles: usize,
-    pub handles: usize,
-    pub register_ms: f64,
-    pub compile_us: f64,
-    /// One per frame, in frame order.
-    pub update_us: Vec<f64>,
-    /// The same updates' process CPU time.
-    pub update_cpu_us: Vec<f64>,
+struct CaseTimes {
+    /// Vertices of the mesh.
+    vertices: usize,
+    /// Triangles of the mesh.
+    triangles: usize,
+    /// Handle vertices held.
+    handles: usize,
+    /// Registration, ms.
+    register_ms: f64,
+    /// Compiling the handle vertices, µs.
+    compile_us: f64,
+    /// Wall time of each update, µs: one per frame, in frame order.
+    update_us: Vec<f64>,
+    /// The same updates' process CPU time, µs.
+    update_cpu_us: Vec<f64>,
 }
 
+/// Why `puppetry bench-case` could not time a case.
 #[derive(Debug, thiserror::Error)]
 pub enum PeersError {
+    /// The case file could not be read.
     #[error("{file}: {source}")]
     Read {
+        /// The case file, as given.
         file: String,
+        /// What the file system said.
         source: std::io::Error,
     },
+    /// The case file is not a case: not JSON, a field missing or one
+    /// unknown.
     #[error("{file}: {source}")]
     Parse {
+        /// The case file, as given.
         file: String,
+        /// What the JSON parser said.
         source: serde_json::Error,
     },
+    /// The case's mesh could not be loaded.
     #[error(transparent)]
     Mesh(#[from] MeshError),
+    /// A frame does not give exactly one target per handle.
     #[error("frame {frame}: {got} targets for {expected} handles")]
     FrameSize {
+        /// The frame, counted from 0.
         frame: usize,
+        /// Targets it gives.
         got: usize,
+        /// Handles in the case.
         expected: usize,
     },
+    /// The solver refused the mesh or the handles, or an update failed.
     #[error(transparent)]
     Arap(#[from] ArapError),
+    /// The poses file could not be written.
     #[error("{file}: {source}")]
     Write {
+        /// The poses file, as given.
         file: String,
+        /// What the file system said.
         source: std::io::Error,
     },
 }
 
 /// Reads a case file; its mesh path is taken relative to the case's folder.
-pub fn load_case(path: &Path) -> Result<(Case, Mesh), PeersError> {
+fn load_case(path: &Path) -> Result<(Case, Mesh), PeersError> {
     let file = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|source| PeersError::Read {
         file: file.clone(),
@@ -94,11 +116,7 @@ pub fn load_case(path: &Path) -> Result<(Case, Mesh), PeersError> {
 
 /// Registers, compiles the handle vertices, then times one update per frame.
 /// Returns the times and, when `keep_poses`, every frame's pose.
-pub fn run(
-    case: &Case,
-    mesh: &Mesh,
-    keep_poses: bool,
-) -> Result<(CaseTimes, Vec<DVec2>), PeersError> {
+fn run(case: &Case, mesh: &Mesh, keep_poses: bool) -> Result<(CaseTimes, Vec<DVec2>), PeersError> {
     let frames: Vec<Vec<DVec2>> = case
         .frames
         .iter()
@@ -164,7 +182,7 @@ fn process_cpu_seconds() -> f64 {
 }
 
 /// Writes poses as little-endian `f64` pairs.
-pub fn write_poses(path: &Path, poses: &[DVec2]) -> Result<(), PeersError> {
+fn write_poses(path: &Path, poses: &[DVec2]) -> Result<(), PeersError> {
     let mut bytes = Vec::with_capacity(poses.len() * 16);
     for p in poses {
         bytes.extend_from_slice(&p.x.to_le_bytes());
@@ -176,7 +194,10 @@ pub fn write_poses(path: &Path, poses: &[DVec2]) -> Result<(), PeersError> {
     })
 }
 
-/// `puppetry bench-case CASE [--poses FILE]`: the JSON line to print.
+/// `puppetry bench-case CASE [--poses FILE]`: the JSON line to print
+/// (sizes, registration and compile times, and every frame's update wall
+/// and CPU time, µs), after writing every frame's pose to `poses` when
+/// given.
 pub fn bench_case_command(case: &Path, poses: Option<&Path>) -> Result<String, PeersError> {
     let (case, mesh) = load_case(case)?;
     let (times, solved) = run(&case, &mesh, poses.is_some())?;

@@ -32,15 +32,18 @@ use puppetry_daemon::protocol::{FrameHeader, FrameKind};
 /// How a soak runs.
 #[derive(Debug, Clone)]
 pub struct SoakOptions {
+    /// How long the soak runs, warm-up included (`--minutes`).
     pub duration: Duration,
     /// How often a row is printed.
     pub every: Duration,
     /// Viewers connected at once, each churning.
     pub viewers: usize,
-    /// Through a relay too (needs nats-server).
+    /// Through a relay too (needs nats-server): the churning clients pick
+    /// the daemon or the relay at random, and the reference viewer watches
+    /// from the relay.
     pub relay: bool,
     /// A capture (evemu `.event`) or recording (`.jsonl`) looped on the
-    /// stage besides the bundled recorded drag.
+    /// stage besides the bundled recorded drag; `None`: the drag alone.
     pub capture: Option<std::path::PathBuf>,
 }
 
@@ -80,24 +83,24 @@ struct Seen {
 
 /// One printed row.
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct SoakRow {
-    pub minute: f64,
-    pub daemon_rss_mb: f64,
-    pub daemon_fds: usize,
-    pub daemon_cpu: f64,
-    pub relay_rss_mb: f64,
-    pub relay_fds: usize,
-    pub nats_rss_mb: f64,
-    pub frames_per_s: f64,
-    pub latency_ms_p99: f64,
-    pub viewer_connects: u64,
-    pub stalls: u64,
-    pub performer_sessions: u64,
-    pub bad_messages: u64,
-    pub takes_exported: u64,
-    pub lineups: u64,
-    pub pictures: u64,
-    pub failures: u64,
+struct SoakRow {
+    minute: f64,
+    daemon_rss_mb: f64,
+    daemon_fds: usize,
+    daemon_cpu: f64,
+    relay_rss_mb: f64,
+    relay_fds: usize,
+    nats_rss_mb: f64,
+    frames_per_s: f64,
+    latency_ms_p99: f64,
+    viewer_connects: u64,
+    stalls: u64,
+    performer_sessions: u64,
+    bad_messages: u64,
+    takes_exported: u64,
+    lineups: u64,
+    pictures: u64,
+    failures: u64,
 }
 
 fn fds(pid: u32) -> usize {
@@ -116,8 +119,9 @@ impl Dice {
     }
 }
 
-/// Runs the soak, printing a header and a row every `options.every`;
-/// whether memory and descriptors stayed flat after the warm-up.
+/// Runs the soak, printing a header, a row every `options.every` and at
+/// the end a verdict; returns whether memory and descriptors stayed flat
+/// after the warm-up (`puppetry soak` exits with 1 when not).
 pub async fn soak(options: SoakOptions, print: impl Fn(&str)) -> Result<bool, ViewersError> {
     let wave = puppetry_daemon::bundled::root()?.join("config/wave.toml");
     let text = std::fs::read_to_string(&wave).map_err(|e| ViewersError::Io {
@@ -622,7 +626,8 @@ async fn http(address: &str, request: &[u8]) -> Result<Vec<u8>, ViewersError> {
     Ok(answer)
 }
 
-pub fn table_header() -> String {
+/// The header of the soak's table.
+fn table_header() -> String {
     format!(
         "{:>6} {:>10} {:>9} {:>10} {:>9} {:>9} {:>8} {:>9} {:>10} {:>8} {:>7} {:>10} {:>8} {:>6} {:>8} {:>9} {:>8}",
         "minute",
@@ -645,7 +650,8 @@ pub fn table_header() -> String {
     )
 }
 
-pub fn table_row(r: &SoakRow) -> String {
+/// One [`SoakRow`] under [`table_header`]'s columns.
+fn table_row(r: &SoakRow) -> String {
     format!(
         "{:>6.1} {:>10.1} {:>9} {:>9.0}% {:>9.1} {:>9} {:>8.1} {:>9.1} {:>10.2} {:>8} {:>7} {:>10} {:>8} {:>6} {:>8} {:>9} {:>8}",
         r.minute,
@@ -688,7 +694,7 @@ fn slope(points: &[(f64, f64)]) -> f64 {
 /// rest may rise by at most 3 MB of memory and 4 descriptors plus one
 /// per ten churning viewers over that span (viewers come and go, so the
 /// descriptors at any instant wander by about that).
-pub fn judge(rows: &[SoakRow], viewers: usize) -> (bool, String) {
+fn judge(rows: &[SoakRow], viewers: usize) -> (bool, String) {
     let warm = (rows.len() / 6).max(1);
     let after = rows.get(warm..).unwrap_or(&[]);
     if after.len() < 2 {

@@ -29,7 +29,7 @@ use tokio_tungstenite::tungstenite::Message;
 use puppetry_daemon::protocol::{FrameHeader, FrameKind};
 
 /// How fast the performer's finger reports (a touch table's digitiser).
-pub const INPUT_HZ: f64 = 120.0;
+const INPUT_HZ: f64 = 120.0;
 
 /// How long the performer drags while every viewer reads.
 const DRAG: Duration = Duration::from_secs(5);
@@ -37,55 +37,78 @@ const DRAG: Duration = Duration::from_secs(5);
 /// One `bench --viewers` case, as printed with `--json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct ViewersResult {
+    /// Viewers connected (at least 1).
     pub viewers: usize,
     /// Relays the viewers were spread over (0: on the daemon itself).
     pub relays: usize,
+    /// Vertices of the demo puppet being dragged.
     pub vertices: usize,
+    /// The performer's input rate, Hz: 120 (a touch table) on the daemon,
+    /// 60 (an audience's display) through relays.
     pub input_hz: f64,
-    /// Input frames the performer sent, and vertex frames each viewer got
-    /// on average.
+    /// Input frames the performer sent: 5 s of drag at `input_hz`.
     pub input_frames: usize,
+    /// Vertex frames (those caused by an input) each viewer got, on average.
     pub frames_per_viewer: f64,
-    /// From an input reaching the daemon to a viewer holding its frame,
-    /// over every frame every viewer got.
+    /// Median µs from an input reaching the daemon to a viewer holding its
+    /// frame, over every frame every viewer got (NaN when an older daemon
+    /// timed with `--daemon` does not tell its clock).
     pub latency_us_p50: f64,
+    /// 99th percentile of the same latencies, µs.
     pub latency_us_p99: f64,
-    /// The daemon's resident set with one viewer connected and with all of
-    /// them while the performer drags.
+    /// The daemon's resident set with one viewer connected, MB.
     pub rss_mb_one: f64,
+    /// The daemon's resident set with all of them connected while the
+    /// performer drags, MB (the larger of mid-drag and just after).
     pub rss_mb_all: f64,
     /// The daemon's CPU while the performer drags, in cores (1.0 = one
     /// core busy).
     pub daemon_cpu: f64,
-    /// The relays' CPU (all of them, cores) and resident sets (MB, summed)
-    /// while the performer drags; the NATS server's.
+    /// The relays' CPU while the performer drags, summed over all of them,
+    /// in cores (0 without relays).
     pub relays_cpu: f64,
+    /// The relays' resident sets just after the drag, summed, MB.
     pub relays_rss_mb: f64,
+    /// The NATS server's CPU while the performer drags, in cores.
     pub nats_cpu: f64,
+    /// The NATS server's resident set just after the drag, MB.
     pub nats_rss_mb: f64,
-    /// A request's round trip (`list_takes`, answered by the daemon) from a
-    /// performer on the daemon, and from one on a relay (through NATS to
-    /// the daemon and back), medians, µs.
+    /// Median round trip of a request the daemon answers (`list_takes`)
+    /// from a performer on the daemon, µs (0 without relays).
     pub ask_direct_us: f64,
+    /// The same from a performer on a relay, through NATS to the daemon
+    /// and back, µs (0 without relays): what a remote performer's input
+    /// pays over [`ask_direct_us`](Self::ask_direct_us).
     pub ask_relay_us: f64,
 }
 
-/// Why a `--viewers` case could not be measured.
+/// Why a `--viewers` case or a soak could not be measured.
 #[derive(Debug, thiserror::Error)]
 pub enum ViewersError {
+    /// The bundled demo (its stages and assets) could not be unpacked.
     #[error("the demo stage: {0}")]
     Bundle(#[from] puppetry_daemon::bundled::BundleError),
+    /// A file, a process or a socket of the bench itself failed.
     #[error("{what}: {source}")]
     Io {
+        /// What was being done, or the file it was done to.
         what: String,
+        /// What the system said.
         source: std::io::Error,
     },
+    /// The daemon, a relay or nats-server did not do its part (no address
+    /// printed, no stage, no answer, a failed export); the text says what.
     #[error("the daemon: {0}")]
     Daemon(String),
+    /// The daemon's `pong` has no `clock`, so its frames' input times
+    /// cannot be placed on this process's clock.
     #[error("the daemon: its pong has no clock (an older build?)")]
     NoClock,
+    /// The relay tier was asked for, but no `nats-server` is on the `PATH`
+    /// or in `/usr/sbin`.
     #[error("the relay tier needs nats-server: install it (apt-get install nats-server)")]
     NoNats,
+    /// A WebSocket connection failed or broke.
     #[error("a WebSocket: {0}")]
     WebSocket(#[from] tokio_tungstenite::tungstenite::Error),
 }
@@ -505,10 +528,11 @@ async fn request_median(ws: &mut Ws, count: usize) -> Result<f64, ViewersError> 
 }
 
 /// Frames a second the relay tier is benched at (an audience's display).
-pub const RELAY_INPUT_HZ: f64 = 60.0;
+const RELAY_INPUT_HZ: f64 = 60.0;
 
 /// One case: the daemon, `viewers` viewers (on `relays` relays, or on the
-/// daemon with none), a performer dragging.
+/// daemon with none), a performer dragging. The daemon is `daemon_program`
+/// when given (another build to compare with), this program otherwise.
 #[expect(
     clippy::too_many_lines,
     reason = "a bench case read top to bottom (start the tier, connect the viewers, drag, measure); a tool, not the show's path"
@@ -679,6 +703,7 @@ pub async fn viewers_case(
     })
 }
 
+/// The header of the table `bench --viewers` prints with `--relays`.
 pub fn relays_table_header() -> String {
     format!(
         "{:>7} {:>6} {:>8} {:>9} {:>17} {:>14} {:>14} {:>11} {:>11} {:>12} {:>13} {:>10} {:>10} {:>15} {:>14}",
@@ -700,6 +725,8 @@ pub fn relays_table_header() -> String {
     )
 }
 
+/// One [`ViewersResult`] under [`relays_table_header`]'s columns; `per
+/// viewer` is the relays' CPU (millicores) and memory (KiB) per viewer.
 pub fn relays_table_row(r: &ViewersResult) -> String {
     let per_viewer = format!(
         "{:.1}m/{:.0}K",
@@ -726,6 +753,7 @@ pub fn relays_table_row(r: &ViewersResult) -> String {
     )
 }
 
+/// The header of the table `bench --viewers` prints without relays.
 pub fn viewers_table_header() -> String {
     format!(
         "{:>7} {:>8} {:>9} {:>12} {:>17} {:>14} {:>14} {:>13} {:>13} {:>11}",
@@ -742,6 +770,7 @@ pub fn viewers_table_header() -> String {
     )
 }
 
+/// One [`ViewersResult`] under [`viewers_table_header`]'s columns.
 pub fn viewers_table_row(r: &ViewersResult) -> String {
     format!(
         "{:>7} {:>8} {:>9.0} {:>12} {:>17.0} {:>14.0} {:>14.0} {:>13.1} {:>13.1} {:>10.0}%",
