@@ -63,9 +63,13 @@ export const SERVER_MESSAGE = Object.freeze({
 
 /** A connection's role (hello, stage and people messages): a `director` may do everything, a `performer` perform, a `viewer` only watch. `device` is the role of the stage's input sources in the people list (`PersonRole`). */
 export const ROLE = Object.freeze({
+  /** Watches only. */
   VIEWER: 'viewer',
+  /** Performs: contacts, pins, poses, cursors (maybe on some puppets). */
   PERFORMER: 'performer',
+  /** Everything a performer does, and takes, painting, saving, key poses. */
   DIRECTOR: 'director',
+  /** One of the stage's own input sources (a touch table, a pad, a replay). */
   DEVICE: 'device',
 });
 
@@ -108,7 +112,9 @@ export const CONTACT_PHASE = Object.freeze({
 
 /** A handle's `kind` (handles and stage messages; `HandleKind`). */
 export const HANDLE_KIND = Object.freeze({
+  /** Held by a finger, mouse or pen (a client's or an input source's). */
   CONTACT: 'contact',
+  /** Held by a pin (the stage file's or one placed since). */
   PIN: 'pin',
   /** Held by the keyframing cursor's blend of key poses. */
   KEY: 'key',

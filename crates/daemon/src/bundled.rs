@@ -13,6 +13,8 @@ use include_dir::{Dir, DirEntry, include_dir};
 static CONFIG: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../config");
 static ASSETS: Dir<'static> = include_dir!("$CARGO_MANIFEST_DIR/../../assets");
 
+/// The bundle could not be unpacked (a data folder that cannot be
+/// written, a full disk).
 #[derive(Debug, thiserror::Error)]
 #[error("cannot unpack the bundled demo into {folder}: {source}")]
 pub struct BundleError {

@@ -22,7 +22,10 @@ use serde::de::IgnoredAny;
 pub struct ShowConfig {
     /// `[stage]`, `[[puppet]]`, `[[pad]]`: what the stage thread builds.
     pub stage_config: StageConfig,
+    /// `[access]`: who may connect and what they may do (by default no
+    /// one but viewers).
     pub access: Access,
+    /// `[[input]]`: the input sources, in file order.
     pub inputs: Vec<InputConfig>,
     /// Show control over OSC (`docs/osc.md`); off without the section.
     pub osc: Option<OscConfig>,
@@ -166,9 +169,12 @@ pub struct Access {
     /// browser) is always let in.
     #[serde(default)]
     pub allowed_origins: Vec<String>,
-    /// Open WebSocket connections per client IP address at most.
+    /// Open WebSocket connections per client IP address at most (1 to
+    /// `MAX_CONNECTIONS`; default 64).
     #[serde(default = "default_max_per_address")]
     pub max_per_address: usize,
+    /// `[[access.person]]`: named people, each with a role and a token of
+    /// their own.
     #[serde(default, rename = "person")]
     pub people: Vec<PersonConfig>,
 }
@@ -192,8 +198,12 @@ fn default_max_per_address() -> usize {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PersonConfig {
+    /// Shown to everyone (the `people` list); unique, not blank.
     pub name: String,
+    /// What they may do; with their token, this decides whatever role the
+    /// hello asks for (but a viewer hello stays a viewer).
     pub role: AccessRole,
+    /// What they say hello with; unique among people and performer tokens.
     pub token: String,
     /// `#RRGGBB`; default: the first palette colour no one connected has.
     #[serde(default)]
@@ -338,7 +348,7 @@ pub struct RelayConfig {
 
 impl ShowConfig {
     /// The stage's name on NATS (`[relay].stage`, or the file's stem).
-    pub fn relay_stage_name(&self) -> String {
+    pub(crate) fn relay_stage_name(&self) -> String {
         let stem = Path::new(&self.stage_config.file)
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -353,13 +363,13 @@ impl ShowConfig {
 }
 
 /// Whether `c` may be in a stage's NATS name (one subject token).
-pub fn is_name_char(c: char) -> bool {
+pub(crate) fn is_name_char(c: char) -> bool {
     c.is_ascii_alphanumeric() || c == '-' || c == '_'
 }
 
 /// Bounds of `[osc].rate`: below one a second a show desk looks frozen;
 /// above 120 the updates outrun any display and flood the network.
-pub const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
+pub(crate) const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
 
 fn default_osc_rate() -> f64 {
     30.0
@@ -407,7 +417,7 @@ fn check_osc(osc: &OscConfig) -> Result<(), (String, String)> {
 }
 
 /// Checks a `host:port` (`[v6]:port` for IPv6 literals) without resolving.
-pub fn check_host_port(text: &str) -> Result<(), String> {
+pub(crate) fn check_host_port(text: &str) -> Result<(), String> {
     let expected = || format!("{text:?}: expected host:port, like \"127.0.0.1:9001\"");
     let (host, port) = text.rsplit_once(':').ok_or_else(expected)?;
     let host = host

@@ -1,7 +1,7 @@
 //! One conversion from whatever anyone asks of the stage to the [`Change`]
 //! the stage thread applies: a browser's or a relay's message
-//! ([`client`]), a device's frame or a source gone ([`frame`],
-//! [`release`]), a show-control trigger ([`change`]). The stage thread
+//! (`client`), a device's frame or a source gone ([`frame`],
+//! [`release`]), a show-control trigger (`change`). The stage thread
 //! applies only changes, through one [`Command::Change`]; requests that
 //! read state (undo's history, a key or weights file, a grid) stay
 //! commands of their own. A new way in — another message, another device
@@ -17,7 +17,7 @@ use crate::stage_thread::{Command, Reply};
 
 /// What a client message is to the stage.
 #[derive(Debug)]
-pub enum Converted {
+pub(crate) enum Converted {
     /// A change to apply. `received`: when an input frame reached the
     /// daemon (seconds since it started); `wait`: the client hears whether
     /// it applied (contacts and pins, at the input rate, do not wait).
@@ -33,10 +33,10 @@ pub enum Converted {
 /// A message that cannot be a change, naming the field at fault.
 #[derive(Debug, PartialEq, thiserror::Error)]
 #[error("{problem}")]
-pub struct ConvertError {
+pub(crate) struct ConvertError {
     /// Where in the message (e.g. `contacts[2]`), if one field is at fault.
-    pub field: Option<String>,
-    pub problem: String,
+    pub(crate) field: Option<String>,
+    pub(crate) problem: String,
 }
 
 fn refuse(problem: &str) -> ConvertError {
@@ -56,7 +56,11 @@ fn finite(x: f64, y: f64, problem: &str) -> Result<DVec2, ConvertError> {
 
 /// A client's message from `source`, `now` seconds after the daemon
 /// started, as a change, or the message back when it is not one.
-pub fn client(message: ClientMessage, source: &str, now: f64) -> Result<Converted, ConvertError> {
+pub(crate) fn client(
+    message: ClientMessage,
+    source: &str,
+    now: f64,
+) -> Result<Converted, ConvertError> {
     let (change, wait) = match message {
         ClientMessage::Contacts { contacts } => {
             let mut frame = ContactFrame {
@@ -171,7 +175,12 @@ pub fn client(message: ClientMessage, source: &str, now: f64) -> Result<Converte
 
 /// A skeleton set `t` of the way from key pose `from` to `to`, as a
 /// client's `pose` and a show desk's `/pose` and key glides ask.
-pub fn key_pose(puppet: u32, from: String, to: String, t: f64) -> Result<Change, ConvertError> {
+pub(crate) fn key_pose(
+    puppet: u32,
+    from: String,
+    to: String,
+    t: f64,
+) -> Result<Change, ConvertError> {
     if !t.is_finite() {
         return Err(refuse("pose needs a finite t"));
     }
@@ -185,7 +194,7 @@ pub fn key_pose(puppet: u32, from: String, to: String, t: f64) -> Result<Change,
 
 /// The keyframing cursor moved (pad coordinates) or let go (`None`), from
 /// a client or a show desk.
-pub fn cursor(puppet: u32, at: Option<DVec2>) -> Change {
+pub(crate) fn cursor(puppet: u32, at: Option<DVec2>) -> Change {
     Change::Cursor { puppet, at }
 }
 
@@ -219,7 +228,7 @@ pub fn release(source: &str) -> Command {
 }
 
 /// Any other change, with the asker's reply if it waits.
-pub fn change(change: Change, reply: Option<Reply<()>>) -> Command {
+pub(crate) fn change(change: Change, reply: Option<Reply<()>>) -> Command {
     Command::Change {
         change,
         received: None,

@@ -1,15 +1,22 @@
 //! The daemon: everything of `puppetry serve` that is not numeric. It runs
 //! the stage on a thread of its own ([`stage_thread`]), feeds it from the
-//! configured input sources ([`inputs`], under [`sources`]' supervision;
+//! configured input sources (`inputs`, under `sources`' supervision;
 //! [`serve`] assembles it all), and serves the web renderer and the
 //! WebSocket protocol ([`protocol`], [`stream`]) to renderer and performer
 //! clients;
-//! show-control desks read its state and trigger it over OSC ([`osc`]).
+//! show-control desks read its state and trigger it over OSC (`osc`).
 //! Which puppets are on stage, and where each one's output is, is the
 //! [`lineup`]: fixed by the stage file until a director adds, removes or
 //! reorders puppets at runtime. With `[relay]`, the stage is also
 //! published over NATS, and `puppetry relay` processes serve it to more
 //! viewers, on other machines ([`relay`]).
+//!
+//! The public surface is what the `puppetry` binary, its tests and the
+//! benchmarks use: starting a daemon ([`serve`]) or a relay, the stage
+//! file ([`config`]), the protocol's types ([`protocol`]), and the stage
+//! thread's loop for simulated shows ([`stage_thread::StageDriver`]); the
+//! rest is the crate's own. Every public item is documented
+//! (`missing_docs` is on here).
 //!
 //! ```text
 //!   puppetry-input ──► stage_thread ──────────────► stream ──► clients
@@ -23,18 +30,20 @@
 //!                                    newest only)               edge, fed from NATS)
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod bundled;
 pub mod config;
 pub mod convert;
-pub mod inputs;
+pub(crate) mod inputs;
 pub mod lineup;
 pub mod memory;
-pub mod osc;
-pub mod outputs;
+pub(crate) mod osc;
+pub(crate) mod outputs;
 pub mod protocol;
 pub mod relay;
 pub mod serve;
-pub mod sources;
+pub(crate) mod sources;
 pub mod stage_thread;
 pub mod stream;
 pub mod takes;

@@ -19,7 +19,7 @@ use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Picture, Puppet, Rig, Stage};
 
 /// The puppets on stage now, as connections see them.
-pub struct Lineup {
+pub(crate) struct Lineup {
     /// Counts lineup changes since the daemon started.
     pub revision: u64,
     pub description: StageDescription,
@@ -74,7 +74,7 @@ impl Lineup {
 
 /// What clients are told about the puppets on stage (a `stage` message
 /// without handles), made once per lineup.
-pub struct StageDescription {
+pub(crate) struct StageDescription {
     /// The puppets on stage, bottom to top: the "stage" message's entries
     /// without their handles.
     pub puppets: Vec<PuppetDescription>,

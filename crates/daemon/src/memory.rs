@@ -27,7 +27,7 @@ pub fn for_a_long_run() {
 
 /// Gives the memory freed so far back to the system, from every arena
 /// (not only the top of each heap): after a burst such as an export.
-pub fn give_back_freed() {
+pub(crate) fn give_back_freed() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: malloc_trim only walks the allocator's own free lists.
     unsafe {

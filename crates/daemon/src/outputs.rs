@@ -95,6 +95,7 @@ pub struct Timings {
     pub solves: AtomicU64,
     /// Applying the commands: contacts to handles, pins, edits.
     pub commands_ns: AtomicU64,
+    /// Solving every puppet the batch moved.
     pub solve_ns: AtomicU64,
     /// Encoding the binary frames once and waking every client.
     pub frames_ns: AtomicU64,
@@ -106,12 +107,13 @@ pub struct Timings {
     /// A client task sending what changed after a wake (all its puppets'
     /// messages), and how many such sends.
     pub sends: AtomicU64,
+    /// The time those sends took.
     pub send_ns: AtomicU64,
 }
 
 impl Timings {
     /// Adds the time since `since` to `counter`; returns now.
-    pub fn add(counter: &AtomicU64, since: Instant) -> Instant {
+    pub(crate) fn add(counter: &AtomicU64, since: Instant) -> Instant {
         let now = Instant::now();
         counter.fetch_add((now - since).as_nanos() as u64, Ordering::Relaxed);
         now

@@ -23,21 +23,31 @@ use puppetry_input::ContactFrame;
 use puppetry_input::replay::{Pacing, ReplaySource, replay};
 use puppetry_stage::{Stage, StageError};
 
+/// Why the daemon did not start. Each is found before anything runs, so
+/// a bad file or address stops the start with its error and nothing is
+/// left behind.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
+    /// A puppet of the stage file could not be put on the stage.
     #[error(transparent)]
     Stage(#[from] StageError),
+    /// The edge cannot listen on the stage's `listen` address.
     #[error(transparent)]
     Stream(#[from] StreamError),
+    /// An input source cannot be opened or checked (it names `input[N]`).
     #[error(transparent)]
     Inputs(#[from] crate::inputs::InputError),
     /// The take `serve --play` names cannot be played.
     #[error(transparent)]
     Play(#[from] crate::takes::PlayError),
+    /// Show control cannot start (`[osc].listen` cannot be bound, or no
+    /// socket to send from).
     #[error(transparent)]
     Osc(#[from] crate::osc::OscError),
+    /// Publishing to relays cannot start (`[relay]`).
     #[error(transparent)]
     Relay(#[from] crate::relay::RelayError),
+    /// The task loading the stage panicked or was cancelled.
     #[error("loading the stage stopped: {0}")]
     Loading(String),
 }
@@ -47,6 +57,8 @@ const COMMAND_QUEUE: usize = 1024;
 
 /// A running daemon.
 pub struct Running {
+    /// Where the edge listens (HTTP and WebSocket), its port resolved when
+    /// the stage file asks for port 0.
     pub address: SocketAddr,
     /// Where each TUIO input listens, in stage-file order.
     pub tuio_addresses: Vec<SocketAddr>,
@@ -127,6 +139,8 @@ impl Running {
 /// How a daemon is started beyond its stage file.
 #[derive(Debug, Clone)]
 pub struct Options {
+    /// The web client served: compiled in, or a folder
+    /// (`serve --web-root`).
     pub web_files: WebFiles,
     /// An extra replay source (a `.jsonl` recording or evemu capture).
     pub extra_replay: Option<(PathBuf, Pacing)>,
@@ -148,6 +162,9 @@ pub struct Options {
 }
 
 impl Options {
+    /// `serve`'s defaults: takes in `./takes`, added pictures in
+    /// `./puppets`, nothing recorded or played, replays playing, the
+    /// edge's waits from `puppetry_limits::net`.
     pub fn new(web_files: WebFiles) -> Options {
         Options {
             web_files,

@@ -58,8 +58,6 @@ pub enum SourceError {
 pub enum WhenDone {
     /// The source is finished (a replay played once).
     Stop,
-    /// Run it again at once (a replay that repeats).
-    Repeat,
 }
 
 /// Runs `attempt` for source `name` until it is done or the stage stops.
@@ -95,7 +93,6 @@ pub async fn supervise<F, Fut>(
                 tracing::info!("{name}: {forwarded} frames");
                 match when_done {
                     WhenDone::Stop => return,
-                    WhenDone::Repeat => continue,
                 }
             }
             Err(e) => {

@@ -46,23 +46,39 @@ pub struct PlayOptions {
 /// Why a take cannot be played, or stopped playing early.
 #[derive(Debug, thiserror::Error)]
 pub enum PlayError {
+    /// The take file cannot be opened or read (missing, not a take, a
+    /// damaged record).
     #[error(transparent)]
     Take(#[from] puppetry_take::TakeError),
+    /// The take was recorded with other puppets than the stage has (by
+    /// name, rest mesh or rig and pins).
     #[error("{file}: {problem}")]
-    Stage { file: String, problem: String },
+    Stage {
+        /// The take file.
+        file: String,
+        /// Which puppet differs, and how.
+        problem: String,
+    },
     /// The take asked for is the one being recorded.
     #[error(transparent)]
     Recording(#[from] crate::stage_thread::BeingRecorded),
+    /// The stage thread ended (the daemon is shutting down) before or
+    /// while the take played.
     #[error("{file}: the stage stopped")]
-    StageStopped { file: String },
+    StageStopped {
+        /// The take, by name (or by file, once it played).
+        file: String,
+    },
+    /// The player's thread could not be started.
     #[error("cannot start a player: {0}")]
     Thread(std::io::Error),
+    /// The player's thread panicked.
     #[error("the player panicked")]
     Panicked,
 }
 
 /// A take playing.
-pub struct Player {
+pub(crate) struct Player {
     pub name: String,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<Result<usize, PlayError>>>,
@@ -120,7 +136,7 @@ impl Drop for Ending<'_> {
 /// Opens the take at `path`, checks it against the stage's puppets and
 /// starts playing it. The stage thread may still refuse it (the take being
 /// recorded): [`Player::started`] says.
-pub fn play(
+pub(crate) fn play(
     path: &Path,
     puppets: &[PuppetInfo],
     options: PlayOptions,
@@ -398,7 +414,7 @@ impl Filter {
 
 /// The takes folder's file for a take name, refusing names that would
 /// leave the folder.
-pub fn take_path(dir: &Path, name: &str) -> Result<PathBuf, String> {
+pub(crate) fn take_path(dir: &Path, name: &str) -> Result<PathBuf, String> {
     let name = name.strip_suffix(".take").unwrap_or(name);
     if !puppetry_take::valid_name(name) {
         return Err(format!(

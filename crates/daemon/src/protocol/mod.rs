@@ -21,7 +21,7 @@ pub const FRAME_HEADER_BYTES: usize = 32;
 /// Where each field of a frame header starts (bytes, little-endian):
 /// `kind` u32, `puppet` u32, `sequence` u64, `input_time` f64, `count`
 /// u32, `generation` u32.
-pub mod header {
+pub(crate) mod header {
     pub const KIND: usize = 0;
     pub const PUPPET: usize = 4;
     pub const SEQUENCE: usize = 8;
@@ -33,7 +33,7 @@ pub mod header {
 /// Adding a puppet over HTTP: a director POSTs a PNG to [`upload::PATH`]
 /// (`?name=…&vertices=…[&x=…&y=…&scale=…]`, the director's bearer token);
 /// the answer is [`ServerMessage::PuppetAdded`] or an `error`.
-pub mod upload {
+pub(crate) mod upload {
     /// Where the picture is POSTed.
     pub const PATH: &str = "/puppets";
     /// The vertex counts a director may ask for: enough to bend, few
@@ -45,7 +45,7 @@ pub mod upload {
 }
 
 /// Close frame codes the daemon sends (RFC 6455 and the application range).
-pub mod close {
+pub(crate) mod close {
     /// A rule was broken: a foreign origin, no hello, too many bad
     /// messages, a ping left unanswered (the client stopped reading).
     pub const POLICY: u16 = 1008;
@@ -78,13 +78,14 @@ pub enum FrameKind {
 
 impl FrameKind {
     /// Every kind this build sends.
-    pub const KNOWN: [FrameKind; 4] = [
+    pub(crate) const KNOWN: [FrameKind; 4] = [
         FrameKind::Vertices,
         FrameKind::Rig,
         FrameKind::Handles,
         FrameKind::Depth,
     ];
 
+    /// The kind's number, as the header's first u32 carries it.
     pub fn code(self) -> u32 {
         match self {
             FrameKind::Vertices => 1,
@@ -95,7 +96,9 @@ impl FrameKind {
         }
     }
 
-    pub fn from_code(code: u32) -> FrameKind {
+    /// The kind a header's number means; a number this build does not
+    /// know is [`FrameKind::Other`], which clients skip.
+    pub(crate) fn from_code(code: u32) -> FrameKind {
         match code {
             1 => FrameKind::Vertices,
             2 => FrameKind::Rig,
@@ -109,14 +112,18 @@ impl FrameKind {
 /// The 32-byte little-endian header of a binary frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameHeader {
+    /// What the frame carries (byte 0).
     pub kind: FrameKind,
+    /// The puppet's id, as the `stage` message lists it (ids are never
+    /// reused).
     pub puppet: u32,
     /// Per puppet, increasing; a rig frame shares its vertex frame's.
     pub sequence: u64,
     /// When the input that caused the solve reached the daemon (seconds
     /// since it started).
     pub input_time: f64,
-    /// Points that follow the header (f32 x, y pairs).
+    /// Points that follow the header (f32 x, y pairs); a depth frame's
+    /// triangles (u16 depths).
     pub count: u32,
     /// A handles frame: the generation of the handle set its points follow
     /// (the `handles` message's); 0 in other frames.
@@ -124,9 +131,9 @@ pub struct FrameHeader {
 }
 
 impl FrameHeader {
-    /// Appends the header to `out` (in the order of [`header`]'s offsets;
+    /// Appends the header to `out` (in the order of `header`'s offsets;
     /// a test reads each field back at its offset).
-    pub fn encode_into(&self, out: &mut BytesMut) {
+    pub(crate) fn encode_into(&self, out: &mut BytesMut) {
         out.put_u32_le(self.kind.code());
         out.put_u32_le(self.puppet);
         out.put_u64_le(self.sequence);
@@ -160,12 +167,20 @@ impl FrameHeader {
 /// A binary frame that does not decode.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FrameError {
+    /// Too few bytes to hold even the header.
     #[error("frame of {length} bytes is shorter than its 32-byte header")]
-    Short { length: usize },
+    Short {
+        /// The frame's length, bytes.
+        length: usize,
+    },
+    /// The frame is not as long as its header's count says.
     #[error("frame says {count} points ({expected} bytes) but has {length} bytes")]
     Length {
+        /// Points (or, in a depth frame, depths) the header says follow.
         count: u32,
+        /// Bytes that count makes, header and padding included.
         expected: usize,
+        /// Bytes the frame has.
         length: usize,
     },
 }
@@ -209,7 +224,11 @@ pub fn encode_frame_of(
 /// from it earlier is gone (clients drop theirs once sent), its storage is
 /// reclaimed, and the frame shares it with a reference count. A publisher
 /// that alternates two arenas per stream encodes without allocating.
-pub fn encode_frame_into(arena: &mut BytesMut, header: &FrameHeader, points: &[DVec2]) -> Bytes {
+pub(crate) fn encode_frame_into(
+    arena: &mut BytesMut,
+    header: &FrameHeader,
+    points: &[DVec2],
+) -> Bytes {
     write_frame(arena, header, points);
     arena.split().freeze()
 }
@@ -233,7 +252,12 @@ fn write_frame(out: &mut BytesMut, header: &FrameHeader, points: &[DVec2]) {
 }
 
 /// A depth frame (kind 4) of a puppet: the depth of each triangle.
-pub fn encode_depth_frame(puppet: u32, sequence: u64, generation: u32, depth: &[u16]) -> Bytes {
+pub(crate) fn encode_depth_frame(
+    puppet: u32,
+    sequence: u64,
+    generation: u32,
+    depth: &[u16],
+) -> Bytes {
     let payload = depth_payload_bytes(depth.len());
     let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + payload);
     FrameHeader {
@@ -261,8 +285,13 @@ fn depth_payload_bytes(count: usize) -> usize {
 /// depths).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
+    /// The header, as sent.
     pub header: FrameHeader,
+    /// The points, stage coordinates (read back from f32); empty for a
+    /// depth frame.
     pub points: Vec<DVec2>,
+    /// A depth frame's depth of each triangle, in mesh order, larger
+    /// nearer; empty for other kinds.
     pub depths: Vec<u16>,
 }
 
@@ -323,8 +352,10 @@ pub enum Role {
     Director,
 }
 
-/// A role in the `people` list: a client's, or `device` for the stage's
-/// own input sources.
+/// A role in the `people` list: a client's ([`Role`]'s `Viewer`,
+/// `Performer` or `Director`, converted by `From`), or `Device` for the
+/// stage's own input sources. Each variant's doc comment is copied into
+/// the generated `clients/web/wire.js` (strum's `EnumMessage`).
 #[derive(
     Debug,
     Clone,
@@ -340,9 +371,13 @@ pub enum Role {
 #[serde(rename_all = "snake_case")]
 #[strum(serialize_all = "snake_case")]
 pub enum PersonRole {
+    /// Watches only.
     Viewer,
+    /// Performs: contacts, pins, poses, cursors (maybe on some puppets).
     Performer,
+    /// Everything a performer does, and takes, painting, saving, key poses.
     Director,
+    /// One of the stage's own input sources (a touch table, a pad, a replay).
     Device,
 }
 
@@ -363,7 +398,11 @@ impl From<Role> for PersonRole {
 pub struct Person {
     /// `client:N` or the source's name, as handles' `owner`.
     pub owner: String,
+    /// The name pages show: the stage file's name for a person,
+    /// `performer N` for an anonymous performer, the source's name for a
+    /// device.
     pub name: String,
+    /// What they may do; `device` for an input source.
     pub role: PersonRole,
     /// `#RRGGBB`.
     pub colour: String,
@@ -423,37 +462,58 @@ pub enum ErrorCode {
 pub enum ClientMessage {
     /// The first message of every connection.
     Hello {
+        /// The role asked for. With a token, the token's person's role
+        /// decides; a `viewer` hello stays a viewer whatever its token.
         role: Role,
+        /// A performer's or person's token from the stage file's
+        /// `[access]`; none for a viewer.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         token: Option<String>,
     },
     /// One input frame of the client's own contacts.
     Contacts {
+        /// The contacts that changed, each id at most once (at most
+        /// `puppetry_limits::contacts::MAX_CONTACTS_PER_MESSAGE`).
         contacts: Vec<ClientContact>,
     },
     /// A pin at a stage point, on the topmost puppet there.
     Pin {
+        /// Stage units.
         x: f64,
+        /// Stage units, y up.
         y: f64,
     },
     /// "This part in front": where a puppet overlaps itself at the point,
     /// the part behind comes in front until the overlap is undone.
     DepthFlip {
+        /// Stage units.
         x: f64,
+        /// Stage units, y up.
         y: f64,
     },
+    /// Remove a pin, the stage file's included.
     Unpin {
+        /// The puppet the pin holds.
         puppet: u32,
+        /// The pin's handle id ([`HandleView::id`]).
         handle: u64,
     },
     /// One dab of the stiffness brush; the dabs of one `stroke` undo at
     /// once.
     Paint {
+        /// The puppet painted.
         puppet: u32,
+        /// Centre of the dab, stage units.
         x: f64,
+        /// Centre of the dab, stage units, y up.
         y: f64,
+        /// Stage units: above 0, at most the stage's larger side.
         radius: f64,
+        /// The weight factor at the centre (0.001 to 1000): above 1
+        /// stiffens, below 1 softens.
         strength: f64,
+        /// Any number the client picks per drag; none: the dab is a step
+        /// of its own.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
     },
@@ -461,55 +521,83 @@ pub enum ClientMessage {
     /// it take `layer` as their static depth, larger nearer; the dabs of
     /// one `stroke` undo at once.
     PaintDepth {
+        /// The puppet painted.
         puppet: u32,
+        /// Centre of the dab, stage units.
         x: f64,
+        /// Centre of the dab, stage units, y up.
         y: f64,
+        /// Stage units.
         radius: f64,
+        /// The depth layer given, 0 to 32767.
         layer: u16,
+        /// As [`ClientMessage::Paint`]'s.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
     },
     /// A curve puppet drawn on the page (directors): its centre line in
     /// stage coordinates, a stroke `width` wide in `colour` (`#RRGGBB`).
     AddCurve {
+        /// The new puppet's name.
         name: String,
+        /// The centre line, stage coordinates (3 to 4000 points).
         points: Vec<[f64; 2]>,
+        /// Stage units: above 0, at most 200.
         width: f64,
+        /// `#RRGGBB`.
         colour: String,
     },
     /// Take back the puppet's last edit (paint stroke, pin, pose).
     Undo {
+        /// Whose history (each puppet keeps its own).
         puppet: u32,
     },
     /// Do again what the last undo took back.
     Redo {
+        /// Whose history.
         puppet: u32,
     },
     /// Weights as loaded, pins as in the stage file, the skeleton at rest,
     /// the key cursor let go (one undo step).
     Reset {
+        /// The puppet put back.
         puppet: u32,
     },
     /// Play or pause one of the stage's replay inputs.
     Replay {
+        /// The replay input's name ([`ReplayView::name`]).
         source: String,
+        /// Play it (from its beginning), or pause it (what it holds lets
+        /// go).
         playing: bool,
     },
+    /// Write the puppet's mesh with its painted weights to a new file
+    /// beside its mesh file (answered with `weights_saved`).
     SaveWeights {
+        /// The puppet whose weights are saved.
         puppet: u32,
     },
+    /// Ask for a grid puppet's grid handles, rest and deformed (answered
+    /// with `grid`; viewers may ask too).
     ExportGrid {
+        /// A grid puppet.
         puppet: u32,
     },
     /// A skeleton's pose `t` of the way between two key poses.
     Pose {
+        /// A skeleton puppet.
         puppet: u32,
+        /// The key pose at `t = 0` (one of its rig's `poses`).
         from: String,
+        /// The key pose at `t = 1`.
         to: String,
+        /// How far from `from` to `to`; outside 0 to 1 extrapolates.
         t: f64,
     },
     /// Start recording a take (named, or `take-NNN`).
     Record {
+        /// Letters, digits, `-`, `_` and `.`; none: the next free
+        /// `take-NNN`.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         name: Option<String>,
     },
@@ -522,11 +610,17 @@ pub enum ClientMessage {
     /// take from `replace_sources`, or that grabbed a material point within
     /// a `replace` region, are left out: the live performer replaces them.
     Play {
+        /// The take's name, as `list_takes` lists it.
         take: String,
+        /// Record a new take of the played motion and the live hands
+        /// together, stopping when the played take ends.
         #[serde(default)]
         overdub: bool,
+        /// Discs of the rest shapes: played contacts that grabbed a
+        /// material point inside one are left out.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         replace: Vec<Region>,
+        /// Recorded sources whose contacts are left out.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         replace_sources: Vec<String>,
     },
@@ -534,42 +628,59 @@ pub enum ClientMessage {
     StopPlaying,
     /// Take a puppet off the stage (directors). Its id is not reused.
     RemovePuppet {
+        /// The puppet taken off.
         puppet: u32,
     },
     /// The draw order: every puppet on stage once, bottom to top
     /// (directors).
     OrderPuppets {
+        /// Puppet ids, bottom to top.
         order: Vec<u32>,
     },
     /// Move a puppet's keyframing cursor (pad coordinates `[0, 1]²`), or
     /// let it go (`at` left out).
     Cursor {
+        /// The puppet whose cursor it is.
         puppet: u32,
+        /// The pad point, y up (a point off the pad is taken to its
+        /// edge); none: let go.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         at: Option<[f64; 2]>,
     },
     /// A key pose of the puppet as it is now, at a pad point.
     KeyAdd {
+        /// The puppet keyed.
         puppet: u32,
+        /// None: named by the time it was added.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         name: Option<String>,
+        /// Where on the pad (`[0, 1]²`, y up).
         at: [f64; 2],
     },
+    /// Move a key pose to another pad point.
     KeyMove {
+        /// The puppet whose key it is.
         puppet: u32,
+        /// The key's index, as the `keys` message lists it.
         key: usize,
+        /// The new pad point.
         at: [f64; 2],
     },
+    /// Remove a key pose.
     KeyDelete {
+        /// The puppet whose key it is.
         puppet: u32,
+        /// The key's index, as the `keys` message lists it.
         key: usize,
     },
     /// Write the puppet's key poses to its key file.
     SaveKeys {
+        /// The puppet whose keys are saved.
         puppet: u32,
     },
     /// Answered at once with a `pong` carrying the same `t` (latency).
     Ping {
+        /// Any number (the page sends its own clock), echoed back.
         t: f64,
     },
 }
@@ -578,7 +689,9 @@ pub enum ClientMessage {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeyView {
+    /// The key pose's name.
     pub name: String,
+    /// Where it sits on the pad, `[0, 1]²`, y up.
     pub at: [f64; 2],
 }
 
@@ -586,8 +699,11 @@ pub struct KeyView {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Region {
+    /// The puppet whose rest shape it is on.
     pub puppet: u32,
+    /// The disc's centre.
     pub at: [f64; 2],
+    /// Stage units.
     pub radius: f64,
 }
 
@@ -613,12 +729,17 @@ pub struct TakeState {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ExportState {
+    /// The take exported.
     pub take: String,
+    /// The export route's `format=` (`glb`, `mp4`, …).
     pub format: String,
     /// Frames (or chunks) done of `total`.
     pub done: usize,
+    /// Frames (or chunks) in all.
     pub total: usize,
+    /// The export ended, done or failed.
     pub finished: bool,
+    /// Why it failed; none while it runs and when it succeeded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
@@ -627,12 +748,18 @@ pub struct ExportState {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TakeView {
+    /// Its file name without `.take` (what `play` names).
     pub name: String,
+    /// Seconds from its start to its last step or frame.
     pub duration: f64,
+    /// Steps recorded: one per solve, with the changes applied before it.
     pub steps: usize,
+    /// Vertex frames recorded.
     pub frames: usize,
-    /// "stopped", "shutdown", an error, "unended" or "truncated: …".
+    /// "stopped", "shutdown", an error, "recording" (the take being
+    /// recorded now), "unended" or "truncated: …".
     pub ending: String,
+    /// The takes played into it as it was recorded (an overdub's).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub layers: Vec<String>,
 }
@@ -642,10 +769,15 @@ pub struct TakeView {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ClientContact {
+    /// The client's own id for the contact, from its down to its up (the
+    /// stage keeps it apart from other clients' ids).
     pub id: u32,
+    /// Down, move or up.
     pub phase: Phase,
+    /// Stage units; required but for an up.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub x: Option<f64>,
+    /// Stage units, y up; required but for an up.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub y: Option<f64>,
 }
@@ -659,86 +791,148 @@ pub struct ClientContact {
 pub enum ServerMessage {
     /// The answer to `hello`: the stage and every puppet on it.
     Stage {
+        /// This connection's number: its handles' owner is `client:N`.
         client: u64,
+        /// The role granted (a token's person's, which may not be the
+        /// hello's).
         role: Role,
         /// Who this client is on the stage (name and colour).
         you: Person,
+        /// The stage's size.
         stage: StageSize,
+        /// The puppets on stage, bottom to top (later ones drawn over).
         puppets: Vec<PuppetDescription>,
     },
     /// Who is on the stage: connected performers and directors, and the
     /// stage's input sources (on connecting and on every change).
-    People { people: Vec<Person> },
+    People {
+        /// Performers and directors connected, then the input sources.
+        people: Vec<Person>,
+    },
     /// The answer to `ping`: its `t`, and the daemon's clock when it
     /// answered (seconds since it started: the clock of frames'
     /// `input_time`), so a client can place frames on its own clock.
-    Pong { t: f64, clock: f64 },
+    Pong {
+        /// The ping's `t`, as sent.
+        t: f64,
+        /// Seconds since the daemon started, when it answered.
+        clock: f64,
+    },
     /// From a relay only: whether it reaches the stage. While not, the
     /// picture holds still and messages are refused; when it is back, a
     /// fresh `stage` message may follow (the daemon restarted).
     Live {
+        /// The relay reaches the stage now.
         live: bool,
+        /// Why it does not, for people; none when live.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         reason: Option<String>,
     },
     /// A puppet's handle set changed; `generation` is the one handles
     /// frames of this set carry.
     Handles {
+        /// The puppet whose set it is.
         puppet: u32,
+        /// Changes (wrapping) whenever the set does.
         generation: u32,
+        /// The whole set, in the order handles frames give their points.
         handles: Vec<HandleView>,
     },
     /// Undo and redo steps a puppet has (on connecting and on change).
     History {
+        /// The puppet whose history it is.
         puppet: u32,
+        /// Steps `undo` can take back.
         undo: usize,
+        /// Steps `redo` can do again.
         redo: usize,
     },
     /// A skeleton's key-pose blend (on connecting and on change); `from`
     /// and `to` are left out at rest (never set, or reset).
     Pose {
+        /// A skeleton puppet.
         puppet: u32,
+        /// The key pose blended from.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         from: Option<String>,
+        /// The key pose blended towards.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         to: Option<String>,
+        /// How far from `from` to `to`.
         t: f64,
     },
     /// The stage's replay inputs and whether each is playing (on
     /// connecting and on change).
-    Inputs { replays: Vec<ReplayView> },
+    Inputs {
+        /// Every replay input of the stage.
+        replays: Vec<ReplayView>,
+    },
     /// Every mouse cursor on the stage.
-    Cursors { cursors: Vec<CursorView> },
+    Cursors {
+        /// One per mouse input; a mouse that goes away leaves the list.
+        cursors: Vec<CursorView>,
+    },
     /// A puppet's per-triangle stiffness after painting.
-    Weights { puppet: u32, weights: Vec<f64> },
+    Weights {
+        /// The puppet painted.
+        puppet: u32,
+        /// One weight per triangle, in mesh order.
+        weights: Vec<f64>,
+    },
     /// The answer to `save_weights`.
-    WeightsSaved { puppet: u32, file: String },
+    WeightsSaved {
+        /// The puppet whose weights were saved.
+        puppet: u32,
+        /// The mesh file written (a new `NAME.vN.mesh.json`, unless the
+        /// stage file says to overwrite).
+        file: String,
+    },
     /// The answer to `export_grid`.
     Grid {
+        /// The grid puppet asked about.
         puppet: u32,
+        /// Grid handles per row.
         columns: usize,
+        /// Rows of grid handles.
         rows: usize,
+        /// The handles at rest, row by row from the lower left, stage
+        /// coordinates.
         rest: Vec<[f64; 2]>,
+        /// The handles as deformed now, in the same order.
         grid: Vec<[f64; 2]>,
     },
     /// A puppet's key poses and keyframing cursor (on connecting and on
     /// every change).
     Keys {
+        /// The puppet keyed.
         puppet: u32,
+        /// Its key poses, by index (`key_move` and `key_delete` name them
+        /// so).
         keys: Vec<KeyView>,
+        /// The cursor on the pad; none while it is let go.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         cursor: Option<[f64; 2]>,
     },
     /// The answer to `save_keys`.
-    KeysSaved { puppet: u32, file: String },
+    KeysSaved {
+        /// The puppet whose keys were saved.
+        puppet: u32,
+        /// The key file written.
+        file: String,
+    },
     /// The answer to `POST /puppets`: the puppet made from the picture (a
     /// fresh `stage` message with it goes to everyone). `warnings` says
     /// what about the picture may not be what was meant.
     PuppetAdded {
+        /// The new puppet's id.
         puppet: u32,
+        /// Its name, made unique (`-2`, `-3`, …).
         name: String,
+        /// Vertices of the mesh made for it.
         vertices: usize,
+        /// Triangles of that mesh.
         triangles: usize,
+        /// Empty when the picture was all it seemed.
         warnings: Vec<String>,
     },
     /// Recording and playing now (sent to everyone on every change).
@@ -747,10 +941,16 @@ pub enum ServerMessage {
     Export(ExportState),
     /// The answer to `list_takes`: every take, oldest first (unreadable
     /// files are left out and logged).
-    Takes { takes: Vec<TakeView> },
+    Takes {
+        /// Oldest first.
+        takes: Vec<TakeView>,
+    },
     /// Something the client sent could not be done.
     Error {
+        /// What kind of refusal (what a page acts on).
         code: ErrorCode,
+        /// What was refused and why, for people (input echoed in it is
+        /// clipped).
         message: String,
         /// The field at fault, e.g. `contacts[2].y`.
         #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -760,17 +960,8 @@ pub enum ServerMessage {
 
 impl ServerMessage {
     /// The message as the text sent on the wire.
-    pub fn to_text(&self) -> String {
+    pub(crate) fn to_text(&self) -> String {
         serde_json::to_string(self).expect("server messages serialise")
-    }
-
-    /// An `error` message with no field.
-    pub fn error(code: ErrorCode, message: impl Into<String>) -> ServerMessage {
-        ServerMessage::Error {
-            code,
-            message: message.into(),
-            field: None,
-        }
     }
 }
 
@@ -778,7 +969,10 @@ impl ServerMessage {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReplayView {
+    /// The input's name in the stage file (what `replay` names).
     pub name: String,
+    /// Playing now; false while paused, and once a replay that does not
+    /// repeat has played out.
     pub playing: bool,
 }
 
@@ -786,7 +980,9 @@ pub struct ReplayView {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StageSize {
+    /// Stage units.
     pub width: f64,
+    /// Stage units (y up, from 0 at the bottom).
     pub height: f64,
 }
 
@@ -794,7 +990,9 @@ pub struct StageSize {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PuppetDescription {
+    /// What frames and messages name it by; never reused.
     pub id: u32,
+    /// Its name in the stage file, or as added at runtime.
     pub name: String,
     /// Where its picture is served.
     pub texture: String,
@@ -804,9 +1002,12 @@ pub struct PuppetDescription {
     pub uv: Vec<f32>,
     /// Vertex indices, three per triangle.
     pub triangles: Vec<u32>,
+    /// Its handles when the message was made, as the `handles` message
+    /// gives them.
     pub handles: Vec<HandleView>,
     /// Per-triangle stiffness as loaded.
     pub weights: Vec<f64>,
+    /// How it is rigged.
     pub rig: RigDescription,
     /// The stage's `[[pad]]` areas that drive this puppet's key cursor:
     /// a contact landing in one moves the cursor instead of grabbing, so
@@ -833,17 +1034,26 @@ pub struct PadArea {
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 #[strum(serialize_all = "snake_case")]
 pub enum RigDescription {
+    /// Free-form (ARAP): handles hold material points; no rig frames.
     Free,
+    /// A grid (lp-FFD) puppet: rig frames carry its grid handles deformed.
     Grid {
+        /// Grid handles per row.
         columns: usize,
+        /// Rows of grid handles.
         rows: usize,
+        /// How the grid handles move the mesh.
         basis: GridBasis,
+        /// The grid's lower left corner, stage coordinates.
         min: [f64; 2],
+        /// The grid's upper right corner.
         max: [f64; 2],
         /// The grid handles at rest, row by row from `min`.
         rest: Vec<[f64; 2]>,
     },
+    /// A skeleton puppet: rig frames carry its joints posed.
     Skeleton {
+        /// How a dragged joint moves the others.
         mode: SkeletonMode,
         /// `[parent joint, child joint]` pairs.
         bones: Vec<[usize; 2]>,
@@ -855,6 +1065,7 @@ pub enum RigDescription {
     /// A curve puppet: a stroke `width` wide along a centre line; its mesh
     /// is the ribbon along it (vertices `2i`, `2i + 1` beside point `i`).
     Curve {
+        /// The stroke's width, stage units.
         width: f64,
         /// The centre line at rest (not rig points: nothing to draw or grab
         /// but the stroke itself).
@@ -862,17 +1073,28 @@ pub enum RigDescription {
     },
 }
 
+/// How a grid puppet's handles move its mesh (`docs/rigs.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GridBasis {
+    /// Tensor-product Bernstein polynomials over the grid box: smooth,
+    /// every handle moves every vertex a little.
     Bernstein,
+    /// Bilinear in each grid cell: a vertex follows its cell's four
+    /// handles, which lie on the deformed lattice's nodes.
     Lattice,
 }
 
+/// How a skeleton puppet follows a dragged joint (`docs/rigs.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SkeletonMode {
+    /// The dragged joint goes where the contact goes and the others stay
+    /// (the bones at it stretch).
     Free,
+    /// Forward kinematics: the bone ending at the dragged joint turns
+    /// about its parent joint and the bones below follow (a root moves the
+    /// whole skeleton).
     Fk,
 }
 
@@ -880,19 +1102,24 @@ pub enum SkeletonMode {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HandleView {
+    /// The handle's id, unique on the stage (`unpin` names a pin by it).
     pub id: u64,
     /// `client:N`, an input source's name, or `config` for the stage
     /// file's pins.
     pub owner: String,
+    /// What holds it.
     pub kind: HandleKind,
     /// Where it was held when the handle set changed.
     pub at: [f64; 2],
+    /// What it holds.
     pub grip: GripKind,
     /// The grid handle's, joint's or bone's index.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub index: Option<usize>,
 }
 
+/// What holds a handle. Each variant's doc comment is copied into the
+/// generated `clients/web/wire.js` (strum's `EnumMessage`).
 #[derive(
     Debug,
     Clone,
@@ -908,7 +1135,9 @@ pub struct HandleView {
 #[serde(rename_all = "snake_case")]
 #[strum(serialize_all = "snake_case")]
 pub enum HandleKind {
+    /// Held by a finger, mouse or pen (a client's or an input source's).
     Contact,
+    /// Held by a pin (the stage file's or one placed since).
     Pin,
     /// Held by the keyframing cursor's blend of key poses.
     Key,
@@ -947,6 +1176,7 @@ pub enum GripKind {
 pub struct CursorView {
     /// The input source the mouse is.
     pub source: String,
+    /// The cursor, stage coordinates.
     pub at: [f64; 2],
     /// Direction of the pair, radians counter-clockwise from +x.
     pub angle: f64,

@@ -2,10 +2,10 @@
 //! processes that serve it to viewers on any number of machines and
 //! forward remote performers to the daemon. It owns the subjects, the
 //! messages between a daemon and its relays, and cutting large messages
-//! into parts under NATS's payload limit; [`publish`](mod@publish) is the daemon's
+//! into parts under NATS's payload limit; `publish` is the daemon's
 //! side, [`serve`] the relay's, [`nats`] connecting with credentials and
 //! the nats-server configuration that binds each party to its subjects,
-//! [`proof`] how a relayed performer's token is checked without crossing
+//! `proof` how a relayed performer's token is checked without crossing
 //! NATS.
 //!
 //! Everything the daemon publishes is under `puppetry.<stage>.out`, each
@@ -21,11 +21,11 @@
 //! once, as a direct newcomer is.
 
 pub mod nats;
-pub mod proof;
-pub mod publish;
+pub(crate) mod proof;
+pub(crate) mod publish;
 pub mod serve;
 
-pub use serve::{RelayLink, RelayOptions, RelayRunning, Session};
+pub use serve::{RelayOptions, RelayRunning};
 
 use std::time::Duration;
 
@@ -37,50 +37,76 @@ use crate::protocol::{Person, PuppetDescription, Role, StageSize};
 use crate::stream::Admission;
 use crate::stream::guard::Refusal;
 
+/// Why the relay tier could not start: publishing from the daemon,
+/// serving as a relay, or writing a nats-server configuration.
 #[derive(Debug, thiserror::Error)]
 pub enum RelayError {
+    /// The NATS client could not be set up for the server.
     #[error("NATS server {url}: {problem}")]
-    Connect { url: String, problem: String },
+    Connect {
+        /// The address as logs show it (the user, never the password).
+        url: String,
+        /// What the NATS client said.
+        problem: String,
+    },
+    /// A NATS address does not parse, or names two users or an empty one.
     #[error("NATS address {url}: {problem}")]
-    Address { url: String, problem: String },
+    Address {
+        /// The server address at fault, without credentials.
+        url: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// A stage name that is not one NATS subject token.
     #[error("stage name {0:?}: use letters, digits, - and _ (one NATS subject token)")]
     StageName(String),
+    /// A relay name that is not one NATS subject token (or is the
+    /// daemon's user, in a server configuration).
     #[error("relay name {0:?}: use letters, digits, - and _ (one NATS subject token)")]
     RelayName(String),
+    /// A nats-server configuration cannot be written as asked (a
+    /// password it cannot hold, a relay named twice, no random source).
     #[error("nats-server configuration: {0}")]
     ServerConfig(String),
+    /// Subscribing to the stage's subjects failed.
     #[error("NATS subscription {subject}: {problem}")]
-    Subscribe { subject: String, problem: String },
+    Subscribe {
+        /// The subject (a wildcard) subscribed to.
+        subject: String,
+        /// What the NATS client said.
+        problem: String,
+    },
+    /// A relay cannot listen for its viewers.
     #[error(transparent)]
     Stream(#[from] crate::stream::StreamError),
 }
 
 /// Largest part of a message: NATS servers take 1 MiB payloads by default.
-pub const PART: usize = 512 * 1024;
+pub(crate) const PART: usize = 512 * 1024;
 /// Largest message put together from parts.
-pub const MAX_ASSEMBLED: usize = 64 * 1024 * 1024;
+pub(crate) const MAX_ASSEMBLED: usize = 64 * 1024 * 1024;
 /// Header of a message in parts: `i/n`, counted from 1.
 const PART_HEADER: &str = "Puppetry-Part";
 /// How long a relay waits for the daemon's answer.
-pub const ANSWER_WITHIN: Duration = Duration::from_secs(2);
+pub(crate) const ANSWER_WITHIN: Duration = Duration::from_secs(2);
 /// How often a relay says which remote performers it still has, and the
 /// daemon says it is live.
-pub const ALIVE_EVERY: Duration = Duration::from_secs(1);
+pub(crate) const ALIVE_EVERY: Duration = Duration::from_secs(1);
 /// A relay silent this long has lost its performers: the daemon ends
 /// their sessions (their handles let go).
-pub const RELAY_GONE_AFTER: Duration = Duration::from_secs(5);
+pub(crate) const RELAY_GONE_AFTER: Duration = Duration::from_secs(5);
 /// The daemon silent this long: a relay tells its viewers it lost the stage.
-pub const STAGE_GONE_AFTER: Duration = Duration::from_secs(3);
+pub(crate) const STAGE_GONE_AFTER: Duration = Duration::from_secs(3);
 
 /// The subjects of one stage.
 #[derive(Debug, Clone)]
-pub struct Subjects {
+pub(crate) struct Subjects {
     prefix: String,
 }
 
 /// Whether `name` is one NATS subject token of letters, digits, `-`, `_`
 /// (a stage's or a relay's name).
-pub fn is_name(name: &str) -> bool {
+pub(crate) fn is_name(name: &str) -> bool {
     !name.is_empty() && name.chars().all(crate::config::is_name_char)
 }
 
@@ -178,7 +204,7 @@ impl Subjects {
 /// The lineup as relays get it: the `stage` message's puppets, and who
 /// may connect.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct LineupMessage {
+pub(crate) struct LineupMessage {
     /// Which run of the daemon: a new one starts its revisions again.
     pub boot: u64,
     pub revision: u64,
@@ -191,7 +217,7 @@ pub struct LineupMessage {
 
 /// The daemon's heartbeat (`out.live`), every [`ALIVE_EVERY`].
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Heartbeat {
+pub(crate) struct Heartbeat {
     pub boot: u64,
     pub revision: u64,
     /// The daemon's clock (seconds since it started: frames' `input_time`).
@@ -204,7 +230,7 @@ pub struct Heartbeat {
 /// (`in.<relay>.join`). The token itself never crosses NATS: the relay
 /// proves it holds it ([`proof`]).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct JoinRequest {
+pub(crate) struct JoinRequest {
     /// `relay:<relay>:<client>`: how the stage names the client.
     pub source: String,
     pub role: Role,
@@ -215,14 +241,14 @@ pub struct JoinRequest {
 
 /// The daemon's answer to `in.<relay>.challenge`: a nonce for one join.
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Challenge {
+pub(crate) struct Challenge {
     pub nonce: String,
 }
 
 /// The daemon's answer to a [`JoinRequest`].
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum JoinAnswer {
+pub(crate) enum JoinAnswer {
     Joined {
         role: Role,
         you: Person,
@@ -237,7 +263,7 @@ pub enum JoinAnswer {
 
 /// One text message of a relay's client (`in.<relay>.msg`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct MessageRequest {
+pub(crate) struct MessageRequest {
     pub source: String,
     /// The client joined with a role (a session the daemon keeps); else a
     /// viewer, checked as one.
@@ -248,27 +274,27 @@ pub struct MessageRequest {
 /// The daemon's answer to a [`MessageRequest`].
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum MessageAnswer {
+pub(crate) enum MessageAnswer {
     Answer(Option<String>),
     Refused(Refusal),
 }
 
 /// A relay's client with a session left (`in.<relay>.leave`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Leave {
+pub(crate) struct Leave {
     pub source: String,
 }
 
 /// A relay's sessions, every [`ALIVE_EVERY`] (`in.<relay>.alive`: the
 /// subject says which relay).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Alive {
+pub(crate) struct Alive {
     pub sessions: Vec<String>,
 }
 
 /// A part of a puppet's picture (`in.<relay>.picture`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct PictureRequest {
+pub(crate) struct PictureRequest {
     pub id: u32,
     pub offset: usize,
 }
@@ -278,7 +304,7 @@ const TOTAL_HEADER: &str = "Puppetry-Total";
 
 /// `payload` as the messages that carry it: itself, or parts of at most
 /// [`PART`] bytes with a part header (slices of it, not copies).
-pub fn parts(payload: Bytes) -> Vec<(Option<HeaderMap>, Bytes)> {
+pub(crate) fn parts(payload: Bytes) -> Vec<(Option<HeaderMap>, Bytes)> {
     if payload.len() <= PART {
         return vec![(None, payload)];
     }
@@ -294,7 +320,7 @@ pub fn parts(payload: Bytes) -> Vec<(Option<HeaderMap>, Bytes)> {
 }
 
 /// Publishes `payload` on `subject`, in parts if it is large.
-pub async fn publish(
+pub(crate) async fn publish(
     client: &async_nats::Client,
     subject: String,
     payload: Bytes,
@@ -314,12 +340,12 @@ pub async fn publish(
 
 /// Puts messages in parts back together, per subject.
 #[derive(Default)]
-pub struct Assembler {
+pub(crate) struct Assembler {
     pending: std::collections::HashMap<String, (usize, Vec<u8>)>,
 }
 
 #[derive(Debug, PartialEq, thiserror::Error)]
-pub enum PartError {
+pub(crate) enum PartError {
     #[error("{subject}: part header {value:?} is not i/n")]
     Header { subject: String, value: String },
     #[error("{subject}: part {i} of {n} came without the ones before it")]

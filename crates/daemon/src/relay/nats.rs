@@ -17,7 +17,7 @@ use std::time::Duration;
 use super::{ANSWER_WITHIN, RelayError, Subjects, is_name};
 
 /// Where a password left out of a NATS address is read from.
-pub const PASSWORD_VARIABLE: &str = "PUPPETRY_NATS_PASSWORD";
+pub(crate) const PASSWORD_VARIABLE: &str = "PUPPETRY_NATS_PASSWORD";
 
 /// The daemon's user in [`server_config`] (a relay may not be named so).
 pub const DAEMON_USER: &str = "puppetry";
@@ -40,7 +40,8 @@ impl std::fmt::Debug for NatsAddress {
 impl NatsAddress {
     /// `nats://[user[:password]@]host:port`, or several of them
     /// comma-separated (the servers of one cluster, all as one user). A
-    /// user without a password takes [`PASSWORD_VARIABLE`]'s.
+    /// user without a password takes the one in the environment variable
+    /// `PUPPETRY_NATS_PASSWORD`.
     pub fn parse(text: &str) -> Result<NatsAddress, RelayError> {
         Self::parse_with(text, std::env::var(PASSWORD_VARIABLE).ok())
     }
@@ -85,7 +86,7 @@ impl NatsAddress {
     }
 
     /// The address as logs and errors show it: the user, never the password.
-    pub fn shown(&self) -> String {
+    pub(crate) fn shown(&self) -> String {
         match &self.user {
             None => self.servers.clone(),
             Some(user) => self

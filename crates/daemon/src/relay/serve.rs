@@ -6,7 +6,7 @@
 //! viewer, the whole state at once for a late one. Messages of a relay's
 //! clients go to the daemon, which checks and acts on them; an anonymous
 //! viewer stays on the relay, anyone with a role or token has a session on
-//! the stage (the token proven to the daemon, never sent: [`super::proof`]).
+//! the stage (the token proven to the daemon, never sent: `relay::proof`).
 //! When the stage cannot be reached, viewers are told, keep their last
 //! picture, and are told again when it is back.
 
@@ -49,14 +49,21 @@ pub struct RelayOptions {
     /// This relay's name: remote performers are `relay:<name>:<n>`, and
     /// it asks on `in.<name>.…` (its NATS user's permissions must allow it).
     pub name: String,
+    /// Where viewers connect (HTTP and WebSocket); port 0 picks a free
+    /// port ([`RelayRunning::address`] says which).
     pub listen: SocketAddr,
+    /// The web client it serves.
     pub web_files: WebFiles,
+    /// Open connections past which new ones are refused (503).
     pub max_connections: usize,
+    /// How long a client may take to say hello, or to take a message
+    /// sent to it, before it is dropped.
     pub client_timeout: Duration,
 }
 
 /// A running relay.
 pub struct RelayRunning {
+    /// Where it listens, its port resolved.
     pub address: SocketAddr,
     link: RelayLink,
     shutdown: oneshot::Sender<()>,
@@ -645,7 +652,7 @@ fn no_stage_file(size: StageSize) -> Arc<puppetry_stage::config::StageConfig> {
 
 /// Where a relay's clients' messages go: the daemon, over NATS.
 #[derive(Clone)]
-pub struct RelayLink(Arc<LinkInner>);
+pub(crate) struct RelayLink(Arc<LinkInner>);
 
 /// A picture being fetched or fetched, shared by all who asked for it.
 type PictureCell = Arc<tokio::sync::OnceCell<Bytes>>;
@@ -867,7 +874,7 @@ impl RelayLink {
 
 /// A relay client's seat: its messages go to the daemon, which acts on
 /// them with the permissions it gave the client.
-pub struct Session {
+pub(crate) struct Session {
     link: Arc<LinkInner>,
     source: String,
     /// The daemon keeps a session for this client (it has a role or token).

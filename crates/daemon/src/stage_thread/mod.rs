@@ -33,23 +33,22 @@ use publish::Publisher;
 pub use taking::BeingRecorded;
 use taking::Taking;
 
-pub use crate::outputs::{Published, PublishedHandles, PuppetOutput, State, Timings};
-pub use publish::{
-    cursors_message, handle_views, history_message, keys_message, pose_message, published_handles,
-    weights_message,
-};
+pub(crate) use crate::outputs::State;
+pub use crate::outputs::Timings;
+pub(crate) use crate::outputs::{Published, PublishedHandles, PuppetOutput};
+use publish::{cursors_message, published_handles};
 
 /// What the stage thread publishes.
 pub struct Outputs {
     /// The puppets on stage and each one's outputs.
-    pub lineup: watch::Receiver<Arc<Lineup>>,
+    pub(crate) lineup: watch::Receiver<Arc<Lineup>>,
     /// The newest "cursors" message.
-    pub cursors: State,
+    pub(crate) cursors: State,
     /// The newest "take" message (recording and playing now).
-    pub take: State,
+    pub(crate) take: State,
     /// Bumped after each publish, so clients wait on one signal.
-    pub changes: watch::Receiver<u64>,
-    pub timings: Arc<Timings>,
+    pub(crate) changes: watch::Receiver<u64>,
+    pub(crate) timings: Arc<Timings>,
 }
 
 /// The stage thread's answer to a request.
@@ -64,78 +63,119 @@ pub enum Command {
     /// an input frame reached the daemon (seconds since it started);
     /// `reply`: whether it applied, for an asker who waits.
     Change {
+        /// What to apply.
         change: Change,
+        /// Seconds since the daemon started when an input frame reached
+        /// it (the frames it causes carry it as `input_time`); none for
+        /// other changes.
         received: Option<f64>,
+        /// Told whether it applied; none when no one waits.
         reply: Option<Reply<()>>,
     },
     /// A source may grab only these puppets (`None`: any), e.g. a
     /// performer limited to named puppets.
     Limit {
+        /// The source limited (`client:N`, a relay's `relay:…`).
         source: String,
+        /// Puppet ids it may grab; `None`: any.
         puppets: Option<Vec<u32>>,
     },
     /// A mouse's cursor moved (`None`: the mouse went away).
     Cursor {
+        /// The mouse input's name.
         source: String,
+        /// Where it is and what it holds; `None`: it went away.
         cursor: Option<CursorState>,
     },
     /// Undo, redo or reset a puppet's edits.
     Edit {
+        /// Whose history.
         puppet: u32,
+        /// Which.
         edit: Edit,
+        /// Told whether it could be done.
         reply: Reply<()>,
     },
     /// The grid of a grid puppet, rest and deformed.
     ExportGrid {
+        /// A grid puppet.
         puppet: u32,
+        /// Gets the grid, or why there is none.
         reply: Reply<GridExport>,
     },
     /// The puppet's mesh file with the painted weights (the asker makes
     /// the text and writes it: the stage thread does no file I/O).
     SaveWeights {
+        /// The puppet whose weights are saved.
         puppet: u32,
+        /// Gets the file's content and where it goes.
         reply: Reply<WeightsFile>,
     },
     /// A worker rebuilt a free-form puppet's solver with painted weights
     /// (`None`: it failed).
     Rebuilt {
+        /// The puppet rebuilt.
         puppet: u32,
+        /// The weights generation it was built from: when the puppet was
+        /// painted again meanwhile, another rebuild follows.
         generation: u64,
+        /// The new solver; `None`: registering it failed (logged).
         arap: Option<Box<Arap>>,
     },
     /// One step of a take played back: applied and solved on its own, so
     /// with no live input between it gives the frames the take recorded.
-    Played { changes: Vec<Change>, received: f64 },
+    Played {
+        /// The step's changes, its sources renamed and what live
+        /// performers replace left out.
+        changes: Vec<Change>,
+        /// Seconds since the daemon started when the player handed it over.
+        received: f64,
+    },
     /// Start recording a take into the takes folder (`None`: the next free
     /// `take-NNN`); `layers` names takes played into it.
     StartTake {
+        /// The take's name; `None`: the next free `take-NNN`.
         name: Option<String>,
+        /// The takes played into it (an overdub's).
         layers: Vec<String>,
+        /// Gets the take's name, or why it did not start.
         reply: oneshot::Sender<Result<String, String>>,
     },
     /// Stop the take being recorded; answers its name.
     StopTake {
+        /// Gets the take's name, or why nothing stopped.
         reply: oneshot::Sender<Result<String, String>>,
     },
     /// The key file of a puppet, to write (the asker writes it).
     SaveKeys {
+        /// The puppet whose keys are saved.
         puppet: u32,
+        /// Gets the key file's path and content.
         reply: Reply<(PathBuf, puppetry_stage::keys::KeyFile)>,
     },
     /// A player asks to start playing a take: refused if it is the take
     /// being recorded, else it is the take playing (the take state says).
     PlayStarting {
+        /// The take's name (its sources play as `NAME/SOURCE`).
         name: String,
+        /// Its file, compared with the take being recorded.
         path: PathBuf,
+        /// Told whether it may play.
         reply: oneshot::Sender<Result<(), taking::BeingRecorded>>,
     },
     /// The take playing ended (played out, stopped or failed): what its
     /// sources still hold lets go, and an overdub of it stops.
-    PlayEnded { name: String },
+    PlayEnded {
+        /// The take's name, as in its `PlayStarting`.
+        name: String,
+    },
     /// Add, remove or reorder puppets (refused while a take records);
     /// answers the puppet added or removed (0 for a new order).
     Lineup {
+        /// What changes.
         change: LineupChange,
+        /// Gets the puppet added or removed (0 for a new order), or why
+        /// the change was refused.
         reply: Reply<u32>,
     },
     /// End the thread (the daemon is shutting down).
@@ -145,14 +185,19 @@ pub enum Command {
 /// What an [`Command::Edit`] does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Edit {
+    /// Put back what the last edit replaced.
     Undo,
+    /// Do again what the last undo took back.
     Redo,
+    /// Back as loaded (weights, pins, rest pose, cursor let go), as one
+    /// undoable step.
     Reset,
 }
 
 /// Where takes go, and whether one starts by itself.
 #[derive(Debug, Clone)]
 pub struct TakeSettings {
+    /// The takes folder (`serve --takes`): takes are recorded into it.
     pub dir: PathBuf,
     /// The stage file, as takes name it.
     pub stage_file: String,
@@ -163,6 +208,7 @@ pub struct TakeSettings {
 /// A mouse cursor's state, as a mouse source reports it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CursorState {
+    /// The cursor, stage coordinates.
     pub at: [f64; 2],
     /// Direction of the pair, radians counter-clockwise from +x.
     pub angle: f64,
@@ -175,7 +221,7 @@ pub struct CursorState {
 /// Starts the stage thread; returns what it publishes. The thread stops
 /// when every command sender is dropped; `wake` (a weak sender of the same
 /// channel) is how solver rebuilds come back.
-pub fn spawn(
+pub(crate) fn spawn(
     config: StageConfig,
     stage: Stage,
     mut commands: mpsc::Receiver<Command>,
@@ -214,7 +260,7 @@ pub fn spawn(
     (outputs, thread)
 }
 
-/// The stage thread's loop, one command at a time: [`spawn`] runs it on
+/// The stage thread's loop, one command at a time: `spawn` runs it on
 /// its thread, draining the command channel and solving once per batch; a
 /// simulated show drives it by hand, so it runs exactly the code a show
 /// does (takes recorded, played, overdubbed and stopped included) with the
@@ -270,12 +316,12 @@ impl StageDriver {
     }
 
     /// A batch of commands begins (for the timings).
-    pub fn begin(&mut self) {
+    pub(crate) fn begin(&mut self) {
         self.batch.started = Instant::now();
     }
 
     /// Whether a [`Command::Stop`] came.
-    pub fn stopped(&self) -> bool {
+    pub(crate) fn stopped(&self) -> bool {
         self.batch.stop
     }
 

@@ -24,6 +24,7 @@ use super::TakeSettings;
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("take {take} is being recorded: stop recording before playing it")]
 pub struct BeingRecorded {
+    /// The take's name.
     pub take: String,
 }
 

@@ -8,15 +8,15 @@
 mod edge;
 mod exports;
 pub(crate) mod following;
-pub mod guard;
+pub(crate) mod guard;
 mod origin;
-pub mod people;
+pub(crate) mod people;
 mod uploads;
-pub mod upstream;
-pub use uploads::restore_pictures;
+pub(crate) mod upstream;
+pub(crate) use uploads::restore_pictures;
 
 pub use edge::{EdgeTimes, WebFiles};
-pub use people::People;
+pub(crate) use people::People;
 
 use futures_util::SinkExt;
 use std::net::SocketAddr;
@@ -36,11 +36,16 @@ use crate::protocol::{ClientMessage, Role, ServerMessage};
 use crate::stage_thread::{Command, Edit};
 use following::Following;
 
+/// Why the edge (a daemon's or a relay's) could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
+    /// Binding the listening socket failed (an address in use, a port the
+    /// process may not open, an address not of this machine).
     #[error("cannot listen on {address}: {source}")]
     Listen {
+        /// The address asked for.
         address: SocketAddr,
+        /// What the system said.
         source: std::io::Error,
     },
 }
@@ -55,7 +60,7 @@ pub const MAX_BAD_MESSAGES: u32 = 20;
 /// What every connection task shares: the edge's settings, the feeds a
 /// connection follows, and where its messages go (the stage itself, or a
 /// daemon reached over NATS when this edge is a relay).
-pub struct Shared {
+pub(crate) struct Shared {
     /// The puppets on stage and where each one's output is.
     pub lineup: watch::Receiver<Arc<Lineup>>,
     /// Client mistakes are logged through this, per client address.
@@ -90,7 +95,7 @@ pub struct Shared {
 }
 
 /// Where a connection's messages go.
-pub enum Backend {
+pub(crate) enum Backend {
     /// This process runs the stage.
     Stage(StageLinks),
     /// This process is a relay: the stage is a daemon reached over NATS.
@@ -98,7 +103,7 @@ pub enum Backend {
 }
 
 /// What only the process running the stage has.
-pub struct StageLinks {
+pub(crate) struct StageLinks {
     /// Who may connect, and who is connected.
     pub people: Arc<People>,
     pub commands: mpsc::Sender<Command>,
@@ -122,7 +127,7 @@ pub struct StageLinks {
 /// per address: the stage file's `[access]`, which a relay learns from
 /// the daemon.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Admission {
+pub(crate) struct Admission {
     pub allowed_origins: Vec<String>,
     pub max_per_address: usize,
 }
@@ -152,7 +157,7 @@ impl Shared {
 }
 
 /// Binds the listener; `run` serves until `shutdown` resolves.
-pub async fn bind(address: SocketAddr) -> Result<TcpListener, StreamError> {
+pub(crate) async fn bind(address: SocketAddr) -> Result<TcpListener, StreamError> {
     TcpListener::bind(address)
         .await
         .map_err(|source| StreamError::Listen { address, source })
@@ -160,7 +165,7 @@ pub async fn bind(address: SocketAddr) -> Result<TcpListener, StreamError> {
 
 /// Serves HTTP and WebSocket until `shutdown` resolves; each connection is
 /// served by its own task, and an error in one is logged and contained.
-pub async fn run(
+pub(crate) async fn run(
     listener: TcpListener,
     shared: Arc<Shared>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
@@ -169,7 +174,7 @@ pub async fn run(
 }
 
 /// [`run`], waiting on connections as `times` says.
-pub async fn run_with(
+pub(crate) async fn run_with(
     listener: TcpListener,
     shared: Arc<Shared>,
     times: EdgeTimes,
@@ -180,7 +185,7 @@ pub async fn run_with(
 
 type Ws = WebSocket;
 
-pub use crate::protocol::close;
+pub(crate) use crate::protocol::close;
 
 /// Sends a close frame with `code` and `reason`; the connection ends after.
 async fn close_with(ws: &mut Ws, code: u16, reason: &str) {
@@ -281,14 +286,14 @@ enum Seat {
 }
 
 /// A hello that was refused: what to tell the client, and how to close.
-pub struct JoinRefused {
+pub(crate) struct JoinRefused {
     pub refusal: guard::Refusal,
     pub close: u16,
     pub reason: String,
 }
 
 /// What the stage says of a client it let in.
-pub struct Joined {
+pub(crate) struct Joined {
     pub role: Role,
     pub you: crate::protocol::Person,
     /// Ids of the puppets a limited performer plays; `None`: all.
