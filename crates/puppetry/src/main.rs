@@ -370,6 +370,10 @@ struct BenchArgs {
     /// exports of a 60 s, 60 fps take (glb, 1280x720 PNG).
     #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth"])]
     takes: bool,
+    /// Bench exports instead: every format of a 60 s take at 30 fps
+    /// (drawn ones at 1280x720), in seconds and times real time.
+    #[arg(long, conflicts_with_all = ["e2e", "rigs", "depth", "takes", "curves"])]
+    export: bool,
     /// Handle counts to bench (at most 200: each handle change inverts a
     /// dense system of about that size).
     #[arg(long, value_delimiter = ',', default_value = "2,10,40",
@@ -922,6 +926,9 @@ fn bench_command(args: BenchArgs) -> anyhow::Result<()> {
     if args.takes {
         return bench_takes(args);
     }
+    if args.export {
+        return bench_exports(args);
+    }
     if args.e2e {
         return bench_end_to_end(args);
     }
@@ -977,6 +984,14 @@ fn bench_viewers(
             println!("{}", vb::viewers_table_row(&r));
         }
     }
+
+    Ok(())
+}
+
+fn bench_exports(_: BenchArgs) -> anyhow::Result<()> {
+    let stages = cli::end_to_end_stages()?;
+    let print = |line: &str| println!("{line}");
+    puppetry_bench::take_bench::export_bench(&stages[0].1, &print).map_err(anyhow::Error::msg)?;
 
     Ok(())
 }

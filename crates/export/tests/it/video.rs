@@ -300,3 +300,76 @@ fn colours_come_back_as_a_bt709_player_shows_them() {
         assert!(off <= 4, "{ext}: red {RED:?} shows as {got:?}");
     }
 }
+
+/// Every video shows what the PNG export shows: frames decoded as a
+/// BT.709 player decodes them match the PNG sequence's (composited over
+/// white for .mp4, premultiplied for the others) within the codec's loss.
+#[test]
+fn decoded_frames_match_the_png_export() {
+    tools();
+    let animation = two_figures(FRAMES, FPS);
+    let dir = tempfile::tempdir().unwrap();
+    let pngs = dir.path().join("png");
+    let options = puppetry_export::frames::PngOptions {
+        width: W,
+        height: H,
+    };
+    puppetry_export::frames::export_png_sequence(&animation, &options, &mut (), &pngs).unwrap();
+    let mut lines = Vec::new();
+    for (ext, decoder, opaque, tolerance) in [
+        ("mp4", None, true, 2.0),
+        ("mov", None, false, 1.0),
+        ("webm", Some("libvpx-vp9"), false, 2.5),
+    ] {
+        let path = dir.path().join(format!("take.{ext}"));
+        export_video(&animation, &VideoOptions::new(W, H), &mut (), &path).unwrap();
+        let mut worst = 0.0f64;
+        for k in [0, FRAMES / 2, FRAMES - 1] {
+            let mut cmd = Command::new("ffmpeg");
+            cmd.args(["-v", "error", "-nostdin"]);
+            if let Some(d) = decoder {
+                cmd.args(["-c:v", d]);
+            }
+            let out = cmd
+                .arg("-i")
+                .arg(&path)
+                .args([
+                    "-vf",
+                    &format!("select=eq(n\\,{k}),scale=in_color_matrix=bt709:in_range=tv"),
+                    "-frames:v",
+                    "1",
+                ])
+                .args(["-f", "rawvideo", "-pix_fmt", "rgba", "-"])
+                .output()
+                .unwrap();
+            assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+            let png = puppetry_export::load_png(&pngs.join(puppetry_export::frames::frame_name(k)))
+                .unwrap()
+                .pixels;
+            assert_eq!(out.stdout.len(), png.len());
+            // Compared as what is shown: over white without alpha,
+            // premultiplied colour and alpha with it.
+            let shown = |px: &[u8]| -> [f64; 4] {
+                let a = px[3] as f64 / 255.0;
+                let c = |i: usize| px[i] as f64 * a + if opaque { 255.0 * (1.0 - a) } else { 0.0 };
+                [c(0), c(1), c(2), if opaque { 255.0 } else { px[3] as f64 }]
+            };
+            let mut sum = 0.0;
+            for (got, want) in out.stdout.chunks_exact(4).zip(png.chunks_exact(4)) {
+                let (g, w) = (shown(got), shown(want));
+                sum += (0..4).map(|i| (g[i] - w[i]).abs()).sum::<f64>() / 4.0;
+            }
+            let mean = sum / (W * H) as f64;
+            assert!(
+                mean <= tolerance,
+                "{ext} frame {k}: {mean:.2} levels from the PNG on average (at most {tolerance})"
+            );
+            worst = worst.max(mean);
+        }
+        lines.push(format!("{ext} {worst:.2}"));
+    }
+    crate::common::note(&format!(
+        "decoded videos vs the PNG export, mean levels off (worst of 3 frames): {}",
+        lines.join(", ")
+    ));
+}
