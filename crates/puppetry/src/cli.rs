@@ -19,47 +19,88 @@ use puppetry_mesh::build::{MeshOptions, Meshed, mesh_picture, mesh_png, triangul
 use puppetry_mesh::polygon::Shape;
 use puppetry_mesh::{Locator, Mesh, MeshError, json};
 
+/// Why a command of this module failed; each message names the file (or
+/// benchmark mesh) at fault, for `main.rs` to report as it is.
 #[derive(Debug, thiserror::Error)]
 pub enum CliError {
+    /// A picture, polygon, mesh or handles file is unreadable, malformed or
+    /// breaks a rule (the error names the file and field); also a bundled
+    /// stage file that `bench --e2e` cannot load.
     #[error(transparent)]
     Mesh(#[from] MeshError),
+    /// The ARAP solver refused the mesh, the handles or the solve; the
+    /// string is what is at fault: the mesh file if registering it failed,
+    /// else the handles file (the mesh's name in `bench`).
     #[error("{file}: {0}", file = .1)]
     Solve(ArapError, String),
+    /// `compare` could not run one of its methods.
     #[error("{file}: {source}")]
-    Compare { file: String, source: CompareError },
+    Compare {
+        /// The mesh file compared.
+        file: String,
+        /// Which method failed, and why.
+        source: CompareError,
+    },
+    /// An lp-FFD case of `bench` failed; the string is the mesh's name.
     #[error("{file}: lp-FFD: {0}", file = .1)]
     Ffd(FfdError, String),
+    /// A skeleton case of `bench` failed; the string is the mesh's name.
     #[error("{file}: skeleton: {0}", file = .1)]
     Skeleton(SkeletonError, String),
+    /// A polygon or handles file is not a regular file (a folder, a FIFO),
+    /// is past the mesh file's size cap, or failed to read.
     #[error(transparent)]
     File(#[from] puppetry_mesh::file::FileError),
+    /// A file could not be opened or read: an input, whose first bytes are
+    /// checked for its kind, or the bundled stage file of `bench --e2e`.
     #[error("{file}: cannot read: {source}")]
     Read {
+        /// The file's path, as given.
         file: String,
+        /// What the operating system said.
         source: std::io::Error,
     },
+    /// An output (a mesh, an SVG, the folder `compare --svg` writes into,
+    /// `bench --e2e`'s temporary mesh) could not be created or written.
     #[error("{file}: cannot write: {source}")]
     Write {
+        /// The output's path, as given.
         file: String,
+        /// What the operating system said.
         source: std::io::Error,
     },
+    /// A case of `bench --depth` failed; the string is the mesh's name.
     #[error("{file}: depth: {0}", file = .1)]
     Depth(bench::DepthBenchError, String),
+    /// The bundled demo (its picture, stage or `compare` figure) could not
+    /// be unpacked.
     #[error(transparent)]
     Bundle(#[from] puppetry_daemon::bundled::BundleError),
+    /// The bundled demo skeleton, wanted by `bench`'s skeleton cases, did
+    /// not load; the string says why.
     #[error("the bundled demo: {0}")]
     Demo(String),
+    /// A file of the wrong kind: a picture given where a mesh or handles
+    /// file is taken, or a picture other than a PNG (or a PDF) to `mesh`.
     #[error("{file}: this is {kind}; {expected}")]
     Kind {
+        /// The file's path, as given.
         file: String,
+        /// What the file is, in words ("a PNG picture", "not UTF-8 text").
         kind: &'static str,
+        /// What is taken here instead, and how to make it.
         expected: &'static str,
     },
+    /// `puppetry mesh` without `-o`, and the `NAME.mesh.json` it would
+    /// write beside the input exists already (it is never replaced).
     #[error(
         "{file} exists already: give -o {file} to replace it, -o OTHER.mesh.json to write \
          elsewhere, or -o - for standard output"
     )]
-    Exists { file: String },
+    Exists {
+        /// The mesh file that exists.
+        file: String,
+    },
 }
 
 /// What `puppetry mesh` takes, for errors about anything else.
@@ -224,7 +265,8 @@ impl MeshOutput {
     }
 }
 
-pub fn write(path: &Path, text: &str) -> Result<(), CliError> {
+/// Writes `text` to `path`, replacing it; a failure names the file.
+fn write(path: &Path, text: &str) -> Result<(), CliError> {
     std::fs::write(path, text).map_err(|source| CliError::Write {
         file: path.display().to_string(),
         source,
@@ -419,7 +461,12 @@ pub fn url_address(address: SocketAddr) -> SocketAddr {
 /// a warning when the stage is open beyond this machine with tokens anyone
 /// who has read the README knows (`demo_tokens`, the bundled stages').
 pub struct Serving {
+    /// For standard output, in order: what is served where, then the
+    /// performer and director URLs (with their tokens) when the stage has
+    /// them.
     pub lines: Vec<String>,
+    /// None unless the stage listens beyond loopback with one of the
+    /// bundled demo tokens; then what to warn, and how to fix it.
     pub warning: Option<String>,
 }
 

@@ -13,6 +13,7 @@ use puppetry_export::Progress;
 use puppetry_export::budget::BudgetError;
 use puppetry_export::take::{ExportRequest, TakeExportError, export_take};
 
+/// Why `puppetry export` refused or failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportCommandError {
     /// The export would pass a limit, or the take cannot be read for its
@@ -28,8 +29,11 @@ pub enum ExportCommandError {
         "{take} was recorded on the stage file {recorded:?}, which is not here (looked for {looked}); give it with --config"
     )]
     NoStageFile {
+        /// The take's path, as given.
         take: String,
+        /// The stage file its header names, as the daemon was given it.
         recorded: String,
+        /// Every path tried, comma-separated.
         looked: String,
     },
 }
@@ -102,6 +106,8 @@ pub struct Bar {
 }
 
 impl Bar {
+    /// A bar labelled `what` (such as "export png"); whether it is drawn is
+    /// decided here, once.
     pub fn new(what: &str) -> Bar {
         Bar {
             what: what.to_string(),

@@ -9,12 +9,18 @@ use puppetry_stage::config::StageConfig;
 use puppetry_take::replay::verify;
 use puppetry_take::{Tail, TakeError};
 
+/// Why `puppetry takes` could not list or check at all; a take that is
+/// unreadable or fails to replay is reported in the listing instead.
 #[derive(Debug, thiserror::Error)]
 pub enum TakesError {
+    /// The folder could not be read.
     #[error(transparent)]
     Take(#[from] TakeError),
+    /// The stage file to verify against could not be loaded.
     #[error(transparent)]
     Config(#[from] puppetry_stage::config::ConfigError),
+    /// The stage file loaded but its stage could not be built (a puppet
+    /// could not be loaded, rigged or placed).
     #[error(transparent)]
     Stage(#[from] puppetry_stage::StageError),
 }
