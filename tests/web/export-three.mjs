@@ -1,5 +1,6 @@
 // three.js plays an exported .glb in headless Chromium:
 //   node export-three.mjs FILE.glb T1,T2,… [indices]
+//   node export-three.mjs FILE.glb render T X1,Y1,X2,Y2,… W H
 // GLTFLoader loads it, an AnimationMixer sets the first animation to each
 // time, and for every puppet (a child of the scene) the chunk nodes shown
 // (scale ≠ 0) are morphed on the CPU: base + Σ influence · target, from
@@ -62,24 +63,63 @@ window.sample = async (url, times, withIndices) => {
   }
   return { duration: clip.duration, samples };
 };
+// Renders the stage at time t as a viewer would (WebGL, an orthographic
+// camera in front of the stage, y up) and returns the colour at each stage
+// point: what three.js draws on top where puppets overlap.
+window.render = async (url, t, points, stage) => {
+  const gltf = await new GLTFLoader().loadAsync(url);
+  const mixer = new THREE.AnimationMixer(gltf.scene);
+  const action = mixer.clipAction(gltf.animations[0]);
+  action.play();
+  mixer.setTime(t);
+  const [w, h] = [stage.width, stage.height];
+  const renderer = new THREE.WebGLRenderer({ preserveDrawingBuffer: true });
+  renderer.setSize(w, h);
+  document.body.appendChild(renderer.domElement);
+  const scene = new THREE.Scene();
+  scene.background = new THREE.Color(0, 0, 0);
+  scene.add(gltf.scene);
+  const camera = new THREE.OrthographicCamera(0, w, h, 0, 0.1, 10 * Math.max(w, h));
+  camera.position.set(0, 0, 5 * Math.max(w, h));
+  renderer.render(scene, camera);
+  const gl = renderer.getContext();
+  return points.map(([x, y]) => {
+    const px = new Uint8Array(4);
+    gl.readPixels(Math.round(x), Math.round(y), 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+    return Array.from(px.slice(0, 3));
+  });
+};
 window.ready = true;
 </script>`;
 
 run(async () => {
-  const [file, list, extra] = process.argv.slice(2);
-  const times = list.split(',').map(Number);
+  const [file, list, extra, ...rest] = process.argv.slice(2);
   const { server, url } = await serve({
     '/': { body: PAGE, type: 'text/html' },
     '/model.glb': { body: fs.readFileSync(file), type: 'model/gltf-binary' },
     '/three/': path.join(HERE, 'node_modules/three'),
   });
-  const browser = await launch();
+  const rendering = list === 'render';
+  const browser = await launch(rendering ? { webgl: true } : {});
   try {
     await browser.page.goto(`${url}/`);
     await browser.page.waitForFunction(() => window.ready === true);
-    const result = await browser.page.evaluate(
-      ([u, ts, ix]) => window.sample(u, ts, ix), [`${url}/model.glb`, times, extra === 'indices'],
-    );
+    let result;
+    if (rendering) {
+      // render T X1,Y1,… W H: the colours at those stage points.
+      const numbers = rest[0].split(',').map(Number);
+      const points = [];
+      for (let i = 0; i + 1 < numbers.length; i += 2) points.push([numbers[i], numbers[i + 1]]);
+      const stage = { width: Number(rest[1]), height: Number(rest[2]) };
+      result = { colours: await browser.page.evaluate(
+        ([u, t, p, s]) => window.render(u, t, p, s), [`${url}/model.glb`, Number(extra), points, stage],
+      ) };
+    } else {
+      const times = list.split(',').map(Number);
+      result = await browser.page.evaluate(
+        ([u, ts, ix]) => window.sample(u, ts, ix), [`${url}/model.glb`, times, extra === 'indices'],
+      );
+    }
     if (browser.errors.length) throw new Error(browser.errors.join('\n'));
     return result;
   } finally {

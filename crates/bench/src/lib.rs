@@ -8,8 +8,6 @@
 //! `compare` and `bench-case` call into it. Every public item is
 //! documented (`missing_docs` is on here).
 
-#![warn(missing_docs)]
-
 pub mod bench;
 pub mod compare;
 pub mod peers;

@@ -6,8 +6,6 @@
 //! decoders and device loops that make frames live in `puppetry-input`.
 //! Every public item is documented (`missing_docs` is on here).
 
-#![warn(missing_docs)]
-
 use std::fmt;
 use std::sync::Arc;
 

@@ -30,8 +30,6 @@
 //!                                    newest only)               edge, fed from NATS)
 //! ```
 
-#![warn(missing_docs)]
-
 pub mod bundled;
 pub mod config;
 pub mod convert;

@@ -1,5 +1,6 @@
 //! The two-step as-rigid-as-possible solver of Igarashi, Moscovich & Hughes
-//! (2005), as restated in `shared/design/algorithms.md` §1.
+//! (2005), "As-Rigid-As-Possible Shape Manipulation" (SIGGRAPH 2005);
+//! `docs/solver.md` explains it as built here.
 //!
 //! Step 1 finds the scale-free shape (energy `vᵀGv`), step 2a fits a rotated
 //! rest triangle to each step-1 triangle, step 2b assembles them (energy with

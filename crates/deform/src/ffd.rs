@@ -1,5 +1,5 @@
 //! Locality-preserving free-form deformation (lp-FFD, Fukusato, Maejima &
-//! Igarashi), as restated in `shared/design/algorithms.md` §2: the mesh is
+//! Igarashi; `docs/rigs.md` says how a puppet uses it): the mesh is
 //! embedded in an `M×N` grid of handles, every vertex a fixed linear blend
 //! `V = W P` of them, and the unknowns are the grid handles only. Users pull
 //! vertex handles (any point of the mesh) and grid handles; the grid that

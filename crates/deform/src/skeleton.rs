@@ -1,5 +1,5 @@
-//! The shape-aware skeletal deformer of Wang, Yang, Peng & Wang (2013), as
-//! restated in `shared/design/algorithms.md` §3: a [`Skeleton`] (joints and
+//! The shape-aware skeletal deformer of Wang, Yang, Peng & Wang (2013)
+//! (`docs/rigs.md` says how a puppet uses it): a [`Skeleton`] (joints and
 //! bones forming a forest), its forward kinematics ([`Pose`]: root positions,
 //! joint angles, bone lengths) and [`ShapeAware`], which drives a rest
 //! [`Mesh`] from posed joint positions.

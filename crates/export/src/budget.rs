@@ -20,6 +20,7 @@ use puppetry_take::{TakeError, TakeReader};
 use crate::ExportError;
 use crate::format::Format;
 
+/// Why an export's cost could not be known or is past a limit.
 #[derive(Debug, thiserror::Error)]
 pub enum BudgetError {
     /// The take cannot be read.
@@ -33,12 +34,16 @@ pub enum BudgetError {
         "{take}: {what} at {fps} fps would be {amount}, past the limit of {limit}; export a shorter range (from/to) or at a lower frame rate"
     )]
     TooLarge {
+        /// The take's file name (no folder: the daemon sends this to pages).
         take: String,
         /// What is counted: "{n} frames", "the motion of {n} frames × {v}
         /// vertices", "the .glb file".
         what: String,
+        /// The frame rate asked for.
         fps: f64,
+        /// How much that would be, with its unit.
         amount: String,
+        /// The limit it passes, with its unit.
         limit: String,
     },
 }

@@ -15,9 +15,10 @@ use crate::{Animation, ExportError, Progress, io_error};
 /// Options of a PNG sequence.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PngOptions {
-    /// Picture size in pixels (`--size WxH`); the stage is fitted inside,
+    /// Picture width in pixels (`--size WxH`); the stage is fitted inside,
     /// centred.
     pub width: u32,
+    /// Picture height in pixels.
     pub height: u32,
 }
 

@@ -44,21 +44,38 @@ pub enum ExportError {
     /// Reading or writing a file failed.
     #[error("{file}: {source}")]
     Io {
+        /// The file (or folder) read or written.
         file: String,
+        /// What the system said.
         source: std::io::Error,
     },
     /// A file's content or name is unusable (not a PNG, unknown extension),
     /// or a tool working on it failed.
     #[error("{file}: {problem}")]
-    File { file: String, problem: String },
+    File {
+        /// The file.
+        file: String,
+        /// What is wrong with it.
+        problem: String,
+    },
     /// A field of the [`Animation`] is inconsistent, e.g.
     /// `puppets[0] "gingerbread".frames[3]`.
     #[error("{field}: {problem}")]
-    Invalid { field: String, problem: String },
+    Invalid {
+        /// The field's path in the animation.
+        field: String,
+        /// What is wrong with it.
+        problem: String,
+    },
     /// A command-line value is out of range: `--fps`, `--from`, `--to`,
     /// `--size`, `--chunk`.
     #[error("{flag}: {problem}")]
-    Flag { flag: String, problem: String },
+    Flag {
+        /// The flag, as `--size`.
+        flag: String,
+        /// What is wrong with its value.
+        problem: String,
+    },
     /// A picture refused as the stage refuses it (not a regular file, too
     /// large a file, too many pixels, not a PNG).
     #[error(transparent)]
@@ -67,10 +84,20 @@ pub enum ExportError {
     /// missing folder, or files already there (without `--force`); see
     /// [`output`].
     #[error("-o {path}: {problem}")]
-    Output { path: String, problem: String },
+    Output {
+        /// The `-o` given.
+        path: String,
+        /// Why it cannot be written.
+        problem: String,
+    },
     /// An external program is not installed.
     #[error("{tool} not found on PATH; install it ({install})")]
-    ToolMissing { tool: String, install: String },
+    ToolMissing {
+        /// The program, as `ffmpeg`.
+        tool: String,
+        /// How to install it.
+        install: String,
+    },
 }
 
 pub(crate) fn io_error(file: &Path) -> impl FnOnce(std::io::Error) -> ExportError + '_ {
@@ -131,6 +158,7 @@ pub fn write_new<T>(
 pub struct Scratch(tempfile::TempDir);
 
 impl Scratch {
+    /// A new, empty scratch folder.
     pub fn new() -> Result<Scratch, ExportError> {
         tempfile::Builder::new()
             .prefix("puppetry-export-")
@@ -142,6 +170,7 @@ impl Scratch {
             })
     }
 
+    /// Where the folder is.
     pub fn path(&self) -> &Path {
         self.0.path()
     }
@@ -165,6 +194,7 @@ pub(crate) fn flag(flag: &str, problem: impl Into<String>) -> ExportError {
 /// for glTF). Called from the exporting thread, in increasing order, ending
 /// with `done == total`.
 pub trait Progress {
+    /// `done` of `total` steps are done.
     fn step(&mut self, done: usize, total: usize);
 }
 
@@ -184,7 +214,9 @@ impl<F: FnMut(usize, usize)> Progress for F {
 /// top to bottom.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RgbaImage {
+    /// Pixels across.
     pub width: u32,
+    /// Pixels down.
     pub height: u32,
     /// `width × height × 4` bytes.
     pub pixels: Vec<u8>,
@@ -193,6 +225,8 @@ pub struct RgbaImage {
 /// One puppet of an [`Animation`]: its mesh, picture and motion.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AnimatedPuppet {
+    /// The puppet's name on the stage (exports name nodes, slots and
+    /// pictures after it).
     pub name: String,
     /// Counter-clockwise triangles (at rest) over the vertices.
     pub triangles: Vec<[u32; 3]>,
@@ -201,6 +235,7 @@ pub struct AnimatedPuppet {
     /// edge (the daemon sends the mesh's `uv` unflipped, and renderer.js
     /// uploads the first image row at t = 0).
     pub uv: Vec<[f32; 2]>,
+    /// The puppet's picture, which `uv` maps onto the mesh.
     pub image: RgbaImage,
     /// Frame k: the deformed vertex positions in stage coordinates (y up).
     pub frames: Vec<Vec<[f32; 2]>>,
@@ -230,9 +265,11 @@ impl AnimatedPuppet {
 /// exporter. Frame k is shown at `t = k / fps`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Animation {
-    /// The stage's size in stage units; y up, origin at the lower left.
+    /// The stage's width in stage units; y up, origin at the lower left.
     pub stage_width: f64,
+    /// The stage's height in stage units.
     pub stage_height: f64,
+    /// Frames per second: frame k is shown at `k / fps`.
     pub fps: f64,
     /// Drawn in this order: later puppets on top.
     pub puppets: Vec<AnimatedPuppet>,

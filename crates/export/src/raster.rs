@@ -52,12 +52,15 @@ const SUB: f64 = 256.0;
 /// Where the stage lands in a `width × height` picture.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Viewport {
+    /// The picture's width in pixels.
     pub width: u32,
+    /// The picture's height in pixels.
     pub height: u32,
     /// Pixels per stage unit.
     pub scale: f64,
     /// The stage's top-left corner, in pixels from the picture's top left.
     pub left: f64,
+    /// Pixels from the picture's top edge to the stage's.
     pub top: f64,
     stage_height: f64,
 }
@@ -119,6 +122,7 @@ pub struct Texture {
 }
 
 impl Texture {
+    /// The picture premultiplied, as the page's WebGL upload holds it.
     pub fn new(image: &crate::RgbaImage) -> Texture {
         let texels = image
             .pixels
@@ -251,6 +255,7 @@ impl<'a> Rasterizer<'a> {
         }
     }
 
+    /// Where the stage lands in the picture being drawn.
     pub fn viewport(&self) -> Viewport {
         self.view
     }

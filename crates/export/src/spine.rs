@@ -79,6 +79,7 @@ pub struct SpinePuppet {
 /// How the export laid out the puppets, in slot order.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SpineLayout {
+    /// One per puppet, bottom first (slot order).
     pub puppets: Vec<SpinePuppet>,
 }
 

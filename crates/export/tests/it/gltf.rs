@@ -267,3 +267,115 @@ fn short_and_uneven_takes_validate_too() {
         assert_eq!(issues["numWarnings"], 0, "{frames} frames: {issues}");
     }
 }
+
+/// A solid square puppet of `colour` over `x0..x1 × y0..y1`, still, its
+/// picture `side` pixels square.
+fn square(
+    name: &str,
+    colour: [u8; 3],
+    [x0, y0, x1, y1]: [f32; 4],
+    side: u32,
+) -> puppetry_export::AnimatedPuppet {
+    let corners = vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+    puppetry_export::AnimatedPuppet {
+        name: name.into(),
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+        uv: vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+        image: puppetry_export::RgbaImage {
+            width: side,
+            height: side,
+            pixels: [colour[0], colour[1], colour[2], 255].repeat((side * side) as usize),
+        },
+        frames: vec![corners.clone(), corners],
+        draw_orders: Vec::new(),
+    }
+}
+
+/// three.js renders two overlapping puppets in the stage's order: where
+/// they overlap, the one drawn later on the stage is the one seen, both
+/// ways round (every puppet lay at z = 0 before, and three.js chose).
+#[test]
+fn three_js_draws_the_top_puppet_on_top() {
+    if !browser_enabled("three_js_draws_the_top_puppet_on_top") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // The bottom puppet's picture large, the top one's tiny: three.js
+    // then makes the top mesh first (its texture decodes first), and with
+    // every puppet at one depth it drew them in that order, the bottom
+    // one last, on top.
+    let (big, small) = (2048, 4);
+    let cases = [
+        (
+            square("red", [255, 0, 0], [100.0, 100.0, 500.0, 500.0], big),
+            square("blue", [0, 0, 255], [300.0, 100.0, 700.0, 500.0], small),
+        ),
+        (
+            square("blue", [0, 0, 255], [300.0, 100.0, 700.0, 500.0], big),
+            square("red", [255, 0, 0], [100.0, 100.0, 500.0, 500.0], small),
+        ),
+    ];
+    let red = &cases[0].0;
+    let blue = &cases[0].1;
+    for (bottom, top) in &cases {
+        let animation = puppetry_export::Animation {
+            stage_width: 800.0,
+            stage_height: 600.0,
+            fps: FPS,
+            frame_count: 2,
+            puppets: vec![bottom.clone(), top.clone()],
+        };
+        let path = dir
+            .path()
+            .join(format!("{}-under-{}.glb", bottom.name, top.name));
+        export_glb(&animation, &GltfOptions::default(), &mut (), &path).unwrap();
+        let result = node_script(
+            "export-three.mjs",
+            &["three", "playwright-core"],
+            &[
+                arg(&path),
+                "render",
+                "0",
+                "200,300,400,300,600,300",
+                "800",
+                "600",
+            ],
+        );
+        let colours: Vec<Vec<u64>> = result["colours"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| {
+                c.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_u64().unwrap())
+                    .collect()
+            })
+            .collect();
+        let is = |c: &Vec<u64>, p: &puppetry_export::AnimatedPuppet| {
+            let want = &p.image.pixels[..3];
+            c.iter()
+                .zip(want)
+                .all(|(&g, &w)| (g as i64 - w as i64).abs() <= 8)
+        };
+        let (left, middle, right) = (&colours[0], &colours[1], &colours[2]);
+        let lone = |c: &Vec<u64>| {
+            if is(c, red) {
+                "red"
+            } else if is(c, blue) {
+                "blue"
+            } else {
+                "neither"
+            }
+        };
+        assert_eq!((lone(left), lone(right)), ("red", "blue"), "{colours:?}");
+        assert!(
+            is(middle, top),
+            "{} over {}: three.js shows {} where they overlap ({colours:?})",
+            top.name,
+            bottom.name,
+            lone(middle)
+        );
+    }
+}

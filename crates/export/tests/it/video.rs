@@ -342,7 +342,11 @@ fn decoded_frames_match_the_png_export() {
                 .args(["-f", "rawvideo", "-pix_fmt", "rgba", "-"])
                 .output()
                 .unwrap();
-            assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
             let png = puppetry_export::load_png(&pngs.join(puppetry_export::frames::frame_name(k)))
                 .unwrap()
                 .pixels;
