@@ -185,6 +185,7 @@ fn drag_animation(
             frames,
             // Mesh order: the bench's drag does not fold the puppet.
             draw_orders: Vec::new(),
+            skeleton: None,
         }],
         frame_count,
     })

@@ -31,6 +31,7 @@ pub mod gltf;
 pub mod output;
 pub mod raster;
 pub mod resample;
+pub mod skin;
 pub mod spine;
 pub mod take;
 pub mod video;
@@ -243,6 +244,9 @@ pub struct AnimatedPuppet {
     /// puppet overlaps itself (`docs/depth.md`); frames that share an order
     /// share it. Empty: mesh order throughout.
     pub draw_orders: Vec<std::sync::Arc<[u32]>>,
+    /// A skeleton puppet's skeleton at rest: Spine exports it as bones
+    /// fitted to the frames ([`skin`]); none for the other rigs.
+    pub skeleton: Option<skin::SkeletonRest>,
 }
 
 impl AnimatedPuppet {

@@ -1,6 +1,11 @@
 //! Spine 4.2 JSON: a skeleton of one `root` bone at the origin, one slot
 //! per puppet (drawing order = slot order) holding a mesh attachment, and
-//! one animation whose deform timelines move the mesh vertices.
+//! one animation whose deform timelines move the mesh vertices — except a
+//! skeleton puppet's: it comes as a rig, one Spine bone per bone of its
+//! skeleton (`PUPPET/N`, parented as the skeleton, at rest in the setup
+//! pose), its mesh weighted to them and bound at rest, and rotate and
+//! translate timelines per bone, a key per frame, fitted to the take by
+//! [`crate::skin`] (within the error the export reports; no deform keys).
 //!
 //! The layout is the one `SkeletonJson` of the Spine runtimes (spine-core
 //! 4.2) reads: `skins` is an array of `{name, attachments: {SLOT: {NAME:
@@ -37,6 +42,10 @@ use std::path::Path;
 use serde::Serialize;
 use serde_json::json;
 
+use glam::DVec2;
+use serde_json::Value;
+
+use crate::skin::{SkeletonRest, Skin, local};
 use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 
 /// Options of a Spine export.
@@ -74,6 +83,10 @@ pub struct SpinePuppet {
     pub order: Vec<u32>,
     /// The number of hull vertices (the first ones in `order`).
     pub hull: usize,
+    /// For a skeleton puppet exported as bones: how many, and the largest
+    /// and mean distance in stage units between the skinned vertices and
+    /// the take's over every frame ([`crate::skin::Skin`]).
+    pub bones: Option<(usize, f64, f64)>,
 }
 
 /// How the export laid out the puppets, in slot order.
@@ -209,6 +222,8 @@ pub fn write_spine(
     };
     let mut slots = Vec::new();
     let mut skin = serde_json::Map::new();
+    let mut bones = vec![json!({"name": "root"})];
+    let mut rigs: Vec<Option<SpineRig>> = Vec::new();
     for (p, (name, path)) in animation.puppets.iter().zip(&names) {
         let (order, hull) = vertex_order(p);
         let mut new_index = vec![0u32; order.len()];
@@ -216,10 +231,23 @@ pub fn write_spine(
             new_index[v as usize] = i as u32;
         }
         let uvs: Vec<f32> = order.iter().flat_map(|&v| p.uv[v as usize]).collect();
-        let setup: Vec<f32> = order
-            .iter()
-            .flat_map(|&v| p.frames[0][v as usize])
-            .collect();
+        // A skeleton puppet: bones, weighted vertices bound at rest, and
+        // bone timelines; the others: frame 0 and a deform timeline.
+        let fitted = p.skeleton.as_ref().map(|rest| {
+            let skin = crate::skin::fit(p, rest);
+            let mut rig = SpineRig::new(name, rest, skin);
+            rig.push_bones(&mut bones);
+            rig
+        });
+        let setup: Value = match &fitted {
+            Some(rig) => json!(rig.weighted_vertices(&order)),
+            None => json!(
+                order
+                    .iter()
+                    .flat_map(|&v| p.frames[0][v as usize])
+                    .collect::<Vec<f32>>()
+            ),
+        };
         let triangles: Vec<u32> = p
             .triangles
             .iter()
@@ -240,7 +268,11 @@ pub fn write_spine(
             path: path.clone(),
             order,
             hull,
+            bones: fitted
+                .as_ref()
+                .map(|rig| (rig.names.len(), rig.skin.max_error, rig.skin.mean_error)),
         });
+        rigs.push(fitted);
     }
     let head = json!({
         "skeleton": {
@@ -250,7 +282,7 @@ pub fn write_spine(
             "fps": animation.fps,
             "images": "./",
         },
-        "bones": [{"name": "root"}],
+        "bones": bones,
         "slots": slots,
         "skins": [{"name": "default", "attachments": skin}],
     });
@@ -261,58 +293,200 @@ pub fn write_spine(
     out.write_all(&text).map_err(err)?;
     write!(out, ",\"animations\":{{").map_err(err)?;
     serde_json::to_writer(&mut *out, &options.animation_name).map_err(|e| err(e.into()))?;
-    write!(out, ":{{\"attachments\":{{\"default\":{{").map_err(err)?;
+    write!(out, ":{{\"bones\":{{").map_err(err)?;
     let total = animation.frame_count * animation.puppets.len();
     let mut done = 0;
+    let mut first_bone = true;
+    for rig in rigs.iter().flatten() {
+        for (b, timelines) in rig.timelines(animation) {
+            if !first_bone {
+                out.write_all(b",").map_err(err)?;
+            }
+            first_bone = false;
+            serde_json::to_writer(&mut *out, &rig.names[b]).map_err(|e| err(e.into()))?;
+            out.write_all(b":").map_err(err)?;
+            serde_json::to_writer(&mut *out, &timelines).map_err(|e| err(e.into()))?;
+        }
+        done += animation.frame_count;
+        progress.step(done, total);
+    }
+    write!(out, "}},\"attachments\":{{\"default\":{{").map_err(err)?;
     let mut offsets = Vec::new();
-    for (i, (p, placed)) in animation.puppets.iter().zip(&layout.puppets).enumerate() {
-        if i > 0 {
+    let mut first_slot = true;
+    for ((p, placed), rig) in animation.puppets.iter().zip(&layout.puppets).zip(&rigs) {
+        if rig.is_some() {
+            continue;
+        }
+        if !first_slot {
             out.write_all(b",").map_err(err)?;
         }
-        let name = serde_json::to_string(&placed.slot).expect("a string serialises");
-        write!(out, "{name}:{{{name}:{{\"deform\":[").map_err(err)?;
-        let setup = &p.frames[0];
-        for k in 0..animation.frame_count {
-            offsets.clear();
-            offsets.extend(placed.order.iter().flat_map(|&v| {
-                let (q, o) = (p.frames[k][v as usize], setup[v as usize]);
-                [q[0] - o[0], q[1] - o[1]]
-            }));
-            let first = offsets.iter().position(|&d| d != 0.0);
-            let last = offsets.iter().rposition(|&d| d != 0.0);
-            let key = match (first, last) {
-                (Some(a), Some(b)) => Key {
-                    time: k as f64 / animation.fps,
-                    offset: (a > 0).then_some(a),
-                    vertices: Some(&offsets[a..=b]),
-                },
-                _ => Key {
-                    time: k as f64 / animation.fps,
-                    offset: None,
-                    vertices: None,
-                },
-            };
-            if k > 0 {
-                out.write_all(b",").map_err(err)?;
-            }
-            serde_json::to_writer(&mut *out, &key).map_err(|e| err(e.into()))?;
-            // The last frame is held for its frame's time, so the clip
-            // lasts n / fps like the take's video, not (n − 1) / fps.
-            if k + 1 == animation.frame_count {
-                let hold = Key {
-                    time: animation.duration(),
-                    ..key
-                };
-                out.write_all(b",").map_err(err)?;
-                serde_json::to_writer(&mut *out, &hold).map_err(|e| err(e.into()))?;
-            }
-            done += 1;
+        first_slot = false;
+        write_deform(out, animation, p, placed, &mut offsets, &mut |n| {
+            done += n;
             progress.step(done, total);
-        }
-        out.write_all(b"]}}").map_err(err)?;
+        })?;
     }
     out.write_all(b"}}}}}\n").map_err(err)?;
     Ok(layout)
+}
+
+/// A free-form or grid puppet's deform timeline in `placed`'s vertex
+/// order: a key per frame of the offsets from frame 0 (the setup), the
+/// zeros before and after left out, and the last frame held to the clip's
+/// end. `counted` is told of each frame written.
+fn write_deform(
+    out: &mut dyn Write,
+    animation: &Animation,
+    p: &AnimatedPuppet,
+    placed: &SpinePuppet,
+    offsets: &mut Vec<f32>,
+    counted: &mut dyn FnMut(usize),
+) -> Result<(), ExportError> {
+    let err = |source| ExportError::Io {
+        file: "Spine output".into(),
+        source,
+    };
+    let name = serde_json::to_string(&placed.slot).expect("a string serialises");
+    write!(out, "{name}:{{{name}:{{\"deform\":[").map_err(err)?;
+    let setup = &p.frames[0];
+    for k in 0..animation.frame_count {
+        offsets.clear();
+        offsets.extend(placed.order.iter().flat_map(|&v| {
+            let (q, o) = (p.frames[k][v as usize], setup[v as usize]);
+            [q[0] - o[0], q[1] - o[1]]
+        }));
+        let first = offsets.iter().position(|&d| d != 0.0);
+        let last = offsets.iter().rposition(|&d| d != 0.0);
+        let key = match (first, last) {
+            (Some(a), Some(b)) => Key {
+                time: k as f64 / animation.fps,
+                offset: (a > 0).then_some(a),
+                vertices: Some(&offsets[a..=b]),
+            },
+            _ => Key {
+                time: k as f64 / animation.fps,
+                offset: None,
+                vertices: None,
+            },
+        };
+        if k > 0 {
+            out.write_all(b",").map_err(err)?;
+        }
+        serde_json::to_writer(&mut *out, &key).map_err(|e| err(e.into()))?;
+        // The last frame is held for its frame's time, so the clip
+        // lasts n / fps like the take's video, not (n − 1) / fps.
+        if k + 1 == animation.frame_count {
+            let hold = Key {
+                time: animation.duration(),
+                ..key
+            };
+            out.write_all(b",").map_err(err)?;
+            serde_json::to_writer(&mut *out, &hold).map_err(|e| err(e.into()))?;
+        }
+        counted(1);
+    }
+    out.write_all(b"]}}").map_err(err)?;
+    Ok(())
+}
+
+/// A skeleton puppet's bones in the Spine skeleton: one Spine bone per
+/// bone of its skeleton, named `PUPPET/N` and parented as the skeleton's
+/// (a root bone under Spine's `root`), set up at rest (head at the bone's
+/// first joint, pointing along it), moved by the fitted [`Skin`].
+struct SpineRig {
+    /// Spine bone name per skeleton bone.
+    names: Vec<String>,
+    /// The skeleton at rest.
+    rest: SkeletonRest,
+    /// Skeleton bones, parents before children (Spine's bone order).
+    order: Vec<usize>,
+    /// The fitted motion and weights.
+    skin: Skin,
+    /// Per skeleton bone, its index among the Spine skeleton's bones.
+    index: Vec<usize>,
+}
+
+impl SpineRig {
+    fn new(puppet: &str, rest: &SkeletonRest, skin: Skin) -> SpineRig {
+        SpineRig {
+            names: (0..rest.bones.len())
+                .map(|b| format!("{puppet}/{b}"))
+                .collect(),
+            rest: rest.clone(),
+            order: rest.order(),
+            skin,
+            index: Vec::new(),
+        }
+    }
+
+    /// Appends this puppet's bones to the skeleton's, parents first, and
+    /// remembers each one's index there (weighted vertices name bones by
+    /// index).
+    fn push_bones(&mut self, bones: &mut Vec<Value>) {
+        self.index = vec![0; self.names.len()];
+        for &b in &self.order {
+            self.index[b] = bones.len();
+            let parent = self.rest.parents[b];
+            let (at, rotation) = local(parent.map(|p| self.rest.frame(p)), self.rest.frame(b));
+            bones.push(json!({
+                "name": self.names[b],
+                "parent": parent.map_or("root", |p| self.names[p].as_str()),
+                "x": at.x, "y": at.y,
+                "rotation": rotation.to_degrees(),
+                "length": self.rest.length(b),
+            }));
+        }
+    }
+
+    /// The weighted vertices in Spine's form, in `order`: per vertex its
+    /// bone count, then per bone its index among the skeleton's bones, the
+    /// vertex in the bone's rest frame (x along the bone), and its weight.
+    fn weighted_vertices(&self, order: &[u32]) -> Vec<f64> {
+        let mut out = Vec::new();
+        for &v in order {
+            let v = v as usize;
+            let weights = &self.skin.weights[v];
+            out.push(weights.len() as f64);
+            for &(b, w) in weights {
+                let (head, angle) = self.rest.frame(b);
+                let bind = DVec2::from_angle(-angle).rotate(self.rest.rest[v] - head);
+                out.extend([self.index[b] as f64, bind.x, bind.y, w]);
+            }
+        }
+        out
+    }
+
+    /// Each bone's timelines: per frame (and the last held to the clip's
+    /// end) its rotation and translation relative to its setup, as Spine
+    /// keys them; rotations unwrapped so linear blending never spins.
+    fn timelines(&self, animation: &Animation) -> Vec<(usize, Value)> {
+        let n = animation.frame_count;
+        let times: Vec<f64> = (0..n)
+            .map(|k| k as f64 / animation.fps)
+            .chain([animation.duration()])
+            .collect();
+        self.order
+            .iter()
+            .map(|&b| {
+                let parent = self.rest.parents[b];
+                let setup = local(parent.map(|p| self.rest.frame(p)), self.rest.frame(b));
+                let posed = |k: usize, bone: usize| self.skin.posed(&self.rest, k, bone);
+                let mut rotate = Vec::with_capacity(n + 1);
+                let mut translate = Vec::with_capacity(n + 1);
+                let mut last = 0.0f64;
+                for (k, &time) in times.iter().enumerate() {
+                    let (at, rotation) = local(parent.map(|p| posed(k, p)), posed(k, b));
+                    let mut degrees = (rotation - setup.1).to_degrees();
+                    degrees -= 360.0 * ((degrees - last) / 360.0).round();
+                    last = degrees;
+                    let offset = at - setup.0;
+                    rotate.push(json!({"time": time, "value": degrees}));
+                    translate.push(json!({"time": time, "x": offset.x, "y": offset.y}));
+                }
+                (b, json!({"rotate": rotate, "translate": translate}))
+            })
+            .collect()
+    }
 }
 
 /// The atlas (`.atlas`, libGDX's text format as spine-core 4.2 reads it)

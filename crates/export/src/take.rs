@@ -269,8 +269,15 @@ pub fn read_take(
         } else {
             Vec::new()
         };
+        let skeleton = p.rig().skeleton().map(|s| crate::skin::SkeletonRest {
+            joints: s.joints().to_vec(),
+            bones: s.bones().to_vec(),
+            parents: (0..s.bones().len()).map(|b| s.parent_of(b)).collect(),
+            rest: p.mesh.vertices().to_vec(),
+        });
         puppets.push(AnimatedPuppet {
             draw_orders,
+            skeleton,
             name: p.name.clone(),
             triangles: p.mesh.triangles().to_vec(),
             uv: p
@@ -400,6 +407,7 @@ pub fn export_take_with(
     };
     crate::output::check_new(out, &files, request.overwrite)?;
     let (width, height) = request.size;
+    let mut notes = Vec::new();
     match request.format {
         Format::Glb => {
             let options = crate::gltf::GltfOptions {
@@ -413,12 +421,21 @@ pub fn export_take_with(
             crate::frames::export_png_sequence(animation, &options, progress, out)?;
         }
         Format::Spine => {
-            crate::spine::export_spine(
+            let layout = crate::spine::export_spine(
                 animation,
                 &crate::spine::SpineOptions::default(),
                 progress,
                 out,
             )?;
+            for p in &layout.puppets {
+                if let Some((bones, max, mean)) = p.bones {
+                    notes.push(format!(
+                        "{}: {bones} bones; the skinned mesh is within {max:.2} stage units \
+                         of the take (mean {mean:.2})",
+                        p.slot
+                    ));
+                }
+            }
         }
         Format::Mp4 | Format::Mov | Format::Webm => {
             let options = crate::video::VideoOptions::new(width, height);
@@ -433,6 +450,10 @@ pub fn export_take_with(
         animation.duration(),
         animation.puppets.len()
     );
+    for note in notes {
+        written.push('\n');
+        written.push_str(&note);
+    }
     if let Some(salvaged) = &read.salvaged {
         written.push('\n');
         written.push_str(salvaged);

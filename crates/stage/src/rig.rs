@@ -295,6 +295,15 @@ impl Rig {
         }
     }
 
+    /// A skeleton puppet's skeleton at rest (stage coordinates); none for
+    /// the other rigs.
+    pub fn skeleton(&self) -> Option<&Skeleton> {
+        match self {
+            Rig::Skeleton(r) => Some(r.deformer.skeleton()),
+            Rig::Free(_) | Rig::Grid(_) | Rig::Curve(_) => None,
+        }
+    }
+
     /// The rig's own points as clients draw them: the deformed grid
     /// handles, or the posed joints; none for free-form puppets.
     pub fn points(&self) -> Option<&[DVec2]> {
