@@ -8,7 +8,9 @@
 // targets, as glTF's). Prints one JSON line {ok, samples: [{t, puppets:
 // [{name, z, shown: [chunk names], positions: [x, y, z, …] of the first shown,
 // indices: its triangles' vertex indices in draw order (with `indices`)}]}],
-// duration} — z is the puppet node's, the depth three.js sorts it by.
+// skinned: {MESH: [x, y, z, …]}}], duration} — z is the puppet node's, the
+// depth three.js sorts it by; skinned, each skinned mesh's vertices as
+// three.js skins them.
 
 import fs from 'node:fs';
 import path from 'node:path';
@@ -58,7 +60,23 @@ window.sample = async (url, times, withIndices) => {
         shown: shown.map((m) => m.name), positions, indices,
       };
     });
-    samples.push({ t, puppets });
+    // Skinned meshes (skeleton puppets): three.js's own skinning of each
+    // vertex, bones posed by the mixer.
+    gltf.scene.updateMatrixWorld(true);
+    const skinned = {};
+    gltf.scene.traverse((o) => {
+      if (!o.isSkinnedMesh) return;
+      o.skeleton.update();
+      const v = new THREE.Vector3();
+      const out = [];
+      for (let i = 0; i < o.geometry.attributes.position.count; i++) {
+        o.getVertexPosition(i, v);
+        v.applyMatrix4(o.matrixWorld);
+        out.push(v.x, v.y, v.z);
+      }
+      skinned[o.name] = out;
+    });
+    samples.push({ t, puppets, skinned });
     mixer.stopAllAction();
   }
   return { duration: clip.duration, samples };

@@ -24,6 +24,14 @@
 //! renderer that depth-tests within one mesh sees all of a puppet at one
 //! z and keeps its own order there.
 //!
+//! **A skeleton puppet is a skin**: a node per bone
+//! under the puppet's node, parented as its skeleton, its mesh at rest
+//! weighted to them (`JOINTS_0`, `WEIGHTS_0`, bound relative to the
+//! puppet's node so its z step holds) and a translation and a rotation
+//! channel per bone, keyed at every frame, fitted to the take by
+//! [`crate::skin`] (within the error the export reports); what follows is
+//! how the other puppets move.
+//!
 //! **The motion, in chunks of morph targets.** glTF animates vertices only
 //! through morph targets: `POSITION = base + Σ wᵢ · targetᵢ`, with the
 //! weights animated. The obvious layout — one target per frame, and a
@@ -88,6 +96,7 @@ const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_SHORT: u32 = 5123;
+const UNSIGNED_BYTE: u32 = 5121;
 const UNSIGNED_INT: u32 = 5125;
 const LINEAR: u32 = 9729;
 const CLAMP_TO_EDGE: u32 = 33071;
@@ -187,6 +196,8 @@ fn components(kind: &str) -> usize {
     match kind {
         "SCALAR" => 1,
         "VEC2" => 2,
+        "VEC4" => 4,
+        "MAT4" => 16,
         _ => 3,
     }
 }
@@ -319,12 +330,19 @@ pub fn write_glb(
         )?;
         pictures.push(png);
     }
+    // Skeleton puppets' bones, fitted once for both passes.
+    let skins: Vec<Option<crate::skin::Skin>> = animation
+        .puppets
+        .iter()
+        .map(|p| p.skeleton.as_ref().map(|rest| crate::skin::fit(p, rest)))
+        .collect();
     let pass = Pass {
         animation,
         options,
         times: &times,
         end,
         pictures: &pictures,
+        skins: &skins,
     };
 
     let mut layout = Builder::new(None);
@@ -381,6 +399,8 @@ struct Pass<'a> {
     end: f32,
     /// Each puppet's picture as PNG.
     pictures: &'a [Vec<u8>],
+    /// Each skeleton puppet's fitted bones (see `Pass::skinned`).
+    skins: &'a [Option<crate::skin::Skin>],
 }
 
 /// The glTF JSON arrays a pass fills besides the builder's.
@@ -394,6 +414,7 @@ struct Arrays {
     scene_nodes: Vec<usize>,
     samplers: Vec<Value>,
     channels: Vec<Value>,
+    skins: Vec<Value>,
 }
 
 impl Pass<'_> {
@@ -404,13 +425,24 @@ impl Pass<'_> {
         let spans: Vec<Vec<(usize, usize)>> = animation
             .puppets
             .iter()
-            .map(|p| spans(animation.frame_count, self.options.chunk, &p.draw_orders))
+            .zip(self.skins)
+            .map(|(p, skin)| match skin {
+                // A skinned puppet is one mesh, one step.
+                Some(_) => vec![(0, 0)],
+                None => spans(animation.frame_count, self.options.chunk, &p.draw_orders),
+            })
             .collect();
         let total = spans.iter().map(Vec::len).sum();
         let mut done = 0;
         let mut arrays = Arrays::default();
         for (i, p) in animation.puppets.iter().enumerate() {
             let uv = self.puppet(b, &mut arrays, i)?;
+            if let (Some(skin), Some(rest)) = (&self.skins[i], &p.skeleton) {
+                self.skinned(b, &mut arrays, i, uv, skin, rest)?;
+                done += 1;
+                progress.step(done, total);
+                continue;
+            }
             // One index accessor per drawing order the puppet takes.
             let mut orders: Vec<(Option<&std::sync::Arc<[u32]>>, usize)> = Vec::new();
             let mut children = Vec::new();
@@ -441,7 +473,7 @@ impl Pass<'_> {
         }
         b.align()?;
         let fps = animation.fps;
-        Ok(json!({
+        let mut gltf = json!({
             "asset": {"version": "2.0", "generator": concat!("puppetry-export ", env!("CARGO_PKG_VERSION"))},
             "extensionsUsed": ["KHR_materials_unlit"],
             "scene": 0,
@@ -458,7 +490,11 @@ impl Pass<'_> {
             "buffers": [{"byteLength": b.length}],
             "extras": {"fps": fps, "frameCount": animation.frame_count,
                        "stage": {"width": animation.stage_width, "height": animation.stage_height}},
-        }))
+        });
+        if !arrays.skins.is_empty() {
+            gltf["skins"] = Value::Array(arrays.skins);
+        }
+        Ok(gltf)
     }
 
     /// Puppet `i`'s picture, texture and material, and what every chunk of
@@ -485,6 +521,199 @@ impl Pass<'_> {
         }));
         let uv: Vec<f32> = p.uv.iter().flatten().copied().collect();
         b.floats(&uv, "VEC2", Some(ARRAY_BUFFER), false)
+    }
+
+    /// A skeleton puppet as a glTF skin: a node per bone under the
+    /// puppet's node (parented as its skeleton, at rest), its mesh at rest
+    /// weighted to them (`JOINTS_0`/`WEIGHTS_0`, bound at rest relative to
+    /// the puppet's node, so its z step holds), and per bone a translation
+    /// and a rotation channel keyed at every frame, fitted to the take by
+    /// [`crate::skin`]. The mesh's node is a root of the scene, as glTF
+    /// asks of skinned meshes.
+    fn skinned(
+        &self,
+        b: &mut Builder,
+        arrays: &mut Arrays,
+        i: usize,
+        uv: usize,
+        skin: &crate::skin::Skin,
+        rest: &crate::skin::SkeletonRest,
+    ) -> Result<(), ExportError> {
+        use crate::skin::local;
+        let p = &self.animation.puppets[i];
+        let order = rest.order();
+        let base = arrays.nodes.len();
+        // Joint j of the skin is bone order[j], node base + j.
+        let mut joint = vec![0usize; rest.bones.len()];
+        for (j, &bone) in order.iter().enumerate() {
+            joint[bone] = j;
+        }
+        let quat = |angle: f64| {
+            let (s, c) = (angle / 2.0).sin_cos();
+            [0.0, 0.0, s as f32, c as f32]
+        };
+        for &bone in &order {
+            let parent = rest.parents[bone];
+            let (at, angle) = local(parent.map(|q| rest.frame(q)), rest.frame(bone));
+            let children: Vec<usize> = (0..rest.bones.len())
+                .filter(|&c| rest.parents[c] == Some(bone))
+                .map(|c| base + joint[c])
+                .collect();
+            let mut node = json!({
+                "name": format!("{}/{bone}", p.name),
+                "translation": [at.x as f32, at.y as f32, 0.0],
+                "rotation": quat(angle),
+            });
+            if !children.is_empty() {
+                node["children"] = json!(children);
+            }
+            arrays.nodes.push(node);
+        }
+        let roots: Vec<usize> = order
+            .iter()
+            .filter(|&&bone| rest.parents[bone].is_none())
+            .map(|&bone| base + joint[bone])
+            .collect();
+        let mut puppet_node = json!({"name": p.name, "children": roots});
+        if i > 0 {
+            puppet_node["translation"] = json!([0.0, 0.0, i as f64 * z_step(self.animation)]);
+        }
+        arrays.nodes.push(puppet_node);
+        let puppet_index = arrays.nodes.len() - 1;
+        arrays.scene_nodes.push(puppet_index);
+
+        // The mesh at rest, weighted.
+        let positions: Vec<f32> = rest
+            .rest
+            .iter()
+            .flat_map(|q| [q.x as f32, q.y as f32, 0.0])
+            .collect();
+        let position = b.floats(&positions, "VEC3", Some(ARRAY_BUFFER), true)?;
+        let wide = order.len() > usize::from(u8::MAX);
+        let (mut joints, mut weights) = (Vec::new(), Vec::new());
+        for w in &skin.weights {
+            let mut four = [(0usize, 0.0f32); 4];
+            for (slot, &(bone, weight)) in w.iter().take(4).enumerate() {
+                four[slot] = (joint[bone], weight as f32);
+            }
+            // Normalised in 32 bits, as the validator checks them.
+            let used = w.len().clamp(1, 4);
+            let others: f32 = four[..used - 1].iter().map(|&(_, w)| w).sum();
+            four[used - 1].1 = 1.0 - others;
+            for (j, w) in four {
+                if wide {
+                    joints.extend((j as u16).to_le_bytes());
+                } else {
+                    joints.push(j as u8);
+                }
+                weights.push(w);
+            }
+        }
+        let view = b.view(&joints, Some(ARRAY_BUFFER), None)?;
+        let joints = b.accessor(json!({
+            "bufferView": view,
+            "componentType": if wide { UNSIGNED_SHORT } else { UNSIGNED_BYTE },
+            "count": skin.weights.len(), "type": "VEC4",
+        }));
+        let weights = b.floats(&weights, "VEC4", Some(ARRAY_BUFFER), false)?;
+        let indices = self.indices(b, i, 0)?;
+        arrays.meshes.push(json!({
+            "name": format!("{} skinned", p.name),
+            "primitives": [{
+                "attributes": {"POSITION": position, "TEXCOORD_0": uv, "JOINTS_0": joints, "WEIGHTS_0": weights},
+                "indices": indices, "material": i, "mode": 4,
+            }],
+        }));
+        // Bound at rest relative to the puppet's node: the inverse of each
+        // bone's rest frame (column-major 4×4).
+        let inverse_bind: Vec<f32> = order
+            .iter()
+            .flat_map(|&bone| {
+                let (head, angle) = rest.frame(bone);
+                let (s, c) = angle.sin_cos();
+                // Rz(−θ) · T(−head).
+                let tx = -(c * head.x + s * head.y);
+                let ty = -(-s * head.x + c * head.y);
+                [
+                    c, -s, 0.0, 0.0, s, c, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, tx, ty, 0.0, 1.0,
+                ]
+                .map(|v| v as f32)
+            })
+            .collect();
+        let inverse_bind = b.floats(&inverse_bind, "MAT4", None, false)?;
+        let skins_so_far = arrays.skins.len();
+        arrays.skins.push(json!({
+            "name": p.name,
+            "joints": (0..order.len()).map(|j| base + j).collect::<Vec<_>>(),
+            "inverseBindMatrices": inverse_bind,
+            "skeleton": puppet_index,
+        }));
+        arrays.nodes.push(json!({
+            "name": format!("{} skinned", p.name),
+            "mesh": arrays.meshes.len() - 1,
+            "skin": skins_so_far,
+        }));
+        arrays.scene_nodes.push(arrays.nodes.len() - 1);
+
+        self.bone_channels(b, arrays, skin, rest, &order, |bone| base + joint[bone])?;
+        Ok(())
+    }
+
+    /// Each bone's translation and rotation channels: a key at every
+    /// frame, the last held to the clip's end, rotations kept in one
+    /// hemisphere so blending turns the short way. `node` is a bone's node.
+    fn bone_channels(
+        &self,
+        b: &mut Builder,
+        arrays: &mut Arrays,
+        skin: &crate::skin::Skin,
+        rest: &crate::skin::SkeletonRest,
+        order: &[usize],
+        node: impl Fn(usize) -> usize,
+    ) -> Result<(), ExportError> {
+        use crate::skin::local;
+        let quat = |angle: f64| {
+            let (s, c) = (angle / 2.0).sin_cos();
+            [0.0, 0.0, s as f32, c as f32]
+        };
+        let n = self.animation.frame_count;
+        let mut keys: Vec<f32> = self.times.to_vec();
+        keys.push(self.end);
+        let input = b.floats(&keys, "SCALAR", None, true)?;
+        for &bone in order {
+            let parent = rest.parents[bone];
+            let (mut translation, mut rotation) = (Vec::new(), Vec::new());
+            let mut last = [0.0f32, 0.0, 0.0, 1.0];
+            for k in 0..=n {
+                let (at, angle) = local(
+                    parent.map(|q| skin.posed(rest, k, q)),
+                    skin.posed(rest, k, bone),
+                );
+                translation.extend([at.x as f32, at.y as f32, 0.0]);
+                // The same hemisphere as the last key, so blending between
+                // keys turns the short way.
+                let mut q = quat(angle);
+                if q[2] * last[2] + q[3] * last[3] < 0.0 {
+                    q = q.map(|v| -v);
+                }
+                last = q;
+                rotation.extend(q);
+            }
+            for (path, values, kind) in [
+                ("translation", translation, "VEC3"),
+                ("rotation", rotation, "VEC4"),
+            ] {
+                let output = b.floats(&values, kind, None, false)?;
+                arrays
+                    .samplers
+                    .push(json!({"input": input, "output": output, "interpolation": "LINEAR"}));
+                arrays.channels.push(json!({
+                    "sampler": arrays.samplers.len() - 1,
+                    "target": {"node": node(bone), "path": path},
+                }));
+            }
+        }
+        Ok(())
     }
 
     /// Puppet `i`'s triangles (an index accessor) in frame `k`'s drawing

@@ -154,49 +154,8 @@ fn a_take_draws_the_lineup_it_was_recorded_with() {
 /// the take's vertices at every sampled frame.
 #[test]
 fn a_skeleton_take_exports_as_bones_that_follow_the_take() {
-    let root = crate::fixture::root();
-    let config = StageConfig::load(&root.join("config/skeleton.toml")).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let take = dir.path().join("wave.take");
-    let mut stage = Stage::from_config(&config).unwrap();
-    stage.solve();
-    let mut writer = TakeWriter::create(
-        &take,
-        &Header::of_stage("wave", "skeleton.toml", &stage, true),
-    )
-    .unwrap();
-    let joints = stage.puppets()[0].rig().points().unwrap().to_vec();
-    let (elbow, hand) = (joints[8], joints[9]);
-    let frames = 45;
-    for k in 0..frames {
-        let phase = if k == 0 { Phase::Down } else { Phase::Move };
-        // The right hand swung up and back about its elbow.
-        let a = (k as f64 / frames as f64 * std::f64::consts::TAU).sin() * 1.2;
-        let at = elbow + DVec2::from_angle(a).rotate(hand - elbow);
-        let change = Change::Contacts {
-            frame: ContactFrame {
-                source: SourceId::new("hand"),
-                time: k as f64,
-                contacts: vec![Contact::new(1, phase, at)],
-            },
-        };
-        stage.apply_change(&change).unwrap();
-        let solved = stage.solve();
-        let t = k as f64 / FPS;
-        writer
-            .write(&Record::Step(Step {
-                t,
-                changes: vec![change],
-                events: Vec::new(),
-            }))
-            .unwrap();
-        for (p, _) in solved {
-            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
-            writer.write(&Record::Frame(frame)).unwrap();
-        }
-    }
-    writer.flush().unwrap();
-    let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
+    let animation = skeleton_take(dir.path());
     let puppet = &animation.puppets[0];
     assert!(
         puppet.skeleton.is_some(),
@@ -254,5 +213,96 @@ fn a_skeleton_take_exports_as_bones_that_follow_the_take() {
     crate::common::note(&format!(
         "skeleton to Spine bones: spine-core within {worst:.3} stage units of the take \
          (fit's bound {error:.3}, mean {mean:.3}; the puppet is {height:.0} units tall)"
+    ));
+}
+
+/// A take of the demo skeleton (config/skeleton.toml) whose right hand
+/// swings up and back about its elbow, read into an animation.
+fn skeleton_take(dir: &Path) -> puppetry_export::Animation {
+    let root = crate::fixture::root();
+    let config = StageConfig::load(&root.join("config/skeleton.toml")).unwrap();
+    let take = dir.join("wave.take");
+    let mut stage = Stage::from_config(&config).unwrap();
+    stage.solve();
+    let mut writer = TakeWriter::create(
+        &take,
+        &Header::of_stage("wave", "skeleton.toml", &stage, true),
+    )
+    .unwrap();
+    let joints = stage.puppets()[0].rig().points().unwrap().to_vec();
+    let (elbow, hand) = (joints[8], joints[9]);
+    let frames = 45;
+    for k in 0..frames {
+        let phase = if k == 0 { Phase::Down } else { Phase::Move };
+        // The right hand swung up and back about its elbow.
+        let a = (k as f64 / frames as f64 * std::f64::consts::TAU).sin() * 1.2;
+        let at = elbow + DVec2::from_angle(a).rotate(hand - elbow);
+        let change = Change::Contacts {
+            frame: ContactFrame {
+                source: SourceId::new("hand"),
+                time: k as f64,
+                contacts: vec![Contact::new(1, phase, at)],
+            },
+        };
+        stage.apply_change(&change).unwrap();
+        let solved = stage.solve();
+        let t = k as f64 / FPS;
+        writer
+            .write(&Record::Step(Step {
+                t,
+                changes: vec![change],
+                events: Vec::new(),
+            }))
+            .unwrap();
+        for (p, _) in solved {
+            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
+            writer.write(&Record::Frame(frame)).unwrap();
+        }
+    }
+    writer.flush().unwrap();
+    animation_of_take(&take, &config, FPS, None, None).unwrap()
+}
+
+/// The same rig as a glTF skin: valid (Khronos validator), and three.js
+/// skins it to the take within the fit's bound.
+#[test]
+fn a_skeleton_take_exports_as_a_gltf_skin() {
+    let dir = tempfile::tempdir().unwrap();
+    let animation = skeleton_take(dir.path());
+    let puppet = &animation.puppets[0];
+    let skin = puppetry_export::skin::fit(puppet, puppet.skeleton.as_ref().unwrap());
+    let error = skin.max_error;
+    let ks: Vec<usize> = (0..animation.frame_count).step_by(4).collect();
+    let times: Vec<String> = ks.iter().map(|&k| (k as f64 / FPS).to_string()).collect();
+    let glb = dir.path().join("wave.glb");
+    puppetry_export::gltf::export_glb(&animation, &Default::default(), &mut (), &glb).unwrap();
+    let report = node_script("export-validate.mjs", &["gltf-validator"], &[arg(&glb)]);
+    assert_eq!(report["issues"]["numErrors"], 0, "{report}");
+    assert_eq!(report["issues"]["numWarnings"], 0, "{report}");
+    let three = node_script(
+        "export-three.mjs",
+        &["three", "playwright-core"],
+        &[arg(&glb), &times.join(",")],
+    );
+    let mut worst_gltf = 0.0f64;
+    for (sample, &k) in three["samples"].as_array().unwrap().iter().zip(&ks) {
+        // three.js names the mesh "gingerbread_skinned" (spaces become _).
+        let meshes = sample["skinned"].as_object().unwrap();
+        assert_eq!(meshes.len(), 1, "one skinned mesh: {:?}", meshes.keys());
+        let skinned = meshes.values().next().unwrap().as_array().unwrap();
+        assert_eq!(skinned.len(), puppet.frames[k].len() * 3);
+        for (v, e) in puppet.frames[k].iter().enumerate() {
+            let g = |c: usize| skinned[v * 3 + c].as_f64().unwrap();
+            let d = ((g(0) - e[0] as f64).powi(2) + (g(1) - e[1] as f64).powi(2)).sqrt();
+            worst_gltf = worst_gltf.max(d);
+            assert!(g(2).abs() < 1e-3, "z of vertex {v}: {}", g(2));
+        }
+    }
+    assert!(
+        worst_gltf <= error + 1e-3,
+        "three.js skins it {worst_gltf} stage units from the take, the fit said {error}"
+    );
+    crate::common::note(&format!(
+        "skeleton to glTF skin: three.js within {worst_gltf:.3} stage units of the take"
     ));
 }
