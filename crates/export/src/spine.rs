@@ -480,8 +480,12 @@ impl SpineRig {
                     degrees -= 360.0 * ((degrees - last) / 360.0).round();
                     last = degrees;
                     let offset = at - setup.0;
-                    rotate.push(json!({"time": time, "value": degrees}));
-                    translate.push(json!({"time": time, "x": offset.x, "y": offset.y}));
+                    // To 1e-4 (degrees, stage units): a third of the text,
+                    // far below what the fit is off by.
+                    let short = |v: f64| (v * 1e4).round() / 1e4;
+                    rotate.push(json!({"time": time, "value": short(degrees)}));
+                    translate
+                        .push(json!({"time": time, "x": short(offset.x), "y": short(offset.y)}));
                 }
                 (b, json!({"rotate": rotate, "translate": translate}))
             })

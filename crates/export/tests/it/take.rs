@@ -210,6 +210,17 @@ fn a_skeleton_take_exports_as_bones_that_follow_the_take() {
         worst <= error + 1e-3,
         "spine-core is {worst} stage units from the take, the fit said {error}"
     );
+    // What the rig saves: the same frames as deform keys, for the record.
+    let mut keyed = animation.clone();
+    keyed.puppets[0].skeleton = None;
+    let keyed_path = dir.path().join("keyed.json");
+    export_spine(&keyed, &SpineOptions::default(), &mut (), &keyed_path).unwrap();
+    let size = |p: &Path| std::fs::metadata(p).unwrap().len() as f64 / animation.duration();
+    crate::common::note(&format!(
+        "Spine per second of take: {:.0} kB as bones, {:.0} kB as deform keys",
+        size(&path) / 1e3,
+        size(&keyed_path) / 1e3
+    ));
     crate::common::note(&format!(
         "skeleton to Spine bones: spine-core within {worst:.3} stage units of the take \
          (fit's bound {error:.3}, mean {mean:.3}; the puppet is {height:.0} units tall)"
