@@ -6,12 +6,10 @@
 use std::path::Path;
 
 use glam::DVec2;
-use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_export::raster::{Rasterizer, textures};
 use puppetry_export::take::animation_of_take;
 use puppetry_stage::config::StageConfig;
-use puppetry_stage::{Change, Stage};
-use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
+use puppetry_stage::Stage;
 
 use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
@@ -39,36 +37,8 @@ fn record_fold(path: &Path, config: &StageConfig) {
     );
     let from = right - DVec2::new(15.0, 0.0);
     let to = DVec2::new(610.0, 350.0);
-    let mut writer = TakeWriter::create(
-        path,
-        &Header::of_stage("fold", "depth-take.toml", &stage, true),
-    )
-    .unwrap();
-    for k in 0..=12 {
-        let phase = if k == 0 { Phase::Down } else { Phase::Move };
-        let change = Change::Contacts {
-            frame: ContactFrame {
-                source: SourceId::new("hand"),
-                time: k as f64,
-                contacts: vec![Contact::new(1, phase, from.lerp(to, k as f64 / 12.0))],
-            },
-        };
-        stage.apply_change(&change).unwrap();
-        let solved = stage.solve();
-        let t = k as f64 / FPS;
-        writer
-            .write(&Record::Step(Step {
-                t,
-                changes: vec![change],
-                events: Vec::new(),
-            }))
-            .unwrap();
-        for (p, _) in solved {
-            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
-            writer.write(&Record::Frame(frame)).unwrap();
-        }
-    }
-    writer.flush().unwrap();
+    let points: Vec<DVec2> = (0..=12).map(|k| from.lerp(to, k as f64 / 12.0)).collect();
+    crate::fixture::record_drag(path, &mut stage, "fold", FPS, &points);
 }
 
 /// Of the overlap's sample points where the two triangles' texels differ

@@ -96,3 +96,51 @@ pub fn two_figures(frames: usize, fps: f64) -> Animation {
         frame_count: frames,
     }
 }
+
+/// Records at `path` a take of `stage` named `name` in which one finger
+/// (source "hand", contact 1) goes down at `points[0]` and drags through
+/// the rest: step k at `t = k / fps`, each followed by the frames of the
+/// puppets it moved (as a recorder would at that pace). Returns those
+/// frames' points, in order.
+pub fn record_drag(
+    path: &std::path::Path,
+    stage: &mut puppetry_stage::Stage,
+    name: &str,
+    fps: f64,
+    points: &[glam::DVec2],
+) -> Vec<Vec<[f32; 2]>> {
+    use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
+    use puppetry_stage::Change;
+    use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
+    stage.solve();
+    let header = Header::of_stage(name, &format!("{name}.toml"), stage, true);
+    let mut writer = TakeWriter::create(path, &header).unwrap();
+    let mut frames = Vec::new();
+    for (k, &at) in points.iter().enumerate() {
+        let phase = if k == 0 { Phase::Down } else { Phase::Move };
+        let change = Change::Contacts {
+            frame: ContactFrame {
+                source: SourceId::new("hand"),
+                time: k as f64,
+                contacts: vec![Contact::new(1, phase, at)],
+            },
+        };
+        stage.apply_change(&change).unwrap();
+        let solved = stage.solve();
+        let t = k as f64 / fps;
+        writer
+            .write(&Record::Step(Step {
+                t,
+                changes: vec![change],
+                events: Vec::new(),
+            }))
+            .unwrap();
+        for (p, _) in solved {
+            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
+            frames.push(frame.points.clone());
+            writer.write(&Record::Frame(frame)).unwrap();
+        }
+    }
+    writer.flush().unwrap();
+    frames
+}

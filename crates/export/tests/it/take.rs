@@ -5,12 +5,11 @@
 use std::path::Path;
 
 use glam::DVec2;
-use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
 use puppetry_export::spine::{SpineOptions, export_spine};
 use puppetry_export::take::animation_of_take;
 use puppetry_stage::config::StageConfig;
-use puppetry_stage::{Change, Stage};
-use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
+use puppetry_stage::Stage;
+use puppetry_take::{Frame, Header, Record, TakeWriter};
 
 use crate::common::{arg, node_script};
 use puppetry_testkit::stage_text::{Gingerbread, STAGE};
@@ -27,39 +26,13 @@ fn config() -> StageConfig {
 /// exact times, as a recorder would at that pace); returns its frames.
 fn record(path: &Path, config: &StageConfig) -> Vec<Vec<[f32; 2]>> {
     let mut stage = Stage::from_config(config).unwrap();
-    stage.solve();
-    let mut writer =
-        TakeWriter::create(path, &Header::of_stage("t", "take-test.toml", &stage, true)).unwrap();
-    let mut frames = Vec::new();
-    for k in 0..STEPS {
-        let phase = if k == 0 { Phase::Down } else { Phase::Move };
-        let a = k as f64 / STEPS as f64 * std::f64::consts::TAU;
-        let at = DVec2::new(640.0, 470.0) + DVec2::new(a.sin(), 1.0 - a.cos()) * 50.0;
-        let change = Change::Contacts {
-            frame: ContactFrame {
-                source: SourceId::new("hand"),
-                time: k as f64,
-                contacts: vec![Contact::new(1, phase, at)],
-            },
-        };
-        stage.apply_change(&change).unwrap();
-        let solved = stage.solve();
-        let t = k as f64 / FPS;
-        writer
-            .write(&Record::Step(Step {
-                t,
-                changes: vec![change],
-                events: Vec::new(),
-            }))
-            .unwrap();
-        for (p, _) in solved {
-            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
-            frames.push(frame.points.clone());
-            writer.write(&Record::Frame(frame)).unwrap();
-        }
-    }
-    writer.flush().unwrap();
-    frames
+    let points: Vec<DVec2> = (0..STEPS)
+        .map(|k| {
+            let a = k as f64 / STEPS as f64 * std::f64::consts::TAU;
+            DVec2::new(640.0, 470.0) + DVec2::new(a.sin(), 1.0 - a.cos()) * 50.0
+        })
+        .collect();
+    crate::fixture::record_drag(path, &mut stage, "t", FPS, &points)
 }
 
 #[test]
@@ -235,42 +208,17 @@ fn skeleton_take(dir: &Path) -> puppetry_export::Animation {
     let take = dir.join("wave.take");
     let mut stage = Stage::from_config(&config).unwrap();
     stage.solve();
-    let mut writer = TakeWriter::create(
-        &take,
-        &Header::of_stage("wave", "skeleton.toml", &stage, true),
-    )
-    .unwrap();
     let joints = stage.puppets()[0].rig().points().unwrap().to_vec();
     let (elbow, hand) = (joints[8], joints[9]);
     let frames = 45;
-    for k in 0..frames {
-        let phase = if k == 0 { Phase::Down } else { Phase::Move };
-        // The right hand swung up and back about its elbow.
-        let a = (k as f64 / frames as f64 * std::f64::consts::TAU).sin() * 1.2;
-        let at = elbow + DVec2::from_angle(a).rotate(hand - elbow);
-        let change = Change::Contacts {
-            frame: ContactFrame {
-                source: SourceId::new("hand"),
-                time: k as f64,
-                contacts: vec![Contact::new(1, phase, at)],
-            },
-        };
-        stage.apply_change(&change).unwrap();
-        let solved = stage.solve();
-        let t = k as f64 / FPS;
-        writer
-            .write(&Record::Step(Step {
-                t,
-                changes: vec![change],
-                events: Vec::new(),
-            }))
-            .unwrap();
-        for (p, _) in solved {
-            let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());
-            writer.write(&Record::Frame(frame)).unwrap();
-        }
-    }
-    writer.flush().unwrap();
+    // The right hand swung up and back about its elbow.
+    let points: Vec<DVec2> = (0..frames)
+        .map(|k| {
+            let a = (k as f64 / frames as f64 * std::f64::consts::TAU).sin() * 1.2;
+            elbow + DVec2::from_angle(a).rotate(hand - elbow)
+        })
+        .collect();
+    crate::fixture::record_drag(&take, &mut stage, "wave", FPS, &points);
     animation_of_take(&take, &config, FPS, None, None).unwrap()
 }
 

@@ -42,17 +42,23 @@ fn probe(path: &Path) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
-/// Frame `k` decoded to RGBA.
-fn decode(path: &Path, decoder: Option<&str>, k: usize) -> Vec<u8> {
+/// Frame `k` decoded to RGBA by ffmpeg (with `decoder`, when given):
+/// as ffmpeg reads the file's tags, or, with `bt709`, as a browser
+/// decodes it (BT.709, limited range, whatever the file says).
+fn decode_as(path: &Path, decoder: Option<&str>, k: usize, bt709: bool) -> Vec<u8> {
     let mut cmd = Command::new("ffmpeg");
     cmd.args(["-v", "error", "-nostdin"]);
     if let Some(d) = decoder {
         cmd.args(["-c:v", d]);
     }
+    let mut filter = format!("select=eq(n\\,{k})");
+    if bt709 {
+        filter.push_str(",scale=in_color_matrix=bt709:in_range=tv");
+    }
     let out = cmd
         .arg("-i")
         .arg(path)
-        .args(["-vf", &format!("select=eq(n\\,{k})"), "-frames:v", "1"])
+        .args(["-vf", &filter, "-frames:v", "1"])
         .args(["-f", "rawvideo", "-pix_fmt", "rgba", "-"])
         .output()
         .unwrap();
@@ -63,6 +69,11 @@ fn decode(path: &Path, decoder: Option<&str>, k: usize) -> Vec<u8> {
     );
     assert_eq!(out.stdout.len(), (W * H * 4) as usize);
     out.stdout
+}
+
+/// Frame `k` decoded to RGBA as ffmpeg reads the file.
+fn decode(path: &Path, decoder: Option<&str>, k: usize) -> Vec<u8> {
+    decode_as(path, decoder, k, false)
 }
 
 /// The pixel format ffmpeg decodes to with `decoder` (ffprobe 5 cannot
@@ -268,30 +279,9 @@ fn colours_come_back_as_a_bt709_player_shows_them() {
     for (ext, decoder) in [("mp4", None), ("mov", None), ("webm", Some("libvpx-vp9"))] {
         let path = dir.path().join(format!("red.{ext}"));
         export_video(&animation, &VideoOptions::new(W, H), &mut (), &path).unwrap();
-        let mut cmd = Command::new("ffmpeg");
-        cmd.args(["-v", "error", "-nostdin"]);
-        if let Some(d) = decoder {
-            cmd.args(["-c:v", d]);
-        }
-        let out = cmd
-            .arg("-i")
-            .arg(&path)
-            .args([
-                "-frames:v",
-                "1",
-                "-vf",
-                "scale=in_color_matrix=bt709:in_range=tv",
-            ])
-            .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let centre = ((H / 2 * W + W / 2) * 3) as usize;
-        let got = &out.stdout[centre..centre + 3];
+        let decoded = decode_as(&path, decoder, 0, true);
+        let centre = ((H / 2 * W + W / 2) * 4) as usize;
+        let got = &decoded[centre..centre + 3];
         let off = got
             .iter()
             .zip(RED)
@@ -326,32 +316,11 @@ fn decoded_frames_match_the_png_export() {
         export_video(&animation, &VideoOptions::new(W, H), &mut (), &path).unwrap();
         let mut worst = 0.0f64;
         for k in [0, FRAMES / 2, FRAMES - 1] {
-            let mut cmd = Command::new("ffmpeg");
-            cmd.args(["-v", "error", "-nostdin"]);
-            if let Some(d) = decoder {
-                cmd.args(["-c:v", d]);
-            }
-            let out = cmd
-                .arg("-i")
-                .arg(&path)
-                .args([
-                    "-vf",
-                    &format!("select=eq(n\\,{k}),scale=in_color_matrix=bt709:in_range=tv"),
-                    "-frames:v",
-                    "1",
-                ])
-                .args(["-f", "rawvideo", "-pix_fmt", "rgba", "-"])
-                .output()
-                .unwrap();
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
-            );
+            let decoded = decode_as(&path, decoder, k, true);
             let png = puppetry_export::load_png(&pngs.join(puppetry_export::frames::frame_name(k)))
                 .unwrap()
                 .pixels;
-            assert_eq!(out.stdout.len(), png.len());
+            assert_eq!(decoded.len(), png.len());
             // Compared as what is shown: over white without alpha,
             // premultiplied colour and alpha with it.
             let shown = |px: &[u8]| -> [f64; 4] {
@@ -360,7 +329,7 @@ fn decoded_frames_match_the_png_export() {
                 [c(0), c(1), c(2), if opaque { 255.0 } else { px[3] as f64 }]
             };
             let mut sum = 0.0;
-            for (got, want) in out.stdout.chunks_exact(4).zip(png.chunks_exact(4)) {
+            for (got, want) in decoded.chunks_exact(4).zip(png.chunks_exact(4)) {
                 let (g, w) = (shown(got), shown(want));
                 sum += (0..4).map(|i| (g[i] - w[i]).abs()).sum::<f64>() / 4.0;
             }
