@@ -7,7 +7,9 @@
 //! Decoders (plain synchronous state machines): [`evdev`] turns raw kernel
 //! events of touch surfaces and pens into frames, [`mouse`] turns a mouse's
 //! into a cursor holding a pair of points, [`hid`] decodes HID digitizer
-//! reports, [`tuio`] TUIO bundles and [`serial`] pad records.
+//! reports, [`tuio`] TUIO bundles, [`serial`] pad records and [`midi`] a
+//! MIDI byte stream (controllers and show control; its device loop and
+//! mapping are to come).
 //!
 //! Sources: [`device`] finds, describes and opens Linux input devices and
 //! [`hotplug`] keeps one configured device read for the daemon's life;
@@ -29,6 +31,7 @@ pub mod hid;
 pub mod hid_recording;
 pub mod hotplug;
 pub mod log_limit;
+pub mod midi;
 pub mod mouse;
 pub mod record;
 pub mod recording;

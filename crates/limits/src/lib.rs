@@ -15,4 +15,5 @@
 pub mod contacts;
 pub mod exports;
 pub mod files;
+pub mod midi;
 pub mod net;

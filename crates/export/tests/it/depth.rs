@@ -8,8 +8,8 @@ use std::path::Path;
 use glam::DVec2;
 use puppetry_export::raster::{Rasterizer, textures};
 use puppetry_export::take::animation_of_take;
-use puppetry_stage::config::StageConfig;
 use puppetry_stage::Stage;
+use puppetry_stage::config::StageConfig;
 
 use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 

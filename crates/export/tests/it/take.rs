@@ -7,8 +7,8 @@ use std::path::Path;
 use glam::DVec2;
 use puppetry_export::spine::{SpineOptions, export_spine};
 use puppetry_export::take::animation_of_take;
-use puppetry_stage::config::StageConfig;
 use puppetry_stage::Stage;
+use puppetry_stage::config::StageConfig;
 use puppetry_take::{Frame, Header, Record, TakeWriter};
 
 use crate::common::{arg, node_script};

@@ -564,3 +564,66 @@ fn fuzz_regression_hid_descriptors_hidreport_cannot_survive_are_refused() {
         TouchLayout::parse(&descriptor).unwrap();
     }
 }
+
+// MIDI: a byte stream from a port anyone can plug into.
+
+/// Decodes `bytes` fed `chunk` bytes at a time.
+fn midi(bytes: &[u8], chunk: usize) -> (Vec<puppetry_input::midi::MidiMessage>, u64) {
+    let mut decoder = puppetry_input::midi::MidiDecoder::new();
+    let mut out = Vec::new();
+    for part in bytes.chunks(chunk.max(1)) {
+        decoder.feed(part, |m| out.push(m));
+    }
+    (out, decoder.dropped())
+}
+
+/// One channel message, status and data.
+fn midi_channel_message() -> impl Strategy<Value = Vec<u8>> {
+    (0x80u8..=0xEF, 0u8..128, 0u8..128).prop_map(|(status, a, b)| match status & 0xF0 {
+        0xC0 | 0xD0 => vec![status, a],
+        _ => vec![status, a, b],
+    })
+}
+
+proptest! {
+    #![proptest_config(config())]
+
+    /// Any bytes, in any chunks: messages or drops, never a panic, and the
+    /// same messages however the bytes were cut.
+    #[test]
+    fn fuzz_midi_random_bytes(bytes in fuzz::bytes(600), chunk in 1usize..64) {
+        let whole = midi(&bytes, bytes.len());
+        prop_assert_eq!(midi(&bytes, chunk), whole);
+    }
+
+    /// Real-time bytes inserted anywhere in a stream of messages change
+    /// none of them.
+    #[test]
+    fn fuzz_midi_real_time_bytes_anywhere(
+        messages in proptest::collection::vec(midi_channel_message(), 1..20),
+        inserts in proptest::collection::vec(
+            (any::<proptest::sample::Index>(), proptest::sample::select(vec![0xF8u8, 0xFA, 0xFB, 0xFC, 0xFE, 0xFF])),
+            0..12,
+        ),
+    ) {
+        let plain: Vec<u8> = messages.concat();
+        let (expected, dropped) = midi(&plain, plain.len());
+        prop_assert_eq!(dropped, 0);
+        prop_assert_eq!(expected.len(), messages.len());
+        let mut mixed = plain.clone();
+        for (at, byte) in &inserts {
+            let at = at.index(mixed.len() + 1);
+            mixed.insert(at, *byte);
+        }
+        let (got, dropped) = midi(&mixed, 7);
+        prop_assert_eq!(dropped, 0);
+        let got: Vec<_> = got.into_iter().filter(|m| !matches!(m,
+            puppetry_input::midi::MidiMessage::Clock
+            | puppetry_input::midi::MidiMessage::Start
+            | puppetry_input::midi::MidiMessage::Continue
+            | puppetry_input::midi::MidiMessage::Stop
+            | puppetry_input::midi::MidiMessage::ActiveSensing
+            | puppetry_input::midi::MidiMessage::Reset)).collect();
+        prop_assert_eq!(got, expected);
+    }
+}
