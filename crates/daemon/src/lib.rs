@@ -41,6 +41,7 @@ pub(crate) mod outputs;
 pub mod protocol;
 pub mod relay;
 pub mod serve;
+pub(crate) mod show_control;
 pub(crate) mod sources;
 pub mod stage_thread;
 pub mod stream;

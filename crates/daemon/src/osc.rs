@@ -17,22 +17,18 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use bytes::Bytes;
-use glam::DVec2;
 use rosc::address::{Matcher, OscAddress};
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 
 use puppetry_input::log_limit::LogLimiter;
 use tokio::net::UdpSocket;
-use tokio::sync::{mpsc, watch};
 use tokio::task::{AbortHandle, JoinHandle};
 
 use crate::config::OscConfig;
-
-use crate::outputs::{Published, State};
-use crate::protocol::{HandleKind, KeyView, RigDescription, ServerMessage, TakeState};
-use crate::stage_thread::{Command, PublishedHandles};
-use crate::stream::Shared;
+use crate::outputs::Published;
+use crate::protocol::{HandleKind, ServerMessage, TakeState};
+use crate::show_control::{Actor, Links, Trigger, TriggerError, clip, keys_of, lock, pose_of};
+use crate::stage_thread::PublishedHandles;
 
 /// What goes wrong in show control; every variant names what it is about.
 #[derive(Debug, thiserror::Error)]
@@ -70,18 +66,9 @@ pub enum OscError {
         expected: &'static str,
         got: String,
     },
-    #[error(
-        "{address}: {name}: no key pose {key:?} (stage-file poses: {poses}; keyframing keys: {keys})"
-    )]
-    NoKey {
-        address: String,
-        name: &'static str,
-        key: String,
-        poses: String,
-        keys: String,
-    },
-    #[error("{address}: {problem}")]
-    Refused { address: String, problem: String },
+    /// A trigger the stage could not do.
+    #[error(transparent)]
+    Trigger(#[from] TriggerError),
 }
 
 /// Bundles nested deeper than this are refused before decoding: a desk
@@ -99,64 +86,11 @@ const MAX_BLEND_SECONDS: f64 = 3600.0;
 /// Coordinates a trigger may give (as the WebSocket accepts).
 const MAX_COORDINATE: f64 = 1e6;
 
-/// `text`, cut to `MAX_ECHO` characters with "…" when longer, so a
-/// hostile datagram cannot make a log line or error of any length.
-pub fn clip(text: &str) -> String {
-    puppetry_input::log_limit::clip(text, puppetry_limits::net::MAX_ECHO)
-}
-
 /// The log of one OSC door, as a device's: five lines at once, then one
 /// every five seconds, the rest counted (a flood of bad datagrams, or a
 /// host that is down, costs a bounded number of lines).
 fn limiter() -> LogLimiter {
     LogLimiter::new(Instant::now())
-}
-
-/// A trigger received over OSC, as the stage thread is asked to do it.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Trigger {
-    /// Start recording a take (`None`: the next free `take-NNN`).
-    StartTake {
-        name: Option<String>,
-    },
-    StopTake,
-    /// Blend a puppet to a named key pose over `seconds` (0: at once): a
-    /// skeleton's stage-file pose, or a keyframing key (its cursor moves
-    /// to the key's pad point).
-    Key {
-        puppet: u32,
-        name: String,
-        seconds: f64,
-    },
-    /// A skeleton set `t` of the way from key pose `from` to `to`.
-    Pose {
-        puppet: u32,
-        from: String,
-        to: String,
-        t: f64,
-    },
-    /// The keyframing cursor moved (pad coordinates) or let go (`None`).
-    Cursor {
-        puppet: u32,
-        at: Option<[f64; 2]>,
-    },
-    /// A puppet back to how the stage file has it.
-    Reset {
-        puppet: u32,
-    },
-}
-
-impl Trigger {
-    /// The puppet it acts on, if one.
-    fn puppet(&self) -> Option<u32> {
-        match self {
-            Trigger::StartTake { .. } | Trigger::StopTake => None,
-            Trigger::Key { puppet, .. }
-            | Trigger::Pose { puppet, .. }
-            | Trigger::Cursor { puppet, .. }
-            | Trigger::Reset { puppet } => Some(*puppet),
-        }
-    }
 }
 
 /// The stage's OSC addresses: the prefix and each puppet's address part.
@@ -497,72 +431,6 @@ pub fn decode(datagram: &[u8]) -> Result<Vec<OscMessage>, OscError> {
     Ok(messages)
 }
 
-/// One puppet as show control sees it: its names and the watches it reads.
-#[derive(Debug, Clone)]
-pub struct PuppetLink {
-    /// The stage file's key poses of a skeleton (empty otherwise).
-    pub poses: Vec<String>,
-    pub handles: watch::Receiver<Arc<PublishedHandles>>,
-    /// The "keys" message (keyframing keys and cursor).
-    pub keys: State,
-    /// The "pose" message (a skeleton's key-pose blend), empty until set.
-    pub pose: State,
-    /// Handle frames (binary kind 3: where each handle's point is on the
-    /// solved puppet), when the stage publishes them; else the handles'
-    /// `at` stands in.
-    pub handle_frames: Option<watch::Receiver<Option<Bytes>>>,
-}
-
-/// What show control reads and drives: the same channels as the
-/// WebSocket clients.
-#[derive(Debug, Clone)]
-pub struct Links {
-    pub names: Vec<String>,
-    pub puppets: Vec<PuppetLink>,
-    /// The "take" message.
-    pub take: State,
-    pub commands: mpsc::Sender<Command>,
-}
-
-impl Links {
-    /// The stage file's puppets (show control's address space is fixed at
-    /// start: puppets added at runtime are not in it).
-    pub fn of(shared: &Shared, commands: mpsc::Sender<Command>) -> Links {
-        let lineup = shared.lineup.borrow().clone();
-        let puppets = lineup
-            .description
-            .puppets
-            .iter()
-            .zip(&lineup.outputs)
-            .map(|(p, o)| PuppetLink {
-                poses: match &p.rig {
-                    RigDescription::Skeleton { poses, .. } => poses.clone(),
-                    _ => Vec::new(),
-                },
-                handles: o.handles.clone(),
-                keys: o.keys.clone(),
-                // Puppets without key poses never publish one.
-                pose: o
-                    .pose
-                    .clone()
-                    .unwrap_or_else(|| watch::channel(Published::nothing()).1),
-                handle_frames: Some(o.handle_frame.clone()),
-            })
-            .collect();
-        Links {
-            names: lineup
-                .description
-                .puppets
-                .iter()
-                .map(|p| p.name.clone())
-                .collect(),
-            puppets,
-            take: shared.take.clone(),
-            commands,
-        }
-    }
-}
-
 /// Show control running: its tasks end when this is dropped or shut down.
 pub struct Osc {
     /// Where triggers are received (the bound address, port 0 resolved).
@@ -589,10 +457,6 @@ impl Drop for Osc {
     }
 }
 
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
-}
-
 /// Starts show control for `config`: binds `listen` now (so a bad address
 /// stops the start with its error) and sends to `send` from a task.
 pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
@@ -610,12 +474,16 @@ pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
                 .map_err(|source| OscError::Listen { address, source })?,
         );
         tracing::info!("OSC triggers on udp://{}", listen.expect("bound"));
+        let log = Arc::new(Mutex::new(limiter()));
         let receiver = Receiver {
             space: space.clone(),
-            links: links.clone(),
-            rate: config.rate,
-            blends: blends.clone(),
-            log: Arc::new(Mutex::new(limiter())),
+            actor: Actor {
+                links: links.clone(),
+                rate: config.rate,
+                blends: blends.clone(),
+                log: log.clone(),
+            },
+            log,
         };
         tasks.push(tokio::spawn(receiver.run(socket)));
     }
@@ -631,24 +499,6 @@ pub async fn start(config: &OscConfig, links: Links) -> Result<Osc, OscError> {
     })
 }
 
-/// A puppet's key poses and cursor, from its published "keys" message
-/// (none published yet: none).
-fn keys_of(published: &Published) -> (Vec<KeyView>, Option<[f64; 2]>) {
-    match &published.message {
-        Some(ServerMessage::Keys { keys, cursor, .. }) => (keys.clone(), *cursor),
-        _ => (Vec::new(), None),
-    }
-}
-
-/// A skeleton's key-pose blend, from its published "pose" message: from,
-/// to and how far (none published yet: `None`).
-fn pose_of(published: &Published) -> Option<(Option<String>, Option<String>, f64)> {
-    match &published.message {
-        Some(ServerMessage::Pose { from, to, t, .. }) => Some((from.clone(), to.clone(), *t)),
-        _ => None,
-    }
-}
-
 /// The take state, from the published "take" message.
 fn take_of(published: &Published) -> TakeState {
     match &published.message {
@@ -660,11 +510,8 @@ fn take_of(published: &Published) -> TakeState {
 /// Receives triggers and acts on them.
 struct Receiver {
     space: AddressSpace,
-    links: Links,
-    rate: f64,
-    /// Per puppet, the `key` blend under way (a newer trigger on the
-    /// puppet stops it: the last word wins).
-    blends: Arc<Mutex<Vec<Option<AbortHandle>>>>,
+    /// Does the triggers, as MIDI's does.
+    actor: Actor,
     log: Arc<Mutex<LogLimiter>>,
 }
 
@@ -697,222 +544,13 @@ impl Receiver {
                     }
                 };
                 for trigger in triggers {
-                    if let Err(e) = self.act(&message.addr, trigger).await {
+                    if let Err(e) = self.actor.act(&message.addr, trigger).await {
                         lock(&self.log).warn(format_args!("from {from}: {e}"));
                     }
                 }
             }
         }
     }
-
-    /// Does one trigger.
-    async fn act(&self, address: &str, trigger: Trigger) -> Result<(), OscError> {
-        let refused = |problem: String| OscError::Refused {
-            address: clip(address),
-            problem,
-        };
-        if let Some(puppet) = trigger.puppet() {
-            // The newest word on a puppet wins over a blend under way.
-            if let Some(blend) = lock(&self.blends)[puppet as usize].take() {
-                blend.abort();
-            }
-        }
-        let commands = &self.links.commands;
-        match trigger {
-            Trigger::StartTake { name } => {
-                let (reply, answer) = tokio::sync::oneshot::channel();
-                send(
-                    commands,
-                    Command::StartTake {
-                        name,
-                        layers: Vec::new(),
-                        reply,
-                    },
-                )
-                .await
-                .map_err(refused)?;
-                let name = answer.await.map_err(|_| refused(SHUTTING_DOWN.into()))?;
-                let name = name.map_err(refused)?;
-                tracing::info!("take {name} started by OSC ({})", clip(address));
-                Ok(())
-            }
-            Trigger::StopTake => {
-                let (reply, answer) = tokio::sync::oneshot::channel();
-                send(commands, Command::StopTake { reply })
-                    .await
-                    .map_err(refused)?;
-                answer
-                    .await
-                    .map_err(|_| refused(SHUTTING_DOWN.into()))?
-                    .map(drop)
-                    .map_err(refused)
-            }
-            Trigger::Pose {
-                puppet,
-                from,
-                to,
-                t,
-            } => key_pose(commands, puppet, from, to, t)
-                .await
-                .map_err(refused),
-            Trigger::Cursor { puppet, at } => cursor(commands, puppet, at.map(DVec2::from))
-                .await
-                .map_err(refused),
-            Trigger::Reset { puppet } => reset(commands, puppet).await.map_err(refused),
-            Trigger::Key {
-                puppet,
-                name,
-                seconds,
-            } => self.key(address, puppet, name, seconds).await,
-        }
-    }
-
-    /// Blends a puppet to a named key pose: a skeleton's stage-file pose
-    /// (from the pose it is nearest now), else a keyframing key (the
-    /// cursor glides to the key's pad point).
-    async fn key(
-        &self,
-        address: &str,
-        puppet: u32,
-        name: String,
-        seconds: f64,
-    ) -> Result<(), OscError> {
-        let link = &self.links.puppets[puppet as usize];
-        let steps = (seconds * self.rate).ceil().max(1.0) as u32;
-        let commands = self.links.commands.clone();
-        let log = self.log.clone();
-        let period = Duration::from_secs_f64(1.0 / self.rate);
-        let refused = |problem: String| OscError::Refused {
-            address: clip(address),
-            problem,
-        };
-        let blend: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> =
-            if link.poses.contains(&name) {
-                let now = pose_of(&link.pose.borrow());
-                // A blend of two poses is not a pose to start from: start
-                // from the nearer of the two.
-                let start = now
-                    .and_then(|(from, to, t)| if t >= 0.5 { to } else { from })
-                    .filter(|start| *start != name);
-                let Some(start) = start.filter(|_| steps > 1) else {
-                    return key_pose(&commands, puppet, name.clone(), name, 0.0)
-                        .await
-                        .map_err(refused);
-                };
-                Box::pin(async move {
-                    let mut tick = tokio::time::interval(period);
-                    for k in 1..=steps {
-                        tick.tick().await;
-                        let t = f64::from(k) / f64::from(steps);
-                        let pose = key_pose(&commands, puppet, start.clone(), name.clone(), t);
-                        if let Err(e) = pose.await {
-                            lock(&log).warn(format_args!("key {name:?}: {e}"));
-                            return;
-                        }
-                    }
-                })
-            } else {
-                let (keys, at) = keys_of(&link.keys.borrow());
-                let Some(target) = keys.iter().find(|k| k.name == name) else {
-                    let list = |names: Vec<&str>| {
-                        if names.is_empty() {
-                            "none".to_string()
-                        } else {
-                            clip(&names.join(", "))
-                        }
-                    };
-                    return Err(OscError::NoKey {
-                        address: clip(address),
-                        name: "name",
-                        key: clip(&name),
-                        poses: list(link.poses.iter().map(String::as_str).collect()),
-                        keys: list(keys.iter().map(|k| k.name.as_str()).collect()),
-                    });
-                };
-                let to = DVec2::from(target.at);
-                let Some(from) = at.map(DVec2::from).filter(|_| steps > 1) else {
-                    return cursor(&commands, puppet, Some(to)).await.map_err(refused);
-                };
-                Box::pin(async move {
-                    let mut tick = tokio::time::interval(period);
-                    for k in 1..=steps {
-                        tick.tick().await;
-                        // The last step lands on the key exactly.
-                        let at = if k == steps {
-                            to
-                        } else {
-                            from.lerp(to, f64::from(k) / f64::from(steps))
-                        };
-                        if let Err(e) = cursor(&commands, puppet, Some(at)).await {
-                            lock(&log).warn(format_args!("key {name:?}: {e}"));
-                            return;
-                        }
-                    }
-                })
-            };
-        let task = tokio::spawn(blend);
-        lock(&self.blends)[puppet as usize] = Some(task.abort_handle());
-        Ok(())
-    }
-}
-
-const SHUTTING_DOWN: &str = "the stage is shutting down";
-
-async fn send(commands: &mpsc::Sender<Command>, command: Command) -> Result<(), String> {
-    commands
-        .send(command)
-        .await
-        .map_err(|_| SHUTTING_DOWN.to_string())
-}
-
-/// Asks the stage thread and waits for its answer.
-async fn ask(
-    commands: &mpsc::Sender<Command>,
-    command: impl FnOnce(crate::stage_thread::Reply<()>) -> Command,
-) -> Result<(), String> {
-    let (reply, answer) = tokio::sync::oneshot::channel();
-    send(commands, command(reply)).await?;
-    answer
-        .await
-        .map_err(|_| SHUTTING_DOWN.to_string())?
-        .map_err(|e| e.to_string())
-}
-
-async fn key_pose(
-    commands: &mpsc::Sender<Command>,
-    puppet: u32,
-    from: String,
-    to: String,
-    t: f64,
-) -> Result<(), String> {
-    let change = crate::convert::key_pose(puppet, from, to, t).map_err(|e| e.to_string())?;
-    ask(commands, |reply| {
-        crate::convert::change(change, Some(reply))
-    })
-    .await
-}
-
-async fn cursor(
-    commands: &mpsc::Sender<Command>,
-    puppet: u32,
-    at: Option<DVec2>,
-) -> Result<(), String> {
-    let change = crate::convert::cursor(puppet, at);
-    ask(commands, |reply| {
-        crate::convert::change(change, Some(reply))
-    })
-    .await
-}
-
-/// Resets a puppet (as the page's reset button): every reset trigger
-/// comes through here.
-async fn reset(commands: &mpsc::Sender<Command>, puppet: u32) -> Result<(), String> {
-    ask(commands, |reply| Command::Edit {
-        puppet,
-        edit: crate::stage_thread::Edit::Reset,
-        reply,
-    })
-    .await
 }
 
 /// One `send` host: where it resolved to, and its own log window.

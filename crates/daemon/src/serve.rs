@@ -335,9 +335,13 @@ async fn show_control(
     ServeError,
 > {
     let osc = match &config.osc {
-        Some(osc) => {
-            Some(crate::osc::start(osc, crate::osc::Links::of(shared, commands.clone())).await?)
-        }
+        Some(osc) => Some(
+            crate::osc::start(
+                osc,
+                crate::show_control::Links::of(shared, commands.clone()),
+            )
+            .await?,
+        ),
         None => None,
     };
     let relay = match &config.relay {
