@@ -32,6 +32,8 @@ pub mod hid_recording;
 pub mod hotplug;
 pub mod log_limit;
 pub mod midi;
+pub mod midi_file;
+pub mod midi_map;
 pub mod mouse;
 pub mod record;
 pub mod recording;

@@ -1,0 +1,181 @@
+//! Standard MIDI Files (`.mid`) as timed MIDI messages, so a recorded
+//! controller performance (or one written by hand in a DAW) stands in for
+//! the controller, as evemu captures stand in for touch screens: every
+//! track merged in time, ticks turned into seconds through the file's
+//! tempo map (or its SMPTE timing), each event put through the same
+//! [`MidiDecoder`] a MIDI port is read with. Parsed by the `midly` crate.
+//!
+//! The file is read within `MAX_REPLAY_FILE_BYTES` like any replay; its
+//! events are bounded by its size. A malformed file is refused naming it
+//! and what `midly` says is wrong.
+
+use std::path::Path;
+
+use midly::{MetaMessage, Smf, Timing, TrackEventKind};
+use puppetry_mesh::file::{FileError, REPLAY_FILE};
+
+use crate::midi::{MidiDecoder, MidiMessage};
+
+/// A `.mid` that cannot be played.
+#[derive(Debug, thiserror::Error)]
+pub enum MidiFileError {
+    /// The file cannot be read (or is past its size limit).
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// It is not a Standard MIDI File, or a damaged one.
+    #[error("{file}: not a Standard MIDI File: {problem}")]
+    Parse {
+        /// The file.
+        file: String,
+        /// What `midly` found wrong.
+        problem: String,
+    },
+}
+
+/// A message and when it is sent, in seconds from the file's start.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TimedMessage {
+    /// Seconds from the start.
+    pub t: f64,
+    /// The message.
+    pub message: MidiMessage,
+}
+
+/// Every message of the file at `path`, in time order (ties in track
+/// order).
+pub fn read_midi_file(path: &Path) -> Result<Vec<TimedMessage>, MidiFileError> {
+    let bytes = puppetry_mesh::file::read(path, REPLAY_FILE)?;
+    let smf = Smf::parse(&bytes).map_err(|e| MidiFileError::Parse {
+        file: path.display().to_string(),
+        problem: e.to_string(),
+    })?;
+    // Every event with its absolute tick, merged over the tracks.
+    let mut events: Vec<(u64, usize, TrackEventKind)> = Vec::new();
+    for (track, events_of) in smf.tracks.iter().enumerate() {
+        let mut tick = 0u64;
+        for event in events_of {
+            tick += u64::from(event.delta.as_int());
+            events.push((tick, track, event.kind));
+        }
+    }
+    events.sort_by_key(|&(tick, track, _)| (tick, track));
+    // Seconds a tick: SMPTE timing is fixed; metrical follows the tempo
+    // (microseconds a quarter note, 120 bpm until the first tempo event).
+    let (mut per_tick, per_beat) = match smf.header.timing {
+        Timing::Metrical(ticks) => (0.5 / f64::from(ticks.as_int().max(1)), Some(ticks)),
+        Timing::Timecode(fps, sub) => (
+            1.0 / (f64::from(fps.as_f32()) * f64::from(sub.max(1))),
+            None,
+        ),
+    };
+    let mut decoder = MidiDecoder::new();
+    let mut out = Vec::new();
+    let (mut last_tick, mut t) = (0u64, 0.0f64);
+    let mut raw = Vec::new();
+    for (tick, _, kind) in events {
+        t += (tick - last_tick) as f64 * per_tick;
+        last_tick = tick;
+        if let (TrackEventKind::Meta(MetaMessage::Tempo(micros)), Some(ticks)) = (kind, per_beat) {
+            per_tick = f64::from(micros.as_int()) / 1e6 / f64::from(ticks.as_int().max(1));
+            continue;
+        }
+        raw.clear();
+        match kind {
+            TrackEventKind::Midi { .. } => {
+                if let Some(live) = kind.as_live_event() {
+                    let _ = live.write_std(&mut raw);
+                }
+            }
+            // A SysEx event's data follows its F0 (and ends in F7 when
+            // not split across events).
+            TrackEventKind::SysEx(data) => {
+                raw.push(0xF0);
+                raw.extend_from_slice(data);
+            }
+            TrackEventKind::Escape(_) | TrackEventKind::Meta(_) => continue,
+        }
+        decoder.feed(&raw, |message| out.push(TimedMessage { t, message }));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use midly::num::{u4, u7, u15, u24, u28};
+    use midly::{Format, Header, TrackEvent};
+
+    fn cc(delta: u32, controller: u8, value: u8) -> TrackEvent<'static> {
+        TrackEvent {
+            delta: u28::new(delta),
+            kind: TrackEventKind::Midi {
+                channel: u4::new(0),
+                message: midly::MidiMessage::Controller {
+                    controller: u7::new(controller),
+                    value: u7::new(value),
+                },
+            },
+        }
+    }
+
+    /// Two tracks merged in time; 120 bpm, then 60 bpm from beat 1; a
+    /// show-control GO as a SysEx event.
+    #[test]
+    fn tracks_merge_and_ticks_follow_the_tempo_map() {
+        let mut smf = Smf::new(Header::new(
+            Format::Parallel,
+            Timing::Metrical(u15::new(480)),
+        ));
+        smf.tracks.push(vec![
+            cc(0, 1, 10),
+            cc(480, 1, 20), // beat 1 at 120 bpm: 0.5 s
+            TrackEvent {
+                delta: u28::new(0),
+                kind: TrackEventKind::Meta(MetaMessage::Tempo(u24::new(1_000_000))),
+            },
+            cc(480, 1, 30), // one beat at 60 bpm later: 1.5 s
+        ]);
+        let go: &[u8] = &[0x7F, 0x01, 0x02, 0x01, 0x01, b'4', 0xF7];
+        smf.tracks.push(vec![
+            cc(240, 2, 99), // 0.25 s
+            TrackEvent {
+                delta: u28::new(720),
+                kind: TrackEventKind::SysEx(go), // tick 960, as track 0's last
+            },
+        ]);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("show.mid");
+        smf.save(&path).unwrap();
+        let timed = read_midi_file(&path).unwrap();
+        let at: Vec<(f64, &MidiMessage)> = timed.iter().map(|m| (m.t, &m.message)).collect();
+        let control = |controller, value| MidiMessage::ControlChange {
+            channel: 0,
+            controller,
+            value,
+        };
+        assert_eq!(
+            at,
+            [
+                (0.0, &control(1, 10)),
+                (0.25, &control(2, 99)),
+                (0.5, &control(1, 20)),
+                // Tick 960 in both tracks: track order.
+                (1.5, &control(1, 30)),
+                (
+                    1.5,
+                    &MidiMessage::ShowControl {
+                        device: 1,
+                        command: crate::midi::ShowCommand::Go,
+                        cue: Some("4".into())
+                    }
+                ),
+            ]
+        );
+        std::fs::write(&path, b"MThd garbage").unwrap();
+        let e = read_midi_file(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("show.mid") && e.contains("not a Standard MIDI File"),
+            "{e}"
+        );
+    }
+}
