@@ -371,8 +371,12 @@ pub(crate) fn is_name_char(c: char) -> bool {
 /// above 120 the updates outrun any display and flood the network.
 pub(crate) const OSC_RATE: std::ops::RangeInclusive<f64> = 1.0..=120.0;
 
+/// State updates (and key-blend steps) a second when the stage file
+/// gives no `[osc].rate`.
+pub const DEFAULT_OSC_RATE: f64 = 30.0;
+
 fn default_osc_rate() -> f64 {
-    30.0
+    DEFAULT_OSC_RATE
 }
 
 fn default_osc_prefix() -> String {

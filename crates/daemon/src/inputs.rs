@@ -60,6 +60,8 @@ trait Supervised: Send {
 #[derive(Default)]
 pub(crate) struct ResolvedInputs {
     pub(crate) replays: Vec<ReplayInput>,
+    /// MIDI inputs: started with show control, whose triggers they do.
+    pub(crate) midis: Vec<crate::midi::MidiInput>,
     supervised: Vec<Box<dyn Supervised>>,
     /// Where each TUIO input listens, in file order.
     tuio_addresses: Vec<SocketAddr>,
@@ -140,28 +142,12 @@ impl ResolvedInputs {
         input: &InputConfig,
     ) -> Result<(), InputError> {
         let supervised: Box<dyn Supervised> = match input {
-            InputConfig::Replay {
-                file,
-                name,
-                calibration: spec,
-                pacing,
-                repeat,
-            } => {
-                let source_id = source_name(name, "replay", index);
-                let source = ReplaySource::open_with(
-                    &config.resolve(file),
-                    source_id.clone(),
-                    size,
-                    calibration_of(index, spec)?,
-                )
-                .map_err(|e| InputError(format!("input[{index}]: {e}")))?;
-                self.replays.push(ReplayInput {
-                    source: source_id,
-                    file: source,
-                    pacing: Pacing::from(*pacing),
-                    repeat: *repeat,
-                    from_stage_file: true,
-                });
+            InputConfig::Midi { .. } => {
+                self.midis.push(midi_input(config, index, input)?);
+                return Ok(());
+            }
+            InputConfig::Replay { .. } => {
+                self.replays.push(replay_input(config, size, index, input)?);
                 return Ok(());
             }
             InputConfig::Tuio {
@@ -331,6 +317,92 @@ fn reserved_name(name: &str) -> Result<(), String> {
     }
 }
 
+/// A replay input of the stage file's `input[index]`, its file read now
+/// (a bad file stops the start, naming it).
+fn replay_input(
+    config: &ShowConfig,
+    size: DVec2,
+    index: usize,
+    input: &InputConfig,
+) -> Result<ReplayInput, InputError> {
+    let InputConfig::Replay {
+        file,
+        name,
+        calibration: spec,
+        pacing,
+        repeat,
+    } = input
+    else {
+        return Err(InputError(format!("input[{index}] is not a replay")));
+    };
+    let source_id = source_name(name, "replay", index);
+    let source = ReplaySource::open_with(
+        &config.resolve(file),
+        source_id.clone(),
+        size,
+        calibration_of(index, spec)?,
+    )
+    .map_err(|e| InputError(format!("input[{index}]: {e}")))?;
+    Ok(ReplayInput {
+        source: source_id,
+        file: source,
+        pacing: Pacing::from(*pacing),
+        repeat: *repeat,
+        from_stage_file: true,
+    })
+}
+
+/// A MIDI input of the stage file's `input[index]`: its `.mid` read now
+/// (a bad file stops the start, naming it), the puppets its mapping names
+/// checked against the stage file's.
+fn midi_input(
+    config: &ShowConfig,
+    index: usize,
+    input: &InputConfig,
+) -> Result<crate::midi::MidiInput, InputError> {
+    let InputConfig::Midi {
+        path,
+        file,
+        repeat,
+        name,
+        map,
+    } = input
+    else {
+        return Err(InputError(format!("input[{index}] is not a MIDI input")));
+    };
+    for (j, m) in map.iter().enumerate() {
+        if let Some(puppet) = &m.puppet
+            && !config
+                .stage_config
+                .puppets
+                .iter()
+                .any(|p| &p.name == puppet)
+        {
+            return Err(InputError(format!(
+                "input[{index}].map[{j}].puppet: no puppet {puppet:?} on the stage"
+            )));
+        }
+    }
+    let source = match (path, file) {
+        (Some(path), _) => crate::midi::MidiSource::Port(path.clone()),
+        (None, Some(file)) => crate::midi::MidiSource::File {
+            messages: puppetry_input::midi_file::read_midi_file(&config.resolve(file))
+                .map_err(|e| InputError(format!("input[{index}].file: {e}")))?,
+            repeat: *repeat,
+        },
+        (None, None) => {
+            return Err(InputError(format!(
+                "input[{index}]: a MIDI input needs a path or a file"
+            )));
+        }
+    };
+    Ok(crate::midi::MidiInput {
+        name: name.clone().unwrap_or_else(|| format!("midi:{index}")),
+        source,
+        map: map.to_vec(),
+    })
+}
+
 /// The name a stage file gives an input, if it gives one.
 fn input_name(input: &InputConfig) -> Option<&str> {
     match input {
@@ -339,7 +411,8 @@ fn input_name(input: &InputConfig) -> Option<&str> {
         | InputConfig::Touch { name, .. }
         | InputConfig::Pen { name, .. }
         | InputConfig::Hid { name, .. }
-        | InputConfig::Mouse { name, .. } => name.as_deref(),
+        | InputConfig::Mouse { name, .. }
+        | InputConfig::Midi { name, .. } => name.as_deref(),
         InputConfig::Tuio { .. } => None,
     }
 }
@@ -362,9 +435,12 @@ pub(crate) fn spawn(
 ) -> Spawned {
     let ResolvedInputs {
         replays,
+        midis,
         supervised,
         tuio_addresses,
     } = resolved;
+    // MIDI inputs do show control's triggers: `serve` starts them with it.
+    debug_assert!(midis.is_empty(), "serve takes the MIDI inputs first");
     // Replays run while they play (see `sources::run_replay`); they never
     // end by themselves, so `inputs_done` asks whether any plays.
     let replays = replays

@@ -36,6 +36,7 @@ pub mod convert;
 pub(crate) mod inputs;
 pub mod lineup;
 pub mod memory;
+pub(crate) mod midi;
 pub(crate) mod osc;
 pub(crate) mod outputs;
 pub mod protocol;

@@ -218,7 +218,8 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         })?;
     // Inputs are read now, so a bad file stops the start with its error.
     let size = DVec2::new(stage.width, stage.height);
-    let resolved = crate::inputs::resolve(config, size, extra_replay).await?;
+    let mut resolved = crate::inputs::resolve(config, size, extra_replay).await?;
+    let midis = std::mem::take(&mut resolved.midis);
     let people = Arc::new(stream::People::new(config, resolved.source_names()));
     let settings = TakeSettings {
         dir: takes_dir.clone(),
@@ -274,10 +275,16 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
     // Before the sources, so a bad OSC address stops the start cleanly.
     let (osc, relay) = show_control(config, &shared, &commands).await?;
     let crate::inputs::Spawned {
-        inputs,
+        mut inputs,
         replays: replay_tasks,
         tuio_addresses,
     } = crate::inputs::spawn(resolved, &commands, started, &replays);
+    if !midis.is_empty() {
+        inputs.extend(crate::midi::spawn(
+            midis,
+            &midi_actor(config, &shared, &commands),
+        ));
+    }
     if let Some((path, play_options)) = play {
         play_at_start(&path, play_options, &shared, &commands, started)?;
     }
@@ -351,6 +358,28 @@ async fn show_control(
         None => None,
     };
     Ok((osc, relay))
+}
+
+/// What MIDI inputs do their triggers with: show control's links, and
+/// key blends stepped at the OSC rate (its default without `[osc]`).
+fn midi_actor(
+    config: &ShowConfig,
+    shared: &Arc<Shared>,
+    commands: &mpsc::Sender<Command>,
+) -> crate::show_control::Actor {
+    let links = crate::show_control::Links::of(shared, commands.clone());
+    let blends = vec![None; links.puppets.len()];
+    crate::show_control::Actor {
+        rate: config
+            .osc
+            .as_ref()
+            .map_or(crate::config::DEFAULT_OSC_RATE, |osc| osc.rate),
+        links,
+        blends: Arc::new(std::sync::Mutex::new(blends)),
+        log: Arc::new(std::sync::Mutex::new(
+            puppetry_input::log_limit::LogLimiter::new(std::time::Instant::now()),
+        )),
+    }
 }
 
 /// Plays the take `serve --play` names; its player is the stage's take

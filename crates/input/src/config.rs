@@ -135,6 +135,28 @@ pub enum InputConfig {
         #[serde(default)]
         calibration: Option<crate::CalibrationSpec>,
     },
+    /// A MIDI controller or show-control desk: its messages mapped to what
+    /// a show controller can ask of the stage (`map`), as OSC's triggers
+    /// are. Read from a raw MIDI port (`path`: an ALSA
+    /// `/dev/snd/midiC1D0`, a FIFO, a serial MIDI interface; reopened when
+    /// it comes back) or played from a Standard MIDI File (`file`).
+    Midi {
+        /// A raw MIDI byte stream to read.
+        #[serde(default)]
+        path: Option<PathBuf>,
+        /// A `.mid` to play instead, relative to the stage file's folder.
+        #[serde(default)]
+        file: Option<PathBuf>,
+        /// Play `file` again from the start when it ends.
+        #[serde(default)]
+        repeat: bool,
+        /// The input's name in logs; default `midi:N` for the N-th input.
+        #[serde(default)]
+        name: Option<String>,
+        /// What each control does (`[[input.map]]`).
+        #[serde(default)]
+        map: Vec<crate::midi_map::MidiMapping>,
+    },
     /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
     /// pair of points: button-drag moves them, the wheel or a right-button
     /// drag rotates them.
@@ -241,6 +263,21 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
                 if let Some(start) = start {
                     coordinates(start)
                         .map_err(|(k, problem)| (field(&format!("start[{k}]")), problem))?;
+                }
+                &None
+            }
+            InputConfig::Midi {
+                path, file, map, ..
+            } => {
+                if path.is_some() == file.is_some() {
+                    return Err((
+                        field("path"),
+                        "give a MIDI port's path or a .mid file to play, one of them".into(),
+                    ));
+                }
+                for (j, m) in map.iter().enumerate() {
+                    m.check()
+                        .map_err(|(name, problem)| (field(&format!("map[{j}].{name}")), problem))?;
                 }
                 &None
             }

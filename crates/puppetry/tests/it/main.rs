@@ -26,6 +26,7 @@ mod hostile;
 mod install;
 mod lineup;
 mod memory;
+mod midi;
 mod osc;
 mod relay;
 mod rigs;

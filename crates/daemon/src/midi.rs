@@ -1,0 +1,169 @@
+//! MIDI inputs: a controller's or a show-control desk's messages, read
+//! from a raw MIDI port or played from a Standard MIDI File, mapped by the
+//! stage file's `[[input.map]]` (`puppetry_input::midi_map`) and done as
+//! show control's triggers (`show_control`), the ones OSC's addresses
+//! give. A port that is missing or goes away is reopened every second; a
+//! refused trigger is logged, rate-limited, and the input goes on.
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use puppetry_input::log_limit::LogLimiter;
+use puppetry_input::midi::MidiDecoder;
+use puppetry_input::midi_file::TimedMessage;
+use puppetry_input::midi_map::{MidiAction, MidiMapper, MidiMapping};
+use tokio::io::AsyncReadExt;
+use tokio::task::JoinHandle;
+
+use crate::show_control::{Actor, Trigger, lock};
+
+/// Where a MIDI input's messages come from.
+pub(crate) enum MidiSource {
+    /// A raw MIDI byte stream (a device node, a FIFO, a serial port).
+    Port(PathBuf),
+    /// A Standard MIDI File's messages, played in time.
+    File {
+        /// The messages, in time order.
+        messages: Vec<TimedMessage>,
+        /// Play again when it ends.
+        repeat: bool,
+    },
+}
+
+/// A MIDI input, read and checked from the stage file.
+pub(crate) struct MidiInput {
+    /// Its name in logs and in refusals.
+    pub(crate) name: String,
+    /// Where its messages come from.
+    pub(crate) source: MidiSource,
+    /// What its controls do (checked, puppets named exist).
+    pub(crate) map: Vec<MidiMapping>,
+}
+
+/// How long a missing or lost port waits before it is opened again.
+const REOPEN_EVERY: Duration = Duration::from_secs(1);
+
+/// Starts each input's task; `actor` does their triggers.
+pub(crate) fn spawn(inputs: Vec<MidiInput>, actor: &Actor) -> Vec<JoinHandle<()>> {
+    inputs
+        .into_iter()
+        .map(|input| {
+            let actor = actor.clone();
+            tokio::spawn(run(input, actor))
+        })
+        .collect()
+}
+
+async fn run(input: MidiInput, actor: Actor) {
+    let mut doer = Doer {
+        mapper: MidiMapper::new(input.map),
+        actor,
+        name: input.name,
+        log: Arc::new(Mutex::new(LogLimiter::new(Instant::now()))),
+    };
+    match input.source {
+        MidiSource::File { messages, repeat } => loop {
+            let start = tokio::time::Instant::now();
+            for timed in &messages {
+                tokio::time::sleep_until(start + Duration::from_secs_f64(timed.t)).await;
+                doer.message(&timed.message).await;
+            }
+            if !repeat {
+                return;
+            }
+        },
+        MidiSource::Port(path) => loop {
+            match tokio::fs::File::open(&path).await {
+                Ok(mut port) => {
+                    let mut decoder = MidiDecoder::new();
+                    let mut buffer = [0u8; 512];
+                    let mut messages = Vec::new();
+                    loop {
+                        let n = match port.read(&mut buffer).await {
+                            Ok(0) => break, // the writer went away
+                            Ok(n) => n,
+                            Err(e) => {
+                                doer.warn(format_args!("{}: {e}", path.display()));
+                                break;
+                            }
+                        };
+                        decoder.feed(&buffer[..n], |m| messages.push(m));
+                        for message in messages.drain(..) {
+                            doer.message(&message).await;
+                        }
+                    }
+                }
+                Err(e) => doer.warn(format_args!("{}: {e}", path.display())),
+            }
+            tokio::time::sleep(REOPEN_EVERY).await;
+        },
+    }
+}
+
+/// Maps one input's messages and does their triggers.
+struct Doer {
+    mapper: MidiMapper,
+    actor: Actor,
+    name: String,
+    log: Arc<Mutex<LogLimiter>>,
+}
+
+impl Doer {
+    fn warn(&self, message: std::fmt::Arguments<'_>) {
+        lock(&self.log).warn(format_args!("MIDI input {}: {message}", self.name));
+    }
+
+    async fn message(&mut self, message: &puppetry_input::midi::MidiMessage) {
+        for action in self.mapper.actions(message) {
+            let Some(trigger) = self.trigger(action) else {
+                continue;
+            };
+            if let Err(e) = self.actor.act(&self.name, trigger).await {
+                self.warn(format_args!("{e}"));
+            }
+        }
+    }
+
+    /// The trigger of an action: puppets by their index on the stage.
+    fn trigger(&self, action: MidiAction) -> Option<Trigger> {
+        let index = |name: &str| {
+            let found = self.actor.links.names.iter().position(|n| n == name);
+            if found.is_none() {
+                self.warn(format_args!("no puppet {name:?}"));
+            }
+            found.map(|i| i as u32)
+        };
+        Some(match action {
+            MidiAction::Cursor { puppet, at } => Trigger::Cursor {
+                puppet: index(&puppet)?,
+                at: Some(at),
+            },
+            MidiAction::Blend {
+                puppet,
+                from,
+                to,
+                t,
+            } => Trigger::Pose {
+                puppet: index(&puppet)?,
+                from,
+                to,
+                t,
+            },
+            MidiAction::Key {
+                puppet,
+                name,
+                seconds,
+            } => Trigger::Key {
+                puppet: index(&puppet)?,
+                name,
+                seconds,
+            },
+            MidiAction::Reset { puppet } => Trigger::Reset {
+                puppet: index(&puppet)?,
+            },
+            MidiAction::Record => Trigger::StartTake { name: None },
+            MidiAction::Stop => Trigger::StopTake,
+        })
+    }
+}

@@ -1,0 +1,188 @@
+//! MIDI inputs through the daemon as a show runs them (issue 35): a
+//! controller on a raw MIDI port (a FIFO standing in for
+//! `/dev/snd/midiC1D0`, the same reader) moves the keyframing cursor with
+//! two faders and starts a take from a drum pad, a show-control desk's
+//! STOP stops it; a Standard MIDI File replayed in the controller's place
+//! does the same.
+
+use std::io::Write;
+use std::path::Path;
+
+use serde_json::{Value, json};
+
+use crate::common::daemon::{Client, WAIT, next_text, root};
+use crate::common::served::serve;
+use puppetry_testkit::stage_text::Gingerbread;
+
+/// The keyframing gingerbread and a MIDI input whose `source` line is
+/// `source` (a `path` or a `file`): CC 16 and 17 its cursor's x and y, the
+/// pad note 36 on channel 10 records, note 38 and a show-control STOP stop.
+fn stage(source: &str) -> String {
+    let keys = root().join("assets/gingerbread/gingerbread.keys.json");
+    format!(
+        r#"
+[stage]
+width = 1280
+height = 720
+listen = "127.0.0.1:0"
+
+{puppet}
+[[input]]
+kind = "midi"
+name = "faders"
+{source}
+[[input.map]]
+cc = 16
+action = "cursor_x"
+puppet = "gingerbread"
+[[input.map]]
+cc = 17
+action = "cursor_y"
+puppet = "gingerbread"
+[[input.map]]
+note = 36
+channel = 10
+action = "record"
+[[input.map]]
+note = 38
+action = "stop"
+[[input.map]]
+msc = "stop"
+action = "stop"
+"#,
+        puppet = Gingerbread::new("gingerbread")
+            .hand_pins()
+            .with(&format!("keys = \"{}\"", keys.display())),
+    )
+}
+
+async fn viewer(http: &str) -> Client {
+    use futures_util::SinkExt;
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{http}/ws"))
+        .await
+        .unwrap();
+    let hello = json!({"type": "hello", "role": "viewer"}).to_string();
+    ws.send(tokio_tungstenite::tungstenite::Message::text(hello))
+        .await
+        .unwrap();
+    ws
+}
+
+/// Reads text messages until one satisfies `done`.
+async fn until(ws: &mut Client, what: &str, done: impl Fn(&Value) -> bool) -> Value {
+    tokio::time::timeout(WAIT, async {
+        loop {
+            let m = next_text(ws).await;
+            if done(&m) {
+                return m;
+            }
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("no {what} within {WAIT:?}"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_controller_on_a_midi_port_moves_the_cursor_and_runs_a_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("midiC1D0");
+    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a path this test owns, a plain mode.
+    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let served = serve(
+        dir.path(),
+        &stage(&format!("path = \"{}\"", fifo.display())),
+    );
+    let mut ws = viewer(&served.http).await;
+    // The port's writer: the daemon holds its reading end open.
+    let mut port = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+    // Two faders under running status, a clock byte between them.
+    port.write_all(&[0xB0, 16, 127, 0xF8, 17, 0]).unwrap();
+    until(&mut ws, "the cursor at [1, 0]", |m| {
+        m["type"] == "keys" && m["cursor"] == json!([1.0, 0.0])
+    })
+    .await;
+    // The drum pad (channel 10) records; a show-control STOP stops.
+    port.write_all(&[0x99, 36, 100]).unwrap();
+    let recording = until(&mut ws, "a take recording", |m| {
+        m["type"] == "take" && m["recording"].is_string()
+    })
+    .await;
+    port.write_all(&[0xF0, 0x7F, 0x7F, 0x02, 0x01, 0x02, 0xF7])
+        .unwrap();
+    until(&mut ws, "the take stopped", |m| {
+        m["type"] == "take" && m["recording"].is_null()
+    })
+    .await;
+    let name = recording["recording"].as_str().unwrap();
+    let summary = puppetry_take::summarize(&dir.path().join(format!("takes/{name}.take"))).unwrap();
+    assert_eq!(summary.ending, "stopped");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_midi_file_replays_a_controller() {
+    let dir = tempfile::tempdir().unwrap();
+    write_show(&dir.path().join("show.mid"));
+    let served = serve(dir.path(), &stage("file = \"show.mid\""));
+    let mut ws = viewer(&served.http).await;
+    // The cursor where the file left it (sent on joining, or as it moves).
+    until(&mut ws, "the cursor at [0, 1]", |m| {
+        m["type"] == "keys" && m["cursor"] == json!([0.0, 1.0])
+    })
+    .await;
+    // The file's pad recorded a take and its other pad stopped it.
+    let takes = dir.path().join("takes");
+    tokio::time::timeout(WAIT, async {
+        loop {
+            let stopped = std::fs::read_dir(&takes).ok().and_then(|entries| {
+                entries
+                    .filter_map(Result::ok)
+                    .filter_map(|e| puppetry_take::summarize(&e.path()).ok())
+                    .find(|s| s.ending == "stopped")
+            });
+            if stopped.is_some() {
+                return;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("a take recorded and stopped by the file");
+}
+
+/// A `.mid`: the faders to x 0, y 1 at once, the record pad at 0.2 s and
+/// the stop pad at 0.6 s (480 ticks a beat at 120 bpm).
+fn write_show(path: &Path) {
+    use midly::num::{u4, u7, u15, u28};
+    use midly::{Format, Header, MidiMessage, Smf, Timing, TrackEvent, TrackEventKind};
+    let event = |delta: u32, channel: u8, message| TrackEvent {
+        delta: u28::new(delta),
+        kind: TrackEventKind::Midi {
+            channel: u4::new(channel),
+            message,
+        },
+    };
+    let cc = |controller: u8, value: u8| MidiMessage::Controller {
+        controller: u7::new(controller),
+        value: u7::new(value),
+    };
+    let note = |key: u8| MidiMessage::NoteOn {
+        key: u7::new(key),
+        vel: u7::new(100),
+    };
+    let mut smf = Smf::new(Header::new(
+        Format::SingleTrack,
+        Timing::Metrical(u15::new(480)),
+    ));
+    smf.tracks.push(vec![
+        event(0, 0, cc(16, 0)),
+        event(0, 0, cc(17, 127)),
+        event(192, 9, note(36)),
+        event(384, 0, note(38)),
+        TrackEvent {
+            delta: u28::new(0),
+            kind: TrackEventKind::Meta(midly::MetaMessage::EndOfTrack),
+        },
+    ]);
+    smf.save(path).unwrap();
+}
