@@ -74,6 +74,10 @@ pub struct ExportRequest {
     /// Export what is intact of a damaged take (`--salvage`) instead of
     /// refusing it.
     pub salvage: bool,
+    /// A soundtrack muxed into a video (`--audio FILE --audio-offset S`);
+    /// its `at` is the sound's second at the take's start (the export's
+    /// `--from` is added to it).
+    pub audio: Option<crate::video::Soundtrack>,
 }
 
 /// A take read through once before it is exported: its length and
@@ -438,7 +442,11 @@ pub fn export_take_with(
             }
         }
         Format::Mp4 | Format::Mov | Format::Webm => {
-            let options = crate::video::VideoOptions::new(width, height);
+            let mut options = crate::video::VideoOptions::new(width, height);
+            options.audio = request.audio.as_ref().map(|a| crate::video::Soundtrack {
+                file: a.file.clone(),
+                at: a.at + request.from.unwrap_or(0.0),
+            });
             crate::video::export_video(animation, &options, progress, out)?;
         }
     }
@@ -468,6 +476,29 @@ pub fn preflight(request: &ExportRequest) -> Result<(), TakeExportError> {
     let out = &request.output;
     crate::output::refuse_the_take_itself(&request.take, out)?;
     let (width, height) = request.size;
+    if let Some(audio) = &request.audio {
+        let flag = |problem: String| ExportError::Flag {
+            flag: "--audio".into(),
+            problem,
+        };
+        if !request.format.is_video() {
+            return Err(flag(format!(
+                "--format {} carries no sound; use mp4, mov or webm",
+                request.format
+            ))
+            .into());
+        }
+        if !audio.at.is_finite() || audio.at.abs() > puppetry_limits::files::MAX_TAKE_SECONDS {
+            return Err(flag(format!(
+                "--audio-offset {} is not a number of seconds",
+                audio.at
+            ))
+            .into());
+        }
+        if !std::fs::metadata(&audio.file).is_ok_and(|m| m.is_file()) {
+            return Err(flag(format!("{} is not a sound file here", audio.file.display())).into());
+        }
+    }
     match request.format {
         Format::Glb | Format::Spine => crate::output::check_folder(out)?,
         Format::Png => crate::raster::check_size(width, height)?,

@@ -34,6 +34,54 @@ pub struct VideoOptions {
     pub background: [u8; 3],
     /// The `ffmpeg` to run; `None` looks it up on `PATH`.
     pub ffmpeg: Option<std::path::PathBuf>,
+    /// A soundtrack to mux in, if any.
+    pub audio: Option<Soundtrack>,
+}
+
+/// A soundtrack for a video: a sound file ffmpeg reads (WAV, FLAC, MP3,
+/// AAC…) and where in it the video's first frame falls.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Soundtrack {
+    /// The sound file.
+    pub file: std::path::PathBuf,
+    /// Seconds into the sound at the video's first frame: positive skips
+    /// the sound's start, negative lets the video run that long before the
+    /// sound begins.
+    pub at: f64,
+}
+
+impl Soundtrack {
+    /// ffmpeg's arguments for the sound as its second input, placed so its
+    /// second `at` plays with the first frame, and read for no longer than
+    /// the video's `duration` (a longer sound is cut; a shorter one ends
+    /// early, the picture goes on).
+    fn input_args(&self, duration: f64) -> Vec<std::ffi::OsString> {
+        let mut args: Vec<std::ffi::OsString> = Vec::new();
+        if self.at >= 0.0 {
+            args.extend(["-ss".into(), format!("{:.6}", self.at).into()]);
+            args.extend(["-t".into(), format!("{duration:.6}").into()]);
+        } else {
+            // Delayed by a filter (`output_args`), not by an input offset:
+            // the sound track then starts with the picture, in silence,
+            // as every player and decoder hears it.
+            let heard = (duration + self.at).max(0.0);
+            args.extend(["-t".into(), format!("{heard:.6}").into()]);
+        }
+        args.extend(["-i".into(), self.file.clone().into_os_string()]);
+        args
+    }
+
+    /// ffmpeg's output arguments for the sound: the picture from the
+    /// frames and the sound from the file, delayed by silence when it
+    /// begins after the first frame.
+    fn output_args(&self) -> Vec<String> {
+        let mut args: Vec<String> = ["-map", "0:v", "-map", "1:a"].map(String::from).to_vec();
+        if self.at < 0.0 {
+            let ms = (-self.at * 1000.0).round() as u64;
+            args.extend(["-af".into(), format!("adelay={ms}:all=1")]);
+        }
+        args
+    }
 }
 
 impl VideoOptions {
@@ -45,6 +93,7 @@ impl VideoOptions {
             height,
             background: [255, 255, 255],
             ffmpeg: None,
+            audio: None,
         }
     }
 }
@@ -105,6 +154,16 @@ impl VideoFormat {
             ));
         }
         Ok(())
+    }
+
+    /// ffmpeg's sound codec for the kind: AAC in an MP4, 16-bit PCM beside
+    /// ProRes (what editors expect in a .mov), Opus in a WebM.
+    fn audio_args(self) -> &'static [&'static str] {
+        match self {
+            VideoFormat::Mp4 => &["-c:a", "aac", "-b:a", "192k"],
+            VideoFormat::ProRes => &["-c:a", "pcm_s16le"],
+            VideoFormat::WebM => &["-c:a", "libopus", "-b:a", "160k"],
+        }
     }
 
     /// ffmpeg's output arguments: the codec, chosen for speed where the
@@ -255,8 +314,16 @@ pub fn export_video(
         .args(["-s", &format!("{w}x{h}")])
         .args(["-r", &frame_rate_arg(animation.fps)])
         .args(["-i", "-"])
+        .args(
+            options
+                .audio
+                .iter()
+                .flat_map(|a| a.input_args(animation.duration())),
+        )
         .args(COLOUR_ARGS)
         .args(format.codec_args())
+        .args(options.audio.iter().flat_map(Soundtrack::output_args))
+        .args(options.audio.iter().flat_map(|_| format.audio_args()))
         .args(["-r", &frame_rate_arg(animation.fps)])
         .arg(partial.path())
         .stdin(Stdio::piped())

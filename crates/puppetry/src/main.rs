@@ -210,6 +210,20 @@ struct ExportArgs {
     /// the damage), saying what was kept.
     #[arg(long)]
     salvage: bool,
+    /// A soundtrack to mux into a video (mp4, mov, webm): any sound file
+    /// ffmpeg reads.
+    #[arg(long, value_name = "FILE")]
+    audio: Option<PathBuf>,
+    /// Seconds into the soundtrack at the take's start (negative: the
+    /// sound begins that long after it).
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = 0.0,
+        requires = "audio",
+        allow_hyphen_values = true
+    )]
+    audio_offset: f64,
 }
 
 #[derive(clap::Args)]
@@ -729,6 +743,8 @@ fn export_command(
         output,
         force,
         salvage,
+        audio,
+        audio_offset,
     }: ExportArgs,
 ) -> anyhow::Result<()> {
     let config = match config {
@@ -757,6 +773,10 @@ fn export_command(
             puppetry_export::output::Overwrite::Never
         },
         salvage,
+        audio: audio.map(|file| puppetry_export::video::Soundtrack {
+            file,
+            at: audio_offset,
+        }),
     };
     let format = format.0;
     let mut bar = puppetry::export::Bar::new(&format!("export {format}"));

@@ -13,6 +13,7 @@ pub mod fixtures;
 pub mod fuzz;
 pub mod pty;
 pub mod simulate;
+pub mod sound;
 pub mod stage_text;
 pub mod tuio;
 

@@ -293,6 +293,7 @@ pub async fn export(
         // A damaged take is refused, naming the damage; the command
         // line's --salvage exports what is intact.
         salvage: false,
+        audio: None,
     };
     let (done, finished) = tokio::sync::oneshot::channel();
     let runner = shared.clone();

@@ -347,3 +347,46 @@ fn decoded_frames_match_the_png_export() {
         lines.join(", ")
     ));
 }
+
+/// A soundtrack muxed in lines up with the picture: its second `at` plays
+/// with the first frame (the click at 1 s heard at 0.5 s with `at` 0.5,
+/// at 1.25 s with `at` −0.25), within one video frame, in every kind.
+#[test]
+fn a_soundtrack_is_muxed_in_time_with_the_frames() {
+    tools();
+    let dir = tempfile::tempdir().unwrap();
+    let wav = dir.path().join("click.wav");
+    puppetry_testkit::sound::click_track(&wav, 3.0, &[1.0]);
+    let animation = two_figures(FRAMES, FPS);
+    let mut lines = Vec::new();
+    for (ext, codec) in [("mp4", "aac"), ("mov", "pcm_s16le"), ("webm", "opus")] {
+        for (at, heard) in [(0.5, 0.5), (-0.25, 1.25)] {
+            let path = dir.path().join(format!("take{at}.{ext}"));
+            let mut options = VideoOptions::new(W, H);
+            options.audio = Some(puppetry_export::video::Soundtrack {
+                file: wav.clone(),
+                at,
+            });
+            export_video(&animation, &options, &mut (), &path).unwrap();
+            let out = Command::new("ffprobe")
+                .args(["-v", "error", "-select_streams", "a:0"])
+                .args(["-show_entries", "stream=codec_name", "-of", "csv=p=0"])
+                .arg(&path)
+                .output()
+                .unwrap();
+            assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), codec, "{ext}");
+            let onset = puppetry_testkit::sound::first_onset(&path);
+            assert!(
+                (onset - heard).abs() <= 1.0 / FPS,
+                "{ext}, sound at {at} s: the click is heard at {onset:.4} s, expected {heard} s"
+            );
+            lines.push(format!("{ext} {:+.1} ms", (onset - heard) * 1000.0));
+            // The picture is whole: every frame is there.
+            assert_eq!(
+                probe(&path)["streams"][0]["nb_read_frames"],
+                FRAMES.to_string()
+            );
+        }
+    }
+    crate::common::note(&format!("soundtrack onsets off by: {}", lines.join(", ")));
+}

@@ -328,3 +328,55 @@ fn a_failed_export_ends_its_progress_bar_first() {
         "the error does not start a line of its own: {text:?}"
     );
 }
+
+/// `--audio` muxes a soundtrack: the sound's second `--audio-offset` plays
+/// with the take's start, so with `--from 1` and an offset of 0.5 the
+/// click at the sound's 2 s is heard 0.5 s into the video; asked of a
+/// format without sound, or of a sound file that is not there, it is
+/// refused before the take is read.
+#[test]
+fn a_soundtrack_plays_in_time_with_the_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let stage = stage_file(dir.path());
+    let take = write_take(dir.path(), "t", 40, &stage);
+    let wav = dir.path().join("song.wav");
+    puppetry_testkit::sound::click_track(&wav, 6.0, &[2.0]);
+    let wav_arg = wav.display().to_string();
+    let args = [
+        "--config",
+        &stage,
+        "--format",
+        "mp4",
+        "--size",
+        "64x36",
+        "--from",
+        "1",
+        "--audio",
+        &wav_arg,
+        "--audio-offset",
+        "0.5",
+        "-o",
+        "t.mp4",
+    ];
+    let out = export(dir.path(), &take, &args);
+    assert!(out.status.success(), "{}", said(&out));
+    let onset = puppetry_testkit::sound::first_onset(&dir.path().join("t.mp4"));
+    assert!(
+        (onset - 0.5).abs() <= 1.0 / 30.0,
+        "the click is heard at {onset} s"
+    );
+
+    let args = [
+        "--config", &stage, "--format", "glb", "--audio", &wav_arg, "-o", "t.glb",
+    ];
+    let out = export(dir.path(), &take, &args);
+    assert!(!out.status.success());
+    assert!(said(&out).contains("carries no sound"), "{}", said(&out));
+    let missing = dir.path().join("not-read.take");
+    let args = [
+        "--config", &stage, "--format", "webm", "--audio", "gone.wav", "-o", "t.webm",
+    ];
+    let out = export(dir.path(), &missing, &args);
+    assert!(!out.status.success());
+    assert!(said(&out).contains("gone.wav"), "{}", said(&out));
+}
