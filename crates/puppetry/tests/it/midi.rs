@@ -117,6 +117,14 @@ async fn a_controller_on_a_midi_port_moves_the_cursor_and_runs_a_take() {
     let name = recording["recording"].as_str().unwrap();
     let summary = puppetry_take::summarize(&dir.path().join(format!("takes/{name}.take"))).unwrap();
     assert_eq!(summary.ending, "stopped");
+    // The controller unplugged (the port's writer gone), then the daemon
+    // stopped: it exits cleanly, not held up by a port nobody writes to.
+    drop(port);
+    let (done, stopped) = std::sync::mpsc::channel();
+    std::thread::spawn(move || done.send(served.stop()).unwrap());
+    stopped
+        .recv_timeout(WAIT)
+        .expect("the daemon stops with an idle MIDI port");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
