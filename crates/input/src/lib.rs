@@ -34,6 +34,7 @@ pub mod log_limit;
 pub mod midi;
 pub mod midi_file;
 pub mod midi_map;
+pub mod midi_port;
 pub mod mouse;
 pub mod record;
 pub mod recording;

@@ -823,10 +823,12 @@ fn device_entries(config: Option<&puppetry_daemon::config::ShowConfig>) -> Vec<D
 
 /// `puppetry devices`: every input device in `dir` — name, path, kind,
 /// ids, axes and ranges — and which entry of `config` (if given) would take
-/// it; then the HID digitizers; then the entries no device took.
-/// Unreadable nodes are listed with what to do about them.
+/// it; then the HID digitizers; then the raw MIDI ports in `midi_dir`;
+/// then the entries no device took. Unreadable nodes are listed with what
+/// to do about them.
 pub fn devices_report(
     dir: &Path,
+    midi_dir: &Path,
     config: Option<&puppetry_daemon::config::ShowConfig>,
 ) -> Result<String, puppetry_input::device::DeviceError> {
     use puppetry_input::device::scan;
@@ -866,6 +868,7 @@ pub fn devices_report(
         }
     }
     hid_report(&mut out, config);
+    midi_report(&mut out, midi_dir, config);
     for (entry, taken) in entries.iter().zip(taken) {
         if !taken {
             let _ = writeln!(
@@ -931,6 +934,61 @@ fn describe_device(out: &mut String, path: &Path, info: &puppetry_input::device:
 
 /// The HID touch digitizers (hidapi), and which `kind = "hid"` entry of
 /// `config` each would feed.
+/// The raw MIDI ports, each with the stage file's MIDI input that reads
+/// it; then the MIDI inputs whose port is not here.
+fn midi_report(
+    out: &mut String,
+    midi_dir: &Path,
+    config: Option<&puppetry_daemon::config::ShowConfig>,
+) {
+    use puppetry_input::config::InputConfig;
+    use puppetry_input::midi_port::{ASOUND_DIR, ports};
+    use std::fmt::Write;
+    let wanted: Vec<(usize, String, &Path)> = config
+        .map(|c| {
+            c.inputs
+                .iter()
+                .enumerate()
+                .filter_map(|(i, input)| match input {
+                    InputConfig::Midi {
+                        path: Some(path),
+                        name,
+                        ..
+                    } => Some((
+                        i,
+                        name.clone().unwrap_or_else(|| format!("midi:{i}")),
+                        path.as_path(),
+                    )),
+                    _ => None,
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let found = ports(midi_dir, Path::new(ASOUND_DIR));
+    for port in &found {
+        let _ = writeln!(
+            out,
+            "{}  midi  \"{}\"  card {} device {}",
+            port.path.display(),
+            port.name.as_deref().unwrap_or("?"),
+            port.card,
+            port.device
+        );
+        for (i, name, _) in wanted.iter().filter(|(_, _, p)| *p == port.path) {
+            let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
+        }
+    }
+    for (i, name, path) in &wanted {
+        if !found.iter().any(|p| p.path == *path) {
+            let _ = writeln!(
+                out,
+                "input[{i}] \"{name}\" (midi, {}): no such port now; the daemon waits for it",
+                path.display()
+            );
+        }
+    }
+}
+
 fn hid_report(out: &mut String, config: Option<&puppetry_daemon::config::ShowConfig>) {
     use puppetry_input::config::InputConfig;
     use std::fmt::Write;

@@ -56,7 +56,8 @@ enum Command {
     /// Deform a mesh by handles and print {"vertices": [[x, y], …]}.
     Solve(SolveArgs),
     /// List the input devices this machine has (name, path, kind, ids, axes
-    /// and ranges) and which entry of a stage file would use each.
+    /// and ranges), its raw MIDI ports, and which entry of a stage file
+    /// would use each.
     Devices(DevicesArgs),
     /// Capture a device's raw events to an evemu file (play it back with
     /// `serve --replay FILE` or a `kind = "replay"` input).
@@ -275,6 +276,9 @@ struct DevicesArgs {
     /// Show which of this stage file's inputs would take each device.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Where ALSA's raw MIDI ports are (`midiC<card>D<device>`).
+    #[arg(long, default_value = puppetry_input::midi_port::DEFAULT_SND_DIR)]
+    midi_dir: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -807,11 +811,17 @@ fn takes_command(
 }
 
 /// `puppetry devices`.
-fn devices_command(DevicesArgs { dir, config }: DevicesArgs) -> anyhow::Result<()> {
+fn devices_command(
+    DevicesArgs {
+        dir,
+        config,
+        midi_dir,
+    }: DevicesArgs,
+) -> anyhow::Result<()> {
     let config = config
         .map(|path| puppetry_daemon::config::ShowConfig::load(&path))
         .transpose()?;
-    print!("{}", cli::devices_report(&dir, config.as_ref())?);
+    print!("{}", cli::devices_report(&dir, &midi_dir, config.as_ref())?);
 
     Ok(())
 }

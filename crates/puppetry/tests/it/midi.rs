@@ -194,3 +194,53 @@ fn write_show(path: &Path) {
     ]);
     smf.save(path).unwrap();
 }
+
+/// `puppetry devices` lists the raw MIDI ports, which stage-file MIDI
+/// input reads each, and the inputs whose port is not here.
+#[test]
+fn devices_lists_the_midi_ports_and_who_reads_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let snd = dir.path().join("snd");
+    std::fs::create_dir(&snd).unwrap();
+    for node in ["midiC1D0", "midiC3D0", "pcmC0D0p"] {
+        std::fs::write(snd.join(node), "").unwrap();
+    }
+    let mut text = stage(&format!("path = \"{}\"", snd.join("midiC1D0").display()));
+    text.push_str(&format!(
+        "\n[[input]]\nkind = \"midi\"\nname = \"desk\"\npath = \"{}\"\n",
+        snd.join("midiC9D0").display()
+    ));
+    let file = dir.path().join("stage.toml");
+    std::fs::write(&file, text).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .arg("devices")
+        .arg("--dir")
+        .arg(dir.path().join("no-input-devices"))
+        .arg("--midi-dir")
+        .arg(&snd)
+        .arg("--config")
+        .arg(&file)
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{report}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<&str> = report.lines().collect();
+    let port = lines
+        .iter()
+        .position(|l| l.contains("midiC1D0") && l.contains("midi"))
+        .unwrap_or_else(|| panic!("{report}"));
+    assert!(
+        lines[port + 1].contains("used by input[0] \"faders\""),
+        "{report}"
+    );
+    assert!(report.contains("midiC3D0"), "{report}");
+    assert!(!report.contains("pcmC0D0p"), "{report}");
+    assert!(
+        report.contains("input[1] \"desk\" (midi,") && report.contains("no such port now"),
+        "{report}"
+    );
+}
