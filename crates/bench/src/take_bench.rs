@@ -173,20 +173,8 @@ fn drag_animation(
         stage_width: stage.width,
         stage_height: stage.height,
         fps,
-        puppets: vec![AnimatedPuppet {
-            name: p.name.clone(),
-            triangles: p.mesh.triangles().to_vec(),
-            uv: p
-                .mesh
-                .uv()
-                .map(|uv| uv.iter().map(|t| [t.x as f32, t.y as f32]).collect())
-                .unwrap_or_default(),
-            image: puppetry_export::load_picture(&p.picture).map_err(|e| e.to_string())?,
-            frames,
-            // Mesh order: the bench's drag does not fold the puppet.
-            draw_orders: Vec::new(),
-            skeleton: None,
-        }],
+        // Mesh order: the bench's drag does not fold the puppet.
+        puppets: vec![AnimatedPuppet::of_puppet(p, frames).map_err(|e| e.to_string())?],
         frame_count,
     })
 }

@@ -250,6 +250,35 @@ pub struct AnimatedPuppet {
 }
 
 impl AnimatedPuppet {
+    /// A stage puppet moved through `frames`: its name, triangles, texture
+    /// coordinates (zeros for a mesh without), picture and, for a skeleton
+    /// puppet, its skeleton at rest; drawn in mesh order (set
+    /// `draw_orders` for a puppet that folds over itself).
+    pub fn of_puppet(
+        p: &puppetry_stage::Puppet,
+        frames: Vec<Vec<[f32; 2]>>,
+    ) -> Result<AnimatedPuppet, ExportError> {
+        let skeleton = p.rig().skeleton().map(|s| skin::SkeletonRest {
+            joints: s.joints().to_vec(),
+            bones: s.bones().to_vec(),
+            parents: (0..s.bones().len()).map(|b| s.parent_of(b)).collect(),
+            rest: p.mesh.vertices().to_vec(),
+        });
+        Ok(AnimatedPuppet {
+            name: p.name.clone(),
+            triangles: p.mesh.triangles().to_vec(),
+            uv: p
+                .mesh
+                .uv()
+                .map(|uv| uv.iter().map(|t| [t.x as f32, t.y as f32]).collect())
+                .unwrap_or_else(|| vec![[0.0, 0.0]; p.mesh.vertices().len()]),
+            image: load_picture(&p.picture)?,
+            frames,
+            draw_orders: Vec::new(),
+            skeleton,
+        })
+    }
+
     /// The number of vertices: one per texture coordinate.
     pub fn vertex_count(&self) -> usize {
         self.uv.len()

@@ -267,31 +267,14 @@ pub fn read_take(
                 ),
             });
         };
-        let image = crate::load_picture(&p.picture)?;
         let draw_orders = if p.depth().is_some() {
             draw_orders(&p.mesh, &motion)
         } else {
             Vec::new()
         };
-        let skeleton = p.rig().skeleton().map(|s| crate::skin::SkeletonRest {
-            joints: s.joints().to_vec(),
-            bones: s.bones().to_vec(),
-            parents: (0..s.bones().len()).map(|b| s.parent_of(b)).collect(),
-            rest: p.mesh.vertices().to_vec(),
-        });
-        puppets.push(AnimatedPuppet {
-            draw_orders,
-            skeleton,
-            name: p.name.clone(),
-            triangles: p.mesh.triangles().to_vec(),
-            uv: p
-                .mesh
-                .uv()
-                .map(|uv| uv.iter().map(|t| [t.x as f32, t.y as f32]).collect())
-                .unwrap_or_else(|| vec![[0.0, 0.0]; p.mesh.vertices().len()]),
-            image,
-            frames: motion,
-        });
+        let mut puppet = AnimatedPuppet::of_puppet(p, motion)?;
+        puppet.draw_orders = draw_orders;
+        puppets.push(puppet);
     }
     Ok(TakeAnimation {
         animation: Animation {

@@ -12,7 +12,7 @@ use serde_json::{Value, json};
 
 use crate::common::daemon::{Client, WAIT, next_text, root};
 use crate::common::served::serve;
-use puppetry_testkit::stage_text::Gingerbread;
+use puppetry_testkit::stage_text::{Gingerbread, STAGE};
 
 /// The keyframing gingerbread and a MIDI input whose `source` line is
 /// `source` (a `path` or a `file`): CC 16 and 17 its cursor's x and y, the
@@ -20,11 +20,7 @@ use puppetry_testkit::stage_text::Gingerbread;
 fn stage(source: &str) -> String {
     let keys = root().join("assets/gingerbread/gingerbread.keys.json");
     format!(
-        r#"
-[stage]
-width = 1280
-height = 720
-listen = "127.0.0.1:0"
+        r#"{STAGE}listen = "127.0.0.1:0"
 
 {puppet}
 [[input]]
