@@ -366,10 +366,14 @@ fn midi_input(
         repeat,
         name,
         map,
+        clock,
+        tempo,
     } = input
     else {
         return Err(InputError(format!("input[{index}] is not a MIDI input")));
     };
+    let clock = puppetry_input::config::ClockSetting::kind(*clock, *tempo)
+        .map_err(|(field, problem)| InputError(format!("input[{index}].{field}: {problem}")))?;
     for (j, m) in map.iter().enumerate() {
         if let Some(puppet) = &m.puppet
             && !config
@@ -400,6 +404,7 @@ fn midi_input(
         name: name.clone().unwrap_or_else(|| format!("midi:{index}")),
         source,
         map: map.to_vec(),
+        clock,
     })
 }
 

@@ -13,12 +13,15 @@ use puppetry_input::log_limit::LogLimiter;
 use puppetry_input::midi::MidiDecoder;
 use puppetry_input::midi_file::TimedMessage;
 use puppetry_input::midi_map::{MidiAction, MidiMapper, MidiMapping};
+use puppetry_input::show_clock::{ClockKind, ShowClock};
+use puppetry_take::ClockSource;
 use std::io::Read;
 
 use tokio::io::unix::AsyncFd;
 use tokio::task::JoinHandle;
 
 use crate::show_control::{Actor, Trigger, lock};
+use crate::stage_thread::ShowReading;
 
 /// Where a MIDI input's messages come from.
 pub(crate) enum MidiSource {
@@ -41,6 +44,8 @@ pub(crate) struct MidiInput {
     pub(crate) source: MidiSource,
     /// What its controls do (checked, puppets named exist).
     pub(crate) map: Vec<MidiMapping>,
+    /// The show clock it carries, if the stage file follows it.
+    pub(crate) clock: Option<ClockKind>,
 }
 
 /// How long a missing or lost port waits before it is opened again.
@@ -63,6 +68,7 @@ async fn run(input: MidiInput, actor: Actor) {
         actor,
         name: input.name,
         log: Arc::new(Mutex::new(LogLimiter::new(Instant::now()))),
+        clock: input.clock.map(|kind| (ShowClock::new(kind), kind)),
     };
     match input.source {
         MidiSource::File { messages, repeat } => loop {
@@ -149,6 +155,8 @@ struct Doer {
     actor: Actor,
     name: String,
     log: Arc<Mutex<LogLimiter>>,
+    /// The show clock this input follows, and which.
+    clock: Option<(ShowClock, ClockKind)>,
 }
 
 impl Doer {
@@ -157,6 +165,20 @@ impl Doer {
     }
 
     async fn message(&mut self, message: &puppetry_input::midi::MidiMessage) {
+        if let Some((clock, kind)) = &mut self.clock
+            && let Some(time) = clock.message(message)
+        {
+            let show = ShowReading {
+                seconds: time.seconds,
+                running: time.running,
+                source: match kind {
+                    ClockKind::TimeCode => ClockSource::TimeCode,
+                    ClockKind::Beats { .. } => ClockSource::MidiClock,
+                },
+            };
+            // Never refused: it only queues the reading.
+            let _ = self.actor.act(&self.name, Trigger::Clock(show)).await;
+        }
         for action in self.mapper.actions(message) {
             let Some(trigger) = self.trigger(action) else {
                 continue;

@@ -28,7 +28,7 @@ use crate::config::OscConfig;
 use crate::outputs::Published;
 use crate::protocol::{HandleKind, ServerMessage, TakeState};
 use crate::show_control::{Actor, Links, Trigger, TriggerError, clip, keys_of, lock, pose_of};
-use crate::stage_thread::PublishedHandles;
+use crate::stage_thread::{PublishedHandles, ShowReading};
 
 /// What goes wrong in show control; every variant names what it is about.
 #[derive(Debug, thiserror::Error)]
@@ -162,7 +162,11 @@ impl AddressSpace {
 
     /// Every address a trigger may be sent to (what patterns match).
     fn trigger_addresses(&self) -> Vec<String> {
-        let mut all = vec![self.address("take/start"), self.address("take/stop")];
+        let mut all = vec![
+            self.address("take/start"),
+            self.address("take/stop"),
+            self.address("clock"),
+        ];
         for p in 0..self.parts.len() {
             for leaf in ["key", "pose", "cursor", "cursor/off", "reset"] {
                 all.push(self.puppet_address(p, leaf));
@@ -225,6 +229,28 @@ impl AddressSpace {
             ["take", "stop"] => {
                 a.at_most(0, "no arguments")?;
                 Ok(Trigger::StopTake)
+            }
+            ["clock"] => {
+                a.between(
+                    1,
+                    2,
+                    "the show's time in seconds, and 0 if its transport is stopped",
+                )?;
+                let seconds = a.number(0, "seconds")?;
+                if seconds.abs() > puppetry_limits::files::MAX_TAKE_SECONDS {
+                    return Err(a.bad(
+                        0,
+                        "seconds",
+                        "seconds within a week (MAX_TAKE_SECONDS)",
+                        &seconds.to_string(),
+                    ));
+                }
+                let running = a.args.len() < 2 || a.number(1, "running")? != 0.0;
+                Ok(Trigger::Clock(ShowReading {
+                    seconds,
+                    running,
+                    source: puppetry_take::ClockSource::Osc,
+                }))
             }
             ["puppet", part, leaf @ ..] => {
                 let puppet = self.puppet(part).ok_or_else(|| OscError::NoPuppet {
@@ -900,6 +926,27 @@ mod tests {
 
     #[test]
     fn every_trigger_parses_with_its_arguments() {
+        let clock = |seconds, running| {
+            Trigger::Clock(ShowReading {
+                seconds,
+                running,
+                source: puppetry_take::ClockSource::Osc,
+            })
+        };
+        assert_eq!(
+            one("/puppetry/clock", vec![OscType::Double(3600.5)]).unwrap(),
+            clock(3600.5, true)
+        );
+        assert_eq!(
+            one(
+                "/puppetry/clock",
+                vec![OscType::Float(12.0), OscType::Int(0)]
+            )
+            .unwrap(),
+            clock(12.0, false)
+        );
+        assert!(one("/puppetry/clock", vec![OscType::Double(1e12)]).is_err());
+        assert!(one("/puppetry/clock", vec![s("noon")]).is_err());
         assert_eq!(
             one("/puppetry/take/start", vec![]).unwrap(),
             Trigger::StartTake { name: None }

@@ -16,7 +16,7 @@ use tokio::task::AbortHandle;
 
 use crate::outputs::{Published, State};
 use crate::protocol::{KeyView, RigDescription, ServerMessage};
-use crate::stage_thread::{Command, PublishedHandles};
+use crate::stage_thread::{Command, PublishedHandles, ShowReading};
 use crate::stream::Shared;
 
 /// Why a trigger could not be done: named by where it came from (an OSC
@@ -89,13 +89,16 @@ pub enum Trigger {
     Reset {
         puppet: u32,
     },
+    /// The show's clock (a DAW's or a desk's transport), heard now: a
+    /// take recording keeps it beside its own time.
+    Clock(ShowReading),
 }
 
 impl Trigger {
     /// The puppet it acts on, if one.
     fn puppet(&self) -> Option<u32> {
         match self {
-            Trigger::StartTake { .. } | Trigger::StopTake => None,
+            Trigger::StartTake { .. } | Trigger::StopTake | Trigger::Clock(_) => None,
             Trigger::Key { puppet, .. }
             | Trigger::Pose { puppet, .. }
             | Trigger::Cursor { puppet, .. }
@@ -223,6 +226,14 @@ impl Actor {
         }
         let commands = &self.links.commands;
         match trigger {
+            Trigger::Clock(show) => {
+                // Stamped as it arrives. A full command queue drops the
+                // reading: a take lines up by the median of many, and a
+                // clock must never hold up the controls that come with it.
+                let at = std::time::Instant::now();
+                let _ = commands.try_send(Command::Clock { show, at });
+                Ok(())
+            }
             Trigger::StartTake { name } => {
                 let (reply, answer) = tokio::sync::oneshot::channel();
                 send(
@@ -237,7 +248,7 @@ impl Actor {
                 .map_err(refused)?;
                 let name = answer.await.map_err(|_| refused(SHUTTING_DOWN.into()))?;
                 let name = name.map_err(refused)?;
-                tracing::info!("take {name} started by OSC ({})", clip(address));
+                tracing::info!("take {name} started by show control ({})", clip(address));
                 Ok(())
             }
             Trigger::StopTake => {

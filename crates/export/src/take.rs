@@ -11,6 +11,7 @@ use crate::format::Format;
 use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 use puppetry_stage::Stage;
 use puppetry_stage::config::StageConfig;
+use puppetry_take::clock::ShowTrack;
 use puppetry_take::{Record, Tail, TakeError, TakeReader};
 
 /// Why a take could not be exported.
@@ -74,10 +75,93 @@ pub struct ExportRequest {
     /// Export what is intact of a damaged take (`--salvage`) instead of
     /// refusing it.
     pub salvage: bool,
-    /// A soundtrack muxed into a video (`--audio FILE --audio-offset S`);
-    /// its `at` is the sound's second at the take's start (the export's
-    /// `--from` is added to it).
-    pub audio: Option<crate::video::Soundtrack>,
+    /// A soundtrack muxed into a video (`--audio FILE`), and how it lines
+    /// up with the take.
+    pub audio: Option<AudioRequest>,
+}
+
+/// A soundtrack to mux into a video export.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AudioRequest {
+    /// The sound file (anything ffmpeg reads).
+    pub file: PathBuf,
+    /// How the sound lines up with the take.
+    pub align: AudioAlign,
+}
+
+/// How a soundtrack lines up with the take it is exported with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AudioAlign {
+    /// The sound's second at the take's start (`--audio-offset S`;
+    /// negative: the sound begins that long after it). The export's
+    /// `--from` is added.
+    Offset(f64),
+    /// By the show's clock the take recorded (MIDI Time Code, MIDI clock,
+    /// OSC time): the sound's first sample plays at show time `start`
+    /// (`--audio-start`, default 0). A take that heard no running clock
+    /// starts the sound with the take, and the export says so.
+    ShowClock {
+        /// The show's time, in seconds, of the sound's start.
+        start: f64,
+    },
+}
+
+impl AudioRequest {
+    /// The sound's second at the export's first frame (the take's second
+    /// `from`), and a line for the user saying how it was found.
+    fn place(&self, show: &ShowTrack, from: f64) -> crate::video::Soundtrack {
+        let at = match self.align {
+            AudioAlign::Offset(offset) => offset + from,
+            AudioAlign::ShowClock { start } => match show.show_at(from) {
+                Some((time, _)) => time - start,
+                None => from,
+            },
+        };
+        crate::video::Soundtrack {
+            file: self.file.clone(),
+            at,
+        }
+    }
+
+    /// What the user is told about the alignment.
+    fn note(&self, show: &ShowTrack, from: f64, at: f64) -> String {
+        let how = match self.align {
+            AudioAlign::Offset(offset) => format!("--audio-offset {offset}"),
+            AudioAlign::ShowClock { start } => match show.show_at(from) {
+                Some((time, source)) => format!(
+                    "the take's show clock ({}): its second {from:.3} is show time {} \
+                     and the sound starts at show time {}",
+                    match source {
+                        puppetry_take::ClockSource::TimeCode => "MIDI Time Code",
+                        puppetry_take::ClockSource::MidiClock => "MIDI clock",
+                        puppetry_take::ClockSource::Osc => "OSC",
+                    },
+                    clock_text(time),
+                    clock_text(start)
+                ),
+                None => "the take's start (it heard no show clock running; \
+                         --audio-offset places the sound by hand)"
+                    .to_string(),
+            },
+        };
+        format!(
+            "soundtrack {}: its second {at:.3} plays with the first frame, by {how}",
+            self.file.display()
+        )
+    }
+}
+
+/// A show time as `h:mm:ss.mmm`.
+fn clock_text(seconds: f64) -> String {
+    let sign = if seconds < 0.0 { "-" } else { "" };
+    let ms = (seconds.abs() * 1000.0).round() as u64;
+    format!(
+        "{sign}{}:{:02}:{:02}.{:03}",
+        ms / 3_600_000,
+        ms / 60_000 % 60,
+        ms / 1000 % 60,
+        ms % 1000
+    )
 }
 
 /// A take read through once before it is exported: its length and
@@ -91,6 +175,8 @@ pub struct Survey {
     pub frames: usize,
     /// What is damaged, one line each; empty for a whole take.
     pub damage: Vec<String>,
+    /// The show's clock readings the take heard, in order.
+    pub clocks: Vec<puppetry_take::Clock>,
 }
 
 /// Reads `take` through for its [`Survey`]; only an unreadable file or
@@ -101,6 +187,7 @@ pub fn survey(take: &Path) -> Result<Survey, TakeError> {
         duration: 0.0,
         frames: 0,
         damage: Vec::new(),
+        clocks: Vec::new(),
     };
     for record in reader.by_ref() {
         let t = match record {
@@ -110,6 +197,10 @@ pub fn survey(take: &Path) -> Result<Survey, TakeError> {
                 f.t
             }
             Ok(Record::End(e)) => e.t,
+            Ok(Record::Clock(c)) => {
+                survey.clocks.push(c);
+                continue;
+            }
             Ok(Record::Header(_)) => continue,
             Err(e @ TakeError::Corrupt { .. }) => {
                 survey.damage.push(e.to_string());
@@ -172,6 +263,8 @@ pub struct TakeAnimation {
     pub animation: Animation,
     /// For a damaged take read with `salvage`: what was kept and skipped.
     pub salvaged: Option<String>,
+    /// The show's time along the take, from the clock it heard.
+    pub show: ShowTrack,
 }
 
 /// The take as an animation at `fps` over `from..to` (default: the whole
@@ -285,6 +378,7 @@ pub fn read_take(
             frame_count: n,
         },
         salvaged,
+        show: ShowTrack::new(&survey.clocks),
     })
 }
 
@@ -426,10 +520,12 @@ pub fn export_take_with(
         }
         Format::Mp4 | Format::Mov | Format::Webm => {
             let mut options = crate::video::VideoOptions::new(width, height);
-            options.audio = request.audio.as_ref().map(|a| crate::video::Soundtrack {
-                file: a.file.clone(),
-                at: a.at + request.from.unwrap_or(0.0),
-            });
+            if let Some(audio) = &request.audio {
+                let from = request.from.unwrap_or(0.0);
+                let soundtrack = audio.place(&read.show, from);
+                notes.push(audio.note(&read.show, from, soundtrack.at));
+                options.audio = Some(soundtrack);
+            }
             crate::video::export_video(animation, &options, progress, out)?;
         }
     }
@@ -471,12 +567,12 @@ pub fn preflight(request: &ExportRequest) -> Result<(), TakeExportError> {
             ))
             .into());
         }
-        if !audio.at.is_finite() || audio.at.abs() > puppetry_limits::files::MAX_TAKE_SECONDS {
-            return Err(flag(format!(
-                "--audio-offset {} is not a number of seconds",
-                audio.at
-            ))
-            .into());
+        let (name, seconds) = match audio.align {
+            AudioAlign::Offset(s) => ("--audio-offset", s),
+            AudioAlign::ShowClock { start } => ("--audio-start", start),
+        };
+        if !seconds.is_finite() || seconds.abs() > puppetry_limits::files::MAX_TAKE_SECONDS {
+            return Err(flag(format!("{name} {seconds} is not a number of seconds")).into());
         }
         if !std::fs::metadata(&audio.file).is_ok_and(|m| m.is_file()) {
             return Err(flag(format!("{} is not a sound file here", audio.file.display())).into());

@@ -10,6 +10,45 @@ use std::path::PathBuf;
 use puppetry_mesh::numbers::{MAX_COORDINATE, MIN_SIZE, coordinates, some_pair, within};
 use serde::Deserialize;
 
+/// Which show clock a MIDI input follows (`clock`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockSetting {
+    /// MIDI Time Code: quarter frames and full frames.
+    TimeCode,
+    /// MIDI clock and song position, at the input's `tempo`.
+    MidiClock,
+}
+
+impl ClockSetting {
+    /// The clock `clock` and `tempo` ask for (none: the input follows no
+    /// clock), or the field that is wrong and why.
+    pub fn kind(
+        clock: Option<ClockSetting>,
+        tempo: Option<f64>,
+    ) -> Result<Option<crate::show_clock::ClockKind>, (&'static str, String)> {
+        use crate::show_clock::ClockKind;
+        match (clock, tempo) {
+            (Some(ClockSetting::MidiClock), Some(tempo)) if (1.0..=1000.0).contains(&tempo) => {
+                Ok(Some(ClockKind::Beats { tempo }))
+            }
+            (Some(ClockSetting::MidiClock), Some(tempo)) => Err((
+                "tempo",
+                format!("{tempo} is not 1 to 1000 quarter notes a minute"),
+            )),
+            (Some(ClockSetting::MidiClock), None) => Err((
+                "tempo",
+                "clock = \"midi_clock\" counts beats: give the song's tempo (quarter notes \
+                 a minute) to make them seconds"
+                    .into(),
+            )),
+            (_, Some(_)) => Err(("tempo", "only clock = \"midi_clock\" reads a tempo".into())),
+            (Some(ClockSetting::TimeCode), None) => Ok(Some(ClockKind::TimeCode)),
+            (None, None) => Ok(None),
+        }
+    }
+}
+
 /// An input source. Replay files stand in for devices.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
@@ -156,6 +195,15 @@ pub enum InputConfig {
         /// What each control does (`[[input.map]]`).
         #[serde(default)]
         map: Vec<crate::midi_map::MidiMapping>,
+        /// Follow the show's clock this input carries (`time_code`: MIDI
+        /// Time Code; `midi_clock`: MIDI clock and song position, with
+        /// `tempo`): takes record it, exports line soundtracks up by it.
+        #[serde(default)]
+        clock: Option<ClockSetting>,
+        /// Quarter notes a minute, for `clock = "midi_clock"` (a song
+        /// whose tempo changes is followed by time code instead).
+        #[serde(default)]
+        tempo: Option<f64>,
     },
     /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
     /// pair of points: button-drag moves them, the wheel or a right-button
@@ -267,7 +315,12 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
                 &None
             }
             InputConfig::Midi {
-                path, file, map, ..
+                path,
+                file,
+                map,
+                clock,
+                tempo,
+                ..
             } => {
                 if path.is_some() == file.is_some() {
                     return Err((
@@ -275,6 +328,8 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
                         "give a MIDI port's path or a .mid file to play, one of them".into(),
                     ));
                 }
+                ClockSetting::kind(*clock, *tempo)
+                    .map_err(|(name, problem)| (field(name), problem))?;
                 for (j, m) in map.iter().enumerate() {
                     m.check()
                         .map_err(|(name, problem)| (field(&format!("map[{j}].{name}")), problem))?;

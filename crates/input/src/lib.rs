@@ -40,6 +40,7 @@ pub mod record;
 pub mod recording;
 pub mod replay;
 pub mod serial;
+pub mod show_clock;
 pub mod tuio;
 
 pub use puppetry_contact::*;

@@ -17,7 +17,9 @@
 //!   status, as the standard says.
 //! - **SysEx** (`F0 … F7`, any length): MIDI Show Control
 //!   (`F0 7F <device> 02 <format> <command> [cue] F7`) GO, STOP and RESUME
-//!   with their cue number are messages; any other SysEx is skipped, only
+//!   with their cue number, and MIDI Time Code full frames
+//!   (`F0 7F <device> 01 01 hr mn sc fr F7`, a locate) are messages; any
+//!   other SysEx is skipped, only
 //!   its first [`MAX_MIDI_SYSEX_BYTES`] kept to read it by.
 //! - **Damage** never panics nor stalls: a status byte cutting a message
 //!   short drops the partial message, data bytes with no status to go with
@@ -126,6 +128,19 @@ pub enum MidiMessage {
     ActiveSensing,
     /// Reset everything to power-up state.
     Reset,
+    /// A MIDI Time Code full frame: the clock located at a time code
+    /// (sent when a transport jumps, or parked), its rate in the hour
+    /// byte's bits 5–6 as quarter frames' piece 7 has them.
+    FullFrame {
+        /// Hours (0–23) with the rate in bits 5–6, as sent.
+        hours: u8,
+        /// Minutes, 0 to 59.
+        minutes: u8,
+        /// Seconds, 0 to 59.
+        seconds: u8,
+        /// Frames, 0 to 29.
+        frames: u8,
+    },
     /// A MIDI Show Control command to the devices `device` addresses
     /// (`0x7F`: all).
     ShowControl {
@@ -385,12 +400,13 @@ impl MidiDecoder {
         })
     }
 
-    /// A whole SysEx ended by `F7`: a show-control command, or skipped.
+    /// A whole SysEx ended by `F7`: a show-control command, a time code
+    /// full frame, or skipped.
     fn sysex_done(&mut self) -> Option<MidiMessage> {
         if self.sysex_overflow {
             return None;
         }
-        show_control(&self.sysex)
+        show_control(&self.sysex).or_else(|| full_frame(&self.sysex))
     }
 }
 
@@ -414,6 +430,20 @@ fn show_control(body: &[u8]) -> Option<MidiMessage> {
         device: *device,
         command,
         cue,
+    })
+}
+
+/// A MIDI Time Code full frame's body: `7F`, the device id, `01 01`, then
+/// hours (with the rate), minutes, seconds and frames, each a data byte.
+fn full_frame(body: &[u8]) -> Option<MidiMessage> {
+    let [0x7F, _device, 0x01, 0x01, hours, minutes, seconds, frames] = *body else {
+        return None;
+    };
+    Some(MidiMessage::FullFrame {
+        hours,
+        minutes,
+        seconds,
+        frames,
     })
 }
 
@@ -588,6 +618,27 @@ mod tests {
             ]
         );
         assert_eq!(dropped, 2);
+    }
+
+    #[test]
+    fn a_time_code_full_frame_is_a_locate() {
+        // 01:02:03:04 at 25 fps (rate bits 01), to all devices.
+        let (out, dropped) = decode(&[0xF0, 0x7F, 0x7F, 0x01, 0x01, 0x21, 2, 3, 4, 0xF7]);
+        assert_eq!(
+            out,
+            [MidiMessage::FullFrame {
+                hours: 0x21,
+                minutes: 2,
+                seconds: 3,
+                frames: 4
+            }]
+        );
+        assert_eq!(dropped, 0);
+        // A user bits message (01 02) is not a time.
+        let (out, _) = decode(&[
+            0xF0, 0x7F, 0x7F, 0x01, 0x02, 1, 2, 3, 4, 5, 6, 7, 8, 0, 0xF7,
+        ]);
+        assert!(out.is_empty());
     }
 
     #[test]

@@ -216,15 +216,22 @@ struct ExportArgs {
     #[arg(long, value_name = "FILE")]
     audio: Option<PathBuf>,
     /// Seconds into the soundtrack at the take's start (negative: the
-    /// sound begins that long after it).
+    /// sound begins that long after it). Without it, the soundtrack lines
+    /// up by the show clock the take recorded (MIDI Time Code, MIDI clock,
+    /// OSC time), or starts with the take if it heard none.
+    #[arg(long, value_name = "S", requires = "audio", allow_hyphen_values = true)]
+    audio_offset: Option<f64>,
+    /// The show clock's time, in seconds, at the soundtrack's first sample
+    /// (a session starting at 01:00:00:00 is 3600).
     #[arg(
         long,
         value_name = "S",
         default_value_t = 0.0,
         requires = "audio",
+        conflicts_with = "audio_offset",
         allow_hyphen_values = true
     )]
-    audio_offset: f64,
+    audio_start: f64,
 }
 
 #[derive(clap::Args)]
@@ -749,6 +756,7 @@ fn export_command(
         salvage,
         audio,
         audio_offset,
+        audio_start,
     }: ExportArgs,
 ) -> anyhow::Result<()> {
     let config = match config {
@@ -777,9 +785,12 @@ fn export_command(
             puppetry_export::output::Overwrite::Never
         },
         salvage,
-        audio: audio.map(|file| puppetry_export::video::Soundtrack {
+        audio: audio.map(|file| puppetry_export::take::AudioRequest {
             file,
-            at: audio_offset,
+            align: match audio_offset {
+                Some(offset) => puppetry_export::take::AudioAlign::Offset(offset),
+                None => puppetry_export::take::AudioAlign::ShowClock { start: audio_start },
+            },
         }),
     };
     let format = format.0;

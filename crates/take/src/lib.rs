@@ -19,8 +19,11 @@
 //! stage thread only hands records over; [`replay`] replays a take into a
 //! [`Stage`]. Every public item is documented (`missing_docs` is on here).
 
+pub mod clock;
 pub mod recorder;
 pub mod replay;
+
+pub use clock::{Clock, ClockSource};
 
 use std::collections::{HashMap, HashSet};
 use std::fs::File;
@@ -47,6 +50,7 @@ const KIND_HEADER: u8 = 1;
 const KIND_STEP: u8 = 2;
 const KIND_FRAME: u8 = 3;
 const KIND_END: u8 = 4;
+const KIND_CLOCK: u8 = 5;
 
 /// Why a take could not be written, read or replayed; each names the file.
 #[derive(Debug, thiserror::Error)]
@@ -112,8 +116,10 @@ pub enum TakeError {
     },
 }
 
-/// The take format's version, in every header.
-pub const VERSION: u32 = 1;
+/// The take format's version, in every header: 2 added [`Record::Clock`]
+/// (a version 1 reader would refuse its kind as damage, so it says
+/// "newer" instead).
+pub const VERSION: u32 = 2;
 
 /// A puppet as the take saw it: its rest mesh's hash tells a take of
 /// another stage, or of a mesh changed since, from a replayable one.
@@ -390,7 +396,8 @@ pub struct End {
 
 /// One record of a take, in the order a take holds them: a [`Header`]
 /// first, then each [`Step`] followed by the [`Frame`]s its solve produced,
-/// and an [`End`] when the take was stopped rather than killed.
+/// [`Clock`]s as the show's clock is heard, and an [`End`] when the take
+/// was stopped rather than killed.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Record {
     /// The first record: the stage the take was recorded on.
@@ -402,6 +409,8 @@ pub enum Record {
     Frame(Frame),
     /// The last record: when and why the take stopped.
     End(End),
+    /// The show's clock, read while the take recorded (JSON).
+    Clock(Clock),
 }
 
 impl Record {
@@ -420,6 +429,10 @@ impl Record {
             Record::End(e) => {
                 out.push(KIND_END);
                 serde_json::to_writer(&mut *out, e).expect("ends serialise");
+            }
+            Record::Clock(c) => {
+                out.push(KIND_CLOCK);
+                serde_json::to_writer(&mut *out, c).expect("clocks serialise");
             }
             Record::Frame(f) => {
                 out.push(KIND_FRAME);
@@ -450,6 +463,9 @@ impl Record {
             KIND_END => serde_json::from_slice(payload)
                 .map(Record::End)
                 .map_err(|e| json("end") + &e.to_string()),
+            KIND_CLOCK => serde_json::from_slice(payload)
+                .map(Record::Clock)
+                .map_err(|e| json("clock") + &e.to_string()),
             KIND_FRAME => {
                 if payload.len() < 16 {
                     return Err(format!(
@@ -796,6 +812,16 @@ impl TakeReader {
             }
             Record::Frame(f) => time("frame", f.t)?,
             Record::End(e) => time("end", e.t)?,
+            Record::Clock(c) => {
+                time("clock", c.t)?;
+                if !c.show.is_finite() || c.show.abs() > MAX_TAKE_SECONDS {
+                    return Err(format!(
+                        "clock: show = {} is not within {MAX_TAKE_SECONDS} seconds \
+                         (MAX_TAKE_SECONDS)",
+                        c.show
+                    ));
+                }
+            }
         }
         Ok(record)
     }
@@ -898,7 +924,7 @@ pub fn summarize(path: &Path) -> Result<TakeSummary, TakeError> {
                 duration = duration.max(f.t);
             }
             Record::End(e) => duration = duration.max(e.t),
-            Record::Header(_) => {}
+            Record::Header(_) | Record::Clock(_) => {}
         }
     }
     let ending = match reader.tail() {

@@ -122,6 +122,12 @@ impl Recorder {
         self.started.elapsed().as_secs_f64()
     }
 
+    /// Seconds from the take's start to `at`; `None` before it began.
+    pub fn elapsed_at(&self, at: Instant) -> Option<f64> {
+        at.checked_duration_since(self.started)
+            .map(|d| d.as_secs_f64())
+    }
+
     /// Hands a record to the writer without waiting. An error means the
     /// take has stopped: finish it.
     pub fn record(&self, record: Record) -> Result<(), RecordError> {

@@ -143,7 +143,7 @@ pub fn verify(path: &Path, stage: Stage) -> Result<Verification, TakeError> {
                     ));
                 }
             }
-            Record::Header(_) | Record::End(_) => {}
+            Record::Header(_) | Record::End(_) | Record::Clock(_) => {}
         }
     }
     Ok(Verification {

@@ -61,3 +61,26 @@ pub fn first_onset(video: &Path) -> f64 {
         .expect("a click in the sound");
     first as f64 / 48_000.0
 }
+
+/// When `video`'s sound stream starts against its pictures, in seconds,
+/// as ffprobe reads it (a player starts the sound that late).
+pub fn audio_start(video: &Path) -> f64 {
+    let out = Command::new("ffprobe")
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "a:0",
+            "-show_entries",
+            "stream=start_time",
+            "-of",
+            "csv=p=0",
+        ])
+        .arg(video)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    text.trim()
+        .parse()
+        .unwrap_or_else(|_| panic!("no sound stream start in {text:?}"))
+}

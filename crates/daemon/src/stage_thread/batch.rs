@@ -202,6 +202,11 @@ impl Batch {
             Command::PlayStarting { name, path, reply } => {
                 let _ = reply.send(taking.start_playing(name, &path, changes));
             }
+            Command::Clock { show, at } => {
+                if taking.clock(stage, show, at) {
+                    taking.publish(changes);
+                }
+            }
         }
     }
 

@@ -30,8 +30,8 @@ use puppetry_stage::config::StageConfig;
 
 use batch::Batch;
 use publish::Publisher;
-pub use taking::BeingRecorded;
 use taking::Taking;
+pub use taking::{BeingRecorded, ShowReading};
 
 pub(crate) use crate::outputs::State;
 pub use crate::outputs::Timings;
@@ -177,6 +177,14 @@ pub enum Command {
         /// Gets the puppet added or removed (0 for a new order), or why
         /// the change was refused.
         reply: Reply<u32>,
+    },
+    /// The show's clock was heard (MIDI Time Code, MIDI clock, an OSC
+    /// time message): a take recording keeps it beside its own time.
+    Clock {
+        /// Where the show's clock is.
+        show: taking::ShowReading,
+        /// When the reading reached the daemon.
+        at: std::time::Instant,
     },
     /// End the thread (the daemon is shutting down).
     Stop,

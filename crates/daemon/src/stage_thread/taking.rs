@@ -6,13 +6,14 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::time::Instant;
 
 use tokio::sync::watch;
 
 use puppetry_input::Phase;
 use puppetry_stage::{Change, Stage, StageEvent};
 use puppetry_take::recorder::Recorder;
-use puppetry_take::{Frame, Header, Record, Step};
+use puppetry_take::{Clock, ClockSource, Frame, Header, Record, Step};
 
 use crate::outputs::Published;
 use crate::protocol::{ServerMessage, TakeState};
@@ -260,16 +261,58 @@ impl Taking {
             let pose = stage.puppets()[puppet as usize].pose();
             result = recorder.record(Record::Frame(Frame::of_pose(puppet, t, pose)));
         }
-        if let Err(e) = result {
-            tracing::error!("{e}");
-            let reason = e.to_string();
-            if let Some(recorder) = self.recorder.take() {
-                stage.keep_events(false);
-                let _ = recorder.finish(&reason);
-            }
-            self.error = Some(reason);
-            return true;
-        }
-        false
+        self.failed(stage, result)
     }
+
+    /// Records the show clock's reading `show`, which reached the daemon
+    /// at `at` (the take's time is when it arrived, not when the stage
+    /// thread got to it); readings from before the take are not its own.
+    /// True when the take failed and stopped.
+    pub(super) fn clock(&mut self, stage: &mut Stage, show: ShowReading, at: Instant) -> bool {
+        let Some(recorder) = &self.recorder else {
+            return false;
+        };
+        let Some(t) = recorder.elapsed_at(at) else {
+            return false;
+        };
+        let result = recorder.record(Record::Clock(Clock {
+            t,
+            show: show.seconds,
+            running: show.running,
+            source: show.source,
+        }));
+        self.failed(stage, result)
+    }
+
+    /// A take that cannot keep up or write stops here, with its error
+    /// shown to everyone: true when it did.
+    fn failed(
+        &mut self,
+        stage: &mut Stage,
+        result: Result<(), puppetry_take::recorder::RecordError>,
+    ) -> bool {
+        let Err(e) = result else {
+            return false;
+        };
+        tracing::error!("{e}");
+        let reason = e.to_string();
+        if let Some(recorder) = self.recorder.take() {
+            stage.keep_events(false);
+            let _ = recorder.finish(&reason);
+        }
+        self.error = Some(reason);
+        true
+    }
+}
+
+/// Where the show's clock is, as an input heard it (MIDI Time Code, MIDI
+/// clock, an OSC time message).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShowReading {
+    /// Seconds on the show's clock.
+    pub seconds: f64,
+    /// Whether its transport runs.
+    pub running: bool,
+    /// What told it.
+    pub source: ClockSource,
 }

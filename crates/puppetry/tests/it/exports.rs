@@ -366,6 +366,22 @@ fn a_soundtrack_plays_in_time_with_the_take() {
         "the click is heard at {onset} s"
     );
 
+    // Without an offset, a take that heard no show clock starts the
+    // sound with the take (the range's start counted), and says so.
+    let args = [
+        "--config", &stage, "--format", "mp4", "--size", "64x36", "--from", "1", "--audio",
+        &wav_arg, "-o", "own.mp4",
+    ];
+    let out = export(dir.path(), &take, &args);
+    assert!(out.status.success(), "{}", said(&out));
+    let printed = String::from_utf8_lossy(&out.stdout);
+    assert!(printed.contains("heard no show clock"), "{printed}");
+    let onset = puppetry_testkit::sound::first_onset(&dir.path().join("own.mp4"));
+    assert!(
+        (onset - 1.0).abs() <= 1.0 / 30.0,
+        "the click is heard at {onset} s"
+    );
+
     let args = [
         "--config", &stage, "--format", "glb", "--audio", &wav_arg, "-o", "t.glb",
     ];

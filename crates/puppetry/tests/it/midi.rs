@@ -154,6 +154,111 @@ async fn a_midi_file_replays_a_controller() {
     .expect("a take recorded and stopped by the file");
 }
 
+/// MIDI Time Code reaches a take and lines its soundtrack up: a DAW's
+/// transport (a FIFO carrying quarter frames at 25 fps from 00:00:11:00,
+/// paced as a transport sends them) plays while the drum pad starts a take
+/// at show time 11.23 s and faders move the cursor; exported with a click
+/// track whose click is at show time 12 s, with no offset given, the
+/// click is heard 0.77 s into the video, within a frame.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn time_code_lines_a_take_up_with_its_soundtrack() {
+    use puppetry_input::show_clock::{FrameRate, TimeCode, quarter_frames};
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("midiC1D0");
+    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a path this test owns, a plain mode.
+    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let stage_text = stage(&format!(
+        "path = \"{}\"\nclock = \"time_code\"",
+        fifo.display()
+    ));
+    let served = serve(dir.path(), &stage_text);
+    let mut ws = viewer(&served.http).await;
+    let mut port = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+    // Each set of eight quarter frames is two frames (80 ms at 25 fps);
+    // set n carries frame 275 + 2n (11 s + 80n ms). Written against
+    // deadlines, so a late wake-up does not shift what follows.
+    let transport = std::thread::spawn(move || {
+        let start = std::time::Instant::now();
+        for n in 0..40u32 {
+            let frame = 275 + 2 * n;
+            let code = TimeCode {
+                hours: 0,
+                minutes: 0,
+                seconds: (frame / 25) as u8,
+                frames: (frame % 25) as u8,
+                rate: FrameRate::Fps25,
+            };
+            for (piece, bytes) in quarter_frames(code).iter().enumerate() {
+                let due =
+                    std::time::Duration::from_millis(u64::from(8 * n) * 10 + piece as u64 * 10);
+                std::thread::sleep(due.saturating_sub(start.elapsed()));
+                port.write_all(bytes).unwrap();
+            }
+            match n {
+                // Right after the third set's last piece: show time
+                // 11.16 s + 1.75 frames = 11.23 s.
+                2 => port.write_all(&[0x99, 36, 100]).unwrap(),
+                39 => port.write_all(&[0x90, 38, 100]).unwrap(),
+                n if n > 2 && n % 3 == 0 => port.write_all(&[0xB0, 16, (n * 3) as u8]).unwrap(),
+                _ => {}
+            }
+        }
+        port
+    });
+    let recording = until(&mut ws, "a take recording", |m| {
+        m["type"] == "take" && m["recording"].is_string()
+    })
+    .await;
+    until(&mut ws, "the take stopped", |m| {
+        m["type"] == "take" && m["recording"].is_null()
+    })
+    .await;
+    drop(transport.join().unwrap());
+    let name = recording["recording"].as_str().unwrap();
+    let take = dir.path().join(format!("takes/{name}.take"));
+    let clocks = puppetry_take::TakeReader::open(&take)
+        .unwrap()
+        .filter(|r| matches!(r, Ok(puppetry_take::Record::Clock(_))))
+        .count();
+    assert!(clocks >= 30, "{clocks} time code readings in the take");
+
+    let wav = dir.path().join("song.wav");
+    puppetry_testkit::sound::click_track(&wav, 14.0, &[12.0]);
+    let stage_file = dir.path().join("stage.toml");
+    std::fs::write(&stage_file, &stage_text).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .current_dir(dir.path())
+        .arg("export")
+        .arg(&take)
+        .args(["--config"])
+        .arg(&stage_file)
+        .args([
+            "--format", "mp4", "--size", "64x36", "--fps", "30", "--audio",
+        ])
+        .arg(&wav)
+        .args(["-o", "t.mp4"])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{said}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(said.contains("MIDI Time Code"), "{said}");
+    let video = dir.path().join("t.mp4");
+    let start = puppetry_testkit::sound::audio_start(&video);
+    assert!(start.abs() < 1.0 / 30.0, "the sound starts at {start} s");
+    let onset = puppetry_testkit::sound::first_onset(&video);
+    eprintln!("{said}the click is heard at {onset:.4} s (0.77 s expected)");
+    assert!(
+        (onset - 0.77).abs() <= 1.0 / 30.0,
+        "the click is heard at {onset} s, not 0.77 s"
+    );
+    served.stop();
+}
+
 /// A `.mid`: the faders to x 0, y 1 at once, the record pad at 0.2 s and
 /// the stop pad at 0.6 s (480 ticks a beat at 120 bpm).
 fn write_show(path: &Path) {

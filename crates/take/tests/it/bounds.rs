@@ -146,3 +146,46 @@ fn a_fifo_named_as_a_take_is_refused_at_once() {
     assert!(matches!(error, TakeError::File(_)), "{error}");
     assert!(error.to_string().contains("FIFO"), "{error}");
 }
+
+/// A show clock reading reads back as written; one whose take time or
+/// show time is not a number of seconds within a week is refused by
+/// record, and a take of a newer version than this build is refused as
+/// newer, not as damage.
+#[test]
+fn clock_readings_round_trip_and_are_bounded() {
+    use puppetry_take::{Clock, ClockSource};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("clock.take");
+    let clock = |t: f64, show: f64| Clock {
+        t,
+        show,
+        running: true,
+        source: ClockSource::TimeCode,
+    };
+    let mut writer = TakeWriter::create(&path, &header()).unwrap();
+    for c in [clock(0.08, 11.31), clock(0.16, 1e300), clock(-1.0, 3.0)] {
+        writer.write(&Record::Clock(c)).unwrap();
+    }
+    writer.write(&Record::Clock(clock(0.24, -1e9))).unwrap();
+    writer.flush().unwrap();
+    let records: Vec<_> = TakeReader::open(&path).unwrap().collect();
+    assert_eq!(records.len(), 4);
+    assert_eq!(
+        records[0].as_ref().unwrap(),
+        &Record::Clock(clock(0.08, 11.31))
+    );
+    for (i, r) in records[1..].iter().enumerate() {
+        let e = r.as_ref().unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("record {}", i + 2)) && e.contains("MAX_TAKE_SECONDS"),
+            "{e}"
+        );
+    }
+
+    let newer = dir.path().join("newer.take");
+    let mut h = header();
+    h.version = puppetry_take::VERSION + 1;
+    TakeWriter::create(&newer, &h).unwrap().flush().unwrap();
+    let e = TakeReader::open(&newer).err().unwrap().to_string();
+    assert!(e.contains("newer than this build reads"), "{e}");
+}
