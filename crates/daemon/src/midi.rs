@@ -13,11 +13,9 @@ use puppetry_input::log_limit::LogLimiter;
 use puppetry_input::midi::MidiDecoder;
 use puppetry_input::midi_file::TimedMessage;
 use puppetry_input::midi_map::{MidiAction, MidiMapper, MidiMapping};
+use puppetry_input::midi_port::PortReader;
 use puppetry_input::show_clock::{ClockKind, ShowClock};
 use puppetry_take::ClockSource;
-use std::io::Read;
-
-use tokio::io::unix::AsyncFd;
 use tokio::task::JoinHandle;
 
 use crate::show_control::{Actor, Trigger, lock};
@@ -82,7 +80,7 @@ async fn run(input: MidiInput, actor: Actor) {
             }
         },
         MidiSource::Port(path) => loop {
-            match open_port(&path) {
+            match PortReader::open(&path) {
                 Ok(port) => {
                     if let Err(e) = read_port(&port, &mut doer).await {
                         doer.warn(format_args!("{}: {e}", path.display()));
@@ -95,53 +93,14 @@ async fn run(input: MidiInput, actor: Actor) {
     }
 }
 
-/// Opens a raw MIDI port without blocking (a FIFO with no writer yet
-/// opens at once) and registers it with the runtime: reads wait in the
-/// reactor, never on a thread, so an idle controller never holds up the
-/// daemon's shutdown. A regular file cannot be waited on so: it is
-/// refused, naming `file` for what to play instead.
-fn open_port(path: &std::path::Path) -> std::io::Result<AsyncFd<std::fs::File>> {
-    use std::os::unix::fs::OpenOptionsExt;
-    let port = std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
-        .open(path)?;
-    // SAFETY: `port` is an open `File` owned by the AsyncFd from here on;
-    // a `File`'s descriptor stays the same open file until it is dropped.
-    unsafe { AsyncFd::register_with_interest(port, tokio::io::Interest::READABLE) }.map_err(|e| {
-        let e = e.into_parts().1;
-        std::io::Error::new(
-            e.kind(),
-            format!("not a MIDI port, FIFO or device ({e}); a .mid plays with `file`"),
-        )
-    })
-}
-
-/// How long a FIFO with no writer waits before it is read again.
-const NO_WRITER_WAIT: Duration = Duration::from_millis(100);
-
 /// Reads a port until it fails (a device unplugged), doing what each
 /// message asks.
-async fn read_port(port: &AsyncFd<std::fs::File>, doer: &mut Doer) -> std::io::Result<()> {
+async fn read_port(port: &PortReader, doer: &mut Doer) -> std::io::Result<()> {
     let mut decoder = MidiDecoder::new();
     let mut buffer = [0u8; 512];
     let mut messages = Vec::new();
     loop {
-        let mut ready = port.readable().await?;
-        // A read of 0 (no writer) leaves the port readable (`try_io`
-        // clears readiness only on WouldBlock): the sleep below paces a
-        // writerless FIFO.
-        let n = match ready.try_io(|port| (&mut port.get_ref()).read(&mut buffer)) {
-            // A FIFO with no writer (yet, or any more): kept open, so a
-            // writer that comes finds its reader, and looked at again soon.
-            Ok(Ok(0)) => {
-                tokio::time::sleep(NO_WRITER_WAIT).await;
-                continue;
-            }
-            Ok(Ok(n)) => n,
-            Ok(Err(e)) => return Err(e),
-            Err(_would_block) => continue,
-        };
+        let n = port.read(&mut buffer).await?;
         decoder.feed(&buffer[..n], |m| messages.push(m));
         for message in messages.drain(..) {
             doer.message(&message).await;

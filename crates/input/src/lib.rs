@@ -35,6 +35,7 @@ pub mod midi;
 pub mod midi_file;
 pub mod midi_map;
 pub mod midi_port;
+pub mod midi_record;
 pub mod mouse;
 pub mod record;
 pub mod recording;

@@ -153,6 +153,99 @@ pub enum MidiMessage {
     },
 }
 
+impl MidiMessage {
+    /// The message's bytes, as a port carries them (every status byte
+    /// written, no running status), appended to `out`: what
+    /// [`MidiDecoder`] reads back as this message. A show-control command
+    /// is written in the "all types" command format with its cue number
+    /// only.
+    pub fn encode(&self, out: &mut Vec<u8>) {
+        let channel = |status: u8, channel: &Channel| status | (channel & 0x0F);
+        match self {
+            MidiMessage::NoteOff {
+                channel: c,
+                note,
+                velocity,
+            } => out.extend([channel(0x80, c), note & 0x7F, velocity & 0x7F]),
+            MidiMessage::NoteOn {
+                channel: c,
+                note,
+                velocity,
+            } => out.extend([channel(0x90, c), note & 0x7F, velocity & 0x7F]),
+            MidiMessage::KeyPressure {
+                channel: c,
+                note,
+                pressure,
+            } => out.extend([channel(0xA0, c), note & 0x7F, pressure & 0x7F]),
+            MidiMessage::ControlChange {
+                channel: c,
+                controller,
+                value,
+            } => out.extend([channel(0xB0, c), controller & 0x7F, value & 0x7F]),
+            MidiMessage::ProgramChange {
+                channel: c,
+                program,
+            } => out.extend([channel(0xC0, c), program & 0x7F]),
+            MidiMessage::ChannelPressure {
+                channel: c,
+                pressure,
+            } => out.extend([channel(0xD0, c), pressure & 0x7F]),
+            MidiMessage::PitchBend { channel: c, value } => out.extend([
+                channel(0xE0, c),
+                (value & 0x7F) as u8,
+                (value >> 7 & 0x7F) as u8,
+            ]),
+            MidiMessage::QuarterFrame { piece, value } => {
+                out.extend([0xF1, (piece & 7) << 4 | (value & 0x0F)]);
+            }
+            MidiMessage::SongPosition { beats } => {
+                out.extend([0xF2, (beats & 0x7F) as u8, (beats >> 7 & 0x7F) as u8]);
+            }
+            MidiMessage::SongSelect { song } => out.extend([0xF3, song & 0x7F]),
+            MidiMessage::TuneRequest => out.push(0xF6),
+            MidiMessage::Clock => out.push(0xF8),
+            MidiMessage::Start => out.push(0xFA),
+            MidiMessage::Continue => out.push(0xFB),
+            MidiMessage::Stop => out.push(0xFC),
+            MidiMessage::ActiveSensing => out.push(0xFE),
+            MidiMessage::Reset => out.push(0xFF),
+            MidiMessage::FullFrame {
+                hours,
+                minutes,
+                seconds,
+                frames,
+            } => out.extend([
+                0xF0,
+                0x7F,
+                0x7F,
+                0x01,
+                0x01,
+                hours & 0x7F,
+                minutes & 0x7F,
+                seconds & 0x7F,
+                frames & 0x7F,
+                0xF7,
+            ]),
+            MidiMessage::ShowControl {
+                device,
+                command,
+                cue,
+            } => {
+                let command = match command {
+                    ShowCommand::Go => 0x01,
+                    ShowCommand::Stop => 0x02,
+                    ShowCommand::Resume => 0x03,
+                };
+                out.extend([0xF0, 0x7F, device & 0x7F, 0x02, 0x7F, command]);
+                if let Some(cue) = cue {
+                    out.extend(cue.bytes().filter(|b| b.is_ascii_digit() || *b == b'.'));
+                }
+                out.push(0xF7);
+            }
+        }
+    }
+}
+
 /// The MIDI Show Control commands the stage answers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ShowCommand {

@@ -8,6 +8,13 @@
 //! The file is read within `MAX_REPLAY_FILE_BYTES` like any replay; its
 //! events are bounded by its size. A malformed file is refused naming it
 //! and what `midly` says is wrong.
+//!
+//! [`write_midi_file`] writes one (`puppetry record` of a MIDI port):
+//! channel messages as MIDI events and SysEx as SysEx events, which any
+//! DAW reads, and what a file has no event for (time code quarter
+//! frames, song position, clock, start and stop) as escape events of
+//! their raw bytes, which the reader puts through the decoder too, so a
+//! recorded transport replays.
 
 use std::path::Path;
 
@@ -22,6 +29,14 @@ pub enum MidiFileError {
     /// The file cannot be read (or is past its size limit).
     #[error(transparent)]
     File(#[from] FileError),
+    /// The file could not be written.
+    #[error("{file}: cannot write: {source}")]
+    Write {
+        /// The file.
+        file: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
     /// It is not a Standard MIDI File, or a damaged one.
     #[error("{file}: not a Standard MIDI File: {problem}")]
     Parse {
@@ -92,11 +107,82 @@ pub fn read_midi_file(path: &Path) -> Result<Vec<TimedMessage>, MidiFileError> {
                 raw.push(0xF0);
                 raw.extend_from_slice(data);
             }
-            TrackEventKind::Escape(_) | TrackEventKind::Meta(_) => continue,
+            // Raw bytes a file has no event for (what `write_midi_file`
+            // writes of a transport), or a SysEx's continued part.
+            TrackEventKind::Escape(data) => raw.extend_from_slice(data),
+            TrackEventKind::Meta(_) => continue,
         }
         decoder.feed(&raw, |message| out.push(TimedMessage { t, message }));
     }
     Ok(out)
+}
+
+/// Ticks a quarter note in the files written here (at 120 bpm: 960 a
+/// second, about a millisecond each).
+const WRITTEN_TICKS_PER_BEAT: u16 = 480;
+/// Ticks a second in the files written here.
+const WRITTEN_TICKS_PER_SECOND: f64 = WRITTEN_TICKS_PER_BEAT as f64 * 2.0;
+
+/// Writes `messages` (in time order) to `path` as a one-track Standard
+/// MIDI File at 120 bpm, replacing what is there only once it is whole
+/// (written beside it and renamed).
+pub fn write_midi_file(messages: &[TimedMessage], path: &Path) -> Result<(), MidiFileError> {
+    use midly::num::{u15, u24, u28};
+    use midly::{Format, Header, TrackEvent};
+    let mut bytes = Vec::new();
+    let mut spans = Vec::with_capacity(messages.len());
+    for m in messages {
+        let start = bytes.len();
+        m.message.encode(&mut bytes);
+        spans.push((m.t, start..bytes.len()));
+    }
+    let mut track = vec![TrackEvent {
+        delta: u28::new(0),
+        kind: TrackEventKind::Meta(MetaMessage::Tempo(u24::new(500_000))),
+    }];
+    let mut last = 0u64;
+    for (t, span) in spans {
+        let raw = &bytes[span];
+        let tick = (t.max(0.0) * WRITTEN_TICKS_PER_SECOND).round() as u64;
+        let delta = tick
+            .saturating_sub(last)
+            .min(u64::from(u28::max_value().as_int()));
+        last = last.max(tick);
+        let kind = match raw[0] {
+            0x80..=0xEF => match midly::live::LiveEvent::parse(raw) {
+                Ok(midly::live::LiveEvent::Midi { channel, message }) => {
+                    TrackEventKind::Midi { channel, message }
+                }
+                _ => TrackEventKind::Escape(raw),
+            },
+            0xF0 => TrackEventKind::SysEx(&raw[1..]),
+            _ => TrackEventKind::Escape(raw),
+        };
+        track.push(TrackEvent {
+            delta: u28::new(delta as u32),
+            kind,
+        });
+    }
+    track.push(TrackEvent {
+        delta: u28::new(0),
+        kind: TrackEventKind::Meta(MetaMessage::EndOfTrack),
+    });
+    let mut smf = Smf::new(Header::new(
+        Format::SingleTrack,
+        Timing::Metrical(u15::new(WRITTEN_TICKS_PER_BEAT)),
+    ));
+    smf.tracks.push(track);
+    let mut out = Vec::new();
+    let write_error = |source| MidiFileError::Write {
+        file: path.display().to_string(),
+        source,
+    };
+    smf.write_std(&mut out).map_err(write_error)?;
+    let mut part = path.as_os_str().to_owned();
+    part.push(".part");
+    let part = std::path::PathBuf::from(part);
+    std::fs::write(&part, &out).map_err(write_error)?;
+    std::fs::rename(&part, path).map_err(write_error)
 }
 
 #[cfg(test)]
@@ -177,5 +263,70 @@ mod tests {
             e.contains("show.mid") && e.contains("not a Standard MIDI File"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_written_file_reads_back_with_its_transport() {
+        use crate::midi::ShowCommand;
+        let at = |t: f64, message| TimedMessage { t, message };
+        let messages = vec![
+            at(
+                0.0,
+                MidiMessage::ControlChange {
+                    channel: 0,
+                    controller: 16,
+                    value: 100,
+                },
+            ),
+            at(0.01, MidiMessage::QuarterFrame { piece: 0, value: 3 }),
+            at(0.02, MidiMessage::QuarterFrame { piece: 1, value: 1 }),
+            at(0.25, MidiMessage::SongPosition { beats: 300 }),
+            at(0.25, MidiMessage::Continue),
+            at(0.3, MidiMessage::Clock),
+            at(
+                0.5,
+                MidiMessage::NoteOn {
+                    channel: 9,
+                    note: 36,
+                    velocity: 90,
+                },
+            ),
+            at(
+                0.75,
+                MidiMessage::ShowControl {
+                    device: 1,
+                    command: ShowCommand::Go,
+                    cue: Some("12.5".into()),
+                },
+            ),
+            at(
+                1.0,
+                MidiMessage::FullFrame {
+                    hours: 0x21,
+                    minutes: 0,
+                    seconds: 3,
+                    frames: 4,
+                },
+            ),
+            at(
+                1.5,
+                MidiMessage::PitchBend {
+                    channel: 2,
+                    value: 12_345,
+                },
+            ),
+        ];
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("take.mid");
+        write_midi_file(&messages, &path).unwrap();
+        let read = read_midi_file(&path).unwrap();
+        assert_eq!(read.len(), messages.len(), "{read:?}");
+        for (r, m) in read.iter().zip(&messages) {
+            assert_eq!(r.message, m.message);
+            assert!((r.t - m.t).abs() <= 1.0 / 960.0, "{r:?} against {m:?}");
+        }
+        // midly reads it as a plain file too: a DAW would.
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(Smf::parse(&bytes).unwrap().tracks.len(), 1);
     }
 }

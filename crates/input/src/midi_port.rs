@@ -1,9 +1,15 @@
-//! The raw MIDI ports this machine has: ALSA makes one device node per
-//! port, `midiC<card>D<device>` in `/dev/snd`, and names each card in
-//! `/proc/asound/card<card>/id` (`nanoKONTROL2`, `VirMIDI`…). `puppetry
-//! devices` lists them, and which stage-file MIDI input reads each.
+//! Raw MIDI ports: the ones this machine has, and reading one. ALSA makes
+//! one device node per port, `midiC<card>D<device>` in `/dev/snd`, and
+//! names each card in `/proc/asound/card<card>/id` (`nanoKONTROL2`,
+//! `VirMIDI`…). `puppetry devices` lists them, and which stage-file MIDI
+//! input reads each; [`PortReader`] reads one (or a FIFO, or a serial
+//! MIDI interface) for the daemon's MIDI inputs and `puppetry record`.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tokio::io::unix::AsyncFd;
 
 /// Where ALSA's device nodes are.
 pub const DEFAULT_SND_DIR: &str = "/dev/snd";
@@ -55,6 +61,57 @@ pub fn ports(snd_dir: &Path, asound_dir: &Path) -> Vec<MidiPort> {
         .collect();
     ports.sort_by_key(|p| (p.card, p.device));
     ports
+}
+
+/// A raw MIDI byte stream, read in the runtime's reactor: opened without
+/// blocking (a FIFO with no writer yet opens at once) and waited on
+/// without a thread, so an idle controller never holds up a shutdown.
+pub struct PortReader {
+    port: AsyncFd<std::fs::File>,
+}
+
+/// How long a FIFO with no writer waits before it is read again.
+const NO_WRITER_WAIT: Duration = Duration::from_millis(100);
+
+impl PortReader {
+    /// Opens `path`. A regular file cannot be waited on so: it is refused,
+    /// naming `file` for what plays a `.mid` instead.
+    pub fn open(path: &Path) -> std::io::Result<PortReader> {
+        use std::os::unix::fs::OpenOptionsExt;
+        let port = std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+            .open(path)?;
+        // SAFETY: `port` is an open `File` owned by the AsyncFd from here
+        // on; a `File`'s descriptor stays the same open file until it is
+        // dropped.
+        let port = unsafe { AsyncFd::register_with_interest(port, tokio::io::Interest::READABLE) }
+            .map_err(|e| {
+                let e = e.into_parts().1;
+                std::io::Error::new(
+                    e.kind(),
+                    format!("not a MIDI port, FIFO or device ({e}); a .mid plays with `file`"),
+                )
+            })?;
+        Ok(PortReader { port })
+    }
+
+    /// Reads what the port has (at least a byte); an error when it fails
+    /// (a device unplugged). A FIFO with no writer (yet, or any more) is
+    /// kept open, so a writer that comes finds its reader, and looked at
+    /// again every [`NO_WRITER_WAIT`].
+    pub async fn read(&self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        loop {
+            let mut ready = self.port.readable().await?;
+            // A read of 0 (no writer) leaves the port readable (`try_io`
+            // clears readiness only on WouldBlock): the sleep paces it.
+            match ready.try_io(|port| (&mut port.get_ref()).read(buffer)) {
+                Ok(Ok(0)) => tokio::time::sleep(NO_WRITER_WAIT).await,
+                Ok(result) => return result,
+                Err(_would_block) => {}
+            }
+        }
+    }
 }
 
 #[cfg(test)]

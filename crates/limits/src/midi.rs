@@ -12,3 +12,9 @@
 /// with its cue, list and path is under 40). A longer SysEx is skipped
 /// whole (counted as dropped); what follows it is read as usual.
 pub const MAX_MIDI_SYSEX_BYTES: usize = 256;
+
+/// Messages `puppetry record` keeps of a MIDI port (about 9 hours of a
+/// busy controller at 60 messages a second, a file of a few megabytes,
+/// well within `MAX_REPLAY_FILE_BYTES` for its replay): a flooding port
+/// ends the recording, saying so, instead of growing it without end.
+pub const MAX_MIDI_RECORD_MESSAGES: usize = 2_000_000;

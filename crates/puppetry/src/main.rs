@@ -5,7 +5,7 @@
 
 use puppetry_export::format::Format;
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
@@ -290,9 +290,11 @@ struct DevicesArgs {
 
 #[derive(clap::Args)]
 struct RecordArgs {
-    /// The device node, e.g. /dev/input/event5 or a /dev/input/by-id link.
+    /// The device node, e.g. /dev/input/event5 or a /dev/input/by-id link;
+    /// or a raw MIDI port (/dev/snd/midiC1D0, a FIFO) recorded to a .mid.
     device: PathBuf,
-    /// The capture to write (.event).
+    /// The capture to write: .event for an input device, .mid for a MIDI
+    /// port.
     #[arg(short, long)]
     output: PathBuf,
     /// Stop after this many seconds (default: at Ctrl-C).
@@ -574,6 +576,44 @@ fn run(args: Args) -> anyhow::Result<()> {
         Command::Compare(args) => compare_command(args),
         Command::Bench(args) => bench_command(args),
     }
+}
+
+/// `puppetry record PORT -o FILE.mid`: a MIDI port to a Standard MIDI
+/// File.
+async fn record_midi(port: &Path, output: &Path, duration: Option<f64>) -> anyhow::Result<()> {
+    eprintln!(
+        "recording MIDI from {} to {}; stop with Ctrl-C",
+        port.display(),
+        output.display()
+    );
+    let stop = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    let recorded = puppetry_input::midi_record::record_midi(
+        port,
+        output,
+        duration.map(std::time::Duration::from_secs_f64),
+        stop,
+    )
+    .await?;
+    eprintln!(
+        "recorded {} MIDI messages{}{}{}",
+        recorded.messages,
+        match recorded.dropped {
+            0 => String::new(),
+            n => format!(" ({n} stray or cut bytes dropped)"),
+        },
+        if recorded.full {
+            "; stopped there, at MAX_MIDI_RECORD_MESSAGES (docs/limits.md)"
+        } else {
+            ""
+        },
+        match &recorded.gone {
+            Some(why) => format!("; the port went away ({why})"),
+            None => String::new(),
+        }
+    );
+    Ok(())
 }
 
 /// `puppetry serve`.
@@ -866,6 +906,9 @@ fn record_command(
         anyhow::bail!("--duration: {d} is not a positive number of seconds");
     }
     let runtime = tokio::runtime::Runtime::new()?;
+    if output.extension().is_some_and(|e| e == "mid") {
+        return runtime.block_on(record_midi(&device, &output, duration));
+    }
     let recorded = runtime.block_on(async {
         let opened = puppetry_input::device::Device::open(&device, grab)?;
         eprintln!(

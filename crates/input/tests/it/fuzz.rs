@@ -626,4 +626,19 @@ proptest! {
             | puppetry_input::midi::MidiMessage::Reset)).collect();
         prop_assert_eq!(got, expected);
     }
+
+    /// Whatever the decoder makes of any bytes, encoded and decoded again,
+    /// is the same messages: what `puppetry record` writes of a port
+    /// replays as it was heard.
+    #[test]
+    fn fuzz_midi_encoding_reads_back(bytes in fuzz::bytes(600)) {
+        let (messages, _) = midi(&bytes, bytes.len());
+        let mut encoded = Vec::new();
+        for m in &messages {
+            m.encode(&mut encoded);
+        }
+        let (again, dropped) = midi(&encoded, encoded.len());
+        prop_assert_eq!(dropped, 0);
+        prop_assert_eq!(again, messages);
+    }
 }

@@ -259,6 +259,54 @@ async fn time_code_lines_a_take_up_with_its_soundtrack() {
     served.stop();
 }
 
+/// `puppetry record PORT -o FILE.mid` records a controller and a
+/// transport on a raw MIDI port (a FIFO, the same reader) to a Standard
+/// MIDI File whose messages read back as they were sent, in order, the
+/// time code's quarter frames and a show-control GO among them.
+#[test]
+fn a_midi_port_records_to_a_file_that_replays_it() {
+    use puppetry_input::midi::{MidiDecoder, MidiMessage};
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("midiC1D0");
+    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a path this test owns, a plain mode.
+    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let out = dir.path().join("show.mid");
+    let recorder = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
+        .arg("record")
+        .arg(&fifo)
+        .arg("-o")
+        .arg(&out)
+        .args(["--duration", "2"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let sent: Vec<u8> = [
+        &[0xB0, 16, 0, 17, 127][..],
+        &[0xF1, 0x03, 0xF1, 0x11, 0xF8],
+        &[0x99, 36, 100],
+        &[0xF0, 0x7F, 0x7F, 0x02, 0x01, 0x01, b'4', 0xF7],
+    ]
+    .concat();
+    // Opened once the recorder holds the reading end; written in two
+    // parts, a pause between.
+    let mut port = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+    port.write_all(&sent[..8]).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    port.write_all(&sent[8..]).unwrap();
+    drop(port);
+    let finished = recorder.wait_with_output().unwrap();
+    let said = String::from_utf8_lossy(&finished.stderr);
+    assert!(finished.status.success(), "{said}");
+    assert!(said.contains("recorded 7 MIDI messages"), "{said}");
+    let mut expected = Vec::new();
+    MidiDecoder::new().feed(&sent, |m| expected.push(m));
+    let read = puppetry_input::midi_file::read_midi_file(&out).unwrap();
+    let messages: Vec<MidiMessage> = read.iter().map(|m| m.message.clone()).collect();
+    assert_eq!(messages, expected);
+    assert!(read.windows(2).all(|w| w[0].t <= w[1].t), "{read:?}");
+}
+
 /// A `.mid`: the faders to x 0, y 1 at once, the record pad at 0.2 s and
 /// the stop pad at 0.6 s (480 ticks a beat at 120 bpm).
 fn write_show(path: &Path) {
