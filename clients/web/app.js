@@ -30,6 +30,7 @@ import { forgetToken, takeAccess, viewOptions } from './session.js';
 import { People } from './people.js';
 import { FpsMeter, Hud, LatencyMeter } from './hud.js';
 import { PuppetsPanel } from './puppets.js';
+import { MidiLearn } from './midi.js';
 
 const params = new URLSearchParams(location.search);
 const options = viewOptions(params);
@@ -200,6 +201,12 @@ const poseSlider = new PoseSlider({
 }, { send });
 const editControls = new EditControls(byId('edit-controls'), { send });
 const replayControls = new ReplayControls(byId('replay-controls'), { send });
+const midiLearn = new MidiLearn({
+  controls: byId('midi-controls'),
+  target: byId('midi-target'),
+  learn: byId('midi-learn'),
+  status: byId('midi-status'),
+}, { send });
 
 const takeControls = new TakeControls({
   controls: byId('take-controls'),
@@ -281,6 +288,7 @@ function applyRole(newRole) {
   curveTool.setEnabled(direct);
   replaceTool.setEnabled(direct);
   replayControls.setEnabled(direct);
+  midiLearn.setEnabled(direct);
   takeControls.setRole({ perform, direct });
   puppetsPanel.setEnabled(direct);
   document.body.dataset.role = newRole;
@@ -479,6 +487,7 @@ function onText(text) {
     case SERVER_MESSAGE.INPUTS:
       api.inputs = msg;
       replayControls.onInputs(msg);
+      midiLearn.onInputs(msg);
       return;
     case SERVER_MESSAGE.LIVE:
       // A relay lost (or found again) the stage it shows.
@@ -593,6 +602,7 @@ function onStage(msg) {
   for (const p of puppets) setHandles(p, p.handles, p.handlesGeneration);
   renderer.setStage(msg.stage, puppets).then(() => { api.ready = true; });
   poseSlider.setup(puppets);
+  midiLearn.setup(msg.puppets);
   keyPad.setup(puppets, { sameConnection: lineup });
   editControls.setup(puppets);
   puppetsPanel.setup(puppets);

@@ -215,6 +215,15 @@ export function replayMessage(source, playing) {
   return { type: CLIENT_MESSAGE.REPLAY, source, playing };
 }
 
+/**
+ * Learn a MIDI mapping (director): the next control moved does `target`
+ * ({action, puppet, poses, key, seconds} as an `[[input.map]]` entry has
+ * them); without a target, stop waiting.
+ */
+export function midiLearnMessage(target) {
+  return target === undefined ? { type: CLIENT_MESSAGE.MIDI_LEARN } : { type: CLIENT_MESSAGE.MIDI_LEARN, target };
+}
+
 /** Takes puppet `puppet` off the stage (director); its id is never used again. */
 export function removePuppetMessage(puppet) {
   return { type: CLIENT_MESSAGE.REMOVE_PUPPET, puppet };

@@ -36,6 +36,7 @@ export const CLIENT_MESSAGE = Object.freeze({
   KEY_DELETE: 'key_delete',
   SAVE_KEYS: 'save_keys',
   PING: 'ping',
+  MIDI_LEARN: 'midi_learn',
 });
 
 /** `type` of the text messages the server sends (`ServerMessage`). */

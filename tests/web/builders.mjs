@@ -40,6 +40,9 @@ const messages = [
   p.redoMessage(0),
   p.resetMessage(0),
   p.replayMessage('gesture', false),
+  p.midiLearnMessage(),
+  p.midiLearnMessage({ action: 'blend', puppet: 'skeleton', poses: ['rest', 'cheer'] }),
+  p.midiLearnMessage({ action: 'key', puppet: 'skeleton', key: 'cheer', seconds: 2 }),
   p.removePuppetMessage(2),
   p.orderPuppetsMessage([1, 0]),
 ];

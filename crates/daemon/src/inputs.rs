@@ -405,6 +405,7 @@ fn midi_input(
         source,
         map: map.to_vec(),
         clock,
+        index,
     })
 }
 

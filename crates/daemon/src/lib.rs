@@ -37,6 +37,7 @@ pub(crate) mod inputs;
 pub mod lineup;
 pub mod memory;
 pub(crate) mod midi;
+pub mod midi_learn;
 pub(crate) mod osc;
 pub(crate) mod outputs;
 pub mod protocol;

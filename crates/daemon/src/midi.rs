@@ -18,6 +18,7 @@ use puppetry_input::show_clock::{ClockKind, ShowClock};
 use puppetry_take::ClockSource;
 use tokio::task::JoinHandle;
 
+use crate::midi_learn::Learning;
 use crate::show_control::{Actor, Trigger, lock};
 use crate::stage_thread::ShowReading;
 
@@ -44,29 +45,39 @@ pub(crate) struct MidiInput {
     pub(crate) map: Vec<MidiMapping>,
     /// The show clock it carries, if the stage file follows it.
     pub(crate) clock: Option<ClockKind>,
+    /// Its index among the stage file's `[[input]]`s (where a mapping
+    /// learnt on it is saved).
+    pub(crate) index: usize,
 }
 
 /// How long a missing or lost port waits before it is opened again.
 const REOPEN_EVERY: Duration = Duration::from_secs(1);
 
-/// Starts each input's task; `actor` does their triggers.
-pub(crate) fn spawn(inputs: Vec<MidiInput>, actor: &Actor) -> Vec<JoinHandle<()>> {
+/// Starts each input's task; `actor` does their triggers, and mappings
+/// are learnt through `learning`.
+pub(crate) fn spawn(
+    inputs: Vec<MidiInput>,
+    actor: &Actor,
+    learning: &Arc<Learning>,
+) -> Vec<JoinHandle<()>> {
     inputs
         .into_iter()
         .map(|input| {
             let actor = actor.clone();
-            tokio::spawn(run(input, actor))
+            tokio::spawn(run(input, actor, learning.clone()))
         })
         .collect()
 }
 
-async fn run(input: MidiInput, actor: Actor) {
+async fn run(input: MidiInput, actor: Actor, learning: Arc<Learning>) {
     let mut doer = Doer {
         mapper: MidiMapper::new(input.map),
         actor,
         name: input.name,
         log: Arc::new(Mutex::new(LogLimiter::new(Instant::now()))),
         clock: input.clock.map(|kind| (ShowClock::new(kind), kind)),
+        learning,
+        index: input.index,
     };
     match input.source {
         MidiSource::File { messages, repeat } => loop {
@@ -116,6 +127,10 @@ struct Doer {
     log: Arc<Mutex<LogLimiter>>,
     /// The show clock this input follows, and which.
     clock: Option<(ShowClock, ClockKind)>,
+    /// Mappings learnt from the page.
+    learning: Arc<Learning>,
+    /// The input's index among the stage file's inputs.
+    index: usize,
 }
 
 impl Doer {
@@ -137,6 +152,12 @@ impl Doer {
             };
             // Never refused: it only queues the reading.
             let _ = self.actor.act(&self.name, Trigger::Clock(show)).await;
+        }
+        if let Some(mapping) = self.learning.claim(message) {
+            // The control moved to teach is not also acted on.
+            self.mapper.learn(mapping.clone());
+            self.learning.save(self.index, &self.name, &mapping).await;
+            return;
         }
         for action in self.mapper.actions(message) {
             let Some(trigger) = self.trigger(action) else {

@@ -240,6 +240,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
             .map(|r| (r.source.to_string(), !(paused_replays && r.from_stage_file)))
             .collect(),
     ));
+    let learning = learning(config, &midis, &replays);
     let export_state = watch::channel(Published::nothing()).0;
     let shared = Arc::new(Shared {
         lineup: outputs.lineup,
@@ -269,6 +270,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
             export_state,
             replays: replays.clone(),
             held: Default::default(),
+            learning: learning.clone(),
         }),
     });
 
@@ -283,6 +285,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         inputs.extend(crate::midi::spawn(
             midis,
             &midi_actor(config, &shared, &commands),
+            &learning,
         ));
     }
     if let Some((path, play_options)) = play {
@@ -358,6 +361,26 @@ async fn show_control(
         None => None,
     };
     Ok((osc, relay))
+}
+
+/// MIDI learning for the stage's MIDI inputs, saved to its stage file and
+/// shown in the `inputs` message `replays` publishes.
+fn learning(
+    config: &ShowConfig,
+    midis: &[crate::midi::MidiInput],
+    replays: &Arc<Replays>,
+) -> Arc<crate::midi_learn::Learning> {
+    Arc::new(crate::midi_learn::Learning::new(
+        std::path::PathBuf::from(&config.file),
+        midis.iter().map(|m| m.name.clone()).collect(),
+        config
+            .stage_config
+            .puppets
+            .iter()
+            .map(|p| p.name.clone())
+            .collect(),
+        replays.clone(),
+    ))
 }
 
 /// What MIDI inputs do their triggers with: show control's links, and

@@ -118,10 +118,15 @@ pub async fn supervise<F, Fut>(
 
 /// The stage's replay inputs, each playing or paused: the replay tasks
 /// wait while theirs is paused, the stream toggles them, and every client
-/// gets the `inputs` message made here on every change.
+/// gets the `inputs` message made here on every change. The message also
+/// carries the MIDI inputs' learning (`midi_learn`), which changes
+/// through [`Replays::midi`].
 pub struct Replays {
     names: Vec<String>,
     playing: Vec<watch::Sender<bool>>,
+    /// The MIDI inputs and what is being learnt; none without MIDI inputs.
+    /// Never held across an await.
+    midi: std::sync::Mutex<Option<crate::protocol::MidiView>>,
     message: Feed,
 }
 
@@ -135,6 +140,7 @@ impl Replays {
         let replays = Replays {
             names,
             playing,
+            midi: std::sync::Mutex::new(None),
             message: watch::channel(Published::nothing()).0,
         };
         replays.publish();
@@ -168,7 +174,25 @@ impl Replays {
         self.playing.iter().all(|p| !*p.borrow())
     }
 
+    /// Looks at or changes the MIDI part of the message (made with no
+    /// input named when there was none), publishing it if it changed;
+    /// returns what `change` did.
+    pub fn midi<T>(&self, change: impl FnOnce(&mut crate::protocol::MidiView) -> T) -> T {
+        let (done, changed) = {
+            let mut midi = self.midi.lock().unwrap_or_else(|p| p.into_inner());
+            let view = midi.get_or_insert_with(Default::default);
+            let before = view.clone();
+            let done = change(view);
+            (done, *view != before)
+        };
+        if changed {
+            self.publish();
+        }
+        done
+    }
+
     fn publish(&self) {
+        let midi = self.midi.lock().unwrap_or_else(|p| p.into_inner()).clone();
         let replays = self
             .names
             .iter()
@@ -181,6 +205,7 @@ impl Replays {
         self.message
             .send_replace(Published::of(crate::protocol::ServerMessage::Inputs {
                 replays,
+                midi,
             }));
     }
 }

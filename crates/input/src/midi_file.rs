@@ -178,11 +178,7 @@ pub fn write_midi_file(messages: &[TimedMessage], path: &Path) -> Result<(), Mid
         source,
     };
     smf.write_std(&mut out).map_err(write_error)?;
-    let mut part = path.as_os_str().to_owned();
-    part.push(".part");
-    let part = std::path::PathBuf::from(part);
-    std::fs::write(&part, &out).map_err(write_error)?;
-    std::fs::rename(&part, path).map_err(write_error)
+    puppetry_mesh::file::write_atomically(path, &out).map_err(write_error)
 }
 
 #[cfg(test)]

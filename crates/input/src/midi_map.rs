@@ -16,12 +16,12 @@
 //! note on, a CC rising past the middle, a program change, a show-control
 //! command).
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
-use crate::midi::{Controls, MidiMessage, ShowCommand};
+use crate::midi::{ControlValue, Controls, MidiMessage, ShowCommand};
 
 /// What a mapped control does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MidiActionKind {
     /// The puppet's keyframing cursor's x, 0 to 1 across its pad.
@@ -41,7 +41,7 @@ pub enum MidiActionKind {
 }
 
 /// A show-control command, as a mapping names it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MscCommand {
     /// GO.
@@ -52,43 +52,143 @@ pub enum MscCommand {
     Resume,
 }
 
-/// One `[[input.map]]` entry: which control, and what it does.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+/// One `[[input.map]]` entry: which control, and what it does. Written
+/// back (a mapping learnt on the page) with only the fields it uses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MidiMapping {
     /// A control change, 0 to 127 (0 to 31 read with their fine CC 32 to
     /// 63 as 14 bits when the controller sends it).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cc: Option<u8>,
     /// A note (key or pad), 0 to 127.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<u8>,
     /// A program change to this program, 0 to 127.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub program: Option<u8>,
     /// The pitch wheel.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub pitch_bend: bool,
     /// A MIDI Show Control command (any device id, any cue).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub msc: Option<MscCommand>,
     /// The channel, 1 to 16; default any.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel: Option<u8>,
     /// What it does.
     pub action: MidiActionKind,
     /// The puppet it acts on, by name (cursor, blend, key and reset).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub puppet: Option<String>,
     /// `blend`: the two stage-file key poses blended between.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub poses: Option<[String; 2]>,
     /// `key`: the key pose's name (a skeleton pose or a keyframing key).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub key: Option<String>,
     /// `key`: how long the blend takes, seconds; default 0 (at once).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub seconds: f64,
+}
+
+/// What a mapping does, whatever control does it: what a director picks
+/// on the page before moving a control to learn it ([`MidiMapping`]'s
+/// fields but the control's; serde's `flatten` cannot share them under
+/// `deny_unknown_fields`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MidiTarget {
+    /// What it does.
+    pub action: MidiActionKind,
+    /// The puppet it acts on, by name (cursor, blend, key and reset).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub puppet: Option<String>,
+    /// `blend`: the two stage-file key poses blended between.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poses: Option<[String; 2]>,
+    /// `key`: the key pose's name (a skeleton pose or a keyframing key).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub key: Option<String>,
+    /// `key`: how long the blend takes, seconds; default 0 (at once).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub seconds: f64,
+}
+
+fn is_zero(seconds: &f64) -> bool {
+    *seconds == 0.0
+}
+
+impl MidiMapping {
+    /// The mapping a director learns by moving a control: the control
+    /// (and channel) `message` comes from, doing `target`. `None` for a
+    /// message no control is mapped by (a note off, a clock, time code…).
+    pub fn learned(message: &MidiMessage, target: &MidiTarget) -> Option<MidiMapping> {
+        let mut m = MidiMapping {
+            cc: None,
+            note: None,
+            program: None,
+            pitch_bend: false,
+            msc: None,
+            channel: None,
+            action: target.action,
+            puppet: target.puppet.clone(),
+            poses: target.poses.clone(),
+            key: target.key.clone(),
+            seconds: target.seconds,
+        };
+        let channel = match *message {
+            MidiMessage::ControlChange {
+                channel,
+                controller,
+                ..
+            } => {
+                // As sent: a 14-bit fader sends its coarse half first, and
+                // a CC 32-63 sent alone is a control of its own (a
+                // nanoKONTROL2's buttons).
+                m.cc = Some(controller);
+                channel
+            }
+            MidiMessage::NoteOn { channel, note, .. } => {
+                m.note = Some(note);
+                channel
+            }
+            MidiMessage::ProgramChange { channel, program } => {
+                m.program = Some(program);
+                channel
+            }
+            MidiMessage::PitchBend { channel, .. } => {
+                m.pitch_bend = true;
+                channel
+            }
+            MidiMessage::ShowControl { command, .. } => {
+                m.msc = Some(match command {
+                    ShowCommand::Go => MscCommand::Go,
+                    ShowCommand::Stop => MscCommand::Stop,
+                    ShowCommand::Resume => MscCommand::Resume,
+                });
+                return Some(m);
+            }
+            _ => return None,
+        };
+        m.channel = Some(channel + 1);
+        Some(m)
+    }
+
+    /// The control, as people name it (`CC 16 on channel 1`).
+    pub fn control_text(&self) -> String {
+        let control = match (self.cc, self.note, self.program, self.msc) {
+            (Some(cc), ..) => format!("CC {cc}"),
+            (_, Some(note), ..) => format!("note {note}"),
+            (_, _, Some(program), _) => format!("program {program}"),
+            (.., Some(msc)) => format!("show control {}", format!("{msc:?}").to_uppercase()),
+            _ => "the pitch wheel".to_string(),
+        };
+        match self.channel {
+            Some(c) => format!("{control} on channel {c}"),
+            None => control,
+        }
+    }
 }
 
 impl MidiMapping {
@@ -216,6 +316,14 @@ impl MidiMapper {
         }
     }
 
+    /// Adds a mapping (a learnt one), last, as the stage file then has
+    /// it: a control already mapped does both (one fader can move two
+    /// puppets' cursors).
+    pub fn learn(&mut self, mapping: MidiMapping) {
+        self.map.push(mapping);
+        self.held.push(false);
+    }
+
     /// The actions `message` asks for, in mapping order.
     pub fn actions(&mut self, message: &MidiMessage) -> Vec<MidiAction> {
         let mut out = Vec::new();
@@ -238,7 +346,20 @@ impl MidiMapper {
                 controller,
                 value,
             } if on_channel(channel) => {
-                let read = self.controls.read(channel, controller, value);
+                // CC 32-63 refine CC 0-31 (14 bits), unless a mapping
+                // listens for one itself: controllers such as the
+                // nanoKONTROL2 send their buttons there, alone.
+                let own = (32..64).contains(&controller)
+                    && self.map.iter().any(|other| other.cc == Some(controller));
+                let read = if own {
+                    ControlValue {
+                        channel,
+                        controller,
+                        value: f64::from(value) / 127.0,
+                    }
+                } else {
+                    self.controls.read(channel, controller, value)
+                };
                 if m.cc != Some(read.controller) {
                     return None;
                 }
@@ -393,6 +514,52 @@ mod tests {
             panic!("{fine:?}");
         };
         assert_eq!(*t, 8319.0 / 16383.0);
+    }
+
+    #[test]
+    fn a_control_moved_is_learnt_and_written_back_as_read() {
+        let target = MidiTarget {
+            action: MidiActionKind::CursorX,
+            puppet: Some("gingerbread".into()),
+            poses: None,
+            key: None,
+            seconds: 0.0,
+        };
+        // Clocks and note offs teach nothing; a button on CC 39 (a
+        // nanoKONTROL2's) is learnt as itself, and read as itself beside
+        // the 14-bit fader CC 7 whose fine half it would otherwise be.
+        assert_eq!(MidiMapping::learned(&MidiMessage::Clock, &target), None);
+        let button = MidiMessage::ControlChange {
+            channel: 2,
+            controller: 39,
+            value: 127,
+        };
+        let learnt = MidiMapping::learned(&button, &target).unwrap();
+        assert_eq!((learnt.cc, learnt.channel), (Some(39), Some(3)));
+        assert_eq!(learnt.control_text(), "CC 39 on channel 3");
+        let text = toml::to_string(&learnt).unwrap();
+        assert_eq!(
+            text,
+            "cc = 39\nchannel = 3\naction = \"cursor_x\"\npuppet = \"gingerbread\"\n"
+        );
+        assert_eq!(mapping(&text), learnt);
+        let mut mapper = MidiMapper::new(vec![mapping(
+            "cc = 7\naction = \"cursor_y\"\npuppet = \"gingerbread\"",
+        )]);
+        mapper.learn(learnt);
+        let fader = MidiMessage::ControlChange {
+            channel: 2,
+            controller: 7,
+            value: 64,
+        };
+        assert_eq!(mapper.actions(&fader).len(), 1);
+        assert_eq!(
+            mapper.actions(&button),
+            [MidiAction::Cursor {
+                puppet: "gingerbread".into(),
+                at: [1.0, 64.0 / 127.0]
+            }]
+        );
     }
 
     #[test]

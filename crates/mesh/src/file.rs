@@ -9,6 +9,10 @@
 //! reads files (meshes and pictures) and every other crate that does
 //! (input, stage, take, export, the daemon) already depends on it; the
 //! limits crate stays free of dependencies, error types included.
+//!
+//! Writing a file a user keeps (a stage file a mapping is learnt into,
+//! painted weights, keys, a recorded `.mid`) goes through
+//! [`write_atomically`], so a crash leaves the old file or the new one.
 
 use std::fs::File;
 use std::io::Read;
@@ -258,6 +262,35 @@ impl std::io::Seek for Capped {
         self.left = self.cap.bytes.saturating_sub(at);
         Ok(at)
     }
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder,
+/// synced, then renamed over it: readers see the old file or the new one,
+/// never half of one.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    // Unique per process and call, so two saves at once never share one.
+    static SAVES: AtomicU64 = AtomicU64::new(0);
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("not a file path"))?
+        .to_string_lossy();
+    let save = SAVES.fetch_add(1, Ordering::Relaxed);
+    let temporary = path.with_file_name(format!(".{name}.{}.{save}.tmp", std::process::id()));
+    let result = (|| {
+        let mut file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temporary)?;
+        file.write_all(bytes)?;
+        file.sync_all()?;
+        std::fs::rename(&temporary, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    result
 }
 
 #[cfg(test)]

@@ -12,10 +12,8 @@
 //! skeleton's roots and unwrapped joint angles). Blending is linear in the
 //! values, which is why angles must be unwrapped by whoever stores them.
 
-use std::fs;
-use std::io::{self, Write};
+use std::io;
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::DVec2;
 use puppetry_deform::rbf::{RbfBlend, RbfError};
@@ -256,7 +254,8 @@ impl KeyFile {
             path,
             problem,
         })?;
-        write_atomically(path, &self.to_json()).map_err(|source| KeysError::Write { file, source })
+        puppetry_mesh::file::write_atomically(path, self.to_json().as_bytes())
+            .map_err(|source| KeysError::Write { file, source })
     }
 
     /// Everything [`parse`](Self::parse) checks beyond the JSON's shape; the
@@ -587,32 +586,6 @@ fn pair(value: &Value, path: &str) -> Result<[f64; 2], (String, Problem)> {
             format!("expected two numbers [x, y], found {}", other.len()),
         )),
     }
-}
-
-/// Writes `text` to `path` through a temporary file in the same folder,
-/// synced, then renamed over it: readers see the old file or the new one.
-fn write_atomically(path: &Path, text: &str) -> io::Result<()> {
-    // Unique per process and call, so two saves at once never share one.
-    static SAVES: AtomicU64 = AtomicU64::new(0);
-    let name = path
-        .file_name()
-        .ok_or_else(|| io::Error::other("not a file path"))?
-        .to_string_lossy();
-    let save = SAVES.fetch_add(1, Ordering::Relaxed);
-    let temporary = path.with_file_name(format!(".{name}.{}.{save}.tmp", std::process::id()));
-    let result = (|| {
-        let mut file = fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&temporary)?;
-        file.write_all(text.as_bytes())?;
-        file.sync_all()?;
-        fs::rename(&temporary, path)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&temporary);
-    }
-    result
 }
 
 /// A puppet's live key set: the keys, compiled into blending weights.

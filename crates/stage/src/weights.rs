@@ -37,7 +37,7 @@ impl WeightsFile {
             move |source| CommandError::Write { file, source }
         };
         if mode == SaveWeights::Overwrite {
-            write_atomically(&path, &text).map_err(failed(&path))?;
+            puppetry_mesh::file::write_atomically(&path, text.as_bytes()).map_err(failed(&path))?;
             return Ok(path);
         }
         for n in 1..=u32::MAX {

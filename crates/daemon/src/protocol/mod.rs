@@ -683,6 +683,16 @@ pub enum ClientMessage {
         /// Any number (the page sends its own clock), echoed back.
         t: f64,
     },
+    /// Learn a MIDI mapping (directors): the next control moved on any
+    /// of the stage's MIDI inputs does `target`, at once and in the stage
+    /// file it is saved to; without a target, stop waiting. The `inputs`
+    /// message says what is awaited and what was learnt.
+    MidiLearn {
+        /// What the control will do (an `[[input.map]]` entry's fields but
+        /// its control's); none: stop waiting.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        target: Option<puppetry_input::midi_map::MidiTarget>,
+    },
 }
 
 /// A key pose on the pad.
@@ -866,6 +876,9 @@ pub enum ServerMessage {
     Inputs {
         /// Every replay input of the stage.
         replays: Vec<ReplayView>,
+        /// The stage's MIDI inputs and learning, when it has any.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        midi: Option<MidiView>,
     },
     /// Every mouse cursor on the stage.
     Cursors {
@@ -974,6 +987,25 @@ pub struct ReplayView {
     /// Playing now; false while paused, and once a replay that does not
     /// repeat has played out.
     pub playing: bool,
+}
+
+/// The stage's MIDI inputs, and a mapping being learnt from the page.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MidiView {
+    /// The MIDI inputs' names.
+    pub inputs: Vec<String>,
+    /// What the next control moved will do (a `midi_learn` waiting).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub waiting: Option<puppetry_input::midi_map::MidiTarget>,
+    /// The last mapping learnt, for people: which input's control does
+    /// what, and the file it was saved to.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub learned: Option<String>,
+    /// Why the last mapping learnt could not be saved (it works until the
+    /// daemon stops).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
 }
 
 /// The stage's size, in stage units.

@@ -121,6 +121,8 @@ pub(crate) struct StageLinks {
     pub replays: Arc<crate::sources::Replays>,
     /// The contacts each client holds down, counted at the door.
     pub held: guard::Held,
+    /// MIDI mappings learnt from the page.
+    pub learning: Arc<crate::midi_learn::Learning>,
 }
 
 /// Who may open the WebSocket beyond the edge's own pages, and how many
@@ -816,6 +818,14 @@ async fn act(shared: &Shared, message: ClientMessage) -> Handled {
         }
         ClientMessage::SaveWeights { puppet } => save_weights(shared, puppet).await,
         ClientMessage::SaveKeys { puppet } => save_keys(shared, puppet).await,
+        ClientMessage::MidiLearn { target } => {
+            shared
+                .links()?
+                .learning
+                .wait_for(target)
+                .map_err(|e| guard::Refusal::new(ErrorCode::BadRequest, e))?;
+            Ok(None)
+        }
         ClientMessage::ExportGrid { .. }
         | ClientMessage::ListTakes
         | ClientMessage::Ping { .. } => {

@@ -307,6 +307,74 @@ fn a_midi_port_records_to_a_file_that_replays_it() {
     assert!(read.windows(2).all(|w| w[0].t <= w[1].t), "{read:?}");
 }
 
+/// Learn → save → reload (issue 35): on `config/midi.toml` with its
+/// controller on a raw MIDI port, a director's page learns a knob (CC 40)
+/// as the gingerbread's cursor y; the stage file then holds the entry
+/// after the input's own, its comments kept; a daemon started again on
+/// the saved file moves the cursor with that knob.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_control_learnt_on_the_page_is_saved_and_reloads() {
+    use crate::common::browser;
+    if !browser::enabled("a_control_learnt_on_the_page_is_saved_and_reloads") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("midiC1D0");
+    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a path this test owns, a plain mode.
+    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let original = std::fs::read_to_string(root().join("config/midi.toml")).unwrap();
+    let assets = format!("\"{}/assets", root().display());
+    let text = original
+        .replace("\"../assets", &assets)
+        .replace("listen = \"127.0.0.1:8080\"", "listen = \"127.0.0.1:0\"")
+        .replacen(
+            &format!("file = {assets}/gingerbread/keyframe-faders.mid\"\nrepeat = true"),
+            &format!("path = \"{}\"", fifo.display()),
+            1,
+        );
+    assert!(
+        text.contains("path = "),
+        "config/midi.toml plays no file here"
+    );
+    let stage_file = dir.path().join("show.toml");
+    std::fs::write(&stage_file, &text).unwrap();
+    let port = fifo.display().to_string();
+    let env = [("PUPPETRY_MIDI_PORT", port.as_str())];
+    let summary = browser::run_page_on(&stage_file, "", "midi.mjs", "640,360", &env)
+        .await
+        .summary;
+    let status = summary["status"].as_str().unwrap_or_default();
+    assert!(
+        status
+            .starts_with("nanokontrol: CC 40 on channel 1 does cursor_y of gingerbread; saved to"),
+        "{summary}"
+    );
+    assert_eq!(summary["button"], "learn MIDI", "{summary}");
+    let saved = std::fs::read_to_string(&stage_file).unwrap();
+    assert!(
+        saved.starts_with(&text.trim_end()[..text.find("[[input]]").unwrap()]),
+        "what came before the input changed:\n{saved}"
+    );
+    assert!(
+        saved.contains(
+            "\n[[input.map]]  # learnt on the page\ncc = 40\nchannel = 1\naction = \"cursor_y\"\npuppet = \"gingerbread\"\n"
+        ),
+        "{saved}"
+    );
+
+    let served = serve(dir.path(), &saved);
+    let mut ws = viewer(&served.http).await;
+    let mut writer = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+    writer.write_all(&[0xB0, 40, 127]).unwrap();
+    until(&mut ws, "the cursor at y 1 from the learnt knob", |m| {
+        m["type"] == "keys" && m["cursor"][1] == json!(1.0)
+    })
+    .await;
+    drop(writer);
+    served.stop();
+}
+
 /// A `.mid`: the faders to x 0, y 1 at once, the record pad at 0.2 s and
 /// the stop pad at 0.6 s (480 ticks a beat at 120 bpm).
 fn write_show(path: &Path) {

@@ -69,9 +69,28 @@ pub async fn run_page_as(
     env: &[(&str, &str)],
 ) -> PageRun {
     let root = puppetry_testkit::root();
+    run_page_on(
+        &root.join(format!("config/{stage}.toml")),
+        query,
+        script,
+        point,
+        env,
+    )
+    .await
+}
+
+/// As [`run_page_as`], on the stage file at `stage` (anywhere).
+pub async fn run_page_on(
+    stage: &Path,
+    query: &str,
+    script: &str,
+    point: &str,
+    env: &[(&str, &str)],
+) -> PageRun {
+    let root = puppetry_testkit::root();
     let node_modules = root.join("tests/web/node_modules");
     check_tools(&node_modules);
-    let mut config = ShowConfig::load(&root.join(format!("config/{stage}.toml"))).unwrap();
+    let mut config = ShowConfig::load(stage).unwrap();
     config.stage.listen = "127.0.0.1:0".parse().unwrap();
     let takes = tempfile::tempdir().unwrap();
     let mut options = Options::new(WebFiles::Embedded);
@@ -99,7 +118,11 @@ pub async fn run_page_as(
     running.shutdown().await;
     let stdout = String::from_utf8_lossy(&output.stdout);
     let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(output.status.success(), "{stage}: {stdout}\n{stderr}");
+    assert!(
+        output.status.success(),
+        "{}: {stdout}\n{stderr}",
+        stage.display()
+    );
     let summary: serde_json::Value =
         serde_json::from_str(stdout.lines().last().unwrap_or("{}")).unwrap();
     assert_eq!(summary["ok"], true, "{stdout}");
