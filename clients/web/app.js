@@ -31,6 +31,7 @@ import { People } from './people.js';
 import { FpsMeter, Hud, LatencyMeter } from './hud.js';
 import { PuppetsPanel } from './puppets.js';
 import { MidiLearn } from './midi.js';
+import { DaemonClock, Soundtrack } from './soundtrack.js';
 
 const params = new URLSearchParams(location.search);
 const options = viewOptions(params);
@@ -90,6 +91,7 @@ const api = window.puppetry = {
   keyLabels: () => keyPad.labels ?? [], // the key pad's key names as drawn last: {text, x, y, w, h}, pad CSS px
   held: () => pointerContacts.held(), // pointers holding the stage now: contacts and tools' strokes
   poseShown: () => poseSlider.shown(),
+  soundtrack: () => soundtrack.state(),
   positions: (id) => Array.from(puppetById(id)?.positions ?? []), // a puppet's vertices as drawn now
   drop: () => ws?.close(),           // closes the connection (it reconnects): for tests of the indicator
   // lastGrid: the last "grid" message, once one came
@@ -201,6 +203,8 @@ const poseSlider = new PoseSlider({
 }, { send });
 const editControls = new EditControls(byId('edit-controls'), { send });
 const replayControls = new ReplayControls(byId('replay-controls'), { send });
+const daemonClock = new DaemonClock();
+const soundtrack = new Soundtrack({ file: byId('soundtrack-file'), name: byId('soundtrack-name') }, daemonClock);
 const midiLearn = new MidiLearn({
   controls: byId('midi-controls'),
   target: byId('midi-target'),
@@ -497,6 +501,7 @@ function onText(text) {
     case SERVER_MESSAGE.PONG:
       if (typeof msg.t === 'number') {
         latency.add(performance.now() - msg.t);
+        daemonClock.onPong(msg.t, performance.now(), msg.clock);
         api.latency = latency.ms;
         hud.setReadout(api.latency, api.fps);
       }
@@ -534,6 +539,7 @@ function onText(text) {
     case SERVER_MESSAGE.TAKE:
       api.take = msg;
       takeControls.onState(msg);
+      soundtrack.onTake(msg);
       return;
     case SERVER_MESSAGE.TAKES:
       api.takes = msg.takes;

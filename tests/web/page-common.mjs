@@ -68,6 +68,9 @@ export function startRun(summary) {
         // its timers and animation frames going.
         '--disable-background-timer-throttling', '--disable-renderer-backgrounding',
         '--disable-backgrounding-occluded-windows',
+        // A page plays a soundtrack after its user picked the file (a
+        // gesture); a script's file pick is none.
+        '--autoplay-policy=no-user-gesture-required',
       ],
       viewport: { width: 1280, height: 720 },
       hasTouch,

@@ -225,6 +225,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         dir: takes_dir.clone(),
         stage_file: config.file.clone(),
         record_from_first_input: record,
+        started,
     };
     let (outputs, stage_thread) = stage_thread::spawn(
         config.stage_config.clone(),

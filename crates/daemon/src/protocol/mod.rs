@@ -730,6 +730,14 @@ pub struct TakeState {
     /// The take being played.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub playing: Option<String>,
+    /// Seconds into the take playing when this was sent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub played: Option<f64>,
+    /// The daemon's clock when this was sent (seconds, as `pong`'s): with
+    /// `elapsed` and `played` it says when the takes began, so a page
+    /// joining later plays a soundtrack from where the take is.
+    #[serde(default)]
+    pub clock: f64,
     /// Why the last take stopped early (a full disk, …).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,

@@ -211,6 +211,9 @@ pub struct TakeSettings {
     pub stage_file: String,
     /// Start a take with the first change (`serve --record`).
     pub record_from_first_input: bool,
+    /// The daemon's clock (`pong`'s): the take state says when takes
+    /// began in it, so a page plays a soundtrack in time.
+    pub started: Instant,
 }
 
 /// A mouse cursor's state, as a mouse source reports it.
@@ -476,6 +479,7 @@ impl StageLoop {
             step: Vec::new(),
             events: Vec::new(),
             playing: None,
+            playing_since: None,
             held: BTreeMap::new(),
             played: BTreeSet::new(),
             ended: BTreeSet::new(),
@@ -577,6 +581,7 @@ mod tests {
             dir: std::env::temp_dir(),
             stage_file: "demo.toml".into(),
             record_from_first_input: false,
+            started: Instant::now(),
         };
         let StageLoop {
             mut publisher,

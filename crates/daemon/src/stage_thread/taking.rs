@@ -39,6 +39,8 @@ pub(super) struct Taking {
     pub(super) step: Vec<Change>,
     pub(super) events: Vec<StageEvent>,
     pub(super) playing: Option<String>,
+    /// When the take playing began.
+    pub(super) playing_since: Option<Instant>,
     /// The contacts the take being recorded holds down (by source): they
     /// are let go in the take when it stops, so it ends with nothing held
     /// whenever it is stopped.
@@ -65,6 +67,11 @@ impl Taking {
             recording: self.recorder.as_ref().map(|r| r.name().to_string()),
             elapsed: self.recorder.as_ref().map_or(0.0, |r| r.elapsed()),
             playing: self.playing.clone(),
+            played: self
+                .playing_since
+                .filter(|_| self.playing.is_some())
+                .map(|since| since.elapsed().as_secs_f64()),
+            clock: self.settings.started.elapsed().as_secs_f64(),
             error: self.error.clone(),
         }))
     }
@@ -147,6 +154,7 @@ impl Taking {
             return Err(BeingRecorded { take });
         }
         self.playing = Some(name);
+        self.playing_since = Some(Instant::now());
         self.publish(changes);
         Ok(())
     }

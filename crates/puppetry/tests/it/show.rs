@@ -182,6 +182,7 @@ impl Show {
             dir: dir.path().to_path_buf(),
             stage_file: config.file.clone(),
             record_from_first_input,
+            started: std::time::Instant::now(),
         };
         let (wake, rebuilt) = mpsc::channel(64);
         let built = Stage::from_config(&config).unwrap();

@@ -59,6 +59,24 @@ async fn the_stage_holds_still_under_a_directors_stroke_while_the_toolbar_grows(
     assert!(shift("freeShift") > 5.0, "{summary}");
 }
 
+/// The page's soundtrack (issue 35): picked on a director's page, it
+/// plays while a take records, in time with the take's clock, on that
+/// page and on one joining halfway (from halfway); it stops with the take
+/// and plays again from the start when the take is played back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_soundtrack_plays_in_time_with_takes_on_every_page() {
+    if !browser::enabled("a_soundtrack_plays_in_time_with_takes_on_every_page") {
+        return;
+    }
+    let run = browser::run_page_as("demo", DIRECTOR, "soundtrack.mjs", "640,360", &[]).await;
+    let summary = &run.summary;
+    eprintln!("{summary}");
+    assert!(
+        summary["late"]["truth"].as_f64().unwrap() >= 1.5,
+        "{summary}"
+    );
+}
+
 /// Takes from the page: the record button turns red with "REC take-001"
 /// and a running time on a performer's page and a viewer's, a drag is
 /// recorded, and after stopping the take list holds take-001, which is in
