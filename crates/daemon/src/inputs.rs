@@ -363,6 +363,7 @@ fn midi_input(
     let InputConfig::Midi {
         path,
         file,
+        port,
         repeat,
         name,
         map,
@@ -387,16 +388,17 @@ fn midi_input(
             )));
         }
     }
-    let source = match (path, file) {
-        (Some(path), _) => crate::midi::MidiSource::Port(path.clone()),
-        (None, Some(file)) => crate::midi::MidiSource::File {
+    let source = match (path, file, port) {
+        (Some(path), ..) => crate::midi::MidiSource::Port(path.clone()),
+        (None, Some(file), _) => crate::midi::MidiSource::File {
             messages: puppetry_input::midi_file::read_midi_file(&config.resolve(file))
                 .map_err(|e| InputError(format!("input[{index}].file: {e}")))?,
             repeat: *repeat,
         },
-        (None, None) => {
+        (None, None, Some(port)) => crate::midi::sequencer(index, port).map_err(InputError)?,
+        (None, None, None) => {
             return Err(InputError(format!(
-                "input[{index}]: a MIDI input needs a path or a file"
+                "input[{index}]: a MIDI input needs a path, a port or a file"
             )));
         }
     };

@@ -26,6 +26,9 @@ use crate::stage_thread::ShowReading;
 pub(crate) enum MidiSource {
     /// A raw MIDI byte stream (a device node, a FIFO, a serial port).
     Port(PathBuf),
+    /// An ALSA sequencer port, by (part of) its name (the `alsa-seq`
+    /// feature's).
+    Sequencer(String),
     /// A Standard MIDI File's messages, played in time.
     File {
         /// The messages, in time order.
@@ -90,6 +93,7 @@ async fn run(input: MidiInput, actor: Actor, learning: Arc<Learning>) {
                 return;
             }
         },
+        MidiSource::Sequencer(name) => read_sequencer(&name, &mut doer).await,
         MidiSource::Port(path) => loop {
             match PortReader::open(&path) {
                 Ok(port) => {
@@ -103,6 +107,68 @@ async fn run(input: MidiInput, actor: Actor, learning: Arc<Learning>) {
         },
     }
 }
+
+/// The source of a MIDI input's `port`: an ALSA sequencer port, in a build
+/// that reads them.
+pub(crate) fn sequencer(index: usize, port: &str) -> Result<MidiSource, String> {
+    if cfg!(feature = "alsa-seq") {
+        Ok(MidiSource::Sequencer(port.to_string()))
+    } else {
+        Err(format!(
+            "input[{index}].port: this puppetry reads no ALSA sequencer ports: build it with \
+             `cargo build --release --features alsa-seq` (Debian: apt install libasound2-dev), \
+             or read the device's raw MIDI port with path = \"/dev/snd/midiC<card>D<device>\" \
+             (puppetry devices lists them)"
+        ))
+    }
+}
+
+/// Reads the sequencer port `wanted` names whenever it is there, doing
+/// what each message asks; looks for it again every second while it is
+/// away, and every second whether it went away (midir says nothing when a
+/// port goes).
+#[cfg(feature = "alsa-seq")]
+async fn read_sequencer(wanted: &str, doer: &mut Doer) {
+    use puppetry_midi_seq::{SeqReader, port_names};
+    loop {
+        // A few calls into libasound: quick, and the input's own task.
+        match SeqReader::open(wanted) {
+            Ok(mut reader) => {
+                tracing::info!("MIDI input {}: reading {}", doer.name, reader.name);
+                let mut decoder = MidiDecoder::new();
+                let mut messages = Vec::new();
+                let mut check = tokio::time::interval(REOPEN_EVERY);
+                loop {
+                    tokio::select! {
+                        bytes = reader.read() => {
+                            let Some(bytes) = bytes else { break };
+                            decoder.feed(&bytes, |m| messages.push(m));
+                            for message in messages.drain(..) {
+                                doer.message(&message).await;
+                            }
+                        }
+                        _ = check.tick() => {
+                            if !port_names().is_ok_and(|names| names.contains(&reader.name)) {
+                                doer.warn(format_args!("{} went away", reader.name));
+                                break;
+                            }
+                            if reader.lost() > 0 {
+                                doer.warn(format_args!("{} messages lost to a full queue", reader.lost()));
+                            }
+                        }
+                    }
+                }
+            }
+            Err(e) => doer.warn(format_args!("{e}")),
+        }
+        tokio::time::sleep(REOPEN_EVERY).await;
+    }
+}
+
+/// Without the `alsa-seq` feature no sequencer source is made
+/// ([`sequencer`] refuses the stage file).
+#[cfg(not(feature = "alsa-seq"))]
+async fn read_sequencer(_wanted: &str, _doer: &mut Doer) {}
 
 /// Reads a port until it fails (a device unplugged), doing what each
 /// message asks.

@@ -178,11 +178,17 @@ pub enum InputConfig {
     /// a show controller can ask of the stage (`map`), as OSC's triggers
     /// are. Read from a raw MIDI port (`path`: an ALSA
     /// `/dev/snd/midiC1D0`, a FIFO, a serial MIDI interface; reopened when
-    /// it comes back) or played from a Standard MIDI File (`file`).
+    /// it comes back), an ALSA sequencer port by name (`port`, in a build
+    /// with the `alsa-seq` feature) or played from a Standard MIDI File
+    /// (`file`).
     Midi {
         /// A raw MIDI byte stream to read.
         #[serde(default)]
         path: Option<PathBuf>,
+        /// An ALSA sequencer port, by its name or part of it (`aconnect -i`
+        /// lists them).
+        #[serde(default)]
+        port: Option<String>,
         /// A `.mid` to play instead, relative to the stage file's folder.
         #[serde(default)]
         file: Option<PathBuf>,
@@ -317,15 +323,19 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
             InputConfig::Midi {
                 path,
                 file,
+                port,
                 map,
                 clock,
                 tempo,
                 ..
             } => {
-                if path.is_some() == file.is_some() {
+                let sources = [path.is_some(), file.is_some(), port.is_some()];
+                if sources.iter().filter(|&&s| s).count() != 1 {
                     return Err((
                         field("path"),
-                        "give a MIDI port's path or a .mid file to play, one of them".into(),
+                        "give one of: a raw MIDI port's path, an ALSA sequencer port's name \
+                         (port), or a .mid file to play"
+                            .into(),
                     ));
                 }
                 ClockSetting::kind(*clock, *tempo)

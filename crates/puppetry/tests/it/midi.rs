@@ -375,6 +375,32 @@ async fn a_control_learnt_on_the_page_is_saved_and_reloads() {
     served.stop();
 }
 
+/// A build without the `alsa-seq` feature refuses a MIDI input that names
+/// an ALSA sequencer port, saying how to build one that reads it and what
+/// reads the device without it; a MIDI input naming two sources is
+/// refused by field.
+#[cfg(not(feature = "alsa-seq"))]
+#[test]
+fn a_sequencer_port_without_the_feature_says_how_to_get_it() {
+    let dir = tempfile::tempdir().unwrap();
+    for (source, said) in [
+        ("port = \"nanoKONTROL2\"", "--features alsa-seq"),
+        (
+            "port = \"x\"\nfile = \"show.mid\"",
+            "input[0].path: give one of",
+        ),
+    ] {
+        let file = dir.path().join("stage.toml");
+        std::fs::write(&file, stage(source)).unwrap();
+        let out = crate::common::served::serve_command(&file)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{stderr}");
+        assert!(stderr.contains(said), "{stderr}");
+    }
+}
+
 /// A `.mid`: the faders to x 0, y 1 at once, the record pad at 0.2 s and
 /// the stop pad at 0.6 s (480 ticks a beat at 120 bpm).
 fn write_show(path: &Path) {
