@@ -99,7 +99,7 @@ impl PortReader {
     /// Reads what the port has (at least a byte); an error when it fails
     /// (a device unplugged). A FIFO with no writer (yet, or any more) is
     /// kept open, so a writer that comes finds its reader, and looked at
-    /// again every [`NO_WRITER_WAIT`].
+    /// again every 100 ms.
     pub async fn read(&self, buffer: &mut [u8]) -> std::io::Result<usize> {
         loop {
             let mut ready = self.port.readable().await?;
