@@ -12,7 +12,7 @@
 // Prints one JSON line; exits 0 only on success, and within 2 minutes either way.
 
 import fs from 'node:fs';
-import { startScript, allErrors, openPage, pageState, pageUrl, waitFor } from './page-common.mjs';
+import { startScript, endPages, openPage, pageUrl, waitFor } from './page-common.mjs';
 
 const { url, summary, finish, launch } = startScript();
 const directorToken = process.env.PUPPETRY_DIRECTOR ?? 'director';
@@ -20,12 +20,13 @@ const port = process.env.PUPPETRY_MIDI_PORT;
 
 const errors = [];
 const pages = {};
+let context;
 const step = (what) => { summary.step = what; };
 
 try {
   if (!port) throw new Error('PUPPETRY_MIDI_PORT names no MIDI port');
   step('launch');
-  const context = await launch();
+  context = await launch();
   pages.director = await openPage(context, pageUrl(url, `?role=director&token=${encodeURIComponent(directorToken)}`), errors, 'director');
   pages.performer = await openPage(context, pageUrl(url, '?role=performer&token=demo'), errors, 'performer');
   const { director, performer } = pages;
@@ -54,14 +55,7 @@ try {
   fs.writeFileSync(port, Buffer.from([0xB0, 40, 127]));
   await waitFor(director, 'the cursor at y 1', () => window.puppetry.keys[0]?.cursor?.[1] === 1);
 
-  summary.errors = await allErrors(errors, Object.values(pages));
-  step('done');
-  await context.close();
-  if (summary.errors.length) finish(false, 'the pages reported errors');
-  finish(true);
+  await endPages({ context, pages, errors, summary, finish });
 } catch (err) {
-  const states = {};
-  for (const [name, p] of Object.entries(pages)) states[name] = await pageState(p);
-  Object.assign(summary, { pages: states, errors: await allErrors(errors, Object.values(pages)) });
-  finish(false, err.message.split('\n')[0]);
+  await endPages({ err, pages, errors, summary, finish });
 }

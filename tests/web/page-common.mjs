@@ -293,3 +293,25 @@ export function rgbOf(colour) {
 export function colourDistance(a, b) {
   return Math.abs(a[0] - b[0]) + Math.abs(a[1] - b[1]) + Math.abs(a[2] - b[2]);
 }
+
+/**
+ * Ends a script of several pages: on success (`err` undefined) checks that
+ * no page reported an error and closes the browser; on failure records
+ * every page's state and what they reported. Either way prints the
+ * summary and exits (`finish`).
+ */
+export async function endPages({ err, context, pages, errors, summary, finish }) {
+  if (err === undefined) {
+    summary.errors = await allErrors(errors, Object.values(pages));
+    summary.step = 'done';
+    await context.close();
+    if (summary.errors.length) finish(false, 'the pages reported errors');
+    finish(true);
+    return;
+  }
+  const states = {};
+  for (const [name, p] of Object.entries(pages)) states[name] = await pageState(p);
+  Object.assign(summary, { pages: states, errors: await allErrors(errors, Object.values(pages)) });
+  finish(false, err.message.split('\n')[0]);
+}
+

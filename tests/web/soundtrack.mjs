@@ -14,12 +14,13 @@
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { startScript, allErrors, openPage, pageState, stageToClient, waitFor } from './page-common.mjs';
+import { startScript, endPages, openPage, stageToClient, waitFor } from './page-common.mjs';
 
 const { url, point, summary, finish, launch } = startScript();
 
 const errors = [];
 const pages = {};
+let context;
 const step = (what) => { summary.step = what; };
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 // How far the sound may be from the take's time, seen from here (the
@@ -50,7 +51,7 @@ try {
   const wav = path.join(fs.mkdtempSync(path.join(os.tmpdir(), 'puppetry-sound-')), 'song.wav');
   silence(wav);
   step('launch');
-  const context = await launch();
+  context = await launch();
   pages.director = await openPage(context, url, errors, 'director');
   const { director } = pages;
   await director.setInputFiles('#soundtrack-file', wav);
@@ -112,14 +113,7 @@ try {
   }
   await waitFor(director, 'the take played out, the sound stopped', () => !window.puppetry.take?.playing && !window.puppetry.soundtrack().playing);
 
-  summary.errors = await allErrors(errors, Object.values(pages));
-  step('done');
-  await context.close();
-  if (summary.errors.length) finish(false, 'the pages reported errors');
-  finish(true);
+  await endPages({ context, pages, errors, summary, finish });
 } catch (err) {
-  const states = {};
-  for (const [name, p] of Object.entries(pages)) states[name] = await pageState(p);
-  Object.assign(summary, { pages: states, errors: await allErrors(errors, Object.values(pages)) });
-  finish(false, err.message.split('\n')[0]);
+  await endPages({ err, pages, errors, summary, finish });
 }

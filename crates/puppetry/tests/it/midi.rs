@@ -52,6 +52,15 @@ action = "stop"
     )
 }
 
+/// A FIFO standing in for a raw MIDI port (`/dev/snd/midiC1D0`) in `dir`.
+fn fifo(dir: &Path) -> std::path::PathBuf {
+    let fifo = dir.join("midiC1D0");
+    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a path this test owns, a plain mode.
+    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    fifo
+}
+
 async fn viewer(http: &str) -> Client {
     use futures_util::SinkExt;
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{http}/ws"))
@@ -81,10 +90,7 @@ async fn until(ws: &mut Client, what: &str, done: impl Fn(&Value) -> bool) -> Va
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_controller_on_a_midi_port_moves_the_cursor_and_runs_a_take() {
     let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("midiC1D0");
-    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
-    // SAFETY: a path this test owns, a plain mode.
-    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let fifo = fifo(dir.path());
     let served = serve(
         dir.path(),
         &stage(&format!("path = \"{}\"", fifo.display())),
@@ -164,10 +170,7 @@ async fn a_midi_file_replays_a_controller() {
 async fn time_code_lines_a_take_up_with_its_soundtrack() {
     use puppetry_input::show_clock::{FrameRate, TimeCode, quarter_frames};
     let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("midiC1D0");
-    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
-    // SAFETY: a path this test owns, a plain mode.
-    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let fifo = fifo(dir.path());
     let stage_text = stage(&format!(
         "path = \"{}\"\nclock = \"time_code\"",
         fifo.display()
@@ -267,10 +270,7 @@ async fn time_code_lines_a_take_up_with_its_soundtrack() {
 fn a_midi_port_records_to_a_file_that_replays_it() {
     use puppetry_input::midi::{MidiDecoder, MidiMessage};
     let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("midiC1D0");
-    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
-    // SAFETY: a path this test owns, a plain mode.
-    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let fifo = fifo(dir.path());
     let out = dir.path().join("show.mid");
     let recorder = std::process::Command::new(env!("CARGO_BIN_EXE_puppetry"))
         .arg("record")
@@ -319,10 +319,7 @@ async fn a_control_learnt_on_the_page_is_saved_and_reloads() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let fifo = dir.path().join("midiC1D0");
-    let made = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).unwrap();
-    // SAFETY: a path this test owns, a plain mode.
-    assert_eq!(unsafe { libc::mkfifo(made.as_ptr(), 0o600) }, 0);
+    let fifo = fifo(dir.path());
     let original = std::fs::read_to_string(root().join("config/midi.toml")).unwrap();
     let assets = format!("\"{}/assets", root().display());
     let text = original
