@@ -28,6 +28,8 @@ export function midiTargets(puppets) {
   targets.push(
     { label: 'take: record', target: { action: 'record' } },
     { label: 'take: stop', target: { action: 'stop' } },
+    { label: 'take: play the newest', target: { action: 'play' } },
+    { label: 'take: overdub the newest', target: { action: 'overdub' } },
   );
   return targets;
 }

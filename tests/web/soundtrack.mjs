@@ -65,8 +65,8 @@ try {
   const [x, y] = await stageToClient(director, point);
   await director.mouse.move(x, y);
   await director.mouse.down();
-  for (let k = 1; k <= 20; k += 1) {
-    await director.mouse.move(x + 3 * k, y + 2 * k);
+  for (let k = 1; k <= 10; k += 1) {
+    await director.mouse.move(x + 6 * k, y + 4 * k);
     await sleep(60);
   }
   await director.mouse.up();
@@ -79,7 +79,7 @@ try {
   pages.late = await openPage(context, url, errors, 'late');
   await pages.late.setInputFiles('#soundtrack-file', wav);
   await waitFor(pages.late, 'the late page\'s sound playing', () => window.puppetry.soundtrack().playing);
-  await sleep(1000);
+  await sleep(600);
   summary.late = await offBy(pages.late, t0);
   if (summary.late.truth < 1.5 || Math.abs(summary.late.off) > TOLERANCE) {
     throw new Error(`the late page's sound is at ${summary.late.at.toFixed(3)} s, the take at ${summary.late.truth.toFixed(3)} s`);
@@ -105,7 +105,7 @@ try {
   await waitFor(director, 'the sound playing with it', () => window.puppetry.soundtrack().playing);
   // The take's time now is the daemon's (it starts playing once it has
   // read the take): the sound against the page's reckoning of it.
-  await sleep(1000);
+  await sleep(600);
   summary.playing = await offBy(director, t1);
   const lag = summary.playing.at - summary.playing.expected;
   if (summary.playing.expected > 3 || Math.abs(lag) > TOLERANCE) {

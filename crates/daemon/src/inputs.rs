@@ -362,6 +362,8 @@ fn midi_input(
 ) -> Result<crate::midi::MidiInput, InputError> {
     let InputConfig::Midi {
         path,
+        card,
+        dir,
         file,
         port,
         repeat,
@@ -389,7 +391,15 @@ fn midi_input(
         }
     }
     let source = match (path, file, port) {
-        (Some(path), ..) => crate::midi::MidiSource::Port(path.clone()),
+        (Some(path), ..) => crate::midi::MidiSource::Port(crate::midi::RawPort::Path(path.clone())),
+        (None, None, None) if card.is_some() => {
+            crate::midi::MidiSource::Port(crate::midi::RawPort::Card {
+                card: card.clone().unwrap_or_default(),
+                dir: dir
+                    .clone()
+                    .unwrap_or_else(|| puppetry_input::midi_port::DEFAULT_SND_DIR.into()),
+            })
+        }
         (None, Some(file), _) => crate::midi::MidiSource::File {
             messages: puppetry_input::midi_file::read_midi_file(&config.resolve(file))
                 .map_err(|e| InputError(format!("input[{index}].file: {e}")))?,

@@ -25,7 +25,7 @@ use crate::stage_thread::ShowReading;
 /// Where a MIDI input's messages come from.
 pub(crate) enum MidiSource {
     /// A raw MIDI byte stream (a device node, a FIFO, a serial port).
-    Port(PathBuf),
+    Port(RawPort),
     /// An ALSA sequencer port, by (part of) its name (the `alsa-seq`
     /// feature's).
     Sequencer(String),
@@ -36,6 +36,36 @@ pub(crate) enum MidiSource {
         /// Play again when it ends.
         repeat: bool,
     },
+}
+
+/// Which raw MIDI port a MIDI input reads.
+pub(crate) enum RawPort {
+    /// This device node (or FIFO, or serial port).
+    Path(PathBuf),
+    /// The first port of the sound card `card` names, in `dir`: looked
+    /// up at each opening, since a card replugged may get another number.
+    Card {
+        /// The card's name, or part of it.
+        card: String,
+        /// Where the device nodes are (`/dev/snd`).
+        dir: PathBuf,
+    },
+}
+
+impl RawPort {
+    /// The port's device node now.
+    fn resolve(&self) -> std::io::Result<PathBuf> {
+        use puppetry_input::midi_port::{asound_dir_for, port_of_card, ports};
+        match self {
+            RawPort::Path(path) => Ok(path.clone()),
+            RawPort::Card { card, dir } => {
+                let found = ports(dir, &asound_dir_for(dir));
+                port_of_card(&found, card)
+                    .map(|p| p.path.clone())
+                    .map_err(|e| std::io::Error::new(std::io::ErrorKind::NotFound, e))
+            }
+        }
+    }
 }
 
 /// A MIDI input, read and checked from the stage file.
@@ -94,14 +124,17 @@ async fn run(input: MidiInput, actor: Actor, learning: Arc<Learning>) {
             }
         },
         MidiSource::Sequencer(name) => read_sequencer(&name, &mut doer).await,
-        MidiSource::Port(path) => loop {
-            match PortReader::open(&path) {
-                Ok(port) => {
-                    if let Err(e) = read_port(&port, &mut doer).await {
-                        doer.warn(format_args!("{}: {e}", path.display()));
+        MidiSource::Port(port) => loop {
+            match port.resolve() {
+                Ok(path) => match PortReader::open(&path) {
+                    Ok(reader) => {
+                        if let Err(e) = read_port(&reader, &mut doer).await {
+                            doer.warn(format_args!("{}: {e}", path.display()));
+                        }
                     }
-                }
-                Err(e) => doer.warn(format_args!("{}: {e}", path.display())),
+                    Err(e) => doer.warn(format_args!("{}: {e}", path.display())),
+                },
+                Err(e) => doer.warn(format_args!("{e}")),
             }
             tokio::time::sleep(REOPEN_EVERY).await;
         },
@@ -274,6 +307,7 @@ impl Doer {
             },
             MidiAction::Record => Trigger::StartTake { name: None },
             MidiAction::Stop => Trigger::StopTake,
+            MidiAction::Play { take, overdub } => Trigger::PlayTake { take, overdub },
         })
     }
 }

@@ -256,6 +256,7 @@ mod tests {
             poses: None,
             key: None,
             seconds: 0.0,
+            take: None,
         };
         let pad = MidiMessage::NoteOn {
             channel: 9,

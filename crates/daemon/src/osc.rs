@@ -165,6 +165,8 @@ impl AddressSpace {
         let mut all = vec![
             self.address("take/start"),
             self.address("take/stop"),
+            self.address("take/play"),
+            self.address("take/overdub"),
             self.address("clock"),
         ];
         for p in 0..self.parts.len() {
@@ -229,6 +231,13 @@ impl AddressSpace {
             ["take", "stop"] => {
                 a.at_most(0, "no arguments")?;
                 Ok(Trigger::StopTake)
+            }
+            ["take", verb @ ("play" | "overdub")] => {
+                a.at_most(1, "no argument or a take name")?;
+                Ok(Trigger::PlayTake {
+                    take: a.optional_string(0, "name")?,
+                    overdub: *verb == "overdub",
+                })
             }
             ["clock"] => {
                 a.between(
@@ -947,6 +956,20 @@ mod tests {
         );
         assert!(one("/puppetry/clock", vec![OscType::Double(1e12)]).is_err());
         assert!(one("/puppetry/clock", vec![s("noon")]).is_err());
+        assert_eq!(
+            one("/puppetry/take/play", vec![]).unwrap(),
+            Trigger::PlayTake {
+                take: None,
+                overdub: false
+            }
+        );
+        assert_eq!(
+            one("/puppetry/take/overdub", vec![s("take-002")]).unwrap(),
+            Trigger::PlayTake {
+                take: Some("take-002".into()),
+                overdub: true
+            }
+        );
         assert_eq!(
             one("/puppetry/take/start", vec![]).unwrap(),
             Trigger::StartTake { name: None }

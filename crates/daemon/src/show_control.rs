@@ -61,10 +61,12 @@ pub(crate) fn clip(text: &str) -> String {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Trigger {
     /// Start recording a take (`None`: the next free `take-NNN`).
-    StartTake {
-        name: Option<String>,
-    },
+    StartTake { name: Option<String> },
+    /// Stop the take recording and the take playing (an overdub: both).
     StopTake,
+    /// Play a take (`None`: the newest in the takes folder); with
+    /// `overdub`, record a new take of it and the live hands.
+    PlayTake { take: Option<String>, overdub: bool },
     /// Blend a puppet to a named key pose over `seconds` (0: at once): a
     /// skeleton's stage-file pose, or a keyframing key (its cursor moves
     /// to the key's pad point).
@@ -81,14 +83,9 @@ pub enum Trigger {
         t: f64,
     },
     /// The keyframing cursor moved (pad coordinates) or let go (`None`).
-    Cursor {
-        puppet: u32,
-        at: Option<[f64; 2]>,
-    },
+    Cursor { puppet: u32, at: Option<[f64; 2]> },
     /// A puppet back to how the stage file has it.
-    Reset {
-        puppet: u32,
-    },
+    Reset { puppet: u32 },
     /// The show's clock (a DAW's or a desk's transport), heard now: a
     /// take recording keeps it beside its own time.
     Clock(ShowReading),
@@ -98,7 +95,10 @@ impl Trigger {
     /// The puppet it acts on, if one.
     fn puppet(&self) -> Option<u32> {
         match self {
-            Trigger::StartTake { .. } | Trigger::StopTake | Trigger::Clock(_) => None,
+            Trigger::StartTake { .. }
+            | Trigger::StopTake
+            | Trigger::PlayTake { .. }
+            | Trigger::Clock(_) => None,
             Trigger::Key { puppet, .. }
             | Trigger::Pose { puppet, .. }
             | Trigger::Cursor { puppet, .. }
@@ -132,12 +132,15 @@ pub struct Links {
     /// The "take" message.
     pub take: State,
     pub commands: mpsc::Sender<Command>,
+    /// The clients' shared state, for what a client's message does the
+    /// same way (playing takes); weak, so show control never keeps it.
+    pub shared: std::sync::Weak<Shared>,
 }
 
 impl Links {
     /// The stage file's puppets (show control's address space is fixed at
     /// start: puppets added at runtime are not in it).
-    pub fn of(shared: &Shared, commands: mpsc::Sender<Command>) -> Links {
+    pub fn of(shared: &Arc<Shared>, commands: mpsc::Sender<Command>) -> Links {
         let lineup = shared.lineup.borrow().clone();
         let puppets = lineup
             .description
@@ -169,6 +172,7 @@ impl Links {
             puppets,
             take: shared.take.clone(),
             commands,
+            shared: Arc::downgrade(shared),
         }
     }
 }
@@ -256,11 +260,25 @@ impl Actor {
                 send(commands, Command::StopTake { reply })
                     .await
                     .map_err(refused)?;
-                answer
+                let recording = answer.await.map_err(|_| refused(SHUTTING_DOWN.into()))?;
+                let shared = self.shared().map_err(refused)?;
+                let playing = crate::stream::stop_playing(&shared).await;
+                match (recording, playing) {
+                    (Err(_), Err(_)) => Err(refused("no take is recording or playing".into())),
+                    _ => Ok(()),
+                }
+            }
+            Trigger::PlayTake { take, overdub } => {
+                let shared = self.shared().map_err(refused)?;
+                let take = match take {
+                    Some(take) => take,
+                    None => newest_take(&shared).await.map_err(refused)?,
+                };
+                crate::stream::play_take(&shared, &take, overdub, Vec::new(), Vec::new())
                     .await
-                    .map_err(|_| refused(SHUTTING_DOWN.into()))?
-                    .map(drop)
-                    .map_err(refused)
+                    .map_err(|r| refused(r.message))?;
+                tracing::info!("take {take} played by show control ({})", clip(address));
+                Ok(())
             }
             Trigger::Pose {
                 puppet,
@@ -372,6 +390,38 @@ impl Actor {
 }
 
 const SHUTTING_DOWN: &str = "the stage is shutting down";
+
+impl Actor {
+    /// The clients' shared state, while the daemon runs.
+    fn shared(&self) -> Result<Arc<Shared>, String> {
+        self.links
+            .shared
+            .upgrade()
+            .ok_or_else(|| SHUTTING_DOWN.to_string())
+    }
+}
+
+/// The newest take in the takes folder (by when its file last changed),
+/// which a `play` with no take named plays.
+async fn newest_take(shared: &Shared) -> Result<String, String> {
+    let dir = shared.links()?.takes_dir.clone();
+    tokio::task::spawn_blocking(move || {
+        let entries = std::fs::read_dir(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        entries
+            .filter_map(Result::ok)
+            .filter(|e| {
+                e.path()
+                    .extension()
+                    .is_some_and(|x| x == puppetry_take::EXTENSION)
+            })
+            .filter_map(|e| Some((e.metadata().ok()?.modified().ok()?, e.path())))
+            .max()
+            .and_then(|(_, path)| Some(path.file_stem()?.to_string_lossy().into_owned()))
+            .ok_or_else(|| format!("no take in {} to play", dir.display()))
+    })
+    .await
+    .map_err(|e| e.to_string())?
+}
 
 async fn send(commands: &mpsc::Sender<Command>, command: Command) -> Result<(), String> {
     commands

@@ -185,6 +185,14 @@ pub enum InputConfig {
         /// A raw MIDI byte stream to read.
         #[serde(default)]
         path: Option<PathBuf>,
+        /// A raw MIDI port by its sound card's name, or part of it
+        /// (`puppetry devices` shows them): found again whenever the card is
+        /// plugged in, whatever number it gets.
+        #[serde(default)]
+        card: Option<String>,
+        /// Where `card`'s device nodes are; default `/dev/snd`.
+        #[serde(default)]
+        dir: Option<PathBuf>,
         /// An ALSA sequencer port, by its name or part of it (`aconnect -i`
         /// lists them).
         #[serde(default)]
@@ -322,6 +330,8 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
             }
             InputConfig::Midi {
                 path,
+                card,
+                dir,
                 file,
                 port,
                 map,
@@ -329,13 +339,24 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
                 tempo,
                 ..
             } => {
-                let sources = [path.is_some(), file.is_some(), port.is_some()];
+                let sources = [
+                    path.is_some(),
+                    card.is_some(),
+                    file.is_some(),
+                    port.is_some(),
+                ];
                 if sources.iter().filter(|&&s| s).count() != 1 {
                     return Err((
                         field("path"),
-                        "give one of: a raw MIDI port's path, an ALSA sequencer port's name \
-                         (port), or a .mid file to play"
+                        "give one of: a raw MIDI port's path, its sound card's name (card), \
+                         an ALSA sequencer port's name (port), or a .mid file to play"
                             .into(),
+                    ));
+                }
+                if dir.is_some() && card.is_none() {
+                    return Err((
+                        field("dir"),
+                        "dir is where a card's port is looked for: give card".into(),
                     ));
                 }
                 ClockSetting::kind(*clock, *tempo)

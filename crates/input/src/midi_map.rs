@@ -38,6 +38,10 @@ pub enum MidiActionKind {
     Record,
     /// Stop the take (recording, playing or overdubbing).
     Stop,
+    /// Play `take` (default: the newest).
+    Play,
+    /// Play `take` (default: the newest) and record a new take over it.
+    Overdub,
 }
 
 /// A show-control command, as a mapping names it.
@@ -90,6 +94,9 @@ pub struct MidiMapping {
     /// `key`: how long the blend takes, seconds; default 0 (at once).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub seconds: f64,
+    /// `play`, `overdub`: the take's name; default the newest take.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub take: Option<String>,
 }
 
 /// What a mapping does, whatever control does it: what a director picks
@@ -113,6 +120,9 @@ pub struct MidiTarget {
     /// `key`: how long the blend takes, seconds; default 0 (at once).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub seconds: f64,
+    /// `play`, `overdub`: the take's name; default the newest take.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub take: Option<String>,
 }
 
 fn is_zero(seconds: &f64) -> bool {
@@ -136,6 +146,7 @@ impl MidiMapping {
             poses: target.poses.clone(),
             key: target.key.clone(),
             seconds: target.seconds,
+            take: target.take.clone(),
         };
         let channel = match *message {
             MidiMessage::ControlChange {
@@ -240,6 +251,22 @@ impl MidiMapping {
         if self.action == MidiActionKind::Key && self.key.is_none() {
             return Err(("key", "key needs the key pose's name".into()));
         }
+        if let Some(take) = &self.take {
+            if !matches!(self.action, MidiActionKind::Play | MidiActionKind::Overdub) {
+                return Err(("take", "only play and overdub play a take".into()));
+            }
+            let name_ok = !take.is_empty()
+                && take.len() <= 100
+                && take
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
+            if !name_ok {
+                return Err((
+                    "take",
+                    format!("{take:?}: a take's name (letters, digits, '-', '_', '.')"),
+                ));
+            }
+        }
         if !(self.seconds.is_finite() && (0.0..=3600.0).contains(&self.seconds)) {
             return Err(("seconds", format!("{} is not 0 to 3600", self.seconds)));
         }
@@ -287,6 +314,13 @@ pub enum MidiAction {
     Record,
     /// Stop the take.
     Stop,
+    /// Play a take (`None`: the newest); with `overdub`, record over it.
+    Play {
+        /// The take.
+        take: Option<String>,
+        /// Record a new take over it.
+        overdub: bool,
+    },
 }
 
 /// Turns messages into actions through a list of mappings, keeping what
@@ -430,10 +464,16 @@ impl MidiMapper {
             MidiActionKind::Reset if pressed => Some(MidiAction::Reset { puppet: puppet() }),
             MidiActionKind::Record if pressed => Some(MidiAction::Record),
             MidiActionKind::Stop if pressed => Some(MidiAction::Stop),
+            MidiActionKind::Play | MidiActionKind::Overdub if pressed => Some(MidiAction::Play {
+                take: m.take.clone(),
+                overdub: m.action == MidiActionKind::Overdub,
+            }),
             MidiActionKind::Key
             | MidiActionKind::Reset
             | MidiActionKind::Record
-            | MidiActionKind::Stop => None,
+            | MidiActionKind::Stop
+            | MidiActionKind::Play
+            | MidiActionKind::Overdub => None,
         }
     }
 }
@@ -524,6 +564,7 @@ mod tests {
             poses: None,
             key: None,
             seconds: 0.0,
+            take: None,
         };
         // Clocks and note offs teach nothing; a button on CC 39 (a
         // nanoKONTROL2's) is learnt as itself, and read as itself beside

@@ -63,6 +63,62 @@ pub fn ports(snd_dir: &Path, asound_dir: &Path) -> Vec<MidiPort> {
     ports
 }
 
+/// Where the card names of the ports in `snd_dir` are: [`ASOUND_DIR`] for
+/// [`DEFAULT_SND_DIR`]; for another folder (a test's stand-in for the
+/// machine), the `asound` folder beside it.
+pub fn asound_dir_for(snd_dir: &Path) -> PathBuf {
+    if snd_dir == Path::new(DEFAULT_SND_DIR) {
+        PathBuf::from(ASOUND_DIR)
+    } else {
+        snd_dir.with_file_name("asound")
+    }
+}
+
+/// The port of the sound card `card` names among `ports`: the card whose
+/// name is `card` (any case), else the one whose name contains it; its
+/// first device. No such card, or several, is an error listing the cards.
+pub fn port_of_card<'a>(ports: &'a [MidiPort], card: &str) -> Result<&'a MidiPort, String> {
+    let wanted = card.to_lowercase();
+    let name_of = |p: &MidiPort| p.name.as_deref().unwrap_or("").to_lowercase();
+    let mut cards: Vec<&MidiPort> = ports.iter().filter(|p| name_of(p) == wanted).collect();
+    if cards.is_empty() {
+        cards = ports
+            .iter()
+            .filter(|p| name_of(p).contains(&wanted))
+            .collect();
+    }
+    // `ports` is sorted by card and device: a card's first device leads.
+    cards.dedup_by_key(|p| p.card);
+    let listed = || {
+        let names: Vec<String> = ports
+            .iter()
+            .map(|p| {
+                format!(
+                    "{} ({})",
+                    p.name.as_deref().unwrap_or("?"),
+                    p.path.display()
+                )
+            })
+            .collect();
+        if names.is_empty() {
+            "there is no raw MIDI port".to_string()
+        } else {
+            format!("the ports: {}", names.join(", "))
+        }
+    };
+    match cards.as_slice() {
+        [one] => Ok(one),
+        [] => Err(format!(
+            "no sound card named {card:?} has a MIDI port ({})",
+            listed()
+        )),
+        _ => Err(format!(
+            "{card:?} names several sound cards ({}): give more of the name",
+            listed()
+        )),
+    }
+}
+
 /// A raw MIDI byte stream, read in the runtime's reactor: opened without
 /// blocking (a FIFO with no writer yet opens at once) and waited on
 /// without a thread, so an idle controller never holds up a shutdown.
@@ -148,5 +204,24 @@ mod tests {
             ]
         );
         assert!(ports(&snd.path().join("missing"), asound.path()).is_empty());
+
+        // Found by the card's name, any case or part of it: its first device.
+        assert_eq!(port_of_card(&found, "nanokontrol2").unwrap().device, 0);
+        assert_eq!(port_of_card(&found, "KONTROL").unwrap().card, 1);
+        let none = port_of_card(&found, "Push").unwrap_err();
+        assert!(none.contains("nanoKONTROL2 ("), "{none}");
+        std::fs::create_dir(asound.path().join("card2")).unwrap();
+        std::fs::write(asound.path().join("card2/id"), "nanoKONTROL\n").unwrap();
+        let two = ports(snd.path(), asound.path());
+        assert_eq!(port_of_card(&two, "nanoKONTROL").unwrap().card, 2);
+        assert!(port_of_card(&two, "nano").unwrap_err().contains("several"));
+        assert_eq!(
+            asound_dir_for(Path::new("/tmp/x/snd")),
+            Path::new("/tmp/x/asound")
+        );
+        assert_eq!(
+            asound_dir_for(Path::new("/dev/snd")),
+            Path::new("/proc/asound")
+        );
     }
 }

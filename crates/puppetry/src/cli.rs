@@ -932,39 +932,49 @@ fn describe_device(out: &mut String, path: &Path, info: &puppetry_input::device:
     }
 }
 
-/// The HID touch digitizers (hidapi), and which `kind = "hid"` entry of
-/// `config` each would feed.
 /// The raw MIDI ports, each with the stage file's MIDI input that reads
-/// it; then the MIDI inputs whose port is not here.
+/// it (by its path or its card's name); then the MIDI inputs whose port is
+/// not here.
 fn midi_report(
     out: &mut String,
     midi_dir: &Path,
     config: Option<&puppetry_daemon::config::ShowConfig>,
 ) {
     use puppetry_input::config::InputConfig;
-    use puppetry_input::midi_port::{ASOUND_DIR, ports};
+    use puppetry_input::midi_port::{asound_dir_for, port_of_card, ports};
     use std::fmt::Write;
-    let wanted: Vec<(usize, String, &Path)> = config
+    let found = ports(midi_dir, &asound_dir_for(midi_dir));
+    // Each raw-port input, with the port it reads now (a card's, looked up).
+    let wanted: Vec<(usize, String, String, Option<&Path>)> = config
         .map(|c| {
             c.inputs
                 .iter()
                 .enumerate()
-                .filter_map(|(i, input)| match input {
-                    InputConfig::Midi {
-                        path: Some(path),
-                        name,
-                        ..
-                    } => Some((
+                .filter_map(|(i, input)| {
+                    let InputConfig::Midi {
+                        path, card, name, ..
+                    } = input
+                    else {
+                        return None;
+                    };
+                    let (what, now) = match (path, card) {
+                        (Some(path), _) => (path.display().to_string(), Some(path.as_path())),
+                        (None, Some(card)) => (
+                            format!("card {card:?}"),
+                            port_of_card(&found, card).ok().map(|p| p.path.as_path()),
+                        ),
+                        (None, None) => return None,
+                    };
+                    Some((
                         i,
                         name.clone().unwrap_or_else(|| format!("midi:{i}")),
-                        path.as_path(),
-                    )),
-                    _ => None,
+                        what,
+                        now,
+                    ))
                 })
                 .collect()
         })
         .unwrap_or_default();
-    let found = ports(midi_dir, Path::new(ASOUND_DIR));
     for port in &found {
         let _ = writeln!(
             out,
@@ -974,21 +984,22 @@ fn midi_report(
             port.card,
             port.device
         );
-        for (i, name, _) in wanted.iter().filter(|(_, _, p)| *p == port.path) {
+        for (i, name, _, _) in wanted.iter().filter(|w| w.3 == Some(port.path.as_path())) {
             let _ = writeln!(out, "    used by input[{i}] \"{name}\"");
         }
     }
-    for (i, name, path) in &wanted {
-        if !found.iter().any(|p| p.path == *path) {
+    for (i, name, what, now) in &wanted {
+        if !now.is_some_and(|path| found.iter().any(|p| p.path == path)) {
             let _ = writeln!(
                 out,
-                "input[{i}] \"{name}\" (midi, {}): no such port now; the daemon waits for it",
-                path.display()
+                "input[{i}] \"{name}\" (midi, {what}): no such port now; the daemon waits for it"
             );
         }
     }
 }
 
+/// The HID touch digitizers (hidapi), and which `kind = "hid"` entry of
+/// `config` each would feed.
 fn hid_report(out: &mut String, config: Option<&puppetry_daemon::config::ShowConfig>) {
     use puppetry_input::config::InputConfig;
     use std::fmt::Write;

@@ -934,7 +934,7 @@ async fn remove_puppet(shared: &Shared, puppet: u32) -> Handled {
 }
 
 /// `stop_playing`: the player stopped and joined off the runtime.
-async fn stop_playing(shared: &Shared) -> Handled {
+pub(crate) async fn stop_playing(shared: &Shared) -> Handled {
     let player = shared
         .links()?
         .player
@@ -1044,7 +1044,7 @@ async fn stop_take(shared: &Shared) -> Result<String, String> {
 /// Plays a take; with `overdub`, records a new take of it and the live
 /// hands, which stops when the played take ends. The take being recorded
 /// is refused (`busy`).
-async fn play_take(
+pub(crate) async fn play_take(
     shared: &Shared,
     take: &str,
     overdub: bool,

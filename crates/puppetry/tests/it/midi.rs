@@ -43,6 +43,10 @@ action = "record"
 note = 38
 action = "stop"
 [[input.map]]
+note = 37
+channel = 10
+action = "play"
+[[input.map]]
 msc = "stop"
 action = "stop"
 "#,
@@ -90,10 +94,19 @@ async fn until(ws: &mut Client, what: &str, done: impl Fn(&Value) -> bool) -> Va
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_controller_on_a_midi_port_moves_the_cursor_and_runs_a_take() {
     let dir = tempfile::tempdir().unwrap();
-    let fifo = fifo(dir.path());
+    // Found by its sound card's name, as ALSA names it (an `asound`
+    // folder beside the nodes stands in for /proc/asound).
+    let snd = dir.path().join("snd");
+    std::fs::create_dir(&snd).unwrap();
+    let fifo = fifo(&snd);
+    std::fs::create_dir_all(dir.path().join("asound/card1")).unwrap();
+    std::fs::write(dir.path().join("asound/card1/id"), "nanoKONTROL2\n").unwrap();
     let served = serve(
         dir.path(),
-        &stage(&format!("path = \"{}\"", fifo.display())),
+        &stage(&format!(
+            "card = \"nanokontrol2\"\ndir = \"{}\"",
+            snd.display()
+        )),
     );
     let mut ws = viewer(&served.http).await;
     // The port's writer: the daemon holds its reading end open.
@@ -119,6 +132,30 @@ async fn a_controller_on_a_midi_port_moves_the_cursor_and_runs_a_take() {
     let name = recording["recording"].as_str().unwrap();
     let summary = puppetry_take::summarize(&dir.path().join(format!("takes/{name}.take"))).unwrap();
     assert_eq!(summary.ending, "stopped");
+    // The play pad plays the newest take.
+    port.write_all(&[0x99, 37, 100]).unwrap();
+    until(&mut ws, "the take playing", |m| {
+        m["type"] == "take" && m["playing"] == json!(name)
+    })
+    .await;
+    // A flood of any bytes (a firmware dump, a broken cable) is read
+    // through: no panic, and the next fader still moves the cursor.
+    let mut noise = vec![0u8; 1 << 18];
+    let mut x = 0x2545_f491_u32;
+    for b in &mut noise {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        *b = x as u8;
+    }
+    port.write_all(&noise).unwrap();
+    port.write_all(&[0xB0, 16, 64, 0xB0, 17, 127]).unwrap();
+    until(
+        &mut ws,
+        "the cursor where the faders put it after the flood",
+        |m| m["type"] == "keys" && m["cursor"] == json!([64.0 / 127.0, 1.0]),
+    )
+    .await;
     // The controller unplugged (the port's writer gone), then the daemon
     // stopped: it exits cleanly, not held up by a port nobody writes to.
     drop(port);
@@ -445,10 +482,17 @@ fn devices_lists_the_midi_ports_and_who_reads_them() {
     for node in ["midiC1D0", "midiC3D0", "pcmC0D0p"] {
         std::fs::write(snd.join(node), "").unwrap();
     }
+    std::fs::create_dir_all(dir.path().join("asound/card3")).unwrap();
+    std::fs::write(dir.path().join("asound/card3/id"), "nanoKONTROL2\n").unwrap();
     let mut text = stage(&format!("path = \"{}\"", snd.join("midiC1D0").display()));
     text.push_str(&format!(
         "\n[[input]]\nkind = \"midi\"\nname = \"desk\"\npath = \"{}\"\n",
         snd.join("midiC9D0").display()
+    ));
+    text.push_str(&format!(
+        "\n[[input]]\nkind = \"midi\"\nname = \"pads\"\ncard = \"kontrol\"\ndir = \"{}\"\n\
+         \n[[input]]\nkind = \"midi\"\nname = \"push\"\ncard = \"Push\"\n",
+        snd.display()
     ));
     let file = dir.path().join("stage.toml");
     std::fs::write(&file, text).unwrap();
@@ -477,10 +521,22 @@ fn devices_lists_the_midi_ports_and_who_reads_them() {
         lines[port + 1].contains("used by input[0] \"faders\""),
         "{report}"
     );
-    assert!(report.contains("midiC3D0"), "{report}");
+    // Found by its card's name (from the asound folder beside the nodes).
+    let card = lines
+        .iter()
+        .position(|l| l.contains("midiC3D0") && l.contains("\"nanoKONTROL2\""))
+        .unwrap_or_else(|| panic!("{report}"));
+    assert!(
+        lines[card + 1].contains("used by input[2] \"pads\""),
+        "{report}"
+    );
     assert!(!report.contains("pcmC0D0p"), "{report}");
     assert!(
         report.contains("input[1] \"desk\" (midi,") && report.contains("no such port now"),
+        "{report}"
+    );
+    assert!(
+        report.contains("input[3] \"push\" (midi, card \"Push\"): no such port now"),
         "{report}"
     );
 }
