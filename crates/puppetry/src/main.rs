@@ -518,12 +518,32 @@ fn mesh(
     Ok(())
 }
 
-/// Waits for Ctrl-C, or SIGTERM as systemd and docker stop daemons.
-async fn until_stopped() -> std::io::Result<()> {
-    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    tokio::select! {
-        stopped = tokio::signal::ctrl_c() => stopped,
-        _ = terminate.recv() => Ok(()),
+/// Ctrl-C and SIGTERM (as systemd and docker stop daemons), caught from
+/// before the daemon says it serves: a stop sent the moment it says so
+/// (a test, a supervisor) must end it cleanly, not kill it by the
+/// signal's default (seen once: a SIGTERM just after the serving line
+/// killed the daemon before its handler was in place).
+struct Stop {
+    terminate: tokio::signal::unix::Signal,
+    interrupt: tokio::signal::unix::Signal,
+}
+
+impl Stop {
+    /// Catches both signals from now on.
+    fn catch() -> std::io::Result<Stop> {
+        use tokio::signal::unix::{SignalKind, signal};
+        Ok(Stop {
+            terminate: signal(SignalKind::terminate())?,
+            interrupt: signal(SignalKind::interrupt())?,
+        })
+    }
+
+    /// Waits for either.
+    async fn until_stopped(mut self) {
+        tokio::select! {
+            _ = self.interrupt.recv() => {}
+            _ = self.terminate.recv() => {}
+        }
     }
 }
 
@@ -669,10 +689,11 @@ fn serve_command(
             };
             (take, play)
         });
+        let stop = Stop::catch()?;
         let running = puppetry_daemon::serve::start_with(&stage, options).await?;
         print_serving(&path, &stage, &running);
         // Either way a take being recorded is ended cleanly.
-        until_stopped().await?;
+        stop.until_stopped().await;
         running.shutdown().await;
         anyhow::Ok(())
     })?;
@@ -717,13 +738,14 @@ fn relay_command(
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async {
         let stage = options.stage.clone();
+        let stop = Stop::catch()?;
         let running = puppetry_daemon::relay::serve::start(options).await?;
         println!(
             "puppetry: relaying stage {stage} at http://{}/",
             cli::url_address(running.address)
         );
         println!("  stop with Ctrl-C (or SIGTERM)");
-        until_stopped().await?;
+        stop.until_stopped().await;
         running.shutdown().await;
         anyhow::Ok(())
     })?;
