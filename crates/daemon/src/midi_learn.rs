@@ -15,6 +15,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use puppetry_input::config::InputConfig;
 use puppetry_input::midi::MidiMessage;
@@ -56,6 +57,9 @@ pub(crate) struct Learning {
     puppets: Vec<String>,
     /// Publishes the learning in the `inputs` message.
     view: Arc<Replays>,
+    /// A target is awaited (what the view says, kept apart so the MIDI
+    /// inputs look at it for every message without locking).
+    waiting: AtomicBool,
 }
 
 impl Learning {
@@ -74,6 +78,7 @@ impl Learning {
             stage_file,
             puppets,
             view,
+            waiting: AtomicBool::new(false),
         }
     }
 
@@ -81,6 +86,7 @@ impl Learning {
     pub(crate) fn wait_for(&self, target: Option<MidiTarget>) -> Result<(), String> {
         let Some(target) = target else {
             self.view.midi(|v| v.waiting = None);
+            self.waiting.store(false, Ordering::Release);
             return Ok(());
         };
         if self.view.midi(|v| v.inputs.is_empty()) {
@@ -112,6 +118,7 @@ impl Learning {
             v.learned = None;
             v.error = None;
         });
+        self.waiting.store(true, Ordering::Release);
         Ok(())
     }
 
@@ -119,11 +126,16 @@ impl Learning {
     /// a control's (a clock or a note off teaches nothing, and the wait
     /// goes on); the wait ends.
     pub(crate) fn claim(&self, message: &MidiMessage) -> Option<MidiMapping> {
-        self.view.midi(|v| {
+        if !self.waiting.load(Ordering::Acquire) {
+            return None;
+        }
+        let mapping = self.view.midi(|v| {
             let mapping = MidiMapping::learned(message, v.waiting.as_ref()?)?;
             v.waiting = None;
             Some(mapping)
-        })
+        })?;
+        self.waiting.store(false, Ordering::Release);
+        Some(mapping)
     }
 
     /// Saves `mapping` as input `index`'s (named `input`) in the stage

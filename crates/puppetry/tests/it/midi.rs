@@ -123,6 +123,12 @@ async fn a_controller_on_a_midi_port_moves_the_cursor_and_runs_a_take() {
         m["type"] == "take" && m["recording"].is_string()
     })
     .await;
+    // Half a second of the x fader, so the take plays back that long (a
+    // take of nothing plays out before a client hears it play).
+    for value in [20u8, 40, 60, 80, 100] {
+        port.write_all(&[0xB0, 16, value]).unwrap();
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
     port.write_all(&[0xF0, 0x7F, 0x7F, 0x02, 0x01, 0x02, 0xF7])
         .unwrap();
     until(&mut ws, "the take stopped", |m| {
@@ -220,7 +226,7 @@ async fn time_code_lines_a_take_up_with_its_soundtrack() {
     // deadlines, so a late wake-up does not shift what follows.
     let transport = std::thread::spawn(move || {
         let start = std::time::Instant::now();
-        for n in 0..40u32 {
+        for n in 0..25u32 {
             let frame = 275 + 2 * n;
             let code = TimeCode {
                 hours: 0,
@@ -239,7 +245,7 @@ async fn time_code_lines_a_take_up_with_its_soundtrack() {
                 // Right after the third set's last piece: show time
                 // 11.16 s + 1.75 frames = 11.23 s.
                 2 => port.write_all(&[0x99, 36, 100]).unwrap(),
-                39 => port.write_all(&[0x90, 38, 100]).unwrap(),
+                24 => port.write_all(&[0x90, 38, 100]).unwrap(),
                 n if n > 2 && n % 3 == 0 => port.write_all(&[0xB0, 16, (n * 3) as u8]).unwrap(),
                 _ => {}
             }
@@ -261,7 +267,7 @@ async fn time_code_lines_a_take_up_with_its_soundtrack() {
         .unwrap()
         .filter(|r| matches!(r, Ok(puppetry_take::Record::Clock(_))))
         .count();
-    assert!(clocks >= 30, "{clocks} time code readings in the take");
+    assert!(clocks >= 15, "{clocks} time code readings in the take");
 
     let wav = dir.path().join("song.wav");
     puppetry_testkit::sound::click_track(&wav, 14.0, &[12.0]);
@@ -314,7 +320,7 @@ fn a_midi_port_records_to_a_file_that_replays_it() {
         .arg(&fifo)
         .arg("-o")
         .arg(&out)
-        .args(["--duration", "2"])
+        .args(["--duration", "1.2"])
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
