@@ -162,18 +162,28 @@ pub(crate) fn sequencer(index: usize, port: &str) -> Result<MidiSource, String> 
 /// port goes).
 #[cfg(feature = "alsa-seq")]
 async fn read_sequencer(wanted: &str, doer: &mut Doer) {
-    use puppetry_midi_seq::{SeqReader, port_names};
+    use puppetry_midi_seq::{SEQ_QUEUE, SeqReader, port_names};
+    use std::sync::atomic::{AtomicU64, Ordering};
     loop {
+        let (send, mut received) = tokio::sync::mpsc::channel::<Vec<u8>>(SEQ_QUEUE);
+        let lost = Arc::new(AtomicU64::new(0));
+        let counted = lost.clone();
+        // On midir's thread: never waits on the runtime.
+        let on_message = move |bytes: &[u8]| {
+            if send.try_send(bytes.to_vec()).is_err() {
+                counted.fetch_add(1, Ordering::Relaxed);
+            }
+        };
         // A few calls into libasound: quick, and the input's own task.
-        match SeqReader::open(wanted) {
-            Ok(mut reader) => {
+        match SeqReader::open(wanted, on_message) {
+            Ok(reader) => {
                 tracing::info!("MIDI input {}: reading {}", doer.name, reader.name);
                 let mut decoder = MidiDecoder::new();
                 let mut messages = Vec::new();
                 let mut check = tokio::time::interval(REOPEN_EVERY);
                 loop {
                     tokio::select! {
-                        bytes = reader.read() => {
+                        bytes = received.recv() => {
                             let Some(bytes) = bytes else { break };
                             decoder.feed(&bytes, |m| messages.push(m));
                             for message in messages.drain(..) {
@@ -185,8 +195,9 @@ async fn read_sequencer(wanted: &str, doer: &mut Doer) {
                                 doer.warn(format_args!("{} went away", reader.name));
                                 break;
                             }
-                            if reader.lost() > 0 {
-                                doer.warn(format_args!("{} messages lost to a full queue", reader.lost()));
+                            let n = lost.swap(0, Ordering::Relaxed);
+                            if n > 0 {
+                                doer.warn(format_args!("{n} messages lost to a full queue"));
                             }
                         }
                     }

@@ -10,9 +10,11 @@
 //! nothing.
 //!
 //! midir calls back on a thread of its own with each whole message; the
-//! bytes cross to the runtime through a bounded queue ([`SEQ_QUEUE`]
-//! messages; a reader that falls that far behind loses the newest,
-//! counted) and go through the same decoder a raw port's do.
+//! daemon's callback hands the bytes to the runtime through a bounded
+//! queue ([`SEQ_QUEUE`] messages; a reader that falls that far behind
+//! loses the newest, counted), to the same decoder a raw port's go
+//! through. No runtime here: the crate stays small to build with its
+//! feature.
 
 /// Messages queued between the sequencer's thread and the runtime.
 pub const SEQ_QUEUE: usize = 1024;
@@ -54,19 +56,19 @@ pub use reader::{SeqReader, port_names};
 
 #[cfg(feature = "alsa")]
 mod reader {
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicU64, Ordering};
+    use super::matching_port;
 
-    use tokio::sync::mpsc;
-
-    use super::{SEQ_QUEUE, matching_port};
+    /// The sequencer, or why it cannot be opened.
+    fn sequencer() -> Result<midir::MidiInput, String> {
+        midir::MidiInput::new("puppetry").map_err(|e| {
+            format!("the ALSA sequencer cannot be opened ({e}): is /dev/snd/seq there?")
+        })
+    }
 
     /// The sequencer's input ports, by name; an error when there is no
     /// sequencer (no `/dev/snd/seq`: a container, a machine without ALSA).
     pub fn port_names() -> Result<Vec<String>, String> {
-        let input = midir::MidiInput::new("puppetry").map_err(|e| {
-            format!("the ALSA sequencer cannot be opened ({e}): is /dev/snd/seq there?")
-        })?;
+        let input = sequencer()?;
         Ok(input
             .ports()
             .iter()
@@ -74,22 +76,21 @@ mod reader {
             .collect())
     }
 
-    /// A connection to one sequencer port, its messages queued for the
-    /// runtime.
+    /// A connection to one sequencer port: `on_message` is called on
+    /// midir's thread with each whole message until it is dropped.
     pub struct SeqReader {
         /// The port's full name, as the sequencer gives it.
         pub name: String,
-        messages: mpsc::Receiver<Vec<u8>>,
-        lost: Arc<AtomicU64>,
         _connection: midir::MidiInputConnection<()>,
     }
 
     impl SeqReader {
         /// Connects to the port `wanted` names ([`matching_port`]).
-        pub fn open(wanted: &str) -> Result<SeqReader, String> {
-            let mut input = midir::MidiInput::new("puppetry").map_err(|e| {
-                format!("the ALSA sequencer cannot be opened ({e}): is /dev/snd/seq there?")
-            })?;
+        pub fn open(
+            wanted: &str,
+            mut on_message: impl FnMut(&[u8]) + Send + 'static,
+        ) -> Result<SeqReader, String> {
+            let mut input = sequencer()?;
             // Clock, time code and SysEx (show control) are read too.
             input.ignore(midir::Ignore::None);
             let ports = input.ports();
@@ -98,37 +99,18 @@ mod reader {
                 .map(|p| input.port_name(p).unwrap_or_default())
                 .collect();
             let index = matching_port(&names, wanted)?;
-            let (send, messages) = mpsc::channel(SEQ_QUEUE);
-            let lost = Arc::new(AtomicU64::new(0));
-            let counted = lost.clone();
             let connection = input
                 .connect(
                     &ports[index],
                     "puppetry",
-                    move |_stamp, bytes: &[u8], _| {
-                        if send.try_send(bytes.to_vec()).is_err() {
-                            counted.fetch_add(1, Ordering::Relaxed);
-                        }
-                    },
+                    move |_stamp, bytes: &[u8], _| on_message(bytes),
                     (),
                 )
                 .map_err(|e| format!("{}: {e}", names[index]))?;
             Ok(SeqReader {
                 name: names[index].clone(),
-                messages,
-                lost,
                 _connection: connection,
             })
-        }
-
-        /// The next message's bytes; `None` once the connection is gone.
-        pub async fn read(&mut self) -> Option<Vec<u8>> {
-            self.messages.recv().await
-        }
-
-        /// Messages lost to a full queue so far.
-        pub fn lost(&self) -> u64 {
-            self.lost.load(Ordering::Relaxed)
         }
     }
 }
@@ -171,7 +153,7 @@ mod tests {
         if std::path::Path::new("/dev/snd/seq").exists() {
             return;
         }
-        let e = SeqReader::open("anything").err().unwrap();
+        let e = SeqReader::open("anything", |_| {}).err().unwrap();
         assert!(e.contains("/dev/snd/seq"), "{e}");
     }
 }
