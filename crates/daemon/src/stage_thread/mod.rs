@@ -476,6 +476,7 @@ impl StageLoop {
             settings: takes,
             recorder: None,
             fresh: true,
+            lineup_changed: false,
             step: Vec::new(),
             events: Vec::new(),
             playing: None,
@@ -515,7 +516,7 @@ impl StageLoop {
 fn change_lineup(
     stage: &mut Stage,
     publisher: &mut Publisher,
-    taking: &Taking,
+    taking: &mut Taking,
     lineup: &watch::Sender<Arc<Lineup>>,
     change: LineupChange,
 ) -> Result<u32, CommandError> {
@@ -553,6 +554,7 @@ fn change_lineup(
         outputs.extend(added);
         *old = Lineup::of(stage, outputs, old.revision + 1, config);
     });
+    taking.lineup_changed = true;
     Ok(answer)
 }
 

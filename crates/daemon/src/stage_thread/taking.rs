@@ -36,6 +36,11 @@ pub(super) struct Taking {
     pub(super) recorder: Option<Recorder>,
     /// No change has reached the stage yet.
     pub(super) fresh: bool,
+    /// Puppets were added, removed or reordered: the stage is no longer
+    /// the one its file makes, so no take from here on is fresh (its
+    /// replay into a stage fresh from the file would differ), though
+    /// `serve --record` still waits for the first input.
+    pub(super) lineup_changed: bool,
     pub(super) step: Vec<Change>,
     pub(super) events: Vec<StageEvent>,
     pub(super) playing: Option<String>,
@@ -106,7 +111,8 @@ impl Taking {
                 .find(|n| !self.path_of(n).exists())
                 .expect("a free take name")
         });
-        let mut header = Header::of_stage(&name, &self.settings.stage_file, stage, self.fresh);
+        let fresh = self.fresh && !self.lineup_changed;
+        let mut header = Header::of_stage(&name, &self.settings.stage_file, stage, fresh);
         self.overdub_of = layers.first().cloned();
         header.layers = layers;
         let recorder = Recorder::start(&self.path_of(&name), &header).map_err(|e| e.to_string())?;
