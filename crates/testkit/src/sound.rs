@@ -62,25 +62,39 @@ pub fn first_onset(video: &Path) -> f64 {
     first as f64 / 48_000.0
 }
 
+/// What ffprobe says of `media`, as JSON: `args` choose the stream and
+/// the entries (`-select_streams a:0 -show_entries stream=start_time`).
+pub fn probe(media: &Path, args: &[&str]) -> serde_json::Value {
+    let out = Command::new("ffprobe")
+        .args(["-v", "error"])
+        .args(args)
+        .args(["-of", "json"])
+        .arg(media)
+        .output()
+        .expect("ffprobe runs (install ffmpeg: apt-get install ffmpeg)");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 /// When `video`'s sound stream starts against its pictures, in seconds,
 /// as ffprobe reads it (a player starts the sound that late).
 pub fn audio_start(video: &Path) -> f64 {
-    let out = Command::new("ffprobe")
-        .args([
-            "-v",
-            "error",
+    let probed = probe(
+        video,
+        &[
             "-select_streams",
             "a:0",
             "-show_entries",
             "stream=start_time",
-            "-of",
-            "csv=p=0",
-        ])
-        .arg(video)
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    text.trim()
-        .parse()
-        .unwrap_or_else(|_| panic!("no sound stream start in {text:?}"))
+        ],
+    );
+    let start = &probed["streams"][0]["start_time"];
+    start
+        .as_str()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no sound stream start in {probed}"))
 }

@@ -23,23 +23,16 @@ fn tools() {
 
 /// ffprobe's view of the first video stream and the container.
 fn probe(path: &Path) -> serde_json::Value {
-    let out = Command::new("ffprobe")
-        .args(["-v", "error"])
-        .args(["-select_streams", "v:0", "-count_frames"])
-        .args([
+    puppetry_testkit::sound::probe(
+        path,
+        &[
+            "-select_streams",
+            "v:0",
+            "-count_frames",
             "-show_entries",
             "stream=codec_name,profile,pix_fmt,r_frame_rate,nb_read_frames,width,height,color_space,color_primaries,color_transfer,color_range:stream_tags:format=duration",
-        ])
-        .args(["-of", "json"])
-        .arg(path)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
+        ],
+    )
 }
 
 /// Frame `k` decoded to RGBA by ffmpeg (with `decoder`, when given):
