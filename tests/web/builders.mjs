@@ -1,6 +1,6 @@
 // Prints, one JSON text a line, a message from every builder of
 // clients/web/protocol.js, optional arguments both left out and given. The
-// daemon's test (crates/puppetry/tests/it/web_protocol.rs) reads each into
+// daemon's test (crates/daemon/tests/it/web_protocol.rs) reads each into
 // its own `ClientMessage` type, which refuses unknown or missing fields: so
 // the page's builders and the Rust types agree on every message's shape,
 // not only its name, and a message type no builder makes fails there.

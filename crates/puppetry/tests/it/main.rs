@@ -1,7 +1,9 @@
-//! End-to-end tests, one binary: the daemon on 127.0.0.1:0 driven over
-//! WebSocket, by device stand-ins, serial ptys, TUIO and replays; every
-//! stage file of `config/`; the rigs live; the web page in headless
-//! Chromium; show control over OSC; and the command line.
+//! The binary's tests, one binary: the command line as a user runs it
+//! (every command, bad input, installing from the clone), every stage file
+//! of `config/`, devices and MIDI through the binary, show control over
+//! OSC, takes and exports end to end, hostile clients against the binary,
+//! and the crate graph. The daemon's own tests are in
+//! `crates/daemon/tests/it`.
 
 #![allow(
     clippy::too_many_lines,
@@ -13,30 +15,14 @@ mod common;
 mod bad_input;
 mod cli;
 mod config;
-mod curves;
-mod depth;
 mod devices;
-mod edge;
 mod exports;
 mod files;
-mod fuzz;
 mod graph;
 mod guarded;
 mod hostile;
 mod install;
-mod lineup;
 mod memory;
 mod midi;
 mod osc;
-mod relay;
-mod rigs;
-mod roles;
-mod serve;
-mod show;
-mod stage_state;
-mod stranger;
 mod takes;
-mod web;
-mod web_protocol;
-mod web_puppets;
-mod web_rigs;
