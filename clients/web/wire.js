@@ -1,5 +1,5 @@
-// GENERATED from the Rust types in crates/daemon/src/protocol/ by
-// crates/daemon/src/protocol/javascript.rs: do not edit. To rewrite it, run
+// GENERATED from the Rust types in crates/protocol/src/lib.rs by
+// crates/daemon/src/javascript.rs: do not edit. To rewrite it, run
 //   cargo test --release -p puppetry-daemon --lib wire
 // (the test writes this file and fails when it was out of date).
 // clients/web/protocol.js re-exports these names with the builders.

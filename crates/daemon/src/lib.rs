@@ -34,13 +34,19 @@ pub mod bundled;
 pub mod config;
 pub mod convert;
 pub(crate) mod inputs;
+// Writes `clients/web/wire.js` from the protocol's types, in its test.
+#[cfg(test)]
+mod javascript;
 pub mod lineup;
 pub mod memory;
 pub(crate) mod midi;
 pub mod midi_learn;
 pub(crate) mod osc;
 pub(crate) mod outputs;
-pub mod protocol;
+/// The wire protocol: the crate `puppetry-protocol`, which the daemon
+/// speaks and re-exports (its frame encoder runs at every solve, and is
+/// built optimised in a crate of its own).
+pub use puppetry_protocol as protocol;
 pub mod relay;
 pub mod serve;
 pub(crate) mod show_control;

@@ -2,18 +2,16 @@
 //! typed text messages each way ([`ServerMessage`], [`ClientMessage`]) and
 //! the binary frame ([`FrameHeader`], [`encode_frame`], [`decode_frame`]).
 //! `docs/protocol.md` describes it and a test parses every example there
-//! into these types; [`javascript`] writes the browser's names and numbers
-//! of it (`clients/web/wire.js`) from these types, and
+//! into these types; the daemon's `javascript` writes the browser's names
+//! and numbers of it (`clients/web/wire.js`) from these types, and
 //! `clients/web/protocol.js` builds and reads messages with them.
 //! The daemon, the benchmark client and the tests all speak through here,
 //! so no message is built or read by hand anywhere else.
 
 use bytes::{BufMut, Bytes, BytesMut};
 use glam::DVec2;
-use puppetry_input::Phase;
+use puppetry_contact::Phase;
 use serde::{Deserialize, Serialize};
-
-pub mod javascript;
 
 /// Size of a binary frame's header.
 pub const FRAME_HEADER_BYTES: usize = 32;
@@ -21,31 +19,38 @@ pub const FRAME_HEADER_BYTES: usize = 32;
 /// Where each field of a frame header starts (bytes, little-endian):
 /// `kind` u32, `puppet` u32, `sequence` u64, `input_time` f64, `count`
 /// u32, `generation` u32.
-pub(crate) mod header {
+pub mod header {
+    /// The frame's [`FrameKind`](super::FrameKind) code, u32.
     pub const KIND: usize = 0;
+    /// The puppet's index in the lineup, u32.
     pub const PUPPET: usize = 4;
+    /// The puppet's frame sequence number, u64.
     pub const SEQUENCE: usize = 8;
+    /// When the input that caused it reached the daemon, seconds, f64.
     pub const INPUT_TIME: usize = 16;
+    /// How many points (or depths) follow, u32.
     pub const COUNT: usize = 24;
+    /// A handles or depth frame's generation, u32.
     pub const GENERATION: usize = 28;
 }
 
 /// Adding a puppet over HTTP: a director POSTs a PNG to [`upload::PATH`]
 /// (`?name=…&vertices=…[&x=…&y=…&scale=…]`, the director's bearer token);
 /// the answer is [`ServerMessage::PuppetAdded`] or an `error`.
-pub(crate) mod upload {
+pub mod upload {
     /// Where the picture is POSTed.
     pub const PATH: &str = "/puppets";
     /// The vertex counts a director may ask for: enough to bend, few
     /// enough that the stage keeps its frame rate.
     pub const MIN_VERTICES: usize = 50;
+    /// The most vertices a director may ask for.
     pub const MAX_VERTICES: usize = 20_000;
     /// The count when none is asked for (the page's default too).
     pub const DEFAULT_VERTICES: usize = 1000;
 }
 
 /// Close frame codes the daemon sends (RFC 6455 and the application range).
-pub(crate) mod close {
+pub mod close {
     /// A rule was broken: a foreign origin, no hello, too many bad
     /// messages, a ping left unanswered (the client stopped reading).
     pub const POLICY: u16 = 1008;
@@ -78,7 +83,7 @@ pub enum FrameKind {
 
 impl FrameKind {
     /// Every kind this build sends.
-    pub(crate) const KNOWN: [FrameKind; 4] = [
+    pub const KNOWN: [FrameKind; 4] = [
         FrameKind::Vertices,
         FrameKind::Rig,
         FrameKind::Handles,
@@ -98,7 +103,7 @@ impl FrameKind {
 
     /// The kind a header's number means; a number this build does not
     /// know is [`FrameKind::Other`], which clients skip.
-    pub(crate) fn from_code(code: u32) -> FrameKind {
+    pub fn from_code(code: u32) -> FrameKind {
         match code {
             1 => FrameKind::Vertices,
             2 => FrameKind::Rig,
@@ -133,7 +138,7 @@ pub struct FrameHeader {
 impl FrameHeader {
     /// Appends the header to `out` (in the order of `header`'s offsets;
     /// a test reads each field back at its offset).
-    pub(crate) fn encode_into(&self, out: &mut BytesMut) {
+    pub fn encode_into(&self, out: &mut BytesMut) {
         out.put_u32_le(self.kind.code());
         out.put_u32_le(self.puppet);
         out.put_u64_le(self.sequence);
@@ -224,11 +229,7 @@ pub fn encode_frame_of(
 /// from it earlier is gone (clients drop theirs once sent), its storage is
 /// reclaimed, and the frame shares it with a reference count. A publisher
 /// that alternates two arenas per stream encodes without allocating.
-pub(crate) fn encode_frame_into(
-    arena: &mut BytesMut,
-    header: &FrameHeader,
-    points: &[DVec2],
-) -> Bytes {
+pub fn encode_frame_into(arena: &mut BytesMut, header: &FrameHeader, points: &[DVec2]) -> Bytes {
     write_frame(arena, header, points);
     arena.split().freeze()
 }
@@ -252,12 +253,7 @@ fn write_frame(out: &mut BytesMut, header: &FrameHeader, points: &[DVec2]) {
 }
 
 /// A depth frame (kind 4) of a puppet: the depth of each triangle.
-pub(crate) fn encode_depth_frame(
-    puppet: u32,
-    sequence: u64,
-    generation: u32,
-    depth: &[u16],
-) -> Bytes {
+pub fn encode_depth_frame(puppet: u32, sequence: u64, generation: u32, depth: &[u16]) -> Bytes {
     let payload = depth_payload_bytes(depth.len());
     let mut out = BytesMut::with_capacity(FRAME_HEADER_BYTES + payload);
     FrameHeader {
@@ -981,7 +977,7 @@ pub enum ServerMessage {
 
 impl ServerMessage {
     /// The message as the text sent on the wire.
-    pub(crate) fn to_text(&self) -> String {
+    pub fn to_text(&self) -> String {
         serde_json::to_string(self).expect("server messages serialise")
     }
 }
@@ -1343,7 +1339,7 @@ mod tests {
     }
 
     /// `docs/protocol.md`, compiled in so editing it reruns this test.
-    const DOC: &str = include_str!("../../../../docs/protocol.md");
+    const DOC: &str = include_str!("../../../docs/protocol.md");
 
     /// The JSON values of every ```json block of the document.
     fn documented_values() -> Vec<serde_json::Value> {

@@ -14,7 +14,7 @@ use std::fmt::Write as _;
 use puppetry_input::Phase;
 use strum::{EnumMessage, IntoEnumIterator, VariantNames};
 
-use super::{
+use crate::protocol::{
     ClientMessage, ErrorCode, FRAME_HEADER_BYTES, FrameKind, GripKind, HandleKind, PersonRole,
     RigDescription, ServerMessage, close, header, upload,
 };
@@ -34,8 +34,8 @@ struct Entry {
 /// The text of `clients/web/wire.js`.
 pub fn wire_js() -> String {
     let mut out = String::from(
-        "// GENERATED from the Rust types in crates/daemon/src/protocol/ by\n\
-         // crates/daemon/src/protocol/javascript.rs: do not edit. To rewrite it, run\n\
+        "// GENERATED from the Rust types in crates/protocol/src/lib.rs by\n\
+         // crates/daemon/src/javascript.rs: do not edit. To rewrite it, run\n\
          //   cargo test --release -p puppetry-daemon --lib wire\n\
          // (the test writes this file and fails when it was out of date).\n\
          // clients/web/protocol.js re-exports these names with the builders.\n",
