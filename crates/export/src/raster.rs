@@ -306,19 +306,21 @@ impl<'a> Rasterizer<'a> {
             } else {
                 (&mut self.layer, r)
             };
+            let points = &self.points;
+            let mut draw = |tri: &[u32; 3], taken: Option<&mut [u8]>| {
+                let [a, b, c] = tri.map(|v| v as usize);
+                draw_triangle(
+                    [points[a], points[b], points[c]],
+                    [p.uv[a], p.uv[b], p.uv[c]],
+                    texture,
+                    area,
+                    (w, h),
+                    target,
+                    taken,
+                );
+            };
             if p.draw_orders.is_empty() {
-                for tri in &p.triangles {
-                    let [a, b, c] = tri.map(|v| v as usize);
-                    draw_triangle(
-                        [self.points[a], self.points[b], self.points[c]],
-                        [p.uv[a], p.uv[b], p.uv[c]],
-                        texture,
-                        area,
-                        (w, h),
-                        target,
-                        None,
-                    );
-                }
+                p.triangles.iter().for_each(|tri| draw(tri, None));
             } else {
                 // A puppet that overlaps itself: front to back, each sample
                 // to the nearest triangle over it, so a part folded over
@@ -327,16 +329,7 @@ impl<'a> Rasterizer<'a> {
                 self.taken.clear();
                 self.taken.resize(area.width() * (area.y1 - area.y0), 0);
                 for tri in p.triangles_drawn(frame).rev() {
-                    let [a, b, c] = tri.map(|v| v as usize);
-                    draw_triangle(
-                        [self.points[a], self.points[b], self.points[c]],
-                        [p.uv[a], p.uv[b], p.uv[c]],
-                        texture,
-                        area,
-                        (w, h),
-                        target,
-                        Some(&mut self.taken),
-                    );
+                    draw(tri, Some(&mut self.taken));
                 }
             }
             if direct {

@@ -147,8 +147,15 @@ impl Stage {
                     {
                         return None;
                     }
-                    let id = self.add_handle(puppet, owner, kind, grip, at, offset, contact)?;
-                    return Some((puppet, id));
+                    let new = NewHandle {
+                        owner,
+                        kind,
+                        grip,
+                        at,
+                        offset,
+                        contact,
+                    };
+                    return Some((puppet, self.add_handle(puppet, new)));
                 }
                 Reach::Blocked => return None,
                 Reach::Miss => {}
@@ -157,35 +164,24 @@ impl Stage {
         None
     }
 
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn add_handle(
-        &mut self,
-        puppet: usize,
-        owner: Owner,
-        kind: HandleKind,
-        grip: Grip,
-        at: DVec2,
-        offset: DVec2,
-        contact: Option<u32>,
-    ) -> Option<u64> {
+    /// Makes a handle with the next id; returns the id.
+    pub(crate) fn add_handle(&mut self, puppet: usize, new: NewHandle) -> u64 {
         let id = self.next_handle;
         self.next_handle += 1;
-        self.insert_handle(puppet, id, owner, kind, grip, at, offset, contact)
+        self.insert_handle(puppet, id, new)
     }
 
-    /// Adds a handle with a given id (a new one, or a pin put back).
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn insert_handle(
-        &mut self,
-        puppet: usize,
-        id: u64,
-        owner: Owner,
-        kind: HandleKind,
-        grip: Grip,
-        at: DVec2,
-        offset: DVec2,
-        contact: Option<u32>,
-    ) -> Option<u64> {
+    /// Makes a handle with a given id (a new one, or a pin put back);
+    /// returns the id.
+    pub(crate) fn insert_handle(&mut self, puppet: usize, id: u64, new: NewHandle) -> u64 {
+        let NewHandle {
+            owner,
+            kind,
+            grip,
+            at,
+            offset,
+            contact,
+        } = new;
         let p = &mut self.puppets[puppet];
         if let Some(events) = &mut self.events {
             events.push(StageEvent::Made {
@@ -213,7 +209,7 @@ impl Stage {
         });
         p.handles_changed = true;
         p.handles_generation = p.handles_generation.wrapping_add(1);
-        Some(id)
+        id
     }
 
     /// Pins what a contact landing at `at` would grab (a material point, a

@@ -156,16 +156,15 @@ impl Stage {
                     crate::CONFIG_OWNER => Owner::Config,
                     other => Owner::Source(other.to_string()),
                 };
-                self.insert_handle(
-                    index,
-                    pin.handle,
+                let new = NewHandle {
                     owner,
-                    HandleKind::Pin,
+                    kind: HandleKind::Pin,
                     grip,
-                    pin.at,
-                    pin.offset,
-                    None,
-                );
+                    at: pin.at,
+                    offset: pin.offset,
+                    contact: None,
+                };
+                self.insert_handle(index, pin.handle, new);
             }
         }
         if let Some(layers) = &state.layers {
@@ -185,12 +184,7 @@ impl Stage {
             let p = &mut self.puppets[index];
             if *w != p.weights {
                 p.weights.clone_from(w);
-                p.weights_generation += 1;
-                if let Rig::Free(_) = p.rig {
-                    return Ok(self.rebuild(puppet));
-                }
-                p.weights_pending = true;
-                p.moved = true;
+                return Ok(self.weights_changed(puppet));
             }
         }
         Ok(None)

@@ -151,18 +151,16 @@ impl Stage {
                     self.puppets[index].keying.handles[i] = None;
                 }
                 if let Some(grip) = add {
-                    let at = self.puppets[index].grip_now(grip).unwrap_or_default();
-                    let offset = DVec2::ZERO;
-                    let id = self.add_handle(
-                        index,
-                        Owner::Source(crate::KEYS_OWNER.into()),
-                        HandleKind::Key,
+                    let new = NewHandle {
+                        owner: Owner::Source(crate::KEYS_OWNER.into()),
+                        kind: HandleKind::Key,
                         grip,
-                        at,
-                        offset,
-                        None,
-                    );
-                    self.puppets[index].keying.handles[i] = id;
+                        at: self.puppets[index].grip_now(grip).unwrap_or_default(),
+                        offset: DVec2::ZERO,
+                        contact: None,
+                    };
+                    let id = self.add_handle(index, new);
+                    self.puppets[index].keying.handles[i] = Some(id);
                 }
             }
             let p = &mut self.puppets[index];

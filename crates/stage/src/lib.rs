@@ -375,6 +375,20 @@ pub struct Handle {
     pub offset: DVec2,
 }
 
+/// A handle about to be made (`Stage::add_handle`, `insert_handle`): whose,
+/// what kind, holding what, where, and the contact it follows, if any.
+pub(crate) struct NewHandle {
+    owner: Owner,
+    kind: HandleKind,
+    grip: Grip,
+    /// Where it is held (its first `target`).
+    at: DVec2,
+    /// As [`Handle::offset`].
+    offset: DVec2,
+    /// The contact it follows; none for pins and key handles.
+    contact: Option<u32>,
+}
+
 impl Handle {
     /// Where the rig is asked to put what this handle holds.
     pub fn rig_target(&self) -> DVec2 {
@@ -675,16 +689,16 @@ impl Stage {
             let puppet = &self.puppets[id];
             let at = stage_point(&puppet.source_mesh, p.at.into(), p.scale, DVec2::from(*pin));
             let anchor = puppet.hit(at);
-            let pinned = anchor.and_then(|anchor| {
-                self.add_handle(
-                    id,
-                    Owner::Config,
-                    HandleKind::Pin,
-                    Grip::Point(anchor),
+            let pinned = anchor.map(|anchor| {
+                let new = NewHandle {
+                    owner: Owner::Config,
+                    kind: HandleKind::Pin,
+                    grip: Grip::Point(anchor),
                     at,
-                    DVec2::ZERO,
-                    None,
-                )
+                    offset: DVec2::ZERO,
+                    contact: None,
+                };
+                self.add_handle(id, new)
             });
             if pinned.is_none() {
                 self.puppets.pop();
@@ -926,38 +940,13 @@ impl Stage {
                 self.add_key(*puppet, name.clone(), *at)?;
             }
             Change::KeyMove { puppet, key, at } => {
-                let p = self.puppet_mut(*puppet)?;
-                let set = p.keying.set.as_mut().ok_or(CommandError::Keys {
-                    puppet: *puppet,
-                    source: keys::KeysError::NoSuchKey {
-                        index: *key,
-                        count: 0,
-                    },
-                })?;
-                set.move_key(*key, at.to_array())
-                    .map_err(|source| CommandError::Keys {
-                        puppet: *puppet,
-                        source,
-                    })?;
-                p.keying.touch();
+                self.edit_keys(*puppet, *key, |set| set.move_key(*key, at.to_array()))?;
             }
             Change::DepthFlip { at } => {
                 self.depth_flip(*at);
             }
             Change::KeyDelete { puppet, key } => {
-                let p = self.puppet_mut(*puppet)?;
-                let set = p.keying.set.as_mut().ok_or(CommandError::Keys {
-                    puppet: *puppet,
-                    source: keys::KeysError::NoSuchKey {
-                        index: *key,
-                        count: 0,
-                    },
-                })?;
-                set.remove(*key).map_err(|source| CommandError::Keys {
-                    puppet: *puppet,
-                    source,
-                })?;
-                p.keying.touch();
+                self.edit_keys(*puppet, *key, |set| set.remove(*key))?;
             }
         }
         Ok(None)
@@ -978,6 +967,27 @@ impl Stage {
             .get_mut(puppet as usize)
             .filter(|p| !p.removed)
             .ok_or(CommandError::NoSuchPuppet { puppet, count })
+    }
+
+    /// Edits a keyframed puppet's keys (`key` is the one `edit` names, for
+    /// the error when the puppet has none), marking them changed.
+    fn edit_keys<T>(
+        &mut self,
+        puppet: u32,
+        key: usize,
+        edit: impl FnOnce(&mut keys::KeySet) -> Result<T, keys::KeysError>,
+    ) -> Result<T, CommandError> {
+        let p = self.puppet_mut(puppet)?;
+        let set = p.keying.set.as_mut().ok_or(CommandError::Keys {
+            puppet,
+            source: keys::KeysError::NoSuchKey {
+                index: key,
+                count: 0,
+            },
+        })?;
+        let done = edit(set).map_err(|source| CommandError::Keys { puppet, source })?;
+        p.keying.touch();
+        Ok(done)
     }
 
     /// The rebuild a free-form puppet needs, if its weights are newer than

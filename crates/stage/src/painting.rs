@@ -66,15 +66,22 @@ impl Stage {
             },
             group,
         );
+        Ok(self.weights_changed(puppet))
+    }
+
+    /// After a puppet's weights changed (painted, or put back by undo): a
+    /// free-form puppet's solver is rebuilt off the stage thread (the
+    /// [`Rebuild`] to start); another rig is refactored once before the
+    /// next solve, however many dabs arrive before it.
+    pub(crate) fn weights_changed(&mut self, puppet: u32) -> Option<Rebuild> {
+        let p = &mut self.puppets[puppet as usize];
         p.weights_generation += 1;
         if let Rig::Free(_) = p.rig {
-            return Ok(self.rebuild(puppet));
+            return self.rebuild(puppet);
         }
-        // Refactored once before the next solve, however many dabs arrive
-        // before it.
         p.weights_pending = true;
         p.moved = true;
-        Ok(None)
+        None
     }
 
     /// One dab of the depth-layer brush: the triangles whose deformed
