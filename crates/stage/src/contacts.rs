@@ -174,38 +174,30 @@ impl Stage {
     /// Makes a handle with a given id (a new one, or a pin put back);
     /// returns the id.
     pub(crate) fn insert_handle(&mut self, puppet: usize, id: u64, new: NewHandle) -> u64 {
-        let NewHandle {
-            owner,
-            kind,
-            grip,
-            at,
-            offset,
-            contact,
-        } = new;
         let p = &mut self.puppets[puppet];
         if let Some(events) = &mut self.events {
             events.push(StageEvent::Made {
                 puppet: p.id,
                 handle: id,
-                owner: owner.to_string(),
-                contact,
-                kind: match kind {
+                owner: new.owner.to_string(),
+                contact: new.contact,
+                kind: match new.kind {
                     HandleKind::Contact => "contact",
                     HandleKind::Pin => "pin",
                     HandleKind::Key => "key",
                 }
                 .to_string(),
-                grip: p.grip_event(grip),
-                at,
+                grip: p.grip_event(new.grip),
+                at: new.at,
             });
         }
         p.handles.push(Handle {
             id,
-            owner,
-            kind,
-            grip,
-            target: at,
-            offset,
+            owner: new.owner,
+            kind: new.kind,
+            grip: new.grip,
+            target: new.at,
+            offset: new.offset,
         });
         p.handles_changed = true;
         p.handles_generation = p.handles_generation.wrapping_add(1);
