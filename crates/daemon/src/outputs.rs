@@ -85,6 +85,71 @@ pub struct PuppetOutput {
     pub depth: watch::Receiver<Option<Bytes>>,
 }
 
+/// What a puppet's channels hold before its first solve: its handles,
+/// weights, keys, history and (a skeleton's) pose as they are now.
+pub(crate) struct PuppetStart {
+    pub handles: Arc<PublishedHandles>,
+    pub weights: Arc<Published>,
+    pub keys: Arc<Published>,
+    pub history: Arc<Published>,
+    /// `Some` for a skeleton puppet, which alone has a pose channel.
+    pub pose: Option<Arc<Published>>,
+}
+
+/// The sending ends of a puppet's channels, one for each of
+/// [`PuppetOutput`]'s: the stage thread's publisher writes into them, or
+/// a relay from NATS.
+pub(crate) struct PuppetSenders {
+    pub frame: watch::Sender<Option<Bytes>>,
+    pub rig: watch::Sender<Option<Bytes>>,
+    pub handles: watch::Sender<Arc<PublishedHandles>>,
+    pub weights: Feed,
+    pub keys: Feed,
+    pub handle_frame: watch::Sender<Option<Bytes>>,
+    pub history: Feed,
+    pub pose: Option<Feed>,
+    pub depth: watch::Sender<Option<Bytes>>,
+}
+
+impl PuppetOutput {
+    /// A puppet's channels holding `start` and no frames yet: the ends
+    /// to publish into, and the ends connections read.
+    pub(crate) fn channels(start: PuppetStart) -> (PuppetSenders, PuppetOutput) {
+        let (frame, frame_rx) = watch::channel(None);
+        let (rig, rig_rx) = watch::channel(None);
+        let (handles, handles_rx) = watch::channel(start.handles);
+        let (weights, weights_rx) = watch::channel(start.weights);
+        let (keys, keys_rx) = watch::channel(start.keys);
+        let (handle_frame, handle_frame_rx) = watch::channel(None);
+        let (history, history_rx) = watch::channel(start.history);
+        let (pose, pose_rx) = start.pose.map(watch::channel).unzip();
+        let (depth, depth_rx) = watch::channel(None);
+        let senders = PuppetSenders {
+            frame,
+            rig,
+            handles,
+            weights,
+            keys,
+            handle_frame,
+            history,
+            pose,
+            depth,
+        };
+        let output = PuppetOutput {
+            frame: frame_rx,
+            rig: rig_rx,
+            handles: handles_rx,
+            weights: weights_rx,
+            keys: keys_rx,
+            handle_frame: handle_frame_rx,
+            history: history_rx,
+            pose: pose_rx,
+            depth: depth_rx,
+        };
+        (senders, output)
+    }
+}
+
 /// Where the daemon's time goes, summed since it started: per stage-thread
 /// iteration (the commands waiting, then one solve and its publishing) and
 /// per client send. Read by `puppetry bench --e2e`; relaxed atomics, a

@@ -35,20 +35,18 @@
 //! free); they are placed rigidly as `algorithms.md` prescribes.
 
 use faer::Par;
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::lu::partial_pivoting::{
-    factor::lu_in_place, factor::lu_in_place_scratch, inverse,
-};
+use faer::linalg::lu::partial_pivoting::inverse;
 use faer::traits::ComplexField;
 use faer::{Mat, c64};
 use glam::DVec2;
 use std::collections::HashMap;
 
+use super::dense::SequentialLu;
 use super::sparse::{
     ComplexCholesky, FactorError, RealCholesky, SparseVector, UpperPattern, fill_reducing_order,
 };
+use super::targets::{self, TargetError};
 use puppetry_mesh::Mesh;
-use puppetry_mesh::json::MAX_COORDINATE;
 
 /// Where a handle holds the mesh, in rest terms.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -115,21 +113,9 @@ pub enum ArapError {
         bary: [f64; 3],
     },
     /// [`Arap::update`]: the targets are not one per anchor of the last
-    /// [`Arap::compile`].
-    #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
-    TargetCount {
-        /// How many anchors were compiled.
-        expected: usize,
-        /// How many targets came.
-        got: usize,
-    },
-    /// [`Arap::update`]: a target is NaN, infinite or farther out than the
-    /// mesh format's coordinate limit.
-    #[error("handle {handle}: target is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    TargetNotFinite {
-        /// The first offending handle's index.
-        handle: usize,
-    },
+    /// [`Arap::compile`], or one is not a finite point within range.
+    #[error(transparent)]
+    Targets(#[from] TargetError),
     /// [`Arap::register`]: a piece's matrices could not be factored.
     #[error("piece {piece}: {source}")]
     Factor {
@@ -445,21 +431,10 @@ fn unit_rotation(dot: f64, crs: f64) -> DVec2 {
 /// The inverse of a small dense matrix by LU with partial pivoting, on this
 /// thread: faer's convenience API would fan out to its thread pool, whose
 /// wake-ups cost more than the arithmetic at these sizes.
-fn inverse_sequential<T: ComplexField>(mut lu: Mat<T>) -> Mat<T> {
-    let n = lu.nrows();
-    let mut forward = vec![0usize; n];
-    let mut backward = vec![0usize; n];
-    let scratch = lu_in_place_scratch::<usize, T>(n, n, Par::Seq, Default::default())
-        .or(inverse::inverse_scratch::<usize, T>(n, Par::Seq));
-    let mut memory = MemBuffer::new(scratch);
-    let (_, permutation) = lu_in_place(
-        lu.as_mut(),
-        &mut forward,
-        &mut backward,
-        Par::Seq,
-        MemStack::new(&mut memory),
-        Default::default(),
-    );
+fn inverse_sequential<T: ComplexField>(matrix: Mat<T>) -> Mat<T> {
+    let n = matrix.nrows();
+    let mut factored = SequentialLu::new(matrix, inverse::inverse_scratch::<usize, T>(n, Par::Seq));
+    let (lu, permutation, stack) = factored.parts();
     let lower = Mat::<T>::from_fn(n, n, |i, j| match i.cmp(&j) {
         std::cmp::Ordering::Greater => lu[(i, j)].clone(),
         std::cmp::Ordering::Equal => T::one_impl(),
@@ -479,7 +454,7 @@ fn inverse_sequential<T: ComplexField>(mut lu: Mat<T>) -> Mat<T> {
         upper.as_ref(),
         permutation,
         Par::Seq,
-        MemStack::new(&mut memory),
+        stack,
     );
     out
 }
@@ -611,18 +586,7 @@ impl Arap {
     /// has its target read and ignored) and recomputes the pose.
     /// Does not allocate.
     pub fn update(&mut self, targets: &[DVec2], steps: Steps) -> Result<&[DVec2], ArapError> {
-        if targets.len() != self.handle_count {
-            return Err(ArapError::TargetCount {
-                expected: self.handle_count,
-                got: targets.len(),
-            });
-        }
-        if let Some(h) = targets
-            .iter()
-            .position(|t| !(t.is_finite() && t.abs().max_element() <= MAX_COORDINATE))
-        {
-            return Err(ArapError::TargetNotFinite { handle: h });
-        }
+        targets::check(targets, self.handle_count)?;
         for piece in &mut self.pieces {
             piece.update(targets, steps, &mut self.pose);
         }

@@ -55,6 +55,8 @@ use std::ops::RangeInclusive;
 use glam::DVec2;
 use puppetry_mesh::json::MAX_COORDINATE;
 
+use crate::targets::{self, TargetError};
+
 pub use super::arap::Steps;
 
 /// Where a handle holds the curve, in rest terms.
@@ -204,21 +206,10 @@ pub enum CurveError {
         step: u8,
     },
     /// [`Curve::update`]: the targets are not one per anchor of the last
-    /// compile; [`Curve::set_pose`]: the points are not one per rest point.
-    #[error("expected {expected} handle targets (one per compiled handle), got {got}")]
-    TargetCount {
-        /// How many were expected.
-        expected: usize,
-        /// How many came.
-        got: usize,
-    },
-    /// [`Curve::update`]: a target is NaN, infinite or beyond the mesh
-    /// format's coordinate limit.
-    #[error("handle {handle}: target is not a finite point within ±{limit:e}", limit = MAX_COORDINATE)]
-    TargetNotFinite {
-        /// The first offending handle's index.
-        handle: usize,
-    },
+    /// compile, or one is not a finite point within range;
+    /// [`Curve::set_pose`]: the points are not one per rest point.
+    #[error(transparent)]
+    Targets(#[from] TargetError),
     /// [`Peel::new`]: the grab is not finite or off the rest curve's arc
     /// length range.
     #[error("grab at arc length {at} is not on the curve (0..={length})")]
@@ -364,10 +355,7 @@ pub fn validate(points: &[DVec2]) -> Result<(), CurveError> {
             count: points.len(),
         });
     }
-    if let Some(point) = points
-        .iter()
-        .position(|p| !(p.is_finite() && p.abs().max_element() <= MAX_COORDINATE))
-    {
+    if let Some(point) = targets::out_of_range(points) {
         return Err(CurveError::PointNotFinite { point });
     }
     if let Some(w) = points.windows(2).position(|w| w[0] == w[1]) {
@@ -679,15 +667,13 @@ impl Curve {
     /// have moved: compile again before the next update.
     pub fn set_pose(&mut self, points: &[DVec2]) -> Result<(), CurveError> {
         if points.len() != self.rest.len() {
-            return Err(CurveError::TargetCount {
+            return Err(TargetError::Count {
                 expected: self.rest.len(),
                 got: points.len(),
-            });
+            }
+            .into());
         }
-        if let Some(point) = points
-            .iter()
-            .position(|p| !(p.is_finite() && p.abs().max_element() <= MAX_COORDINATE))
-        {
+        if let Some(point) = targets::out_of_range(points) {
             return Err(CurveError::PointNotFinite { point });
         }
         self.pose.copy_from_slice(points);
@@ -1393,18 +1379,7 @@ impl Curve {
     /// Update: moves the compiled handles to `targets` (same order as the
     /// anchors given to compile) and recomputes the pose. Does not allocate.
     pub fn update(&mut self, targets: &[DVec2], steps: Steps) -> Result<&[DVec2], CurveError> {
-        if targets.len() != self.handle_count {
-            return Err(CurveError::TargetCount {
-                expected: self.handle_count,
-                got: targets.len(),
-            });
-        }
-        if let Some(handle) = targets
-            .iter()
-            .position(|t| !(t.is_finite() && t.abs().max_element() <= MAX_COORDINATE))
-        {
-            return Err(CurveError::TargetNotFinite { handle });
-        }
+        targets::check(targets, self.handle_count)?;
         match self.placement {
             Placement::Still => {}
             Placement::Carried { rotation } => {

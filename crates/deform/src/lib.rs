@@ -15,6 +15,7 @@
 
 pub mod arap;
 pub mod curve;
+mod dense;
 pub mod depth;
 pub mod ffd;
 mod lanes;
@@ -22,6 +23,7 @@ pub mod measure;
 pub mod rbf;
 pub mod skeleton;
 pub mod sparse;
+pub mod targets;
 
 pub use arap::{Anchor, Arap, ArapError, Steps};
 pub use curve::{Curve, CurveAnchor, CurveError, Peel, PeelParams};

@@ -45,12 +45,12 @@
 //!   They have kinks (not jumps) at the key points, and far from the keys they
 //!   stay bounded, because `Σ_j c_j = 0` cancels the linear growth of `r`.
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::lu::partial_pivoting::factor::{lu_in_place, lu_in_place_scratch};
 use faer::linalg::lu::partial_pivoting::solve::{solve_in_place, solve_in_place_scratch};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, Par};
 use glam::DVec2;
+
+use crate::dense::SequentialLu;
 
 /// Two key points closer than this fraction of the points' extent (the larger
 /// side of their bounding box) are one point: the system would be singular,
@@ -243,31 +243,15 @@ impl RbfBlend {
 /// `None` when the result is not finite (a zero pivot).
 fn invert_refined(matrix: &Mat<f64>) -> Option<Mat<f64>> {
     let n = matrix.nrows();
-    let mut lu = matrix.clone();
-    let mut forward = vec![0usize; n];
-    let mut backward = vec![0usize; n];
-    let scratch = lu_in_place_scratch::<usize, f64>(n, n, Par::Seq, Default::default())
-        .or(solve_in_place_scratch::<usize, f64>(n, n, Par::Seq));
-    let mut memory = MemBuffer::new(scratch);
-    let (_, permutation) = lu_in_place(
-        lu.as_mut(),
-        &mut forward,
-        &mut backward,
-        Par::Seq,
-        MemStack::new(&mut memory),
-        Default::default(),
+    let mut factored = SequentialLu::new(
+        matrix.clone(),
+        solve_in_place_scratch::<usize, f64>(n, n, Par::Seq),
     );
+    let (lu, permutation, stack) = factored.parts();
     // The unit lower factor and the upper factor share `lu`; each solve reads
     // only its own triangle.
     let mut inverse = Mat::<f64>::identity(n, n);
-    solve_in_place(
-        lu.as_ref(),
-        lu.as_ref(),
-        permutation,
-        inverse.as_mut(),
-        Par::Seq,
-        MemStack::new(&mut memory),
-    );
+    solve_in_place(lu, lu, permutation, inverse.as_mut(), Par::Seq, stack);
     let mut residual = Mat::<f64>::identity(n, n);
     matmul(
         residual.as_mut(),
@@ -277,14 +261,7 @@ fn invert_refined(matrix: &Mat<f64>) -> Option<Mat<f64>> {
         -1.0,
         Par::Seq,
     );
-    solve_in_place(
-        lu.as_ref(),
-        lu.as_ref(),
-        permutation,
-        residual.as_mut(),
-        Par::Seq,
-        MemStack::new(&mut memory),
-    );
+    solve_in_place(lu, lu, permutation, residual.as_mut(), Par::Seq, stack);
     let refined = inverse + residual;
     let finite = (0..n).all(|j| (0..n).all(|i| refined[(i, j)].is_finite()));
     finite.then_some(refined)

@@ -28,7 +28,7 @@ use super::{
     STAGE_GONE_AFTER, Subjects, TOTAL_HEADER,
 };
 use crate::lineup::{Lineup, StageDescription};
-use crate::outputs::{Feed, Published, State};
+use crate::outputs::{Feed, Published, PuppetSenders, PuppetStart, State};
 use crate::protocol::{
     ErrorCode, Person, PersonRole, RigDescription, Role, ServerMessage, StageSize,
 };
@@ -211,59 +211,22 @@ struct Feeds {
 
 /// A puppet's output channels on the relay: what the daemon's stage
 /// thread has for it, fed from NATS.
-struct PuppetFeeds {
-    frame: watch::Sender<Option<Bytes>>,
-    rig: watch::Sender<Option<Bytes>>,
-    handles: watch::Sender<Arc<PublishedHandles>>,
-    weights: Feed,
-    keys: Feed,
-    handle_frame: watch::Sender<Option<Bytes>>,
-    history: Feed,
-    pose: Option<Feed>,
-    depth: watch::Sender<Option<Bytes>>,
-}
+struct PuppetFeeds(PuppetSenders);
 
 impl PuppetFeeds {
     fn new(skeleton: bool) -> (PuppetFeeds, PuppetOutput) {
-        fn text() -> (Feed, State) {
-            watch::channel(Published::nothing())
-        }
-        let (frame, frame_rx) = watch::channel(None);
-        let (rig, rig_rx) = watch::channel(None);
-        let (handles, handles_rx) = watch::channel(Arc::new(PublishedHandles {
-            handles: Vec::new(),
-            text: Arc::from(""),
-            generation: 0,
-        }));
-        let (weights, weights_rx) = text();
-        let (keys, keys_rx) = text();
-        let (handle_frame, handle_frame_rx) = watch::channel(None);
-        let (history, history_rx) = text();
-        let (pose, pose_rx) = skeleton.then(text).unzip();
-        let (depth, depth_rx) = watch::channel(None);
-        let feeds = PuppetFeeds {
-            frame,
-            rig,
-            handles,
-            weights,
-            keys,
-            handle_frame,
-            history,
-            pose,
-            depth,
-        };
-        let output = PuppetOutput {
-            frame: frame_rx,
-            rig: rig_rx,
-            handles: handles_rx,
-            weights: weights_rx,
-            keys: keys_rx,
-            handle_frame: handle_frame_rx,
-            history: history_rx,
-            pose: pose_rx,
-            depth: depth_rx,
-        };
-        (feeds, output)
+        let (senders, output) = PuppetOutput::channels(PuppetStart {
+            handles: Arc::new(PublishedHandles {
+                handles: Vec::new(),
+                text: Arc::from(""),
+                generation: 0,
+            }),
+            weights: Published::nothing(),
+            keys: Published::nothing(),
+            history: Published::nothing(),
+            pose: skeleton.then(Published::nothing),
+        });
+        (PuppetFeeds(senders), output)
     }
 
     /// Takes one message of this puppet's `stream`; whether it was news
@@ -284,20 +247,20 @@ impl PuppetFeeds {
             Ok(relay_text(feed, text))
         };
         match stream {
-            "frame" => Ok(binary(&self.frame)),
-            "rig" => Ok(binary(&self.rig)),
-            "handle_frame" => Ok(binary(&self.handle_frame)),
-            "depth" => Ok(binary(&self.depth)),
-            "weights" => text(&self.weights),
-            "keys" => text(&self.keys),
-            "history" => text(&self.history),
-            "pose" => match &self.pose {
+            "frame" => Ok(binary(&self.0.frame)),
+            "rig" => Ok(binary(&self.0.rig)),
+            "handle_frame" => Ok(binary(&self.0.handle_frame)),
+            "depth" => Ok(binary(&self.0.depth)),
+            "weights" => text(&self.0.weights),
+            "keys" => text(&self.0.keys),
+            "history" => text(&self.0.history),
+            "pose" => match &self.0.pose {
                 Some(pose) => text(pose),
                 None => Err("a pose for a puppet without a skeleton".into()),
             },
             "handles" => {
                 let text = std::str::from_utf8(&payload).map_err(|e| e.to_string())?;
-                if *self.handles.borrow().text == *text {
+                if *self.0.handles.borrow().text == *text {
                     return Ok(false);
                 }
                 let Ok(ServerMessage::Handles {
@@ -308,7 +271,7 @@ impl PuppetFeeds {
                 else {
                     return Err("a handles message that is not one".into());
                 };
-                self.handles.send_replace(Arc::new(PublishedHandles {
+                self.0.handles.send_replace(Arc::new(PublishedHandles {
                     handles,
                     text: Arc::from(text),
                     generation,

@@ -18,7 +18,7 @@ use crate::protocol::{
 };
 
 use super::CursorState;
-use crate::outputs::{Feed, Published, PublishedHandles, PuppetOutput};
+use crate::outputs::{Feed, Published, PublishedHandles, PuppetOutput, PuppetStart};
 
 /// The "cursors" message: every mouse cursor on the stage.
 pub fn cursors_message(cursors: &BTreeMap<String, CursorState>) -> Arc<Published> {
@@ -259,45 +259,32 @@ impl Publisher {
     /// each holding its state now; returns the ends connections read.
     pub(super) fn add_puppet(&mut self, stage: &Stage, id: u32) -> PuppetOutput {
         let p = &stage.puppets()[id as usize];
-        let (frame_tx, frame_rx) = watch::channel(None);
-        self.frames.push(frame_tx);
-        let (rig_tx, rig_rx) = watch::channel(None);
-        self.rigs.push(rig_tx);
-        let (weights_tx, weights_rx) = watch::channel(weights_message(stage, id));
-        self.weights.push(weights_tx);
+        let skeleton = matches!(p.rig(), puppetry_stage::Rig::Skeleton(_));
+        let (senders, output) = PuppetOutput::channels(PuppetStart {
+            handles: published_handles(stage, id),
+            weights: weights_message(stage, id),
+            keys: keys_message(stage, id),
+            history: history_message(stage, id),
+            pose: skeleton.then(|| pose_message(stage, id)),
+        });
+        self.frames.push(senders.frame);
+        self.rigs.push(senders.rig);
+        self.weights.push(senders.weights);
         self.weights_published.push(p.weights_generation());
-        let (keys_tx, keys_rx) = watch::channel(keys_message(stage, id));
-        self.keys.push(keys_tx);
+        self.keys.push(senders.keys);
         self.keys_published.push(p.keying().generation);
-        let (handles_tx, handles_rx) = watch::channel(published_handles(stage, id));
-        self.handles.push(handles_tx);
-        let (handle_frame_tx, handle_frame_rx) = watch::channel(None);
-        self.handle_frames.push(handle_frame_tx);
-        let (history_tx, history_rx) = watch::channel(history_message(stage, id));
-        self.history.push(history_tx);
+        self.handles.push(senders.handles);
+        self.handle_frames.push(senders.handle_frame);
+        self.history.push(senders.history);
         self.history_published.push(p.history());
-        let pose = matches!(p.rig(), puppetry_stage::Rig::Skeleton(_))
-            .then(|| watch::channel(pose_message(stage, id)));
-        let (pose_tx, pose_rx) = pose.unzip();
-        self.poses.push(pose_tx);
+        self.poses.push(senders.pose);
         self.poses_published.push(p.key_pose().1);
-        let (depth_tx, depth_rx) = watch::channel(None);
-        self.depths.push(depth_tx);
+        self.depths.push(senders.depth);
         self.depths_published
             .push(p.depth().map_or(0, |(_, generation)| generation));
         self.sequences.push(0);
         self.arenas.push(Default::default());
-        PuppetOutput {
-            frame: frame_rx,
-            rig: rig_rx,
-            handles: handles_rx,
-            weights: weights_rx,
-            keys: keys_rx,
-            handle_frame: handle_frame_rx,
-            history: history_rx,
-            pose: pose_rx,
-            depth: depth_rx,
-        }
+        output
     }
 
     pub(super) fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorState>) {

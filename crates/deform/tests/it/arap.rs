@@ -4,6 +4,7 @@
 
 use crate::common::*;
 use glam::DVec2;
+use puppetry_deform::targets::TargetError;
 use puppetry_deform::{Anchor, Arap, ArapError, Steps};
 use puppetry_mesh::{Locator, Mesh};
 use puppetry_mesh::{MAX_WEIGHT, MIN_THICKNESS, MIN_WEIGHT};
@@ -395,15 +396,18 @@ fn bad_handles_are_reported() {
         .unwrap();
     assert!(matches!(
         arap.update(&[DVec2::ZERO], Steps::Both),
-        Err(ArapError::TargetCount {
+        Err(ArapError::Targets(TargetError::Count {
             expected: 2,
             got: 1
-        })
+        }))
     ));
     let err = arap
         .update(&[DVec2::ZERO, DVec2::new(f64::INFINITY, 0.0)], Steps::Both)
         .unwrap_err();
-    assert!(matches!(err, ArapError::TargetNotFinite { handle: 1 }));
+    assert!(matches!(
+        err,
+        ArapError::Targets(TargetError::NotFinite { handle: 1 })
+    ));
     assert!(err.to_string().contains("handle 1"));
 }
 

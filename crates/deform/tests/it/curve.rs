@@ -6,6 +6,7 @@
 
 use glam::DVec2;
 use puppetry_deform::curve::{resample_evenly, validate};
+use puppetry_deform::targets::TargetError;
 use puppetry_deform::{Curve, CurveAnchor, CurveError, Peel, PeelParams, Steps};
 use puppetry_testkit::alloc;
 
@@ -519,16 +520,16 @@ fn bad_handles_and_targets_are_reported() {
         .unwrap();
     assert_eq!(
         curve.update(&[DVec2::ZERO], Steps::Both).unwrap_err(),
-        CurveError::TargetCount {
+        CurveError::Targets(TargetError::Count {
             expected: 2,
             got: 1
-        }
+        })
     );
     assert_eq!(
         curve
             .update(&[DVec2::ZERO, DVec2::new(f64::INFINITY, 0.0)], Steps::Both)
             .unwrap_err(),
-        CurveError::TargetNotFinite { handle: 1 }
+        CurveError::Targets(TargetError::NotFinite { handle: 1 })
     );
     assert_eq!(
         Peel::new(&curve, 3.0, &[3.0], PeelParams::default()).unwrap_err(),
