@@ -345,16 +345,117 @@ pub(crate) async fn connect_viewer(
     Ok(ws)
 }
 
+/// What a bench viewer saw of the frames: latencies (µs) and each
+/// vertices frame's (puppet, sequence, time of arrival).
+type Seen = (Vec<f64>, Vec<(u32, u64, f64)>);
+
+/// Connects a viewer to `url` and reads the stage message (its puppets
+/// returned); the task it spawns reads the frames until a quiet spell,
+/// timing each against the daemon's `started`.
+async fn bench_viewer(
+    url: &str,
+    started: std::time::Instant,
+) -> Result<
+    (
+        tokio::task::JoinHandle<Seen>,
+        Vec<puppetry_daemon::protocol::PuppetDescription>,
+    ),
+    String,
+> {
+    use futures_util::{SinkExt, StreamExt};
+    use puppetry_daemon::protocol::{ClientMessage, FrameHeader, FrameKind, Role, ServerMessage};
+    use tokio_tungstenite::tungstenite::Message;
+    let mut ws = connect_viewer(url).await.map_err(|e| e.to_string())?;
+    let hello = ClientMessage::Hello {
+        role: Role::Viewer,
+        token: None,
+    };
+    let hello = serde_json::to_string(&hello).map_err(|e| e.to_string())?;
+    ws.send(Message::text(hello))
+        .await
+        .map_err(|e| e.to_string())?;
+    // The stage message, then the frames this client sees.
+    let Some(Ok(Message::Text(stage))) = ws.next().await else {
+        return Err("no stage message".into());
+    };
+    let stage: ServerMessage = serde_json::from_str(&stage).map_err(|e| e.to_string())?;
+    let ServerMessage::Stage { puppets, .. } = stage else {
+        return Err(format!("expected the stage message, got {stage:?}"));
+    };
+    let reader = tokio::spawn(async move {
+        let mut latencies = Vec::new();
+        let mut sequences = Vec::new();
+        // Stop after a quiet spell: the replay is over and drained.
+        while let Ok(Some(Ok(message))) =
+            tokio::time::timeout(Duration::from_millis(500), ws.next()).await
+        {
+            if let Message::Binary(bytes) = message {
+                let now = started.elapsed().as_secs_f64();
+                let Ok(header) = FrameHeader::decode(&bytes) else {
+                    continue;
+                };
+                let input = header.input_time;
+                if header.kind == FrameKind::Vertices && input > 0.0 {
+                    latencies.push((now - input) * 1e6);
+                    sequences.push((header.puppet, header.sequence, now));
+                }
+            }
+        }
+        (latencies, sequences)
+    });
+    Ok((reader, puppets))
+}
+
+/// `input_frames` frames 1 ms apart of one source per entry of
+/// `performers`, each holding a contact on every point it lists, all
+/// circling (40 stage units across).
+fn circling(performers: &[Vec<DVec2>], input_frames: usize) -> Vec<puppetry_input::ContactFrame> {
+    use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
+    let sources: Vec<SourceId> = (0..performers.len())
+        .map(|j| SourceId::new(format!("bench-{j}")))
+        .collect();
+    (0..input_frames)
+        .flat_map(|k| {
+            let phase = if k == 0 { Phase::Down } else { Phase::Move };
+            let angle = k as f64 * 0.02;
+            let offset = DVec2::new(angle.cos() - 1.0, angle.sin()) * 40.0;
+            performers
+                .iter()
+                .zip(&sources)
+                .map(move |(points, source)| ContactFrame {
+                    source: source.clone(),
+                    time: k as f64 * 1e-3,
+                    contacts: (1..)
+                        .zip(points)
+                        .map(|(id, &point)| Contact::new(id, phase, point + offset))
+                        .collect(),
+                })
+        })
+        .collect()
+}
+
+/// Per puppet (of `puppets`), the solves between its first and last frame
+/// in `sequences` and how many a second that was; the least solved puppet
+/// speaks for the run.
+fn least_solved(sequences: &[(u32, u64, f64)], puppets: u32) -> (u64, f64) {
+    (0..puppets)
+        .map(|puppet| {
+            let mut of = sequences.iter().filter(|s| s.0 == puppet);
+            match (of.next(), of.next_back()) {
+                (Some(a), Some(b)) if b.2 > a.2 => (b.1 - a.1, (b.1 - a.1) as f64 / (b.2 - a.2)),
+                _ => (0, 0.0),
+            }
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, 0.0))
+}
+
 /// Runs the daemon on `config`, connects `clients` viewers on loopback and
 /// replays drags of `input_frames` frames (1 ms apart) into it with
 /// `pacing`: one input source per entry of `performers`, each holding a
 /// contact on every point it lists (stage units: a finger per puppet), all
 /// circling. The daemon runs in this process on a runtime of its own (two
 /// workers); errors come back as text.
-#[expect(
-    clippy::too_many_lines,
-    reason = "a bench case read top to bottom (start the daemon, connect the clients, drag, measure); a tool, not the show's path"
-)]
 pub async fn end_to_end(
     name: &str,
     config: &puppetry_daemon::config::ShowConfig,
@@ -363,16 +464,11 @@ pub async fn end_to_end(
     input_frames: usize,
     pacing: puppetry_input::replay::Pacing,
 ) -> Result<EndToEndResult, String> {
-    use futures_util::{SinkExt, StreamExt};
-    use tokio_tungstenite::tungstenite::Message;
-
     use puppetry_input::replay::{Pacing, ReplaySource};
     let pacing_name = match pacing {
         Pacing::RealTime => "real_time",
         Pacing::AsFastAsPossible => "as_fast_as_possible",
     };
-    use puppetry_daemon::protocol::{ClientMessage, FrameHeader, FrameKind, Role, ServerMessage};
-    use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 
     // The daemon gets a runtime of its own, as it would in its own
     // process: the viewers' reading here then competes with it for the
@@ -402,68 +498,12 @@ pub async fn end_to_end(
     let mut readers = Vec::new();
     let (mut vertices, mut puppet_count) = (0, 0);
     for _ in 0..clients {
-        let mut ws = connect_viewer(&url).await.map_err(|e| e.to_string())?;
-        let hello = ClientMessage::Hello {
-            role: Role::Viewer,
-            token: None,
-        };
-        let hello = serde_json::to_string(&hello).map_err(|e| e.to_string())?;
-        ws.send(Message::text(hello))
-            .await
-            .map_err(|e| e.to_string())?;
-        // The stage message, then the frames this client sees.
-        let Some(Ok(Message::Text(stage))) = ws.next().await else {
-            return Err("no stage message".into());
-        };
-        let stage: ServerMessage = serde_json::from_str(&stage).map_err(|e| e.to_string())?;
-        let ServerMessage::Stage { puppets, .. } = stage else {
-            return Err(format!("expected the stage message, got {stage:?}"));
-        };
-        vertices = puppets.first().map_or(0, |p| p.rest.len() / 2);
-        puppet_count = puppets.len();
-        readers.push(tokio::spawn(async move {
-            let mut latencies = Vec::new();
-            let mut sequences = Vec::new();
-            // Stop after a quiet spell: the replay is over and drained.
-            while let Ok(Some(Ok(message))) =
-                tokio::time::timeout(Duration::from_millis(500), ws.next()).await
-            {
-                if let Message::Binary(bytes) = message {
-                    let now = started.elapsed().as_secs_f64();
-                    let Ok(header) = FrameHeader::decode(&bytes) else {
-                        continue;
-                    };
-                    let input = header.input_time;
-                    if header.kind == FrameKind::Vertices && input > 0.0 {
-                        latencies.push((now - input) * 1e6);
-                        sequences.push((header.puppet, header.sequence, now));
-                    }
-                }
-            }
-            (latencies, sequences)
-        }));
+        let (reader, stage) = bench_viewer(&url, started).await?;
+        vertices = stage.first().map_or(0, |p| p.rest.len() / 2);
+        puppet_count = stage.len();
+        readers.push(reader);
     }
-    let sources: Vec<SourceId> = (0..performers.len())
-        .map(|j| SourceId::new(format!("bench-{j}")))
-        .collect();
-    let frames: Vec<ContactFrame> = (0..input_frames)
-        .flat_map(|k| {
-            let phase = if k == 0 { Phase::Down } else { Phase::Move };
-            let angle = k as f64 * 0.02;
-            let offset = DVec2::new(angle.cos() - 1.0, angle.sin()) * 40.0;
-            performers
-                .iter()
-                .zip(&sources)
-                .map(move |(points, source)| ContactFrame {
-                    source: source.clone(),
-                    time: k as f64 * 1e-3,
-                    contacts: (1..)
-                        .zip(points)
-                        .map(|(id, &point)| Contact::new(id, phase, point + offset))
-                        .collect(),
-                })
-        })
-        .collect();
+    let frames = circling(performers, input_frames);
     let timings = running.timings();
     let stage_cpu_before = thread_cpu_by_name("stage");
     let playing = std::time::Instant::now();
@@ -521,19 +561,8 @@ pub async fn end_to_end(
     .into_iter()
     .map(load)
     .sum::<f64>();
-    // Per puppet, solves between its first and last frame and how long
-    // that took; the least solved puppet speaks for the run.
-    let sequences = first_reader.unwrap_or_default();
-    let (solves, solves_per_s) = (0..puppet_count as u32)
-        .map(|puppet| {
-            let mut of = sequences.iter().filter(|s| s.0 == puppet);
-            match (of.next(), of.next_back()) {
-                (Some(a), Some(b)) if b.2 > a.2 => (b.1 - a.1, (b.1 - a.1) as f64 / (b.2 - a.2)),
-                _ => (0, 0.0),
-            }
-        })
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .unwrap_or((0, 0.0));
+    let (solves, solves_per_s) =
+        least_solved(&first_reader.unwrap_or_default(), puppet_count as u32);
     latencies.sort_by(f64::total_cmp);
     if latencies.is_empty() {
         return Err("no frames reached the clients".into());

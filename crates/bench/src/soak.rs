@@ -296,38 +296,50 @@ struct Crew {
     stop: watch::Receiver<bool>,
 }
 
+impl Crew {
+    /// The soak goes on.
+    fn running(&self) -> bool {
+        !*self.stop.borrow()
+    }
+
+    /// An edge picked by `dice`.
+    fn edge(&self, dice: &mut Dice) -> &str {
+        &self.edges[dice.roll(self.edges.len() as u64) as usize]
+    }
+
+    /// Counts a connection that failed, and waits a second before the
+    /// next try.
+    async fn failed_to_connect(&self) {
+        self.counts.failures.fetch_add(1, Ordering::Relaxed);
+        tokio::time::sleep(Duration::from_secs(1)).await;
+    }
+}
+
 /// The reference viewer: at the far end (the relay, when there is one).
-fn reference_viewer(crew: Crew, edge: String) -> tokio::task::JoinHandle<()> {
-    let Crew {
-        seen,
-        counts,
-        mut stop,
-        ..
-    } = crew;
+fn reference_viewer(mut crew: Crew, edge: String) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
-        while !*stop.borrow() {
+        while crew.running() {
             let origin = Instant::now();
             let Ok((mut ws, _)) =
                 connect_staged(&edge, json!({"type": "hello", "role": "viewer"})).await
             else {
-                counts.failures.fetch_add(1, Ordering::Relaxed);
-                tokio::time::sleep(Duration::from_secs(1)).await;
+                crew.failed_to_connect().await;
                 continue;
             };
             let Ok(zero) = daemon_clock_origin(&mut ws, origin).await else {
-                counts.failures.fetch_add(1, Ordering::Relaxed);
+                crew.counts.failures.fetch_add(1, Ordering::Relaxed);
                 continue;
             };
             loop {
                 tokio::select! {
-                    _ = stop.changed() => return,
+                    _ = crew.stop.changed() => return,
                     m = ws.next() => match m {
                         Some(Ok(Message::Binary(bytes))) => {
                             if let Ok(h) = FrameHeader::decode(&bytes)
                                 && h.kind == FrameKind::Vertices
                             {
                                 let now = origin.elapsed().as_secs_f64();
-                                let mut seen = seen.lock().unwrap_or_else(|p| p.into_inner());
+                                let mut seen = crew.seen.lock().unwrap_or_else(|p| p.into_inner());
                                 seen.frames += 1;
                                 if h.input_time > 0.0 {
                                     seen.latencies_us.push((now - (zero + h.input_time)) * 1e6);
@@ -336,7 +348,7 @@ fn reference_viewer(crew: Crew, edge: String) -> tokio::task::JoinHandle<()> {
                         }
                         Some(Ok(_)) => {}
                         _ => {
-                            counts.failures.fetch_add(1, Ordering::Relaxed);
+                            crew.counts.failures.fetch_add(1, Ordering::Relaxed);
                             break;
                         }
                     },
@@ -348,28 +360,21 @@ fn reference_viewer(crew: Crew, edge: String) -> tokio::task::JoinHandle<()> {
 
 /// Viewers churning.
 fn churning_viewer(crew: Crew, slot: usize) -> tokio::task::JoinHandle<()> {
-    let Crew {
-        edges,
-        counts,
-        stop,
-        ..
-    } = crew;
     tokio::spawn(async move {
         let mut dice = Dice(0x9E37_79B9_7F4A_7C15 ^ (slot as u64 + 1));
-        while !*stop.borrow() {
-            let edge = &edges[dice.roll(edges.len() as u64) as usize];
+        while crew.running() {
+            let edge = crew.edge(&mut dice);
             let Ok((mut ws, _)) = connect(edge, json!({"type": "hello", "role": "viewer"})).await
             else {
-                counts.failures.fetch_add(1, Ordering::Relaxed);
-                tokio::time::sleep(Duration::from_secs(1)).await;
+                crew.failed_to_connect().await;
                 continue;
             };
-            counts.viewer_connects.fetch_add(1, Ordering::Relaxed);
+            crew.counts.viewer_connects.fetch_add(1, Ordering::Relaxed);
             match dice.roll(5) {
                 // Stalls: stops reading past the client timeout (the
                 // stage's 10 s), then goes without a word.
                 0 => {
-                    counts.stalls.fetch_add(1, Ordering::Relaxed);
+                    crew.counts.stalls.fetch_add(1, Ordering::Relaxed);
                     tokio::time::sleep(Duration::from_secs(12)).await;
                     drop(ws);
                 }
@@ -384,10 +389,10 @@ fn churning_viewer(crew: Crew, slot: usize) -> tokio::task::JoinHandle<()> {
                     let picture = http(edge, b"GET /puppets/0/texture.png HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await;
                     match picture {
                         Ok(answer) if answer.starts_with(b"HTTP/1.1 200") => {
-                            counts.pictures.fetch_add(1, Ordering::Relaxed);
+                            crew.counts.pictures.fetch_add(1, Ordering::Relaxed);
                         }
                         _ => {
-                            counts.failures.fetch_add(1, Ordering::Relaxed);
+                            crew.counts.failures.fetch_add(1, Ordering::Relaxed);
                         }
                     }
                     read_for(&mut ws, Duration::from_secs(2 + dice.roll(8))).await;
@@ -405,23 +410,18 @@ fn churning_viewer(crew: Crew, slot: usize) -> tokio::task::JoinHandle<()> {
 
 /// Performers joining, dragging and leaving (on either edge).
 fn performing(crew: Crew, performer: u64) -> tokio::task::JoinHandle<()> {
-    let Crew {
-        edges,
-        counts,
-        stop,
-        ..
-    } = crew;
     tokio::spawn(async move {
         let mut dice = Dice(0xD1B5_4A32_D192_ED03 ^ (performer + 7));
-        while !*stop.borrow() {
-            let edge = &edges[dice.roll(edges.len() as u64) as usize];
+        while crew.running() {
+            let edge = crew.edge(&mut dice);
             let hello = json!({"type": "hello", "role": "performer", "token": "demo"});
             let Ok((ws, stage)) = connect_staged(edge, hello).await else {
-                counts.failures.fetch_add(1, Ordering::Relaxed);
-                tokio::time::sleep(Duration::from_secs(1)).await;
+                crew.failed_to_connect().await;
                 continue;
             };
-            counts.performer_sessions.fetch_add(1, Ordering::Relaxed);
+            crew.counts
+                .performer_sessions
+                .fetch_add(1, Ordering::Relaxed);
             let rest: Vec<f64> =
                 serde_json::from_value(stage["puppets"][0]["rest"].clone()).unwrap_or_default();
             let at = rest
@@ -449,7 +449,7 @@ fn performing(crew: Crew, performer: u64) -> tokio::task::JoinHandle<()> {
             };
             let reading = async { while let Some(Ok(_)) = stream.next().await {} };
             tokio::select! {
-                done = drag => if done.is_err() { counts.failures.fetch_add(1, Ordering::Relaxed); },
+                done = drag => if done.is_err() { crew.counts.failures.fetch_add(1, Ordering::Relaxed); },
                 _ = reading => {}
             }
             tokio::time::sleep(Duration::from_millis(500 + 100 * dice.roll(10))).await;
@@ -459,16 +459,10 @@ fn performing(crew: Crew, performer: u64) -> tokio::task::JoinHandle<()> {
 
 /// Malformed messages, from a client that is dropped for them.
 fn malformed_messages(crew: Crew) -> tokio::task::JoinHandle<()> {
-    let Crew {
-        edges,
-        counts,
-        stop,
-        ..
-    } = crew;
     tokio::spawn(async move {
         let mut dice = Dice(0xA076_1D64_78BD_642F);
-        while !*stop.borrow() {
-            let edge = &edges[dice.roll(edges.len() as u64) as usize];
+        while crew.running() {
+            let edge = crew.edge(&mut dice);
             let hello = json!({"type": "hello", "role": "performer", "token": "demo"});
             let Ok((mut ws, _)) = connect(edge, hello).await else {
                 tokio::time::sleep(Duration::from_secs(1)).await;
@@ -479,7 +473,7 @@ fn malformed_messages(crew: Crew) -> tokio::task::JoinHandle<()> {
                 if ws.send(Message::text(bad)).await.is_err() {
                     break;
                 }
-                counts.bad_messages.fetch_add(1, Ordering::Relaxed);
+                crew.counts.bad_messages.fetch_add(1, Ordering::Relaxed);
                 read_for(&mut ws, Duration::from_millis(100)).await;
             }
             drop(ws);
@@ -493,22 +487,16 @@ fn takes_exported(
     takes: std::path::PathBuf,
     every: Duration,
 ) -> tokio::task::JoinHandle<()> {
-    let Crew {
-        daemon,
-        counts,
-        stop,
-        ..
-    } = crew;
     tokio::spawn(async move {
         let mut n = 0;
-        while !*stop.borrow() {
+        while crew.running() {
             tokio::time::sleep(every).await;
             n += 1;
             let name = format!("soak-{n}");
-            if take_and_export(&daemon, &name).await.is_ok() {
-                counts.takes_exported.fetch_add(1, Ordering::Relaxed);
+            if take_and_export(&crew.daemon, &name).await.is_ok() {
+                crew.counts.takes_exported.fetch_add(1, Ordering::Relaxed);
             } else {
-                counts.failures.fetch_add(1, Ordering::Relaxed);
+                crew.counts.failures.fetch_add(1, Ordering::Relaxed);
             }
             let _ = std::fs::remove_file(takes.join(format!("{name}.take")));
         }
@@ -517,19 +505,13 @@ fn takes_exported(
 
 /// A curve puppet added and taken off again: a new lineup each time.
 fn lineup_changes(crew: Crew, every: Duration) -> tokio::task::JoinHandle<()> {
-    let Crew {
-        daemon,
-        counts,
-        stop,
-        ..
-    } = crew;
     tokio::spawn(async move {
-        while !*stop.borrow() {
+        while crew.running() {
             tokio::time::sleep(every).await;
-            match add_and_remove_a_curve(&daemon).await {
-                Ok(true) => counts.lineups.fetch_add(2, Ordering::Relaxed),
+            match add_and_remove_a_curve(&crew.daemon).await {
+                Ok(true) => crew.counts.lineups.fetch_add(2, Ordering::Relaxed),
                 Ok(false) => 0,
-                Err(_) => counts.failures.fetch_add(1, Ordering::Relaxed),
+                Err(_) => crew.counts.failures.fetch_add(1, Ordering::Relaxed),
             };
         }
     })

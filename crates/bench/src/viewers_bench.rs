@@ -530,13 +530,69 @@ async fn request_median(ws: &mut Ws, count: usize) -> Result<f64, ViewersError> 
 /// Frames a second the relay tier is benched at (an audience's display).
 const RELAY_INPUT_HZ: f64 = 60.0;
 
+/// The first puppet of a stage message: its vertex count, and the vertex
+/// nearest its middle (where the bench grabs it).
+fn middle_vertex(stage: &serde_json::Value) -> Result<(usize, DVec2), ViewersError> {
+    let puppet = &stage["puppets"][0];
+    let rest: Vec<f64> = serde_json::from_value(puppet["rest"].clone()).unwrap_or_default();
+    let points: Vec<DVec2> = rest.chunks(2).map(|p| DVec2::new(p[0], p[1])).collect();
+    let middle = points.iter().copied().sum::<DVec2>() / points.len().max(1) as f64;
+    let grab = points
+        .iter()
+        .copied()
+        .min_by(|a, b| a.distance(middle).total_cmp(&b.distance(middle)))
+        .ok_or_else(|| ViewersError::Daemon("the demo puppet has no vertices".into()))?;
+    Ok((points.len(), grab))
+}
+
+/// A viewer's frames' latencies (µs) until `stop`: each vertices frame's
+/// arrival (since `origin`) against its input's time on the daemon's
+/// clock (which started at `zero` on ours).
+async fn latencies(
+    mut ws: Ws,
+    stop: std::sync::Arc<tokio::sync::Notify>,
+    origin: Instant,
+    zero: f64,
+) -> Vec<f64> {
+    let mut latencies = Vec::with_capacity(1024);
+    let stopped = stop.notified();
+    tokio::pin!(stopped);
+    loop {
+        tokio::select! {
+            _ = &mut stopped => break,
+            m = ws.next() => match m {
+                Some(Ok(Message::Binary(bytes))) => {
+                    let now = origin.elapsed().as_secs_f64();
+                    if let Ok(h) = FrameHeader::decode(&bytes)
+                        && h.kind == FrameKind::Vertices
+                        && h.input_time > 0.0
+                    {
+                        latencies.push((now - (zero + h.input_time)) * 1e6);
+                    }
+                }
+                Some(Ok(_)) => {}
+                _ => break,
+            },
+        }
+    }
+    latencies
+}
+
+/// The median round trip (µs) of a request to the daemon from
+/// `performer`, then from a performer on the tier's first relay.
+async fn asked_both_ways(performer: &mut Ws, tier: &Tier) -> Result<(f64, f64), ViewersError> {
+    let direct = request_median(performer, 200).await?;
+    let (mut remote, _) = connect_staged(
+        &tier.relays[0].1,
+        json!({"type": "hello", "role": "performer", "token": "demo"}),
+    )
+    .await?;
+    Ok((direct, request_median(&mut remote, 200).await?))
+}
+
 /// One case: the daemon, `viewers` viewers (on `relays` relays, or on the
 /// daemon with none), a performer dragging. The daemon is `daemon_program`
 /// when given (another build to compare with), this program otherwise.
-#[expect(
-    clippy::too_many_lines,
-    reason = "a bench case read top to bottom (start the tier, connect the viewers, drag, measure); a tool, not the show's path"
-)]
 pub async fn viewers_case(
     viewers: usize,
     relays: usize,
@@ -568,28 +624,10 @@ pub async fn viewers_case(
         zero => zero?,
     };
     let (ask_direct_us, ask_relay_us) = match &tier {
-        Some(tier) => {
-            let direct = request_median(&mut performer, 200).await?;
-            let (mut remote, _) = connect_staged(
-                &tier.relays[0].1,
-                json!({"type": "hello", "role": "performer", "token": "demo"}),
-            )
-            .await?;
-            (direct, request_median(&mut remote, 200).await?)
-        }
+        Some(tier) => asked_both_ways(&mut performer, tier).await?,
         None => (0.0, 0.0),
     };
-    let puppet = &stage["puppets"][0];
-    let rest: Vec<f64> = serde_json::from_value(puppet["rest"].clone()).unwrap_or_default();
-    let vertices = rest.len() / 2;
-    // Grab the vertex nearest the middle of the puppet.
-    let points: Vec<DVec2> = rest.chunks(2).map(|p| DVec2::new(p[0], p[1])).collect();
-    let middle = points.iter().copied().sum::<DVec2>() / points.len().max(1) as f64;
-    let grab = points
-        .iter()
-        .copied()
-        .min_by(|a, b| a.distance(middle).total_cmp(&b.distance(middle)))
-        .ok_or_else(|| ViewersError::Daemon("the demo puppet has no vertices".into()))?;
+    let (vertices, grab) = middle_vertex(&stage)?;
 
     let stop = std::sync::Arc::new(tokio::sync::Notify::new());
     let mut readers = Vec::with_capacity(viewers);
@@ -599,33 +637,8 @@ pub async fn viewers_case(
             Some(tier) => &tier.relays[k % tier.relays.len()].1,
             None => &daemon.address,
         };
-        let (mut ws, _) =
-            connect_staged(address, json!({"type": "hello", "role": "viewer"})).await?;
-        let stop = stop.clone();
-        readers.push(tokio::spawn(async move {
-            let mut latencies = Vec::with_capacity(1024);
-            let stopped = stop.notified();
-            tokio::pin!(stopped);
-            loop {
-                tokio::select! {
-                    _ = &mut stopped => break,
-                    m = ws.next() => match m {
-                        Some(Ok(Message::Binary(bytes))) => {
-                            let now = origin.elapsed().as_secs_f64();
-                            if let Ok(h) = FrameHeader::decode(&bytes)
-                                && h.kind == FrameKind::Vertices
-                                && h.input_time > 0.0
-                            {
-                                latencies.push((now - (zero + h.input_time)) * 1e6);
-                            }
-                        }
-                        Some(Ok(_)) => {}
-                        _ => break,
-                    },
-                }
-            }
-            latencies
-        }));
+        let (ws, _) = connect_staged(address, json!({"type": "hello", "role": "viewer"})).await?;
+        readers.push(tokio::spawn(latencies(ws, stop.clone(), origin, zero)));
         if k == 0 {
             tokio::time::sleep(Duration::from_millis(300)).await;
             rss_one = rss_mb(daemon.pid());

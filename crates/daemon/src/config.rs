@@ -99,10 +99,8 @@ impl ShowConfig {
             file: file.to_string(),
             message: e.to_string().trim_end().to_string(),
         })?;
-        let invalid = |(field, problem): (String, String)| ConfigError::Invalid {
-            file: file.to_string(),
-            field,
-            problem,
+        let invalid = |(field, problem): (String, String)| {
+            ConfigError::Invalid(puppetry_mesh::FieldError::new(file, field, problem))
         };
         if sections.access.max_per_address > MAX_CONNECTIONS {
             return Err(invalid((

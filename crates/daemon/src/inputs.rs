@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec2;
-use puppetry_input::config::InputConfig;
+use puppetry_input::config::{EvdevInput, InputConfig};
 use puppetry_input::device::{DeviceKind, DeviceMatch};
 use puppetry_input::hotplug::{self, DeviceInput};
 use puppetry_input::mouse::{Cursor, MouseSettings};
@@ -27,8 +27,9 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use crate::config::ShowConfig;
+use crate::protocol::CursorView;
 use crate::sources::{Replays, SourceError, WhenDone, run_replay, supervise};
-use crate::stage_thread::{Command, CursorState};
+use crate::stage_thread::Command;
 
 /// An input that cannot be opened or checked, naming `input[N]`.
 #[derive(Debug, thiserror::Error)]
@@ -170,31 +171,18 @@ impl ResolvedInputs {
                 source: source_name(name, "serial", index),
                 calibration: calibration_or(index, spec, || pad_units_are_stage_units(size))?,
             }),
-            InputConfig::Touch {
-                device,
-                dir,
-                name,
-                grab,
-                calibration: spec,
-            }
-            | InputConfig::Pen {
-                device,
-                dir,
-                name,
-                grab,
-                calibration: spec,
-            } => {
+            InputConfig::Touch(evdev) | InputConfig::Pen(evdev) => {
                 let (kind, label) = match input {
-                    InputConfig::Pen { .. } => (DeviceKind::Pen, "pen"),
+                    InputConfig::Pen(_) => (DeviceKind::Pen, "pen"),
                     _ => (DeviceKind::Touch, "touch"),
                 };
                 Box::new(DeviceInput {
-                    dir: config.resolve(dir),
-                    wanted: resolve_match(config, device),
+                    dir: config.resolve(&evdev.dir),
+                    wanted: resolve_match(config, &evdev.device),
                     kind: Some(kind),
-                    source: source_name(name, label, index),
-                    calibration: calibration_of(index, spec)?,
-                    grab: *grab,
+                    source: source_name(&evdev.name, label, index),
+                    calibration: calibration_of(index, &evdev.calibration)?,
+                    grab: evdev.grab,
                     mouse: MouseSettings::for_stage(size),
                     stage_size: size,
                 })
@@ -426,8 +414,8 @@ fn input_name(input: &InputConfig) -> Option<&str> {
     match input {
         InputConfig::Replay { name, .. }
         | InputConfig::Serial { name, .. }
-        | InputConfig::Touch { name, .. }
-        | InputConfig::Pen { name, .. }
+        | InputConfig::Touch(EvdevInput { name, .. })
+        | InputConfig::Pen(EvdevInput { name, .. })
         | InputConfig::Hid { name, .. }
         | InputConfig::Mouse { name, .. }
         | InputConfig::Midi { name, .. } => name.as_deref(),
@@ -682,7 +670,8 @@ async fn forward_cursor(
     commands: mpsc::Sender<Command>,
 ) {
     while cursor.changed().await.is_ok() {
-        let view = cursor.borrow_and_update().map(|c| CursorState {
+        let view = cursor.borrow_and_update().map(|c| CursorView {
+            source: source.clone(),
             at: c.position.to_array(),
             angle: c.angle,
             spacing,

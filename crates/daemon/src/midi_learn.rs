@@ -1,5 +1,5 @@
 //! Learning a MIDI mapping from the page: a director picks what a control
-//! should do (a `midi_learn` message with a [`MidiTarget`]), moves the
+//! should do (a `midi_learn` message with a target: a [`MidiMapping`] of no control), moves the
 //! control, and the next control message on any of the stage's MIDI
 //! inputs becomes an `[[input.map]]` entry of that input — working at once,
 //! and saved to the stage file.
@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use puppetry_input::config::InputConfig;
 use puppetry_input::midi::MidiMessage;
-use puppetry_input::midi_map::{MidiMapping, MidiTarget};
+use puppetry_input::midi_map::MidiMapping;
 
 use crate::sources::Replays;
 
@@ -83,7 +83,7 @@ impl Learning {
     }
 
     /// Waits for the next control to do `target` (none: stops waiting).
-    pub(crate) fn wait_for(&self, target: Option<MidiTarget>) -> Result<(), String> {
+    pub(crate) fn wait_for(&self, target: Option<MidiMapping>) -> Result<(), String> {
         let Some(target) = target else {
             self.view.midi(|v| v.waiting = None);
             self.waiting.store(false, Ordering::Release);
@@ -94,6 +94,12 @@ impl Learning {
                 "midi_learn: the stage has no MIDI input (add an [[input]] with kind = \"midi\")"
                     .into(),
             );
+        }
+        if let Some(field) = target.control_field() {
+            return Err(format!(
+                "midi_learn: target.{field}: a target says what the control will do; \
+                 the control is the one moved next"
+            ));
         }
         // A control stands in, so the target is checked as a mapping is.
         let any = MidiMessage::ControlChange {
@@ -262,20 +268,41 @@ mod tests {
     use puppetry_input::midi_map::MidiActionKind;
 
     fn mapping() -> MidiMapping {
-        let target = MidiTarget {
-            action: MidiActionKind::Record,
-            puppet: None,
-            poses: None,
-            key: None,
-            seconds: 0.0,
-            take: None,
-        };
+        let target = MidiMapping::doing(MidiActionKind::Record);
         let pad = MidiMessage::NoteOn {
             channel: 9,
             note: 40,
             velocity: 1,
         };
         MidiMapping::learned(&pad, &target).unwrap()
+    }
+
+    /// A target that names a control is refused (the control moved is
+    /// what is learnt), as is one naming a puppet the stage lacks; a
+    /// target of no control is awaited.
+    #[test]
+    fn a_target_names_what_a_control_does_not_the_control() {
+        let learning = Learning::new(
+            PathBuf::from("show.toml"),
+            vec!["desk".into()],
+            vec!["gingerbread".into()],
+            Arc::new(Replays::new(Vec::new())),
+        );
+        let with_cc = MidiMapping {
+            cc: Some(7),
+            ..MidiMapping::doing(MidiActionKind::Record)
+        };
+        let refused = learning.wait_for(Some(with_cc)).unwrap_err();
+        assert!(refused.starts_with("midi_learn: target.cc:"), "{refused}");
+        let elsewhere = MidiMapping {
+            puppet: Some("nobody".into()),
+            ..MidiMapping::doing(MidiActionKind::CursorX)
+        };
+        assert!(learning.wait_for(Some(elsewhere)).is_err());
+        assert!(!learning.waiting.load(Ordering::Acquire));
+        let record = MidiMapping::doing(MidiActionKind::Record);
+        learning.wait_for(Some(record)).unwrap();
+        assert!(learning.waiting.load(Ordering::Acquire));
     }
 
     #[test]

@@ -623,13 +623,27 @@ impl Arap {
     }
 }
 
+/// Two far-apart points of `rest` (not empty): the leftmost and the one
+/// farthest from it. Anchored there, the similarity modes are well
+/// conditioned.
+fn far_apart(rest: &[DVec2]) -> [usize; 2] {
+    let n = rest.len();
+    let first = (0..n)
+        .min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x))
+        .expect("a piece has vertices");
+    let second = (0..n)
+        .max_by(|&i, &j| {
+            rest[i]
+                .distance_squared(rest[first])
+                .total_cmp(&rest[j].distance_squared(rest[first]))
+        })
+        .expect("a piece has vertices");
+    [first, second]
+}
+
 impl PieceSolver {
     /// Registers one piece: orders its vertices, assembles `K₁` and `K₂`,
     /// factors them and solves the anchor columns. Fills `vertex_home`.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "the paper's registration steps in order (vertex order, K1 and K2 assembly, factoring, anchor columns) on shared locals; once per piece, off the update path"
-    )]
     fn register(
         mesh: &Mesh,
         piece_vertices: &[u32],
@@ -724,17 +738,7 @@ impl PieceSolver {
         let diagonal = |i: usize| pattern.position(i, i);
         let step1_delta = (0..n).map(|i| g[diagonal(i)].x).sum::<f64>() / n as f64;
         let step2_delta = (0..n).map(|i| h[diagonal(i)]).sum::<f64>() / n as f64;
-        // Two far-apart anchors condition the similarity modes well.
-        let first = (0..n)
-            .min_by(|&i, &j| rest[i].x.total_cmp(&rest[j].x))
-            .unwrap();
-        let second = (0..n)
-            .max_by(|&i, &j| {
-                rest[i]
-                    .distance_squared(rest[first])
-                    .total_cmp(&rest[j].distance_squared(rest[first]))
-            })
-            .unwrap();
+        let [first, second] = far_apart(&rest);
         for a in [first, second] {
             g[diagonal(a)].x += step1_delta;
         }

@@ -256,6 +256,41 @@ pub enum CurveError {
 mod banded;
 use banded::*;
 
+/// Where each handle's multiplier goes in a split system with joint
+/// `j0..=j1`: after its outermost free point in the left arm (0) or the
+/// right (1), or into the joint (2) when it only holds joint points. Each
+/// side's entries `(outermost point key, handle, constraint)` sorted.
+fn sides(
+    constraints: &[Constraint],
+    free_of: impl Fn(&Constraint) -> [bool; 2],
+    (j0, j1): (usize, usize),
+) -> [Vec<(usize, usize, usize)>; 3] {
+    let mut sides: [Vec<(usize, usize, usize)>; 3] = Default::default();
+    for (i, con) in constraints.iter().enumerate() {
+        let free = free_of(con);
+        let points = (0..2).filter(|&k| free[k]).map(|k| con.points[k]);
+        let (left, right) = (points.clone().min(), points.max());
+        match (left, right) {
+            (Some(l), _) if l < j0 => sides[0].push((usize::MAX - l, con.target, i)),
+            (_, Some(r)) if r > j1 => sides[1].push((r, con.target, i)),
+            _ => sides[2].push((0, con.target, i)),
+        }
+    }
+    for side in &mut sides {
+        side.sort_unstable();
+    }
+    sides
+}
+
+/// Step 1's term at interior point `i` (of frames `frames`): its
+/// coefficients γ = (z − 1, 1, −z) on the points (i − 1, i, i + 1), z the
+/// point's rest frame.
+#[inline]
+fn step1_term(frames: &[DVec2], i: usize) -> ([DVec2; 3], [usize; 3]) {
+    let z = frames[i];
+    ([z - DVec2::X, DVec2::X, -z], [i - 1, i, i + 1])
+}
+
 /// What a split compile keeps to grow its region next time.
 #[derive(Debug, Clone, PartialEq)]
 struct Grown {
@@ -757,10 +792,93 @@ impl Curve {
         self.compile_with(anchors, free, true)
     }
 
-    #[expect(
-        clippy::too_many_lines,
-        reason = "both steps' KKT systems are numbered, assembled and factored together from one numbering; off the update path"
-    )]
+    /// Handle `h`'s constraint, holding `anchor` (checked against the
+    /// curve, and to hold a point of `free`), its slot not yet numbered.
+    fn constraint(
+        &self,
+        h: usize,
+        anchor: CurveAnchor,
+        free: RangeInclusive<usize>,
+    ) -> Result<Constraint, CurveError> {
+        let n = self.len();
+        let (lo, hi) = (*free.start(), *free.end());
+        let (points, weights) = match anchor {
+            CurveAnchor::Point(p) => {
+                if p as usize >= n {
+                    return Err(CurveError::PointOutOfRange {
+                        handle: h,
+                        point: p,
+                        count: n,
+                    });
+                }
+                ([p as usize; 2], [1.0, 0.0])
+            }
+            CurveAnchor::Along { segment, t } => {
+                if segment as usize >= n - 1 {
+                    return Err(CurveError::SegmentOutOfRange {
+                        handle: h,
+                        segment,
+                        count: n - 1,
+                    });
+                }
+                if !(t.is_finite() && (0.0..=1.0).contains(&t)) {
+                    return Err(CurveError::BadParameter { handle: h, t });
+                }
+                let s = segment as usize;
+                ([s, s + 1], [1.0 - t, t])
+            }
+        };
+        let holds_free = points
+            .iter()
+            .zip(weights)
+            .any(|(&p, w)| w != 0.0 && (lo..=hi).contains(&p));
+        if !holds_free {
+            return Err(CurveError::HandleFixed {
+                handle: h,
+                start: lo,
+                end: hi,
+            });
+        }
+        let rest_point = self.rest[points[0]] * weights[0] + self.rest[points[1]] * weights[1];
+        Ok(Constraint {
+            anchor,
+            points,
+            weights,
+            rest_point,
+            target: h,
+            slot: 0,
+        })
+    }
+
+    /// The bandwidths of both steps' systems for the numbering in
+    /// `point_slot` (free points `lo..=hi`) and the constraints: step 1
+    /// couples points two apart, step 2 neighbours; both couple each
+    /// multiplier with its points.
+    fn bandwidths(&self, lo: usize, hi: usize) -> [usize; 2] {
+        let slot =
+            |p: usize| -> Option<usize> { (lo..=hi).contains(&p).then(|| self.point_slot[p - lo]) };
+        let mut width1 = 0;
+        let mut width2 = 0;
+        for p in lo..=hi {
+            for q in p + 1..=(p + 2).min(hi) {
+                let d = self.point_slot[q - lo] - self.point_slot[p - lo];
+                width1 = width1.max(d);
+                if q == p + 1 {
+                    width2 = width2.max(d);
+                }
+            }
+        }
+        for con in &self.constraints {
+            for (&p, w) in con.points.iter().zip(con.weights) {
+                if let (Some(s), true) = (slot(p), w != 0.0) {
+                    width1 = width1.max(s.abs_diff(con.slot));
+                    width2 = width2.max(s.abs_diff(con.slot));
+                }
+            }
+        }
+        [width1, width2]
+    }
+
     fn compile_with(
         &mut self,
         anchors: &[CurveAnchor],
@@ -776,55 +894,11 @@ impl Curve {
                 count: n,
             });
         }
-        let mut constraints = Vec::with_capacity(anchors.len());
-        for (h, anchor) in anchors.iter().enumerate() {
-            let (points, weights) = match *anchor {
-                CurveAnchor::Point(p) => {
-                    if p as usize >= n {
-                        return Err(CurveError::PointOutOfRange {
-                            handle: h,
-                            point: p,
-                            count: n,
-                        });
-                    }
-                    ([p as usize; 2], [1.0, 0.0])
-                }
-                CurveAnchor::Along { segment, t } => {
-                    if segment as usize >= n - 1 {
-                        return Err(CurveError::SegmentOutOfRange {
-                            handle: h,
-                            segment,
-                            count: n - 1,
-                        });
-                    }
-                    if !(t.is_finite() && (0.0..=1.0).contains(&t)) {
-                        return Err(CurveError::BadParameter { handle: h, t });
-                    }
-                    let s = segment as usize;
-                    ([s, s + 1], [1.0 - t, t])
-                }
-            };
-            let holds_free = points
-                .iter()
-                .zip(weights)
-                .any(|(&p, w)| w != 0.0 && (lo..=hi).contains(&p));
-            if !holds_free {
-                return Err(CurveError::HandleFixed {
-                    handle: h,
-                    start: lo,
-                    end: hi,
-                });
-            }
-            let rest_point = self.rest[points[0]] * weights[0] + self.rest[points[1]] * weights[1];
-            constraints.push(Constraint {
-                anchor: *anchor,
-                points,
-                weights,
-                rest_point,
-                target: h,
-                slot: 0,
-            });
-        }
+        let mut constraints = anchors
+            .iter()
+            .enumerate()
+            .map(|(h, anchor)| self.constraint(h, *anchor, lo..=hi))
+            .collect::<Result<Vec<_>, _>>()?;
         let live = merge_coincident(&constraints, lo, hi, n);
         let mut kept = live.iter();
         constraints.retain(|_| *kept.next().expect("one flag per constraint"));
@@ -884,29 +958,7 @@ impl Curve {
         self.placement = Placement::Solved;
         self.scale_free.copy_from_slice(&self.pose);
 
-        let slot =
-            |p: usize| -> Option<usize> { (lo..=hi).contains(&p).then(|| self.point_slot[p - lo]) };
-        // Bandwidths from the couplings: step 1 couples points two apart,
-        // step 2 neighbours; both couple each multiplier with its points.
-        let mut width1 = 0;
-        let mut width2 = 0;
-        for p in lo..=hi {
-            for q in p + 1..=(p + 2).min(hi) {
-                let d = self.point_slot[q - lo] - self.point_slot[p - lo];
-                width1 = width1.max(d);
-                if q == p + 1 {
-                    width2 = width2.max(d);
-                }
-            }
-        }
-        for con in &self.constraints {
-            for (&p, w) in con.points.iter().zip(con.weights) {
-                if let (Some(s), true) = (slot(p), w != 0.0) {
-                    width1 = width1.max(s.abs_diff(con.slot));
-                    width2 = width2.max(s.abs_diff(con.slot));
-                }
-            }
-        }
+        let [width1, width2] = self.bandwidths(lo, hi);
 
         self.rhs.clear();
         self.rhs.resize(size, DVec2::ZERO);
@@ -944,15 +996,64 @@ impl Curve {
         Ok(())
     }
 
+    /// Factors the split systems laid out by `grown`: by growing the last
+    /// factors when only the region grew the same arms, else afresh
+    /// (threshold pivoting, then partial on growth). False when singular.
+    fn factor_split(&mut self, grown: &Grown) -> bool {
+        let n = self.len();
+        let (lo, hi, (j0, j1), joint) = (grown.lo, grown.hi, grown.joint, grown.joint_size);
+        let (sizes, widths, links) = (grown.sizes, grown.widths, grown.links);
+        let grows = self.layout == Layout::Split
+            && self.grown.as_ref().is_some_and(|g| {
+                g.anchors == grown.anchors
+                    && g.lo >= lo
+                    && g.hi <= hi
+                    && (g.joint, g.joint_size, g.widths, g.links)
+                        == (grown.joint, joint, widths, links)
+                    && g.free == grown.free
+            });
+        let mut factored = false;
+        if grows {
+            let old = self.grown.as_ref().expect("checked");
+            let (old_lo, old_hi, old_sizes) = (old.lo, old.hi, old.sizes);
+            let from = [self.split1.grow(sizes), self.split2.grow(sizes)];
+            self.assemble_split(Some((old_lo, old_hi, old_sizes)));
+            factored = self.split1.resume(from[0]) && self.split2.resume(from[1]);
+            #[cfg(test)]
+            {
+                self.grew += usize::from(factored);
+            }
+        }
+        if !factored {
+            for threshold in [PIVOT_THRESHOLD, 1.0] {
+                // The arms reach at most the curve's ends.
+                let handles = self.constraints.len();
+                let capacity = [j0 + handles, n - j1 + handles];
+                self.split1
+                    .reset(sizes, capacity, widths[0], joint, links[0]);
+                self.split2
+                    .reset(sizes, capacity, widths[1], joint, links[1]);
+                let all = n + handles;
+                for v in [&mut self.step1_base, &mut self.step2_base, &mut self.rhs] {
+                    v.reserve(all.saturating_sub(v.len()));
+                }
+                self.point_slot
+                    .reserve(n.saturating_sub(self.point_slot.len()));
+                self.assemble_split(None);
+                factored = self.split1.factor(threshold) && self.split2.factor(threshold);
+                if factored {
+                    break;
+                }
+            }
+        }
+        factored
+    }
+
     /// Compiles the free points `lo..=hi` as a [`Split`] system, growing
     /// the last one when only the region grew at its ends (same handles):
     /// then only the arms' last columns and the new ones are factored.
     /// False when the joint would take more than [`JOINT`] unknowns or the
     /// split system is singular (the caller compiles it whole).
-    #[expect(
-        clippy::too_many_lines,
-        reason = "the split's numbering, the arms' growth and the joint's Schur complement share the split's state; off the update path"
-    )]
     fn compile_split(
         &mut self,
         anchors: &[CurveAnchor],
@@ -960,7 +1061,6 @@ impl Curve {
         lo: usize,
         hi: usize,
     ) -> bool {
-        let n = self.len();
         let free_of = |c: &Constraint| {
             [0, 1].map(|k| c.weights[k] != 0.0 && (lo..=hi).contains(&c.points[k]))
         };
@@ -979,22 +1079,7 @@ impl Curve {
         } else {
             (c, c)
         };
-        // Each handle's multiplier goes after its outermost free point in
-        // its arm, or into the joint when it only holds joint points.
-        let mut sides: [Vec<(usize, usize, usize)>; 3] = Default::default();
-        for (i, con) in constraints.iter().enumerate() {
-            let free = free_of(con);
-            let points = (0..2).filter(|&k| free[k]).map(|k| con.points[k]);
-            let (left, right) = (points.clone().min(), points.max());
-            match (left, right) {
-                (Some(l), _) if l < j0 => sides[0].push((usize::MAX - l, con.target, i)),
-                (_, Some(r)) if r > j1 => sides[1].push((r, con.target, i)),
-                _ => sides[2].push((0, con.target, i)),
-            }
-        }
-        for side in &mut sides {
-            side.sort_unstable();
-        }
+        let sides = sides(constraints, free_of, (j0, j1));
         if j1 - j0 + 1 + sides[2].len() > JOINT {
             return false;
         }
@@ -1083,49 +1168,7 @@ impl Curve {
             free,
         };
         self.constraints = constraints.to_vec();
-        let grows = self.layout == Layout::Split
-            && self.grown.as_ref().is_some_and(|g| {
-                g.anchors == grown.anchors
-                    && g.lo >= lo
-                    && g.hi <= hi
-                    && (g.joint, g.joint_size, g.widths, g.links)
-                        == (grown.joint, joint, widths, links)
-                    && g.free == grown.free
-            });
-        let mut factored = false;
-        if grows {
-            let old = self.grown.as_ref().expect("checked");
-            let (old_lo, old_hi, old_sizes) = (old.lo, old.hi, old.sizes);
-            let from = [self.split1.grow(sizes), self.split2.grow(sizes)];
-            self.assemble_split(Some((old_lo, old_hi, old_sizes)));
-            factored = self.split1.resume(from[0]) && self.split2.resume(from[1]);
-            #[cfg(test)]
-            {
-                self.grew += usize::from(factored);
-            }
-        }
-        if !factored {
-            for threshold in [PIVOT_THRESHOLD, 1.0] {
-                // The arms reach at most the curve's ends.
-                let handles = constraints.len();
-                let capacity = [j0 + handles, n - j1 + handles];
-                self.split1
-                    .reset(sizes, capacity, widths[0], joint, links[0]);
-                self.split2
-                    .reset(sizes, capacity, widths[1], joint, links[1]);
-                let all = n + handles;
-                for v in [&mut self.step1_base, &mut self.step2_base, &mut self.rhs] {
-                    v.reserve(all.saturating_sub(v.len()));
-                }
-                self.point_slot
-                    .reserve(n.saturating_sub(self.point_slot.len()));
-                self.assemble_split(None);
-                factored = self.split1.factor(threshold) && self.split2.factor(threshold);
-                if factored {
-                    break;
-                }
-            }
-        }
+        let factored = self.factor_split(&grown);
         if !factored {
             self.grown = None;
             return false;
@@ -1199,9 +1242,8 @@ impl Curve {
         };
         let split1 = &mut self.split1;
         for i in terms.into_iter().flatten() {
-            let z = self.frames[i];
-            let gamma = [z - DVec2::X, DVec2::X, -z];
-            let slots = [i - 1, i, i + 1].map(slot);
+            let (gamma, points) = step1_term(&self.frames, i);
+            let slots = points.map(slot);
             for r in 0..3 {
                 let Some(row) = slots[r] else { continue };
                 for s in 0..3 {
@@ -1251,9 +1293,7 @@ impl Curve {
         let near_lo = lo.saturating_sub(1).max(1)..=(lo + 1).min(n - 2);
         let near_hi = (hi.saturating_sub(1).max(1)).max(lo + 2)..=(hi + 1).min(n - 2);
         for i in near_lo.chain(near_hi) {
-            let z = self.frames[i];
-            let gamma = [z - DVec2::X, DVec2::X, -z];
-            let points = [i - 1, i, i + 1];
+            let (gamma, points) = step1_term(&self.frames, i);
             let slots = points.map(slot);
             for r in 0..3 {
                 let Some(row) = slots[r] else { continue };
@@ -1305,9 +1345,7 @@ impl Curve {
         let (stride, diagonal) = (self.step1.stride(), self.step1.kl + self.step1.ku);
         let band = &mut self.step1.band;
         for i in (first_term..=last_term).filter(|_| which[0]) {
-            let z = self.frames[i];
-            let gamma = [z - DVec2::X, DVec2::X, -z];
-            let points = [i - 1, i, i + 1];
+            let (gamma, points) = step1_term(&self.frames, i);
             let slots = points.map(slot);
             for r in 0..3 {
                 let Some(row) = slots[r] else { continue };

@@ -398,15 +398,84 @@ struct Patch {
     front: u8,
 }
 
+impl Scratch {
+    /// Scratch for `count` triangles, `boundary` boundary edges and
+    /// `pieces` pieces, sized so the update path does not allocate.
+    fn new(count: usize, boundary: usize, pieces: usize) -> Scratch {
+        let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
+        // The sheets' edges: up to three per triangle.
+        let most = (3 * count).max(boundary);
+        Scratch {
+            grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most, most),
+            piece_lo: vec![DVec2::ZERO; pieces],
+            piece_hi: vec![DVec2::ZERO; pieces],
+            seeds: Vec::with_capacity(boundary + 16 * MAX_INVERTED_SEEDS),
+            inverted: Vec::with_capacity(count),
+            inverted_flag: vec![false; count],
+            inverted_box: Vec::with_capacity(MAX_INVERTED_SEEDS),
+            crossing_pieces: Vec::with_capacity(boundary),
+            pairs: Vec::with_capacity(count),
+            // Small enough to stay in cache; doubles on a frame testing more.
+            tested: PairTable::with_capacity(2 * count),
+            links: Vec::with_capacity(count),
+            last_pairs: Vec::with_capacity(count),
+            last_links: Vec::with_capacity(count),
+            remap: Vec::with_capacity(count),
+            stack: Vec::with_capacity(count),
+            parent: Vec::with_capacity(count),
+            parity: Vec::with_capacity(count),
+            patch_of_root: Vec::with_capacity(count),
+            patches: Vec::with_capacity(16),
+            new_role: vec![0; count],
+            moved: vec![0.0; count],
+            moved_frame: vec![0; count],
+            frame: 0,
+            new_involved: Vec::with_capacity(count),
+            above: Above::with_capacity(count),
+            level: vec![0; count],
+            queue: Vec::with_capacity(count),
+        }
+    }
+}
+
+/// The static order: `given` (one layer per triangle, at most
+/// [`MAX_LAYER`]) or, without it, each triangle's piece (`piece_of`, of
+/// `pieces` pieces).
+fn static_layers(
+    given: Option<&[u16]>,
+    piece_of: &[u32],
+    pieces: usize,
+) -> Result<Vec<u16>, DepthError> {
+    match given {
+        Some(given) => {
+            if given.len() != piece_of.len() {
+                return Err(DepthError::LayerCount {
+                    expected: piece_of.len(),
+                    got: given.len(),
+                });
+            }
+            if let Some(t) = given.iter().position(|&l| l > MAX_LAYER) {
+                return Err(DepthError::LayerTooHigh {
+                    triangle: t,
+                    layer: given[t],
+                });
+            }
+            Ok(given.to_vec())
+        }
+        None => {
+            if pieces > MAX_LAYER as usize + 1 {
+                return Err(DepthError::TooManyPieces { count: pieces });
+            }
+            Ok(piece_of.iter().map(|&p| p as u16).collect())
+        }
+    }
+}
+
 impl DepthOrder {
     /// Registration: the static order is `layers` (one per triangle, larger =
     /// nearer, at most [`MAX_LAYER`]) or, without it, the piece index in
     /// [`Mesh::pieces`] order. `mesh`'s vertices are the rest positions the
     /// tie rule measures movement from.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "registration's steps in order (triangles, boundary, pieces, layers, scratch sizes) on shared locals; it runs once per mesh, off the update path"
-    )]
     pub fn register(mesh: &Mesh, layers: Option<&[u16]>) -> Result<DepthOrder, DepthError> {
         let triangles = Triangles::new(mesh.triangles().to_vec(), mesh.vertices().len());
         let count = triangles.len();
@@ -417,31 +486,7 @@ impl DepthOrder {
                 piece_of[t as usize] = p as u32;
             }
         }
-        let layers = match layers {
-            Some(given) => {
-                if given.len() != count {
-                    return Err(DepthError::LayerCount {
-                        expected: count,
-                        got: given.len(),
-                    });
-                }
-                if let Some(t) = given.iter().position(|&l| l > MAX_LAYER) {
-                    return Err(DepthError::LayerTooHigh {
-                        triangle: t,
-                        layer: given[t],
-                    });
-                }
-                given.to_vec()
-            }
-            None => {
-                if pieces.len() > MAX_LAYER as usize + 1 {
-                    return Err(DepthError::TooManyPieces {
-                        count: pieces.len(),
-                    });
-                }
-                piece_of.iter().map(|&p| p as u16).collect()
-            }
-        };
+        let layers = static_layers(layers, &piece_of, pieces.len())?;
 
         let mut directed: HashMap<(u32, u32), u32> = HashMap::with_capacity(count * 3);
         for (t, tri) in triangles.iter().enumerate() {
@@ -482,39 +527,7 @@ impl DepthOrder {
         let next_boundary = boundary.iter().map(|e| starting[&e.b]).collect();
         let boundary_count = boundary.len();
 
-        let side = |n: usize| (n as f64).sqrt().ceil() as usize + 2;
-        // The sheets' edges: up to three per triangle.
-        let most = (3 * count).max(boundary.len());
-        let scratch = Scratch {
-            grid: FrameGrid::with_capacity(side(most) * side(most) + 1, 4 * most, most),
-            piece_lo: vec![DVec2::ZERO; pieces.len()],
-            piece_hi: vec![DVec2::ZERO; pieces.len()],
-            seeds: Vec::with_capacity(boundary.len() + 16 * MAX_INVERTED_SEEDS),
-            inverted: Vec::with_capacity(count),
-            inverted_flag: vec![false; count],
-            inverted_box: Vec::with_capacity(MAX_INVERTED_SEEDS),
-            crossing_pieces: Vec::with_capacity(boundary.len()),
-            pairs: Vec::with_capacity(count),
-            // Small enough to stay in cache; doubles on a frame testing more.
-            tested: PairTable::with_capacity(2 * count),
-            links: Vec::with_capacity(count),
-            last_pairs: Vec::with_capacity(count),
-            last_links: Vec::with_capacity(count),
-            remap: Vec::with_capacity(count),
-            stack: Vec::with_capacity(count),
-            parent: Vec::with_capacity(count),
-            parity: Vec::with_capacity(count),
-            patch_of_root: Vec::with_capacity(count),
-            patches: Vec::with_capacity(16),
-            new_role: vec![0; count],
-            moved: vec![0.0; count],
-            moved_frame: vec![0; count],
-            frame: 0,
-            new_involved: Vec::with_capacity(count),
-            above: Above::with_capacity(count),
-            level: vec![0; count],
-            queue: Vec::with_capacity(count),
-        };
+        let scratch = Scratch::new(count, boundary.len(), pieces.len());
         Ok(DepthOrder {
             rest: mesh.vertices().to_vec(),
             depth: layers.clone(),
@@ -1639,13 +1652,45 @@ impl DepthOrder {
         }
     }
 
+    /// Each undecided patch's sides weighed by how far their triangles
+    /// moved from rest. Movement only where neither a pin, the votes nor
+    /// the layers decide: it costs a square root a triangle.
+    fn weigh_movement(&mut self, positions: &[DVec2]) {
+        let s = &mut self.scratch;
+        let n = s.pairs.len();
+        let undecided = |patch: &Patch| {
+            patch.pin.0 == 0 && patch.votes[0] == patch.votes[1] && patch.layer[0] == patch.layer[1]
+        };
+        if !s.patches.iter().any(undecided) {
+            return;
+        }
+        for i in 0..n {
+            let (root, side) = s.found(i);
+            let patch = &mut s.patches[s.patch_of_root[root as usize] as usize];
+            if !undecided(patch) {
+                continue;
+            }
+            let (first, second) = s.pairs[i];
+            for (t, side) in [(first, side), (second, side ^ 1)] {
+                // Each triangle's movement once a frame, however many
+                // pairs it is in.
+                if s.moved_frame[t as usize] != s.frame {
+                    s.moved_frame[t as usize] = s.frame;
+                    let tri = self.triangles[t as usize];
+                    let moved = tri
+                        .iter()
+                        .map(|&v| positions[v as usize] - self.rest[v as usize])
+                        .sum::<DVec2>();
+                    s.moved[t as usize] = moved.length() / 3.0;
+                }
+                patch.displacement[side as usize] += s.moved[t as usize];
+            }
+        }
+    }
+
     /// Groups the pairs into patches (two sides each) and decides which side
     /// of each goes in front; rewrites `pairs` as `(back, front)` and sets
     /// the new roles.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "grouping the pairs into patches and deciding each patch's front share the scratch buffers; split, the halves would hand most of `Scratch` to each other"
-    )]
     fn decide(&mut self, positions: &[DVec2], link: Link) {
         let s = &mut self.scratch;
         let n = s.pairs.len();
@@ -1734,35 +1779,8 @@ impl DepthOrder {
                 }
             }
         }
-        // Movement only where neither a pin, the votes nor the layers
-        // decide: it costs a square root a triangle.
-        let undecided = |patch: &Patch| {
-            patch.pin.0 == 0 && patch.votes[0] == patch.votes[1] && patch.layer[0] == patch.layer[1]
-        };
-        if s.patches.iter().any(undecided) {
-            for i in 0..n {
-                let (root, side) = s.found(i);
-                let patch = &mut s.patches[s.patch_of_root[root as usize] as usize];
-                if !undecided(patch) {
-                    continue;
-                }
-                let (first, second) = s.pairs[i];
-                for (t, side) in [(first, side), (second, side ^ 1)] {
-                    // Each triangle's movement once a frame, however many
-                    // pairs it is in.
-                    if s.moved_frame[t as usize] != s.frame {
-                        s.moved_frame[t as usize] = s.frame;
-                        let tri = self.triangles[t as usize];
-                        let moved = tri
-                            .iter()
-                            .map(|&v| positions[v as usize] - self.rest[v as usize])
-                            .sum::<DVec2>();
-                        s.moved[t as usize] = moved.length() / 3.0;
-                    }
-                    patch.displacement[side as usize] += s.moved[t as usize];
-                }
-            }
-        }
+        self.weigh_movement(positions);
+        let s = &mut self.scratch;
         for patch in &mut s.patches {
             patch.front = front_side(patch);
         }

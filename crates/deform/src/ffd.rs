@@ -759,12 +759,23 @@ impl LpFfd {
             grid_targets,
             &mut delta,
         );
-        solve_in_place(&factor, &inverse_diagonal, &mut delta);
-        Ok(delta
+        Ok(self.rest_grid_moved(&factor, &inverse_diagonal, delta))
+    }
+
+    /// The rest grid moved by the solve of `delta` (the right-hand side)
+    /// against a Cholesky factor: a one-off solve's grid.
+    fn rest_grid_moved(
+        &self,
+        factor: &[f64],
+        inverse_diagonal: &[f64],
+        mut delta: Vec<DVec2>,
+    ) -> Vec<DVec2> {
+        solve_in_place(factor, inverse_diagonal, &mut delta);
+        delta
             .iter()
             .zip(&self.rest_grid)
             .map(|(d, r)| *r + *d)
-            .collect())
+            .collect()
     }
 
     /// Inverse FFD: the grid whose plain FFD best fits the given vertex
@@ -796,12 +807,7 @@ impl LpFfd {
         let mut delta = vec![DVec2::ZERO; k];
         let mut scratch = TensorScratch::new(&self.blend);
         add_transposed(&self.blend, &mut scratch, &residual, &mut delta);
-        solve_in_place(&factor, &inverse_diagonal, &mut delta);
-        Ok(delta
-            .iter()
-            .zip(&self.rest_grid)
-            .map(|(d, r)| *r + *d)
-            .collect())
+        Ok(self.rest_grid_moved(&factor, &inverse_diagonal, delta))
     }
 
     /// The lp-FFD objective of a grid for the compiled handles and the given
@@ -1388,6 +1394,20 @@ fn add_transposed(blend: &Blend, scratch: &mut TensorScratch, x: &[DVec2], out: 
     }
 }
 
+/// `AᵀB` (row-major K×K) of two row-major N×K matrices.
+fn transposed_product(a: &[f64], b: &[f64], n: usize, k: usize) -> Vec<f64> {
+    let mut out = Mat::<f64>::zeros(k, k);
+    matmul(
+        out.as_mut(),
+        Accum::Replace,
+        MatRef::from_row_major_slice(a, n, k).transpose(),
+        MatRef::from_row_major_slice(b, n, k),
+        1.0,
+        Par::Seq,
+    );
+    row_major(&out)
+}
+
 /// `WᵀLW` (row-major K×K) with `L` the edge-weighted graph Laplacian.
 fn locality_matrix(blend: &Blend, edges: &[Edge], k: usize) -> Vec<f64> {
     match blend {
@@ -1402,18 +1422,7 @@ fn locality_matrix(blend: &Blend, edges: &[Edge], k: usize) -> Vec<f64> {
                     lw[j * k + c] -= d;
                 }
             }
-            let w = MatRef::from_row_major_slice(values, n, k);
-            let lw = MatRef::from_row_major_slice(&lw, n, k);
-            let mut out = Mat::<f64>::zeros(k, k);
-            matmul(
-                out.as_mut(),
-                Accum::Replace,
-                w.transpose(),
-                lw,
-                1.0,
-                Par::Seq,
-            );
-            row_major(&out)
+            transposed_product(values, &lw, n, k)
         }
         Blend::Lattice { columns, values } => {
             let mut out = vec![0.0; k * k];
@@ -1442,17 +1451,7 @@ fn gram(blend: &Blend, k: usize) -> Vec<f64> {
     match blend {
         Blend::Dense { values, .. } => {
             let n = values.len() / k;
-            let w = MatRef::from_row_major_slice(values, n, k);
-            let mut out = Mat::<f64>::zeros(k, k);
-            matmul(
-                out.as_mut(),
-                Accum::Replace,
-                w.transpose(),
-                w,
-                1.0,
-                Par::Seq,
-            );
-            row_major(&out)
+            transposed_product(values, values, n, k)
         }
         Blend::Lattice { columns, values } => {
             let mut out = vec![0.0; k * k];

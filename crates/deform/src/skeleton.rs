@@ -1025,13 +1025,212 @@ fn bone_reach(
         .collect()
 }
 
+/// The bone of `segments` nearest `p`: its distance and index (the
+/// first of equals).
+fn nearest_bone(segments: &[(DVec2, DVec2)], p: DVec2) -> (f64, usize) {
+    let mut best = (f64::INFINITY, 0);
+    for (bone, &(a, b)) in segments.iter().enumerate() {
+        let distance = segment_distance(p, a, b);
+        if distance < best.0 {
+            best = (distance, bone);
+        }
+    }
+    best
+}
+
+/// The triangles each bone (segment) crosses, and each triangle's bone
+/// (`u32::MAX`: none): a triangle several bones cross takes the bone
+/// passing nearest its centroid.
+fn bones_triangles(
+    segments: &[(DVec2, DVec2)],
+    triangles: &[[u32; 3]],
+    rest: &[DVec2],
+) -> (Vec<Vec<u32>>, Vec<u32>) {
+    let mut crossed: Vec<Vec<u32>> = vec![Vec::new(); segments.len()];
+    let mut triangle_bone = vec![u32::MAX; triangles.len()];
+    for (t, tri) in triangles.iter().enumerate() {
+        let corners = tri.map(|v| rest[v as usize]);
+        let lo = corners[0].min(corners[1]).min(corners[2]);
+        let hi = corners[0].max(corners[1]).max(corners[2]);
+        let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
+        let mut nearest = f64::INFINITY;
+        for (bone, &(a, b)) in segments.iter().enumerate() {
+            if a.max(b).cmplt(lo).any() || a.min(b).cmpgt(hi).any() {
+                continue;
+            }
+            if segment_meets_triangle(a, b, corners) {
+                crossed[bone].push(t as u32);
+                let distance = segment_distance(centroid, a, b);
+                if distance < nearest {
+                    nearest = distance;
+                    triangle_bone[t] = bone as u32;
+                }
+            }
+        }
+    }
+    (crossed, triangle_bone)
+}
+
+/// A skeleton mesh's pieces sorted: those holding a joint are solved,
+/// the others attached to their nearest bone.
+struct SolvedPieces {
+    /// The solved pieces' vertices, piece by piece.
+    vertices: Vec<u32>,
+    /// The solved pieces' triangles, piece by piece.
+    triangles: Vec<u32>,
+    /// Each mesh vertex's index in `vertices` (`u32::MAX`: attached).
+    local: Vec<u32>,
+    /// The pieces that hold no joint.
+    attached: Vec<AttachedPiece>,
+}
+
+/// Sorts `mesh`'s pieces by whether a joint (at `locations`) is in them.
+fn solved_pieces(
+    mesh: &Mesh,
+    locations: &[puppetry_mesh::Location],
+    segments: &[(DVec2, DVec2)],
+) -> SolvedPieces {
+    let rest = mesh.vertices();
+    let triangles = mesh.triangles();
+    let pieces = mesh.pieces();
+    let mut piece_of_vertex = vec![0usize; rest.len()];
+    for (p, piece) in pieces.iter().enumerate() {
+        for &v in &piece.vertices {
+            piece_of_vertex[v as usize] = p;
+        }
+    }
+    let mut solved = vec![false; pieces.len()];
+    for location in locations {
+        let v = triangles[location.triangle as usize][0];
+        solved[piece_of_vertex[v as usize]] = true;
+    }
+    let mut sorted = SolvedPieces {
+        vertices: Vec::new(),
+        triangles: Vec::new(),
+        local: vec![u32::MAX; rest.len()],
+        attached: Vec::new(),
+    };
+    for (p, piece) in pieces.into_iter().enumerate() {
+        if solved[p] {
+            for &v in &piece.vertices {
+                sorted.local[v as usize] = sorted.vertices.len() as u32;
+                sorted.vertices.push(v);
+            }
+            sorted.triangles.extend(piece.triangles);
+        } else {
+            let bone = piece
+                .vertices
+                .iter()
+                .map(|&v| nearest_bone(segments, rest[v as usize]))
+                .fold(
+                    (f64::INFINITY, 0),
+                    |best, b| if b.0 < best.0 { b } else { best },
+                )
+                .1;
+            let (a, b) = segments[bone];
+            let reach = piece
+                .vertices
+                .iter()
+                .map(|&v| rest[v as usize].distance(a))
+                .fold(a.distance(b), f64::max);
+            sorted.attached.push(AttachedPiece {
+                vertices: piece.vertices,
+                bone,
+                reach,
+            });
+        }
+    }
+    sorted
+}
+
+/// The solved triangles (`solved`) as the stitching sees them, their
+/// corners the unknowns `slot` gives: those a bone carries (stiffer by
+/// `bone_weight`), then the free ones, each with its mesh index.
+fn stitch_triangles(
+    mesh: &Mesh,
+    solved: &[u32],
+    slot: &[u32],
+    triangle_bone: &[u32],
+    bone_weight: f64,
+) -> [Vec<(u32, StitchTriangle)>; 2] {
+    let mut bone_triangles = Vec::new();
+    let mut free_triangles = Vec::new();
+    for &t in solved {
+        let tri = mesh.triangles()[t as usize];
+        let corners = tri.map(|v| slot[v as usize]);
+        let points = tri.map(|v| mesh.vertices()[v as usize]);
+        let centroid = (points[0] + points[1] + points[2]) / 3.0;
+        let bone = triangle_bone[t as usize];
+        let stiffness = if bone == u32::MAX { 1.0 } else { bone_weight };
+        let triangle = StitchTriangle {
+            corners,
+            bone,
+            weight3: 3.0 * stiffness * mesh.weights()[t as usize],
+            centred: [points[0] - centroid, points[1] - centroid],
+        };
+        if bone == u32::MAX {
+            free_triangles.push((t, triangle));
+        } else {
+            bone_triangles.push((t, triangle));
+        }
+    }
+    [bone_triangles, free_triangles]
+}
+
+/// The stitching's unknowns: the solved vertices in a fill-reducing
+/// order, and where each mesh vertex went.
+struct Unknowns {
+    /// The mesh vertex of each unknown.
+    vertex: Vec<u32>,
+    /// Each mesh vertex's unknown (`u32::MAX`: not solved).
+    slot: Vec<u32>,
+    /// The stitching matrix's pattern over them.
+    pattern: UpperPattern,
+}
+
+/// Orders the solved vertices (`vertices`, numbered by `local`) so the
+/// factor of the matrix their triangles (`solved_triangles`) couple
+/// fills in little.
+fn unknowns(
+    triangles: &[[u32; 3]],
+    vertices: &[u32],
+    solved_triangles: &[u32],
+    local: &[u32],
+) -> Result<Unknowns, SkeletonError> {
+    let n = vertices.len();
+    let mut edges = Vec::with_capacity(solved_triangles.len() * 3);
+    for &t in solved_triangles {
+        let tri = triangles[t as usize].map(|v| local[v as usize]);
+        for k in 0..3 {
+            edges.push((tri[k], tri[(k + 1) % 3]));
+        }
+    }
+    let order = fill_reducing_order(n, &edges)?;
+    let mut slot = vec![u32::MAX; local.len()];
+    let unknown_vertex: Vec<u32> = order.iter().map(|&old| vertices[old as usize]).collect();
+    for (new, &v) in unknown_vertex.iter().enumerate() {
+        slot[v as usize] = new as u32;
+    }
+    let edges: Vec<(u32, u32)> = edges
+        .iter()
+        .map(|&(a, b)| {
+            (
+                slot[vertices[a as usize] as usize],
+                slot[vertices[b as usize] as usize],
+            )
+        })
+        .collect();
+    let pattern = UpperPattern::new(n, &edges);
+    Ok(Unknowns {
+        vertex: unknown_vertex,
+        slot,
+        pattern,
+    })
+}
+
 impl ShapeAware {
     /// Registration: locates the joints, finds the bones' triangles, orders,
     /// assembles and factors the stitching matrix. The pose is the rest mesh.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "its phases hand each other a dozen per-bone and per-triangle tables; the bones' reach and the assembly are functions of their own"
-    )]
     pub fn register(
         mesh: &Mesh,
         skeleton: Skeleton,
@@ -1052,138 +1251,34 @@ impl ShapeAware {
             locations.push(location);
         }
 
-        // Bones' triangles; a triangle several bones cross takes the bone
-        // passing nearest its centroid.
         let bone_count = skeleton.bones.len();
-        let mut crossed: Vec<Vec<u32>> = vec![Vec::new(); bone_count];
-        let mut triangle_bone = vec![u32::MAX; triangles.len()];
         let segments: Vec<(DVec2, DVec2)> = skeleton
             .bones
             .iter()
             .map(|&[p, c]| (skeleton.joints[p], skeleton.joints[c]))
             .collect();
-        for (t, tri) in triangles.iter().enumerate() {
-            let corners = tri.map(|v| rest[v as usize]);
-            let lo = corners[0].min(corners[1]).min(corners[2]);
-            let hi = corners[0].max(corners[1]).max(corners[2]);
-            let centroid = (corners[0] + corners[1] + corners[2]) / 3.0;
-            let mut nearest = f64::INFINITY;
-            for (bone, &(a, b)) in segments.iter().enumerate() {
-                if a.max(b).cmplt(lo).any() || a.min(b).cmpgt(hi).any() {
-                    continue;
-                }
-                if segment_meets_triangle(a, b, corners) {
-                    crossed[bone].push(t as u32);
-                    let distance = segment_distance(centroid, a, b);
-                    if distance < nearest {
-                        nearest = distance;
-                        triangle_bone[t] = bone as u32;
-                    }
-                }
-            }
-        }
-
-        // Pieces: solved when they hold a joint, otherwise attached.
-        let pieces = mesh.pieces();
-        let mut piece_of_vertex = vec![0usize; rest.len()];
-        for (p, piece) in pieces.iter().enumerate() {
-            for &v in &piece.vertices {
-                piece_of_vertex[v as usize] = p;
-            }
-        }
-        let mut solved = vec![false; pieces.len()];
-        for location in &locations {
-            let v = triangles[location.triangle as usize][0];
-            solved[piece_of_vertex[v as usize]] = true;
-        }
-        let mut attached = Vec::new();
-        let mut local = vec![u32::MAX; rest.len()];
-        let mut solved_vertices = Vec::new();
-        let mut solved_triangles = Vec::new();
-        for (p, piece) in pieces.into_iter().enumerate() {
-            if solved[p] {
-                for &v in &piece.vertices {
-                    local[v as usize] = solved_vertices.len() as u32;
-                    solved_vertices.push(v);
-                }
-                solved_triangles.extend(piece.triangles);
-            } else {
-                let mut best = (f64::INFINITY, 0);
-                for &v in &piece.vertices {
-                    for (bone, &(a, b)) in segments.iter().enumerate() {
-                        let distance = segment_distance(rest[v as usize], a, b);
-                        if distance < best.0 {
-                            best = (distance, bone);
-                        }
-                    }
-                }
-                let (a, b) = segments[best.1];
-                let reach = piece
-                    .vertices
-                    .iter()
-                    .map(|&v| rest[v as usize].distance(a))
-                    .fold(a.distance(b), f64::max);
-                attached.push(AttachedPiece {
-                    vertices: piece.vertices,
-                    bone: best.1,
-                    reach,
-                });
-            }
-        }
+        let (crossed, triangle_bone) = bones_triangles(&segments, triangles, &rest);
+        let SolvedPieces {
+            vertices: solved_vertices,
+            triangles: solved_triangles,
+            local,
+            attached,
+        } = solved_pieces(mesh, &locations, &segments);
 
         let n = solved_vertices.len();
-        let mut edges = Vec::with_capacity(solved_triangles.len() * 3);
-        for &t in &solved_triangles {
-            let tri = triangles[t as usize].map(|v| local[v as usize]);
-            for k in 0..3 {
-                edges.push((tri[k], tri[(k + 1) % 3]));
-            }
-        }
-        let order = fill_reducing_order(n, &edges)?;
-        let mut slot = vec![u32::MAX; rest.len()];
-        let unknown_vertex: Vec<u32> = order
-            .iter()
-            .map(|&old| solved_vertices[old as usize])
-            .collect();
-        for (new, &v) in unknown_vertex.iter().enumerate() {
-            slot[v as usize] = new as u32;
-        }
-        let edges: Vec<(u32, u32)> = edges
-            .iter()
-            .map(|&(a, b)| {
-                (
-                    slot[solved_vertices[a as usize] as usize],
-                    slot[solved_vertices[b as usize] as usize],
-                )
-            })
-            .collect();
-        let pattern = UpperPattern::new(n, &edges);
+        let Unknowns {
+            vertex: unknown_vertex,
+            slot,
+            pattern,
+        } = unknowns(triangles, &solved_vertices, &solved_triangles, &local)?;
 
-        let mut bone_triangles = Vec::new();
-        let mut free_triangles = Vec::new();
-        for &t in &solved_triangles {
-            let tri = triangles[t as usize];
-            let corners = tri.map(|v| slot[v as usize]);
-            let points = tri.map(|v| rest[v as usize]);
-            let centroid = (points[0] + points[1] + points[2]) / 3.0;
-            let bone = triangle_bone[t as usize];
-            let stiffness = if bone == u32::MAX {
-                1.0
-            } else {
-                params.bone_weight
-            };
-            let triangle = StitchTriangle {
-                corners,
-                bone,
-                weight3: 3.0 * stiffness * mesh.weights()[t as usize],
-                centred: [points[0] - centroid, points[1] - centroid],
-            };
-            if bone == u32::MAX {
-                free_triangles.push((t, triangle));
-            } else {
-                bone_triangles.push((t, triangle));
-            }
-        }
+        let [mut bone_triangles, mut free_triangles] = stitch_triangles(
+            mesh,
+            &solved_triangles,
+            &slot,
+            &triangle_bone,
+            params.bone_weight,
+        );
         // Cache-friendly sweep order.
         for list in [&mut bone_triangles, &mut free_triangles] {
             list.sort_by_key(|(_, t)| *t.corners.iter().min().unwrap());
@@ -1196,14 +1291,7 @@ impl ShapeAware {
             .iter()
             .map(|t| {
                 let centroid = rest[unknown_vertex[t.corners[0] as usize] as usize] - t.centred[0];
-                let mut best = (f64::INFINITY, 0u32);
-                for (bone, &(a, b)) in segments.iter().enumerate() {
-                    let distance = segment_distance(centroid, a, b);
-                    if distance < best.0 {
-                        best = (distance, bone as u32);
-                    }
-                }
-                best.1
+                nearest_bone(&segments, centroid).1 as u32
             })
             .collect();
         let joint_rows: Vec<JointRow> = locations

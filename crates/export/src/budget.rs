@@ -12,13 +12,12 @@
 //! start, to the take's last instant included. A `to` past the take's end
 //! is counted only to the end (the exporter refuses it, naming `--to`).
 
-use std::path::Path;
-
 use puppetry_limits::exports::{MAX_EXPORT_FILE_BYTES, MAX_EXPORT_FRAMES, MAX_EXPORT_MOTION_BYTES};
 use puppetry_take::{TakeError, TakeReader};
 
 use crate::ExportError;
 use crate::format::Format;
+use crate::take::ExportRequest;
 
 /// Why an export's cost could not be known or is past a limit.
 #[derive(Debug, thiserror::Error)]
@@ -76,15 +75,18 @@ const SPINE_PER_VERTEX: u64 = 28;
 /// Spine JSON, per puppet and frame: a key's time, offset and brackets.
 const SPINE_PER_PUPPET_FRAME: u64 = 64;
 
-/// The cost of exporting `take` as `format` at `fps` over `from..to`
-/// (seconds; none: the take's start and end).
-pub fn estimate(
-    take: &Path,
-    format: Format,
-    fps: f64,
-    from: Option<f64>,
-    to: Option<f64>,
-) -> Result<Estimate, BudgetError> {
+/// The cost of `request`: its take as its format at its `fps` over
+/// `from..to` (seconds; none: the take's start and end).
+pub fn estimate(request: &ExportRequest) -> Result<Estimate, BudgetError> {
+    let ExportRequest {
+        take,
+        format,
+        fps,
+        from,
+        to,
+        ..
+    } = request;
+    let (format, fps) = (*format, *fps);
     let reader = TakeReader::open(take)?;
     let puppets = reader.header.puppets.len() as u64;
     let vertices: u64 = reader
@@ -137,21 +139,16 @@ pub fn estimate(
 }
 
 /// [`estimate`], refused past a limit of `puppetry_limits::exports`.
-pub fn check(
-    take: &Path,
-    format: Format,
-    fps: f64,
-    from: Option<f64>,
-    to: Option<f64>,
-) -> Result<Estimate, BudgetError> {
-    let e = estimate(take, format, fps, from, to)?;
+pub fn check(request: &ExportRequest) -> Result<Estimate, BudgetError> {
+    let e = estimate(request)?;
     let too_large = |what: String, amount: String, limit: String| BudgetError::TooLarge {
-        take: take
+        take: request
+            .take
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default(),
         what,
-        fps,
+        fps: request.fps,
         amount,
         limit,
     };
@@ -169,7 +166,7 @@ pub fn check(
         && bytes > MAX_EXPORT_FILE_BYTES
     {
         return Err(too_large(
-            format!("the {format} file of {} frames", e.frames),
+            format!("the {} file of {} frames", request.format, e.frames),
             megabytes(bytes),
             megabytes(MAX_EXPORT_FILE_BYTES),
         ));

@@ -417,6 +417,26 @@ struct Arrays {
     skins: Vec<Value>,
 }
 
+impl Arrays {
+    /// An animation channel moving `path` of node `node` through a
+    /// sampler of `input` times and `output` values.
+    fn animate(
+        &mut self,
+        node: usize,
+        path: &str,
+        input: usize,
+        output: usize,
+        interpolation: &str,
+    ) {
+        self.samplers
+            .push(json!({"input": input, "output": output, "interpolation": interpolation}));
+        self.channels.push(json!({
+            "sampler": self.samplers.len() - 1,
+            "target": {"node": node, "path": path},
+        }));
+    }
+}
+
 impl Pass<'_> {
     /// Lays out (and, with a builder that has an output, writes) the binary
     /// chunk; returns the file's JSON.
@@ -704,13 +724,7 @@ impl Pass<'_> {
                 ("rotation", rotation, "VEC4"),
             ] {
                 let output = b.floats(&values, kind, None, false)?;
-                arrays
-                    .samplers
-                    .push(json!({"input": input, "output": output, "interpolation": "LINEAR"}));
-                arrays.channels.push(json!({
-                    "sampler": arrays.samplers.len() - 1,
-                    "target": {"node": node(bone), "path": path},
-                }));
+                arrays.animate(node(bone), path, input, output, "LINEAR");
             }
         }
         Ok(())
@@ -812,13 +826,7 @@ impl Pass<'_> {
                 w[j * targets + j - 1] = 1.0;
             }
             let output = b.floats(&w, "SCALAR", None, false)?;
-            arrays
-                .samplers
-                .push(json!({"input": input, "output": output, "interpolation": "LINEAR"}));
-            arrays.channels.push(json!({
-                "sampler": arrays.samplers.len() - 1,
-                "target": {"node": node_index, "path": "weights"},
-            }));
+            arrays.animate(node_index, "weights", input, output, "LINEAR");
         }
         // Visibility: scale 1 from the chunk's first frame, 0 from the
         // next chunk's first frame on.
@@ -845,13 +853,7 @@ impl Pass<'_> {
         }
         let input = b.floats(&keys, "SCALAR", None, true)?;
         let output = b.floats(&scales, "VEC3", None, false)?;
-        arrays
-            .samplers
-            .push(json!({"input": input, "output": output, "interpolation": "STEP"}));
-        arrays.channels.push(json!({
-            "sampler": arrays.samplers.len() - 1,
-            "target": {"node": node_index, "path": "scale"},
-        }));
+        arrays.animate(node_index, "scale", input, output, "STEP");
         Ok(node_index)
     }
 }

@@ -110,53 +110,10 @@ pub enum InputConfig {
     },
     /// A touch table or screen (Linux evdev, multi-touch protocol A or B,
     /// or single touch). Reopened when it comes back after going away.
-    // The device fields are repeated in `Pen` and `Mouse` rather than
-    // shared with `#[serde(flatten)]`, which would silently turn off
-    // `deny_unknown_fields`.
-    Touch {
-        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
-        /// `product`, all of which must match; default: the first device of
-        /// this kind. `puppetry devices` shows each device's values.
-        #[serde(default)]
-        device: crate::device::DeviceMatch,
-        /// Where device nodes appear; default `/dev/input`.
-        #[serde(default = "default_device_dir")]
-        dir: PathBuf,
-        /// The source's name; default `KIND:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
-        /// also react to it.
-        #[serde(default)]
-        grab: bool,
-        /// Device units to stage; default: the device's full range fitted
-        /// to the stage.
-        #[serde(default)]
-        calibration: Option<crate::CalibrationSpec>,
-    },
+    Touch(EvdevInput),
     /// A pen tablet (Linux evdev): the tip is a contact carrying pressure
-    /// and tilt.
-    Pen {
-        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
-        /// `product`, all of which must match; default: the first device of
-        /// this kind. `puppetry devices` shows each device's values.
-        #[serde(default)]
-        device: crate::device::DeviceMatch,
-        /// Where device nodes appear; default `/dev/input`.
-        #[serde(default = "default_device_dir")]
-        dir: PathBuf,
-        /// The source's name; default `KIND:N` for the N-th input.
-        #[serde(default)]
-        name: Option<String>,
-        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
-        /// also react to it.
-        #[serde(default)]
-        grab: bool,
-        /// Device units to stage; default: the tablet's full range fitted
-        /// to the stage.
-        #[serde(default)]
-        calibration: Option<crate::CalibrationSpec>,
-    },
+    /// and tilt. Reopened when it comes back after going away.
+    Pen(EvdevInput),
     /// A HID digitizer read through hidapi (hidraw on Linux): for touch
     /// devices without a kernel driver, and hosts without evdev. The report
     /// descriptor says where the contacts are; parallel and hybrid
@@ -222,20 +179,20 @@ pub enum InputConfig {
     /// A mouse (Linux evdev) with its own cursor on the stage; it holds a
     /// pair of points: button-drag moves them, the wheel or a right-button
     /// drag rotates them.
+    // `device`, `dir`, `name` and `grab` are `EvdevInput`'s, written
+    // again because serde's `flatten` would silently turn off
+    // `deny_unknown_fields`.
     Mouse {
-        /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
-        /// `product`, all of which must match; default: the first device of
-        /// this kind. `puppetry devices` shows each device's values.
+        /// Which device, as [`EvdevInput::device`]; default the first mouse.
         #[serde(default)]
         device: crate::device::DeviceMatch,
-        /// Where device nodes appear; default `/dev/input`.
+        /// As [`EvdevInput::dir`].
         #[serde(default = "default_device_dir")]
         dir: PathBuf,
-        /// The source's name; default `KIND:N` for the N-th input.
+        /// As [`EvdevInput::name`] (`mouse:N`).
         #[serde(default)]
         name: Option<String>,
-        /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
-        /// also react to it.
+        /// As [`EvdevInput::grab`].
         #[serde(default)]
         grab: bool,
         /// Stage units per mouse count; default 1.
@@ -255,6 +212,31 @@ pub enum InputConfig {
         #[serde(default, deserialize_with = "some_pair")]
         start: Option<[f64; 2]>,
     },
+}
+
+/// An evdev device's section (`kind = "touch"` or `"pen"`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvdevInput {
+    /// Which device: any of `path`, `name`, `phys`, `uniq`, `vendor`,
+    /// `product`, all of which must match; default: the first device of
+    /// this kind. `puppetry devices` shows each device's values.
+    #[serde(default)]
+    pub device: crate::device::DeviceMatch,
+    /// Where device nodes appear; default `/dev/input`.
+    #[serde(default = "default_device_dir")]
+    pub dir: PathBuf,
+    /// The source's name; default `KIND:N` for the N-th input.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Take the device exclusively (`EVIOCGRAB`) so the desktop does not
+    /// also react to it.
+    #[serde(default)]
+    pub grab: bool,
+    /// Device units to stage; default: the device's full range fitted
+    /// to the stage.
+    #[serde(default)]
+    pub calibration: Option<crate::CalibrationSpec>,
 }
 
 fn default_device_dir() -> PathBuf {
@@ -369,9 +351,8 @@ pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
             }
             InputConfig::Replay { calibration, .. }
             | InputConfig::Tuio { calibration, .. }
-            | InputConfig::Touch { calibration, .. }
-            | InputConfig::Pen { calibration, .. }
             | InputConfig::Hid { calibration, .. } => calibration,
+            InputConfig::Touch(device) | InputConfig::Pen(device) => &device.calibration,
         };
         if let Some(spec) = calibration {
             let numbers =

@@ -25,19 +25,9 @@ pub enum EvemuError {
     /// `MAX_REPLAY_FILE_BYTES`.
     #[error(transparent)]
     File(#[from] file::FileError),
-    /// A line that does not parse, or breaks a rule of the format (an
-    /// axis described twice, time going backwards, …).
-    #[error("{file}:{line}: {field}: {problem}")]
-    Line {
-        /// The capture, as messages name it.
-        file: String,
-        /// The line number, from 1.
-        line: usize,
-        /// Which field of the line (`event type`, `min`, `time`, …).
-        field: &'static str,
-        /// What is wrong with it.
-        problem: String,
-    },
+    /// A line that does not parse, or breaks a rule of the format.
+    #[error(transparent)]
+    Line(#[from] crate::LineError),
     /// The captured device cannot be decoded or fitted to the stage: it
     /// has no position axes, say.
     #[error("{file}: {source}")]
@@ -90,12 +80,10 @@ pub struct EvemuFile {
 }
 
 impl EvemuFile {
-    /// Reads and parses the capture at `path`, refusing one past the size
-    /// limit every replay file has (`MAX_REPLAY_FILE_BYTES`).
+    /// [`parse`](EvemuFile::parse) of the capture at `path`, within the size
+    /// limit of every replay file (`MAX_REPLAY_FILE_BYTES`).
     pub fn read(path: &Path) -> Result<EvemuFile, EvemuError> {
-        let file = path.display().to_string();
-        let text = file::read_text(path, file::REPLAY_FILE)?;
-        EvemuFile::parse(&file, &text)
+        file::parse_text(path, file::REPLAY_FILE, EvemuFile::parse)
     }
 
     /// Parses `text`, named `file` in errors.
@@ -157,12 +145,12 @@ impl Fields for Parser<'_> {
 
 impl Parser<'_> {
     fn error(&self, field: &'static str, problem: impl Into<String>) -> EvemuError {
-        EvemuError::Line {
+        EvemuError::Line(crate::LineError {
             file: self.file.to_string(),
             line: self.line,
             field,
             problem: problem.into(),
-        }
+        })
     }
 
     fn parse_line(&mut self, line: &str) -> Result<(), EvemuError> {

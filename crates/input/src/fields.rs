@@ -5,6 +5,23 @@
 //! message; [`osc_arg`] quotes an OSC argument the same way for the network
 //! decoders.
 
+/// A line of a capture that does not parse, or breaks a rule of its
+/// format (an axis described twice, a byte count that does not add up,
+/// time going backwards, …).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{file}:{line}: {field}: {problem}")]
+pub struct LineError {
+    /// The capture, as messages name it.
+    pub file: String,
+    /// The line number, from 1; for hid-recorder bytes that fall short,
+    /// the `R:` or `E:` line that declared them.
+    pub line: usize,
+    /// Which field of the line (`event type`, `length`, `time`, …).
+    pub field: &'static str,
+    /// What is wrong with it.
+    pub problem: String,
+}
+
 /// A hexadecimal number (an optional `0x`) that fits `T`.
 pub(crate) fn hex<T: TryFrom<u64>>(text: &str) -> Result<T, String> {
     let digits = text

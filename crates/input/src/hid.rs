@@ -464,14 +464,89 @@ struct FingerParts {
     tip_pressure: Option<HidField>,
 }
 
+/// The touch application collection `field` is in, and what surface it
+/// is, if any.
+fn touch_application(field: &VariableField) -> Option<(hidreport::CollectionId, Surface)> {
+    field.collections.iter().find_map(|c| {
+        if c.collection_type() != CollectionType::Application {
+            return None;
+        }
+        c.usages().iter().find_map(|u| {
+            if usage_is(u, PAGE_DIGITIZER, USAGE_TOUCH_SCREEN) {
+                Some((c.id().clone(), Surface::TouchScreen))
+            } else if usage_is(u, PAGE_DIGITIZER, USAGE_TOUCH_PAD) {
+                Some((c.id().clone(), Surface::TouchPad))
+            } else {
+                None
+            }
+        })
+    })
+}
+
+/// The Finger collection `field` is in, if any.
+fn finger_collection(field: &VariableField) -> Option<hidreport::CollectionId> {
+    field
+        .collections
+        .iter()
+        .find(|c| {
+            c.usages()
+                .iter()
+                .any(|u| usage_is(u, PAGE_DIGITIZER, USAGE_FINGER))
+        })
+        .map(|c| c.id().clone())
+}
+
+/// The Input Mode field of a Device Configuration feature report, if the
+/// descriptor has one (how a Windows precision touchpad is switched to
+/// reporting contacts).
+fn input_mode(rdesc: &ReportDescriptor) -> Option<Result<InputMode, HidError>> {
+    rdesc.feature_reports().iter().find_map(|report| {
+        Report::fields(report).iter().find_map(|f| {
+            let Field::Variable(v) = f else { return None };
+            let in_config = v.collections.iter().any(|c| {
+                c.usages()
+                    .iter()
+                    .any(|u| usage_is(u, PAGE_DIGITIZER, USAGE_DEVICE_CONFIGURATION))
+            });
+            (in_config && usage_is(&v.usage, PAGE_DIGITIZER, USAGE_INPUT_MODE)).then(|| {
+                HidField::from_variable(v, "Input Mode").map(|field| InputMode {
+                    report_id: report_id_of(report),
+                    report_len: report.size_in_bytes(),
+                    field,
+                })
+            })
+        })
+    })
+}
+
+impl FingerParts {
+    /// Finger `i` (from 0) of the touch report, or an error naming the
+    /// field it lacks.
+    fn finger(self, i: usize) -> Result<Finger, HidError> {
+        let missing = |name: &str| {
+            layout(format!(
+                "finger {} of the touch report has no {name}",
+                i + 1
+            ))
+        };
+        Ok(Finger {
+            tip_switch: self
+                .tip_switch
+                .ok_or_else(|| missing("Tip Switch (0x0D/0x42)"))?,
+            contact_id: self
+                .contact_id
+                .ok_or_else(|| missing("Contact Identifier (0x0D/0x51)"))?,
+            x: self.x.ok_or_else(|| missing("X (0x01/0x30)"))?,
+            y: self.y.ok_or_else(|| missing("Y (0x01/0x31)"))?,
+            tip_pressure: self.tip_pressure,
+        })
+    }
+}
+
 impl TouchLayout {
     /// Reads the touch layout out of a report descriptor, as the device
     /// gives it. A descriptor with no touch report, or one that would make
     /// the parser allocate without bound, is refused.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "a report descriptor is a stream of items whose global and local state (usage page, report size and count, collections) each item updates; one loop keeps that state together, as the HID specification describes the parse"
-    )]
     pub fn parse(descriptor: &[u8]) -> Result<TouchLayout, HidError> {
         if descriptor.is_empty() {
             return Err(layout("the descriptor is empty"));
@@ -486,40 +561,13 @@ impl TouchLayout {
 
         // The first input report with a field inside a Finger collection of
         // a touch application collection is the touch report.
-        let touch_app = |field: &VariableField| {
-            field.collections.iter().find_map(|c| {
-                if c.collection_type() != CollectionType::Application {
-                    return None;
-                }
-                c.usages().iter().find_map(|u| {
-                    if usage_is(u, PAGE_DIGITIZER, USAGE_TOUCH_SCREEN) {
-                        Some((c.id().clone(), Surface::TouchScreen))
-                    } else if usage_is(u, PAGE_DIGITIZER, USAGE_TOUCH_PAD) {
-                        Some((c.id().clone(), Surface::TouchPad))
-                    } else {
-                        None
-                    }
-                })
-            })
-        };
-        let finger_of = |field: &VariableField| {
-            field
-                .collections
-                .iter()
-                .find(|c| {
-                    c.usages()
-                        .iter()
-                        .any(|u| usage_is(u, PAGE_DIGITIZER, USAGE_FINGER))
-                })
-                .map(|c| c.id().clone())
-        };
         let (report, app, surface) = rdesc
             .input_reports()
             .iter()
             .find_map(|report| {
                 variables(report).find_map(|v| {
-                    let (app, surface) = touch_app(v)?;
-                    finger_of(v)?;
+                    let (app, surface) = touch_application(v)?;
+                    finger_collection(v)?;
                     Some((report, app, surface))
                 })
             })
@@ -532,12 +580,12 @@ impl TouchLayout {
         let mut contact_count = None;
         let mut scan_time = None;
         for v in variables(report) {
-            if touch_app(v).is_none_or(|(a, _)| a != app) {
+            if touch_application(v).is_none_or(|(a, _)| a != app) {
                 continue;
             }
             let page = u16::from(v.usage.usage_page);
             let id = u16::from(v.usage.usage_id);
-            let Some(finger) = finger_of(v) else {
+            let Some(finger) = finger_collection(v) else {
                 if page == PAGE_DIGITIZER && id == USAGE_CONTACT_COUNT {
                     contact_count = Some(HidField::from_variable(v, "Contact Count")?);
                 } else if page == PAGE_DIGITIZER && id == USAGE_SCAN_TIME {
@@ -573,44 +621,9 @@ impl TouchLayout {
         let fingers = fingers
             .into_iter()
             .enumerate()
-            .map(|(i, (_, parts))| {
-                let missing = |name: &str| {
-                    layout(format!(
-                        "finger {} of the touch report has no {name}",
-                        i + 1
-                    ))
-                };
-                Ok(Finger {
-                    tip_switch: parts
-                        .tip_switch
-                        .ok_or_else(|| missing("Tip Switch (0x0D/0x42)"))?,
-                    contact_id: parts
-                        .contact_id
-                        .ok_or_else(|| missing("Contact Identifier (0x0D/0x51)"))?,
-                    x: parts.x.ok_or_else(|| missing("X (0x01/0x30)"))?,
-                    y: parts.y.ok_or_else(|| missing("Y (0x01/0x31)"))?,
-                    tip_pressure: parts.tip_pressure,
-                })
-            })
+            .map(|(i, (_, parts))| parts.finger(i))
             .collect::<Result<Vec<Finger>, HidError>>()?;
-
-        let input_mode = rdesc.feature_reports().iter().find_map(|report| {
-            Report::fields(report).iter().find_map(|f| {
-                let Field::Variable(v) = f else { return None };
-                let in_config = v.collections.iter().any(|c| {
-                    c.usages()
-                        .iter()
-                        .any(|u| usage_is(u, PAGE_DIGITIZER, USAGE_DEVICE_CONFIGURATION))
-                });
-                (in_config && usage_is(&v.usage, PAGE_DIGITIZER, USAGE_INPUT_MODE)).then(|| {
-                    HidField::from_variable(v, "Input Mode").map(|field| InputMode {
-                        report_id: report_id_of(report),
-                        report_len: report.size_in_bytes(),
-                        field,
-                    })
-                })
-            })
-        });
+        let input_mode = input_mode(&rdesc);
 
         Ok(TouchLayout {
             surface,

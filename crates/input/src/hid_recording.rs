@@ -26,20 +26,9 @@ pub enum HidRecordingError {
     #[error(transparent)]
     File(#[from] file::FileError),
     /// A line that does not parse, or breaks a rule of the format (a byte
-    /// count that does not add up, a second device, time going backwards,
-    /// …).
-    #[error("{file}:{line}: {field}: {problem}")]
-    Line {
-        /// The capture, as messages name it.
-        file: String,
-        /// The line number, from 1; for bytes that fall short, the `R:` or
-        /// `E:` line that declared them.
-        line: usize,
-        /// Which field of the line (`length`, `report bytes`, `time`, …).
-        field: &'static str,
-        /// What is wrong with it.
-        problem: String,
-    },
+    /// count that does not add up, a second device, …).
+    #[error(transparent)]
+    Line(#[from] crate::LineError),
     /// The capture has no report descriptor, without which its reports
     /// cannot be decoded.
     #[error("{file}: no `R:` line; a hid-recorder capture starts with the report descriptor")]
@@ -70,12 +59,10 @@ pub struct HidRecording {
 }
 
 impl HidRecording {
-    /// Reads and parses the capture at `path`, refusing one past the size
-    /// limit every replay file has (`MAX_REPLAY_FILE_BYTES`).
+    /// [`parse`](HidRecording::parse) of the capture at `path`, within the size
+    /// limit of every replay file (`MAX_REPLAY_FILE_BYTES`).
     pub fn read(path: &Path) -> Result<HidRecording, HidRecordingError> {
-        let file = path.display().to_string();
-        let text = file::read_text(path, file::REPLAY_FILE)?;
-        HidRecording::parse(&file, &text)
+        file::parse_text(path, file::REPLAY_FILE, HidRecording::parse)
     }
 
     /// Parses `text`, named `file` in errors.
@@ -201,12 +188,12 @@ impl Parser<'_> {
         field: &'static str,
         problem: impl Into<String>,
     ) -> HidRecordingError {
-        HidRecordingError::Line {
+        HidRecordingError::Line(crate::LineError {
             file: self.file.to_string(),
             line,
             field,
             problem: problem.into(),
-        }
+        })
     }
 
     fn bytes_of(&mut self, kind: BytesKind) -> &mut Vec<u8> {

@@ -44,4 +44,5 @@ pub mod serial;
 pub mod show_clock;
 pub mod tuio;
 
+pub use fields::LineError;
 pub use puppetry_contact::*;

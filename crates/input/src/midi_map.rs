@@ -99,54 +99,58 @@ pub struct MidiMapping {
     pub take: Option<String>,
 }
 
-/// What a mapping does, whatever control does it: what a director picks
-/// on the page before moving a control to learn it ([`MidiMapping`]'s
-/// fields but the control's; serde's `flatten` cannot share them under
-/// `deny_unknown_fields`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MidiTarget {
-    /// What it does.
-    pub action: MidiActionKind,
-    /// The puppet it acts on, by name (cursor, blend, key and reset).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub puppet: Option<String>,
-    /// `blend`: the two stage-file key poses blended between.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub poses: Option<[String; 2]>,
-    /// `key`: the key pose's name (a skeleton pose or a keyframing key).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub key: Option<String>,
-    /// `key`: how long the blend takes, seconds; default 0 (at once).
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub seconds: f64,
-    /// `play`, `overdub`: the take's name; default the newest take.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub take: Option<String>,
-}
-
 fn is_zero(seconds: &f64) -> bool {
     *seconds == 0.0
 }
 
 impl MidiMapping {
-    /// The mapping a director learns by moving a control: the control
-    /// (and channel) `message` comes from, doing `target`. `None` for a
-    /// message no control is mapped by (a note off, a clock, time code…).
-    pub fn learned(message: &MidiMessage, target: &MidiTarget) -> Option<MidiMapping> {
-        let mut m = MidiMapping {
+    /// A mapping of no control yet doing `action` (with no puppet, poses,
+    /// key or take): what a director asks of the next control moved,
+    /// before it is [`learned`](MidiMapping::learned).
+    pub fn doing(action: MidiActionKind) -> MidiMapping {
+        MidiMapping {
             cc: None,
             note: None,
             program: None,
             pitch_bend: false,
             msc: None,
             channel: None,
+            action,
+            puppet: None,
+            poses: None,
+            key: None,
+            seconds: 0.0,
+            take: None,
+        }
+    }
+
+    /// The field naming its control (or channel), if any: a learn target
+    /// names none, the control moved is learnt.
+    pub fn control_field(&self) -> Option<&'static str> {
+        [
+            ("cc", self.cc.is_some()),
+            ("note", self.note.is_some()),
+            ("program", self.program.is_some()),
+            ("pitch_bend", self.pitch_bend),
+            ("msc", self.msc.is_some()),
+            ("channel", self.channel.is_some()),
+        ]
+        .into_iter()
+        .find_map(|(field, named)| named.then_some(field))
+    }
+
+    /// The mapping a director learns by moving a control: the control
+    /// (and channel) `message` comes from, doing `target`. `None` for a
+    /// message no control is mapped by (a note off, a clock, time code…).
+    pub fn learned(message: &MidiMessage, target: &MidiMapping) -> Option<MidiMapping> {
+        let mut m = MidiMapping {
             action: target.action,
             puppet: target.puppet.clone(),
             poses: target.poses.clone(),
             key: target.key.clone(),
             seconds: target.seconds,
             take: target.take.clone(),
+            ..MidiMapping::doing(target.action)
         };
         let channel = match *message {
             MidiMessage::ControlChange {
@@ -558,13 +562,9 @@ mod tests {
 
     #[test]
     fn a_control_moved_is_learnt_and_written_back_as_read() {
-        let target = MidiTarget {
-            action: MidiActionKind::CursorX,
+        let target = MidiMapping {
             puppet: Some("gingerbread".into()),
-            poses: None,
-            key: None,
-            seconds: 0.0,
-            take: None,
+            ..MidiMapping::doing(MidiActionKind::CursorX)
         };
         // Clocks and note offs teach nothing; a button on CC 39 (a
         // nanoKONTROL2's) is learnt as itself, and read as itself beside

@@ -215,6 +215,18 @@ pub fn read_text(path: &Path, cap: Cap) -> Result<String, FileError> {
     })
 }
 
+/// [`read_text`] handed to `parse` with the file's name for its errors:
+/// how a capture or recording is opened, so each format keeps only its
+/// parser.
+pub fn parse_text<T, E: From<FileError>>(
+    path: &Path,
+    cap: Cap,
+    parse: impl FnOnce(&str, &str) -> Result<T, E>,
+) -> Result<T, E> {
+    let text = read_text(path, cap)?;
+    parse(&path.display().to_string(), &text)
+}
+
 /// A reader of the regular file `path` that fails with an error naming
 /// the file and `cap` once more than `cap` bytes come out of it: for
 /// formats read as a stream (line by line, or a PNG decoder).

@@ -54,17 +54,35 @@ pub enum MeshError {
     /// The data was read but breaks a rule: of the mesh format
     /// (`docs/mesh-format.md`), of a shape, of a picture (too large, nothing
     /// opaque) or of a meshing option.
-    #[error("{file}: {field}: {problem}")]
-    Invalid {
-        /// Where the data came from: a path, or the name the caller gave it.
-        file: String,
-        /// The offending field as the file spells it (`triangles[12]`,
-        /// `weights`, `polygons[2].outer`), or the input it concerns
-        /// (`size`, `alpha`, `target_vertices`).
-        field: String,
-        /// What is wrong, in words a person can act on.
-        problem: String,
-    },
+    #[error(transparent)]
+    Invalid(#[from] FieldError),
+}
+
+/// A field of a file, or an input, that breaks a rule: what every layer's
+/// "invalid" error holds (a mesh's, a stage file's), so each is reported
+/// as `file: field: problem`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{file}: {field}: {problem}")]
+pub struct FieldError {
+    /// Where the data came from: a path, or the name the caller gave it.
+    pub file: String,
+    /// The offending field as the file spells it (`triangles[12]`,
+    /// `puppet[2].grid.columns`), or the input it concerns (`size`,
+    /// `alpha`, `target_vertices`).
+    pub field: String,
+    /// What is wrong, in words a person can act on.
+    pub problem: String,
+}
+
+impl FieldError {
+    /// `field` of `file` is wrong: `problem`.
+    pub fn new(file: &str, field: impl Into<String>, problem: impl Into<String>) -> FieldError {
+        FieldError {
+            file: file.to_string(),
+            field: field.into(),
+            problem: problem.into(),
+        }
+    }
 }
 
 /// A file that could not be opened stays an `Io` error, as before there
@@ -116,11 +134,7 @@ pub(crate) fn invalid(
     field: impl Into<String>,
     problem: impl Into<String>,
 ) -> MeshError {
-    MeshError::Invalid {
-        file: file.to_string(),
-        field: field.into(),
-        problem: problem.into(),
-    }
+    MeshError::Invalid(FieldError::new(file, field, problem))
 }
 
 /// The softest per-triangle rigidity weight a mesh may hold (1 is the

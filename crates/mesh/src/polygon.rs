@@ -146,87 +146,17 @@ impl Shape {
     /// Checks that the shape can be meshed; errors name the offending ring
     /// (`outer`, `holes[1]`, `polygons[2].outer`) and, for crossings, both
     /// segments by their index in the ring as given.
-    #[expect(
-        clippy::too_many_lines,
-        reason = "one check per rule of a shape, each naming its ring and segments, in order; they share the rings' segment lists"
-    )]
     pub fn validate(&self, source: &str) -> Result<(), MeshError> {
         let islands = self.polygons.len();
         if islands == 0 {
             return Err(invalid(source, "polygons", "there are no polygons"));
         }
         let ids = self.ring_ids();
-        let mut cleaned: Vec<(Vec<DVec2>, Vec<usize>)> = Vec::with_capacity(ids.len());
-        for &id in &ids {
-            let ring = self.ring(id);
-            if let Some(i) = ring.iter().position(|p| !p.is_finite()) {
-                return Err(invalid(
-                    source,
-                    id.name(islands),
-                    format!(
-                        "point {i} is not a finite number: {}",
-                        json::show_point(ring[i])
-                    ),
-                ));
-            }
-            if let Some(i) = ring
-                .iter()
-                .position(|p| p.abs().max_element() > MAX_COORDINATE)
-            {
-                return Err(invalid(
-                    source,
-                    id.name(islands),
-                    format!(
-                        "point {i} ({}) is too far out: coordinates are pixels and \
-                         must stay within ±{MAX_COORDINATE:e}",
-                        json::show_point(ring[i])
-                    ),
-                ));
-            }
-            let (points, index) = drop_repeats(ring);
-            if points.len() < 3 {
-                return Err(invalid(
-                    source,
-                    id.name(islands),
-                    format!(
-                        "has {} distinct points; a ring needs at least 3",
-                        points.len()
-                    ),
-                ));
-            }
-            cleaned.push((points, index));
-        }
-
-        let rings: Vec<&[DVec2]> = cleaned.iter().map(|(p, _)| p.as_slice()).collect();
-        if let Some(c) = find_crossing(&rings) {
-            let segment = |r: usize, s: usize| {
-                let (points, index) = &cleaned[r];
-                let a = points[s];
-                let b = points[(s + 1) % points.len()];
-                format!(
-                    "segment {} ({}-{})",
-                    index[s],
-                    json::show_point(a),
-                    json::show_point(b)
-                )
-            };
-            let first = segment(c.ring_a, c.seg_a);
-            let mut second = segment(c.ring_b, c.seg_b);
-            if c.ring_a != c.ring_b {
-                second = format!("{} {second}", ids[c.ring_b].name(islands));
-            }
-            let verb = if c.ring_a == c.ring_b && c.folds {
-                "folds back onto"
-            } else {
-                "crosses or touches"
-            };
-            return Err(invalid(
-                source,
-                ids[c.ring_a].name(islands),
-                format!("{first} {verb} {second}"),
-            ));
-        }
-
+        let cleaned = ids
+            .iter()
+            .map(|&id| self.cleaned_ring(source, id))
+            .collect::<Result<Vec<_>, _>>()?;
+        check_crossings(source, islands, &ids, &cleaned)?;
         // Crossings first: a bow tie may have zero area, and its crossing is
         // the better message. A ring that passed is degenerate only if flat.
         for (k, (points, _)) in cleaned.iter().enumerate() {
@@ -235,8 +165,67 @@ impl Shape {
             }
         }
 
-        // With no crossings anywhere, one point decides which side of a ring
-        // another ring lies on.
+        self.check_nesting(source, &cleaned)
+    }
+
+    /// Ring `id` without repeated points, with the index each kept point
+    /// had as given; an error for a point that is not finite or too far
+    /// out, or fewer than three distinct points.
+    fn cleaned_ring(
+        &self,
+        source: &str,
+        id: RingId,
+    ) -> Result<(Vec<DVec2>, Vec<usize>), MeshError> {
+        let islands = self.polygons.len();
+        let ring = self.ring(id);
+        if let Some(i) = ring.iter().position(|p| !p.is_finite()) {
+            return Err(invalid(
+                source,
+                id.name(islands),
+                format!(
+                    "point {i} is not a finite number: {}",
+                    json::show_point(ring[i])
+                ),
+            ));
+        }
+        if let Some(i) = ring
+            .iter()
+            .position(|p| p.abs().max_element() > MAX_COORDINATE)
+        {
+            return Err(invalid(
+                source,
+                id.name(islands),
+                format!(
+                    "point {i} ({}) is too far out: coordinates are pixels and \
+                     must stay within ±{MAX_COORDINATE:e}",
+                    json::show_point(ring[i])
+                ),
+            ));
+        }
+        let (points, index) = drop_repeats(ring);
+        if points.len() < 3 {
+            return Err(invalid(
+                source,
+                id.name(islands),
+                format!(
+                    "has {} distinct points; a ring needs at least 3",
+                    points.len()
+                ),
+            ));
+        }
+        Ok((points, index))
+    }
+
+    /// With no crossings anywhere (the rings `cleaned`, in `ring_ids`
+    /// order), one point decides which side of a ring another ring lies
+    /// on: every hole inside its own outer ring and no other hole, no
+    /// island inside another but in a hole.
+    fn check_nesting(
+        &self,
+        source: &str,
+        cleaned: &[(Vec<DVec2>, Vec<usize>)],
+    ) -> Result<(), MeshError> {
+        let islands = self.polygons.len();
         let ring_boxes: Vec<(DVec2, DVec2)> = cleaned.iter().map(|(p, _)| bounds(p)).collect();
         let first_ring: Vec<usize> = self
             .polygons
@@ -428,6 +417,48 @@ impl Shape {
             Some(h) => &mut polygon.holes[h],
         }
     }
+}
+
+/// An error naming the first crossing or touching of the rings
+/// `cleaned` (named by `ids`), if they have one: both segments by their
+/// index in the ring as given.
+fn check_crossings(
+    source: &str,
+    islands: usize,
+    ids: &[RingId],
+    cleaned: &[(Vec<DVec2>, Vec<usize>)],
+) -> Result<(), MeshError> {
+    let rings: Vec<&[DVec2]> = cleaned.iter().map(|(p, _)| p.as_slice()).collect();
+    if let Some(c) = find_crossing(&rings) {
+        let segment = |r: usize, s: usize| {
+            let (points, index) = &cleaned[r];
+            let a = points[s];
+            let b = points[(s + 1) % points.len()];
+            format!(
+                "segment {} ({}-{})",
+                index[s],
+                json::show_point(a),
+                json::show_point(b)
+            )
+        };
+        let first = segment(c.ring_a, c.seg_a);
+        let mut second = segment(c.ring_b, c.seg_b);
+        if c.ring_a != c.ring_b {
+            second = format!("{} {second}", ids[c.ring_b].name(islands));
+        }
+        let verb = if c.ring_a == c.ring_b && c.folds {
+            "folds back onto"
+        } else {
+            "crosses or touches"
+        };
+        return Err(invalid(
+            source,
+            ids[c.ring_a].name(islands),
+            format!("{first} {verb} {second}"),
+        ));
+    }
+
+    Ok(())
 }
 
 /// The ring without repeated consecutive points (the closing pair included),

@@ -52,14 +52,23 @@ pub enum StrokeError {
     },
 }
 
+/// Why the path command letter `c` is refused, if it is: a curve
+/// puppet is one open stroke of lines and Béziers.
+fn unsupported(c: u8) -> Option<String> {
+    match c {
+        b'Z' | b'z' => {
+            Some("closed paths (Z) are not supported: a curve puppet is an open stroke".into())
+        }
+        b'A' | b'a' => Some("arcs (A) are not supported: convert them to Béziers".into()),
+        c if !b"MmLlHhVvCcSsQqTt".contains(&c) => Some(format!("unknown command {:?}", c as char)),
+        _ => None,
+    }
+}
+
 /// The centre line of an SVG path `d`: one open subpath of `M`/`L`/`H`/`V`/
 /// `C`/`S`/`Q`/`T` commands (absolute or relative), with Béziers flattened so
 /// no flattened segment is longer than `step` (about). Closed paths,
 /// several subpaths and arcs are refused: a curve puppet is one open stroke.
-#[expect(
-    clippy::too_many_lines,
-    reason = "one arm per SVG path command, sharing the current point and the last control point as the SVG grammar does"
-)]
 pub fn parse_svg_path(d: &str, step: f64) -> Result<Vec<DVec2>, StrokeError> {
     let mut parser = PathParser {
         text: d.as_bytes(),
@@ -87,23 +96,8 @@ pub fn parse_svg_path(d: &str, step: f64) -> Result<Vec<DVec2>, StrokeError> {
         if c.is_ascii_alphabetic() {
             command = Some((c, parser.at));
             parser.at += 1;
-            if c == b'Z' || c == b'z' {
-                return Err(fail(
-                    parser.at - 1,
-                    "closed paths (Z) are not supported: a curve puppet is an open stroke",
-                ));
-            }
-            if c == b'A' || c == b'a' {
-                return Err(fail(
-                    parser.at - 1,
-                    "arcs (A) are not supported: convert them to Béziers",
-                ));
-            }
-            if !b"MmLlHhVvCcSsQqTt".contains(&c) {
-                return Err(fail(
-                    parser.at - 1,
-                    &format!("unknown command {:?}", c as char),
-                ));
+            if let Some(problem) = unsupported(c) {
+                return Err(fail(parser.at - 1, &problem));
             }
         } else if command.is_none() {
             return Err(fail(parser.at, "a path starts with M (moveto)"));
@@ -130,22 +124,12 @@ pub fn parse_svg_path(d: &str, step: f64) -> Result<Vec<DVec2>, StrokeError> {
                 last_cubic = None;
                 last_quadratic = None;
             }
-            b'L' => {
-                current = base + parser.pair()?;
-                points.push(current);
-                last_cubic = None;
-                last_quadratic = None;
-            }
-            b'H' => {
-                let x = parser.number()?;
-                current = DVec2::new(if relative { current.x + x } else { x }, current.y);
-                points.push(current);
-                last_cubic = None;
-                last_quadratic = None;
-            }
-            b'V' => {
-                let y = parser.number()?;
-                current = DVec2::new(current.x, if relative { current.y + y } else { y });
+            line @ (b'L' | b'H' | b'V') => {
+                current = match line {
+                    b'L' => base + parser.pair()?,
+                    b'H' => DVec2::new(base.x + parser.number()?, current.y),
+                    _ => DVec2::new(current.x, base.y + parser.number()?),
+                };
                 points.push(current);
                 last_cubic = None;
                 last_quadratic = None;
@@ -354,7 +338,7 @@ pub fn ribbon_mesh(source: &str, centre: &[DVec2], width: f64) -> Result<Mesh, S
         }
     }
     Mesh::new(source, vertices, triangles, Some(uv), None).map_err(|e| match e {
-        MeshError::Invalid { field, problem, .. } => StrokeError::Ribbon {
+        MeshError::Invalid(crate::FieldError { field, problem, .. }) => StrokeError::Ribbon {
             problem: format!("{field}: {problem}"),
         },
         other => StrokeError::Ribbon {

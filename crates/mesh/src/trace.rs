@@ -333,10 +333,6 @@ fn trace_alpha(
 /// contour closes. Each segment is oriented with the opaque side on its left
 /// (y-up), so islands come out counter-clockwise and holes clockwise.
 /// None past `MAX_OUTLINE_SEGMENTS` segments, before their memory is spent.
-#[expect(
-    clippy::too_many_lines,
-    reason = "marching squares: the sixteen cases and the joining of segments into rings in one pass over the pixels, the tracer's hot loop"
-)]
 fn march(width: u32, height: u32, alpha: &[u16]) -> Option<Vec<Vec<DVec2>>> {
     let (w, h) = (width as usize, height as usize);
     let sx = w + 2;
@@ -440,7 +436,13 @@ fn march(width: u32, height: u32, alpha: &[u16]) -> Option<Vec<Vec<DVec2>>> {
             }
         }
     }
+    Some(join_rings(&segments, |e| crossing(e).0))
+}
 
+/// Joins oriented segments (edge to edge) into rings of the points
+/// `point` gives for their first edges; a ring of fewer than three points
+/// is dropped.
+fn join_rings(segments: &[(u64, u64)], point: impl Fn(u64) -> DVec2) -> Vec<Vec<DVec2>> {
     let from: HashMap<u64, usize> = segments
         .iter()
         .enumerate()
@@ -457,7 +459,7 @@ fn march(width: u32, height: u32, alpha: &[u16]) -> Option<Vec<Vec<DVec2>>> {
         while !used[k] {
             used[k] = true;
             let (a, b) = segments[k];
-            ring.push(crossing(a).0);
+            ring.push(point(a));
             match from.get(&b) {
                 Some(&next) => k = next,
                 None => break,
@@ -467,7 +469,7 @@ fn march(width: u32, height: u32, alpha: &[u16]) -> Option<Vec<Vec<DVec2>>> {
             rings.push(ring);
         }
     }
-    Some(rings)
+    rings
 }
 
 /// Sorts rings (counter-clockwise islands, clockwise holes) into polygons:

@@ -13,6 +13,31 @@ use glam::DVec2;
 use puppetry_contact::Phase;
 use serde::{Deserialize, Serialize};
 
+/// Declares an enum whose variants go on the wire by their snake_case
+/// names and into the generated `clients/web/wire.js` with their doc
+/// comments (strum's `EnumMessage`): one list of what such an enum
+/// derives, for every enum the browser names.
+macro_rules! wire_enum {
+    ($(#[$meta:meta])* $vis:vis enum $name:ident { $($body:tt)* }) => {
+        $(#[$meta])*
+        #[derive(
+            Debug,
+            Clone,
+            Copy,
+            PartialEq,
+            Eq,
+            Serialize,
+            Deserialize,
+            strum::EnumIter,
+            strum::IntoStaticStr,
+            strum::EnumMessage,
+        )]
+        #[serde(rename_all = "snake_case")]
+        #[strum(serialize_all = "snake_case")]
+        $vis enum $name { $($body)* }
+    };
+}
+
 /// Size of a binary frame's header.
 pub const FRAME_HEADER_BYTES: usize = 32;
 
@@ -348,33 +373,20 @@ pub enum Role {
     Director,
 }
 
-/// A role in the `people` list: a client's ([`Role`]'s `Viewer`,
-/// `Performer` or `Director`, converted by `From`), or `Device` for the
-/// stage's own input sources. Each variant's doc comment is copied into
-/// the generated `clients/web/wire.js` (strum's `EnumMessage`).
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Serialize,
-    Deserialize,
-    strum::EnumIter,
-    strum::IntoStaticStr,
-    strum::EnumMessage,
-)]
-#[serde(rename_all = "snake_case")]
-#[strum(serialize_all = "snake_case")]
-pub enum PersonRole {
-    /// Watches only.
-    Viewer,
-    /// Performs: contacts, pins, poses, cursors (maybe on some puppets).
-    Performer,
-    /// Everything a performer does, and takes, painting, saving, key poses.
-    Director,
-    /// One of the stage's own input sources (a touch table, a pad, a replay).
-    Device,
+wire_enum! {
+    /// A role in the `people` list: a client's ([`Role`]'s `Viewer`,
+    /// `Performer` or `Director`, converted by `From`), or `Device` for the
+    /// stage's own input sources.
+    pub enum PersonRole {
+        /// Watches only.
+        Viewer,
+        /// Performs: contacts, pins, poses, cursors (maybe on some puppets).
+        Performer,
+        /// Everything a performer does, and takes, painting, saving, key poses.
+        Director,
+        /// One of the stage's own input sources (a touch table, a pad, a replay).
+        Device,
+    }
 }
 
 impl From<Role> for PersonRole {
@@ -404,49 +416,37 @@ pub struct Person {
     pub colour: String,
 }
 
-/// Why something a client sent was refused (`error` messages' `code`).
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Serialize,
-    Deserialize,
-    strum::EnumIter,
-    strum::IntoStaticStr,
-    strum::EnumMessage,
-)]
-#[serde(rename_all = "snake_case")]
-#[strum(serialize_all = "snake_case")]
-pub enum ErrorCode {
-    /// Not JSON, or not a message of the protocol.
-    BadMessage,
-    /// Longer than 64 KiB.
-    TooLarge,
-    /// A binary message (clients send text).
-    Binary,
-    /// The client's role may not send this message (or not for this puppet).
-    Forbidden,
-    /// The hello's token is not one of the stage's.
-    BadToken,
-    /// A number is not finite or is too large (coordinates: |v| ≤ 1e6).
-    OutOfRange,
-    /// More than the resource budget allows (`docs/limits.md`): contacts
-    /// in one message, or held down at once.
-    TooMany,
-    /// No such puppet, take, key, handle…
-    NotFound,
-    /// Something else is running (a take, an export).
-    Busy,
-    /// An action that failed (a file that could not be written, …).
-    Failed,
-    /// The first message was not a hello.
-    Hello,
-    /// An uploaded picture is not a PNG, or cannot be made a puppet.
-    BadImage,
-    /// An HTTP request's parameters are missing or not well-formed.
-    BadRequest,
+wire_enum! {
+    /// Why something a client sent was refused (`error` messages' `code`).
+    pub enum ErrorCode {
+        /// Not JSON, or not a message of the protocol.
+        BadMessage,
+        /// Longer than 64 KiB.
+        TooLarge,
+        /// A binary message (clients send text).
+        Binary,
+        /// The client's role may not send this message (or not for this puppet).
+        Forbidden,
+        /// The hello's token is not one of the stage's.
+        BadToken,
+        /// A number is not finite or is too large (coordinates: |v| ≤ 1e6).
+        OutOfRange,
+        /// More than the resource budget allows (`docs/limits.md`): contacts
+        /// in one message, or held down at once.
+        TooMany,
+        /// No such puppet, take, key, handle…
+        NotFound,
+        /// Something else is running (a take, an export).
+        Busy,
+        /// An action that failed (a file that could not be written, …).
+        Failed,
+        /// The first message was not a hello.
+        Hello,
+        /// An uploaded picture is not a PNG, or cannot be made a puppet.
+        BadImage,
+        /// An HTTP request's parameters are missing or not well-formed.
+        BadRequest,
+    }
 }
 
 /// What a client sends (text).
@@ -684,10 +684,11 @@ pub enum ClientMessage {
     /// file it is saved to; without a target, stop waiting. The `inputs`
     /// message says what is awaited and what was learnt.
     MidiLearn {
-        /// What the control will do (an `[[input.map]]` entry's fields but
-        /// its control's); none: stop waiting.
+        /// What the control will do: an `[[input.map]]` entry without
+        /// its control (no `cc`, `note`, `program`, `pitch_bend`, `msc` or
+        /// `channel`); none: stop waiting.
         #[serde(default, skip_serializing_if = "Option::is_none")]
-        target: Option<puppetry_input::midi_map::MidiTarget>,
+        target: Option<puppetry_input::midi_map::MidiMapping>,
     },
 }
 
@@ -1001,7 +1002,7 @@ pub struct MidiView {
     pub inputs: Vec<String>,
     /// What the next control moved will do (a `midi_learn` waiting).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub waiting: Option<puppetry_input::midi_map::MidiTarget>,
+    pub waiting: Option<puppetry_input::midi_map::MidiMapping>,
     /// The last mapping learnt, for people: which input's control does
     /// what, and the file it was saved to.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -1154,55 +1155,30 @@ pub struct HandleView {
     pub index: Option<usize>,
 }
 
-/// What holds a handle. Each variant's doc comment is copied into the
-/// generated `clients/web/wire.js` (strum's `EnumMessage`).
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Serialize,
-    Deserialize,
-    strum::EnumIter,
-    strum::IntoStaticStr,
-    strum::EnumMessage,
-)]
-#[serde(rename_all = "snake_case")]
-#[strum(serialize_all = "snake_case")]
-pub enum HandleKind {
-    /// Held by a finger, mouse or pen (a client's or an input source's).
-    Contact,
-    /// Held by a pin (the stage file's or one placed since).
-    Pin,
-    /// Held by the keyframing cursor's blend of key poses.
-    Key,
+wire_enum! {
+    /// What holds a handle.
+    pub enum HandleKind {
+        /// Held by a finger, mouse or pen (a client's or an input source's).
+        Contact,
+        /// Held by a pin (the stage file's or one placed since).
+        Pin,
+        /// Held by the keyframing cursor's blend of key poses.
+        Key,
+    }
 }
 
-/// What a handle holds.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Serialize,
-    Deserialize,
-    strum::EnumIter,
-    strum::IntoStaticStr,
-    strum::EnumMessage,
-)]
-#[serde(rename_all = "snake_case")]
-#[strum(serialize_all = "snake_case")]
-pub enum GripKind {
-    /// A material point of the mesh.
-    Point,
-    /// A grid handle of a grid puppet.
-    Grid,
-    /// A joint of a skeleton puppet.
-    Joint,
-    /// A point on a skeleton puppet's bone (`index`: the bone).
-    Bone,
+wire_enum! {
+    /// What a handle holds.
+    pub enum GripKind {
+        /// A material point of the mesh.
+        Point,
+        /// A grid handle of a grid puppet.
+        Grid,
+        /// A joint of a skeleton puppet.
+        Joint,
+        /// A point on a skeleton puppet's bone (`index`: the bone).
+        Bone,
+    }
 }
 
 /// A mouse cursor as clients draw it: where it is, and the pair of points

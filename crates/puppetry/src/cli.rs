@@ -299,11 +299,9 @@ pub fn parse_handles(
 ) -> Result<(Vec<Anchor>, Vec<DVec2>), CliError> {
     let parsed: HandlesFile = json::parse(file, text)?;
     let invalid = |field: String, problem: String| {
-        CliError::Mesh(MeshError::Invalid {
-            file: file.to_string(),
-            field,
-            problem,
-        })
+        CliError::Mesh(MeshError::Invalid(puppetry_mesh::FieldError::new(
+            file, field, problem,
+        )))
     };
     let locator = Locator::new(mesh);
     let mut anchors = Vec::with_capacity(parsed.handles.len());
@@ -718,11 +716,11 @@ pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_daemon::config::ShowC
     let load = |path: &Path| {
         ShowConfig::load(path).map_err(|e| match e {
             ConfigError::Read { file, source } => CliError::Read { file, source },
-            other => CliError::Mesh(MeshError::Invalid {
-                file: path.display().to_string(),
-                field: "stage".into(),
-                problem: other.to_string(),
-            }),
+            other => CliError::Mesh(MeshError::Invalid(puppetry_mesh::FieldError::new(
+                &path.display().to_string(),
+                "stage",
+                other.to_string(),
+            ))),
         })
     };
     let mut demo = load(&puppetry_daemon::bundled::demo_stage()?)?;
@@ -789,7 +787,7 @@ struct DeviceEntry {
 
 /// The stage file's touch, pen and mouse entries, their paths resolved.
 fn device_entries(config: Option<&puppetry_daemon::config::ShowConfig>) -> Vec<DeviceEntry> {
-    use puppetry_input::config::InputConfig;
+    use puppetry_input::config::{EvdevInput, InputConfig};
     use puppetry_input::device::DeviceKind;
     let Some(c) = config else {
         return Vec::new();
@@ -799,10 +797,12 @@ fn device_entries(config: Option<&puppetry_daemon::config::ShowConfig>) -> Vec<D
         .enumerate()
         .filter_map(|(index, input)| {
             let (kind, device, name, label) = match input {
-                InputConfig::Touch { device, name, .. } => {
+                InputConfig::Touch(EvdevInput { device, name, .. }) => {
                     (DeviceKind::Touch, device, name, "touch")
                 }
-                InputConfig::Pen { device, name, .. } => (DeviceKind::Pen, device, name, "pen"),
+                InputConfig::Pen(EvdevInput { device, name, .. }) => {
+                    (DeviceKind::Pen, device, name, "pen")
+                }
                 InputConfig::Mouse { device, name, .. } => {
                     (DeviceKind::Mouse, device, name, "mouse")
                 }

@@ -88,13 +88,7 @@ pub fn export(
     progress: &mut dyn Progress,
 ) -> Result<String, ExportCommandError> {
     puppetry_export::take::preflight(request)?;
-    puppetry_export::budget::check(
-        &request.take,
-        request.format,
-        request.fps,
-        request.from,
-        request.to,
-    )?;
+    puppetry_export::budget::check(request)?;
     Ok(export_take(request, progress)?)
 }
 

@@ -190,42 +190,58 @@ pub struct PinRecord {
     pub offset: DVec2,
 }
 
-/// A grip, exactly (a material point by triangle and barycentric
-/// coordinates, not by position, so restoring it is bit for bit).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum GripRecord {
-    /// A vertex of the mesh.
-    Vertex {
-        /// The vertex's index.
-        index: u32,
-    },
-    /// A material point inside a triangle.
-    Point {
-        /// The triangle's index.
-        triangle: u32,
-        /// The point's barycentric coordinates in it (summing to 1).
-        bary: [f64; 3],
-    },
-    /// A grid handle of an lp-FFD puppet.
-    Grid {
-        /// The handle's index, row by row from the lower left.
-        index: usize,
-    },
-    /// A joint of a skeleton puppet.
-    Joint {
-        /// The joint's index.
-        index: usize,
-    },
-    /// A point on a skeleton's bone, in the bone's frame.
-    Bone {
-        /// The bone's index.
-        index: usize,
-        /// Along the bone: 0 at its parent joint, 1 at its child.
-        along: f64,
-        /// Across the bone, in stage units, to the left.
-        across: f64,
-    },
+/// Declares a grip enum of a file format: its own variants for a
+/// material point, then the rig's (a grid handle, a joint, a point on a
+/// bone), the same in every format. One list, because serde's tagged
+/// enums cannot hold another under `deny_unknown_fields` without losing
+/// its errors.
+macro_rules! grip_enum {
+    ($(#[$meta:meta])* $vis:vis enum $name:ident { $($points:tt)* }) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+        #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+        $vis enum $name {
+            $($points)*
+            /// A grid handle of an lp-FFD puppet.
+            Grid {
+                /// The handle's index, row by row from the lower left.
+                index: usize,
+            },
+            /// A joint of a skeleton puppet.
+            Joint {
+                /// The joint's index.
+                index: usize,
+            },
+            /// A point on a skeleton's bone, in the bone's frame.
+            Bone {
+                /// The bone's index.
+                index: usize,
+                /// Along the bone: 0 at its parent joint, 1 at its child.
+                along: f64,
+                /// Across the bone, in stage units, to the left.
+                across: f64,
+            },
+        }
+    };
+}
+
+grip_enum! {
+    /// A grip, exactly (a material point by triangle and barycentric
+    /// coordinates, not by position, so restoring it is bit for bit).
+    pub enum GripRecord {
+        /// A vertex of the mesh.
+        Vertex {
+            /// The vertex's index.
+            index: u32,
+        },
+        /// A material point inside a triangle.
+        Point {
+            /// The triangle's index.
+            triangle: u32,
+            /// The point's barycentric coordinates in it (summing to 1).
+            bary: [f64; 3],
+        },
+    }
 }
 
 /// A curve puppet's pose is its centre line, in `joints` (the rest empty).
@@ -263,36 +279,17 @@ pub struct KeyPoseState {
     pub t: f64,
 }
 
-/// What a handle holds, as events name it: a material point by its rest
-/// position (stage coordinates), a grid handle or a joint by index.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum GripEvent {
-    /// A material point of the mesh.
-    Point {
-        /// Where the point is in the rest mesh as placed on the stage.
-        rest: DVec2,
-    },
-    /// A grid handle of an lp-FFD puppet.
-    Grid {
-        /// The handle's index, row by row from the lower left.
-        index: usize,
-    },
-    /// A joint of a skeleton puppet.
-    Joint {
-        /// The joint's index.
-        index: usize,
-    },
-    /// A point on a skeleton's bone: `along` the bone (0 at its parent
-    /// joint, 1 at its child) and `across` it (stage units, to the left).
-    Bone {
-        /// The bone's index.
-        index: usize,
-        /// Along the bone, from 0 (parent joint) to 1 (child joint).
-        along: f64,
-        /// Across the bone, in stage units, to the left.
-        across: f64,
-    },
+grip_enum! {
+    /// What a handle holds, as events name it: a material point by its
+    /// rest position (stage coordinates), a grid handle or a joint by
+    /// index.
+    pub enum GripEvent {
+        /// A material point of the mesh.
+        Point {
+            /// Where the point is in the rest mesh as placed on the stage.
+            rest: DVec2,
+        },
+    }
 }
 
 /// One handle-level thing the stage did.

@@ -8,6 +8,7 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
+use puppetry_mesh::FieldError;
 pub use puppetry_mesh::numbers::{MAX_COORDINATE, MIN_SIZE};
 use puppetry_mesh::numbers::{coordinates, exactly, pairs, some_pairs, within};
 use serde::Deserialize;
@@ -40,15 +41,8 @@ pub enum ConfigError {
     },
     /// A value out of its range, a name used twice, a missing or unreadable
     /// file, a rig that contradicts itself…
-    #[error("{file}: {field}: {problem}")]
-    Invalid {
-        /// The stage file, as named.
-        file: String,
-        /// The field at fault, as a path (`puppet[2].grid.columns`).
-        field: String,
-        /// What is wrong, and what would be right.
-        problem: String,
-    },
+    #[error(transparent)]
+    Invalid(#[from] FieldError),
 }
 
 /// The stage's part of a stage file: `[stage]`, the puppets and the pads.
@@ -697,11 +691,11 @@ impl StageConfig {
                 let resolved = self.resolve(keys);
                 match file::open(&resolved, file::KEYS_FILE) {
                     Err(e) if e.io_kind() != Some(std::io::ErrorKind::NotFound) => {
-                        return Err(ConfigError::Invalid {
-                            file: self.file.clone(),
-                            field: format!("puppet[{i}].keys"),
-                            problem: e.to_string(),
-                        });
+                        return Err(ConfigError::Invalid(FieldError::new(
+                            &self.file,
+                            format!("puppet[{i}].keys"),
+                            e.to_string(),
+                        )));
                     }
                     _ => {}
                 }
@@ -727,11 +721,11 @@ impl StageConfig {
     ) -> Result<(), ConfigError> {
         let problem = match head_of(&self.resolve(path), cap) {
             Err(HeadError::File(e)) => {
-                return Err(ConfigError::Invalid {
-                    file: self.file.clone(),
+                return Err(ConfigError::Invalid(FieldError::new(
+                    &self.file,
                     field,
-                    problem: e.to_string(),
-                });
+                    e.to_string(),
+                )));
             }
             Err(HeadError::Io(e)) => Err(e),
             Ok(head) => Ok(head),
@@ -755,11 +749,9 @@ impl StageConfig {
                 )
             }
         };
-        Err(ConfigError::Invalid {
-            file: self.file.clone(),
-            field,
-            problem,
-        })
+        Err(ConfigError::Invalid(FieldError::new(
+            &self.file, field, problem,
+        )))
     }
 
     /// Parses stage TOML; `file` names it in errors, `folder` anchors its
@@ -773,10 +765,8 @@ impl StageConfig {
         })?;
         config.folder = folder.to_path_buf();
         config.file = file.to_string();
-        let invalid = |field: String, problem: &str| ConfigError::Invalid {
-            file: file.to_string(),
-            field,
-            problem: problem.to_string(),
+        let invalid = |field: String, problem: &str| {
+            ConfigError::Invalid(FieldError::new(file, field, problem))
         };
         let range = |field: String, v: f64, lo: f64, hi: f64| {
             within(v, lo, hi).map_err(|problem| invalid(field, &problem))

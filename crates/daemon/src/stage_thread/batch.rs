@@ -15,7 +15,8 @@ use puppetry_stage::{Change, HandleKind, Stage};
 use super::publish::Publisher;
 use super::rebuild::start_rebuild;
 use super::taking::Taking;
-use super::{Command, CursorState, Edit, Reply, Timings};
+use super::{Command, Edit, Reply, Timings};
+use crate::protocol::CursorView;
 
 /// What the stage thread gathered since its last solve.
 pub(super) struct Batch {
@@ -85,7 +86,7 @@ impl Batch {
         &mut self,
         stage: &mut Stage,
         taking: &mut Taking,
-        cursors: &mut BTreeMap<String, CursorState>,
+        cursors: &mut BTreeMap<String, CursorView>,
         command: Command,
         wake: &mpsc::WeakSender<Command>,
         changes: &watch::Sender<u64>,
@@ -181,7 +182,7 @@ impl Batch {
                 }
             }
             Command::Cursor { source, cursor } => {
-                let old = match cursor {
+                let old = match cursor.clone() {
                     Some(c) => cursors.insert(source, c),
                     None => cursors.remove(&source),
                 };
@@ -289,7 +290,7 @@ impl Batch {
         stage: &mut Stage,
         publisher: &mut Publisher,
         taking: &mut Taking,
-        cursors: &BTreeMap<String, CursorState>,
+        cursors: &BTreeMap<String, CursorView>,
     ) {
         let t = &self.timings;
         let mut now = Timings::add(&t.commands_ns, self.started);

@@ -26,6 +26,7 @@ use puppetry_deform::Arap;
 use puppetry_stage::{Change, CommandError, GridExport, Stage, WeightsFile};
 
 use crate::lineup::{Lineup, LineupChange};
+use crate::protocol::CursorView;
 use puppetry_stage::config::StageConfig;
 
 use batch::Batch;
@@ -85,7 +86,7 @@ pub enum Command {
         /// The mouse input's name.
         source: String,
         /// Where it is and what it holds; `None`: it went away.
-        cursor: Option<CursorState>,
+        cursor: Option<CursorView>,
     },
     /// Undo, redo or reset a puppet's edits.
     Edit {
@@ -216,19 +217,6 @@ pub struct TakeSettings {
     pub started: Instant,
 }
 
-/// A mouse cursor's state, as a mouse source reports it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CursorState {
-    /// The cursor, stage coordinates.
-    pub at: [f64; 2],
-    /// Direction of the pair, radians counter-clockwise from +x.
-    pub angle: f64,
-    /// Distance between the pair's points; 0 for a one-point mouse.
-    pub spacing: f64,
-    /// A button is down and the points are grabbing.
-    pub holding: bool,
-}
-
 /// Starts the stage thread; returns what it publishes. The thread stops
 /// when every command sender is dropped; `wake` (a weak sender of the same
 /// channel) is how solver rebuilds come back.
@@ -280,7 +268,7 @@ pub struct StageDriver {
     stage: Stage,
     publisher: Publisher,
     taking: Taking,
-    cursors: BTreeMap<String, CursorState>,
+    cursors: BTreeMap<String, CursorView>,
     batch: Batch,
     lineup: watch::Sender<Arc<Lineup>>,
     wake: mpsc::WeakSender<Command>,
@@ -288,29 +276,83 @@ pub struct StageDriver {
 
 impl StageDriver {
     /// The loop for `stage`, solved once (pins from the stage file are
-    /// handles before any input), and what it publishes. Solver rebuilds
-    /// come back through `wake` as [`Command::Rebuilt`].
+    /// handles before any input), and the publishing ends for its
+    /// puppets. Solver rebuilds come back through `wake` as
+    /// [`Command::Rebuilt`].
     pub fn new(
         config: StageConfig,
         mut stage: Stage,
         takes: TakeSettings,
         wake: mpsc::WeakSender<Command>,
     ) -> (StageDriver, Outputs) {
-        let StageLoop {
-            publisher,
-            taking,
-            cursors,
-            batch,
-            lineup,
-            outputs,
-        } = StageLoop::new(config, &mut stage, takes);
+        let (changes, changes_rx) = watch::channel(0u64);
+        let cursors = BTreeMap::new();
+        let (cursors_tx, cursors_rx) = watch::channel(cursors_message(&cursors));
+        let mut publisher = Publisher {
+            frames: Vec::new(),
+            rigs: Vec::new(),
+            handles: Vec::new(),
+            weights: Vec::new(),
+            weights_published: Vec::new(),
+            keys: Vec::new(),
+            keys_published: Vec::new(),
+            handle_frames: Vec::new(),
+            handle_points: Vec::new(),
+            history: Vec::new(),
+            history_published: Vec::new(),
+            poses: Vec::new(),
+            poses_published: Vec::new(),
+            depths: Vec::new(),
+            depths_published: Vec::new(),
+            sequences: Vec::new(),
+            arenas: Vec::new(),
+            cursors: cursors_tx,
+            changes,
+        };
+        // The first weights, keys, history and pose messages hold the state
+        // as loaded: connections send them at once, so nothing is published
+        // for them.
+        let outputs: Vec<PuppetOutput> = (0..stage.puppets().len() as u32)
+            .map(|id| publisher.add_puppet(&stage, id))
+            .collect();
+        let (lineup_tx, lineup_rx) =
+            watch::channel(Lineup::of(&stage, outputs, 0, Arc::new(config)));
+        let (state_tx, state_rx) = watch::channel(Published::nothing());
+        let taking = Taking {
+            settings: takes,
+            recorder: None,
+            fresh: true,
+            lineup_changed: false,
+            step: Vec::new(),
+            events: Vec::new(),
+            playing: None,
+            playing_since: None,
+            held: BTreeMap::new(),
+            played: BTreeSet::new(),
+            ended: BTreeSet::new(),
+            overdub_of: None,
+            announce: false,
+            error: None,
+            state: state_tx,
+        };
+        taking.state.send_replace(taking.state_message());
+        let solved = stage.solve();
+        publisher.publish(&stage, &solved, 0.0);
+        let timings = Arc::new(Timings::default());
+        let outputs = Outputs {
+            lineup: lineup_rx,
+            cursors: cursors_rx,
+            take: state_rx,
+            changes: changes_rx,
+            timings: timings.clone(),
+        };
         let driver = StageDriver {
             stage,
             publisher,
             taking,
             cursors,
-            batch,
-            lineup,
+            batch: Batch::new(timings),
+            lineup: lineup_tx,
             wake,
         };
         (driver, outputs)
@@ -425,91 +467,6 @@ fn solve_pool() -> rayon::ThreadPool {
         .expect("start the stage's solver threads")
 }
 
-/// What the stage thread owns besides the stage, made before it starts.
-struct StageLoop {
-    publisher: Publisher,
-    taking: Taking,
-    cursors: BTreeMap<String, CursorState>,
-    batch: Batch,
-    lineup: watch::Sender<Arc<Lineup>>,
-    outputs: Outputs,
-}
-
-impl StageLoop {
-    /// The publishing ends for `stage`'s puppets, with the stage solved
-    /// once (pins from the stage file are handles before any input).
-    fn new(config: StageConfig, stage: &mut Stage, takes: TakeSettings) -> StageLoop {
-        let (changes, changes_rx) = watch::channel(0u64);
-        let cursors = BTreeMap::new();
-        let (cursors_tx, cursors_rx) = watch::channel(cursors_message(&cursors));
-        let mut publisher = Publisher {
-            frames: Vec::new(),
-            rigs: Vec::new(),
-            handles: Vec::new(),
-            weights: Vec::new(),
-            weights_published: Vec::new(),
-            keys: Vec::new(),
-            keys_published: Vec::new(),
-            handle_frames: Vec::new(),
-            handle_points: Vec::new(),
-            history: Vec::new(),
-            history_published: Vec::new(),
-            poses: Vec::new(),
-            poses_published: Vec::new(),
-            depths: Vec::new(),
-            depths_published: Vec::new(),
-            sequences: Vec::new(),
-            arenas: Vec::new(),
-            cursors: cursors_tx,
-            changes,
-        };
-        // The first weights, keys, history and pose messages hold the state
-        // as loaded: connections send them at once, so nothing is published
-        // for them.
-        let outputs: Vec<PuppetOutput> = (0..stage.puppets().len() as u32)
-            .map(|id| publisher.add_puppet(stage, id))
-            .collect();
-        let (lineup_tx, lineup_rx) =
-            watch::channel(Lineup::of(stage, outputs, 0, Arc::new(config)));
-        let (state_tx, state_rx) = watch::channel(Published::nothing());
-        let taking = Taking {
-            settings: takes,
-            recorder: None,
-            fresh: true,
-            lineup_changed: false,
-            step: Vec::new(),
-            events: Vec::new(),
-            playing: None,
-            playing_since: None,
-            held: BTreeMap::new(),
-            played: BTreeSet::new(),
-            ended: BTreeSet::new(),
-            overdub_of: None,
-            announce: false,
-            error: None,
-            state: state_tx,
-        };
-        taking.state.send_replace(taking.state_message());
-        let solved = stage.solve();
-        publisher.publish(stage, &solved, 0.0);
-        let timings = Arc::new(Timings::default());
-        StageLoop {
-            publisher,
-            taking,
-            cursors,
-            batch: Batch::new(timings.clone()),
-            lineup: lineup_tx,
-            outputs: Outputs {
-                lineup: lineup_rx,
-                cursors: cursors_rx,
-                take: state_rx,
-                changes: changes_rx,
-                timings,
-            },
-        }
-    }
-}
-
 /// Adds, removes or reorders puppets and publishes the new lineup, which
 /// every connection follows. Refused while a take records: a take's puppets
 /// are fixed when it starts.
@@ -577,7 +534,7 @@ mod tests {
     fn a_stage_iteration_from_contacts_to_frame_bytes_does_not_allocate() {
         let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/demo.toml");
         let config = StageConfig::load(&file).expect("the demo stage loads");
-        let mut stage = Stage::from_config(&config).expect("the demo stage builds");
+        let stage = Stage::from_config(&config).expect("the demo stage builds");
         let at = DVec2::from(config.puppets[0].at);
         let takes = TakeSettings {
             dir: std::env::temp_dir(),
@@ -585,19 +542,20 @@ mod tests {
             record_from_first_input: false,
             started: Instant::now(),
         };
-        let StageLoop {
-            mut publisher,
-            mut taking,
-            cursors,
-            mut batch,
-            outputs,
-            ..
-        } = StageLoop::new(config, &mut stage, takes);
         let (_keep, wake) = {
             let (tx, _rx) = mpsc::channel::<Command>(1);
             let weak = tx.downgrade();
             (tx, weak)
         };
+        let (driver, outputs) = StageDriver::new(config, stage, takes, wake.clone());
+        let StageDriver {
+            mut stage,
+            mut publisher,
+            mut taking,
+            cursors,
+            mut batch,
+            ..
+        } = driver;
         let lineup = outputs.lineup.borrow().clone();
         let mut clients: Vec<watch::Receiver<Option<Bytes>>> = lineup
             .outputs

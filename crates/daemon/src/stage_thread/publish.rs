@@ -17,21 +17,11 @@ use crate::protocol::{
     encode_depth_frame, encode_frame_into,
 };
 
-use super::CursorState;
 use crate::outputs::{Feed, Published, PublishedHandles, PuppetOutput, PuppetStart};
 
 /// The "cursors" message: every mouse cursor on the stage.
-pub fn cursors_message(cursors: &BTreeMap<String, CursorState>) -> Arc<Published> {
-    let cursors = cursors
-        .iter()
-        .map(|(source, c)| CursorView {
-            source: source.clone(),
-            at: c.at,
-            angle: c.angle,
-            spacing: c.spacing,
-            holding: c.holding,
-        })
-        .collect();
+pub fn cursors_message(cursors: &BTreeMap<String, CursorView>) -> Arc<Published> {
+    let cursors = cursors.values().cloned().collect();
     Published::of(ServerMessage::Cursors { cursors })
 }
 
@@ -287,7 +277,7 @@ impl Publisher {
         output
     }
 
-    pub(super) fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorState>) {
+    pub(super) fn publish_cursors(&mut self, cursors: &BTreeMap<String, CursorView>) {
         self.cursors.send_replace(cursors_message(cursors));
         self.changes.send_modify(|c| *c += 1);
     }

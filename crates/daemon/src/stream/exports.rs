@@ -429,13 +429,7 @@ fn run_export(
     let flag = |flag: &str, problem: &str| {
         Failed::Request(format!("{}: {problem}", flag.trim_start_matches('-')))
     };
-    let checked = puppetry_export::budget::check(
-        &export.take,
-        export.format,
-        export.fps,
-        export.from,
-        export.to,
-    );
+    let checked = puppetry_export::budget::check(export);
     match checked {
         Ok(_) => {}
         Err(e @ BudgetError::TooLarge { .. }) => return Err(Failed::TooLarge(e.to_string())),

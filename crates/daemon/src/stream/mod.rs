@@ -422,19 +422,93 @@ impl Seat {
     }
 }
 
+/// What the client loop does after a client's message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Next {
+    /// Goes on.
+    Go,
+    /// Ends: the client closed, or was closed.
+    End,
+}
+
+/// A client's standing in its loop: pings sent and the newest answered
+/// (pings carry their number), bad messages in a row.
+#[derive(Debug, Default)]
+struct Standing {
+    pinged: u64,
+    answered: u64,
+    bad_in_a_row: u32,
+}
+
+/// Handles what came from the client: a message for `seat` (answered, or
+/// refused and counted), a pong, a close; closes the connection for a
+/// message too large or too many bad ones in a row.
+async fn on_message(
+    ws: &mut Ws,
+    incoming: Option<Result<Message, axum::Error>>,
+    shared: &Shared,
+    seat: &Seat,
+    peer: &str,
+    standing: &mut Standing,
+) -> std::io::Result<Next> {
+    use crate::protocol::ErrorCode;
+    let refusal = match incoming {
+        None => return Ok(Next::End),
+        Some(Err(e)) if too_large(&e) => {
+            let _ = refuse(ws, shared, peer, seat.source(), &too_large_refusal()).await;
+            close_with(ws, close::TOO_LARGE, "message too large").await;
+            return Ok(Next::End);
+        }
+        Some(Err(e)) => return Err(std::io::Error::other(e)),
+        Some(Ok(Message::Text(text))) => match seat.handle(text.as_str(), shared).await {
+            Ok(answer) => {
+                standing.bad_in_a_row = 0;
+                if let Some(answer) = answer {
+                    send(ws, Message::text(answer), shared.client_timeout).await?;
+                }
+                return Ok(Next::Go);
+            }
+            Err(refusal) => refusal,
+        },
+        Some(Ok(Message::Binary(_))) => guard::Refusal::new(
+            ErrorCode::Binary,
+            "binary messages are not accepted (send JSON text)",
+        ),
+        Some(Ok(Message::Close(_))) => {
+            // Answer the close, so the client sees a clean 1000.
+            let _ = ws.send(Message::Close(None)).await;
+            return Ok(Next::End);
+        }
+        Some(Ok(Message::Pong(payload))) => {
+            // Only an answer to a ping sent counts.
+            if let Ok(number) = <[u8; 8]>::try_from(payload.as_ref()) {
+                let number = u64::from_be_bytes(number);
+                if number <= standing.pinged {
+                    standing.answered = standing.answered.max(number);
+                }
+            }
+            return Ok(Next::Go);
+        }
+        Some(Ok(_)) => return Ok(Next::Go),
+    };
+    // The stage failing or busy (or a relay's stage out of
+    // reach) is not the client's mistake.
+    if !matches!(refusal.code, ErrorCode::Failed | ErrorCode::Busy) {
+        standing.bad_in_a_row += 1;
+    }
+    refuse(ws, shared, peer, seat.source(), &refusal).await?;
+    if standing.bad_in_a_row >= MAX_BAD_MESSAGES {
+        close_with(ws, close::POLICY, "too many bad messages").await;
+        return Ok(Next::End);
+    }
+    Ok(Next::Go)
+}
+
 /// Serves one WebSocket client from its hello to its end. `place` holds
 /// the client's place under its address's cap. The client is pinged every
 /// `times.ping_every`; one that has not answered by the next ping has
-/// stopped reading, and is closed.
-///
-/// Longer than the rooms' rule: one `select!` loop over every feed the
-/// client follows, its pings and its own messages, sharing the loop's
-/// state (pings answered, bad messages in a row); each arm is a few lines,
-/// and what a message does is `Seat::handle`'s.
-#[expect(
-    clippy::too_many_lines,
-    reason = "one select! loop over every feed the client follows, its pings and its own messages, sharing the loop's state; each arm is a few lines and what a message does is Seat::handle's"
-)]
+/// stopped reading, and is closed. What a client's message does is
+/// [`on_message`]'s.
 async fn websocket(
     mut ws: Ws,
     shared: Arc<Shared>,
@@ -442,8 +516,6 @@ async fn websocket(
     _place: edge::AddressPlace,
     times: EdgeTimes,
 ) -> std::io::Result<()> {
-    use crate::protocol::ErrorCode;
-    let io = std::io::Error::other;
     let peer = peer.to_string();
     let client = shared.next_client.fetch_add(1, Ordering::Relaxed);
     let Some((asked, token)) = read_hello(&mut ws, &shared, &peer).await else {
@@ -458,7 +530,6 @@ async fn websocket(
             return Ok(());
         }
     };
-    let source = seat.source().to_string();
     let role = joined.role;
     let mut inputs = shared.inputs.clone();
     inputs.mark_changed();
@@ -478,14 +549,12 @@ async fn websocket(
     take.mark_changed();
     notice.mark_changed();
     let mut notices = true;
-    let mut bad_in_a_row = 0u32;
     let mut pings = tokio::time::interval_at(
         tokio::time::Instant::now() + times.ping_every,
         times.ping_every,
     );
     pings.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    // Pings sent, and the newest answered (pings carry their number).
-    let (mut pinged, mut answered) = (0u64, 0u64);
+    let mut standing = Standing::default();
     let result: std::io::Result<()> = async {
         loop {
             // Send what is newest before waiting again.
@@ -533,12 +602,12 @@ async fn websocket(
                     }
                 }
                 _ = pings.tick() => {
-                    if answered < pinged {
+                    if standing.answered < standing.pinged {
                         close_with(&mut ws, close::POLICY, "no answer to ping (not reading)").await;
                         return Ok(());
                     }
-                    pinged += 1;
-                    let ping = Message::Ping(pinged.to_be_bytes().to_vec().into());
+                    standing.pinged += 1;
+                    let ping = Message::Ping(standing.pinged.to_be_bytes().to_vec().into());
                     send(&mut ws, ping, shared.client_timeout).await?;
                 }
                 changed = changes.changed() => {
@@ -549,55 +618,8 @@ async fn websocket(
                     }
                 }
                 incoming = ws.next() => {
-                    let refusal = match incoming {
-                        None => return Ok(()),
-                        Some(Err(e)) if too_large(&e) => {
-                            let _ = refuse(&mut ws, &shared, &peer, &source, &too_large_refusal()).await;
-                            close_with(&mut ws, close::TOO_LARGE, "message too large").await;
-                            return Ok(());
-                        }
-                        Some(Err(e)) => return Err(io(e)),
-                        Some(Ok(Message::Text(text))) => {
-                            match seat.handle(text.as_str(), &shared).await {
-                                Ok(answer) => {
-                                    bad_in_a_row = 0;
-                                    if let Some(answer) = answer {
-                                        send(&mut ws, Message::text(answer), shared.client_timeout).await?;
-                                    }
-                                    continue;
-                                }
-                                Err(refusal) => refusal,
-                            }
-                        }
-                        Some(Ok(Message::Binary(_))) => guard::Refusal::new(
-                            ErrorCode::Binary,
-                            "binary messages are not accepted (send JSON text)",
-                        ),
-                        Some(Ok(Message::Close(_))) => {
-                            // Answer the close, so the client sees a clean 1000.
-                            let _ = ws.send(Message::Close(None)).await;
-                            return Ok(());
-                        }
-                        Some(Ok(Message::Pong(payload))) => {
-                            // Only an answer to a ping sent counts.
-                            if let Ok(number) = <[u8; 8]>::try_from(payload.as_ref()) {
-                                let number = u64::from_be_bytes(number);
-                                if number <= pinged {
-                                    answered = answered.max(number);
-                                }
-                            }
-                            continue;
-                        }
-                        Some(Ok(_)) => continue,
-                    };
-                    // The stage failing or busy (or a relay's stage out of
-                    // reach) is not the client's mistake.
-                    if !matches!(refusal.code, ErrorCode::Failed | ErrorCode::Busy) {
-                        bad_in_a_row += 1;
-                    }
-                    refuse(&mut ws, &shared, &peer, &source, &refusal).await?;
-                    if bad_in_a_row >= MAX_BAD_MESSAGES {
-                        close_with(&mut ws, close::POLICY, "too many bad messages").await;
+                    let next = on_message(&mut ws, incoming, &shared, &seat, &peer, &mut standing).await?;
+                    if next == Next::End {
                         return Ok(());
                     }
                 }

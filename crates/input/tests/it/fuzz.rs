@@ -14,7 +14,7 @@ use puppetry_input::recording::{RecordingError, parse_recording};
 use puppetry_input::replay::{ReplayError, ReplaySource};
 use puppetry_input::serial::{SerialDecoder, WireFormat};
 use puppetry_input::tuio::{TuioTracker, default_calibration};
-use puppetry_input::{Calibration, ContactFrame, SourceId};
+use puppetry_input::{Calibration, ContactFrame, LineError, SourceId};
 use puppetry_testkit::fuzz::{self, config};
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 
@@ -413,7 +413,11 @@ fn check_capture(text: &str) {
         Err(e) => {
             let message = e.to_string();
             assert!(message.starts_with("fuzz.capture"), "{message}");
-            if let ReplayError::Evemu(puppetry_input::evemu::EvemuError::Line { line, .. }) = e {
+            if let ReplayError::Evemu(puppetry_input::evemu::EvemuError::Line(LineError {
+                line,
+                ..
+            })) = e
+            {
                 assert!(line >= 1, "{message}");
                 assert!(
                     message.starts_with(&format!("fuzz.capture:{line}: ")),

@@ -748,7 +748,9 @@ fn hid_recorder_text_parses_and_round_trips() {
 
 fn parse_error(text: &str) -> (usize, &'static str, String) {
     match HidRecording::parse("bad.hid", text).unwrap_err() {
-        e @ HidRecordingError::Line { line, field, .. } => (line, field, e.to_string()),
+        e @ HidRecordingError::Line(puppetry_input::LineError { line, field, .. }) => {
+            (line, field, e.to_string())
+        }
         other => panic!("expected a line error, got {other}"),
     }
 }

@@ -84,11 +84,11 @@ fn square(x: f64, y: f64, size: f64) -> Vec<DVec2> {
 
 fn invalid_parts(e: MeshError) -> (String, String, String) {
     match e {
-        MeshError::Invalid {
+        MeshError::Invalid(puppetry_mesh::FieldError {
             file,
             field,
             problem,
-        } => (file, field, problem),
+        }) => (file, field, problem),
         other => panic!("expected an Invalid error, got {other:?}"),
     }
 }

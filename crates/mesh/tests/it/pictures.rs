@@ -58,7 +58,9 @@ fn crc32(bytes: &[u8]) -> u32 {
 
 fn size_problem(error: &MeshError) -> String {
     match error {
-        MeshError::Invalid { field, problem, .. } if field == "size" => problem.clone(),
+        MeshError::Invalid(puppetry_mesh::FieldError { field, problem, .. }) if field == "size" => {
+            problem.clone()
+        }
         other => panic!("expected a size error, got {other}"),
     }
 }

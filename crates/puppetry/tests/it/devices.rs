@@ -759,10 +759,10 @@ fn four_taps_on_the_marks_calibrate_a_skewed_table() {
     let entry = format!("[stage]\nwidth = 1280\nheight = 720\n[[input]]\nkind = \"touch\"\n{line}");
     let parsed =
         puppetry_daemon::config::ShowConfig::parse("t.toml", &entry, Path::new("/")).unwrap();
-    let puppetry_input::config::InputConfig::Touch {
+    let puppetry_input::config::InputConfig::Touch(puppetry_input::config::EvdevInput {
         calibration: Some(spec),
         ..
-    } = &parsed.inputs[0]
+    }) = &parsed.inputs[0]
     else {
         panic!("a touch input with a calibration: {line}");
     };

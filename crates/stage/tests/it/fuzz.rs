@@ -19,7 +19,7 @@ fn check_stage(text: &str) {
         Err(e) => {
             let message = e.to_string();
             assert!(message.starts_with("fuzz.toml: "), "{message}");
-            if let ConfigError::Invalid { field, .. } = &e {
+            if let ConfigError::Invalid(puppetry_mesh::FieldError { field, .. }) = &e {
                 assert!(!field.is_empty(), "{message}");
             }
         }
