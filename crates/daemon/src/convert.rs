@@ -120,6 +120,7 @@ pub(crate) fn client(
                 radius,
                 strength,
                 stroke,
+                painter: Some(source.to_string()),
             },
             true,
         ),
@@ -137,6 +138,7 @@ pub(crate) fn client(
                 radius,
                 layer,
                 stroke,
+                painter: Some(source.to_string()),
             },
             true,
         ),
@@ -285,9 +287,14 @@ mod tests {
             strength: 0.5,
             stroke: None,
         };
+        // The dab is the client's: its strokes are numbered by its page.
         assert!(matches!(
             client(dab, "c", 0.0),
-            Ok(Converted::Change { wait: true, .. })
+            Ok(Converted::Change {
+                wait: true,
+                change: Change::Paint { painter: Some(p), .. },
+                ..
+            }) if p == "c"
         ));
         assert!(matches!(
             client(ClientMessage::ListTakes, "c", 0.0),

@@ -58,6 +58,11 @@ pub enum Change {
         /// its own.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
+        /// Who painted it (a client's source): each painter numbers its
+        /// own strokes, so two painters' strokes of one number stay two
+        /// undo steps. None in takes recorded before it was kept.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        painter: Option<String>,
     },
     /// One dab of the depth-layer brush: triangles under it take `layer`
     /// as their static depth; the dabs of one `stroke` undo at once.
@@ -75,6 +80,11 @@ pub enum Change {
         /// its own.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         stroke: Option<u64>,
+        /// Who painted it (a client's source): each painter numbers its
+        /// own strokes, so two painters' strokes of one number stay two
+        /// undo steps. None in takes recorded before it was kept.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        painter: Option<String>,
     },
     /// A skeleton set between two of its stage-file key poses.
     KeyPose {

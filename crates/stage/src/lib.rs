@@ -32,6 +32,7 @@ mod keyframing;
 pub mod keys;
 pub mod pad;
 mod painting;
+pub use painting::Stroke;
 mod puppet;
 pub mod rig;
 mod weights;
@@ -467,7 +468,7 @@ struct History {
 
 #[derive(Debug, Clone, PartialEq)]
 enum Group {
-    Stroke(u64),
+    Stroke(Stroke),
     Pose(String, String),
 }
 
@@ -899,14 +900,22 @@ impl Stage {
                 radius,
                 strength,
                 stroke,
-            } => return self.paint_stroke(*puppet, *at, *radius, *strength, *stroke),
+                painter,
+            } => {
+                let stroke = Stroke::of(painter.as_deref(), *stroke);
+                return self.paint_stroke(*puppet, *at, *radius, *strength, stroke);
+            }
             Change::PaintDepth {
                 puppet,
                 at,
                 radius,
                 layer,
                 stroke,
-            } => self.paint_depth_stroke(*puppet, *at, *radius, *layer, *stroke)?,
+                painter,
+            } => {
+                let stroke = Stroke::of(painter.as_deref(), *stroke);
+                self.paint_depth_stroke(*puppet, *at, *radius, *layer, stroke)?;
+            }
             Change::Restore { puppet, state } => return self.restore(*puppet, state),
             Change::Rest { puppet } => {
                 let p = self.puppet_mut(*puppet)?;

@@ -4,6 +4,29 @@
 
 use super::*;
 
+/// The stroke a dab belongs to: its painter's own number for it (each
+/// page counts its strokes from 1) and, when known, who the painter is.
+/// A stroke's dabs are one undo step; two painters' strokes never are.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Stroke {
+    /// Who painted (a client's source); none for a change recorded before
+    /// painters were kept, or made without one.
+    pub painter: Option<String>,
+    /// The painter's number for the stroke.
+    pub number: u64,
+}
+
+impl Stroke {
+    /// The stroke `number` of `painter`; none without a number (a dab
+    /// that is an undo step of its own).
+    pub fn of(painter: Option<&str>, number: Option<u64>) -> Option<Stroke> {
+        number.map(|number| Stroke {
+            painter: painter.map(str::to_string),
+            number,
+        })
+    }
+}
+
 impl Stage {
     /// Paints stiffness under a brush (see `docs/rigs.md`). Grid and
     /// skeleton puppets refactor at the next solve; a free-form puppet returns the
@@ -49,7 +72,7 @@ impl Stage {
         at: DVec2,
         radius: f64,
         strength: f64,
-        stroke: Option<u64>,
+        stroke: Option<Stroke>,
     ) -> Result<Option<Rebuild>, CommandError> {
         self.check_brush(at, radius, strength)?;
         let p = self.puppet_mut(puppet)?;
@@ -95,7 +118,7 @@ impl Stage {
         at: DVec2,
         radius: f64,
         layer: u16,
-        stroke: Option<u64>,
+        stroke: Option<Stroke>,
     ) -> Result<(), CommandError> {
         self.check_brush(at, radius, 1.0)?;
         if layer > puppetry_mesh::MAX_LAYER {

@@ -463,6 +463,7 @@ impl Show {
                         radius: 40.0,
                         strength: *strength,
                         stroke: None,
+                        painter: None,
                     });
                 }
             }

@@ -196,6 +196,7 @@ fn a_flip_brings_the_body_over_the_arm_and_a_touch_grabs_what_is_in_front() {
             radius: 30.0,
             layer: 3,
             stroke: Some(1),
+            painter: None,
         })
         .unwrap();
     stage.solve();
@@ -273,6 +274,7 @@ fn painted_layers_decide_which_piece_is_in_front_and_are_saved() {
         radius: 60.0,
         layer: 5,
         stroke: Some(1),
+        painter: None,
     };
     stage.apply_change(&paint).unwrap();
     stage.solve();
@@ -299,6 +301,7 @@ fn painted_layers_decide_which_piece_is_in_front_and_are_saved() {
         radius: 60.0,
         layer: u16::MAX,
         stroke: None,
+        painter: None,
     };
     match stage.apply_change(&too_high) {
         Err(e) => assert!(e.to_string().contains("layer"), "{e}"),

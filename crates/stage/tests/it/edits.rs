@@ -46,6 +46,7 @@ fn dab(at: [f64; 2], strength: f64, stroke: Option<u64>) -> Change {
         radius: 60.0,
         strength,
         stroke,
+        painter: None,
     }
 }
 
@@ -106,6 +107,47 @@ fn a_huge_brush_is_refused_naming_the_field_and_changes_nothing() {
         .paint(0, DVec2::new(640.0, 400.0), 1280.0, 10.0)
         .unwrap();
     stage.paint(0, DVec2::new(640.0, 400.0), 1.0, 0.1).unwrap();
+}
+
+/// Each page numbers its strokes from 1: two directors painting one
+/// puppet, one after the other, both paint "stroke 1". Their strokes are
+/// two undo steps (undo takes back the second painter's only); without a
+/// painter (a take recorded before painters were kept) dabs of one number
+/// join as they always did.
+#[test]
+fn two_painters_strokes_of_one_number_are_two_undo_steps() {
+    let mut stage = Stage::from_config(&config("")).unwrap();
+    stage.solve();
+    let by = |painter: &str, x: f64| Change::Paint {
+        puppet: 0,
+        at: DVec2::new(x, 400.0),
+        radius: 60.0,
+        strength: 3.0,
+        stroke: Some(1),
+        painter: Some(painter.into()),
+    };
+    for x in [600.0, 620.0] {
+        apply(&mut stage, by("client:1", x));
+    }
+    let first = stage.puppets()[0].weights().to_vec();
+    for x in [640.0, 660.0] {
+        apply(&mut stage, by("client:2", x));
+    }
+    assert_eq!(stage.puppets()[0].history(), (2, 0), "two strokes");
+    let change = stage.undo(0).unwrap().expect("something to undo");
+    apply(&mut stage, change);
+    assert_eq!(
+        bits(stage.puppets()[0].weights()),
+        bits(&first),
+        "the second painter's stroke only"
+    );
+    // No painter: one number, one step.
+    let mut old = Stage::from_config(&config("")).unwrap();
+    old.solve();
+    for x in [600.0, 620.0, 640.0] {
+        apply(&mut old, dab([x, 400.0], 3.0, Some(1)));
+    }
+    assert_eq!(old.puppets()[0].history(), (1, 0));
 }
 
 #[test]

@@ -467,6 +467,7 @@ impl Show {
                     radius: 40.0,
                     strength: *strength,
                     stroke: Some(u64::from(*stroke)),
+                    painter: None,
                 });
             }
             Op::PaintDepth {
@@ -482,6 +483,7 @@ impl Show {
                     radius: 40.0,
                     layer: *layer,
                     stroke: Some(1000 + u64::from(*stroke)),
+                    painter: None,
                 });
             }
             Op::Undo { puppet } => {
