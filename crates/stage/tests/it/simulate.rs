@@ -70,12 +70,14 @@ enum Op {
         puppet: u8,
         at: Spot,
         strength: f64,
+        /// Painter `stroke % 2`'s stroke `stroke / 2`.
         stroke: u8,
     },
     PaintDepth {
         puppet: u8,
         at: Spot,
         layer: u16,
+        /// As [`Op::Paint`]'s.
         stroke: u8,
     },
     Undo {
@@ -466,8 +468,9 @@ impl Show {
                     at,
                     radius: 40.0,
                     strength: *strength,
-                    stroke: Some(u64::from(*stroke)),
-                    painter: None,
+                    // Two painters numbering strokes alike, as two pages do.
+                    stroke: Some(u64::from(*stroke / 2)),
+                    painter: Some(format!("client:{}", stroke % 2)),
                 });
             }
             Op::PaintDepth {
@@ -482,8 +485,8 @@ impl Show {
                     at,
                     radius: 40.0,
                     layer: *layer,
-                    stroke: Some(1000 + u64::from(*stroke)),
-                    painter: None,
+                    stroke: Some(1000 + u64::from(*stroke / 2)),
+                    painter: Some(format!("client:{}", stroke % 2)),
                 });
             }
             Op::Undo { puppet } => {
@@ -703,8 +706,8 @@ fn op() -> impl Strategy<Value = Op> {
         1 => spot().prop_map(|at| Op::Pin { at }),
         1 => (u(), u()).prop_map(|(puppet, pick)| Op::Unpin { puppet, pick }),
         1 => spot().prop_map(|at| Op::Flip { at }),
-        1 => (u(), spot(), -1.5..1.5f64, 0u8..3).prop_map(|(puppet, at, strength, stroke)| Op::Paint { puppet, at, strength, stroke }),
-        1 => (u(), spot(), 0u16..5, 0u8..3).prop_map(|(puppet, at, layer, stroke)| Op::PaintDepth { puppet, at, layer, stroke }),
+        1 => (u(), spot(), -1.5..1.5f64, 0u8..6).prop_map(|(puppet, at, strength, stroke)| Op::Paint { puppet, at, strength, stroke }),
+        1 => (u(), spot(), 0u16..5, 0u8..6).prop_map(|(puppet, at, layer, stroke)| Op::PaintDepth { puppet, at, layer, stroke }),
         1 => u().prop_map(|puppet| Op::Undo { puppet }),
         1 => u().prop_map(|puppet| Op::Redo { puppet }),
         1 => u().prop_map(|puppet| Op::UndoRedo { puppet }),
