@@ -76,6 +76,10 @@ enum Op {
         puppet: u8,
         at: Spot,
         strength: f64,
+        /// Painter `stroke % 2`'s stroke `stroke / 2`: two pages number
+        /// their strokes alike.
+        #[serde(default)]
+        stroke: u8,
     },
     /// Rebuilt solvers that reached the channel land.
     Land,
@@ -454,6 +458,7 @@ impl Show {
                 puppet,
                 at,
                 strength,
+                stroke,
             } => {
                 let at = self.point(at);
                 if let Some(puppet) = self.live(*puppet) {
@@ -462,8 +467,8 @@ impl Show {
                         at,
                         radius: 40.0,
                         strength: *strength,
-                        stroke: None,
-                        painter: None,
+                        stroke: Some(u64::from(*stroke / 2)),
+                        painter: Some(format!("client:{}", stroke % 2)),
                     });
                 }
             }
@@ -616,7 +621,7 @@ fn op() -> impl Strategy<Value = Op> {
         4 => (u(), u()).prop_map(|(source, finger)| Op::Lift { source, finger }),
         1 => u().prop_map(|source| Op::Gone { source }),
         1 => spot().prop_map(|at| Op::Pin { at }),
-        1 => (u(), spot(), -1.5..1.5f64).prop_map(|(puppet, at, strength)| Op::Paint { puppet, at, strength }),
+        1 => (u(), spot(), -1.5..1.5f64, 0u8..6).prop_map(|(puppet, at, strength, stroke)| Op::Paint { puppet, at, strength, stroke }),
         1 => Just(Op::Land),
         1 => u().prop_map(|puppet| Op::Undo { puppet }),
         1 => u().prop_map(|puppet| Op::Redo { puppet }),
