@@ -466,9 +466,13 @@ struct History {
     open: Option<Group>,
 }
 
+/// What joins edits into one undo step: a stroke of one brush (each
+/// brush's dabs keep their own state, so the two never join), a run of
+/// poses between the same key poses.
 #[derive(Debug, Clone, PartialEq)]
 enum Group {
     Stroke(Stroke),
+    DepthStroke(Stroke),
     Pose(String, String),
 }
 

@@ -149,7 +149,7 @@ impl Stage {
                 layers: Some(before),
                 ..Snapshot::default()
             },
-            stroke.map(Group::Stroke),
+            stroke.map(Group::DepthStroke),
         );
         p.set_layers(layers)
             .map_err(|problem| CommandError::Restore { puppet, problem })

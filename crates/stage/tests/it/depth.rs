@@ -315,3 +315,51 @@ fn stage_triangles(config: &StageConfig) -> usize {
         .triangles()
         .len()
 }
+
+/// A stiffness dab and a depth dab of one painter's stroke number (a
+/// client may send both) are two undo steps: joined, the depth dab's
+/// layers were never kept, and undo put back the weights alone, leaving
+/// the painted layers on the puppet for good.
+#[test]
+fn a_depth_dab_never_joins_a_stiffness_stroke_of_the_same_number() {
+    let mut stage = Stage::from_config(&demo("")).unwrap();
+    stage.solve();
+    let loaded_weights = stage.puppets()[0].weights().to_vec();
+    let loaded_depth = stage.puppets()[0].depth().unwrap().0.to_vec();
+    let at = DVec2::new(640.0, 350.0);
+    let painter = Some("client:1".to_string());
+    let stiffness = Change::Paint {
+        puppet: 0,
+        at,
+        radius: 60.0,
+        strength: 3.0,
+        stroke: Some(1),
+        painter: painter.clone(),
+    };
+    let depth = Change::PaintDepth {
+        puppet: 0,
+        at,
+        radius: 60.0,
+        layer: 4,
+        stroke: Some(1),
+        painter,
+    };
+    for change in [stiffness, depth] {
+        stage.apply_change(&change).unwrap();
+        stage.solve();
+    }
+    assert_ne!(
+        stage.puppets()[0].depth().unwrap().0,
+        loaded_depth.as_slice()
+    );
+    assert_eq!(stage.puppets()[0].history(), (2, 0), "two steps");
+    while let Some(undo) = stage.undo(0).unwrap() {
+        stage.apply_change(&undo).unwrap();
+        stage.solve();
+    }
+    assert_eq!(
+        stage.puppets()[0].depth().unwrap().0,
+        loaded_depth.as_slice()
+    );
+    assert_eq!(stage.puppets()[0].weights(), loaded_weights.as_slice());
+}

@@ -90,6 +90,12 @@ enum Op {
     UndoRedo {
         puppet: u8,
     },
+    /// Undo until nothing is left, checked to give back the weights and
+    /// painted layers the puppet was loaded with (a sequence makes fewer
+    /// edits than the history keeps).
+    UndoAll {
+        puppet: u8,
+    },
     Reset {
         puppet: u8,
     },
@@ -191,6 +197,8 @@ struct Show {
     rebuilds: VecDeque<Rebuild>,
     log: Vec<Step>,
     time: f64,
+    /// Each puppet's weights and painted layers as loaded, by id.
+    loaded: Vec<[(&'static str, String); 2]>,
 }
 
 const SOURCES: [&str; 3] = ["finger-a", "browser-b", "relay:hall:c"];
@@ -199,13 +207,45 @@ impl Show {
     fn new(stage: &str) -> Show {
         let config = config(stage);
         let stage = Stage::from_config(&config).unwrap();
-        Show {
+        let mut show = Show {
             config,
             stage,
             down: BTreeSet::new(),
             rebuilds: VecDeque::new(),
             log: Vec::new(),
             time: 0.0,
+            loaded: Vec::new(),
+        };
+        show.note_loaded();
+        show
+    }
+
+    /// Keeps what puppets not seen before were loaded with.
+    fn note_loaded(&mut self) {
+        for id in self.loaded.len()..self.stage.puppets().len() {
+            let [weights, _, layers, _] = self.state(id as u32);
+            self.loaded.push([weights, layers]);
+        }
+    }
+
+    /// Undoes all of a puppet's edits: its weights and layers are back as
+    /// loaded.
+    fn undo_all(&mut self, puppet: u8) -> Result<(), String> {
+        let Some(puppet) = self.live(puppet) else {
+            return Ok(());
+        };
+        for _ in 0..=puppetry_stage::MAX_HISTORY {
+            match self.stage.undo(puppet) {
+                Ok(Some(change)) => self.apply(change),
+                _ => break,
+            }
+        }
+        self.solve();
+        let [weights, _, layers, _] = self.state(puppet);
+        let now = [weights, layers];
+        match Show::differences(&self.loaded[puppet as usize], &now) {
+            Some(changed) => Err(format!("puppet {puppet} with every edit undone: {changed}")),
+            None => Ok(()),
         }
     }
 
@@ -410,6 +450,7 @@ impl Show {
                 let index = *puppet as usize % self.config.puppets.len();
                 add(&mut self.stage, &self.config, index);
                 self.log.push(Step::Add(index));
+                self.note_loaded();
             }
             _ => {}
         }
@@ -485,7 +526,7 @@ impl Show {
                     at,
                     radius: 40.0,
                     layer: *layer,
-                    stroke: Some(1000 + u64::from(*stroke / 2)),
+                    stroke: Some(u64::from(*stroke / 2)),
                     painter: Some(format!("client:{}", stroke % 2)),
                 });
             }
@@ -500,6 +541,7 @@ impl Show {
                 }
             }
             Op::UndoRedo { puppet } => self.undo_redo(*puppet)?,
+            Op::UndoAll { puppet } => self.undo_all(*puppet)?,
             Op::Reset { puppet } => {
                 let Some(puppet) = self.live(*puppet) else {
                     return Ok(());
@@ -711,6 +753,7 @@ fn op() -> impl Strategy<Value = Op> {
         1 => u().prop_map(|puppet| Op::Undo { puppet }),
         1 => u().prop_map(|puppet| Op::Redo { puppet }),
         1 => u().prop_map(|puppet| Op::UndoRedo { puppet }),
+        1 => u().prop_map(|puppet| Op::UndoAll { puppet }),
         1 => u().prop_map(|puppet| Op::Reset { puppet }),
         1 => (u(), u(), u(), -0.5..1.5f64).prop_map(|(puppet, from, to, t)| Op::KeyPose { puppet, from, to, t }),
         1 => (u(), proptest::option::of(pad())).prop_map(|(puppet, at)| Op::Cursor { puppet, at }),
