@@ -90,9 +90,9 @@ enum Op {
     UndoRedo {
         puppet: u8,
     },
-    /// Undo until nothing is left, checked to give back the weights and
-    /// painted layers the puppet was loaded with (a sequence makes fewer
-    /// edits than the history keeps).
+    /// Undo until nothing is left, checked to give back the weights,
+    /// pins, painted layers and key pose the puppet was loaded with (a
+    /// sequence makes fewer edits than the history keeps).
     UndoAll {
         puppet: u8,
     },
@@ -197,8 +197,8 @@ struct Show {
     rebuilds: VecDeque<Rebuild>,
     log: Vec<Step>,
     time: f64,
-    /// Each puppet's weights and painted layers as loaded, by id.
-    loaded: Vec<[(&'static str, String); 2]>,
+    /// Each puppet's state as loaded (`state`), by id.
+    loaded: Vec<[(&'static str, String); 4]>,
 }
 
 const SOURCES: [&str; 3] = ["finger-a", "browser-b", "relay:hall:c"];
@@ -223,13 +223,13 @@ impl Show {
     /// Keeps what puppets not seen before were loaded with.
     fn note_loaded(&mut self) {
         for id in self.loaded.len()..self.stage.puppets().len() {
-            let [weights, _, layers, _] = self.state(id as u32);
-            self.loaded.push([weights, layers]);
+            let state = self.state(id as u32);
+            self.loaded.push(state);
         }
     }
 
-    /// Undoes all of a puppet's edits: its weights and layers are back as
-    /// loaded.
+    /// Undoes all of a puppet's edits: its weights, pins, layers and key
+    /// pose are back as loaded.
     fn undo_all(&mut self, puppet: u8) -> Result<(), String> {
         let Some(puppet) = self.live(puppet) else {
             return Ok(());
@@ -241,8 +241,7 @@ impl Show {
             }
         }
         self.solve();
-        let [weights, _, layers, _] = self.state(puppet);
-        let now = [weights, layers];
+        let now = self.state(puppet);
         match Show::differences(&self.loaded[puppet as usize], &now) {
             Some(changed) => Err(format!("puppet {puppet} with every edit undone: {changed}")),
             None => Ok(()),
