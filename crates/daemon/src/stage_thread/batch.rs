@@ -182,11 +182,12 @@ impl Batch {
                 }
             }
             Command::Cursor { source, cursor } => {
-                let old = match cursor.clone() {
+                // Compared before it moves in: no copy of the cursor.
+                self.cursors_changed |= cursors.get(&source) != cursor.as_ref();
+                match cursor {
                     Some(c) => cursors.insert(source, c),
                     None => cursors.remove(&source),
                 };
-                self.cursors_changed |= old != cursor;
             }
             Command::StartTake {
                 name,
