@@ -17,7 +17,11 @@ impl Stage {
                 .then(|| self.pad_contacts.get(&key))
                 .flatten()
             {
-                self.move_cursor(pad, contact.position);
+                // An up never moves anything: it says where the finger
+                // was last, or nothing (a page's up has no position).
+                if contact.phase != Phase::Up {
+                    self.move_cursor(pad, contact.position);
+                }
                 if contact.phase != Phase::Move {
                     self.pad_contacts.remove(&key);
                 }

@@ -10,7 +10,8 @@
 //! (solve, rebuild and install, undo/redo/reset, the line-up).
 //!
 //! After every step it checks that every vertex is finite and within ten
-//! times the stage's size; that once every finger has lifted or its source
+//! times the stage's size; that an up (without a position, as a page
+//! sends it) moves no cursor and no handle; that once every finger has lifted or its source
 //! gone no contact handle remains; that undo then redo gives back the same
 //! state; that a reset with no finger down gives the rest pose. At the end
 //! the whole log, replayed into a fresh stage as a take replays, must give
@@ -311,6 +312,19 @@ impl Show {
         self.log.push(Step::Solve);
     }
 
+    /// Every cursor and handle target on stage, each a line: an up may take
+    /// a handle away but never move one that stays.
+    fn held(&self) -> Vec<String> {
+        let mut held = Vec::new();
+        for p in self.stage.puppets() {
+            held.push(format!("puppet {} cursor {:?}", p.id, p.keying().cursor()));
+            for h in p.handles() {
+                held.push(format!("puppet {} handle {} at {}", p.id, h.id, h.target));
+            }
+        }
+        held
+    }
+
     /// What undo and redo put back, as the stage shows it, by part.
     fn state(&self, puppet: u32) -> [(&'static str, String); 4] {
         let p = &self.stage.puppets()[puppet as usize];
@@ -473,8 +487,15 @@ impl Show {
             Op::Lift { source, finger } => {
                 let key = (*source % 3, *finger % 3);
                 if self.down.remove(&key) {
+                    // As a page's up, which has no position: an up never
+                    // moves anything.
+                    let before = self.held();
                     let at = DVec2::ZERO;
                     self.frame(key.0, Contact::new(key.1 as u32, Phase::Up, at));
+                    let after = self.held();
+                    if let Some(moved) = after.iter().find(|a| !before.contains(a)) {
+                        return Err(format!("an up moved {moved}"));
+                    }
                 }
             }
             Op::Gone { source } => {
