@@ -15,7 +15,7 @@ import {
   RIG_KIND, ROLE, SERVER_MESSAGE,
   canDirect, canPerform, clientOwner, decodeFrameHeader, depthOrder, encodeClientMessage, frameDepths, framePoints,
   helloMessage,
-  listTakesMessage, parseServerMessage, pingMessage, playMessage, recordMessage, stopPlayingMessage,
+  listTakesMessage, parseServerMessage, pingMessage, playMessage, recordMessage, releaseMessage, stopPlayingMessage,
   stopRecordingMessage,
 } from './protocol.js';
 import { MeshRenderer } from './renderer.js';
@@ -27,7 +27,7 @@ import {
   calibrationInset, calibrationMarks,
 } from './tools.js';
 import { forgetToken, takeAccess, viewOptions } from './session.js';
-import { People } from './people.js';
+import { People, holding } from './people.js';
 import { FpsMeter, Hud, LatencyMeter } from './hud.js';
 import { PuppetsPanel } from './puppets.js';
 import { MidiLearn } from './midi.js';
@@ -471,12 +471,13 @@ function onText(text) {
     case SERVER_MESSAGE.STAGE: return onStage(msg);
     case SERVER_MESSAGE.HANDLES:
       setHandles(puppetById(msg.puppet), msg.handles, msg.generation);
+      renderLegend();
       return;
     case SERVER_MESSAGE.PEOPLE:
       people.update(msg.people);
       api.people = people.list;
       api.peopleSeen = true;
-      people.renderLegend(legendEl, myOwner);
+      renderLegend();
       showYou();
       needsOverlay = true;
       return;
@@ -558,6 +559,18 @@ function onText(text) {
       return; // unknown kinds are for newer clients
   }
 }
+
+// The people list, with who holds contacts now (a director may let any
+// holder but itself go: a sender gone silent mid-touch).
+function renderLegend() {
+  const held = holding(api.handles);
+  const release = !options.show && canDirect(role) ? (owner) => send(releaseMessage(owner)) : null;
+  const key = JSON.stringify([api.people, [...held], Boolean(release), myOwner]);
+  if (key === legendKey) return; // handles messages come at input rate
+  legendKey = key;
+  people.renderLegend(legendEl, myOwner, held, release);
+}
+let legendKey = '';
 
 // "you" in the status line: name, role and colour swatch.
 function showYou() {

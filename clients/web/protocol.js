@@ -210,6 +210,14 @@ export function resetMessage(puppet) {
   return { type: CLIENT_MESSAGE.RESET, puppet };
 }
 
+/**
+ * Lets go of everything `source` holds (director): a sender that went
+ * silent mid-touch, a stuck device, another page.
+ */
+export function releaseMessage(source) {
+  return { type: CLIENT_MESSAGE.RELEASE, source };
+}
+
 /** Plays or pauses replay input `source` (director). */
 export function replayMessage(source, playing) {
   return { type: CLIENT_MESSAGE.REPLAY, source, playing };
@@ -270,9 +278,9 @@ export const PUPPET_ADDED = SERVER_MESSAGE.PUPPET_ADDED;
  * (stage coordinates) and `scale` only when given (the daemon's default:
  * the stage's centre, and a scale that fits the picture in half the stage).
  */
-export function addPuppetPath({ name, vertices, x, y, scale }) {
+export function addPuppetPath({ name, vertices, x, y, scale, join }) {
   const query = new URLSearchParams({ name, vertices: String(vertices) });
-  for (const [key, value] of Object.entries({ x, y, scale })) {
+  for (const [key, value] of Object.entries({ x, y, scale, join })) {
     if (value !== undefined && value !== null) query.set(key, String(value));
   }
   return `${PUPPETS_PATH}?${query}`;

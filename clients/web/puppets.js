@@ -109,6 +109,55 @@ export function postPicture(path, token, file, onProgress) {
   });
 }
 
+/** Okabe–Ito, as the people list: one colour per piece in turn. */
+const PIECE_COLOURS = ['#E69F00', '#56B4E9', '#009E73', '#F0E442', '#0072B2', '#D55E00', '#CC79A7'];
+
+/**
+ * The pieces of a mesh (`rest`: x, y pairs; `triangles`: index triples):
+ * for each triangle, the piece it is in (triangles sharing a vertex are one).
+ */
+export function meshPieces(rest, triangles) {
+  const parent = Array.from({ length: rest.length / 2 }, (_, i) => i);
+  const find = (i) => { while (parent[i] !== i) i = parent[i] = parent[parent[i]]; return i; };
+  for (let t = 0; t < triangles.length; t += 3) {
+    const a = find(triangles[t]);
+    for (const v of [triangles[t + 1], triangles[t + 2]]) parent[find(v)] = a;
+  }
+  const number = new Map();
+  const pieces = [];
+  for (let t = 0; t < triangles.length; t += 3) {
+    const r = find(triangles[t]);
+    if (!number.has(r)) number.set(r, number.size);
+    pieces.push(number.get(r));
+  }
+  return pieces;
+}
+
+// A small canvas of a mesh with each piece in its own colour.
+function piecesPicture(rest, triangles, size = 160) {
+  const canvas = document.createElement('canvas');
+  canvas.className = 'puppet-pieces';
+  canvas.width = canvas.height = size;
+  const xs = rest.filter((_, i) => i % 2 === 0);
+  const ys = rest.filter((_, i) => i % 2 === 1);
+  const [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const scale = (size - 8) / Math.max(x1 - x0, y1 - y0, 1e-9);
+  const at = (v) => [4 + (rest[2 * v] - x0) * scale, size - 4 - (rest[2 * v + 1] - y0) * scale];
+  const g = canvas.getContext('2d');
+  const pieces = meshPieces(rest, triangles);
+  canvas.dataset.pieces = String(new Set(pieces).size);
+  for (let t = 0; t < triangles.length; t += 3) {
+    g.fillStyle = PIECE_COLOURS[pieces[t / 3] % PIECE_COLOURS.length];
+    g.beginPath();
+    g.moveTo(...at(triangles[t]));
+    g.lineTo(...at(triangles[t + 1]));
+    g.lineTo(...at(triangles[t + 2]));
+    g.fill();
+  }
+  canvas.title = `${canvas.dataset.pieces} pieces, each in its colour: each moves on its own`;
+  return canvas;
+}
+
 export class PuppetsPanel {
   /**
    * elements: {panel (its place in the bar), toggle (opens the rest),
@@ -176,6 +225,8 @@ export class PuppetsPanel {
   /** A stage message: the puppets, bottom to top. */
   setup(puppets) {
     this.puppets = puppets.map((p) => ({ id: p.id, name: p.src.name, vertices: p.n }));
+    this.sources = puppets.map((p) => p.src);
+    this.drawPieces();
     const ids = this.puppets.map((p) => p.id);
     // Listed bottom to top as the stage draws them; the stylesheet shows the
     // top one first, so "up" moves an entry up the list.
@@ -232,6 +283,33 @@ export class PuppetsPanel {
     this.label();
   }
 
+  // A picture of separate pieces was added: each moves on its own. The
+  // notice draws them (once the stage message brings the mesh) and offers
+  // to add it again with its pieces joined, in place of this one.
+  offerJoin(answer) {
+    this.split = answer;
+    const join = document.createElement('button');
+    join.type = 'button';
+    join.className = 'puppet-join';
+    join.textContent = `join pieces (gaps up to ${answer.join} px)`;
+    join.title = `Add ${answer.name} again as one piece (its pieces bridged), in place of this one`;
+    join.addEventListener('click', () => {
+      this.send(removePuppetMessage(answer.puppet));
+      this.upload({ join: answer.join });
+    });
+    this.el.noticeText.append(join);
+    this.drawPieces();
+  }
+
+  // The split puppet's pieces in the notice, once its mesh is here (the
+  // stage message with it may come before or after the upload's answer).
+  drawPieces() {
+    const src = this.split && !this.split.drawn && (this.sources ?? []).find((s) => s.id === this.split.puppet);
+    if (!src) return;
+    this.split.drawn = true;
+    this.el.noticeText.append(piecesPicture(src.rest, src.triangles));
+  }
+
   clearNotice() {
     this.el.notice.hidden = true;
     this.el.notice.dataset.kind = '';
@@ -241,8 +319,9 @@ export class PuppetsPanel {
 
   // Sends the chosen picture. What can be told before sending it (no file,
   // too large, a vertex count out of range) is told at once.
-  async upload() {
+  async upload({ join } = {}) {
     if (this.uploading) return;
+    this.split = null;
     this.clearNotice();
     const { file, vertices, name, add } = this.el;
     const picture = file.files[0];
@@ -258,13 +337,14 @@ export class PuppetsPanel {
     add.disabled = true;
     add.textContent = 'uploading…';
     try {
-      const path = addPuppetPath({ name: puppetName, vertices: count.vertices });
+      const path = addPuppetPath({ name: puppetName, vertices: count.vertices, join });
       const { status, text } = await postPicture(path, this.token(), picture, (sent) => {
         // Once every byte is out, the daemon is meshing.
         add.textContent = sent < 1 ? `uploading ${Math.floor(100 * sent)}%` : 'meshing…';
       });
       const { answer, notice } = readUploadAnswer(status, text);
       this.showNotice(notice.kind, notice.lines);
+      if (answer.type === PUPPET_ADDED && answer.pieces > 1 && answer.join) this.offerJoin(answer);
       this.onAnswer(answer);
     } finally {
       this.uploading = false;

@@ -19,6 +19,7 @@ export const CLIENT_MESSAGE = Object.freeze({
   UNDO: 'undo',
   REDO: 'redo',
   RESET: 'reset',
+  RELEASE: 'release',
   REPLAY: 'replay',
   SAVE_WEIGHTS: 'save_weights',
   EXPORT_GRID: 'export_grid',

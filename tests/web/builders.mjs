@@ -40,6 +40,7 @@ const messages = [
   p.redoMessage(0),
   p.resetMessage(0),
   p.replayMessage('gesture', false),
+  p.releaseMessage('tuio:table'),
   p.midiLearnMessage(),
   p.midiLearnMessage({ action: 'blend', puppet: 'skeleton', poses: ['rest', 'cheer'] }),
   p.midiLearnMessage({ action: 'key', puppet: 'skeleton', key: 'cheer', seconds: 2 }),

@@ -12,7 +12,10 @@
 //   3. a fully opaque PNG is added with the warning that it is meshed as
 //      its whole rectangle, shown in the panel's notice; a text file named
 //      .png is refused (bad_image), the notice says so;
-//   4. the figure moves one place down in the drawing order (up if the
+//   4. a picture in two pieces (a head 5 px off its body) is added with
+//      the warning that each moves on its own, the notice draws its two
+//      pieces, and "join pieces" adds it again as one piece in its place;
+//   5. the figure moves one place down in the drawing order (up if the
 //      daemon put it at the bottom; every page's stage lists it so);
 //      removing asks first (dismissed: nothing goes), then both new
 //      puppets go and every page is back to the puppets it had, without
@@ -59,7 +62,10 @@ const files = {
   figure: path.join(pictures, 'figure.png'),
   opaque: path.join(pictures, 'opaque.png'),
   text: path.join(pictures, 'not-a-picture.png'),
+  split: path.join(pictures, 'split.png'),
 };
+fs.writeFileSync(files.split, encodePng(160, 120, (x, y) => (
+  inside(x, y, 80, 80, 50, 34) || inside(x, y, 80, 25, 16, 16) ? [...FIGURE, 255] : [0, 0, 0, 0])));
 fs.writeFileSync(files.figure, encodePng(160, 120, (x, y) => (
   inside(x, y, 80, 78, 50, 34) || inside(x, y, 80, 30, 22, 22) ? [...FIGURE, 255] : [0, 0, 0, 0])));
 fs.writeFileSync(files.opaque, encodePng(200, 100, () => [20, 150, 160, 255]));
@@ -271,6 +277,23 @@ try {
   await director.click('#puppet-notice-close');
   if ((await notice(director)).shown) throw new Error('the notice stays after dismissing it');
   if ((await ids(director)).join() !== lineup.join()) throw new Error('the refused picture changed the stage');
+
+  step('a picture in two pieces is added with a warning, and joined');
+  const split = await upload(director, files.split, VERTICES);
+  summary.split = { type: split?.type, pieces: split?.pieces, join: split?.join, warnings: split?.warnings };
+  if (split?.type !== 'puppet_added' || split.pieces !== 2 || !(split.join >= 4)) throw new Error(`the split picture: ${JSON.stringify(summary.split)}`);
+  if (!(split.warnings ?? []).some((w) => /separate pieces/.test(w))) throw new Error(`no warning of the pieces: ${JSON.stringify(split.warnings)}`);
+  await waitFor(director, 'the notice to draw the two pieces', () => document.querySelector('#puppet-notice .puppet-pieces')?.dataset.pieces === '2');
+  await shot(director, 'puppets-pieces');
+  const beforeJoin = await director.evaluate(() => window.puppetry.uploads);
+  await director.click('#puppet-notice .puppet-join');
+  await waitFor(director, 'the answer to joining the pieces', (n) => window.puppetry.uploads > n, beforeJoin, 30_000);
+  const joined = await director.evaluate(() => window.puppetry.lastUpload);
+  summary.joined = { type: joined?.type, pieces: joined?.pieces, warnings: joined?.warnings };
+  if (joined?.type !== 'puppet_added' || joined.pieces !== 1) throw new Error(`the joined picture: ${JSON.stringify(summary.joined)}`);
+  await everyPageHas([...lineup, joined.puppet], 'the joined picture in place of the split one');
+  await clickRemove(director, joined.puppet, true);
+  await everyPageHas(lineup, 'the joined picture removed');
 
   step('the figure moves down');
   // Down, unless the daemon put it at the bottom: then up.

@@ -104,6 +104,8 @@ pub(crate) fn client(
             false,
         ),
         ClientMessage::Unpin { puppet, handle } => (Change::Unpin { puppet, handle }, false),
+        // A director lets go of what a source holds, as if it had gone.
+        ClientMessage::Release { source } => (Change::Release { source }, true),
         // The stage bounds the brushes (`radius`, `strength`, `layer`) and
         // names the field it refuses.
         ClientMessage::Paint {

@@ -15,6 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::DVec2;
+use puppetry_input::config::release_after;
 use puppetry_input::config::{EvdevInput, InputConfig};
 use puppetry_input::device::{DeviceKind, DeviceMatch};
 use puppetry_input::hotplug::{self, DeviceInput};
@@ -154,9 +155,12 @@ impl ResolvedInputs {
             InputConfig::Tuio {
                 listen,
                 calibration: spec,
+                release_after_s,
             } => {
                 let calibration = calibration_or(index, spec, || tuio::default_calibration(size))?;
-                Box::new(self.bind_tuio(index, *listen, calibration).await?)
+                let mut input = self.bind_tuio(index, *listen, calibration).await?;
+                input.release_after = release_after(*release_after_s, tuio::RELEASE_AFTER);
+                Box::new(input)
             }
             InputConfig::Serial {
                 path,
@@ -164,12 +168,14 @@ impl ResolvedInputs {
                 format,
                 name,
                 calibration: spec,
+                release_after_s,
             } => Box::new(SerialInput {
                 path: path.clone(),
                 baud: *baud,
                 format: *format,
                 source: source_name(name, "serial", index),
                 calibration: calibration_or(index, spec, || pad_units_are_stage_units(size))?,
+                release_after: release_after(*release_after_s, serial::RELEASE_AFTER),
             }),
             InputConfig::Touch(evdev) | InputConfig::Pen(evdev) => {
                 let (kind, label) = match input {
@@ -253,6 +259,7 @@ impl ResolvedInputs {
             socket: Some(socket),
             address,
             calibration,
+            release_after: tuio::RELEASE_AFTER,
         })
     }
 }
@@ -503,6 +510,8 @@ struct TuioInput {
     socket: Option<tokio::net::UdpSocket>,
     address: SocketAddr,
     calibration: Calibration,
+    /// How long one of its senders may be silent while holding contacts.
+    release_after: std::time::Duration,
 }
 
 impl Supervised for TuioInput {
@@ -519,6 +528,7 @@ impl Supervised for TuioInput {
             mut socket,
             address,
             calibration,
+            release_after,
             ..
         } = *self;
         Box::new(move |frames| {
@@ -531,7 +541,7 @@ impl Supervised for TuioInput {
                         .await
                         .map_err(|source| SourceError::Bind { address, source })?,
                 };
-                Ok(tuio::run_udp(socket, calibration, frames).await?)
+                Ok(tuio::run_udp(socket, calibration, release_after, frames).await?)
             }) as Attempt
         })
     }
@@ -544,6 +554,8 @@ struct SerialInput {
     format: puppetry_input::serial::WireFormat,
     source: SourceId,
     calibration: Calibration,
+    /// How long the pad may be silent while holding contacts.
+    release_after: std::time::Duration,
 }
 
 impl Supervised for SerialInput {
@@ -558,12 +570,14 @@ impl Supervised for SerialInput {
             format,
             source,
             calibration,
+            release_after,
         } = *self;
         Box::new(move |frames| {
             let decoder = SerialDecoder::new(format, calibration.clone(), source.clone());
             let path = path.clone();
-            Box::pin(async move { Ok(serial::run_port(&path, baud, decoder, frames).await?) })
-                as Attempt
+            Box::pin(async move {
+                Ok(serial::run_port(&path, baud, decoder, release_after, frames).await?)
+            }) as Attempt
         })
     }
 }

@@ -14,7 +14,7 @@ use tokio::task::JoinHandle;
 
 use crate::config::ShowConfig;
 use crate::outputs::Published;
-use crate::sources::{Replays, SOURCE_QUEUE, forward};
+use crate::sources::{Down, Replays, SOURCE_QUEUE, forward, lift};
 use crate::stage_thread::{self, Command, TakeSettings};
 use crate::stream::{self, Shared, StreamError, WebFiles};
 use crate::takes::PlayOptions;
@@ -111,7 +111,7 @@ impl Running {
     /// arrives, as an input device's reader does; finishes when every
     /// sender is gone. Returns the frames fed.
     pub async fn feed(&self, frames: mpsc::Receiver<ContactFrame>) -> usize {
-        forward(frames, &self.commands, self.started).await
+        forward(frames, &self.commands, self.started, &mut Down::default()).await
     }
 
     /// Stops accepting, ends the inputs and the stage thread, and waits.
@@ -206,6 +206,8 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
         edge,
     } = options;
     let started = Instant::now();
+    // Before the kept pictures come back after them.
+    let file_puppets = config.puppets.len();
     let (config, stage) = load_stage(config, &puppets_dir).await?;
     let config = &config;
     let (commands, commands_rx) = mpsc::channel(COMMAND_QUEUE);
@@ -224,6 +226,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
     let settings = TakeSettings {
         dir: takes_dir.clone(),
         stage_file: config.file.clone(),
+        file_puppets,
         record_from_first_input: record,
         started,
     };
@@ -437,7 +440,10 @@ async fn play_into(
 ) -> usize {
     let (frames, frames_rx) = mpsc::channel::<ContactFrame>(SOURCE_QUEUE);
     let player = tokio::spawn(replay(source, pacing, frames));
-    let played = forward(frames_rx, commands, started).await;
+    let mut down = Down::default();
+    let played = forward(frames_rx, commands, started, &mut down).await;
     player.abort();
+    // A file that ends mid-touch holds nothing after it.
+    lift(down, commands, started).await;
     played
 }

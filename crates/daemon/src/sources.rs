@@ -1,17 +1,22 @@
 //! Supervision of input sources, written once. Every source the stage file
 //! names (replays, TUIO, serial pads, evdev devices, HID digitizers) runs
 //! under [`supervise`]: each attempt gets a fresh frame channel forwarded
-//! to the stage thread; when an attempt fails — the device vanished, the
-//! port went away, the task panicked — the error is logged with its type's
-//! message (once per distinct message, not on every retry), the source's
-//! contacts are lifted, and it is tried again after a backoff. No source
-//! can take the daemon down, and a dead one never spins a core.
+//! to the stage thread; however an attempt ends, the source's contacts are
+//! lifted (a file that ends mid-touch holds nothing after it), and when it
+//! failed — the device vanished, the port went away, the task panicked —
+//! the error is logged with its type's message (once per distinct message,
+//! not on every retry) and it is tried again after a backoff. No source
+//! can take the daemon down, and a dead one never spins a core. Sources
+//! that can fall silent with their link still open (TUIO senders, serial
+//! pads) let go of what they hold after their own `release_after_s`, in
+//! their decoders' loops.
 //!
 //! Replay inputs can also be paused and played from the page
 //! ([`Replays`], [`run_replay`]): a paused replay lets go of what it held,
 //! so a performer can take the puppet over, and plays from its start again
 //! when it is played.
 
+use std::collections::{BTreeMap, HashMap};
 use std::future::Future;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -23,7 +28,7 @@ use crate::stage_thread::Command;
 use puppetry_input::hid::HidError;
 use puppetry_input::serial::SerialError;
 use puppetry_input::tuio::TuioError;
-use puppetry_input::{ContactFrame, SourceId};
+use puppetry_input::{Contact, ContactFrame, Phase, SourceId};
 
 /// Frames a source may get ahead of its forwarder.
 pub const SOURCE_QUEUE: usize = 64;
@@ -80,7 +85,8 @@ pub async fn supervise<F, Fut>(
         let began = Instant::now();
         // Spawned, so a panic in the source is contained and reported here.
         let running = tokio::spawn(attempt(frames));
-        let forwarded = forward(frames_rx, &commands, started).await;
+        let mut down = Down::default();
+        let forwarded = forward(frames_rx, &commands, started, &mut down).await;
         let outcome = match running.await {
             Ok(outcome) => outcome,
             Err(e) => Err(SourceError::Panicked(e.to_string())),
@@ -88,6 +94,10 @@ pub async fn supervise<F, Fut>(
         if commands.is_closed() {
             return;
         }
+        // However the attempt ended, whatever it held is let go, whether
+        // or not the source managed to say so itself (a file that ends
+        // mid-touch, a sender gone).
+        let_go(&name, down, &commands, started).await;
         match outcome {
             Ok(()) => {
                 tracing::info!("{name}: {forwarded} frames");
@@ -96,9 +106,6 @@ pub async fn supervise<F, Fut>(
                 }
             }
             Err(e) => {
-                // Whatever it held is let go, whether or not the source
-                // managed to say so itself.
-                let _ = commands.send(crate::convert::release(name.as_str())).await;
                 if began.elapsed() >= HEALTHY_RUN {
                     backoff = FIRST_BACKOFF;
                 }
@@ -235,8 +242,10 @@ pub async fn run_replay<F, Fut>(
         let (frames, frames_rx) = mpsc::channel(SOURCE_QUEUE);
         // Spawned, so a panic in the source is contained.
         let running = tokio::spawn(attempt(frames));
+        // Outside the forwarding, so a pause that cuts it short keeps it.
+        let mut down = Down::default();
         let paused = tokio::select! {
-            forwarded = forward(frames_rx, &commands, started) => {
+            forwarded = forward(frames_rx, &commands, started, &mut down) => {
                 tracing::info!("{name}: {forwarded} frames");
                 false
             }
@@ -252,26 +261,108 @@ pub async fn run_replay<F, Fut>(
         if commands.is_closed() {
             return;
         }
-        if paused {
-            // Whatever it held is let go: a run cut short never lifted it.
-            let _ = commands.send(crate::convert::release(&name)).await;
-        } else if !repeat {
+        // Whatever it held is let go: a run cut short never lifted it, and
+        // a file may end (or its writer vanish) mid-touch.
+        let_go(&SourceId::from(name.as_str()), down, &commands, started).await;
+        if !paused && !repeat {
             replays.set_index(index, false);
+        }
+    }
+}
+
+/// What an input's frames put down and did not lift, by the source each
+/// frame names (a recording's sources, a TUIO port's senders: not the
+/// input's own name), kept as they pass the forwarder so that whatever is
+/// still down when the input ends is lifted, however it ends. At most
+/// `MAX_TRACKED_PER_INPUT` contacts.
+#[derive(Debug, Default)]
+pub struct Down {
+    /// By source: its last frame's time, and each contact down with where
+    /// it was last.
+    held: HashMap<SourceId, (f64, BTreeMap<u32, glam::DVec2>)>,
+    count: usize,
+}
+
+impl Down {
+    /// Notes what `frame` puts down, moves and lifts.
+    fn note(&mut self, frame: &ContactFrame) {
+        use puppetry_limits::contacts::MAX_TRACKED_PER_INPUT;
+        let entry = self.held.entry(frame.source.clone()).or_default();
+        entry.0 = frame.time;
+        for c in &frame.contacts {
+            match c.phase {
+                Phase::Up => {
+                    self.count -= usize::from(entry.1.remove(&c.id).is_some());
+                }
+                Phase::Down | Phase::Move => {
+                    if let Some(at) = entry.1.get_mut(&c.id) {
+                        *at = c.position;
+                    } else if self.count < MAX_TRACKED_PER_INPUT {
+                        entry.1.insert(c.id, c.position);
+                        self.count += 1;
+                    }
+                }
+            }
+        }
+        if entry.1.is_empty() {
+            self.held.remove(&frame.source);
+        }
+    }
+
+    /// A frame lifting each source's contacts still down, by source name.
+    fn lifts(self) -> Vec<ContactFrame> {
+        let mut lifts: Vec<ContactFrame> = self
+            .held
+            .into_iter()
+            .map(|(source, (time, down))| ContactFrame {
+                source,
+                time,
+                contacts: down
+                    .into_iter()
+                    .map(|(id, at)| Contact::new(id, Phase::Up, at))
+                    .collect(),
+            })
+            .collect();
+        lifts.sort_by(|a, b| a.source.cmp(&b.source));
+        lifts
+    }
+}
+
+/// An input has ended: everything its frames left down is lifted, and
+/// whatever its own name holds is let go.
+async fn let_go(name: &SourceId, down: Down, commands: &mpsc::Sender<Command>, started: Instant) {
+    lift(down, commands, started).await;
+    let _ = commands.send(crate::convert::release(name.as_str())).await;
+}
+
+/// Lifts everything `down` holds, as frames of their sources.
+pub async fn lift(down: Down, commands: &mpsc::Sender<Command>, started: Instant) {
+    for frame in down.lifts() {
+        let received = started.elapsed().as_secs_f64();
+        if commands
+            .send(crate::convert::frame(frame, received))
+            .await
+            .is_err()
+        {
+            return;
         }
     }
 }
 
 /// Forwards a source's frames to the stage thread, stamping each with its
 /// arrival on the daemon's clock, until the source ends or the stage stops;
-/// returns how many went through. A full command queue makes the source
-/// wait: no contact down or up is dropped.
+/// returns how many went through, noting in `down` what they left down. A
+/// full command queue makes the source wait: no contact down or up is
+/// dropped.
 pub async fn forward(
     mut frames: mpsc::Receiver<ContactFrame>,
     commands: &mpsc::Sender<Command>,
     started: Instant,
+    down: &mut Down,
 ) -> usize {
     let mut forwarded = 0;
     while let Some(frame) = frames.recv().await {
+        down.note(&frame);
         let received = started.elapsed().as_secs_f64();
         if commands
             .send(crate::convert::frame(frame, received))
@@ -339,7 +430,18 @@ mod tests {
             });
         }
         supervisor.await.unwrap();
-        assert_eq!(seen, ["release flaky", "release flaky", "frame flaky"]);
+        // Each attempt's end lets go of what it held, the good one's too:
+        // its finger, left down, is lifted (a frame), then its name.
+        assert_eq!(
+            seen,
+            [
+                "release flaky",
+                "release flaky",
+                "frame flaky",
+                "frame flaky",
+                "release flaky"
+            ]
+        );
         assert_eq!(attempts.load(Ordering::SeqCst), 3, "done after a good run");
         // Two backoffs were waited, 1 s then 2 s (tokio's paused clock
         // jumps through them).

@@ -293,7 +293,7 @@ pub fn read_take(
     let survey = survey(take)?;
     let salvaged = judge(take, &survey, salvage)?;
     let mut reader = TakeReader::open(take)?;
-    let stage = Stage::from_config(&as_recorded(config, &reader.header))?;
+    let stage = Stage::from_config(&puppetry_take::stage_config(config, &reader.header))?;
     reader
         .header
         .check_stage(&stage)
@@ -425,32 +425,6 @@ fn range(
         from + 1.0 / fps
     });
     Ok((from, crate::resample::frame_count(fps, from, to)?))
-}
-
-/// The stage file as the take knew it: puppets added to the stage after
-/// the take was recorded are left out (with their pads). Puppet ids are
-/// never reused and new puppets are appended, so the take's puppets are
-/// the first ones, names and all; anything else is left for
-/// `Header::check_stage` to refuse.
-fn as_recorded<'a>(
-    config: &'a StageConfig,
-    header: &puppetry_take::Header,
-) -> std::borrow::Cow<'a, StageConfig> {
-    let n = header.puppets.len();
-    let prefix = config.puppets.len() > n
-        && header
-            .puppets
-            .iter()
-            .zip(&config.puppets)
-            .all(|(recorded, p)| recorded.name == p.name);
-    if !prefix {
-        return std::borrow::Cow::Borrowed(config);
-    }
-    let mut cut = config.clone();
-    cut.puppets.truncate(n);
-    let kept: Vec<String> = cut.puppets.iter().map(|p| p.name.clone()).collect();
-    cut.pads.retain(|pad| kept.contains(&pad.puppet));
-    std::borrow::Cow::Owned(cut)
 }
 
 /// Runs an export; returns what was written, for the user.

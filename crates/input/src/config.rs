@@ -87,6 +87,11 @@ pub enum InputConfig {
         /// the unit square fitted to the stage, y flipped.
         #[serde(default)]
         calibration: Option<crate::CalibrationSpec>,
+        /// Seconds a TUIO source may send nothing before what it holds is
+        /// let go (a sender that died mid-touch); default 3
+        /// ([`RELEASE_AFTER`](crate::tuio::RELEASE_AFTER)), 0.1 to 3600.
+        #[serde(default)]
+        release_after_s: Option<f64>,
     },
     /// A serial pad (Arduino/Teensy-style): line CSV or SLIP-framed OSC at a
     /// baud rate (see [`serial`](crate::serial)). If the port goes away the
@@ -107,6 +112,13 @@ pub enum InputConfig {
         /// Pad units to stage; default: pad units are stage units.
         #[serde(default)]
         calibration: Option<crate::CalibrationSpec>,
+        /// Seconds the pad may send nothing while a contact is down before
+        /// its contacts are let go (firmware that hung with the port still
+        /// open); default 5 ([`RELEASE_AFTER`](crate::serial::RELEASE_AFTER)),
+        /// 0.1 to 3600. Firmware that holds a contact still sends an empty
+        /// frame now and then to say it is alive.
+        #[serde(default)]
+        release_after_s: Option<f64>,
     },
     /// A touch table or screen (Linux evdev, multi-touch protocol A or B,
     /// or single touch). Reopened when it comes back after going away.
@@ -273,12 +285,35 @@ impl From<PacingConfig> for crate::replay::Pacing {
     }
 }
 
+/// The shortest silence a source's `release_after_s` may set: less would
+/// let go of a finger between two frames of a slow sender.
+pub const MIN_RELEASE_AFTER_S: f64 = 0.1;
+/// The longest: an hour, so a source that died is let go within the show.
+pub const MAX_RELEASE_AFTER_S: f64 = 3600.0;
+
+/// A `release_after_s` as the source's timeout, or its kind's default.
+pub fn release_after(seconds: Option<f64>, default: std::time::Duration) -> std::time::Duration {
+    seconds.map_or(default, std::time::Duration::from_secs_f64)
+}
+
 /// The numbers of `[[input]]` entries: a baud rate a port can run at, a
 /// mouse's speeds and spacing within a coordinate's range, a cursor start
 /// on the stage's scale, every calibration number a coordinate.
 pub fn check_inputs(inputs: &[InputConfig]) -> Result<(), (String, String)> {
     for (i, input) in inputs.iter().enumerate() {
         let field = |f: &str| format!("input[{i}].{f}");
+        if let InputConfig::Serial {
+            release_after_s: Some(seconds),
+            ..
+        }
+        | InputConfig::Tuio {
+            release_after_s: Some(seconds),
+            ..
+        } = input
+        {
+            within(*seconds, MIN_RELEASE_AFTER_S, MAX_RELEASE_AFTER_S)
+                .map_err(|problem| (field("release_after_s"), problem))?;
+        }
         let calibration = match input {
             InputConfig::Serial {
                 baud, calibration, ..

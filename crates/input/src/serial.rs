@@ -72,6 +72,13 @@ use super::{Calibration, CalibrationError, Contact, ContactFrame, Phase, SourceI
 /// only bounds the damage of a stream that never sends a delimiter.
 pub const MAX_RECORD: usize = 4096;
 
+/// How long a pad may send nothing while a contact is down before its
+/// contacts are let go, unless the input says otherwise
+/// (`release_after_s`): firmware that hung with its port still open. A
+/// pad that holds a contact still should send an empty frame (`f`, or an
+/// empty line; `/pad/frame`) about once a second to say it is alive.
+pub const RELEASE_AFTER: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// Bytes asked of the port per read; a USB-serial chip delivers at most a
 /// few hundred at a time.
 const READ_CHUNK: usize = 1024;
@@ -232,6 +239,11 @@ impl SerialDecoder {
             })
             .collect();
         (!contacts.is_empty()).then(|| self.frame(contacts))
+    }
+
+    /// Whether a contact is down.
+    pub fn holds(&self) -> bool {
+        !self.down.is_empty()
     }
 
     fn frame(&self, contacts: Vec<Contact>) -> ContactFrame {
@@ -573,10 +585,13 @@ fn flatten<'a>(packet: &'a OscPacket, out: &mut Vec<&'a OscMessage>) {
 /// Returns `Ok` once the sink is closed. When the stream ends or a read
 /// fails, sends a frame lifting every contact still down and returns
 /// [`SerialError::Closed`] or [`SerialError::Read`]: the caller decides
-/// whether to reopen.
+/// whether to reopen. When nothing at all arrives for `release_after`
+/// while a contact is down, the contacts are lifted and reading goes on
+/// (a pad that speaks again lands its contacts afresh).
 pub async fn run_stream<R: AsyncRead + Unpin>(
     mut reader: R,
     mut decoder: SerialDecoder,
+    release_after: std::time::Duration,
     sink: mpsc::Sender<ContactFrame>,
 ) -> Result<(), SerialError> {
     let mut buffer = vec![0u8; READ_CHUNK];
@@ -584,9 +599,24 @@ pub async fn run_stream<R: AsyncRead + Unpin>(
     let summary = |skipped: u64| {
         tracing::warn!("serial: {skipped} more bad records were skipped unlogged");
     };
+    let mut heard = tokio::time::Instant::now();
     let error = loop {
+        let holds = decoder.holds();
         let read = tokio::select! {
             read = reader.read(&mut buffer) => read,
+            () = tokio::time::sleep_until(heard + release_after), if holds => {
+                if let Some(frame) = decoder.lift_all() {
+                    tracing::warn!(
+                        "{}: silent for {release_after:?} holding {} contacts: letting go",
+                        frame.source,
+                        frame.contacts.len()
+                    );
+                    if sink.send(frame).await.is_err() {
+                        return Ok(());
+                    }
+                }
+                continue;
+            }
             () = sink.closed() => {
                 if let Some(skipped) = complaints.take_remaining() {
                     summary(skipped);
@@ -602,7 +632,10 @@ pub async fn run_stream<R: AsyncRead + Unpin>(
         };
         let len = match read {
             Ok(0) => break SerialError::Closed,
-            Ok(len) => len,
+            Ok(len) => {
+                heard = tokio::time::Instant::now();
+                len
+            }
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
             Err(e) => break SerialError::Read(e),
         };
@@ -639,6 +672,7 @@ pub async fn run_port(
     path: &str,
     baud: u32,
     decoder: SerialDecoder,
+    release_after: std::time::Duration,
     sink: mpsc::Sender<ContactFrame>,
 ) -> Result<(), SerialError> {
     use tokio_serial::SerialPortBuilderExt;
@@ -648,5 +682,5 @@ pub async fn run_port(
             path: path.to_owned(),
             source,
         })?;
-    run_stream(port, decoder, sink).await
+    run_stream(port, decoder, release_after, sink).await
 }

@@ -36,6 +36,14 @@ const RESTART_GAP: i64 = 100;
 /// from growing the tracker's state without bound.
 pub const MAX_SOURCES: usize = 64;
 
+/// How long a TUIO source may be silent before what it holds is let go
+/// and it is forgotten, unless the input says otherwise
+/// (`release_after_s`). TUIO restates its alive set in every frame, and
+/// trackers send frames while idle too (the reference server's periodic
+/// messages, about one a second), so a second or two without one is a
+/// sender that died mid-touch, not a finger held still.
+pub const RELEASE_AFTER: std::time::Duration = std::time::Duration::from_secs(3);
+
 /// Largest UDP payload; one buffer of this size serves every datagram.
 const MAX_DATAGRAM: usize = 65_536;
 
@@ -150,6 +158,12 @@ struct SourceState {
     last_sequence: Option<i32>,
     /// By session id; ordered so frames list contacts deterministically.
     contacts: BTreeMap<i32, Tracked>,
+    /// When its last frame arrived (the `now` of [`TuioTracker::push`]),
+    /// late ones included: any frame says the sender is alive.
+    heard: f64,
+    /// The time its last frame carried, which the lift of a silent
+    /// source's contacts carries too.
+    time: f64,
 }
 
 impl SourceState {
@@ -234,7 +248,10 @@ impl TuioTracker {
             .or_insert_with(|| SourceState {
                 last_sequence: None,
                 contacts: BTreeMap::new(),
+                heard: now,
+                time: now,
             });
+        state.heard = now;
         if !state.accept(snapshot.protocol, snapshot.sequence) {
             return None;
         }
@@ -279,14 +296,65 @@ impl TuioTracker {
             contact.pressure = pointer.pressure;
             contacts.push(contact);
         }
+        state.time = snapshot.time.unwrap_or(now);
         if contacts.is_empty() {
             return None;
         }
         Some(ContactFrame {
             source,
-            time: snapshot.time.unwrap_or(now),
+            time: state.time,
             contacts,
         })
+    }
+
+    /// Forgets every source last heard more than `after` seconds before
+    /// `now` (on [`push`](TuioTracker::push)'s clock): a sender that died
+    /// mid-touch. Returns a frame lifting each such source's contacts, so
+    /// nothing stays held by a sender that is gone; a source that comes
+    /// back starts afresh (its contacts land again).
+    pub fn expire(&mut self, now: f64, after: f64) -> Vec<ContactFrame> {
+        let mut lifted = Vec::new();
+        self.sources.retain(|source, state| {
+            if now - state.heard <= after {
+                return true;
+            }
+            if !state.contacts.is_empty() {
+                lifted.push(lift(source, state));
+            }
+            false
+        });
+        // Deterministic: by source name, whatever the map's order.
+        lifted.sort_by(|a, b| a.source.cmp(&b.source));
+        lifted
+    }
+
+    /// A frame lifting every contact of every source, forgetting them all
+    /// (the socket's loop ends, so nothing it said may stay held).
+    pub fn lift_all(&mut self) -> Vec<ContactFrame> {
+        self.expire(f64::INFINITY, f64::NEG_INFINITY)
+    }
+
+    /// Whether any source holds a contact.
+    pub fn holds(&self) -> bool {
+        self.sources.values().any(|s| !s.contacts.is_empty())
+    }
+}
+
+/// A frame lifting every contact `state` holds, at its last frame's time.
+fn lift(source: &SourceId, state: &SourceState) -> ContactFrame {
+    let contacts = state
+        .contacts
+        .iter()
+        .map(|(&session, tracked)| {
+            let mut up = Contact::new(contact_id(session), Phase::Up, tracked.position);
+            up.pressure = tracked.pressure;
+            up
+        })
+        .collect();
+    ContactFrame {
+        source: source.clone(),
+        time: state.time,
+        contacts,
     }
 }
 
@@ -551,22 +619,46 @@ impl<'a> Args<'a> {
 /// drops), so no decoded frame is ever discarded here. Malformed datagrams
 /// are skipped, and logged through a [`LogLimiter`]: a few lines, then a
 /// count. Frames without a sender time are stamped with
-/// seconds since this call started.
+/// seconds since this call started. A source silent for `release_after`
+/// lets go of what it held ([`TuioTracker::expire`]), and so does every
+/// source when receiving fails.
 ///
 /// Returns `Ok` once the sink is closed, or the socket's error if receiving
 /// fails for a reason other than a bounced earlier send.
 pub async fn run_udp(
     socket: UdpSocket,
     calibration: Calibration,
+    release_after: std::time::Duration,
     sink: mpsc::Sender<ContactFrame>,
 ) -> Result<(), TuioError> {
     let mut tracker = TuioTracker::new(calibration);
     let start = std::time::Instant::now();
     let mut buffer = vec![0u8; MAX_DATAGRAM];
     let mut complaints = LogLimiter::new(start);
+    // Silence is looked for a few times within its timeout.
+    let period = (release_after / 4).clamp(
+        std::time::Duration::from_millis(10),
+        std::time::Duration::from_millis(500),
+    );
+    let mut silence = tokio::time::interval(period);
+    silence.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         let received: std::io::Result<(usize, SocketAddr)> = tokio::select! {
             received = socket.recv_from(&mut buffer) => received,
+            _ = silence.tick() => {
+                let now = start.elapsed().as_secs_f64();
+                for frame in tracker.expire(now, release_after.as_secs_f64()) {
+                    let held = frame.contacts.len();
+                    tracing::warn!(
+                        "{}: silent for {release_after:?} holding {held} contacts: letting go",
+                        frame.source
+                    );
+                    if sink.send(frame).await.is_err() {
+                        return Ok(());
+                    }
+                }
+                continue;
+            }
             () = sink.closed() => {
                 if let Some(skipped) = complaints.take_remaining() {
                     tracing::warn!("tuio: {skipped} more malformed datagrams were skipped unlogged");
@@ -588,7 +680,12 @@ pub async fn run_udp(
                 tracing::warn!(error = %e, "tuio: ignoring a reset on the socket");
                 continue;
             }
-            Err(e) => return Err(TuioError::Socket(e)),
+            Err(e) => {
+                for frame in tracker.lift_all() {
+                    let _ = sink.send(frame).await;
+                }
+                return Err(TuioError::Socket(e));
+            }
         };
         let frames = match tracker.push(&buffer[..len], start.elapsed().as_secs_f64()) {
             Ok(frames) => frames,

@@ -30,3 +30,10 @@ pub const MAX_TUIO_CONTACTS_PER_DATAGRAM: usize = 256;
 /// alive at once. A frame stating more is skipped whole: what the source
 /// held stays held until a frame within the limit restates it.
 pub const MAX_TUIO_HELD_PER_SOURCE: usize = 64;
+
+/// Contacts one input's forwarder keeps track of as down, over every
+/// source its frames name (a TUIO port's senders, a recording's
+/// sources), so it can lift them when the input ends however it ends:
+/// every TUIO source holding its most. Past it a down is not tracked;
+/// the input's own name is still released when it ends.
+pub const MAX_TRACKED_PER_INPUT: usize = 4096;

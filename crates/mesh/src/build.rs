@@ -33,6 +33,10 @@ pub struct MeshOptions {
     /// means [`DEFAULT_VERTICES`], or fewer for shapes so small that edges
     /// would get shorter than [`DEFAULT_MIN_EDGE`].
     pub target_vertices: Option<usize>,
+    /// Pieces of a picture (islands of opaque pixels) closer than this
+    /// many pixels are bridged into one ([`crate::join`]); none: each
+    /// piece moves on its own, with a warning.
+    pub join: Option<f64>,
 }
 
 /// Vertex count when none is asked for: enough to bend smoothly, few enough
@@ -101,7 +105,7 @@ pub struct Meshed {
 /// its rectangle, which is rarely what was meant).
 pub fn mesh_picture(path: &Path, options: &MeshOptions) -> Result<Meshed, MeshError> {
     let name = path.display().to_string();
-    let traced = trace_png(path, TRACE_DETAIL)?;
+    let traced = trace_png(path, TRACE_DETAIL, options.join)?;
     let (vertices, triangles) = build(&name, &traced.shape, options)?;
     let (w, h) = (traced.width as f64, traced.height as f64);
     let uv = vertices

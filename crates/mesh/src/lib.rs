@@ -9,6 +9,7 @@
 pub mod build;
 pub mod file;
 pub(crate) mod grid;
+pub mod join;
 pub mod json;
 pub mod numbers;
 pub mod polygon;

@@ -57,6 +57,22 @@ pub enum PictureWarning {
         /// The picture's height, in pixels.
         height: u32,
     },
+    /// The opaque pixels are several islands: each becomes a piece of the
+    /// puppet that moves on its own (a head drawn a few pixels off its
+    /// body floats away from it).
+    #[error(
+        "{file}: the picture is {pieces} separate pieces (islands of opaque pixels), and each \
+         moves on its own; to make them one puppet, join them across gaps up to {gap} pixels \
+         (`puppetry mesh --join {gap}`, or \"join pieces\" on the page) or draw them touching"
+    )]
+    Pieces {
+        /// The picture: its path, or the name given to [`trace_rgba`].
+        file: String,
+        /// How many pieces (specks left out).
+        pieces: usize,
+        /// The widest gap that joining them all must bridge, whole pixels.
+        gap: u32,
+    },
 }
 
 /// Rings enclosing less than this many square pixels are specks or pinholes:
@@ -69,11 +85,12 @@ const THRESHOLD: f64 = 32767.5;
 
 /// Reads a PNG (any colour type and bit depth; palette transparency is
 /// honoured, a picture without alpha is fully opaque) and traces it.
-/// `detail` is the simplification tolerance in pixels.
-pub fn trace_png(path: &Path, detail: f64) -> Result<Traced, MeshError> {
+/// `detail` is the simplification tolerance in pixels; `join` bridges the
+/// picture's pieces across gaps up to that many pixels ([`crate::join`]).
+pub fn trace_png(path: &Path, detail: f64, join: Option<f64>) -> Result<Traced, MeshError> {
     let name = path.display().to_string();
-    let (width, height, alpha) = read_alpha(path, &name)?;
-    trace_alpha(&name, width, height, &alpha, detail)
+    let (width, height, mut alpha) = read_alpha(path, &name)?;
+    trace_joined(&name, width, height, &mut alpha, detail, join)
 }
 
 /// Traces 8-bit RGBA pixels (row-major from the top row); `source` names the
@@ -84,6 +101,7 @@ pub fn trace_rgba(
     height: u32,
     rgba: &[u8],
     detail: f64,
+    join: Option<f64>,
 ) -> Result<Traced, MeshError> {
     let expected = width as u64 * height as u64 * 4;
     if rgba.len() as u64 != expected {
@@ -96,9 +114,59 @@ pub fn trace_rgba(
             ),
         ));
     }
-    let alpha: Vec<u16> = rgba.chunks_exact(4).map(|p| p[3] as u16 * 257).collect();
-    trace_alpha(source, width, height, &alpha, detail)
+    let mut alpha: Vec<u16> = rgba.chunks_exact(4).map(|p| p[3] as u16 * 257).collect();
+    trace_joined(source, width, height, &mut alpha, detail, join)
 }
+
+/// Traces `alpha`; when it is several pieces, bridges the gaps up to
+/// `join` pixels wide and traces again, and warns of the pieces left
+/// ([`PictureWarning::Pieces`]).
+fn trace_joined(
+    source: &str,
+    width: u32,
+    height: u32,
+    alpha: &mut [u16],
+    detail: f64,
+    join: Option<f64>,
+) -> Result<Traced, MeshError> {
+    if let Some(reach) = join
+        && !(reach.is_finite() && (0.0..=MAX_JOIN).contains(&reach))
+    {
+        return Err(invalid(
+            source,
+            "join",
+            format!("must be 0 to {MAX_JOIN} pixels, got {reach}"),
+        ));
+    }
+    let mut traced = trace_alpha(source, width, height, alpha, detail)?;
+    if traced.shape.polygons.len() < 2 {
+        return Ok(traced);
+    }
+    let opaque = |a: &[u16], i: usize| f64::from(a[i]) > THRESHOLD;
+    let mut pieces = crate::join::gaps(width, height, &|i| opaque(alpha, i));
+    if let Some(reach) = join {
+        // Thick enough to hold, as a neck holds a head: at least the gap
+        // and a fiftieth of the picture.
+        let side = f64::from(width.max(height));
+        let thickness = pieces.widest().min(reach).max(side / 50.0).max(6.0);
+        if crate::join::bridge(width, height, alpha, &pieces, reach, thickness, u16::MAX) > 0 {
+            traced = trace_alpha(source, width, height, alpha, detail)?;
+            pieces = crate::join::gaps(width, height, &|i| opaque(alpha, i));
+        }
+    }
+    if pieces.count > 1 {
+        traced.warnings.push(PictureWarning::Pieces {
+            file: source.to_string(),
+            pieces: pieces.count,
+            gap: pieces.widest().ceil() as u32,
+        });
+    }
+    Ok(traced)
+}
+
+/// The widest gap a join bridges, pixels: pieces further apart than this
+/// are not one figure.
+pub const MAX_JOIN: f64 = 512.0;
 
 fn not_png(name: &str, e: png::DecodingError) -> MeshError {
     match e {

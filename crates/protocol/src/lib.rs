@@ -449,6 +449,10 @@ wire_enum! {
     }
 }
 
+fn one_piece() -> usize {
+    1
+}
+
 /// What a client sends (text).
 #[derive(
     Debug, Clone, PartialEq, Serialize, Deserialize, strum::VariantNames, strum::IntoStaticStr,
@@ -558,6 +562,14 @@ pub enum ClientMessage {
     Reset {
         /// The puppet put back.
         puppet: u32,
+    },
+    /// Let go of everything a source holds (directors): a sender that
+    /// went silent, a stuck device, another page. Its contacts lift as if
+    /// it had gone; what it does next lands afresh.
+    Release {
+        /// The source, as handles name their owner ([`HandleView::owner`]:
+        /// `tuio:table`, `client:3`, an input's name).
+        source: String,
     },
     /// Play or pause one of the stage's replay inputs.
     Replay {
@@ -952,6 +964,15 @@ pub enum ServerMessage {
         triangles: usize,
         /// Empty when the picture was all it seemed.
         warnings: Vec<String>,
+        /// The pieces its mesh has: each moves on its own (more than one
+        /// when the picture's opaque pixels are separate islands).
+        #[serde(default = "one_piece")]
+        pieces: usize,
+        /// With more than one piece: the widest gap, in the picture's
+        /// pixels, that adding it again with `join` set to this bridges
+        /// to make one piece.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        join: Option<f64>,
     },
     /// Recording and playing now (sent to everyone on every change).
     Take(TakeState),

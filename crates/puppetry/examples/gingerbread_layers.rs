@@ -138,6 +138,7 @@ fn main() {
         };
         let options = MeshOptions {
             target_vertices: Some(part.vertices),
+            ..Default::default()
         };
         let piece = triangulate(part.name, &shape, &options).expect("each part meshes");
         let offset = vertices.len() as u32;

@@ -118,9 +118,14 @@ const JSON_FILES: &str = "a JSON file is expected here";
 /// `puppetry mesh`: a PNG (traced from its alpha) or a polygon JSON file to
 /// a `.mesh.json`. Returns the mesh and what to warn the user about the
 /// picture (a fully opaque one meshes as its rectangle).
-pub fn mesh_command(input: &Path, vertices: Option<usize>) -> Result<Meshed, CliError> {
+pub fn mesh_command(
+    input: &Path,
+    vertices: Option<usize>,
+    join: Option<f64>,
+) -> Result<Meshed, CliError> {
     let options = MeshOptions {
         target_vertices: vertices,
+        join,
     };
     // The contents decide, not the name: a PNG is meshed as a picture
     // whatever it is called, and another picture format is named as such
@@ -409,6 +414,44 @@ pub fn svg_of(mesh: &Mesh, pose: &[DVec2], targets: &[DVec2]) -> String {
     )
 }
 
+/// An SVG picture of a mesh's pieces, each filled in a colour of its own
+/// (the Okabe–Ito palette, in turn), so a person sees which parts of a
+/// picture would move apart.
+pub fn pieces_svg(mesh: &Mesh) -> String {
+    const COLOURS: [&str; 7] = [
+        "#E69F00", "#56B4E9", "#009E73", "#F0E442", "#0072B2", "#D55E00", "#CC79A7",
+    ];
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for p in mesh.vertices() {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let size = (hi - lo).max(DVec2::splat(1e-9));
+    let at = |p: DVec2| format!("{:.3},{:.3}", p.x - lo.x, hi.y - p.y);
+    let fills: String = mesh
+        .pieces()
+        .iter()
+        .enumerate()
+        .map(|(k, piece)| {
+            let mut path = String::new();
+            for &t in &piece.triangles {
+                let [a, b, c] =
+                    mesh.triangles()[t as usize].map(|i| at(mesh.vertices()[i as usize]));
+                path.push_str(&format!("M{a}L{b}L{c}Z"));
+            }
+            format!(
+                r#"<path d="{path}" fill="{}"><title>piece {}</title></path>"#,
+                COLOURS[k % COLOURS.len()],
+                k + 1
+            )
+        })
+        .collect();
+    format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {:.3} {:.3}" width="800">{fills}</svg>"#,
+        size.x, size.y
+    )
+}
+
 /// `puppetry solve`: the deformed vertices as `{"vertices": [[x, y], …]}`,
 /// and optionally an SVG picture of the result.
 pub fn solve_command(
@@ -612,6 +655,7 @@ pub fn bench_meshes(mesh: Option<&Path>, sizes: &[usize]) -> Result<Vec<(String,
         .map(|&n| {
             let options = MeshOptions {
                 target_vertices: Some(n),
+                ..MeshOptions::default()
             };
             Ok((format!("gingerbread@{n}"), mesh_png(&image, &options)?))
         })
@@ -730,6 +774,7 @@ pub fn end_to_end_stages() -> Result<Vec<(String, puppetry_daemon::config::ShowC
         &puppetry_daemon::bundled::demo_image()?,
         &MeshOptions {
             target_vertices: Some(10_000),
+            ..MeshOptions::default()
         },
     )?;
     let file =

@@ -257,6 +257,11 @@ struct MeshArgs {
     /// PICTURE.mesh.json), never replacing a file that is there.
     #[arg(short, long, value_name = "OUT.mesh.json")]
     output: Option<PathBuf>,
+    /// Join a picture's pieces (islands of opaque pixels) across gaps up to
+    /// this many pixels, so they move as one; without it each moves on its
+    /// own, and a picture of the pieces is written beside the mesh.
+    #[arg(long, value_name = "PIXELS")]
+    join: Option<f64>,
 }
 
 #[derive(clap::Args)]
@@ -485,9 +490,10 @@ fn mesh(
     input: &std::path::Path,
     vertices: Option<u32>,
     output: Option<&std::path::Path>,
+    join: Option<f64>,
 ) -> anyhow::Result<()> {
     let vertices = vertices.map(|n| n as usize);
-    let meshed = cli::mesh_command(input, vertices)?;
+    let meshed = cli::mesh_command(input, vertices, join)?;
     for warning in &meshed.warnings {
         eprintln!("warning: {warning}");
     }
@@ -515,6 +521,15 @@ fn mesh(
         mesh.triangles().len(),
         mesh.pieces().len()
     );
+    if let Some(file) = written
+        && mesh.pieces().len() > 1
+    {
+        let name = file.to_string_lossy();
+        let stem = name.strip_suffix(".mesh.json").unwrap_or(&name);
+        let picture = std::path::PathBuf::from(format!("{stem}.pieces.svg"));
+        std::fs::write(&picture, cli::pieces_svg(&mesh))?;
+        eprintln!("the pieces, each in its colour: {}", picture.display());
+    }
     Ok(())
 }
 
@@ -969,9 +984,10 @@ fn mesh_command(
         input,
         vertices,
         output,
+        join,
     }: MeshArgs,
 ) -> anyhow::Result<()> {
-    mesh(&input, vertices, output.as_deref())?;
+    mesh(&input, vertices, output.as_deref(), join)?;
     Ok(())
 }
 

@@ -60,7 +60,25 @@ pub fn takes_command(dir: &Path, verify_with: Option<&Path>) -> Result<(String, 
             if take.fresh { "" } else { "  (began mid-show)" },
         );
         if let Some(config) = &config {
-            let stage = Stage::from_config(config)?;
+            // With the puppets a director had added, which the take carries.
+            let header = match puppetry_take::TakeReader::open(&take.file) {
+                Ok(reader) => reader.header,
+                Err(e) => {
+                    ok = false;
+                    let _ = writeln!(out, "  cannot replay: {e}");
+                    continue;
+                }
+            };
+            // A puppet the take carries may be gone (its kept files
+            // deleted): that take cannot replay, the others still can.
+            let stage = match Stage::from_config(&puppetry_take::stage_config(config, &header)) {
+                Ok(stage) => stage,
+                Err(e) => {
+                    ok = false;
+                    let _ = writeln!(out, "  cannot replay: {e}");
+                    continue;
+                }
+            };
             match verify(&take.file, stage) {
                 Ok(v) => {
                     let tail = match &v.tail {

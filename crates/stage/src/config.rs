@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 use puppetry_mesh::FieldError;
 pub use puppetry_mesh::numbers::{MAX_COORDINATE, MIN_SIZE};
 use puppetry_mesh::numbers::{coordinates, exactly, pairs, some_pairs, within};
-use serde::Deserialize;
 use serde::de::IgnoredAny;
+use serde::{Deserialize, Serialize};
 
 /// Why a stage file could not be used. Each names the file, and the field
 /// where there is one, so the message says what to fix.
@@ -158,7 +158,7 @@ pub fn is_colour(text: &str) -> bool {
 
 /// One puppet: its picture and rest mesh (or, for a curve puppet, its
 /// centre line), and where it stands on the stage.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PuppetConfig {
     /// Unique within the file; pads and key files name the puppet by it.
@@ -228,7 +228,7 @@ impl PuppetConfig {
 
 /// `[puppet.curve]`: a curve puppet's centre line, in its own coordinates
 /// (y up; an SVG path's y-down coordinates are flipped), and its stroke.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CurveConfig {
     /// The centre line as points…
@@ -352,7 +352,7 @@ fn check_curve(p: &PuppetConfig) -> Result<(), (String, String)> {
 }
 
 /// `depth` of a puppet.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DepthMode {
     /// Static order by piece, adjusted on overlap every frame.
@@ -363,7 +363,7 @@ pub enum DepthMode {
 }
 
 /// Where `save_weights` writes a puppet's painted weights.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SaveWeights {
     /// A new file beside the mesh, the next free `NAME.vN.mesh.json`: the
@@ -395,7 +395,7 @@ fn one() -> f64 {
 
 /// `[puppet.grid]`: an M×N lp-FFD grid over the puppet's mesh. Weights left
 /// out are the paper's (`puppetry_deform::LpParams::default`).
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GridConfig {
     /// Grid handles along x: 2 to [`MAX_GRID_SIDE`].
@@ -425,7 +425,7 @@ pub struct GridConfig {
 }
 
 /// `basis` of a `[puppet.grid]`: how each vertex follows the grid handles.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BasisConfig {
     /// Bernstein polynomials over the whole grid, as in the paper: smooth,
@@ -439,7 +439,7 @@ pub enum BasisConfig {
 
 /// `[puppet.skeleton]`: joints (mesh coordinates) and bones
 /// (`[parent joint, child joint]`), how contacts drive them, and key poses.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkeletonConfig {
     /// Joint positions, in the mesh's own coordinates.
@@ -459,7 +459,7 @@ pub struct SkeletonConfig {
 }
 
 /// How contacts drive a skeleton.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SkeletonMode {
     /// A contact drags the joint it landed on; the others stay.
@@ -471,7 +471,7 @@ pub enum SkeletonMode {
 }
 
 /// Overrides of `puppetry_deform::SkeletonParams::default()` (the paper's).
-#[derive(Debug, Clone, Copy, Default, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Copy, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SkeletonParamsConfig {
     /// Stiffness factor of the triangles a bone crosses (default 100).
@@ -501,7 +501,7 @@ pub struct SkeletonParamsConfig {
 /// A named key pose: the rest pose with some bones turned, or any of the
 /// pose's parts given whole (`puppetry_deform::Pose`). Angles are degrees,
 /// lengths and root positions mesh units / mesh coordinates.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct KeyPoseConfig {
     /// What a `pose` request calls it: not empty, unique within the

@@ -118,8 +118,9 @@ pub enum TakeError {
 
 /// The take format's version, in every header: 2 added [`Record::Clock`]
 /// (a version 1 reader would refuse its kind as damage, so it says
-/// "newer" instead).
-pub const VERSION: u32 = 2;
+/// "newer" instead); 3 added [`PuppetInfo::added`] (a version 2 reader
+/// refuses the unknown field, so it says "newer" too).
+pub const VERSION: u32 = 3;
 
 /// A puppet as the take saw it: its rest mesh's hash tells a take of
 /// another stage, or of a mesh changed since, from a replayable one.
@@ -139,6 +140,13 @@ pub struct PuppetInfo {
     /// mesh rigged or pinned otherwise is another stage.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub setup_hash: String,
+    /// The puppet's stage-file entry, for a puppet the stage file does not
+    /// have (a picture a director added, kept in the puppets folder by
+    /// absolute path; a curve drawn on the page): so the take carries what
+    /// exporting, verifying and playing it from the command line need
+    /// ([`stage_config`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub added: Option<Box<puppetry_stage::config::PuppetConfig>>,
 }
 
 /// The first record of a take.
@@ -194,6 +202,7 @@ impl Header {
                     triangles: p.mesh.triangles().len(),
                     rest_hash: rest_hash(&p.mesh),
                     setup_hash: setup_hash(p),
+                    added: None,
                 })
                 .collect(),
             started_unix: std::time::SystemTime::now()
@@ -254,6 +263,42 @@ impl Header {
         }
         Ok(())
     }
+}
+
+/// The stage file as the take knew it, from `config` (the stage file it was
+/// recorded on): puppets added to the stage after the take was recorded
+/// are left out (with their pads), and puppets added before it, which the
+/// stage file lacks, are put back from the entries the take carries
+/// ([`PuppetInfo::added`]). Puppet ids are never reused and new puppets are
+/// appended, so the take's puppets are the first ones, names and all;
+/// anything else is left for [`Header::check_stage`] to refuse.
+pub fn stage_config<'a>(
+    config: &'a puppetry_stage::config::StageConfig,
+    header: &Header,
+) -> std::borrow::Cow<'a, puppetry_stage::config::StageConfig> {
+    let n = header.puppets.len();
+    let names_agree = header
+        .puppets
+        .iter()
+        .zip(&config.puppets)
+        .all(|(recorded, p)| recorded.name == p.name);
+    if !names_agree || config.puppets.len() == n {
+        return std::borrow::Cow::Borrowed(config);
+    }
+    let mut as_recorded = config.clone();
+    if config.puppets.len() > n {
+        as_recorded.puppets.truncate(n);
+        let kept: Vec<String> = as_recorded.puppets.iter().map(|p| p.name.clone()).collect();
+        as_recorded.pads.retain(|pad| kept.contains(&pad.puppet));
+    } else {
+        for recorded in &header.puppets[config.puppets.len()..] {
+            match &recorded.added {
+                Some(entry) => as_recorded.puppets.push((**entry).clone()),
+                None => break,
+            }
+        }
+    }
+    std::borrow::Cow::Owned(as_recorded)
 }
 
 /// The stage's lineup, bottom to top, unless it is every puppet in id

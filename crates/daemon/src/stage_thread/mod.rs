@@ -210,6 +210,10 @@ pub struct TakeSettings {
     pub dir: PathBuf,
     /// The stage file, as takes name it.
     pub stage_file: String,
+    /// How many puppets the stage file itself has: the puppets after them
+    /// (pictures brought back from the puppets folder, puppets added from
+    /// the page) are carried in the take's header, entries and all.
+    pub file_puppets: usize,
     /// Start a take with the first change (`serve --record`).
     pub record_from_first_input: bool,
     /// The daemon's clock (`pong`'s): the take state says when takes
@@ -315,11 +319,12 @@ impl StageDriver {
         let outputs: Vec<PuppetOutput> = (0..stage.puppets().len() as u32)
             .map(|id| publisher.add_puppet(&stage, id))
             .collect();
-        let (lineup_tx, lineup_rx) =
-            watch::channel(Lineup::of(&stage, outputs, 0, Arc::new(config)));
+        let config = Arc::new(config);
+        let (lineup_tx, lineup_rx) = watch::channel(Lineup::of(&stage, outputs, 0, config.clone()));
         let (state_tx, state_rx) = watch::channel(Published::nothing());
         let taking = Taking {
             settings: takes,
+            config,
             recorder: None,
             fresh: true,
             lineup_changed: false,
@@ -506,6 +511,7 @@ fn change_lineup(
             (0, None)
         }
     };
+    taking.config = config.clone();
     lineup.send_modify(|old| {
         let mut outputs = old.outputs.clone();
         outputs.extend(added);
@@ -539,6 +545,7 @@ mod tests {
         let takes = TakeSettings {
             dir: std::env::temp_dir(),
             stage_file: "demo.toml".into(),
+            file_puppets: config.puppets.len(),
             record_from_first_input: false,
             started: Instant::now(),
         };

@@ -11,6 +11,7 @@ use std::time::Instant;
 use tokio::sync::watch;
 
 use puppetry_input::Phase;
+use puppetry_stage::config::StageConfig;
 use puppetry_stage::{Change, Stage, StageEvent};
 use puppetry_take::recorder::Recorder;
 use puppetry_take::{Clock, ClockSource, Frame, Header, Record, Step};
@@ -33,6 +34,9 @@ pub struct BeingRecorded {
 /// being gathered for it, and the take state every client sees.
 pub(super) struct Taking {
     pub(super) settings: TakeSettings,
+    /// The lineup's stage file: the stage file's puppets, then those added
+    /// since, whose entries a take's header carries.
+    pub(super) config: Arc<StageConfig>,
     pub(super) recorder: Option<Recorder>,
     /// No change has reached the stage yet.
     pub(super) fresh: bool,
@@ -113,6 +117,12 @@ impl Taking {
         });
         let fresh = self.fresh && !self.lineup_changed;
         let mut header = Header::of_stage(&name, &self.settings.stage_file, stage, fresh);
+        let added = self.config.puppets.iter().enumerate();
+        for (id, entry) in added.skip(self.settings.file_puppets) {
+            if let Some(recorded) = header.puppets.get_mut(id) {
+                recorded.added = Some(Box::new(entry.clone()));
+            }
+        }
         self.overdub_of = layers.first().cloned();
         header.layers = layers;
         let recorder = Recorder::start(&self.path_of(&name), &header).map_err(|e| e.to_string())?;

@@ -854,6 +854,7 @@ async fn act(shared: &Shared, message: ClientMessage) -> Handled {
             unreachable!("answered above")
         }
         ClientMessage::Contacts { .. }
+        | ClientMessage::Release { .. }
         | ClientMessage::Pin { .. }
         | ClientMessage::DepthFlip { .. }
         | ClientMessage::Unpin { .. }

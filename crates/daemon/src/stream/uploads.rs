@@ -25,6 +25,7 @@ use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use glam::DVec2;
 use puppetry_mesh::build::{MeshOptions, mesh_picture};
+use puppetry_mesh::trace::{MAX_JOIN, PictureWarning};
 use puppetry_stage::config::{CurveConfig, PuppetConfig, StageConfig};
 use puppetry_stage::{Puppet, Stage};
 use serde::{Deserialize, Serialize};
@@ -142,7 +143,9 @@ async fn add_puppet(
         puppet,
         entry,
         warnings,
+        join,
     } = made;
+    let pieces = puppet.mesh.pieces().len();
     let (vertices, triangles) = (puppet.mesh.vertices().len(), puppet.mesh.triangles().len());
     let name = entry.name.clone();
     let files = [
@@ -159,6 +162,8 @@ async fn add_puppet(
                 vertices,
                 triangles,
                 warnings,
+                pieces,
+                join,
             })
         }
         Err(refusal) => {
@@ -219,6 +224,8 @@ struct Wanted {
     /// Where the director asked for it; none: in free stage space.
     at: Option<[f64; 2]>,
     scale: Option<f64>,
+    /// Pieces closer than this many pixels are joined into one.
+    join: Option<f64>,
 }
 
 impl Wanted {
@@ -237,11 +244,11 @@ impl Wanted {
         };
         if let Some(unknown) = query
             .keys()
-            .find(|k| !["name", "vertices", "x", "y", "scale"].contains(&k.as_str()))
+            .find(|k| !["name", "vertices", "x", "y", "scale", "join"].contains(&k.as_str()))
         {
             return Err(bad(
                 unknown,
-                format!("{unknown}: not a parameter (name, vertices, x, y, scale)"),
+                format!("{unknown}: not a parameter (name, vertices, x, y, scale, join)"),
             ));
         }
         let number = |field: &str| -> Result<Option<f64>, Refused> {
@@ -302,11 +309,21 @@ impl Wanted {
                 format!("scale: {s} must be above 0 and at most 1000"),
             ));
         }
+        let join = number("join")?;
+        if let Some(j) = join
+            && !(0.0..=MAX_JOIN).contains(&j)
+        {
+            return Err(out_of_range(
+                "join",
+                format!("join: {j} must be 0 to {MAX_JOIN} pixels"),
+            ));
+        }
         Ok(Wanted {
             name: name.to_string(),
             vertices,
             at: asked.then_some([x, y]),
             scale,
+            join,
         })
     }
 }
@@ -412,6 +429,8 @@ pub(super) async fn add_curve(
         vertices,
         triangles,
         warnings: Vec::new(),
+        pieces: 1,
+        join: None,
     })
 }
 
@@ -428,6 +447,8 @@ struct Made {
     puppet: Puppet,
     entry: PuppetConfig,
     warnings: Vec<String>,
+    /// The gap a join would bridge, when the picture is several pieces.
+    join: Option<f64>,
 }
 
 /// Keeps the picture under a free name in `dir`, meshes it, writes the
@@ -496,6 +517,7 @@ fn mesh_and_load(
         |message: String| refused(StatusCode::BAD_REQUEST, ErrorCode::BadImage, message);
     let options = MeshOptions {
         target_vertices: Some(wanted.vertices),
+        join: wanted.join,
     };
     let meshed = mesh_picture(image, &options).map_err(|e| {
         // The message names the kept file; the page knows it as its upload.
@@ -504,6 +526,10 @@ fn mesh_and_load(
                 .replace(&image.display().to_string(), "the picture"),
         )
     })?;
+    let join = meshed.warnings.iter().find_map(|w| match w {
+        PictureWarning::Pieces { gap, .. } => Some(f64::from(*gap)),
+        _ => None,
+    });
     let warnings = meshed
         .warnings
         .iter()
@@ -551,6 +577,7 @@ fn mesh_and_load(
         puppet,
         entry,
         warnings,
+        join,
     })
 }
 
@@ -651,7 +678,13 @@ enum RestoreError {
 /// does not load is logged and skipped. Blocking: meshes load here.
 /// Returns how many came back.
 pub fn restore_pictures(config: &mut StageConfig, stage: &mut Stage, dir: &Path) -> usize {
-    let Ok(entries) = std::fs::read_dir(dir) else {
+    // Absolute, as a picture added is kept: a relative path in a puppet's
+    // entry is the stage file's folder's, and the puppets folder is the
+    // working directory's (`--puppets`, default `./puppets`).
+    let Ok(dir) = std::path::absolute(dir) else {
+        return 0;
+    };
+    let Ok(entries) = std::fs::read_dir(&dir) else {
         return 0; // no folder yet: nothing was added
     };
     let mut pictures: Vec<(std::time::SystemTime, PathBuf)> = entries

@@ -611,3 +611,49 @@ async fn added_pictures_go_in_free_space_and_come_back_after_a_restart() {
     assert!(!kept.join("moon.png").exists());
     running.shutdown().await;
 }
+
+/// Issue 45: a picture with a gap between its head and body was added with
+/// a green "added", and the head floated off on its own. The answer says
+/// how many pieces it has and the join that makes one; added with that
+/// join it is one piece.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_picture_in_pieces_is_said_to_be_so_and_joins_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let split = png(160, 160, |x, y| {
+        let inside =
+            |cx: f64, cy: f64, r: f64| (x as f64 + 0.5 - cx).hypot(y as f64 + 0.5 - cy) <= r;
+        // A head 5 pixels above its body.
+        if inside(80.0, 105.0, 45.0) || inside(80.0, 35.0, 20.0) {
+            [30, 120, 200, 255]
+        } else {
+            [0, 0, 0, 0]
+        }
+    });
+    let (status, added) = post(&running, "name=split&vertices=300", &[AS_DIRECTOR], &split).await;
+    assert_eq!(status, 200, "{added}");
+    assert_eq!(added["pieces"], 2, "{added}");
+    let join = added["join"].as_f64().unwrap();
+    assert!((4.0..=8.0).contains(&join), "{added}");
+    assert!(
+        added["warnings"][0]
+            .as_str()
+            .unwrap()
+            .contains("separate pieces"),
+        "{added}"
+    );
+    let query = format!("name=joined&vertices=300&join={join}");
+    let (status, joined) = post(&running, &query, &[AS_DIRECTOR], &split).await;
+    assert_eq!(status, 200, "{joined}");
+    assert_eq!(joined["pieces"], 1, "{joined}");
+    assert_eq!(joined["warnings"].as_array().unwrap().len(), 0, "{joined}");
+    assert!(joined.get("join").is_none(), "{joined}");
+    // A join out of range is refused, naming it.
+    let (status, refused) = post(&running, "name=far&join=-1", &[AS_DIRECTOR], &split).await;
+    assert_eq!(
+        (status, refused["field"].as_str()),
+        (400, Some("join")),
+        "{refused}"
+    );
+    running.shutdown().await;
+}

@@ -127,7 +127,7 @@ token = "boss"
     );
     if let Some(file) = replay {
         text += &format!(
-            "\n[[input]]\nkind = \"replay\"\nname = \"take\"\nfile = \"{}\"\npacing = \"as_fast_as_possible\"\n",
+            "\n[[input]]\nkind = \"replay\"\nname = \"take\"\nfile = \"{}\"\n",
             file.display()
         );
     }
@@ -149,6 +149,15 @@ fn write_replay(dir: &Path, frames: &[Vec<(u32, &str, DVec2)>]) -> PathBuf {
         text += &json!({"t": k as f64 * 0.01, "source": "take", "contacts": list}).to_string();
         text.push('\n');
     }
+    // The fingers stay down until the test ends: a replay that ends lets
+    // go of what it held.
+    let held: std::collections::BTreeSet<u32> = frames.iter().flatten().map(|c| c.0).collect();
+    let ups: Vec<Value> = held
+        .iter()
+        .map(|id| json!({"id": id, "phase": "up", "x": 0.0, "y": 0.0}))
+        .collect();
+    text += &json!({"t": 600.0, "source": "take", "contacts": ups}).to_string();
+    text.push('\n');
     let path = dir.join("take.jsonl");
     std::fs::write(&path, text).unwrap();
     path

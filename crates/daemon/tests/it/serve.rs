@@ -389,16 +389,50 @@ async fn a_replay_drives_the_puppet_to_the_direct_solve() {
         let p = grab + (to - grab) * (k as f64 / 30.0);
         lines.push(json!({"t": k as f64 * 0.001, "source": "table", "contacts": [{"id": 4, "phase": "move", "x": p.x, "y": p.y}]}));
     }
+    // The finger stays there (a replay that ends lets go of what it held).
+    lines.push(json!({"t": 600.0, "source": "table", "contacts": [{"id": 4, "phase": "up", "x": to.x, "y": to.y}]}));
     let text: String = lines.iter().map(|l| format!("{l}\n")).collect();
     std::fs::write(&recording, text).unwrap();
     let extra = format!(
-        "[[input]]\nkind = \"replay\"\nfile = \"{}\"\npacing = \"as_fast_as_possible\"\n",
+        "[[input]]\nkind = \"replay\"\nfile = \"{}\"\n",
         recording.display()
     );
     let running = daemon(&extra).await;
     let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
     let expected = direct_solve(&mesh, &[(pins[0], pins[0]), (pins[1], pins[1]), (grab, to)]);
     frame_until(&mut viewer, |f| max_distance(&f.vertices, &expected) < 1e-2).await;
+    running.shutdown().await;
+}
+
+/// Issue 45: a recording that ends with a finger down (a capture cut
+/// short, a FIFO whose writer went away) left the puppet held for ever:
+/// its frames name their own source, not the replay input's. Whatever a
+/// replay left down lifts when it ends.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replay_that_ends_mid_touch_lets_go() {
+    let probe = daemon("").await;
+    let (_, stage) = connect(&probe, json!({"type": "hello", "role": "viewer"})).await;
+    probe.shutdown().await;
+    let grab = hand(&placed_mesh(&stage));
+    let dir = tempfile::tempdir().unwrap();
+    let recording = dir.path().join("cut.jsonl");
+    // Nothing for two seconds (the viewer connects), a finger held for
+    // one, and the file ends.
+    let lines = [
+        json!({"t": 0.0, "source": "table", "contacts": []}),
+        json!({"t": 2.0, "source": "table", "contacts": [{"id": 4, "phase": "down", "x": grab.x, "y": grab.y}]}),
+        json!({"t": 3.0, "source": "table", "contacts": [{"id": 4, "phase": "move", "x": grab.x, "y": grab.y + 20.0}]}),
+    ];
+    let text: String = lines.iter().map(|l| format!("{l}\n")).collect();
+    std::fs::write(&recording, text).unwrap();
+    let extra = format!(
+        "[[input]]\nkind = \"replay\"\nfile = \"{}\"\nname = \"cut\"\n",
+        recording.display()
+    );
+    let running = daemon(&extra).await;
+    let (mut viewer, _) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    until_contact_owners(&mut viewer, |o| o == ["table"]).await;
+    until_contact_owners(&mut viewer, |o| o.is_empty()).await;
     running.shutdown().await;
 }
 
@@ -587,6 +621,49 @@ async fn a_tuio_table_over_udp_grabs_and_lets_go() {
         .await
         .unwrap();
     until_contact_owners(&mut viewer, |o| o.is_empty()).await;
+    running.shutdown().await;
+}
+
+/// Issue 45: a TUIO sender that died mid-touch (no empty alive set, no
+/// more datagrams) held the puppet for ever; past its `release_after_s`
+/// it is let go.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tuio_sender_that_dies_mid_touch_is_let_go() {
+    let running =
+        daemon("[[input]]\nkind = \"tuio\"\nlisten = \"127.0.0.1:0\"\nrelease_after_s = 0.3\n")
+            .await;
+    let table = running.tuio_addresses[0];
+    let (mut viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let grab = hand(&placed_mesh(&stage));
+    let (x, y) = ((grab.x / 1280.0) as f32, (1.0 - grab.y / 720.0) as f32);
+    let udp = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let down = crate::common::tuio::v1(Some("table"), &[5], &[(5, x, y)], 1);
+    udp.send_to(&down, table).await.unwrap();
+    until_contact_owners(&mut viewer, |o| o == ["tuio:table"]).await;
+    drop(udp);
+    until_contact_owners(&mut viewer, |o| o.is_empty()).await;
+    running.shutdown().await;
+}
+
+/// Issue 45: a pad whose firmware hangs with the port open let go only
+/// when the port closed; silent past its `release_after_s` while holding,
+/// it lets go.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_serial_pad_that_hangs_holding_a_contact_is_let_go() {
+    use std::io::Write;
+    let mut pad = crate::common::pty::open_pty();
+    let extra = format!(
+        "[[input]]\nkind = \"serial\"\npath = \"{}\"\nformat = \"csv\"\nname = \"pad\"\nrelease_after_s = 0.3\n",
+        pad.path
+    );
+    let running = daemon(&extra).await;
+    let (mut viewer, stage) = connect(&running, json!({"type": "hello", "role": "viewer"})).await;
+    let grab = hand(&placed_mesh(&stage));
+    write!(pad.master, "1,d,{},{}\nf\n", grab.x, grab.y).unwrap();
+    until_contact_owners(&mut viewer, |o| o == ["pad"]).await;
+    // The port stays open (the pty is kept), and nothing more comes.
+    until_contact_owners(&mut viewer, |o| o.is_empty()).await;
+    drop(pad);
     running.shutdown().await;
 }
 

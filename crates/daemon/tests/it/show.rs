@@ -185,6 +185,7 @@ impl Show {
         let takes = TakeSettings {
             dir: dir.path().to_path_buf(),
             stage_file: config.file.clone(),
+            file_puppets: config.puppets.len(),
             record_from_first_input,
             started: std::time::Instant::now(),
         };

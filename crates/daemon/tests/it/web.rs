@@ -253,3 +253,39 @@ async fn an_arm_folded_over_the_body_is_drawn_over_it() {
     let near = pixels["near"].as_u64().unwrap();
     assert!(telling >= 30 && near * 10 >= telling * 9, "{summary}");
 }
+
+/// Issue 45: a TUIO sender that died mid-touch held the puppet, and no one
+/// could see it (it is no person) or let it go. Every page's people list
+/// shows it holding one contact; the director's "×" lets it go and its
+/// handle leaves every page.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_director_sees_a_silent_sender_holding_the_puppet_and_lets_it_go() {
+    if !browser::enabled("a_director_sees_a_silent_sender_holding_the_puppet_and_lets_it_go") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let stage = dir.path().join("tuio.toml");
+    // It would let go by itself only after an hour.
+    let extra = "[[input]]\nkind = \"tuio\"\nlisten = \"127.0.0.1:0\"\nrelease_after_s = 3600\n";
+    std::fs::write(&stage, crate::common::daemon::stage_text(extra)).unwrap();
+    let sender = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let env = [("PUPPETRY_HOLDER", "tuio:table")];
+    let prepare = async |running: &puppetry_daemon::serve::Running| {
+        // On the puppet's belly (TUIO is 0..1, y down, over the stage).
+        let down = crate::common::tuio::v1(Some("table"), &[5], &[(5, 0.5, 0.5)], 1);
+        sender
+            .send_to(&down, running.tuio_addresses[0])
+            .await
+            .unwrap();
+    };
+    let run = browser::run_page_prepared(
+        &stage,
+        "?role=director&token=boss",
+        "release.mjs",
+        "640,360",
+        &env,
+        prepare,
+    )
+    .await;
+    assert_eq!(run.summary["after"], 0, "{}", run.summary);
+}

@@ -28,4 +28,7 @@ async fn a_director_adds_reorders_and_removes_puppets_from_the_page() {
     assert_eq!(summary["badImage"]["code"], "bad_image", "{summary}");
     assert_eq!(summary["performerUpload"]["code"], "forbidden", "{summary}");
     assert_eq!(summary["after"], summary["before"], "{summary}");
+    // Issue 45: a picture in two pieces said so, and joined into one.
+    assert_eq!(summary["split"]["pieces"], 2, "{summary}");
+    assert_eq!(summary["joined"]["pieces"], 1, "{summary}");
 }

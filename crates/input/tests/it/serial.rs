@@ -12,7 +12,7 @@ use crate::common::pty::open_pty;
 
 use glam::DVec2;
 use puppetry_input::serial::{
-    MAX_RECORD, SerialDecoder, SerialError, WireFormat, run_port, run_stream,
+    MAX_RECORD, RELEASE_AFTER, SerialDecoder, SerialError, WireFormat, run_port, run_stream,
 };
 use puppetry_input::{Calibration, CalibrationSpec, Contact, ContactFrame, Phase};
 use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
@@ -411,7 +411,12 @@ async fn run_stream_sends_frames_and_lifts_all_at_end_of_stream() {
     let (mut device, port) = tokio::io::duplex(4096);
     // A capacity-1 sink: the reader must wait for it, not drop frames.
     let (tx, mut rx) = mpsc::channel(1);
-    let task = tokio::spawn(run_stream(port, decoder(WireFormat::Csv), tx));
+    let task = tokio::spawn(run_stream(
+        port,
+        decoder(WireFormat::Csv),
+        RELEASE_AFTER,
+        tx,
+    ));
     let mut script = String::new();
     for i in 0..20 {
         script.push_str(&format!("{i},d,0,0\nf\n"));
@@ -445,7 +450,12 @@ async fn run_stream_sends_frames_and_lifts_all_at_end_of_stream() {
 async fn run_stream_returns_ok_when_the_sink_closes() {
     let (_device, port) = tokio::io::duplex(64);
     let (tx, rx) = mpsc::channel(1);
-    let task = tokio::spawn(run_stream(port, decoder(WireFormat::Csv), tx));
+    let task = tokio::spawn(run_stream(
+        port,
+        decoder(WireFormat::Csv),
+        RELEASE_AFTER,
+        tx,
+    ));
     drop(rx);
     let result = tokio::time::timeout(Duration::from_secs(20), task)
         .await
@@ -457,7 +467,14 @@ async fn run_stream_returns_ok_when_the_sink_closes() {
 #[tokio::test]
 async fn run_port_refuses_a_missing_port() {
     let (tx, _rx) = mpsc::channel(1);
-    let result = run_port("/nonexistent/ttyPAD", 115_200, decoder(WireFormat::Csv), tx).await;
+    let result = run_port(
+        "/nonexistent/ttyPAD",
+        115_200,
+        decoder(WireFormat::Csv),
+        RELEASE_AFTER,
+        tx,
+    )
+    .await;
     match result {
         Err(e @ SerialError::Open { .. }) => {
             assert!(e.to_string().contains("/nonexistent/ttyPAD"), "{e}")
@@ -472,8 +489,9 @@ async fn run_port_reads_a_pty_and_lifts_all_when_it_hangs_up() {
     let mut pty = open_pty();
     let (tx, mut rx) = mpsc::channel(4);
     let path = pty.path.clone();
-    let task =
-        tokio::spawn(async move { run_port(&path, 115_200, decoder(WireFormat::Csv), tx).await });
+    let task = tokio::spawn(async move {
+        run_port(&path, 115_200, decoder(WireFormat::Csv), RELEASE_AFTER, tx).await
+    });
     pty.master
         .write_all(b"1,d,250,250\n2,d,0,0\nf\n1,m,500,250\nf\n")
         .unwrap();
@@ -506,4 +524,39 @@ async fn run_port_reads_a_pty_and_lifts_all_when_it_hangs_up() {
         matches!(result, Err(SerialError::Read(_) | SerialError::Closed)),
         "{result:?}"
     );
+}
+
+// On tokio's paused clock: the silences are exact, whatever the machine's
+// load.
+#[tokio::test(start_paused = true)]
+async fn a_pad_that_falls_silent_holding_a_contact_lets_go_and_lands_again_when_it_speaks() {
+    let (mut device, port) = tokio::io::duplex(4096);
+    let (tx, mut rx) = mpsc::channel(4);
+    let silence = Duration::from_millis(200);
+    let task = tokio::spawn(run_stream(port, decoder(WireFormat::Csv), silence, tx));
+    // Empty frames are the pad saying it is alive: a contact held still
+    // stays down however long they keep coming.
+    device.write_all(b"1,d,250,250\nf\n").await.unwrap();
+    assert_eq!(recv(&mut rx).await.contacts[0].phase, Phase::Down);
+    for _ in 0..6 {
+        tokio::time::sleep(silence / 2).await;
+        device.write_all(b"f\n").await.unwrap();
+    }
+    assert!(
+        rx.try_recv().is_err(),
+        "a pad that says it is alive holds on"
+    );
+    // Then the firmware hangs with the port still open: let go.
+    let lifted = recv(&mut rx).await;
+    assert_eq!(lifted.contacts, vec![contact(1, Phase::Up, 50.0, 75.0)]);
+    // It speaks again: the contact lands again, it does not move a grab
+    // that is gone.
+    device.write_all(b"1,m,500,250\nf\n").await.unwrap();
+    assert_eq!(
+        recv(&mut rx).await.contacts,
+        vec![contact(1, Phase::Down, 100.0, 75.0)]
+    );
+    drop(rx);
+    drop(device);
+    let _ = tokio::time::timeout(Duration::from_secs(20), task).await;
 }

@@ -318,7 +318,12 @@ async fn udp_loopback_survives_alost_datagram() {
     let server = UdpSocket::bind("127.0.0.1:0").await.unwrap();
     let addr = server.local_addr().unwrap();
     let (tx, mut rx) = mpsc::channel(2);
-    let task = tokio::spawn(run_udp(server, default_calibration(STAGE).unwrap(), tx));
+    let task = tokio::spawn(run_udp(
+        server,
+        default_calibration(STAGE).unwrap(),
+        puppetry_input::tuio::RELEASE_AFTER,
+        tx,
+    ));
     let client = UdpSocket::bind("127.0.0.1:0").await.unwrap();
 
     client
@@ -368,4 +373,66 @@ async fn udp_loopback_survives_alost_datagram() {
         .expect("run_udp ends once the sink closes")
         .unwrap();
     assert!(ended.is_ok(), "{ended:?}");
+}
+
+#[test]
+fn a_source_silent_past_its_timeout_lets_go_and_lands_afresh_when_it_returns() {
+    let mut t = tracker();
+    one(t
+        .push(&v1(Some("s0"), &[1], &[(1, 0.25, 0.25)], 1), 0.0)
+        .unwrap());
+    one(t
+        .push(&v1(Some("s1"), &[2], &[(2, 0.75, 0.75)], 1), 0.0)
+        .unwrap());
+    // s1 restates its state (nothing new, so no frame): it is alive.
+    assert!(
+        t.push(&v1(Some("s1"), &[2], &[(2, 0.75, 0.75)], 2), 2.0)
+            .unwrap()
+            .is_empty()
+    );
+    assert!(t.expire(2.5, 3.0).is_empty(), "no one silent for 3 s yet");
+    let lifted = t.expire(3.5, 3.0);
+    assert_eq!(lifted.len(), 1, "only s0 fell silent: {lifted:?}");
+    assert_eq!(lifted[0].source.as_str(), "tuio:s0");
+    assert_eq!(lifted[0].contacts, vec![contact(1, Phase::Up, 50.0, 75.0)]);
+    // Back, even with an old frame number: a new session, its contact lands.
+    let back = one(t
+        .push(&v1(Some("s0"), &[1], &[(1, 0.5, 0.5)], 1), 4.0)
+        .unwrap());
+    assert_eq!(back.contacts, vec![contact(1, Phase::Down, 100.0, 50.0)]);
+    // What is left lifts when the loop ends.
+    let all = t.lift_all();
+    assert_eq!(all.len(), 2);
+    assert!(
+        all.iter()
+            .all(|f| f.contacts.iter().all(|c| c.phase == Phase::Up))
+    );
+    assert!(!t.holds());
+}
+
+#[tokio::test]
+async fn udp_a_sender_that_dies_mid_touch_is_let_go() {
+    let server = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let addr = server.local_addr().unwrap();
+    let (tx, mut rx) = mpsc::channel(2);
+    let silence = Duration::from_millis(300);
+    let task = tokio::spawn(run_udp(
+        server,
+        default_calibration(STAGE).unwrap(),
+        silence,
+        tx,
+    ));
+    let client = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    client
+        .send_to(&v1(Some("table"), &[7], &[(7, 0.25, 0.25)], 1), addr)
+        .await
+        .unwrap();
+    assert_eq!(next(&mut rx).await.contacts[0].phase, Phase::Down);
+    // The sender is gone without a goodbye (no empty alive set).
+    drop(client);
+    let lifted = next(&mut rx).await;
+    assert_eq!(lifted.source.as_str(), "tuio:table");
+    assert_eq!(lifted.contacts, vec![contact(7, Phase::Up, 50.0, 75.0)]);
+    drop(rx);
+    let _ = tokio::time::timeout(WAIT, task).await;
 }

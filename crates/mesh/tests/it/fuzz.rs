@@ -60,6 +60,7 @@ fn check_picture(bytes: &[u8]) {
     std::fs::write(&file, bytes).unwrap();
     let options = puppetry_mesh::build::MeshOptions {
         target_vertices: Some(60),
+        ..Default::default()
     };
     match puppetry_mesh::build::mesh_picture(&file, &options) {
         Ok(meshed) => assert!(meshed.mesh.vertices().iter().all(|v| v.is_finite())),
@@ -93,6 +94,7 @@ fn check_shape(text: &str) {
             // cover large ones.
             let options = puppetry_mesh::build::MeshOptions {
                 target_vertices: Some(40),
+                ..Default::default()
             };
             if let Err(e) = puppetry_mesh::build::triangulate("fuzz.json", &shape, &options) {
                 check_error(&e);

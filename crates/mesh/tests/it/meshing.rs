@@ -33,6 +33,7 @@ fn demo_png() -> PathBuf {
 fn target(n: usize) -> MeshOptions {
     MeshOptions {
         target_vertices: Some(n),
+        ..Default::default()
     }
 }
 
@@ -322,10 +323,10 @@ fn traced_disc_is_round_and_y_up() {
     // A disc near the top-left corner of a 100×80 picture.
     let (cx, cy, r) = (30.0, 25.0, 18.0);
     let rgba = picture(100, 80, |x, y| disc_alpha(x, y, cx, cy, r));
-    let traced = trace_rgba("disc", 100, 80, &rgba, 0.3).unwrap();
+    let traced = trace_rgba("disc", 100, 80, &rgba, 0.3, None).unwrap();
     assert_eq!((traced.width, traced.height), (100, 80));
     assert_eq!(traced.warnings, [], "a cut-out figure is what is wanted");
-    let solid = trace_rgba("solid", 10, 10, &[255; 400], 0.3).unwrap();
+    let solid = trace_rgba("solid", 10, 10, &[255; 400], 0.3, None).unwrap();
     assert!(
         matches!(&solid.warnings[..], [PictureWarning::FullyOpaque { file, .. }] if file == "solid"),
         "{:?}",
@@ -357,7 +358,7 @@ fn traced_ring_has_a_hole() {
         let inner = disc_alpha(x, y, 60.0, 60.0, 20.0);
         outer.saturating_sub(inner)
     });
-    let traced = trace_rgba("ring", 120, 120, &rgba, 0.5).unwrap();
+    let traced = trace_rgba("ring", 120, 120, &rgba, 0.5, None).unwrap();
     assert_eq!(traced.shape.polygons.len(), 1);
     let polygon = &traced.shape.polygons[0];
     assert_eq!(polygon.holes.len(), 1);
@@ -381,7 +382,7 @@ fn two_blobs_and_an_island_in_a_hole_are_separate_pieces() {
         let right = disc_alpha(x, y, 150.0, 50.0, 30.0);
         left.max(right)
     });
-    let traced = trace_rgba("blobs", 200, 100, &rgba, 0.5).unwrap();
+    let traced = trace_rgba("blobs", 200, 100, &rgba, 0.5, None).unwrap();
     assert_eq!(traced.shape.polygons.len(), 3);
     let holes: usize = traced.shape.polygons.iter().map(|p| p.holes.len()).sum();
     assert_eq!(holes, 1);
@@ -391,9 +392,41 @@ fn two_blobs_and_an_island_in_a_hole_are_separate_pieces() {
     let two = picture(200, 100, |x, y| {
         disc_alpha(x, y, 50.0, 50.0, 40.0).max(disc_alpha(x, y, 150.0, 50.0, 30.0))
     });
-    let traced = trace_rgba("two", 200, 100, &two, 0.5).unwrap();
+    let traced = trace_rgba("two", 200, 100, &two, 0.5, None).unwrap();
     let mesh = triangulate("two", &traced.shape, &target(500)).unwrap();
     assert_eq!(mesh.pieces().len(), 2);
+}
+
+/// Issue 45: a head drawn 4 pixels off its body became a piece of its own
+/// without a word, and floated off. The tracer says how many pieces and
+/// how wide a gap joins them; joined across that gap they mesh as one
+/// (and a join too short leaves them apart, still said).
+#[test]
+fn a_picture_in_pieces_says_so_and_joins_across_its_gap() {
+    let figure = picture(200, 200, |x, y| {
+        // A body of radius 60 and a head of radius 25 whose edges are 4
+        // pixels apart.
+        disc_alpha(x, y, 100.0, 70.0, 60.0).max(disc_alpha(x, y, 100.0, 159.0, 25.0))
+    });
+    let traced = trace_rgba("figure", 200, 200, &figure, 0.5, None).unwrap();
+    let Some(PictureWarning::Pieces { pieces, gap, .. }) = traced.warnings.first() else {
+        panic!("no warning of the pieces: {:?}", traced.warnings);
+    };
+    assert_eq!(*pieces, 2);
+    assert!((3..=6).contains(gap), "the gap is {gap} pixels");
+    let short = trace_rgba("figure", 200, 200, &figure, 0.5, Some(1.0)).unwrap();
+    assert_eq!(short.shape.polygons.len(), 2, "a join shorter than the gap");
+    assert_eq!(short.warnings.len(), 1);
+    let joined = trace_rgba("figure", 200, 200, &figure, 0.5, Some(f64::from(*gap))).unwrap();
+    assert!(joined.warnings.is_empty(), "{:?}", joined.warnings);
+    let mesh = triangulate("figure", &joined.shape, &target(600)).unwrap();
+    assert_eq!(mesh.pieces().len(), 1);
+    // The message says what to do.
+    let said = traced.warnings[0].to_string();
+    assert!(
+        said.contains("2 separate pieces") && said.contains("--join"),
+        "{said}"
+    );
 }
 
 #[test]
@@ -414,7 +447,7 @@ fn diagonal_pixels_and_noise_trace_to_valid_shapes() {
                 0
             }
         });
-        let traced = trace_rgba("saddle", 20, 20, &rgba, 0.0).unwrap();
+        let traced = trace_rgba("saddle", 20, 20, &rgba, 0.0, None).unwrap();
         traced.shape.validate("saddle").unwrap();
         assert_eq!(traced.shape.polygons.len(), polygons);
         let mesh = triangulate("saddle", &traced.shape, &target(80)).unwrap();
@@ -435,7 +468,7 @@ fn diagonal_pixels_and_noise_trace_to_valid_shapes() {
         noise[(y as usize / 2) * 64 + x as usize / 2]
     });
     for detail in [0.0, 0.7, 3.0] {
-        let traced = trace_rgba("noise", 128, 128, &rgba, detail).unwrap();
+        let traced = trace_rgba("noise", 128, 128, &rgba, detail, None).unwrap();
         traced.shape.validate("noise").unwrap();
         assert!(traced.shape.polygons.len() > 5);
         let mesh = triangulate("noise", &traced.shape, &target(3000)).unwrap();
@@ -446,8 +479,8 @@ fn diagonal_pixels_and_noise_trace_to_valid_shapes() {
 #[test]
 fn larger_detail_means_fewer_outline_points() {
     let rgba = picture(200, 200, |x, y| disc_alpha(x, y, 100.0, 100.0, 80.0));
-    let fine = trace_rgba("disc", 200, 200, &rgba, 0.1).unwrap();
-    let coarse = trace_rgba("disc", 200, 200, &rgba, 2.0).unwrap();
+    let fine = trace_rgba("disc", 200, 200, &rgba, 0.1, None).unwrap();
+    let coarse = trace_rgba("disc", 200, 200, &rgba, 2.0, None).unwrap();
     let n_fine = fine.shape.polygons[0].outer.len();
     let n_coarse = coarse.shape.polygons[0].outer.len();
     assert!(n_coarse * 3 < n_fine, "{n_coarse} vs {n_fine}");
@@ -467,7 +500,7 @@ fn specks_and_pinholes_are_dropped() {
             body
         }
     });
-    let traced = trace_rgba("specks", 100, 100, &rgba, 0.5).unwrap();
+    let traced = trace_rgba("specks", 100, 100, &rgba, 0.5, None).unwrap();
     assert_eq!(traced.shape.polygons.len(), 1);
     assert!(traced.shape.polygons[0].holes.is_empty());
 }
@@ -486,7 +519,7 @@ fn picture_without_alpha_is_a_rectangle() {
         &rgb,
         None,
     );
-    let traced = trace_png(&path, 0.5).unwrap();
+    let traced = trace_png(&path, 0.5, None).unwrap();
     assert_eq!(traced.shape.polygons.len(), 1);
     let outer = &traced.shape.polygons[0].outer;
     assert!((signed_area(outer) - (w * h) as f64).abs() < 1e-9);
@@ -559,7 +592,7 @@ fn png_colour_types_and_depths_decode_alpha() {
         Some((&plte, &trns)),
     );
     for path in [&p16, &p8] {
-        let traced = trace_png(path, 0.3).unwrap();
+        let traced = trace_png(path, 0.3, None).unwrap();
         assert_eq!(traced.shape.polygons.len(), 1, "{}", path.display());
         let area = signed_area(&traced.shape.polygons[0].outer);
         let want = PI * 400.0;
@@ -756,7 +789,7 @@ fn non_finite_coordinates_are_rejected_through_the_api() {
 fn picture_with_nothing_opaque_is_rejected() {
     let rgba = picture(32, 32, |_, _| 100); // below 50% everywhere
     let (file, field, problem) =
-        invalid_parts(trace_rgba("faint", 32, 32, &rgba, 0.5).unwrap_err());
+        invalid_parts(trace_rgba("faint", 32, 32, &rgba, 0.5, None).unwrap_err());
     assert_eq!((file.as_str(), field.as_str()), ("faint", "alpha"));
     assert!(problem.contains("no pixel is opaque"), "{problem}");
 
@@ -777,13 +810,14 @@ fn picture_with_nothing_opaque_is_rejected() {
 
     let specks = picture(32, 32, |x, y| if x < 1.0 && y < 1.0 { 255 } else { 0 });
     let (_, field, problem) =
-        invalid_parts(trace_rgba("specks", 32, 32, &specks, 0.5).unwrap_err());
+        invalid_parts(trace_rgba("specks", 32, 32, &specks, 0.5, None).unwrap_err());
     assert_eq!(field, "alpha");
     assert!(problem.contains("specks"), "{problem}");
 
-    let (_, field, _) = invalid_parts(trace_rgba("short", 4, 4, &[0; 10], 0.5).unwrap_err());
+    let (_, field, _) = invalid_parts(trace_rgba("short", 4, 4, &[0; 10], 0.5, None).unwrap_err());
     assert_eq!(field, "rgba");
-    let (_, field, _) = invalid_parts(trace_rgba("nan", 4, 4, &[255; 64], f64::NAN).unwrap_err());
+    let (_, field, _) =
+        invalid_parts(trace_rgba("nan", 4, 4, &[255; 64], f64::NAN, None).unwrap_err());
     assert_eq!(field, "detail");
 }
 
@@ -812,12 +846,12 @@ fn unreadable_files_are_io_errors_naming_the_file() {
     );
     let bytes = std::fs::read(&good).unwrap();
     std::fs::write(&good, &bytes[..40]).unwrap();
-    let e = trace_png(&good, 0.5).unwrap_err();
+    let e = trace_png(&good, 0.5, None).unwrap_err();
     assert!(matches!(e, MeshError::Io { .. }), "{e:?}");
     std::fs::remove_file(&good).ok();
 
     let missing = temp_path("missing.png");
-    let e = trace_png(&missing, 0.5).unwrap_err();
+    let e = trace_png(&missing, 0.5, None).unwrap_err();
     assert!(matches!(e, MeshError::Io { .. }), "{e:?}");
     assert!(e.to_string().contains(&missing.display().to_string()));
 }

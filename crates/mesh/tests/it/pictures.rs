@@ -70,7 +70,7 @@ fn a_png_claiming_16384_squared_pixels_is_refused_from_its_header() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("bomb.png");
     header_only_png(&path, 16384, 16384);
-    let error = trace_png(&path, 1.0).unwrap_err();
+    let error = trace_png(&path, 1.0, None).unwrap_err();
     assert!(
         size_problem(&error).contains("MAX_PICTURE_PIXELS"),
         "{error}"
@@ -80,7 +80,7 @@ fn a_png_claiming_16384_squared_pixels_is_refused_from_its_header() {
         "{error}"
     );
     header_only_png(&path, 40_000, 2);
-    let error = trace_png(&path, 1.0).unwrap_err();
+    let error = trace_png(&path, 1.0, None).unwrap_err();
     assert!(size_problem(&error).contains("MAX_PICTURE_SIDE"), "{error}");
 }
 
@@ -94,7 +94,7 @@ fn a_checkerboard_outline_is_refused_before_its_segments_fill_memory() {
             [0, 0, 0, a]
         })
         .collect();
-    let error = trace_rgba("board", side, side, &rgba, 1.0).unwrap_err();
+    let error = trace_rgba("board", side, side, &rgba, 1.0, None).unwrap_err();
     assert!(
         error.to_string().contains("MAX_OUTLINE_SEGMENTS"),
         "{error}"

@@ -126,6 +126,66 @@ fn mesh_builds_the_demo_puppet_and_solve_runs_it() {
     assert!(moved > 40.0, "the dragged hand moved {moved}");
 }
 
+/// Issue 45: a picture with a head drawn 4 pixels off its body meshed into
+/// two pieces with nothing said, and the head floated off. `puppetry mesh`
+/// says how many pieces and the join that makes them one, draws the pieces
+/// beside the mesh, and `--join` makes one piece.
+#[test]
+fn mesh_says_a_picture_is_in_pieces_draws_them_and_joins_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (200u32, 200u32);
+    let mut png_bytes = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut png_bytes, w, h);
+        encoder.set_color(png::ColorType::Rgba);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().unwrap();
+        let inside = |x: f64, y: f64, cx: f64, cy: f64, r: f64| (x - cx).hypot(y - cy) <= r;
+        let pixels: Vec<u8> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x as f64 + 0.5, y as f64 + 0.5)))
+            .flat_map(|(x, y)| {
+                // A head of radius 25 four pixels above a body of radius 60.
+                if inside(x, y, 100.0, 130.0, 60.0) || inside(x, y, 100.0, 41.0, 25.0) {
+                    [200, 60, 30, 255]
+                } else {
+                    [0, 0, 0, 0]
+                }
+            })
+            .collect();
+        writer.write_image_data(&pixels).unwrap();
+    }
+    let picture = scratch(&dir, "figure.png", &png_bytes);
+    let out = puppetry(&["mesh", picture.to_str().unwrap(), "--vertices", "400"]);
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{said}");
+    assert!(said.contains("2 separate pieces"), "{said}");
+    assert!(said.contains("2 piece(s)"), "{said}");
+    let svg = std::fs::read_to_string(dir.path().join("figure.pieces.svg")).unwrap();
+    assert_eq!(svg.matches("<path").count(), 2, "one shape per piece");
+    let gap: u32 = said
+        .split("--join ")
+        .nth(1)
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no join in {said}"));
+    let joined = scratch(&dir, "joined.mesh.json", b"");
+    let out = puppetry(&[
+        "mesh",
+        picture.to_str().unwrap(),
+        "--vertices",
+        "400",
+        "--join",
+        &gap.to_string(),
+        "-o",
+        joined.to_str().unwrap(),
+    ]);
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{said}");
+    assert!(!said.contains("separate pieces"), "{said}");
+    assert_eq!(Mesh::load(&joined).unwrap().pieces().len(), 1);
+    assert!(!dir.path().join("joined.pieces.svg").exists());
+}
+
 /// Runs puppetry, expects failure, and returns its error message.
 fn failure(args: &[&str]) -> String {
     let out = puppetry(args);

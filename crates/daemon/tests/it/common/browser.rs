@@ -87,6 +87,19 @@ pub async fn run_page_on(
     point: &str,
     env: &[(&str, &str)],
 ) -> PageRun {
+    run_page_prepared(stage, query, script, point, env, async |_| {}).await
+}
+
+/// As [`run_page_on`], with `prepare` done to the running daemon before
+/// the script starts (a device's datagram sent, say).
+pub async fn run_page_prepared(
+    stage: &Path,
+    query: &str,
+    script: &str,
+    point: &str,
+    env: &[(&str, &str)],
+    prepare: impl AsyncFnOnce(&puppetry_daemon::serve::Running),
+) -> PageRun {
     let root = puppetry_testkit::root();
     let node_modules = root.join("tests/web/node_modules");
     check_tools(&node_modules);
@@ -97,6 +110,7 @@ pub async fn run_page_on(
     options.takes_dir = takes.path().to_path_buf();
     options.puppets_dir = takes.path().join("puppets");
     let running = start_with(&config, options).await.unwrap();
+    prepare(&running).await;
     let url = format!("http://{}/{query}", running.address);
     let script = root.join("tests/web").join(script);
     let point = point.to_string();

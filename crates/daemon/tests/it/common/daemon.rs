@@ -158,7 +158,12 @@ pub async fn frame_until(ws: &mut Client, mut done: impl FnMut(&Frame) -> bool) 
 
 /// The puppet's rest mesh as placed on the stage, from the stage message.
 pub fn placed_mesh(stage: &Value) -> Mesh {
-    let p = &stage["puppets"][0];
+    puppet_mesh(stage, 0)
+}
+
+/// The rest mesh of the stage message's `index`-th puppet, as placed.
+pub fn puppet_mesh(stage: &Value, index: usize) -> Mesh {
+    let p = &stage["puppets"][index];
     let rest: Vec<f64> = serde_json::from_value(p["rest"].clone()).unwrap();
     let triangles: Vec<u32> = serde_json::from_value(p["triangles"].clone()).unwrap();
     let vertices = rest.chunks(2).map(|c| DVec2::new(c[0], c[1])).collect();
@@ -192,12 +197,17 @@ pub fn contact_owners(m: &Value) -> Vec<String> {
 
 /// Reads until a "handles" message whose contact owners satisfy `done`.
 pub async fn until_contact_owners(ws: &mut Client, done: impl Fn(&[String]) -> bool) {
-    loop {
-        let m = next_text(ws).await;
-        if m["type"] == "handles" && done(&contact_owners(&m)) {
-            return;
+    let waited = tokio::time::timeout(PLAYS, async {
+        loop {
+            let m = next_text(ws).await;
+            if m["type"] == "handles" && done(&contact_owners(&m)) {
+                return;
+            }
         }
-    }
+    });
+    waited
+        .await
+        .expect("the contact handles waited for, within the wait");
 }
 
 /// Where the material point that lay at `rest_point` is in a frame. Handles
