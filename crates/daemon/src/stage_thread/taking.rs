@@ -126,6 +126,10 @@ impl Taking {
         self.overdub_of = layers.first().cloned();
         header.layers = layers;
         let recorder = Recorder::start(&self.path_of(&name), &header).map_err(|e| e.to_string())?;
+        if !fresh && let Err(e) = opening_frames(&recorder, stage) {
+            let _ = recorder.finish(&e.to_string());
+            return Err(e.to_string());
+        }
         tracing::info!("take {name}: recording to {}", recorder.path().display());
         self.recorder = Some(recorder);
         self.error = None;
@@ -327,6 +331,27 @@ impl Taking {
         self.error = Some(reason);
         true
     }
+}
+
+/// Opens a take begun mid-show with the stage as the audience saw it: an
+/// empty step at 0 s and every puppet on stage in its current pose. A
+/// reader of the take (an export, the page's playback) starts from a
+/// stage fresh from its file, so without them a take's first frames would
+/// be the rest pose until each puppet next moved. A fresh take needs none:
+/// its replay starts where the stage did.
+fn opening_frames(
+    recorder: &Recorder,
+    stage: &Stage,
+) -> Result<(), puppetry_take::recorder::RecordError> {
+    recorder.record(Record::Step(Step {
+        t: 0.0,
+        changes: Vec::new(),
+        events: Vec::new(),
+    }))?;
+    for puppet in stage.on_stage() {
+        recorder.record(Record::Frame(Frame::of_pose(puppet.id, 0.0, puppet.pose())))?;
+    }
+    Ok(())
 }
 
 /// Where the show's clock is, as an input heard it (MIDI Time Code, MIDI

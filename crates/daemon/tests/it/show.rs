@@ -13,8 +13,11 @@
 //! After every step: every vertex finite and within ten times the stage's
 //! size; once no finger is down and no take plays, no contact handle and
 //! nothing a played take held remains; when a take ends, nothing of it
-//! remains. At the end every take reads to its end intact, and every take
-//! that began on a fresh stage replays bit for bit (`takes --verify`).
+//! remains. At the end every take reads to its end intact; it exports (as
+//! every format is written from) each frame as the take's latest recorded
+//! frame at that instant, and before any the stage as it stood when
+//! recording began; and every take that began on a fresh stage replays bit
+//! for bit (`takes --verify`).
 //!
 //! (The stage crate's `simulate` drives the stage itself, on every rig and
 //! with more kinds of change; this one is about what the stage thread adds.)
@@ -128,6 +131,7 @@ struct Tally {
     stopped_mid_way: AtomicUsize,
     played_out: AtomicUsize,
     verified_exactly: AtomicUsize,
+    exported: AtomicUsize,
 }
 
 static TALLY: Tally = Tally {
@@ -137,6 +141,7 @@ static TALLY: Tally = Tally {
     stopped_mid_way: AtomicUsize::new(0),
     played_out: AtomicUsize::new(0),
     verified_exactly: AtomicUsize::new(0),
+    exported: AtomicUsize::new(0),
 };
 
 fn count(counter: &AtomicUsize) {
@@ -171,6 +176,9 @@ struct Show {
     playing: Option<Playing>,
     recording: bool,
     time: f64,
+    /// Per take begun by hand, every puppet on stage as it stood when
+    /// recording began: the take's exported first frame.
+    openings: std::collections::BTreeMap<String, Vec<(u32, Points)>>,
 }
 
 fn config(stage: &str) -> StageConfig {
@@ -202,6 +210,7 @@ impl Show {
             playing: None,
             recording: record_from_first_input,
             time: 0.0,
+            openings: Default::default(),
         }
     }
 
@@ -276,9 +285,17 @@ impl Show {
             layers,
             reply,
         });
-        let started = matches!(started, Some(Ok(_)));
-        self.recording |= started;
-        started
+        let Some(Ok(name)) = started else {
+            return false;
+        };
+        let opening = self
+            .stage()
+            .on_stage()
+            .map(|p| (p.id, as_f32(p.pose())))
+            .collect();
+        self.openings.insert(name, opening);
+        self.recording = true;
+        true
     }
 
     fn stop_recording(&mut self) {
@@ -563,6 +580,7 @@ impl Show {
         self.driver.shut_down();
         self.check()?;
         for path in self.takes() {
+            self.check_export(&path)?;
             let header = puppetry_take::TakeReader::open(&path)
                 .map_err(|e| format!("{}: {e}", path.display()))?
                 .header;
@@ -592,6 +610,74 @@ impl Show {
         }
         Ok(())
     }
+}
+
+impl Show {
+    /// The take exported as an animation (what every format is written
+    /// from): each frame at `k / fps` is the latest recorded frame at or
+    /// before it, and before any, the stage as it stood when recording
+    /// began (the snapshot taken then, for a take begun by hand).
+    fn check_export(&self, path: &Path) -> Result<(), String> {
+        const FPS: f64 = 30.0;
+        let read = puppetry_export::take::animation_of_take(path, &self.config, FPS, None, None);
+        let animation = match read {
+            Ok(animation) => animation,
+            Err(puppetry_export::take::TakeExportError::Damaged { problem, .. })
+                if problem.contains("has no frames") =>
+            {
+                return Ok(());
+            }
+            Err(e) => return Err(format!("{} does not export: {e}", path.display())),
+        };
+        let reader = puppetry_take::TakeReader::open(path).unwrap();
+        let header = reader.header.clone();
+        let mut recorded: std::collections::BTreeMap<u32, Vec<(f64, Points)>> = Default::default();
+        for record in reader {
+            if let Ok(puppetry_take::Record::Frame(f)) = record {
+                recorded.entry(f.puppet).or_default().push((f.t, f.points));
+            }
+        }
+        let start = Stage::from_config(&puppetry_take::stage_config(&self.config, &header))
+            .map(puppetry_take::replay::Replayer::new)
+            .map_err(|e| e.to_string())?;
+        let name = path.file_stem().unwrap().to_string_lossy();
+        let opening = self.openings.get(name.as_ref());
+        for (puppet, id) in animation.puppets.iter().zip(header.drawn()) {
+            let before = match opening.and_then(|o| o.iter().find(|(p, _)| *p == id)) {
+                Some((_, pose)) => pose.clone(),
+                None => as_f32(start.stage().puppets()[id as usize].pose()),
+            };
+            let frames = recorded.remove(&id).unwrap_or_default();
+            for (k, exported) in puppet.frames.iter().enumerate() {
+                let instant = k as f64 / FPS;
+                let expected = frames
+                    .iter()
+                    .rev()
+                    .find(|(t, _)| *t <= instant)
+                    .map_or(&before, |(_, points)| points);
+                if exported != expected {
+                    return Err(format!(
+                        "{name}: puppet {id}'s exported frame {k} ({instant:.3} s) is not the take's \
+                         frame then{}",
+                        if k == 0 {
+                            " (the stage as recording began)"
+                        } else {
+                            ""
+                        }
+                    ));
+                }
+            }
+        }
+        count(&TALLY.exported);
+        Ok(())
+    }
+}
+
+/// A puppet's vertices as a take's frame holds them.
+type Points = Vec<[f32; 2]>;
+
+fn as_f32(pose: &[DVec2]) -> Points {
+    pose.iter().map(|p| [p.x as f32, p.y as f32]).collect()
 }
 
 /// Runs a sequence: the first broken invariant, if any.
@@ -656,13 +742,14 @@ fn simulate(stage: &'static str) {
     let t = &TALLY;
     let n = |c: &AtomicUsize| c.load(Ordering::Relaxed);
     eprintln!(
-        "show {stage}: {cases} sequences; so far in this process {} steps, {} takes played ({} overdubbed; {} played out, {} stopped mid-way), {} fresh takes replayed exactly",
+        "show {stage}: {cases} sequences; so far in this process {} steps, {} takes played ({} overdubbed; {} played out, {} stopped mid-way), {} fresh takes replayed exactly, {} exported and checked",
         n(&t.steps),
         n(&t.played),
         n(&t.overdubs),
         n(&t.played_out),
         n(&t.stopped_mid_way),
-        n(&t.verified_exactly)
+        n(&t.verified_exactly),
+        n(&t.exported)
     );
 }
 
