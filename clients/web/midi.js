@@ -77,8 +77,13 @@ export class MidiLearn {
     learn.textContent = waiting ? 'move a control… (cancel)' : 'learn MIDI';
     learn.setAttribute('aria-pressed', String(waiting));
     target.disabled = waiting;
-    status.textContent = this.midi?.error
-      ? `${this.midi.learned ?? ''} (not saved: ${this.midi.error})`
-      : (this.midi?.learned ?? '');
+    if (waiting) {
+      // A control the input already maps was moved: it was passed over.
+      status.textContent = this.midi.passed_over ?? '';
+    } else {
+      status.textContent = this.midi?.error
+        ? `${this.midi.learned ?? ''} (not saved: ${this.midi.error})`
+        : (this.midi?.learned ?? '');
+    }
   }
 }

@@ -2,7 +2,8 @@
 // director's page shows the MIDI controls of a stage with a MIDI input;
 // the director picks "gingerbread: cursor y", presses "learn MIDI" (the
 // button says to move a control), and a controller's knob (CC 40 on
-// channel 1, written to the stage's MIDI port) is learnt: the page says
+// channel 1, written to the stage's MIDI port) is learnt (CC 0, which the
+// stage already maps, is passed over first, saying so): the page says
 // what it does and where it was saved, and the knob moves the cursor at
 // once. A performer's page has no MIDI controls.
 //
@@ -45,6 +46,12 @@ try {
   await waitFor(director, 'waiting for a control', () => window.puppetry.inputs?.midi?.waiting?.action === 'cursor_y');
   summary.waiting = await director.textContent('#midi-learn');
   if (!summary.waiting.includes('move a control')) throw new Error(`the learn button says ${summary.waiting}`);
+  // A control the input already maps (CC 0: the cursor's x) is passed
+  // over, saying so, and the wait goes on.
+  fs.writeFileSync(port, Buffer.from([0xB0, 0, 64]));
+  await waitFor(director, 'the mapped control passed over', () => /already does/.test(document.querySelector('#midi-status')?.textContent ?? ''));
+  summary.passed_over = await director.textContent('#midi-status');
+  if (!(await director.evaluate(() => !!window.puppetry.inputs?.midi?.waiting))) throw new Error('a mapped control ended the wait');
   // A clock byte teaches nothing; the knob does.
   fs.writeFileSync(port, Buffer.from([0xF8, 0xB0, 40, 100]));
   await waitFor(director, 'the mapping learnt', () => /saved to/.test(document.querySelector('#midi-status')?.textContent ?? ''));

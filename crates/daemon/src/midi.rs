@@ -263,7 +263,7 @@ impl Doer {
             // Never refused: it only queues the reading.
             let _ = self.actor.act(&self.name, Trigger::Clock(show)).await;
         }
-        if let Some(mapping) = self.learning.claim(message) {
+        if let Some(mapping) = self.learning.claim(message, &self.mapper) {
             // The control moved to teach is not also acted on.
             self.mapper.learn(mapping.clone());
             self.learning.save(self.index, &self.name, &mapping).await;

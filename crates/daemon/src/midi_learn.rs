@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use puppetry_input::config::InputConfig;
 use puppetry_input::midi::MidiMessage;
-use puppetry_input::midi_map::MidiMapping;
+use puppetry_input::midi_map::{MidiMapper, MidiMapping};
 
 use crate::sources::Replays;
 
@@ -85,7 +85,10 @@ impl Learning {
     /// Waits for the next control to do `target` (none: stops waiting).
     pub(crate) fn wait_for(&self, target: Option<MidiMapping>) -> Result<(), String> {
         let Some(target) = target else {
-            self.view.midi(|v| v.waiting = None);
+            self.view.midi(|v| {
+                v.waiting = None;
+                v.passed_over = None;
+            });
             self.waiting.store(false, Ordering::Release);
             return Ok(());
         };
@@ -123,21 +126,35 @@ impl Learning {
             v.waiting = Some(target);
             v.learned = None;
             v.error = None;
+            v.passed_over = None;
         });
         self.waiting.store(true, Ordering::Release);
         Ok(())
     }
 
     /// The mapping `message` teaches, if one is awaited and `message` is
-    /// a control's (a clock or a note off teaches nothing, and the wait
-    /// goes on); the wait ends.
-    pub(crate) fn claim(&self, message: &MidiMessage) -> Option<MidiMapping> {
+    /// a control's that the input (`mapper`) has not mapped yet; the wait
+    /// ends. A clock or a note off teaches nothing, and a control already
+    /// mapped is passed over, saying so (a controller that sends a mapped
+    /// CC on its own, or a hand on the wrong knob, would otherwise make one
+    /// control do two things): the wait goes on.
+    pub(crate) fn claim(&self, message: &MidiMessage, mapper: &MidiMapper) -> Option<MidiMapping> {
         if !self.waiting.load(Ordering::Acquire) {
             return None;
         }
         let mapping = self.view.midi(|v| {
             let mapping = MidiMapping::learned(message, v.waiting.as_ref()?)?;
+            if let Some(mapped) = mapper.mapped(&mapping) {
+                v.passed_over = Some(format!(
+                    "{} already does {}: move another control (to have one control do both, \
+                     add the mapping to the stage file)",
+                    mapping.control_text(),
+                    action_text(mapped)
+                ));
+                return None;
+            }
             v.waiting = None;
+            v.passed_over = None;
             Some(mapping)
         })?;
         self.waiting.store(false, Ordering::Release);
@@ -303,6 +320,39 @@ mod tests {
         let record = MidiMapping::doing(MidiActionKind::Record);
         learning.wait_for(Some(record)).unwrap();
         assert!(learning.waiting.load(Ordering::Acquire));
+    }
+
+    /// A control the input maps already is passed over, saying what it
+    /// does, and the wait goes on; the next free control is learnt.
+    #[test]
+    fn a_control_already_mapped_is_passed_over() {
+        let learning = Learning::new(
+            PathBuf::from("show.toml"),
+            vec!["desk".into()],
+            vec!["gingerbread".into()],
+            Arc::new(Replays::new(Vec::new())),
+        );
+        let cc = |controller| MidiMessage::ControlChange {
+            channel: 0,
+            controller,
+            value: 64,
+        };
+        let reset = MidiMapping::learned(&cc(0), &MidiMapping::doing(MidiActionKind::Record));
+        let mapper = MidiMapper::new(vec![reset.unwrap()]);
+        learning
+            .wait_for(Some(MidiMapping::doing(MidiActionKind::Stop)))
+            .unwrap();
+        assert_eq!(learning.claim(&cc(0), &mapper), None);
+        assert!(learning.waiting.load(Ordering::Acquire));
+        let said = learning.view.midi(|v| v.passed_over.clone()).unwrap();
+        assert!(
+            said.starts_with("CC 0 on channel 1 already does record: move another control"),
+            "{said}"
+        );
+        let learnt = learning.claim(&cc(7), &mapper).unwrap();
+        assert_eq!(learnt.cc, Some(7));
+        assert!(!learning.waiting.load(Ordering::Acquire));
+        assert_eq!(learning.view.midi(|v| v.passed_over.clone()), None);
     }
 
     #[test]

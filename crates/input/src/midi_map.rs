@@ -190,6 +190,25 @@ impl MidiMapping {
         Some(m)
     }
 
+    /// Whether `other` listens to the same control as this mapping: the
+    /// same CC, note, program, wheel or show-control command, on a channel
+    /// both hear (a mapping of no channel hears every channel).
+    pub fn same_control(&self, other: &MidiMapping) -> bool {
+        let channels = match (self.channel, other.channel) {
+            (Some(a), Some(b)) => a == b,
+            _ => true,
+        };
+        channels
+            && (self.cc, self.note, self.program, self.pitch_bend, self.msc)
+                == (
+                    other.cc,
+                    other.note,
+                    other.program,
+                    other.pitch_bend,
+                    other.msc,
+                )
+    }
+
     /// The control, as people name it (`CC 16 on channel 1`).
     pub fn control_text(&self) -> String {
         let control = match (self.cc, self.note, self.program, self.msc) {
@@ -360,6 +379,12 @@ impl MidiMapper {
     pub fn learn(&mut self, mapping: MidiMapping) {
         self.map.push(mapping);
         self.held.push(false);
+    }
+
+    /// The first mapping listening to `control`'s control, if any
+    /// ([`MidiMapping::same_control`]).
+    pub fn mapped(&self, control: &MidiMapping) -> Option<&MidiMapping> {
+        self.map.iter().find(|m| m.same_control(control))
     }
 
     /// The actions `message` asks for, in mapping order.

@@ -1032,6 +1032,10 @@ pub struct MidiView {
     /// daemon stops).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// While waiting: the last control moved that was passed over because
+    /// the input already maps it, and what it does, for people.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub passed_over: Option<String>,
 }
 
 /// The stage's size, in stage units.

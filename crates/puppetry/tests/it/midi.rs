@@ -352,7 +352,8 @@ fn a_midi_port_records_to_a_file_that_replays_it() {
 
 /// Learn → save → reload (issue 35): on `config/midi.toml` with its
 /// controller on a raw MIDI port, a director's page learns a knob (CC 40)
-/// as the gingerbread's cursor y; the stage file then holds the entry
+/// as the gingerbread's cursor y (CC 0, already mapped, passed over
+/// first, saying so); the stage file then holds the entry
 /// after the input's own, its comments kept; a daemon started again on
 /// the saved file moves the cursor with that knob.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -384,6 +385,12 @@ async fn a_control_learnt_on_the_page_is_saved_and_reloads() {
     let summary = browser::run_page_on(&stage_file, "", "midi.mjs", "640,360", &env)
         .await
         .summary;
+    assert_eq!(
+        summary["passed_over"],
+        "CC 0 on channel 1 already does cursor_x of gingerbread: move another control (to \
+         have one control do both, add the mapping to the stage file)",
+        "{summary}"
+    );
     let status = summary["status"].as_str().unwrap_or_default();
     assert!(
         status
