@@ -511,23 +511,49 @@ pub struct Serving {
     pub warning: Option<String>,
 }
 
-/// [`Serving`] for a stage file `file` served at `address` with `access`.
+/// Where a stage is served from: what [`serving`] says depends on it.
+pub struct Served<'a> {
+    /// The stage file.
+    pub file: &'a Path,
+    /// Whether `file` is the bundled demo's unpacked copy (a folder named
+    /// by a hash, replaced by the next build: no place for a user's edits).
+    pub bundled: bool,
+    /// The address the daemon listens on.
+    pub address: SocketAddr,
+    /// This machine's addresses other machines may reach it at (its
+    /// interfaces but loopback), listed when it listens on all of them.
+    pub network: &'a [IpAddr],
+}
+
+/// [`Serving`] for a stage served as `served` with `access`.
 pub fn serving(
-    file: &Path,
-    address: SocketAddr,
+    served: &Served<'_>,
     access: &puppetry_daemon::config::Access,
     demo_tokens: &[String],
 ) -> Serving {
+    let (file, address) = (served.file, served.address);
     let url = url_address(address);
     let mut first = format!("puppetry: serving {} at http://{url}/", file.display());
     if address.ip().is_unspecified() {
-        first.push_str(&format!(
-            " (listening on all interfaces, {address}: from other machines use this \
-             machine's address or name, port {})",
-            address.port()
-        ));
+        first.push_str(&format!(" (listening on all interfaces, {address})"));
     }
     let mut lines = vec![first];
+    if address.ip().is_unspecified() {
+        let reachable: Vec<String> = served
+            .network
+            .iter()
+            .filter(|ip| ip.is_ipv4() == address.is_ipv4() || address.is_ipv6())
+            .map(|&ip| format!("http://{}/", SocketAddr::new(ip, address.port())))
+            .collect();
+        lines.push(if reachable.is_empty() {
+            "  from other machines: this machine has no network address but loopback".into()
+        } else {
+            format!("  from other machines: {}", reachable.join("  "))
+        });
+    }
+    lines.push(format!(
+        "  show:    http://{url}/?view=show (the stage alone, for a projector)"
+    ));
     if let Some(token) = access.performer_tokens.first() {
         lines.push(format!(
             "  perform: http://{url}/?role=performer&token={token}"
@@ -550,22 +576,51 @@ pub fn serving(
         .filter(|t| demo_tokens.contains(t))
         .map(String::as_str)
         .collect();
+    // The bundled copy is replaced by the next build: edits go in a copy
+    // of the user's own.
+    let fix = if served.bundled {
+        "Copy the demo stage to a stage file of your own (in a checkout, `cp \
+         config/demo.toml config/mine.toml`), give it [access] tokens of your own \
+         (config/README.md, \"Access\") and serve it with `--config config/mine.toml` \
+         before serving on a network"
+            .to_string()
+    } else {
+        format!(
+            "Give [access] tokens of your own in {} (config/README.md, \"Access\") before \
+             serving on a network",
+            file.display()
+        )
+    };
     let warning = (!address.ip().is_loopback() && !known.is_empty()).then(|| {
         format!(
             "listening beyond this machine ({address}) with the bundled demo tokens ({}): \
-             anyone on the network who has read the README can perform{}. Give [access] \
-             tokens of your own in {} (config/README.md, \"Access\") before serving on a \
-             network, or listen on 127.0.0.1.",
+             anyone on the network who has read the README can perform{}. {fix}, or listen \
+             on 127.0.0.1.",
             known.join(", "),
             if director.is_some_and(|d| known.contains(&d.token.as_str())) {
                 ", and direct (record, paint, save)"
             } else {
                 ""
             },
-            file.display()
         )
     });
     Serving { lines, warning }
+}
+
+/// This machine's network addresses but loopback (none when they cannot
+/// be read), for [`Served::network`].
+pub fn network_addresses() -> Vec<IpAddr> {
+    let mut found: Vec<IpAddr> = if_addrs::get_if_addrs()
+        .unwrap_or_default()
+        .into_iter()
+        .filter(|i| !i.is_loopback())
+        .map(|i| i.ip())
+        // Link-local IPv6 needs a zone no URL here carries.
+        .filter(|ip| !matches!(ip, IpAddr::V6(v6) if v6.segments()[0] & 0xffc0 == 0xfe80))
+        .collect();
+    found.sort();
+    found.dedup();
+    found
 }
 
 /// Parses a `--grid` value, `COLUMNSxROWS` (e.g. `10x10`; `×` also works).

@@ -461,9 +461,20 @@ fn print_serving(
     stage: &puppetry_daemon::config::ShowConfig,
     running: &puppetry_daemon::serve::Running,
 ) {
-    let said = cli::serving(
+    let bundled = puppetry_daemon::bundled::root().is_ok_and(|root| file.starts_with(root));
+    let network = if running.address.ip().is_unspecified() {
+        cli::network_addresses()
+    } else {
+        Vec::new()
+    };
+    let served = cli::Served {
         file,
-        running.address,
+        bundled,
+        address: running.address,
+        network: &network,
+    };
+    let said = cli::serving(
+        &served,
         &stage.access,
         &puppetry_daemon::bundled::demo_tokens(),
     );

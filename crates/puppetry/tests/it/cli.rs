@@ -1017,6 +1017,17 @@ fn served_at(stdout: &str) -> std::net::SocketAddr {
         .unwrap_or_else(|_| panic!("{address:?} in {stdout:?}"))
 }
 
+/// The addresses `serve` printed for other machines to use.
+fn network_urls(stdout: &str) -> Vec<std::net::SocketAddr> {
+    let line = stdout
+        .lines()
+        .find_map(|l| l.strip_prefix("  from other machines: "))
+        .unwrap_or_default();
+    line.split_whitespace()
+        .filter_map(|url| url.strip_prefix("http://")?.strip_suffix('/')?.parse().ok())
+        .collect()
+}
+
 /// A stage file of the demo puppet whose anonymous performers' token is
 /// `token`.
 fn stage_with_token(dir: &TempDir, token: &str) -> PathBuf {
@@ -1057,12 +1068,24 @@ fn listening_on_every_interface_prints_a_usable_url_and_warns_of_demo_tokens() {
     let args = ["--config", own.to_str().unwrap(), "--listen", "0.0.0.0:0"];
     let (stdout, stderr) = serve_and(&args, &[], |stdout| {
         std::net::TcpStream::connect(served_at(stdout)).expect("the printed URL opens");
+        // So does every address it prints for other machines.
+        for url in network_urls(stdout) {
+            std::net::TcpStream::connect(url).expect("the printed network address opens");
+        }
     });
     let address = served_at(&stdout);
     assert_eq!(address.ip(), std::net::Ipv4Addr::LOCALHOST, "{stdout}");
     assert!(
         stdout.contains("all interfaces") && !stdout.contains("0.0.0.0/"),
         "{stdout}"
+    );
+    assert!(
+        stdout.contains("  from other machines: "),
+        "no network addresses: {stdout}"
+    );
+    assert!(
+        stdout.contains(&format!("http://{address}/?view=show")),
+        "no show view: {stdout}"
     );
     assert!(
         stdout.contains(&format!("http://{address}/?role=performer&token=secret")),
@@ -1088,6 +1111,22 @@ fn listening_on_every_interface_prints_a_usable_url_and_warns_of_demo_tokens() {
     assert!(
         !stderr.contains('\x1b'),
         "colour codes in a pipe: {stderr:?}"
+    );
+    // The bundled demo itself: the warning says to copy the stage file,
+    // not to edit the hash-named copy the next build replaces.
+    let data = tempfile::tempdir().unwrap();
+    let (_, stderr) = serve_until_ready(
+        &["--listen", "0.0.0.0:0"],
+        &[("XDG_DATA_HOME", data.path().to_str().unwrap())],
+    );
+    let warning = stderr
+        .lines()
+        .find(|l| l.contains("demo tokens"))
+        .unwrap_or_else(|| panic!("no warning: {stderr}"));
+    assert!(
+        warning.contains("cp config/demo.toml config/mine.toml")
+            && !warning.contains("puppetry/bundled"),
+        "{warning}"
     );
     // On loopback the demo tokens are fine.
     let (_, stderr) = serve_until_ready(
