@@ -395,11 +395,18 @@ fn midi_input(
                     .unwrap_or_else(|| puppetry_input::midi_port::DEFAULT_SND_DIR.into()),
             })
         }
-        (None, Some(file), _) => crate::midi::MidiSource::File {
-            messages: puppetry_input::midi_file::read_midi_file(&config.resolve(file))
-                .map_err(|e| InputError(format!("input[{index}].file: {e}")))?,
-            repeat: *repeat,
-        },
+        (None, Some(file), _) => {
+            let read = puppetry_input::midi_file::read_midi_file(&config.resolve(file))
+                .map_err(|e| InputError(format!("input[{index}].file: {e}")))?;
+            // A damaged file plays what can be read, said once at start.
+            for damage in &read.damage {
+                tracing::warn!("input[{index}].file: {damage}");
+            }
+            crate::midi::MidiSource::File {
+                messages: read.messages,
+                repeat: *repeat,
+            }
+        }
         (None, None, Some(port)) => crate::midi::sequencer(index, port).map_err(InputError)?,
         (None, None, None) => {
             return Err(InputError(format!(

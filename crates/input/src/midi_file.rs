@@ -6,8 +6,9 @@
 //! [`MidiDecoder`] a MIDI port is read with. Parsed by the `midly` crate.
 //!
 //! The file is read within `MAX_REPLAY_FILE_BYTES` like any replay; its
-//! events are bounded by its size. A malformed file is refused naming it
-//! and what `midly` says is wrong.
+//! events are bounded by its size. A file that is not MIDI is refused
+//! naming it and what `midly` says is wrong; a damaged one plays what can
+//! be read, and [`MidiRead::damage`] says where reading stopped.
 //!
 //! [`write_midi_file`] writes one (`puppetry record` of a MIDI port):
 //! channel messages as MIDI events and SysEx as SysEx events, which any
@@ -18,7 +19,7 @@
 
 use std::path::Path;
 
-use midly::{MetaMessage, Smf, Timing, TrackEventKind};
+use midly::{MetaMessage, Timing, TrackEventKind};
 use puppetry_mesh::file::{FileError, REPLAY_FILE};
 
 use crate::midi::{MidiDecoder, MidiMessage};
@@ -56,27 +57,75 @@ pub struct TimedMessage {
     pub message: MidiMessage,
 }
 
+/// A `.mid` read: its messages, and what of it could not be read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MidiRead {
+    /// Every message, in time order (ties in track order).
+    pub messages: Vec<TimedMessage>,
+    /// Where reading stopped in a damaged file, one line each naming the
+    /// file, the track and the byte (`midly` reads on past damage by
+    /// leaving the rest of a track, or a whole chunk, out): empty for a
+    /// whole file.
+    pub damage: Vec<String>,
+}
+
 /// Every message of the file at `path`, in time order (ties in track
-/// order).
-pub fn read_midi_file(path: &Path) -> Result<Vec<TimedMessage>, MidiFileError> {
+/// order), and where a damaged file's reading stopped.
+pub fn read_midi_file(path: &Path) -> Result<MidiRead, MidiFileError> {
     let bytes = puppetry_mesh::file::read(path, REPLAY_FILE)?;
-    let smf = Smf::parse(&bytes).map_err(|e| MidiFileError::Parse {
-        file: path.display().to_string(),
+    let file = path.display().to_string();
+    let (header, mut tracks) = midly::parse(&bytes).map_err(|e| MidiFileError::Parse {
+        file: file.clone(),
         problem: e.to_string(),
     })?;
+    let at = |rest: &[u8]| rest.as_ptr() as usize - bytes.as_ptr() as usize;
+    let mut damage = Vec::new();
+    let promised = tracks.size_hint().0;
     // Every event with its absolute tick, merged over the tracks.
     let mut events: Vec<(u64, usize, TrackEventKind)> = Vec::new();
-    for (track, events_of) in smf.tracks.iter().enumerate() {
+    let mut read = 0usize;
+    for (track, events_of) in tracks.by_ref().enumerate() {
+        let Ok(mut events_of) = events_of else {
+            continue;
+        };
+        read += 1;
         let mut tick = 0u64;
-        for event in events_of {
-            tick += u64::from(event.delta.as_int());
-            events.push((tick, track, event.kind));
+        let mut count = 0usize;
+        loop {
+            let left = events_of.unread();
+            match events_of.next() {
+                Some(Ok(event)) => {
+                    tick += u64::from(event.delta.as_int());
+                    events.push((tick, track, event.kind));
+                    count += 1;
+                }
+                // Lenient `midly` ends a track at the first event it
+                // cannot read, dropping the rest unsaid: say it.
+                None if !left.is_empty() => {
+                    damage.push(format!(
+                        "{file}: track {}: an event it cannot read at byte {} (after {count} \
+                         events); the rest of the track ({} bytes) is left out",
+                        track + 1,
+                        at(left),
+                        left.len()
+                    ));
+                    break;
+                }
+                Some(Err(_)) | None => break,
+            }
         }
     }
+    if read < promised {
+        damage.push(format!(
+            "{file}: its header promises {promised} tracks, {read} could be read (a damaged \
+             chunk is left out)"
+        ));
+    }
+    let smf_timing = header.timing;
     events.sort_by_key(|&(tick, track, _)| (tick, track));
     // Seconds a tick: SMPTE timing is fixed; metrical follows the tempo
     // (microseconds a quarter note, 120 bpm until the first tempo event).
-    let (mut per_tick, per_beat) = match smf.header.timing {
+    let (mut per_tick, per_beat) = match smf_timing {
         Timing::Metrical(ticks) => (0.5 / f64::from(ticks.as_int().max(1)), Some(ticks)),
         Timing::Timecode(fps, sub) => (
             1.0 / (f64::from(fps.as_f32()) * f64::from(sub.max(1))),
@@ -114,7 +163,10 @@ pub fn read_midi_file(path: &Path) -> Result<Vec<TimedMessage>, MidiFileError> {
         }
         decoder.feed(&raw, |message| out.push(TimedMessage { t, message }));
     }
-    Ok(out)
+    Ok(MidiRead {
+        messages: out,
+        damage,
+    })
 }
 
 /// Ticks a quarter note in the files written here (at 120 bpm: 960 a
@@ -128,7 +180,7 @@ const WRITTEN_TICKS_PER_SECOND: f64 = WRITTEN_TICKS_PER_BEAT as f64 * 2.0;
 /// (written beside it and renamed).
 pub fn write_midi_file(messages: &[TimedMessage], path: &Path) -> Result<(), MidiFileError> {
     use midly::num::{u15, u24, u28};
-    use midly::{Format, Header, TrackEvent};
+    use midly::{Format, Header, Smf, TrackEvent};
     let mut bytes = Vec::new();
     let mut spans = Vec::with_capacity(messages.len());
     for m in messages {
@@ -185,7 +237,7 @@ pub fn write_midi_file(messages: &[TimedMessage], path: &Path) -> Result<(), Mid
 mod tests {
     use super::*;
     use midly::num::{u4, u7, u15, u24, u28};
-    use midly::{Format, Header, TrackEvent};
+    use midly::{Format, Header, Smf, TrackEvent};
 
     fn cc(delta: u32, controller: u8, value: u8) -> TrackEvent<'static> {
         TrackEvent {
@@ -229,7 +281,9 @@ mod tests {
         let path = dir.path().join("show.mid");
         smf.save(&path).unwrap();
         let timed = read_midi_file(&path).unwrap();
-        let at: Vec<(f64, &MidiMessage)> = timed.iter().map(|m| (m.t, &m.message)).collect();
+        assert_eq!(timed.damage, Vec::<String>::new());
+        let at: Vec<(f64, &MidiMessage)> =
+            timed.messages.iter().map(|m| (m.t, &m.message)).collect();
         let control = |controller, value| MidiMessage::ControlChange {
             channel: 0,
             controller,
@@ -258,6 +312,65 @@ mod tests {
         assert!(
             e.contains("show.mid") && e.contains("not a Standard MIDI File"),
             "{e}"
+        );
+    }
+
+    /// Time code written as raw `F1` events (not `F7`-escaped, as some
+    /// tools do) stops `midly` in its track: what was read plays, and the
+    /// damage names the file, the track and the byte where reading
+    /// stopped. A chunk that cannot be read is said too.
+    #[test]
+    fn a_damaged_file_says_where_reading_stopped() {
+        let track: &[u8] = &[
+            0x00, 0xB0, 0x01, 0x0A, // CC 1 = 10
+            0x00, 0xF1, 0x23, // a raw quarter frame: no SMF event
+            0x00, 0xB0, 0x01, 0x14, // never read
+            0x00, 0xFF, 0x2F, 0x00, // end of track
+        ];
+        let mut bytes = b"MThd\0\0\0\x06\0\x01\0\x03\x01\xE0".to_vec();
+        bytes.extend_from_slice(b"MTrk");
+        bytes.extend_from_slice(&(track.len() as u32).to_be_bytes());
+        bytes.extend_from_slice(track);
+        // The second of three tracks promised is cut short, the third
+        // never comes.
+        bytes.extend_from_slice(b"MTrk\0\0\x01\0\0");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("desk.mid");
+        std::fs::write(&path, &bytes).unwrap();
+        let read = read_midi_file(&path).unwrap();
+        assert_eq!(
+            read.messages,
+            [TimedMessage {
+                t: 0.0,
+                message: MidiMessage::ControlChange {
+                    channel: 0,
+                    controller: 1,
+                    value: 10
+                }
+            }]
+        );
+        assert_eq!(read.damage.len(), 3, "{:?}", read.damage);
+        let file = path.display();
+        assert_eq!(
+            read.damage[0],
+            format!(
+                "{file}: track 1: an event it cannot read at byte 26 (after 1 events); the rest \
+                 of the track (11 bytes) is left out"
+            )
+        );
+        assert!(
+            read.damage[1].starts_with(&format!(
+                "{file}: track 2: an event it cannot read at byte 45"
+            )),
+            "{}",
+            read.damage[1]
+        );
+        assert!(
+            read.damage[2].starts_with(&format!(
+                "{file}: its header promises 3 tracks, 2 could be read"
+            )),
+            "{}",
+            read.damage[2]
         );
     }
 
@@ -315,7 +428,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("take.mid");
         write_midi_file(&messages, &path).unwrap();
-        let read = read_midi_file(&path).unwrap();
+        let read = read_midi_file(&path).unwrap().messages;
         assert_eq!(read.len(), messages.len(), "{read:?}");
         for (r, m) in read.iter().zip(&messages) {
             assert_eq!(r.message, m.message);

@@ -1234,3 +1234,44 @@ fn export_offers_every_format_by_name() {
     let missing = failure(&["export", "t.take", "--format", "GLB", "--output", "t.glb"]);
     assert!(missing.contains("t.take"), "{missing}");
 }
+
+/// A `.mid` whose time code was written as raw `F1` events (midly stops
+/// its track there) plays what can be read, and `serve` warns naming the
+/// file, the track and the byte where reading stopped: it used to play
+/// the truncated track unsaid.
+#[test]
+fn serving_a_damaged_midi_file_warns_where_reading_stopped() {
+    let dir = tempfile::tempdir().unwrap();
+    let track: &[u8] = &[
+        0x00, 0xB0, 0x01, 0x0A, // CC 1 = 10
+        0x00, 0xF1, 0x23, // a raw quarter frame
+        0x00, 0xFF, 0x2F, 0x00,
+    ];
+    let mut bytes = b"MThd\0\0\0\x06\0\0\0\x01\x01\xE0MTrk".to_vec();
+    bytes.extend_from_slice(&(track.len() as u32).to_be_bytes());
+    bytes.extend_from_slice(track);
+    let mid = scratch(&dir, "desk.mid", &bytes);
+    let extra = format!(
+        "[[input]]\nkind = \"midi\"\nname = \"desk\"\nfile = \"{}\"\n",
+        mid.display()
+    );
+    let stage = scratch(
+        &dir,
+        "show.toml",
+        crate::common::daemon::stage_text(&extra).as_bytes(),
+    );
+    let (stdout, stderr) = serve_until_ready(&["--config", stage.to_str().unwrap()], &[]);
+    served_at(&stdout);
+    let warning = stderr
+        .lines()
+        .find(|l| l.contains("cannot read"))
+        .unwrap_or_else(|| panic!("no warning: {stderr}"));
+    assert!(
+        warning.contains("WARN")
+            && warning.contains(&format!(
+                "{}: track 1: an event it cannot read at byte 26",
+                mid.display()
+            )),
+        "{warning}"
+    );
+}

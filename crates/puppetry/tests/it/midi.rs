@@ -344,7 +344,9 @@ fn a_midi_port_records_to_a_file_that_replays_it() {
     assert!(said.contains("recorded 7 MIDI messages"), "{said}");
     let mut expected = Vec::new();
     MidiDecoder::new().feed(&sent, |m| expected.push(m));
-    let read = puppetry_input::midi_file::read_midi_file(&out).unwrap();
+    let read = puppetry_input::midi_file::read_midi_file(&out)
+        .unwrap()
+        .messages;
     let messages: Vec<MidiMessage> = read.iter().map(|m| m.message.clone()).collect();
     assert_eq!(messages, expected);
     assert!(read.windows(2).all(|w| w[0].t <= w[1].t), "{read:?}");
