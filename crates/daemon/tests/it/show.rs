@@ -1,6 +1,7 @@
 //! A simulated show through the daemon's stage thread: seeded, shrinking
 //! random interleavings of what a show does to it — fingers from several
-//! sources, sources vanishing mid-contact, pins, resets, undo and redo,
+//! sources, sources vanishing mid-contact, a TUIO table read through its
+//! tracker whose sender falls silent mid-touch, pins, resets, undo and redo,
 //! stiffness painted and solvers rebuilt on a worker, puppets removed and
 //! reordered, and above all takes: recorded (by hand or by `serve
 //! --record`'s first input), stopped with fingers down, played step by
@@ -118,6 +119,19 @@ enum Op {
     StopPlaying,
     /// The stage thread catches up: it solves, publishes and records.
     Frame,
+    /// A finger on the TUIO table (through the input crate's tracker, as
+    /// the table's datagrams are read).
+    TuioTouch {
+        finger: u8,
+        at: Spot,
+    },
+    /// A finger leaves the TUIO table.
+    TuioLift {
+        finger: u8,
+    },
+    /// The TUIO sender stops talking without saying goodbye: past the
+    /// documented silence, its tracker lets go of what it held.
+    TuioSilent,
 }
 
 /// What the simulated shows did, over every sequence run in this process
@@ -163,6 +177,14 @@ struct Playing {
     playback: Playback,
 }
 
+/// A TUIO table's sender, read through the input crate's tracker.
+struct Tuio {
+    tracker: puppetry_input::tuio::TuioTracker,
+    down: std::collections::BTreeMap<i32, (f32, f32)>,
+    fseq: i32,
+    clock: f64,
+}
+
 /// A show in progress: the driver, what the performers hold down, the take
 /// playing, the takes finished.
 struct Show {
@@ -176,6 +198,9 @@ struct Show {
     playing: Option<Playing>,
     recording: bool,
     time: f64,
+    /// The TUIO table: its tracker, the fingers its sender says are down
+    /// (by session), its frame sequence and its clock.
+    tuio: Tuio,
     /// Per take begun by hand, every puppet on stage as it stood when
     /// recording began: the take's exported first frame.
     openings: std::collections::BTreeMap<String, Vec<(u32, Points)>>,
@@ -199,6 +224,7 @@ impl Show {
         };
         let (wake, rebuilt) = mpsc::channel(64);
         let built = Stage::from_config(&config).unwrap();
+        let built_size = (built.width, built.height);
         let (driver, _outputs) = StageDriver::new(config.clone(), built, takes, wake.downgrade());
         Show {
             config,
@@ -210,6 +236,18 @@ impl Show {
             playing: None,
             recording: record_from_first_input,
             time: 0.0,
+            tuio: Tuio {
+                tracker: puppetry_input::tuio::TuioTracker::new(
+                    puppetry_input::tuio::default_calibration(DVec2::new(
+                        built_size.0,
+                        built_size.1,
+                    ))
+                    .unwrap(),
+                ),
+                down: Default::default(),
+                fseq: 0,
+                clock: 0.0,
+            },
             openings: Default::default(),
         }
     }
@@ -258,6 +296,31 @@ impl Show {
         };
         self.driver
             .command(puppetry_daemon::convert::frame(frame, self.time));
+    }
+
+    /// The TUIO sender's next bundle (every finger down restated), read
+    /// by the tracker; the frames it completes go to the stage thread.
+    fn tuio_send(&mut self) {
+        self.tuio.fseq += 1;
+        self.tuio.clock += 0.01;
+        let alive: Vec<i32> = self.tuio.down.keys().copied().collect();
+        let sets: Vec<(i32, f32, f32)> = self
+            .tuio
+            .down
+            .iter()
+            .map(|(&s, &(x, y))| (s, x, y))
+            .collect();
+        let datagram = puppetry_testkit::tuio::v1(Some("table"), &alive, &sets, self.tuio.fseq);
+        let frames = self.tuio.tracker.push(&datagram, self.tuio.clock).unwrap();
+        self.tuio_forward(frames);
+    }
+
+    fn tuio_forward(&mut self, frames: Vec<ContactFrame>) {
+        for frame in frames {
+            self.time += 0.01;
+            self.driver
+                .command(puppetry_daemon::convert::frame(frame, self.time));
+        }
     }
 
     /// Sends a command that answers, and takes its answer (the driver
@@ -532,6 +595,35 @@ impl Show {
                 self.end_playing()?
             }
             Op::Frame => self.driver.finish(),
+            Op::TuioTouch { finger, at } => {
+                let at = self.point(at);
+                let stage = self.stage();
+                let normalised = (
+                    (at.x / stage.width) as f32,
+                    (1.0 - at.y / stage.height) as f32,
+                );
+                self.tuio
+                    .down
+                    .insert(i32::from(*finger % 3) + 1, normalised);
+                self.tuio_send();
+            }
+            Op::TuioLift { finger } => {
+                if self
+                    .tuio
+                    .down
+                    .remove(&(i32::from(*finger % 3) + 1))
+                    .is_some()
+                {
+                    self.tuio_send();
+                }
+            }
+            Op::TuioSilent => {
+                let after = puppetry_input::tuio::RELEASE_AFTER.as_secs_f64();
+                self.tuio.clock += after + 0.1;
+                let frames = self.tuio.tracker.expire(self.tuio.clock, after);
+                self.tuio.down.clear();
+                self.tuio_forward(frames);
+            }
         }
         // `serve --record` starts its take with the first change.
         if self.takes_recording().is_some() {
@@ -553,7 +645,7 @@ impl Show {
                 }
             }
         }
-        if self.down.is_empty() && self.playing.is_none() {
+        if self.down.is_empty() && self.tuio.down.is_empty() && self.playing.is_none() {
             for p in stage.puppets() {
                 let left = p.handles().iter().find(|h| {
                     h.kind == HandleKind::Contact
@@ -721,6 +813,9 @@ fn op() -> impl Strategy<Value = Op> {
         6 => u().prop_map(|steps| Op::PlaySteps { steps }),
         1 => Just(Op::StopPlaying),
         4 => Just(Op::Frame),
+        4 => (u(), spot()).prop_map(|(finger, at)| Op::TuioTouch { finger, at }),
+        2 => u().prop_map(|finger| Op::TuioLift { finger }),
+        1 => Just(Op::TuioSilent),
     ]
 }
 
