@@ -272,11 +272,23 @@ api.replaceRegions = () => replaceTool.regions();
 const pointerContacts = new PointerContacts(stageEl, view, {
   canStart: () => canPerform(role) && api.connected,
   tools: [replaceTool, curveTool, paintTool, pinTool], // replace marking, drawing, then the brush, win over pinning
-  onLifted: () => {
+  onLifted: (contact) => {
     redrawOverlay();
     layoutIfWaiting();
+    if (contact && pointerContacts.held() === 0) sayLettingGo();
   },
 });
+
+// The first time a page's hands all let go, the status line says what a
+// newcomer otherwise takes for a lost pose: a puppet let go springs back,
+// and what keeps a pose (↶ undo stays grey: a drag is not an edit).
+let saidLettingGo = false;
+function sayLettingGo() {
+  if (saidLettingGo) return;
+  saidLettingGo = true;
+  setStatus('let go, a puppet springs back to its rest pose (a drag is not an edit: ↶ undo has '
+    + 'nothing to take back); to keep a pose, pin points while it is held (pin tool, or Shift+click pins)');
+}
 
 // Shows the tools of `newRole` (the server's word on it) and hides the rest.
 function applyRole(newRole) {

@@ -66,8 +66,8 @@ export class PointerContacts {
    *   pointerDown(e, x, y) -> true if it took the pointer,
    *   pointerMove(e)       -> true if it took the move,
    *   pointerUp(e)         (told of every lift).
-   * onLifted(): a contact, or a pointer a tool took, ended (a contact's dot
-   *   should go at once).
+   * onLifted(contact): a contact (true), or a pointer a tool took (false),
+   *   ended (a contact's dot should go at once).
    */
   constructor(element, view, { canStart, tools, onLifted }) {
     this.view = view;
@@ -112,10 +112,10 @@ export class PointerContacts {
 
   onLift(e) {
     for (const tool of this.tools) tool.pointerUp?.(e);
-    if (this.toolHeld.delete(e.pointerId)) this.onLifted();
+    if (this.toolHeld.delete(e.pointerId)) this.onLifted(false);
     if (!this.active.delete(e.pointerId)) return;
     this.queue.push(contactUp(e.pointerId));
-    this.onLifted();
+    this.onLifted(true);
   }
 
   /** Stage points of the pointers that hold contacts now. */

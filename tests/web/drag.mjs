@@ -75,6 +75,8 @@ try {
   await shot('after');
   await release();
   await page.waitForTimeout(100); // a rejected lift would come back as an error
+  // The first let-go says the puppet springs back and what keeps a pose.
+  summary.letGo = await page.textContent('#status');
   const pageErrors = await page.evaluate(() => window.puppetry.errors);
 
   Object.assign(summary, {

@@ -18,6 +18,13 @@ async fn a_browser_drag_deforms_the_puppet() {
         summary["changedPixels"].as_u64().unwrap() > 500,
         "{summary}"
     );
+    // Let go, the page says the puppet springs back and how to keep a
+    // pose: a newcomer took the snap back (undo grey) for a lost pose.
+    let said = summary["letGo"].as_str().unwrap_or_default();
+    assert!(
+        said.contains("springs back") && said.contains("Shift+click pins"),
+        "{summary}"
+    );
 }
 
 /// The stage does not move under a performer's finger: while a contact
