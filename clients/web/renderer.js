@@ -21,6 +21,8 @@ uniform sampler2D u_tex;
 varying vec2 v_uv;
 void main() { gl_FragColor = texture2D(u_tex, v_uv); }`;
 
+// The stage's colour; an mp4 export is composited over the same
+// (crates/export/src/video.rs STAGE_COLOUR).
 const BACKGROUND = [0.96, 0.95, 0.92, 1];
 // A transparent page (OBS's browser source keys on alpha): clear to nothing.
 // The pictures are premultiplied, and so is what the canvas hands on.

@@ -4,7 +4,7 @@
 //!
 //! | extension | codec | pixels | alpha |
 //! |---|---|---|---|
-//! | `.mp4` | H.264 (`libx264`) | `yuv420p` | no: composited over [`VideoOptions::background`] (default white); width and height must be even |
+//! | `.mp4` | H.264 (`libx264`) | `yuv420p` | no: composited over [`VideoOptions::background`] (default the page's stage colour); width and height must be even |
 //! | `.mov` | ProRes 4444 (`prores_aw -profile:v 4`, ap4h) | `yuva444p10le` | yes |
 //! | `.webm` | VP9 (`libvpx-vp9`) | `yuva420p` | yes (stored beside the colour planes; `ffprobe` shows `yuv420p` with the tag `alpha_mode=1`, and decoding with `-c:v libvpx-vp9` gives it back) |
 //!
@@ -84,14 +84,20 @@ impl Soundtrack {
     }
 }
 
+/// The stage's colour on the page (`clients/web/renderer.js`'s
+/// `BACKGROUND`, 0.96 0.95 0.92): a video without alpha shows the stage
+/// as a viewer saw it.
+pub const STAGE_COLOUR: [u8; 3] = [245, 242, 235];
+
 impl VideoOptions {
-    /// A video of `width × height` pixels, over white where it has no
-    /// alpha, with the `ffmpeg` on `PATH`.
+    /// A video of `width × height` pixels, over the page's stage colour
+    /// ([`STAGE_COLOUR`]) where it has no alpha, with the `ffmpeg` on
+    /// `PATH`.
     pub fn new(width: u32, height: u32) -> VideoOptions {
         VideoOptions {
             width,
             height,
-            background: [255, 255, 255],
+            background: STAGE_COLOUR,
             ffmpeg: None,
             audio: None,
         }
