@@ -143,7 +143,7 @@ const hud = new Hud({
   hideBar: byId('hide-bar'),
   showBar: byId('show-bar'),
   fullscreen: byId('fullscreen'),
-}, { onLayout: () => barLayout(), chrome: [byId('keypad')], keys: !options.show });
+}, { onLayout: () => barLayout(), chrome: [byId('keypad'), byId('hint')], keys: !options.show });
 
 const view = new StageView(stageEl, [glCanvas, overlayCanvas], {
   fixedSize: options.size,
@@ -279,15 +279,21 @@ const pointerContacts = new PointerContacts(stageEl, view, {
   },
 });
 
-// The first time a page's hands all let go, the status line says what a
-// newcomer otherwise takes for a lost pose: a puppet let go springs back,
-// and what keeps a pose (↶ undo stays grey: a drag is not an edit).
+// The first time a page's hands all let go, a hint says what a newcomer
+// otherwise takes for a lost pose: a puppet let go springs back, and what
+// keeps a pose (↶ undo stays grey: a drag is not an edit). It floats over
+// the stage rather than in the status line: a long status wraps the
+// toolbar, and the stage laid out again would move under the next touch.
+const HINT_SECONDS = 12;
+const hintEl = byId('hint');
 let saidLettingGo = false;
 function sayLettingGo() {
   if (saidLettingGo) return;
   saidLettingGo = true;
-  setStatus('let go, a puppet springs back to its rest pose (a drag is not an edit: ↶ undo has '
-    + 'nothing to take back); to keep a pose, pin points while it is held (pin tool, or Shift+click pins)');
+  hintEl.textContent = 'Let go, a puppet springs back to its rest pose (a drag is not an edit: ↶ undo has '
+    + 'nothing to take back). To keep a pose, pin points while it is held (pin tool, or Shift+click pins).';
+  hintEl.hidden = false;
+  setTimeout(() => { hintEl.hidden = true; }, HINT_SECONDS * 1000);
 }
 
 // Shows the tools of `newRole` (the server's word on it) and hides the rest.

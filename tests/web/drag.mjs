@@ -73,10 +73,17 @@ try {
     lastSequence: window.puppetry.lastSequence,
   }));
   await shot('after');
+  const stageRect = () => page.evaluate(() => {
+    const r = document.getElementById('stage').getBoundingClientRect();
+    return [r.x, r.y, r.width, r.height];
+  });
+  const stageHeld = await stageRect();
   await release();
   await page.waitForTimeout(100); // a rejected lift would come back as an error
   // The first let-go says the puppet springs back and what keeps a pose.
-  summary.letGo = await page.textContent('#status');
+  summary.letGo = await page.textContent('#hint');
+  // Saying so never lays the stage out again under the next touch.
+  summary.stageRects = [stageHeld, await stageRect()];
   const pageErrors = await page.evaluate(() => window.puppetry.errors);
 
   Object.assign(summary, {
@@ -87,6 +94,7 @@ try {
   if (shotDir) summary.screenshots = shotDir;
   await context.close();
   if (summary.errors.length) finish(false, 'the page reported errors');
+  if (summary.stageRects[0].join() !== summary.stageRects[1].join()) finish(false, 'the stage moved when the let-go hint showed');
   if (changed < 0) finish(false, `the canvas was resized between the pictures (${sizeBefore} to ${sizeAfter})`);
   if (changed < minChanged) finish(false, `only ${changed} pixels changed (need ${minChanged})`);
   finish(true);
