@@ -25,6 +25,7 @@
 //! what an export of a take would cost before anything is read.
 
 pub mod budget;
+mod drawing;
 pub mod format;
 pub mod frames;
 pub mod gltf;

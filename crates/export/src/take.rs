@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::drawing::Order;
 use crate::format::Format;
 use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 use puppetry_stage::Stage;
@@ -311,10 +312,28 @@ pub fn read_take(
         .map(|p| p.pose().iter().map(|q| [q.x as f32, q.y as f32]).collect())
         .collect();
     let mut frames: Vec<Vec<Vec<[f32; 2]>>> = vec![Vec::with_capacity(n); current.len()];
+    // The drawing order as the live stage had it, where a puppet folds
+    // over itself: from a replay of the steps while it holds.
+    let mut depth = if stage.puppets().iter().any(|p| p.depth().is_some()) {
+        let fresh = Stage::from_config(&puppetry_take::stage_config(config, &reader.header))?;
+        Some(crate::drawing::DepthReplay::new(fresh))
+    } else {
+        None
+    };
+    let mut order_now: Vec<Option<Order>> = (0..current.len() as u32)
+        .map(|q| depth.as_ref().and_then(|d| d.order(q)))
+        .collect();
+    let mut orders: Vec<Vec<Option<Order>>> = vec![Vec::with_capacity(n); current.len()];
     let instant = |k: usize| from + k as f64 / fps;
     for record in reader.by_ref() {
         let frame = match record {
             Ok(Record::Frame(frame)) => frame,
+            Ok(Record::Step(step)) => {
+                if let Some(d) = &mut depth {
+                    d.step(&step);
+                }
+                continue;
+            }
             Ok(_) => continue,
             // A damaged record: `judge` refused the take unless salvaging.
             Err(TakeError::Corrupt { .. }) if salvage => continue,
@@ -335,15 +354,21 @@ pub fn read_take(
         for (q, out) in frames.iter_mut().enumerate() {
             while out.len() < n && instant(out.len()) < frame.t {
                 out.push(current[q].clone());
+                orders[q].push(order_now[q].clone());
             }
+        }
+        if let Some(d) = &mut depth {
+            order_now[p] = d.frame(&frame);
         }
         current[p] = frame.points;
     }
     for (q, out) in frames.iter_mut().enumerate() {
         while out.len() < n {
             out.push(current[q].clone());
+            orders[q].push(order_now[q].clone());
         }
     }
+    let replayed = depth.as_ref().is_some_and(|d| d.holds());
     // Bottom to top as the stage drew them; a puppet a director had
     // removed before the take is not drawn.
     let mut motions: Vec<Option<_>> = frames.into_iter().map(Some).collect();
@@ -360,10 +385,18 @@ pub fn read_take(
                 ),
             });
         };
-        let draw_orders = if p.depth().is_some() {
-            draw_orders(&p.mesh, &motion)
-        } else {
-            Vec::new()
+        let draw_orders = match p.depth() {
+            None => Vec::new(),
+            Some(_) if replayed => {
+                let plain = mesh_order(&p.mesh);
+                crate::drawing::unless_plain(
+                    std::mem::take(&mut orders[id as usize])
+                        .into_iter()
+                        .map(|o| o.unwrap_or_else(|| plain.clone()))
+                        .collect(),
+                )
+            }
+            Some(_) => crate::drawing::orders_of_frames(&p.mesh, &motion),
         };
         let mut puppet = AnimatedPuppet::of_puppet(p, motion)?;
         puppet.draw_orders = draw_orders;
@@ -571,45 +604,7 @@ pub fn preflight(request: &ExportRequest) -> Result<(), TakeExportError> {
     Ok(())
 }
 
-/// Each frame's triangle order, back to front, as the live stage draws it
-/// (`docs/depth.md`): the depth order run over the frames in turn, so its
-/// frame-to-frame coherence holds. It runs at the export's frame rate, not
-/// the live solve rate, so where the live decision depended on the path
-/// between two exported frames the export may decide otherwise.
-fn draw_orders(mesh: &puppetry_mesh::Mesh, frames: &[Vec<[f32; 2]>]) -> Vec<std::sync::Arc<[u32]>> {
-    let Ok(mut depth) = puppetry_deform::depth::DepthOrder::register(mesh, None) else {
-        return Vec::new();
-    };
-    let mesh_order: std::sync::Arc<[u32]> = (0..mesh.triangles().len() as u32).collect();
-    let mut last = mesh_order.clone();
-    let mut positions = Vec::new();
-    let orders: Vec<std::sync::Arc<[u32]>> = frames
-        .iter()
-        .map(|frame| {
-            positions.clear();
-            positions.extend(
-                frame
-                    .iter()
-                    .map(|q| glam::DVec2::new(f64::from(q[0]), f64::from(q[1]))),
-            );
-            // A pose that cannot be ordered keeps the last order.
-            if depth.update(&positions).is_ok() && depth.changed() {
-                let d = depth.depth();
-                let mut order: Vec<u32> = (0..d.len() as u32).collect();
-                // Stable: ties keep the mesh's order, as the page does.
-                order.sort_by_key(|&t| d[t as usize]);
-                last = order.into();
-            }
-            last.clone()
-        })
-        .collect();
-    // Never folded: mesh order throughout, drawn the plain way.
-    if orders
-        .iter()
-        .all(|o| std::sync::Arc::ptr_eq(o, &mesh_order))
-    {
-        Vec::new()
-    } else {
-        orders
-    }
+/// The mesh's own triangle order.
+fn mesh_order(mesh: &puppetry_mesh::Mesh) -> Order {
+    (0..mesh.triangles().len() as u32).collect()
 }

@@ -28,6 +28,12 @@ fn config(depth: &str) -> StageConfig {
 /// A take of the right hand dragged across the chest, a step per frame.
 fn record_fold(path: &Path, config: &StageConfig) {
     let mut stage = Stage::from_config(config).unwrap();
+    let points = fold_points(&mut stage);
+    crate::fixture::record_drag(path, &mut stage, "fold", FPS, &points);
+}
+
+/// The right hand's path across the chest.
+fn fold_points(stage: &mut Stage) -> Vec<DVec2> {
     stage.solve();
     let right = stage.puppets()[0].mesh.vertices().iter().copied().fold(
         DVec2::splat(f64::NEG_INFINITY),
@@ -37,8 +43,7 @@ fn record_fold(path: &Path, config: &StageConfig) {
     );
     let from = right - DVec2::new(15.0, 0.0);
     let to = DVec2::new(610.0, 350.0);
-    let points: Vec<DVec2> = (0..=12).map(|k| from.lerp(to, k as f64 / 12.0)).collect();
-    crate::fixture::record_drag(path, &mut stage, "fold", FPS, &points);
+    (0..=12).map(|k| from.lerp(to, k as f64 / 12.0)).collect()
 }
 
 /// Of the overlap's sample points where the two triangles' texels differ
@@ -54,15 +59,27 @@ fn overlap_pixels(depth_mode: &str) -> (usize, usize) {
     let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
     let ordered = animation_of_take(&take, &judged, FPS, None, None).unwrap();
     let k = animation.frame_count - 1;
+    let rank = rank_of(&ordered.puppets[0].draw_orders[k]);
+    drawn_in_rank(&animation, k, &rank)
+}
+
+/// Each triangle's place in a drawing order, back to front.
+fn rank_of(order: &[u32]) -> Vec<usize> {
+    let mut rank = vec![0; order.len()];
+    for (i, &t) in order.iter().enumerate() {
+        rank[t as usize] = i;
+    }
+    rank
+}
+
+/// Renders frame `k` of the first puppet and counts the overlap's telling
+/// samples that show the part `rank` puts nearer, and those that do not.
+fn drawn_in_rank(
+    animation: &puppetry_export::Animation,
+    k: usize,
+    rank: &[usize],
+) -> (usize, usize) {
     let p = &animation.puppets[0];
-    let rank: Vec<usize> = {
-        let order = &ordered.puppets[0].draw_orders[k];
-        let mut rank = vec![0; order.len()];
-        for (i, &t) in order.iter().enumerate() {
-            rank[t as usize] = i;
-        }
-        rank
-    };
     let (w, h) = (1280u32, 720u32);
     let textures = textures(&animation);
     let mut raster = Rasterizer::new(&animation, &textures, w, h);
@@ -128,7 +145,7 @@ fn overlap_pixels(depth_mode: &str) -> (usize, usize) {
             }
         }
     }
-    eprintln!("depth {depth_mode}: {near} samples show the nearer part, {far} the farther");
+    eprintln!("{near} samples show the nearer part, {far} the farther");
     (near, far)
 }
 
@@ -136,6 +153,82 @@ fn overlap_pixels(depth_mode: &str) -> (usize, usize) {
 fn an_exported_fold_shows_the_arm_over_the_body() {
     let (near, far) = overlap_pixels("pieces");
     assert!(near >= 30 && far * 10 <= near, "near {near}, far {far}");
+}
+
+/// Alt+click during the take: the body under the fold goes in front, live
+/// and so in the export (which once ran the depth order over the frames
+/// alone and drew the arm in front still).
+#[test]
+fn an_exported_fold_keeps_a_depth_flip_made_during_the_take() {
+    let dir = tempfile::tempdir().unwrap();
+    let take = dir.path().join("flip.take");
+    let config = config("pieces");
+    let mut stage = Stage::from_config(&config).unwrap();
+    let mut points = fold_points(&mut stage);
+    let at = *points.last().unwrap();
+    // Held still at the fold for a while after the flip.
+    points.extend([at; 6]);
+    let mut flipped_before = None;
+    let record =
+        crate::fixture::record_drag_with(&take, &mut stage, "flip", FPS, &points, |k, stage| {
+            if k != 13 {
+                return Vec::new();
+            }
+            flipped_before = Some(rank_of(&live_order(stage)));
+            vec![puppetry_stage::Change::DepthFlip {
+                at: overlap_point(stage),
+            }]
+        });
+    assert!(!record.is_empty());
+    let live = rank_of(&live_order(&stage));
+    let before = flipped_before.unwrap();
+    assert_ne!(
+        live, before,
+        "the flip changed nothing live: nothing to check"
+    );
+    let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
+    let k = animation.frame_count - 1;
+    let (near, far) = drawn_in_rank(&animation, k, &live);
+    assert!(near >= 30 && far * 10 <= near, "near {near}, far {far}");
+    // And the same frame judged by the order before the flip: the export
+    // does not draw that any more.
+    let (near, far) = drawn_in_rank(&animation, k, &before);
+    assert!(far >= 30 && near * 10 <= far, "near {near}, far {far}");
+}
+
+/// The live stage's drawing order of its first puppet.
+fn live_order(stage: &Stage) -> Vec<u32> {
+    let (depth, _) = stage.puppets()[0].depth().unwrap();
+    let mut order: Vec<u32> = (0..depth.len() as u32).collect();
+    order.sort_by_key(|&t| depth[t as usize]);
+    order
+}
+
+/// A point of the first puppet's pose covered by two triangles of
+/// different depths: where an Alt+click flips the fold.
+fn overlap_point(stage: &Stage) -> DVec2 {
+    let p = &stage.puppets()[0];
+    let (depth, _) = p.depth().unwrap();
+    let pose = p.pose();
+    let tris = p.mesh.triangles();
+    let corners = |t: &[u32; 3]| t.map(|v| pose[v as usize]);
+    let covers = |[a, b, c]: [DVec2; 3], q: DVec2| {
+        let d = (b - c).perp_dot(a - c);
+        let l1 = (b - c).perp_dot(q - c) / d;
+        let l2 = (c - a).perp_dot(q - c) / d;
+        d.abs() > 1e-9 && l1 > 0.0 && l2 > 0.0 && 1.0 - l1 - l2 > 0.0
+    };
+    tris.iter()
+        .enumerate()
+        .find_map(|(t, tri)| {
+            let [a, b, c] = corners(tri);
+            let q = (a + b + c) / 3.0;
+            tris.iter()
+                .enumerate()
+                .any(|(u, other)| u != t && depth[u] != depth[t] && covers(corners(other), q))
+                .then_some(q)
+        })
+        .expect("the fold overlaps")
 }
 
 #[test]

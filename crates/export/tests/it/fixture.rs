@@ -109,6 +109,19 @@ pub fn record_drag(
     fps: f64,
     points: &[glam::DVec2],
 ) -> Vec<Vec<[f32; 2]>> {
+    record_drag_with(path, stage, name, fps, points, |_, _| Vec::new())
+}
+
+/// [`record_drag`], with the changes `more(k, stage)` gives applied after
+/// step k's contact (an Alt+click's `DepthFlip`, say).
+pub fn record_drag_with(
+    path: &std::path::Path,
+    stage: &mut puppetry_stage::Stage,
+    name: &str,
+    fps: f64,
+    points: &[glam::DVec2],
+    mut more: impl FnMut(usize, &puppetry_stage::Stage) -> Vec<puppetry_stage::Change>,
+) -> Vec<Vec<[f32; 2]>> {
     use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
     use puppetry_stage::Change;
     use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
@@ -126,12 +139,17 @@ pub fn record_drag(
             },
         };
         stage.apply_change(&change).unwrap();
+        let mut changes = vec![change];
+        for change in more(k, stage) {
+            stage.apply_change(&change).unwrap();
+            changes.push(change);
+        }
         let solved = stage.solve();
         let t = k as f64 / fps;
         writer
             .write(&Record::Step(Step {
                 t,
-                changes: vec![change],
+                changes,
                 events: Vec::new(),
             }))
             .unwrap();
