@@ -212,5 +212,5 @@ export const EXPORT_FORMATS = Object.freeze([
   Object.freeze({ name: 'mp4', extension: 'mp4', mime: 'video/mp4', label: 'video (.mp4)' }),
   Object.freeze({ name: 'mov', extension: 'mov', mime: 'video/quicktime', label: 'ProRes 4444 with alpha (.mov)' }),
   Object.freeze({ name: 'webm', extension: 'webm', mime: 'video/webm', label: 'video with alpha (.webm)' }),
-  Object.freeze({ name: 'spine', extension: 'json', mime: 'application/json', label: 'Spine (.json)' }),
+  Object.freeze({ name: 'spine', extension: 'zip', mime: 'application/zip', label: 'Spine (.zip: JSON, atlas, pictures)' }),
 ]);

@@ -62,7 +62,8 @@ impl Format {
             Format::Mp4 => Some(("mp4", "video/mp4")),
             Format::Mov => Some(("mov", "video/quicktime")),
             Format::Webm => Some(("webm", "video/webm")),
-            Format::Spine => Some(("json", "application/json")),
+            // The JSON needs its atlas and pictures: one zip of them.
+            Format::Spine => Some(("zip", "application/zip")),
             Format::Png => None,
         }
     }
@@ -76,7 +77,7 @@ impl Format {
             Format::Mp4 => "video (.mp4)",
             Format::Mov => "ProRes 4444 with alpha (.mov)",
             Format::Webm => "video with alpha (.webm)",
-            Format::Spine => "Spine (.json)",
+            Format::Spine => "Spine (.zip: JSON, atlas, pictures)",
         }
     }
 

@@ -519,9 +519,20 @@ fn image_prefix(path: &Path) -> String {
     format!("{stem}-")
 }
 
+/// Whether `path` asks for the bundle: one `.zip` of the JSON, its atlas
+/// and its pictures ([`export_spine_zip`]), as the page downloads it.
+pub fn is_bundle(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("zip"))
+}
+
 /// Every file [`export_spine`] writes for `animation` at `path`: the JSON,
-/// its atlas (`path` with the extension `.atlas`) and each picture.
+/// its atlas (`path` with the extension `.atlas`) and each picture; for a
+/// bundle, the `.zip` alone.
 pub fn files(animation: &Animation, path: &Path) -> Vec<std::path::PathBuf> {
+    if is_bundle(path) {
+        return vec![path.to_path_buf()];
+    }
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut files = vec![path.to_path_buf(), path.with_extension("atlas")];
     files.extend(
@@ -567,5 +578,54 @@ pub fn export_spine(
             })
         })?;
     }
+    Ok(layout)
+}
+
+/// [`export_spine`] into one zip at `path` (`NAME.zip` holds `NAME.json`,
+/// `NAME.atlas` and the pictures, side by side as the editor's Import Data
+/// and spine-player want them): what a browser downloads as one file. The
+/// files are made in a private folder, then packed (the JSON and atlas
+/// deflated, the PNGs stored: they are compressed already) into a new file
+/// ([`crate::write_new`]).
+pub fn export_spine_zip(
+    animation: &Animation,
+    options: &SpineOptions,
+    progress: &mut dyn Progress,
+    path: &Path,
+) -> Result<SpineLayout, ExportError> {
+    let scratch = crate::Scratch::new()?;
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "take".into());
+    let json = scratch.path().join(format!("{stem}.json"));
+    let layout = export_spine(animation, options, progress, &json)?;
+    let packed = files(animation, &json);
+    crate::write_new(path, |out| {
+        let zipped = |e: zip::result::ZipError| ExportError::File {
+            file: path.display().to_string(),
+            problem: format!("cannot write the zip: {e}"),
+        };
+        let mut zip = zip::ZipWriter::new_stream(out);
+        for file in &packed {
+            let name = file
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let method = if name.ends_with(".png") {
+                zip::CompressionMethod::Stored
+            } else {
+                zip::CompressionMethod::Deflated
+            };
+            let options = zip::write::SimpleFileOptions::default()
+                .compression_method(method)
+                .unix_permissions(0o644);
+            zip.start_file(name, options).map_err(zipped)?;
+            let bytes = std::fs::read(file).map_err(crate::io_error(file))?;
+            zip.write_all(&bytes).map_err(crate::io_error(path))?;
+        }
+        zip.finish().map_err(zipped)?;
+        Ok(())
+    })?;
     Ok(layout)
 }

@@ -509,7 +509,12 @@ pub fn export_take_with(
             crate::frames::export_png_sequence(animation, &options, progress, out)?;
         }
         Format::Spine => {
-            let layout = crate::spine::export_spine(
+            let export = if crate::spine::is_bundle(out) {
+                crate::spine::export_spine_zip
+            } else {
+                crate::spine::export_spine
+            };
+            let layout = export(
                 animation,
                 &crate::spine::SpineOptions::default(),
                 progress,

@@ -126,6 +126,47 @@ fn the_hull_is_the_boundary_loop_and_comes_first() {
     assert_eq!(sorted, (0..p.vertex_count() as u32).collect::<Vec<_>>());
 }
 
+/// The bundle the page downloads: one zip of the JSON, its atlas and its
+/// pictures, which unpacked into any folder spine-player opens as it is
+/// (the page once downloaded the JSON alone: the atlas answered 404).
+#[test]
+fn spine_player_opens_the_zip_the_page_downloads_unpacked() {
+    if !crate::common::browser_enabled("spine_player_opens_the_zip_the_page_downloads_unpacked") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("take-007.zip");
+    puppetry_export::spine::export_spine_zip(
+        &two_figures(FRAMES, FPS),
+        &SpineOptions::default(),
+        &mut (),
+        &path,
+    )
+    .unwrap();
+    // Nothing but the zip is left where it was written.
+    let beside: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(beside.len(), 1, "{beside:?}");
+    let unpacked = tempfile::tempdir().unwrap();
+    let mut zip = zip::ZipArchive::new(std::fs::File::open(&path).unwrap()).unwrap();
+    let mut names: Vec<String> = zip.file_names().map(|n| n.unwrap().into_owned()).collect();
+    names.sort();
+    assert!(names.contains(&"take-007.json".to_string()), "{names:?}");
+    assert!(names.contains(&"take-007.atlas".to_string()), "{names:?}");
+    assert!(
+        names.iter().filter(|n| n.ends_with(".png")).count() == 2,
+        "{names:?}"
+    );
+    zip.extract(unpacked.path()).unwrap();
+    let result = node_script(
+        "export-player.mjs",
+        &["@esotericsoftware/spine-player", "playwright-core"],
+        &[arg(unpacked.path()), "take-007", "take"],
+    );
+    assert_eq!(result["loaded"], true, "{result}");
+    assert_eq!(result["failed"], serde_json::json!([]), "{result}");
+    assert!(result["drawn"].as_u64().unwrap() > 1000, "{result}");
+}
+
 /// spine-player, Esoteric's web player, opens the export as it is in
 /// Chromium: the atlas and its pages load (no request answered 404, as
 /// the atlas did before there was one) and the puppets are drawn.

@@ -760,9 +760,19 @@ async fn the_page_downloads_takes_and_their_exports() {
     })
     .await;
 
+    // Spine comes as one zip of what the editor and player need.
     let spine = http_get(running.address, "/takes/take-001/export?format=spine").await;
     assert_eq!(http_status(&spine), 200);
-    let json: Value = serde_json::from_slice(&body(&spine)).unwrap();
+    let head = String::from_utf8_lossy(&spine[..400.min(spine.len())]).to_string();
+    assert!(
+        head.contains("take-001.zip") && head.contains("application/zip"),
+        "{head}"
+    );
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(body(&spine))).unwrap();
+    let names: Vec<String> = zip.file_names().map(|n| n.unwrap().into_owned()).collect();
+    assert!(names.contains(&"take-001.atlas".to_string()), "{names:?}");
+    assert!(names.iter().any(|n| n.ends_with(".png")), "{names:?}");
+    let json: Value = serde_json::from_reader(zip.by_name("take-001.json").unwrap()).unwrap();
     assert!(json["skeleton"]["spine"].as_str().unwrap().starts_with('4'));
 
     assert_eq!(
