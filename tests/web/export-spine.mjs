@@ -5,8 +5,9 @@
 // player loads it (a region missing from the atlas fails), else an
 // attachment loader that makes mesh attachments without one — applies the
 // animation at each time and
-// prints one JSON line {ok, samples: [{t, slots: {SLOT: [x0, y0, x1, y1, …]}}]} of
-// world vertices, in the attachment's vertex order, the animation's duration
+// prints one JSON line {ok, samples: [{t, slots: {SLOT: [x0, y0, x1, y1, …]},
+// attached: {SLOT: {name, triangles}}}]} of world vertices, in the
+// attachment's vertex order, and the mesh attachment each slot shows, the animation's duration
 // and the atlas's pages ({name, width, height}).
 
 import fs from 'node:fs';
@@ -47,7 +48,12 @@ run(async () => {
       a.computeWorldVertices(slot, 0, a.worldVerticesLength, world, 0, 2);
       slots[slot.data.name] = world;
     }
-    samples.push({ t, slots });
+    const attached = {};
+    for (const slot of skeleton.slots) {
+      const a = slot.getAttachment();
+      if (a instanceof MeshAttachment) attached[slot.data.name] = { name: a.name, triangles: Array.from(a.triangles) };
+    }
+    samples.push({ t, slots, attached });
   }
   return {
     version: data.version, duration: animation.duration, hull: Object.fromEntries(

@@ -20,15 +20,38 @@ use puppetry_stage::Stage;
 use puppetry_take::replay::Replayer;
 use puppetry_take::{Frame, Step};
 
-/// A triangle order, back to front; frames that share one share it.
-pub(crate) type Order = Arc<[u32]>;
+/// A frame's depths (per triangle, larger = nearer) and the triangle order
+/// they give, back to front; frames that share them share them.
+#[derive(Clone)]
+pub(crate) struct Drawn {
+    pub(crate) depth: Arc<[u16]>,
+    pub(crate) order: Arc<[u32]>,
+}
+
+impl Drawn {
+    /// Triangles sorted back to front by depth; ties keep the mesh's
+    /// order, as the page's sort does.
+    fn of(depth: &[u16]) -> Drawn {
+        let mut order: Vec<u32> = (0..depth.len() as u32).collect();
+        order.sort_by_key(|&t| depth[t as usize]);
+        Drawn {
+            depth: depth.into(),
+            order: order.into(),
+        }
+    }
+
+    /// Every triangle at one depth: the mesh's own order.
+    pub(crate) fn plain(triangles: usize) -> Drawn {
+        Drawn::of(&vec![0; triangles])
+    }
+}
 
 /// The take's steps replayed for the drawing order, while the replay holds.
 pub(crate) struct DepthReplay {
     /// `None` once a replayed pose left the recording (or a step failed).
     replayer: Option<Replayer>,
     /// Per puppet, its order now and the depth generation it was read at.
-    now: Vec<Option<(u32, Order)>>,
+    now: Vec<Option<(u32, Drawn)>>,
 }
 
 impl DepthReplay {
@@ -50,7 +73,7 @@ impl DepthReplay {
 
     /// Puppet `puppet`'s order now (`None` without a depth order, or once
     /// the replay has been dropped).
-    pub(crate) fn order(&self, puppet: u32) -> Option<Order> {
+    pub(crate) fn order(&self, puppet: u32) -> Option<Drawn> {
         self.replayer.as_ref()?;
         self.now
             .get(puppet as usize)?
@@ -70,7 +93,7 @@ impl DepthReplay {
 
     /// The order puppet `frame.puppet` is drawn in with this recorded
     /// frame, or `None` (for good) once the replay does not give it.
-    pub(crate) fn frame(&mut self, frame: &Frame) -> Option<Order> {
+    pub(crate) fn frame(&mut self, frame: &Frame) -> Option<Drawn> {
         let r = self.replayer.as_ref()?;
         let same = r
             .stage()
@@ -102,28 +125,23 @@ impl DepthReplay {
             if now.as_ref().is_some_and(|(g, _)| *g == generation) {
                 continue;
             }
-            *now = Some((generation, order_of(depth)));
+            *now = Some((generation, Drawn::of(depth)));
         }
     }
 }
 
-/// Triangles sorted back to front by depth; ties keep the mesh's order,
-/// as the page's sort does.
-fn order_of(depth: &[u16]) -> Order {
-    let mut order: Vec<u32> = (0..depth.len() as u32).collect();
-    order.sort_by_key(|&t| depth[t as usize]);
-    order.into()
-}
+/// A puppet's exported frames' depths and orders
+/// ([`crate::AnimatedPuppet::depths`], [`crate::AnimatedPuppet::draw_orders`]).
+pub(crate) type Drawing = (Vec<Arc<[u16]>>, Vec<Arc<[u32]>>);
 
-/// The orders of a puppet's exported frames, or none where every one is
-/// the mesh's own (drawn the plain way).
-pub(crate) fn unless_plain(orders: Vec<Order>) -> Vec<Order> {
-    let plain = |o: &Order| o.iter().enumerate().all(|(i, &t)| i == t as usize);
-    if orders.iter().all(plain) {
-        Vec::new()
-    } else {
-        orders
+/// The depths and orders of a puppet's exported frames, or none where
+/// every order is the mesh's own (drawn the plain way).
+pub(crate) fn unless_plain(frames: Vec<Drawn>) -> Drawing {
+    let plain = |d: &Drawn| d.order.iter().enumerate().all(|(i, &t)| i == t as usize);
+    if frames.iter().all(plain) {
+        return (Vec::new(), Vec::new());
     }
+    frames.into_iter().map(|d| (d.depth, d.order)).unzip()
 }
 
 /// Each frame's order as the depth order run over the recorded frames in
@@ -132,11 +150,11 @@ pub(crate) fn unless_plain(orders: Vec<Order>) -> Vec<Order> {
 /// at the export's frame rate, not the live solve rate, so where the live
 /// decision depended on the path between two exported frames the export
 /// may decide otherwise.
-pub(crate) fn orders_of_frames(mesh: &puppetry_mesh::Mesh, frames: &[Vec<[f32; 2]>]) -> Vec<Order> {
+pub(crate) fn orders_of_frames(mesh: &puppetry_mesh::Mesh, frames: &[Vec<[f32; 2]>]) -> Drawing {
     let Ok(mut depth) = puppetry_deform::depth::DepthOrder::register(mesh, mesh.layers()) else {
-        return Vec::new();
+        return (Vec::new(), Vec::new());
     };
-    let mut last: Order = (0..mesh.triangles().len() as u32).collect();
+    let mut last = Drawn::plain(mesh.triangles().len());
     let mut positions = Vec::new();
     let orders = frames
         .iter()
@@ -149,7 +167,7 @@ pub(crate) fn orders_of_frames(mesh: &puppetry_mesh::Mesh, frames: &[Vec<[f32; 2
             );
             // A pose that cannot be ordered keeps the last order.
             if depth.update(&positions).is_ok() && depth.changed() {
-                last = order_of(depth.depth());
+                last = Drawn::of(depth.depth());
             }
             last.clone()
         })

@@ -26,6 +26,7 @@
 
 pub mod budget;
 mod drawing;
+pub mod folds;
 pub mod format;
 pub mod frames;
 pub mod gltf;
@@ -245,6 +246,10 @@ pub struct AnimatedPuppet {
     /// puppet overlaps itself (`docs/depth.md`); frames that share an order
     /// share it. Empty: mesh order throughout.
     pub draw_orders: Vec<std::sync::Arc<[u32]>>,
+    /// Frame k's depth of each triangle (larger = nearer), which gave
+    /// `draw_orders[k]`: overlapping triangles never share one. Empty
+    /// with `draw_orders`.
+    pub depths: Vec<std::sync::Arc<[u16]>>,
     /// A skeleton puppet's skeleton at rest: Spine exports it as bones
     /// fitted to the frames ([`skin`]); none for the other rigs.
     pub skeleton: Option<skin::SkeletonRest>,
@@ -276,6 +281,7 @@ impl AnimatedPuppet {
             image: load_picture(&p.picture)?,
             frames,
             draw_orders: Vec::new(),
+            depths: Vec::new(),
             skeleton,
         })
     }

@@ -29,6 +29,12 @@
 //!   the same permutation, which the export returns ([`SpineLayout`]).
 //!   (Spine knows one hull per mesh: a puppet of several islands or with
 //!   holes has its other boundary vertices after the hull.)
+//! - **Folds.** Spine draws a mesh attachment's triangles in the order it
+//!   lists them, for the whole clip. A puppet that overlaps itself lists
+//!   them in an order that draws every overlap as the page did
+//!   ([`crate::folds`]); where its fold changes sides, its slot switches
+//!   (attachment keys) to another attachment of the same vertices and
+//!   deform listed in the next order.
 //! - **Pictures.** `uvs` are the mesh's own (v down from the picture's top
 //!   edge, as Spine's region UVs). Each attachment's `path` names its
 //!   picture; [`export_spine`] writes the pictures beside the JSON as
@@ -87,6 +93,16 @@ pub struct SpinePuppet {
     /// and mean distance in stage units between the skinned vertices and
     /// the take's over every frame ([`crate::skin::Skin`]).
     pub bones: Option<(usize, f64, f64)>,
+    /// The slot's mesh attachments, each with the frame it is shown from:
+    /// one, named as the slot, for a puppet drawn in one triangle order;
+    /// for one whose folds change sides, one per run of
+    /// [`crate::folds::runs`] (`SLOT`, `SLOT 2`, …: the same vertices and
+    /// deform, the triangles listed in that run's order), switched by the
+    /// slot's attachment keys.
+    pub attachments: Vec<(String, usize)>,
+    /// Its folds needed more than [`crate::folds::MAX_RUNS`] orders: drawn
+    /// in its mesh's order throughout.
+    pub unkept_folds: bool,
 }
 
 /// How the export laid out the puppets, in slot order.
@@ -248,21 +264,14 @@ pub fn write_spine(
                     .collect::<Vec<f32>>()
             ),
         };
-        let triangles: Vec<u32> = p
-            .triangles
-            .iter()
-            .flatten()
-            .map(|&v| new_index[v as usize])
-            .collect();
+        let mesh = json!({
+            "type": "mesh", "path": path,
+            "uvs": uvs, "vertices": setup, "hull": hull,
+            "width": p.image.width, "height": p.image.height,
+        });
+        let (meshes, attachments, unkept_folds) = attachments(p, name, mesh, &new_index);
         slots.push(json!({"name": name, "bone": "root", "attachment": name}));
-        skin.insert(
-            name.clone(),
-            json!({name.clone(): {
-                "type": "mesh", "path": path,
-                "uvs": uvs, "triangles": triangles, "vertices": setup, "hull": hull,
-                "width": p.image.width, "height": p.image.height,
-            }}),
-        );
+        skin.insert(name.clone(), Value::Object(meshes));
         layout.puppets.push(SpinePuppet {
             slot: name.clone(),
             path: path.clone(),
@@ -271,6 +280,8 @@ pub fn write_spine(
             bones: fitted
                 .as_ref()
                 .map(|rig| (rig.names.len(), rig.skin.max_error, rig.skin.mean_error)),
+            attachments,
+            unkept_folds,
         });
         rigs.push(fitted);
     }
@@ -326,8 +337,76 @@ pub fn write_spine(
             progress.step(done, total);
         })?;
     }
-    out.write_all(b"}}}}}\n").map_err(err)?;
+    out.write_all(b"}}").map_err(err)?;
+    let switches = attachment_keys(animation, &layout);
+    if !switches.is_empty() {
+        out.write_all(b",\"slots\":").map_err(err)?;
+        serde_json::to_writer(&mut *out, &switches).map_err(|e| err(e.into()))?;
+    }
+    out.write_all(b"}}}\n").map_err(err)?;
     Ok(layout)
+}
+
+/// A puppet's mesh attachments (`mesh` with its `triangles` listed in each
+/// run's order, [`crate::folds::runs`]), each with the frame it shows
+/// from, and whether its folds went past [`crate::folds::MAX_RUNS`]. A
+/// skeleton puppet keeps its first frame's order (its mesh is weighted to
+/// its bones whole).
+fn attachments(
+    p: &AnimatedPuppet,
+    name: &str,
+    mesh: Value,
+    new_index: &[u32],
+) -> (serde_json::Map<String, Value>, Vec<(String, usize)>, bool) {
+    let runs = match p.skeleton {
+        Some(_) => Ok(None),
+        None => crate::folds::runs(p),
+    };
+    let unkept_folds = runs.is_err();
+    let (starts, orders) = match runs {
+        Ok(Some(r)) => (r.starts, r.orders),
+        _ => (vec![0], vec![(0..p.triangles.len() as u32).collect()]),
+    };
+    let mut meshes = serde_json::Map::new();
+    let mut attachments = Vec::new();
+    for (i, (&start, order)) in starts.iter().zip(&orders).enumerate() {
+        let attachment = if i == 0 {
+            name.to_string()
+        } else {
+            format!("{name} {}", i + 1)
+        };
+        let triangles: Vec<u32> = order
+            .iter()
+            .flat_map(|&t| p.triangles[t as usize])
+            .map(|v| new_index[v as usize])
+            .collect();
+        let mut mesh = mesh.clone();
+        mesh["triangles"] = json!(triangles);
+        meshes.insert(attachment.clone(), mesh);
+        attachments.push((attachment, start));
+    }
+    (meshes, attachments, unkept_folds)
+}
+
+/// The slots' attachment keys (`animations.NAME.slots`): where a folding
+/// puppet's order changes, its slot shows the next attachment, half a
+/// frame early (Spine keeps key times in f32, and a switch at the frame's
+/// own time could come after it).
+fn attachment_keys(animation: &Animation, layout: &SpineLayout) -> serde_json::Map<String, Value> {
+    layout
+        .puppets
+        .iter()
+        .filter(|placed| placed.attachments.len() > 1)
+        .map(|placed| {
+            let keys: Vec<Value> = placed.attachments[1..]
+                .iter()
+                .map(|(name, start)| {
+                    json!({"time": (*start as f64 - 0.5) / animation.fps, "name": name})
+                })
+                .collect();
+            (placed.slot.clone(), json!({"attachment": keys}))
+        })
+        .collect()
 }
 
 /// A free-form or grid puppet's deform timeline in `placed`'s vertex
@@ -347,45 +426,82 @@ fn write_deform(
         source,
     };
     let name = serde_json::to_string(&placed.slot).expect("a string serialises");
-    write!(out, "{name}:{{{name}:{{\"deform\":[").map_err(err)?;
-    let setup = &p.frames[0];
-    for k in 0..animation.frame_count {
-        offsets.clear();
-        offsets.extend(placed.order.iter().flat_map(|&v| {
-            let (q, o) = (p.frames[k][v as usize], setup[v as usize]);
-            [q[0] - o[0], q[1] - o[1]]
-        }));
-        let first = offsets.iter().position(|&d| d != 0.0);
-        let last = offsets.iter().rposition(|&d| d != 0.0);
-        let key = match (first, last) {
-            (Some(a), Some(b)) => Key {
-                time: k as f64 / animation.fps,
-                offset: (a > 0).then_some(a),
-                vertices: Some(&offsets[a..=b]),
-            },
-            _ => Key {
-                time: k as f64 / animation.fps,
-                offset: None,
-                vertices: None,
-            },
-        };
-        if k > 0 {
+    write!(out, "{name}:{{").map_err(err)?;
+    for (i, (attachment, start)) in placed.attachments.iter().enumerate() {
+        // Each attachment's keys over the frames it is shown, from the
+        // frame before its first (it shows from half a frame before) to
+        // the next one's first, so it blends across the switch as the
+        // frames do; the last is held for its frame's time.
+        let end = placed
+            .attachments
+            .get(i + 1)
+            .map_or(animation.frame_count - 1, |&(_, next)| next);
+        let from = start.saturating_sub(1);
+        if i > 0 {
             out.write_all(b",").map_err(err)?;
         }
-        serde_json::to_writer(&mut *out, &key).map_err(|e| err(e.into()))?;
-        // The last frame is held for its frame's time, so the clip
-        // lasts n / fps like the take's video, not (n − 1) / fps.
-        if k + 1 == animation.frame_count {
-            let hold = Key {
-                time: animation.duration(),
-                ..key
-            };
-            out.write_all(b",").map_err(err)?;
-            serde_json::to_writer(&mut *out, &hold).map_err(|e| err(e.into()))?;
+        serde_json::to_writer(&mut *out, attachment).map_err(|e| err(e.into()))?;
+        out.write_all(b":{\"deform\":[").map_err(err)?;
+        for k in from..=end {
+            if k > from {
+                out.write_all(b",").map_err(err)?;
+            }
+            write_key(out, animation, p, placed, k, offsets)?;
+            if k >= *start && (k < end || i + 1 == placed.attachments.len()) {
+                counted(1);
+            }
         }
-        counted(1);
+        out.write_all(b"]}").map_err(err)?;
     }
-    out.write_all(b"]}}").map_err(err)?;
+    out.write_all(b"}").map_err(err)?;
+    Ok(())
+}
+
+/// Frame k's deform key of a puppet (and after the last frame, the key
+/// that holds it for its frame's time, so the clip lasts n / fps like the
+/// take's video, not (n − 1) / fps).
+fn write_key(
+    out: &mut dyn Write,
+    animation: &Animation,
+    p: &AnimatedPuppet,
+    placed: &SpinePuppet,
+    k: usize,
+    offsets: &mut Vec<f32>,
+) -> Result<(), ExportError> {
+    let err = |source| ExportError::Io {
+        file: "Spine output".into(),
+        source,
+    };
+    let setup = &p.frames[0];
+    offsets.clear();
+    offsets.extend(placed.order.iter().flat_map(|&v| {
+        let (q, o) = (p.frames[k][v as usize], setup[v as usize]);
+        [q[0] - o[0], q[1] - o[1]]
+    }));
+    let first = offsets.iter().position(|&d| d != 0.0);
+    let last = offsets.iter().rposition(|&d| d != 0.0);
+    let time = k as f64 / animation.fps;
+    let key = match (first, last) {
+        (Some(a), Some(b)) => Key {
+            time,
+            offset: (a > 0).then_some(a),
+            vertices: Some(&offsets[a..=b]),
+        },
+        _ => Key {
+            time,
+            offset: None,
+            vertices: None,
+        },
+    };
+    serde_json::to_writer(&mut *out, &key).map_err(|e| err(e.into()))?;
+    if k + 1 == animation.frame_count {
+        let hold = Key {
+            time: animation.duration(),
+            ..key
+        };
+        out.write_all(b",").map_err(err)?;
+        serde_json::to_writer(&mut *out, &hold).map_err(|e| err(e.into()))?;
+    }
     Ok(())
 }
 

@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::drawing::Order;
+use crate::drawing::Drawn;
 use crate::format::Format;
 use crate::{AnimatedPuppet, Animation, ExportError, Progress};
 use puppetry_stage::Stage;
@@ -320,10 +320,10 @@ pub fn read_take(
     } else {
         None
     };
-    let mut order_now: Vec<Option<Order>> = (0..current.len() as u32)
+    let mut order_now: Vec<Option<Drawn>> = (0..current.len() as u32)
         .map(|q| depth.as_ref().and_then(|d| d.order(q)))
         .collect();
-    let mut orders: Vec<Vec<Option<Order>>> = vec![Vec::with_capacity(n); current.len()];
+    let mut orders: Vec<Vec<Option<Drawn>>> = vec![Vec::with_capacity(n); current.len()];
     let instant = |k: usize| from + k as f64 / fps;
     for record in reader.by_ref() {
         let frame = match record {
@@ -385,10 +385,10 @@ pub fn read_take(
                 ),
             });
         };
-        let draw_orders = match p.depth() {
-            None => Vec::new(),
+        let (depths, draw_orders) = match p.depth() {
+            None => (Vec::new(), Vec::new()),
             Some(_) if replayed => {
-                let plain = mesh_order(&p.mesh);
+                let plain = Drawn::plain(p.mesh.triangles().len());
                 crate::drawing::unless_plain(
                     std::mem::take(&mut orders[id as usize])
                         .into_iter()
@@ -400,6 +400,7 @@ pub fn read_take(
         };
         let mut puppet = AnimatedPuppet::of_puppet(p, motion)?;
         puppet.draw_orders = draw_orders;
+        puppet.depths = depths;
         puppets.push(puppet);
     }
     Ok(TakeAnimation {
@@ -521,6 +522,22 @@ pub fn export_take_with(
                 out,
             )?;
             for p in &layout.puppets {
+                if p.unkept_folds {
+                    notes.push(format!(
+                        "{}: its folds change sides more than {} times: Spine draws it in its \
+                         mesh's order, so where it overlaps itself it may show otherwise than \
+                         the page did",
+                        p.slot,
+                        crate::folds::MAX_RUNS
+                    ));
+                } else if p.attachments.len() > 1 {
+                    notes.push(format!(
+                        "{}: {} attachments, one per drawing order its folds take, switched \
+                         by attachment keys",
+                        p.slot,
+                        p.attachments.len()
+                    ));
+                }
                 if let Some((bones, max, mean)) = p.bones {
                     notes.push(format!(
                         "{}: {bones} bones; the skinned mesh is within {max:.2} stage units \
@@ -607,9 +624,4 @@ pub fn preflight(request: &ExportRequest) -> Result<(), TakeExportError> {
         }
     }
     Ok(())
-}
-
-/// The mesh's own triangle order.
-fn mesh_order(mesh: &puppetry_mesh::Mesh) -> Order {
-    (0..mesh.triangles().len() as u32).collect()
 }

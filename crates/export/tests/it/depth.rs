@@ -81,8 +81,8 @@ fn drawn_in_rank(
 ) -> (usize, usize) {
     let p = &animation.puppets[0];
     let (w, h) = (1280u32, 720u32);
-    let textures = textures(&animation);
-    let mut raster = Rasterizer::new(&animation, &textures, w, h);
+    let textures = textures(animation);
+    let mut raster = Rasterizer::new(animation, &textures, w, h);
     let view = raster.viewport();
     let mut out = vec![0u8; (w * h * 4) as usize];
     raster.render(k, &mut out);
@@ -299,4 +299,131 @@ fn the_glb_lists_each_frames_triangles_in_its_drawing_order() {
         "three.js draws the stage's order at all {} frames, {folded} of them folded",
         frames.len()
     ));
+}
+
+/// Spine draws a mesh attachment's triangles in one order, so a puppet
+/// whose fold changes sides comes as one attachment per drawing order,
+/// switched by attachment keys. Read back in spine-core at every frame,
+/// wherever two triangles of the frame overlap, the one the page drew in
+/// front is the later in the attachment Spine shows (the fold, and after
+/// the Alt+click flip the body), and the vertices are the frame's.
+#[test]
+fn spine_shows_a_fold_and_its_flip_as_the_page_did() {
+    if !crate::common::browser_enabled("spine_shows_a_fold_and_its_flip_as_the_page_did") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let take = dir.path().join("flip.take");
+    let config = config("pieces");
+    let mut stage = Stage::from_config(&config).unwrap();
+    let mut points = fold_points(&mut stage);
+    let at = *points.last().unwrap();
+    points.extend([at; 6]);
+    crate::fixture::record_drag_with(&take, &mut stage, "flip", FPS, &points, |k, stage| {
+        if k == 13 {
+            vec![puppetry_stage::Change::DepthFlip {
+                at: overlap_point(stage),
+            }]
+        } else {
+            Vec::new()
+        }
+    });
+    let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
+    let p = &animation.puppets[0];
+    let json = dir.path().join("flip.json");
+    let layout = puppetry_export::spine::export_spine(
+        &animation,
+        &puppetry_export::spine::SpineOptions::default(),
+        &mut (),
+        &json,
+    )
+    .unwrap();
+    let placed = &layout.puppets[0];
+    assert!(placed.attachments.len() >= 2, "{:?}", placed.attachments);
+    // A triangle by its corners, as the puppet's vertices.
+    let key = |mut t: [u32; 3]| {
+        t.sort_unstable();
+        t
+    };
+    let triangle_of: std::collections::HashMap<[u32; 3], usize> = p
+        .triangles
+        .iter()
+        .enumerate()
+        .map(|(i, &t)| (key(t), i))
+        .collect();
+    let ks: Vec<usize> = (0..animation.frame_count).collect();
+    let times: Vec<String> = ks.iter().map(|&k| (k as f64 / FPS).to_string()).collect();
+    let result = crate::common::node_script(
+        "export-spine.mjs",
+        &["@esotericsoftware/spine-core"],
+        &[crate::common::arg(&json), "take", &times.join(",")],
+    );
+    let (mut checked, mut wrong) = (0, 0);
+    let mut shown = std::collections::HashSet::new();
+    for (sample, &k) in result["samples"].as_array().unwrap().iter().zip(&ks) {
+        let attached = &sample["attached"][&placed.slot];
+        shown.insert(attached["name"].as_str().unwrap().to_string());
+        let indices: Vec<u32> = attached["triangles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| placed.order[v.as_u64().unwrap() as usize])
+            .collect();
+        let mut rank = vec![usize::MAX; p.triangles.len()];
+        for (i, corners) in indices.chunks(3).enumerate() {
+            rank[triangle_of[&key([corners[0], corners[1], corners[2]])]] = i;
+        }
+        assert!(
+            rank.iter().all(|&r| r != usize::MAX),
+            "frame {k}: a triangle is missing"
+        );
+        let pos = &p.frames[k];
+        let corner = |v: u32| DVec2::new(pos[v as usize][0] as f64, pos[v as usize][1] as f64);
+        let boxes: Vec<(DVec2, DVec2)> = p
+            .triangles
+            .iter()
+            .map(|t| {
+                let c = t.map(corner);
+                (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]))
+            })
+            .collect();
+        for xi in 0..(1280 / 4) {
+            for yi in 0..(720 / 4) {
+                let q = DVec2::new(xi as f64 * 4.0 + 0.5, yi as f64 * 4.0 + 0.5);
+                let over: Vec<usize> = (0..p.triangles.len())
+                    .filter(|&t| boxes[t].0.cmple(q).all() && q.cmple(boxes[t].1).all())
+                    .filter(|&t| {
+                        let [a, b, c] = p.triangles[t].map(corner);
+                        let d = (b - c).perp_dot(a - c);
+                        let l1 = (b - c).perp_dot(q - c) / d;
+                        let l2 = (c - a).perp_dot(q - c) / d;
+                        d.abs() > 1e-9 && l1 > 0.05 && l2 > 0.05 && 1.0 - l1 - l2 > 0.05
+                    })
+                    .collect();
+                if over.len() < 2 {
+                    continue;
+                }
+                checked += 1;
+                let front = *over.iter().max_by_key(|&&t| p.depths[k][t]).unwrap();
+                let last = *over.iter().max_by_key(|&&t| rank[t]).unwrap();
+                if front != last {
+                    wrong += 1;
+                }
+            }
+        }
+        let world = sample["slots"][&placed.slot].as_array().unwrap();
+        for (i, &v) in placed.order.iter().enumerate() {
+            let e = p.frames[k][v as usize];
+            for c in 0..2 {
+                let got = world[i * 2 + c].as_f64().unwrap();
+                assert!((got - e[c] as f64).abs() <= 1e-4, "frame {k}, vertex {v}");
+            }
+        }
+    }
+    eprintln!(
+        "spine: {checked} overlap samples, {wrong} drawn otherwise than the page; attachments shown: {shown:?}"
+    );
+    assert!(checked >= 100, "{checked} samples");
+    assert_eq!(wrong, 0, "{wrong} of {checked} samples");
+    assert!(shown.len() >= 2, "{shown:?}");
 }

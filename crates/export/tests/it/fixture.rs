@@ -77,6 +77,7 @@ pub fn bending_puppet(
         image,
         frames,
         draw_orders: Vec::new(),
+        depths: Vec::new(),
         skeleton: None,
     }
 }

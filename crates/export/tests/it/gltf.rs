@@ -288,6 +288,7 @@ fn square(
         },
         frames: vec![corners.clone(), corners],
         draw_orders: Vec::new(),
+        depths: Vec::new(),
         skeleton: None,
     }
 }
