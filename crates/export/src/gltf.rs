@@ -46,7 +46,9 @@
 //! `cM` and a one-hot weight for target `k − cM` at `k`; with `LINEAR`
 //! interpolation frame k is exact at `t = k / fps` and a time in between
 //! blends the two neighbouring frames, exactly as sampling the frames
-//! linearly would. A `STEP` scale channel (1 while the chunk plays, 0
+//! linearly would — except into a frame the take stepped into (a let-go,
+//! [`crate::AnimatedPuppet::snaps`]): a key just before it holds the frame
+//! before, so the snap is a step, as the page showed it. A `STEP` scale channel (1 while the chunk plays, 0
 //! otherwise) shows each chunk's node only during its own chunk; at a seam
 //! either chunk shows the same shared frame, so a player's rounding of the
 //! switch time cannot show a wrong pose; the last chunk stays shown to
@@ -818,13 +820,28 @@ impl Pass<'_> {
         }
         arrays.nodes.push(node);
 
-        // Weights: one key per frame of the chunk, one-hot (zeros first).
+        // Weights: one key per frame of the chunk, one-hot (zeros first);
+        // where the take stepped into a frame (a let-go), the frame before
+        // is held until just before it instead of blending into it.
         if targets > 0 {
-            let input = b.floats(&times[first..=last], "SCALAR", None, true)?;
-            let mut w = vec![0.0f32; (targets + 1) * targets];
-            for j in 1..=targets {
-                w[j * targets + j - 1] = 1.0;
+            let one_hot = |j: usize, w: &mut Vec<f32>| {
+                let at = w.len();
+                w.resize(at + targets, 0.0);
+                if j > 0 {
+                    w[at + j - 1] = 1.0;
+                }
+            };
+            let (mut keys, mut w) = (Vec::new(), Vec::new());
+            for j in 0..=targets {
+                let k = first + j;
+                if j > 0 && p.snaps_into(k) {
+                    keys.push(just_before(times[k]));
+                    one_hot(j - 1, &mut w);
+                }
+                keys.push(times[k]);
+                one_hot(j, &mut w);
             }
+            let input = b.floats(&keys, "SCALAR", None, true)?;
             let output = b.floats(&w, "SCALAR", None, false)?;
             arrays.animate(node_index, "weights", input, output, "LINEAR");
         }

@@ -250,6 +250,11 @@ pub struct AnimatedPuppet {
     /// `draw_orders[k]`: overlapping triangles never share one. Empty
     /// with `draw_orders`.
     pub depths: Vec<std::sync::Arc<[u16]>>,
+    /// The frames the take stepped into: a handle of the puppet was let
+    /// go since the frame before, so the pose jumped there (a puppet let
+    /// go springs back in one solve). Keyed formats hold the frame before
+    /// until this one instead of blending the two. Ascending.
+    pub snaps: Vec<usize>,
     /// A skeleton puppet's skeleton at rest: Spine exports it as bones
     /// fitted to the frames ([`skin`]); none for the other rigs.
     pub skeleton: Option<skin::SkeletonRest>,
@@ -282,8 +287,14 @@ impl AnimatedPuppet {
             frames,
             draw_orders: Vec::new(),
             depths: Vec::new(),
+            snaps: Vec::new(),
             skeleton,
         })
+    }
+
+    /// Whether the take stepped into frame `k` ([`AnimatedPuppet::snaps`]).
+    pub fn snaps_into(&self, k: usize) -> bool {
+        self.snaps.binary_search(&k).is_ok()
     }
 
     /// The number of vertices: one per texture coordinate.

@@ -20,7 +20,9 @@
 //!   identity), so key k holds `frame k − frame 0`.
 //! - **Keys at `t = k / fps`, linear** (Spine's default curve): applying
 //!   the animation at `k / fps` gives frame k exactly, and times in between
-//!   blend the neighbouring frames, as the glTF export does.
+//!   blend the neighbouring frames, as the glTF export does — except into
+//!   a frame the take stepped into (a let-go, [`AnimatedPuppet::snaps`]):
+//!   the key before it is `stepped`, so the held pose stays until the snap.
 //! - **Hull first.** Spine wants the mesh's hull — the vertices of its
 //!   boundary loop, in loop order — to be the first `hull` vertices. The
 //!   vertices are reordered so: the longest boundary loop (counter-
@@ -213,6 +215,10 @@ fn names(animation: &Animation, prefix: &str) -> Vec<(String, String)> {
 #[derive(Serialize)]
 struct Key<'a> {
     time: f64,
+    /// `stepped` where the take stepped into the next frame (a let-go):
+    /// the pose holds until it instead of blending into it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    curve: Option<&'static str>,
     #[serde(skip_serializing_if = "Option::is_none")]
     offset: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -252,6 +258,7 @@ pub fn write_spine(
         let fitted = p.skeleton.as_ref().map(|rest| {
             let skin = crate::skin::fit(p, rest);
             let mut rig = SpineRig::new(name, rest, skin);
+            rig.snaps = p.snaps.clone();
             rig.push_bones(&mut bones);
             rig
         });
@@ -481,14 +488,17 @@ fn write_key(
     let first = offsets.iter().position(|&d| d != 0.0);
     let last = offsets.iter().rposition(|&d| d != 0.0);
     let time = k as f64 / animation.fps;
+    let curve = p.snaps_into(k + 1).then_some("stepped");
     let key = match (first, last) {
         (Some(a), Some(b)) => Key {
             time,
+            curve,
             offset: (a > 0).then_some(a),
             vertices: Some(&offsets[a..=b]),
         },
         _ => Key {
             time,
+            curve,
             offset: None,
             vertices: None,
         },
@@ -520,6 +530,8 @@ struct SpineRig {
     skin: Skin,
     /// Per skeleton bone, its index among the Spine skeleton's bones.
     index: Vec<usize>,
+    /// The frames the take stepped into ([`AnimatedPuppet::snaps`]).
+    snaps: Vec<usize>,
 }
 
 impl SpineRig {
@@ -532,6 +544,7 @@ impl SpineRig {
             order: rest.order(),
             skin,
             index: Vec::new(),
+            snaps: Vec::new(),
         }
     }
 
@@ -599,9 +612,16 @@ impl SpineRig {
                     // To 1e-4 (degrees, stage units): a third of the text,
                     // far below what the fit is off by.
                     let short = |v: f64| (v * 1e4).round() / 1e4;
-                    rotate.push(json!({"time": time, "value": short(degrees)}));
-                    translate
-                        .push(json!({"time": time, "x": short(offset.x), "y": short(offset.y)}));
+                    let mut turn = json!({"time": time, "value": short(degrees)});
+                    let mut shift =
+                        json!({"time": time, "x": short(offset.x), "y": short(offset.y)});
+                    // Held until the frame the take stepped into.
+                    if self.snaps.binary_search(&(k + 1)).is_ok() {
+                        turn["curve"] = json!("stepped");
+                        shift["curve"] = json!("stepped");
+                    }
+                    rotate.push(turn);
+                    translate.push(shift);
                 }
                 (b, json!({"rotate": rotate, "translate": translate}))
             })

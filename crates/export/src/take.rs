@@ -306,32 +306,25 @@ pub fn read_take(
     // Before the first recorded frame a puppet shows its pose at the start.
     let replayer = puppetry_take::replay::Replayer::new(stage);
     let stage = replayer.stage();
-    let mut current: Vec<Vec<[f32; 2]>> = stage
+    let current: Vec<Vec<[f32; 2]>> = stage
         .puppets()
         .iter()
         .map(|p| p.pose().iter().map(|q| [q.x as f32, q.y as f32]).collect())
         .collect();
-    let mut frames: Vec<Vec<Vec<[f32; 2]>>> = vec![Vec::with_capacity(n); current.len()];
     // The drawing order as the live stage had it, where a puppet folds
     // over itself: from a replay of the steps while it holds.
-    let mut depth = if stage.puppets().iter().any(|p| p.depth().is_some()) {
+    let depth = if stage.puppets().iter().any(|p| p.depth().is_some()) {
         let fresh = Stage::from_config(&puppetry_take::stage_config(config, &reader.header))?;
         Some(crate::drawing::DepthReplay::new(fresh))
     } else {
         None
     };
-    let mut order_now: Vec<Option<Drawn>> = (0..current.len() as u32)
-        .map(|q| depth.as_ref().and_then(|d| d.order(q)))
-        .collect();
-    let mut orders: Vec<Vec<Option<Drawn>>> = vec![Vec::with_capacity(n); current.len()];
-    let instant = |k: usize| from + k as f64 / fps;
+    let mut sampling = Sampling::new(current, depth, from, fps, n);
     for record in reader.by_ref() {
         let frame = match record {
             Ok(Record::Frame(frame)) => frame,
             Ok(Record::Step(step)) => {
-                if let Some(d) = &mut depth {
-                    d.step(&step);
-                }
+                sampling.step(&step);
                 continue;
             }
             Ok(_) => continue,
@@ -340,7 +333,7 @@ pub fn read_take(
             Err(e) => return Err(e.into()),
         };
         let p = frame.puppet as usize;
-        if p >= current.len() || frame.points.len() != current[p].len() {
+        if p >= sampling.current.len() || frame.points.len() != sampling.current[p].len() {
             return Err(TakeExportError::Mismatch {
                 file: take.display().to_string(),
                 problem: format!(
@@ -350,59 +343,10 @@ pub fn read_take(
                 ),
             });
         }
-        // Every instant before this frame shows what was current then.
-        for (q, out) in frames.iter_mut().enumerate() {
-            while out.len() < n && instant(out.len()) < frame.t {
-                out.push(current[q].clone());
-                orders[q].push(order_now[q].clone());
-            }
-        }
-        if let Some(d) = &mut depth {
-            order_now[p] = d.frame(&frame);
-        }
-        current[p] = frame.points;
+        sampling.frame(frame);
     }
-    for (q, out) in frames.iter_mut().enumerate() {
-        while out.len() < n {
-            out.push(current[q].clone());
-            orders[q].push(order_now[q].clone());
-        }
-    }
-    let replayed = depth.as_ref().is_some_and(|d| d.holds());
-    // Bottom to top as the stage drew them; a puppet a director had
-    // removed before the take is not drawn.
-    let mut motions: Vec<Option<_>> = frames.into_iter().map(Some).collect();
-    let mut puppets = Vec::new();
-    for id in reader.header.drawn() {
-        let (Some(p), Some(motion)) = (
-            stage.puppets().get(id as usize),
-            motions.get_mut(id as usize).and_then(Option::take),
-        ) else {
-            return Err(TakeExportError::Mismatch {
-                file: take.display().to_string(),
-                problem: format!(
-                    "the header's lineup names puppet {id} twice or one not on the stage"
-                ),
-            });
-        };
-        let (depths, draw_orders) = match p.depth() {
-            None => (Vec::new(), Vec::new()),
-            Some(_) if replayed => {
-                let plain = Drawn::plain(p.mesh.triangles().len());
-                crate::drawing::unless_plain(
-                    std::mem::take(&mut orders[id as usize])
-                        .into_iter()
-                        .map(|o| o.unwrap_or_else(|| plain.clone()))
-                        .collect(),
-                )
-            }
-            Some(_) => crate::drawing::orders_of_frames(&p.mesh, &motion),
-        };
-        let mut puppet = AnimatedPuppet::of_puppet(p, motion)?;
-        puppet.draw_orders = draw_orders;
-        puppet.depths = depths;
-        puppets.push(puppet);
-    }
+    sampling.finish();
+    let puppets = sampling.puppets(take, stage, &reader.header)?;
     Ok(TakeAnimation {
         animation: Animation {
             stage_width: stage.width,
@@ -414,6 +358,149 @@ pub fn read_take(
         salvaged,
         show: ShowTrack::new(&survey.clocks),
     })
+}
+
+/// A take's frames sampled at the export's instants `from + k / fps`,
+/// per puppet: the pose each instant showed (the last recorded before it),
+/// its drawing order, and where the take stepped (a let-go).
+struct Sampling {
+    from: f64,
+    fps: f64,
+    n: usize,
+    /// Per puppet, its latest recorded pose.
+    current: Vec<Vec<[f32; 2]>>,
+    frames: Vec<Vec<Vec<[f32; 2]>>>,
+    depth: Option<crate::drawing::DepthReplay>,
+    order_now: Vec<Option<Drawn>>,
+    orders: Vec<Vec<Option<Drawn>>>,
+    /// Per puppet: a handle was let go since its last frame.
+    let_go: Vec<bool>,
+    snaps: Vec<Vec<usize>>,
+}
+
+impl Sampling {
+    fn new(
+        current: Vec<Vec<[f32; 2]>>,
+        depth: Option<crate::drawing::DepthReplay>,
+        from: f64,
+        fps: f64,
+        n: usize,
+    ) -> Sampling {
+        let puppets = current.len();
+        Sampling {
+            from,
+            fps,
+            n,
+            order_now: (0..puppets as u32)
+                .map(|q| depth.as_ref().and_then(|d| d.order(q)))
+                .collect(),
+            depth,
+            current,
+            frames: vec![Vec::with_capacity(n); puppets],
+            orders: vec![Vec::with_capacity(n); puppets],
+            let_go: vec![false; puppets],
+            snaps: vec![Vec::new(); puppets],
+        }
+    }
+
+    fn step(&mut self, step: &puppetry_take::Step) {
+        for event in &step.events {
+            if let puppetry_stage::StageEvent::Removed { puppet, .. } = event
+                && let Some(let_go) = self.let_go.get_mut(*puppet as usize)
+            {
+                *let_go = true;
+            }
+        }
+        if let Some(d) = &mut self.depth {
+            d.step(step);
+        }
+    }
+
+    /// Takes a recorded frame (of a puppet on the stage, of its size).
+    fn frame(&mut self, frame: puppetry_take::Frame) {
+        let p = frame.puppet as usize;
+        // Every instant before this frame shows what was current then.
+        self.fill(|instant| instant < frame.t);
+        if let Some(d) = &mut self.depth {
+            self.order_now[p] = d.frame(&frame);
+        }
+        // The next exported frame shows this pose: the take stepped into
+        // it where a handle was let go since the last one.
+        let next = self.frames[p].len();
+        if std::mem::take(&mut self.let_go[p])
+            && next < self.n
+            && self.snaps[p].last() != Some(&next)
+        {
+            self.snaps[p].push(next);
+        }
+        self.current[p] = frame.points;
+    }
+
+    /// Samples every puppet's current pose at the instants `before` holds.
+    fn fill(&mut self, before: impl Fn(f64) -> bool) {
+        let (from, fps, n) = (self.from, self.fps, self.n);
+        for (q, out) in self.frames.iter_mut().enumerate() {
+            while out.len() < n && before(from + out.len() as f64 / fps) {
+                out.push(self.current[q].clone());
+                self.orders[q].push(self.order_now[q].clone());
+            }
+        }
+    }
+
+    /// The instants after the last frame show it.
+    fn finish(&mut self) {
+        self.fill(|_| true);
+    }
+
+    /// The puppets drawn, bottom to top as the stage drew them (a puppet a
+    /// director had removed before the take is not drawn).
+    fn puppets(
+        mut self,
+        take: &Path,
+        stage: &Stage,
+        header: &puppetry_take::Header,
+    ) -> Result<Vec<AnimatedPuppet>, TakeExportError> {
+        let replayed = self.depth.as_ref().is_some_and(|d| d.holds());
+        let mut motions: Vec<Option<_>> = std::mem::take(&mut self.frames)
+            .into_iter()
+            .map(Some)
+            .collect();
+        let mut puppets = Vec::new();
+        for id in header.drawn() {
+            let (Some(p), Some(motion)) = (
+                stage.puppets().get(id as usize),
+                motions.get_mut(id as usize).and_then(Option::take),
+            ) else {
+                return Err(TakeExportError::Mismatch {
+                    file: take.display().to_string(),
+                    problem: format!(
+                        "the header's lineup names puppet {id} twice or one not on the stage"
+                    ),
+                });
+            };
+            let (depths, draw_orders) = match p.depth() {
+                None => (Vec::new(), Vec::new()),
+                Some(_) if replayed => {
+                    let plain = Drawn::plain(p.mesh.triangles().len());
+                    crate::drawing::unless_plain(
+                        std::mem::take(&mut self.orders[id as usize])
+                            .into_iter()
+                            .map(|o| o.unwrap_or_else(|| plain.clone()))
+                            .collect(),
+                    )
+                }
+                Some(_) => crate::drawing::orders_of_frames(&p.mesh, &motion),
+            };
+            let mut puppet = AnimatedPuppet::of_puppet(p, motion)?;
+            puppet.draw_orders = draw_orders;
+            puppet.depths = depths;
+            // The first frame has nothing before it to hold.
+            puppet.snaps = std::mem::take(&mut self.snaps[id as usize]);
+            puppet.snaps.retain(|&k| k > 0);
+            puppets.push(puppet);
+        }
+        Ok(puppets)
+    }
 }
 
 /// The export's start and frame count over `from..to` of a take `end`

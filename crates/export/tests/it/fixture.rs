@@ -78,6 +78,7 @@ pub fn bending_puppet(
         frames,
         draw_orders: Vec::new(),
         depths: Vec::new(),
+        snaps: Vec::new(),
         skeleton: None,
     }
 }
@@ -127,6 +128,8 @@ pub fn record_drag_with(
     use puppetry_stage::Change;
     use puppetry_take::{Frame, Header, Record, Step, TakeWriter};
     stage.solve();
+    // Steps carry the handle events, as the daemon records them.
+    stage.keep_events(true);
     let header = Header::of_stage(name, &format!("{name}.toml"), stage, true);
     let mut writer = TakeWriter::create(path, &header).unwrap();
     let mut frames = Vec::new();
@@ -147,12 +150,10 @@ pub fn record_drag_with(
         }
         let solved = stage.solve();
         let t = k as f64 / fps;
+        let mut events = Vec::new();
+        stage.take_events(&mut events);
         writer
-            .write(&Record::Step(Step {
-                t,
-                changes,
-                events: Vec::new(),
-            }))
+            .write(&Record::Step(Step { t, changes, events }))
             .unwrap();
         for (p, _) in solved {
             let frame = Frame::of_pose(p, t, stage.puppets()[p as usize].pose());

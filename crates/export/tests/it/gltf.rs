@@ -289,6 +289,7 @@ fn square(
         frames: vec![corners.clone(), corners],
         draw_orders: Vec::new(),
         depths: Vec::new(),
+        snaps: Vec::new(),
         skeleton: None,
     }
 }

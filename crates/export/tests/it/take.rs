@@ -265,3 +265,146 @@ fn a_skeleton_take_exports_as_a_gltf_skin() {
         "skeleton to glTF skin: three.js within {worst_gltf:.3} stage units of the take"
     ));
 }
+
+/// Let go, a puppet springs back in one solve: the take steps there, and
+/// the keyed exports hold the frame before until the snap instead of
+/// blending into it (Spine's `stepped` curve; glb a key just before), while
+/// the rest of the motion still blends between frames as before.
+#[test]
+fn a_let_go_is_a_step_in_spine_and_glb_not_a_blend() {
+    if !crate::common::browser_enabled("a_let_go_is_a_step_in_spine_and_glb_not_a_blend") {
+        return;
+    }
+    const FPS: f64 = 30.0;
+    let dir = tempfile::tempdir().unwrap();
+    let take = dir.path().join("snap.take");
+    const LET_GO: usize = 9;
+    let config = record_let_go(&take, FPS, LET_GO);
+    let animation =
+        puppetry_export::take::animation_of_take(&take, &config, FPS, None, None).unwrap();
+    let p = &animation.puppets[0];
+    assert_eq!(p.snaps, [LET_GO], "the take stepped where the hand let go");
+    let between = |k: usize| ((k as f64 - 0.5) / FPS).to_string();
+    let far = |a: &[[f32; 2]], b: &[[f32; 2]]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| ((x[0] - y[0]).powi(2) + (x[1] - y[1]).powi(2)).sqrt())
+            .fold(0.0f32, f32::max)
+    };
+    assert!(
+        far(&p.frames[LET_GO - 1], &p.frames[LET_GO]) > 20.0,
+        "no snap to check"
+    );
+
+    // Spine: half a frame before the snap, still the held frame; half a
+    // frame before an ordinary frame, between its neighbours.
+    let json = dir.path().join("snap.json");
+    let layout = export_spine(&animation, &SpineOptions::default(), &mut (), &json).unwrap();
+    let result = node_script(
+        "export-spine.mjs",
+        &["@esotericsoftware/spine-core"],
+        &[
+            arg(&json),
+            "take",
+            &format!("{},{}", between(LET_GO), between(5)),
+        ],
+    );
+    let placed = &layout.puppets[0];
+    let spine_pose = |sample: &serde_json::Value| -> Vec<[f32; 2]> {
+        let world = sample["slots"][&placed.slot].as_array().unwrap();
+        let mut pose = vec![[0.0f32; 2]; p.vertex_count()];
+        for (i, &v) in placed.order.iter().enumerate() {
+            pose[v as usize] = [
+                world[2 * i].as_f64().unwrap() as f32,
+                world[2 * i + 1].as_f64().unwrap() as f32,
+            ];
+        }
+        pose
+    };
+    let samples = result["samples"].as_array().unwrap();
+    let held = spine_pose(&samples[0]);
+    assert!(
+        far(&held, &p.frames[LET_GO - 1]) < 1e-3,
+        "Spine blends into the snap: {}",
+        far(&held, &p.frames[LET_GO - 1])
+    );
+    let blended = spine_pose(&samples[1]);
+    assert!(
+        far(&blended, &p.frames[4]) > 1.0 && far(&blended, &p.frames[5]) > 1.0,
+        "Spine no longer blends between frames"
+    );
+
+    // glb in three.js: the same.
+    let glb = dir.path().join("snap.glb");
+    puppetry_export::gltf::export_glb(
+        &animation,
+        &puppetry_export::gltf::GltfOptions::default(),
+        &mut (),
+        &glb,
+    )
+    .unwrap();
+    let report = node_script("export-validate.mjs", &["gltf-validator"], &[arg(&glb)]);
+    assert_eq!(report["issues"]["numErrors"], 0, "{report}");
+    let result = node_script(
+        "export-three.mjs",
+        &["three", "playwright-core"],
+        &[arg(&glb), &format!("{},{}", between(LET_GO), between(5))],
+    );
+    let three_pose = |sample: &serde_json::Value| -> Vec<[f32; 2]> {
+        let xyz = sample["puppets"][0]["positions"].as_array().unwrap();
+        xyz.chunks(3)
+            .map(|c| [c[0].as_f64().unwrap() as f32, c[1].as_f64().unwrap() as f32])
+            .collect()
+    };
+    let samples = result["samples"].as_array().unwrap();
+    let held = three_pose(&samples[0]);
+    assert!(
+        far(&held, &p.frames[LET_GO - 1]) < 1e-3,
+        "glb blends into the snap: {}",
+        far(&held, &p.frames[LET_GO - 1])
+    );
+    let blended = three_pose(&samples[1]);
+    assert!(
+        far(&blended, &p.frames[4]) > 1.0 && far(&blended, &p.frames[5]) > 1.0,
+        "glb no longer blends between frames"
+    );
+}
+
+/// A take of the head dragged sideways (feet pinned), held still, and let
+/// go at step `let_go`; returns its stage file.
+fn record_let_go(take: &Path, fps: f64, let_go: usize) -> StageConfig {
+    use puppetry_contact::{Contact, ContactFrame, Phase, SourceId};
+    let text = format!(
+        "{}{}",
+        puppetry_testkit::stage_text::STAGE,
+        puppetry_testkit::stage_text::Gingerbread::new("gingerbread")
+            .pins("[[168, 58], [344, 58]]")
+    );
+    let config =
+        puppetry_stage::config::StageConfig::parse("snap.toml", &text, std::path::Path::new("/"))
+            .unwrap();
+    let mut stage = puppetry_stage::Stage::from_config(&config).unwrap();
+    stage.solve();
+    let head = stage.puppets()[0].mesh.vertices().iter().copied().fold(
+        glam::DVec2::splat(f64::NEG_INFINITY),
+        |a, b| {
+            if b.y > a.y { b } else { a }
+        },
+    ) - glam::DVec2::new(0.0, 10.0);
+    let points: Vec<glam::DVec2> = (0..12)
+        .map(|k| head + glam::DVec2::new(12.0 * k.min(8) as f64, 0.0))
+        .collect();
+    crate::fixture::record_drag_with(take, &mut stage, "snap", fps, &points, |k, _| {
+        if k != let_go {
+            return Vec::new();
+        }
+        vec![puppetry_stage::Change::Contacts {
+            frame: ContactFrame {
+                source: SourceId::new("hand"),
+                time: k as f64,
+                contacts: vec![Contact::new(1, Phase::Up, points[k])],
+            },
+        }]
+    });
+    config
+}

@@ -272,6 +272,7 @@ fn colours_come_back_as_a_bt709_player_shows_them() {
             frames: vec![still.clone(), still],
             draw_orders: Vec::new(),
             depths: Vec::new(),
+            snaps: Vec::new(),
             skeleton: None,
         }],
     };
