@@ -163,12 +163,25 @@ impl VideoFormat {
     }
 
     /// ffmpeg's sound codec for the kind: AAC in an MP4, 16-bit PCM beside
-    /// ProRes (what editors expect in a .mov), Opus in a WebM.
+    /// ProRes (what editors expect in a .mov), Opus in a WebM. Opus starts
+    /// with a pre-skip (6.5 ms) written as a packet before 0 and the
+    /// track's CodecDelay; left to make timestamps non-negative, ffmpeg
+    /// shifted the whole file by it, so the first picture came 7 ms after
+    /// the start. Negative timestamps are kept instead (Matroska allows
+    /// them): the first picture is at 0, and the sound after its pre-skip
+    /// too.
     fn audio_args(self) -> &'static [&'static str] {
         match self {
             VideoFormat::Mp4 => &["-c:a", "aac", "-b:a", "192k"],
             VideoFormat::ProRes => &["-c:a", "pcm_s16le"],
-            VideoFormat::WebM => &["-c:a", "libopus", "-b:a", "160k"],
+            VideoFormat::WebM => &[
+                "-c:a",
+                "libopus",
+                "-b:a",
+                "160k",
+                "-avoid_negative_ts",
+                "disabled",
+            ],
         }
     }
 

@@ -384,6 +384,22 @@ fn a_soundtrack_is_muxed_in_time_with_the_frames() {
                 .output()
                 .unwrap();
             assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), codec, "{ext}");
+            // The pictures start at 0 (a webm's once started 7 ms late,
+            // shifted by Opus's pre-skip).
+            let picture = &puppetry_testkit::sound::probe(
+                &path,
+                &[
+                    "-select_streams",
+                    "v:0",
+                    "-show_entries",
+                    "stream=start_time",
+                ],
+            )["streams"][0]["start_time"];
+            assert_eq!(
+                picture.as_str(),
+                Some("0.000000"),
+                "{ext}: pictures start at {picture}"
+            );
             let onset = puppetry_testkit::sound::first_onset(&path);
             assert!(
                 (onset - heard).abs() <= 1.0 / FPS,
