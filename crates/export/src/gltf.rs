@@ -20,9 +20,10 @@
 //! triangles are listed back to front in each chunk's drawing order, and
 //! a chunk ends where the order changes ([`spans`]), so a viewer drawing a
 //! mesh's triangles in index order (three.js, with BLEND materials not
-//! writing depth) shows the part in front in front, frame by frame. A
-//! renderer that depth-tests within one mesh sees all of a puppet at one
-//! z and keeps its own order there.
+//! writing depth) shows the part in front in front, frame by frame. For a
+//! renderer that depth-tests within one mesh (Blender), each vertex also
+//! stands off the puppet's plane by its depth ([`Lift`]), animated with
+//! the frames, so the part in front is nearer.
 //!
 //! **A skeleton puppet is a skin**: a node per bone
 //! under the puppet's node, parented as its skeleton, its mesh at rest
@@ -279,6 +280,53 @@ pub fn spans(
 /// not z-fight, while the stage still looks flat.
 pub fn z_step(animation: &Animation) -> f64 {
     animation.stage_width.max(animation.stage_height) / 1000.0
+}
+
+/// Where a puppet overlaps itself, how far each vertex stands off its
+/// puppet's plane: a renderer that depth-tests within a mesh (Blender's
+/// Eevee and Cycles) sees the part in front in front, where at one z it
+/// mixed the arm and the body. A vertex rises with the nearest triangle
+/// it belongs to, by its depth (`docs/depth.md`) over the take's largest,
+/// to at most half the puppets' z step, so it never reaches the puppet
+/// above. (Where a triangle behind shares a vertex with one in front, it
+/// tilts up towards it: at a fold's crease a depth-tested render may show
+/// a sliver of it through.)
+struct Lift {
+    /// Stage units per depth; zero for a puppet drawn flat.
+    per_depth: f32,
+}
+
+impl Lift {
+    fn of(p: &crate::AnimatedPuppet, z_step: f64) -> Lift {
+        let deepest = p
+            .depths
+            .iter()
+            .flat_map(|d| d.iter().copied().max())
+            .max()
+            .unwrap_or(0);
+        Lift {
+            per_depth: if deepest == 0 {
+                0.0
+            } else {
+                (z_step / 2.0 / f64::from(deepest)) as f32
+            },
+        }
+    }
+
+    /// Frame k's z per vertex into `z`.
+    fn frame(&self, p: &crate::AnimatedPuppet, k: usize, z: &mut Vec<f32>) {
+        z.clear();
+        z.resize(p.vertex_count(), 0.0);
+        let Some(depth) = p.depths.get(k).filter(|_| self.per_depth > 0.0) else {
+            return;
+        };
+        for (t, tri) in p.triangles.iter().enumerate() {
+            let h = f32::from(depth[t]) * self.per_depth;
+            for &v in tri {
+                z[v as usize] = z[v as usize].max(h);
+            }
+        }
+    }
 }
 
 /// Writes `animation` as a `.glb` file at `path`. `progress` counts chunks.
@@ -774,14 +822,20 @@ impl Pass<'_> {
         // Base frame and offsets, interleaved x, y, z per vertex, all in
         // one view with a stride of 12 (several accessors share it).
         let base = &p.frames[first];
+        let lift = Lift::of(p, z_step(self.animation));
+        let mut z = Vec::new();
+        let mut z_base = Vec::new();
+        lift.frame(p, first, &mut z_base);
         let mut values = Vec::with_capacity((targets + 1) * n * 3);
-        values.extend(base.iter().flat_map(|q| [q[0], q[1], 0.0]));
+        values.extend(base.iter().zip(&z_base).flat_map(|(q, &h)| [q[0], q[1], h]));
         for k in first + 1..=last {
+            lift.frame(p, k, &mut z);
             values.extend(
                 p.frames[k]
                     .iter()
                     .zip(base)
-                    .flat_map(|(q, o)| [q[0] - o[0], q[1] - o[1], 0.0]),
+                    .zip(z.iter().zip(&z_base))
+                    .flat_map(|((q, o), (h, h0))| [q[0] - o[0], q[1] - o[1], h - h0]),
             );
         }
         let view = b.view(&f32_bytes(&values), Some(ARRAY_BUFFER), Some(12))?;

@@ -299,6 +299,61 @@ fn the_glb_lists_each_frames_triangles_in_its_drawing_order() {
         "three.js draws the stage's order at all {} frames, {folded} of them folded",
         frames.len()
     ));
+    // A depth-tested render (Blender) sees the part in front nearer: at
+    // the last frame, where two triangles overlap, the one drawn in front
+    // stands higher in z as three.js reads the positions.
+    let k = animation.frame_count - 1;
+    let xyz: Vec<f64> = result["samples"][k]["puppets"][0]["positions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let (higher, lower) = nearer_in_z(p, k, &xyz);
+    crate::common::note(&format!(
+        "glb z: {higher} overlap samples nearer in front, {lower} behind"
+    ));
+    assert!(
+        higher >= 100 && lower * 50 <= higher,
+        "{higher} in front, {lower} behind"
+    );
+}
+
+/// Of the sample points where two triangles of frame `k` overlap: those
+/// where the one drawn in front (by depth) is the higher in z (`xyz`,
+/// three.js's positions), and those where it is lower.
+fn nearer_in_z(p: &puppetry_export::AnimatedPuppet, k: usize, xyz: &[f64]) -> (usize, usize) {
+    let corner = |v: u32| DVec2::new(xyz[3 * v as usize], xyz[3 * v as usize + 1]);
+    let (mut higher, mut lower) = (0, 0);
+    for xi in 0..(1280 / 4) {
+        for yi in 0..(720 / 4) {
+            let q = DVec2::new(xi as f64 * 4.0 + 0.5, yi as f64 * 4.0 + 0.5);
+            let over: Vec<(usize, f64)> = (0..p.triangles.len())
+                .filter_map(|t| {
+                    let [a, b, c] = p.triangles[t].map(corner);
+                    let d = (b - c).perp_dot(a - c);
+                    let l1 = (b - c).perp_dot(q - c) / d;
+                    let l2 = (c - a).perp_dot(q - c) / d;
+                    let l3 = 1.0 - l1 - l2;
+                    let inside = d.abs() > 1e-9 && l1 > 0.05 && l2 > 0.05 && l3 > 0.05;
+                    let [za, zb, zc] = p.triangles[t].map(|v| xyz[3 * v as usize + 2]);
+                    inside.then_some((t, l1 * za + l2 * zb + l3 * zc))
+                })
+                .collect();
+            if over.len() < 2 {
+                continue;
+            }
+            let front = *over.iter().max_by_key(|(t, _)| p.depths[k][*t]).unwrap();
+            // Strictly nearer than every other: at one z a depth test mixes them.
+            let others = over.iter().filter(|&&(t, _)| t != front.0);
+            if others.map(|&(_, z)| z).all(|z| front.1 > z + 1e-6) {
+                higher += 1;
+            } else {
+                lower += 1;
+            }
+        }
+    }
+    (higher, lower)
 }
 
 /// Spine draws a mesh attachment's triangles in one order, so a puppet
