@@ -22,7 +22,7 @@
 //! mesh's triangles in index order (three.js, with BLEND materials not
 //! writing depth) shows the part in front in front, frame by frame. For a
 //! renderer that depth-tests within one mesh (Blender), each vertex also
-//! stands off the puppet's plane by its depth ([`Lift`]), animated with
+//! stands off the puppet's plane by its depth (see `Lift`), animated with
 //! the frames, so the part in front is nearer.
 //!
 //! **A skeleton puppet is a skin**: a node per bone
