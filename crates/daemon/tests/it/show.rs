@@ -3,7 +3,7 @@
 //! sources, sources vanishing mid-contact, a TUIO table read through its
 //! tracker whose sender falls silent mid-touch, pins, resets, undo and redo,
 //! stiffness painted and solvers rebuilt on a worker, puppets removed and
-//! reordered, and above all takes: recorded (by hand or by `serve
+//! reordered, folds flipped in front (Alt+click), and above all takes: recorded (by hand or by `serve
 //! --record`'s first input), stopped with fingers down, played step by
 //! step, overdubbed with a source or a region replaced, and stopped in the
 //! middle. Every step is a [`Command`] handed to the
@@ -132,6 +132,21 @@ enum Op {
     /// The TUIO sender stops talking without saying goodbye: past the
     /// documented silence, its tracker lets go of what it held.
     TuioSilent,
+    /// A performer's Alt+click: the part under the point goes in front
+    /// (recorded, replayed and exported with the take).
+    DepthFlip {
+        at: Spot,
+    },
+    /// A finger drags one vertex of a puppet onto another's place, in a
+    /// few moves (a limb folded across the body), then an Alt+click
+    /// there flips the fold; the finger stays down.
+    Fold {
+        source: u8,
+        finger: u8,
+        puppet: u8,
+        from: u16,
+        to: u16,
+    },
 }
 
 /// What the simulated shows did, over every sequence run in this process
@@ -495,6 +510,32 @@ impl Show {
         }
     }
 
+    /// [`Op::Fold`].
+    fn fold(&mut self, source: u8, finger: u8, puppet: u8, from: u16, to: u16) {
+        let Some(puppet) = self.live(puppet) else {
+            return;
+        };
+        let vertex = |v: u16| {
+            let p = &self.stage().puppets()[puppet as usize];
+            let pose = p.pose();
+            pose[v as usize % pose.len()]
+        };
+        let (a, b) = (vertex(from), vertex(to));
+        let key = (source % 3, finger % 3);
+        for i in 0..=4 {
+            let phase = if i == 0 && self.down.insert(key) {
+                Phase::Down
+            } else {
+                Phase::Move
+            };
+            let at = a.lerp(b, f64::from(i) / 4.0);
+            self.frame(key.0, Contact::new(u32::from(key.1), phase, at));
+            self.driver.finish();
+        }
+        self.change(Change::DepthFlip { at: b });
+        self.driver.finish();
+    }
+
     fn lineup(&mut self, change: LineupChange) {
         let _ = self.ask(|reply| Command::Lineup { change, reply });
     }
@@ -617,6 +658,17 @@ impl Show {
                     self.tuio_send();
                 }
             }
+            Op::DepthFlip { at } => {
+                let at = self.point(at);
+                self.change(Change::DepthFlip { at });
+            }
+            Op::Fold {
+                source,
+                finger,
+                puppet,
+                from,
+                to,
+            } => self.fold(*source, *finger, *puppet, *from, *to),
             Op::TuioSilent => {
                 let after = puppetry_input::tuio::RELEASE_AFTER.as_secs_f64();
                 self.tuio.clock += after + 0.1;
@@ -723,10 +775,33 @@ impl Show {
         };
         let reader = puppetry_take::TakeReader::open(path).unwrap();
         let header = reader.header.clone();
+        // A take begun on a fresh stage replays exactly: alongside, each
+        // recorded frame's drawing order as the stage had it (flips too).
+        let mut replay = header.fresh.then(|| {
+            puppetry_take::replay::Replayer::new(
+                Stage::from_config(&puppetry_take::stage_config(&self.config, &header)).unwrap(),
+            )
+        });
         let mut recorded: std::collections::BTreeMap<u32, Vec<(f64, Points)>> = Default::default();
+        let mut drawn: std::collections::BTreeMap<u32, Vec<Option<Vec<u32>>>> = Default::default();
         for record in reader {
-            if let Ok(puppetry_take::Record::Frame(f)) = record {
-                recorded.entry(f.puppet).or_default().push((f.t, f.points));
+            match record {
+                Ok(puppetry_take::Record::Step(step)) => {
+                    if let Some(r) = &mut replay {
+                        r.apply(&step)?;
+                    }
+                }
+                Ok(puppetry_take::Record::Frame(f)) => {
+                    let order = replay.as_ref().and_then(|r| {
+                        let (depth, _) = r.stage().puppets()[f.puppet as usize].depth()?;
+                        let mut order: Vec<u32> = (0..depth.len() as u32).collect();
+                        order.sort_by_key(|&t| depth[t as usize]);
+                        Some(order)
+                    });
+                    drawn.entry(f.puppet).or_default().push(order);
+                    recorded.entry(f.puppet).or_default().push((f.t, f.points));
+                }
+                _ => {}
             }
         }
         let start = Stage::from_config(&puppetry_take::stage_config(&self.config, &header))
@@ -740,13 +815,24 @@ impl Show {
                 None => as_f32(start.stage().puppets()[id as usize].pose()),
             };
             let frames = recorded.remove(&id).unwrap_or_default();
+            let orders = drawn.remove(&id).unwrap_or_default();
             for (k, exported) in puppet.frames.iter().enumerate() {
                 let instant = k as f64 / FPS;
-                let expected = frames
-                    .iter()
-                    .rev()
-                    .find(|(t, _)| *t <= instant)
-                    .map_or(&before, |(_, points)| points);
+                let latest = frames.iter().rposition(|(t, _)| *t <= instant);
+                let expected = latest.map_or(&before, |i| &frames[i].1);
+                // Drawn in the order the stage had with that frame.
+                if let Some(Some(order)) = latest.map(|i| &orders[i]) {
+                    let exported_order: Vec<u32> = match puppet.draw_orders.get(k) {
+                        Some(o) => o.to_vec(),
+                        None => (0..puppet.triangles.len() as u32).collect(),
+                    };
+                    if &exported_order != order {
+                        return Err(format!(
+                            "{name}: puppet {id}'s exported frame {k} ({instant:.3} s) is drawn in \
+                             another order than the stage drew the take's frame then"
+                        ));
+                    }
+                }
                 if exported != expected {
                     return Err(format!(
                         "{name}: puppet {id}'s exported frame {k} ({instant:.3} s) is not the take's \
@@ -816,6 +902,8 @@ fn op() -> impl Strategy<Value = Op> {
         4 => (u(), spot()).prop_map(|(finger, at)| Op::TuioTouch { finger, at }),
         2 => u().prop_map(|finger| Op::TuioLift { finger }),
         1 => Just(Op::TuioSilent),
+        2 => spot().prop_map(|at| Op::DepthFlip { at }),
+        2 => (u(), u(), u(), any::<u16>(), any::<u16>()).prop_map(|(source, finger, puppet, from, to)| Op::Fold { source, finger, puppet, from, to }),
     ]
 }
 
