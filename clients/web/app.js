@@ -88,11 +88,13 @@ const api = window.puppetry = {
   snapshot,
   dots: () => overlay.drawn ?? [],   // what the overlay drew last: handles and cursors, in stage coordinates
   pads: () => overlay.padsDrawn ?? [], // the key pad areas the overlay drew last: {puppet, area}, stage coordinates
+  rigLines: () => overlay.rigLines ?? [], // the grid lines the overlay drew last: {puppet, lines: [[x, y], …][]}, stage coordinates
   keyLabels: () => keyPad.labels ?? [], // the key pad's key names as drawn last: {text, x, y, w, h}, pad CSS px
   held: () => pointerContacts.held(), // pointers holding the stage now: contacts and tools' strokes
   poseShown: () => poseSlider.shown(),
   soundtrack: () => soundtrack.state(),
   positions: (id) => Array.from(puppetById(id)?.positions ?? []), // a puppet's vertices as drawn now
+  rigPoints: (id) => Array.from(puppetById(id)?.rigPoints ?? []), // its grid handles or joints now, x y pairs
   drop: () => ws?.close(),           // closes the connection (it reconnects): for tests of the indicator
   // lastGrid: the last "grid" message, once one came
   // take, takes: the last "take" message and the last "takes" list
@@ -118,6 +120,7 @@ const fpsMeter = new FpsMeter();
 
 function setStatus(text, isError = false) {
   statusEl.textContent = text;
+  statusEl.title = text; // the whole of it, where the bar cuts it short
   statusEl.classList.toggle('error', isError);
 }
 

@@ -80,6 +80,99 @@ export function anchorPoint(anchor, positions, rigPoints) {
   ];
 }
 
+/** Bernstein polynomials of degree `d` at `x` (de Casteljau's recurrence). */
+function bernstein(d, x) {
+  const b = new Array(d + 1).fill(0);
+  b[0] = 1;
+  for (let j = 1; j <= d; j++) {
+    for (let k = j; k >= 1; k--) b[k] = (1 - x) * b[k] + x * b[k - 1];
+    b[0] *= 1 - x;
+  }
+  return b;
+}
+
+/**
+ * The lines of an m × n Bernstein grid's lattice through its map
+ * f(s, t) = Σ B_c(s) B_r(t) P_rc (handles `q`, row-major, x y pairs):
+ * each row and column as polylines of `k` points per cell, cut where
+ * `keep(s, t)` (if given) is false.
+ */
+export function bernsteinGridLines(q, m, n, k = 8, keep = null) {
+  const f = (s, t) => {
+    const bs = bernstein(m - 1, s);
+    const bt = bernstein(n - 1, t);
+    let x = 0;
+    let y = 0;
+    for (let r = 0; r < n; r++) {
+      for (let c = 0; c < m; c++) {
+        const w = bs[c] * bt[r];
+        x += w * q[2 * (r * m + c)];
+        y += w * q[2 * (r * m + c) + 1];
+      }
+    }
+    return [x, y];
+  };
+  const lines = [];
+  const along = k * (m - 1);
+  const down = k * (n - 1);
+  const trace = (count, st) => {
+    let run = [];
+    for (let i = 0; i <= count; i++) {
+      const [u, v] = st(i / count);
+      if (keep && !keep(u, v)) {
+        if (run.length > 1) lines.push(run);
+        run = [];
+      } else run.push(f(u, v));
+    }
+    if (run.length > 1) lines.push(run);
+  };
+  for (let r = 0; r < n; r++) trace(along, (x) => [x, r / (n - 1)]);
+  for (let c = 0; c < m; c++) trace(down, (x) => [c / (m - 1), x]);
+  return lines;
+}
+
+/**
+ * Whether a point (s, t) of a grid's box is on its puppet: within three
+ * quarters of a cell of a rest vertex (`rest`, x y pairs, stage
+ * coordinates; the map is the identity at rest).
+ */
+function gridKeep(rig, rest, m, n) {
+  const [x0, y0] = rig.min;
+  const [x1, y1] = rig.max;
+  const reach = 0.5 * Math.min((x1 - x0) / (m - 1), (y1 - y0) / (n - 1));
+  const cells = new Map();
+  const key = (i, j) => `${i},${j}`;
+  for (let v = 0; v < rest.length / 2; v++) {
+    const i = Math.floor(rest[2 * v] / reach);
+    const j = Math.floor(rest[2 * v + 1] / reach);
+    if (!cells.has(key(i, j))) cells.set(key(i, j), []);
+    cells.get(key(i, j)).push(v);
+  }
+  return (s, t) => {
+    const x = x0 + s * (x1 - x0);
+    const y = y0 + t * (y1 - y0);
+    const i = Math.floor(x / reach);
+    const j = Math.floor(y / reach);
+    for (let di = -1; di <= 1; di++) {
+      for (let dj = -1; dj <= 1; dj++) {
+        for (const v of cells.get(key(i + di, j + dj)) ?? []) {
+          if (Math.hypot(rest[2 * v] - x, rest[2 * v + 1] - y) <= reach) return true;
+        }
+      }
+    }
+    return false;
+  };
+}
+
+/** A lattice grid's rows and columns: its handles are its nodes. */
+function latticeLines(q, m, n) {
+  const at = (i) => [q[2 * i], q[2 * i + 1]];
+  const lines = [];
+  for (let r = 0; r < n; r++) lines.push(Array.from({ length: m }, (_, c) => at(r * m + c)));
+  for (let c = 0; c < m; c++) lines.push(Array.from({ length: n }, (_, r) => at(r * m + c)));
+  return lines;
+}
+
 export class Overlay {
   /** canvas: the overlay canvas; stageElement: the letterboxed stage it covers. */
   constructor(canvas, stageElement) {
@@ -149,6 +242,7 @@ export class Overlay {
   // the skeleton (bones and joints).
   drawRigs(puppets, dot, line) {
     const ctx = this.ctx;
+    this.rigLines = [];
     for (const p of puppets) {
       const q = p.rigPoints;
       if (!q) continue;
@@ -156,12 +250,19 @@ export class Overlay {
       ctx.beginPath();
       if (p.rig.kind === RIG_KIND.GRID) {
         const { columns: m, rows: n } = p.rig;
-        for (let row = 0; row < n; row++) {
-          for (let col = 0; col < m; col++) {
-            const i = row * m + col;
-            if (col + 1 < m) line(...at(i), ...at(i + 1));
-            if (row + 1 < n) line(...at(i), ...at(i + m));
-          }
+        // A Bernstein grid's handles are the control points of its map,
+        // off the puppet where no vertex holds them: joined up, they
+        // tangled after one drag. Its lattice lines carried through the
+        // map stay readable (and at rest are the rest grid).
+        // Only where the puppet is: elsewhere in its box nothing holds
+        // the map, which may fold there after a drag.
+        if (p.rig.basis === 'bernstein' && !p.gridKeep) p.gridKeep = gridKeep(p.rig, p.src.rest, m, n);
+        const lines = p.rig.basis === 'bernstein'
+          ? bernsteinGridLines(q, m, n, 8, p.gridKeep)
+          : latticeLines(q, m, n);
+        this.rigLines.push({ puppet: p.id, lines });
+        for (const polyline of lines) {
+          for (let i = 1; i < polyline.length; i++) line(...polyline[i - 1], ...polyline[i]);
         }
         ctx.lineWidth = 1;
         ctx.strokeStyle = 'rgb(41 98 255 / 0.6)';

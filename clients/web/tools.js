@@ -678,10 +678,11 @@ export class TakeControls {
     this.fit();
   }
 
-  // The box shows only with something in it (a viewer's, between takes, is empty).
+  // The box shows only with buttons in it (a viewer has none; the take
+  // state hangs under the bar on its own, shown while it says something).
   fit() {
     const e = this.el;
-    e.controls.hidden = this.buttons().every((b) => b.hidden) && !e.state.textContent;
+    e.controls.hidden = this.buttons().every((b) => b.hidden);
   }
 
   listen() {

@@ -1,7 +1,7 @@
 // Headless-browser check that the stage does not move under a performer's
 // finger: while a contact holds the puppet, the toolbar growing a line (a
-// name joining the people list, a take starting; here the status line made
-// long) does not move the stage; after the lift it does, and without a
+// name joining the people list, an added puppet's controls; here a wide
+// stand-in added to it) does not move the stage; after the lift it does, and without a
 // contact it does at once. With PUPPETRY_HOLD_WITH=stroke (a director's
 // page) the stage is held by a brush stroke half painted instead.
 //
@@ -27,8 +27,17 @@ const barHeight = () => page.evaluate(() => document.getElementById('bar').getBo
 // Makes the toolbar at least one line taller, and waits until it is.
 async function growBar(words) {
   const before = await barHeight();
+  // Something wide joins the bar (the status line is cut to one line,
+  // so it no longer can): a stand-in of `words` words.
   await page.evaluate((n) => {
-    document.getElementById('status').textContent = Array.from({ length: n }, (_, i) => `word${i}`).join(' ');
+    const bar = document.getElementById('bar');
+    let wide = document.getElementById('test-widener');
+    if (!wide) {
+      wide = document.createElement('span');
+      wide.id = 'test-widener';
+      bar.insertBefore(wide, bar.firstChild);
+    }
+    wide.textContent = Array.from({ length: n }, (_, i) => `word${i}`).join(' ');
   }, words);
   await waitFor(page, 'the toolbar to grow a line', (h) => document.getElementById('bar').getBoundingClientRect().height > h + 10, before);
   await settle(page);

@@ -147,6 +147,29 @@ try {
   await touch('touchEnd');
   await waitKeyHandles(page, true, 'a key handle once the finger lifted');
 
+  step('the pad fits its panel');
+  // The panel is as wide as its pad (its buttons once left a blank strip
+  // at the pad's right), and all of it is on screen.
+  summary.padFit = await page.evaluate(() => {
+    const panel = document.getElementById('keypad').getBoundingClientRect();
+    const canvas = document.getElementById('keypad-canvas').getBoundingClientRect();
+    const outside = [...document.querySelectorAll('#keypad *')]
+      .filter((el) => el.getClientRects().length > 0)
+      .map((el) => [el.id || el.className || el.tagName, el.getBoundingClientRect()])
+      .filter(([, r]) => r.left < panel.left - 0.5 || r.right > panel.right + 0.5)
+      .map(([name]) => name);
+    const style = getComputedStyle(document.getElementById('keypad'));
+    const contentRight = panel.right - parseFloat(style.paddingRight) - parseFloat(style.borderRightWidth);
+    return {
+      panel: [panel.left, panel.right], canvasRight: canvas.right, contentRight, outside,
+      onScreen: panel.left >= 0 && panel.right <= window.innerWidth,
+    };
+  });
+  if (!summary.padFit.onScreen || summary.padFit.outside.length
+    || Math.abs(summary.padFit.canvasRight - summary.padFit.contentRight) > 0.5) {
+    throw new Error('the key pad does not fit its panel');
+  }
+
   step('cursor to B');
   const [bx, by] = await padClient(B);
   await page.mouse.click(bx, by);

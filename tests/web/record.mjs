@@ -62,6 +62,13 @@ try {
   if (pressedBefore !== 'false') throw new Error(`#record is aria-pressed=${pressedBefore} before recording`);
 
   step('start recording');
+  // Recording never lays the stage out again (the running time once
+  // wrapped a director's toolbar onto a third line at 1280 px).
+  const layoutOf = (p) => p.evaluate(() => ({
+    bar: document.getElementById('bar').getBoundingClientRect().height,
+    stageTop: document.getElementById('stage').getBoundingClientRect().top,
+  }));
+  summary.layout = { before: await layoutOf(performer) };
   await performer.click('#record');
   await waitFor(performer, 'the record button to turn on', () => document.getElementById('record').getAttribute('aria-pressed') === 'true');
   summary.recordBackground = await performer.evaluate(() => getComputedStyle(document.getElementById('record')).backgroundColor);
@@ -76,6 +83,10 @@ try {
     return m && Number(m[2]) * 60 + Number(m[3]) > t0;
   }, [ELAPSED.source, first]);
   summary.elapsed = [first, elapsedOf(await performer.textContent('#take-state'))];
+  summary.layout.during = await layoutOf(performer);
+  if (JSON.stringify(summary.layout.before) !== JSON.stringify(summary.layout.during)) {
+    throw new Error('the toolbar changed height while recording: the stage moved');
+  }
 
   step('the viewer sees the recording');
   await waitFor(viewer, 'the viewer\'s #take-state to say "REC take-001"', () => {

@@ -76,6 +76,59 @@ try {
     fs.mkdirSync(shotDir, { recursive: true });
     fs.writeFileSync(path.join(shotDir, `rig-${summary.kind}.png`), await page.screenshot());
   }
+  if (summary.kind === 'grid') {
+    // A direct drag (the puppet, not a grid handle), held: the grid's
+    // lines stay untangled (they once joined its Bernstein control
+    // points, which crossed 17 times after this drag).
+    const [gx, gy] = await heldStill(page, point);
+    await page.mouse.move(gx, gy);
+    await page.mouse.down();
+    for (let i = 1; i <= 25; i++) {
+      await page.waitForTimeout(16);
+      await page.mouse.move(gx + (110 * i) / 25, gy - (140 * i) / 25);
+    }
+    const frames = await page.evaluate(() => window.puppetry.rigFrames);
+    await page.waitForFunction((n) => window.puppetry.rigFrames > n + 3, frames);
+    await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+    // Crossings of rows with rows and columns with columns: of the lines
+    // drawn, and of the control net the overlay once drew (its handles
+    // joined up) in the same pose.
+    summary.gridCrossings = await page.evaluate(() => {
+      const cross = (a, b, c, d) => {
+        const side = (p, q, r) => Math.sign((q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]));
+        return side(a, b, c) * side(a, b, d) < 0 && side(c, d, a) * side(c, d, b) < 0;
+      };
+      const crossings = (groups) => {
+        let n = 0;
+        for (const group of groups) {
+          for (let i = 0; i < group.length; i++) {
+            for (let j = i + 1; j < group.length; j++) {
+              for (let a = 1; a < group[i].length; a++) {
+                for (let b = 1; b < group[j].length; b++) {
+                  if (cross(group[i][a - 1], group[i][a], group[j][b - 1], group[j][b])) n++;
+                }
+              }
+            }
+          }
+        }
+        return n;
+      };
+      // A row's pieces are horizontal: they start and end at about one t.
+      const { lines } = window.puppetry.rigLines()[0];
+      const horizontal = (l) => Math.abs(l[l.length - 1][0] - l[0][0]) >= Math.abs(l[l.length - 1][1] - l[0][1]);
+      const drawn = crossings([lines.filter(horizontal), lines.filter((l) => !horizontal(l))]);
+      const { rig } = window.puppetry.stage.puppets[0];
+      const q = window.puppetry.rigPoints(0);
+      const at = (i) => [q[2 * i], q[2 * i + 1]];
+      const rows = Array.from({ length: rig.rows }, (_, r) => Array.from({ length: rig.columns }, (_, c) => at(r * rig.columns + c)));
+      const columns = Array.from({ length: rig.columns }, (_, c) => Array.from({ length: rig.rows }, (_, r) => at(r * rig.columns + c)));
+      return { drawn, controlNet: crossings([rows, columns]) };
+    });
+    if (shotDir) fs.writeFileSync(path.join(shotDir, 'grid-held.png'), await page.screenshot());
+    await page.mouse.up();
+    const { drawn, controlNet } = summary.gridCrossings;
+    if (controlNet > 0 && drawn * 3 > controlNet) finish(false, `the grid's lines cross ${drawn} times after a drag (its control net ${controlNet})`);
+  }
   // A paint stroke across the puppet.
   await page.click('#paint-tool');
   const weightsBefore = await page.evaluate(() => window.puppetry.weightsReceived);
