@@ -21,6 +21,16 @@ pub const MAX_CONTACTS_PER_MESSAGE: usize = 40;
 /// some first makes room.
 pub const MAX_HELD_PER_CLIENT: usize = 40;
 
+/// Handles one puppet may hold at once (contacts and pins). A finger that
+/// lands on a puppet holding this many holds nothing (as on empty stage)
+/// until some let go. Why: the solver keeps a column of the puppet's size
+/// per handle and a k × k system besides, so its memory grows with
+/// vertices × handles — 400 fingers (ten performers at their 40) on a
+/// 20,000-vertex puppet held 210 MB, and handles from many clients have
+/// no other bound on one puppet. 128 is a dozen people's hands, every
+/// finger down.
+pub const MAX_HANDLES_PER_PUPPET: usize = 128;
+
 /// Pointers (TUIO 1.1 `set`, TUIO 2 `ptr`) and alive ids in one TUIO
 /// datagram, over all the frames it bundles. Past it the datagram is
 /// skipped (logged), as a malformed one is.

@@ -144,6 +144,13 @@ impl Stage {
         for (place, outline) in passes.chain((0..places).rev().map(|place| (place, outline))) {
             let puppet = self.order[place];
             match self.puppets[puppet].reach(at, radius, outline) {
+                // Full (`MAX_HANDLES_PER_PUPPET`): the finger holds nothing.
+                Reach::Grip(..)
+                    if self.puppets[puppet].handles.len()
+                        >= puppetry_limits::contacts::MAX_HANDLES_PER_PUPPET =>
+                {
+                    return None;
+                }
                 Reach::Grip(grip, offset) => {
                     if let Owner::Source(source) = &owner
                         && let Some(puppets) = self.limits.get(source)

@@ -218,3 +218,41 @@ fn a_contact_clearly_off_the_puppet_grabs_nothing() {
         "the stage's corner"
     );
 }
+
+/// A puppet holds at most `MAX_HANDLES_PER_PUPPET` handles: ten performers
+/// at their 40 fingers each on one puppet once made 400 (210 MB for a
+/// 20,000-vertex puppet). Past the limit a finger holds nothing, as on
+/// empty stage; once some let go, a new one holds again, and every up is
+/// taken, held or not.
+#[test]
+fn a_puppet_holds_at_most_its_handle_limit() {
+    use puppetry_limits::contacts::MAX_HANDLES_PER_PUPPET;
+    let mut stage = demo();
+    let pins = stage.puppets()[0].handles().len();
+    let pose = stage.puppets()[0].pose().to_vec();
+    let at = |i: usize| pose[(i * 7) % pose.len()];
+    let frame = |performer: usize, phase: Phase, fingers: std::ops::Range<usize>| ContactFrame {
+        source: SourceId::new(format!("performer-{performer}")),
+        time: 0.0,
+        contacts: fingers
+            .map(|f| Contact::new(f as u32, phase, at(performer * 40 + f)))
+            .collect(),
+    };
+    for performer in 0..10 {
+        stage.apply(&frame(performer, Phase::Down, 0..40));
+    }
+    stage.solve();
+    assert_eq!(stage.puppets()[0].handles().len(), MAX_HANDLES_PER_PUPPET);
+    // The first performer lifts: room again, for the last one's finger.
+    stage.apply(&frame(0, Phase::Up, 0..40));
+    let held = stage.puppets()[0].handles().len();
+    assert!(held < MAX_HANDLES_PER_PUPPET, "{held}");
+    stage.apply(&frame(9, Phase::Down, 39..40));
+    assert_eq!(stage.puppets()[0].handles().len(), held + 1);
+    for performer in 0..10 {
+        stage.apply(&frame(performer, Phase::Up, 0..40));
+    }
+    stage.solve();
+    assert_eq!(stage.puppets()[0].handles().len(), pins);
+    assert!(stage.puppets()[0].pose().iter().all(|v| v.is_finite()));
+}
