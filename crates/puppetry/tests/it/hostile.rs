@@ -683,6 +683,62 @@ async fn valid_flood(url: &str) -> Row {
     row
 }
 
+/// Row: ten performers, each at its limit of 40 fingers, all on the one
+/// puppet, moving every finger at 100 Hz (issue 45's memory row: 707 MB
+/// reported). The puppet takes `MAX_HANDLES_PER_PUPPET` of them; the rest
+/// hold nothing. Its peak memory is the row's.
+async fn ten_full_hands(url: &str) -> Row {
+    let mut row = Row::new("10 × 40 fingers at 100 Hz");
+    let mut clients = Vec::new();
+    let mut mesh = None;
+    for _ in 0..10 {
+        let (ws, stage) = connect_url(url, hello("performer", PERFORMER)).await;
+        mesh.get_or_insert_with(|| placed_mesh(&stage));
+        clients.push(ws);
+    }
+    let mesh = mesh.expect("ten performers");
+    let vertices = mesh.vertices();
+    let n = puppetry_limits::contacts::MAX_HELD_PER_CLIENT;
+    let message = |client: usize, phase: &str, k: usize| {
+        let contacts: Vec<Value> = (0..n)
+            .map(|id| {
+                // Spread over the puppet, a little circle each.
+                let v = vertices[(client * n + id) * 7 % vertices.len()];
+                let a = k as f64 * 0.2;
+                json!({"id": id, "phase": phase, "x": v.x + 3.0 * a.cos(), "y": v.y + 3.0 * a.sin()})
+            })
+            .collect();
+        json!({"type": "contacts", "contacts": contacts}).to_string()
+    };
+    let until = Instant::now() + Duration::from_secs(3 * scale() as u64);
+    let mut tick = tokio::time::interval(Duration::from_millis(10));
+    let mut k = 0;
+    while Instant::now() < until {
+        tick.tick().await;
+        let phase = if k == 0 { "down" } else { "move" };
+        for (c, ws) in clients.iter_mut().enumerate() {
+            if ws.send(Message::text(message(c, phase, k))).await.is_err() {
+                row.notes.push(format!("performer {c} was closed"));
+                return row;
+            }
+            // What the daemon says back is read and dropped.
+            while let Ok(Some(Ok(m))) = tokio::time::timeout(Duration::ZERO, ws.next()).await {
+                if let Message::Text(t) = m
+                    && t.contains("\"error\"")
+                {
+                    row.refused += 1;
+                }
+            }
+            row.tries += 1;
+        }
+        k += 1;
+    }
+    for (c, ws) in clients.iter_mut().enumerate() {
+        let _ = exchange(ws, &message(c, "up", k), -2.0).await;
+    }
+    row
+}
+
 /// Row: random and malformed OSC datagrams at the trigger port.
 async fn osc_packets(served: &Served, rng: &mut Dice) -> Row {
     let mut row = Row::new("OSC datagrams");
@@ -1095,7 +1151,7 @@ async fn the_strangers_table() {
     println!("|{}|", ["---"; 9].join("|"));
     let mut rows = Vec::new();
     watch.take_gap_ms();
-    for k in 0..7 {
+    for k in 0..8 {
         let from = served.log().len();
         let mut row = match k {
             0 => bad_numbers(&url, &mut rng).await,
@@ -1104,6 +1160,7 @@ async fn the_strangers_table() {
             3 => connections(&served).await,
             4 => osc_packets(&served, &mut rng).await,
             5 => valid_flood(&url).await,
+            6 => ten_full_hands(&url).await,
             _ => export_bombs(&served).await,
         };
         // Let the last of it land before reading the daemon.
