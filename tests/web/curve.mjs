@@ -78,6 +78,24 @@ try {
   if (summary.rope.on < 0.6 * summary.rope.total) throw new Error(`the rope is not drawn along its line: ${JSON.stringify(summary.rope)}`);
   if (summary.ribbon.on < 0.9 * summary.ribbon.total) throw new Error(`the ribbon is not drawn along its line: ${JSON.stringify(summary.ribbon)}`);
 
+  step('the ribbon is drawn without corners');
+  // Its centre line (the midpoint of each vertex pair) turns smoothly: the
+  // stage file's eight points once drew it with 14–20° kinks.
+  summary.ribbonTurn = await page.evaluate(() => {
+    const v = window.puppetry.positions(2);
+    const centre = [];
+    for (let i = 0; i + 3 < v.length; i += 4) centre.push([(v[i] + v[i + 2]) / 2, (v[i + 1] + v[i + 3]) / 2]);
+    let most = 0;
+    for (let i = 2; i < centre.length; i++) {
+      const a = Math.atan2(centre[i - 1][1] - centre[i - 2][1], centre[i - 1][0] - centre[i - 2][0]);
+      const b = Math.atan2(centre[i][1] - centre[i - 1][1], centre[i][0] - centre[i - 1][0]);
+      const turn = Math.abs(((b - a + 3 * Math.PI) % (2 * Math.PI)) - Math.PI);
+      most = Math.max(most, (turn * 180) / Math.PI);
+    }
+    return most;
+  });
+  if (summary.ribbonTurn > 6) throw new Error(`the ribbon turns ${summary.ribbonTurn.toFixed(1)}° at one point: a corner`);
+
   step('a drag near the ribbon\'s end moves it there');
   const line = await page.evaluate(() => {
     const pos = window.puppetry.positions(2);
