@@ -271,6 +271,7 @@ pub async fn start_with(config: &ShowConfig, options: Options) -> Result<Running
             puppets_dir,
             player: std::sync::Mutex::new(None),
             exporting: std::sync::atomic::AtomicBool::new(false),
+            meshing: std::sync::atomic::AtomicBool::new(false),
             export_state,
             replays: replays.clone(),
             held: Default::default(),

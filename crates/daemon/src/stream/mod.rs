@@ -115,6 +115,8 @@ pub(crate) struct StageLinks {
     pub puppets_dir: std::path::PathBuf,
     /// An export is running (one at a time).
     pub exporting: std::sync::atomic::AtomicBool,
+    /// An uploaded picture is being read and meshed (one at a time).
+    pub meshing: std::sync::atomic::AtomicBool,
     /// The newest "export" message.
     pub export_state: Feed,
     /// The stage's replay inputs, played and paused from the page.

@@ -76,6 +76,25 @@ pub(super) async fn add(
 
 type Refused = (StatusCode, Refusal);
 
+/// A flag held while its owner runs, let go when it is dropped (on every
+/// way out: an answer, a refusal, a request the client gave up on).
+struct OneAtATime<'a>(&'a std::sync::atomic::AtomicBool);
+
+impl<'a> OneAtATime<'a> {
+    fn claim(flag: &'a std::sync::atomic::AtomicBool) -> Option<OneAtATime<'a>> {
+        use std::sync::atomic::Ordering;
+        flag.compare_exchange(false, true, Ordering::AcqRel, Ordering::Acquire)
+            .ok()
+            .map(|_| OneAtATime(flag))
+    }
+}
+
+impl Drop for OneAtATime<'_> {
+    fn drop(&mut self) {
+        self.0.store(false, std::sync::atomic::Ordering::Release);
+    }
+}
+
 fn refused(status: StatusCode, code: ErrorCode, message: impl Into<String>) -> Refused {
     (status, Refusal::new(code, message))
 }
@@ -91,6 +110,16 @@ async fn add_puppet(
         .links()
         .map_err(|e| refused(StatusCode::NOT_FOUND, ErrorCode::NotFound, e))?;
     check_director(links, headers, local)?;
+    // One picture at a time, from its body to its mesh: each at the size
+    // limits costs hundreds of MB while it is meshed, and several at once
+    // summed them (994 MB). A second meanwhile is answered 429, busy.
+    let _meshing = OneAtATime::claim(&links.meshing).ok_or_else(|| {
+        refused(
+            StatusCode::TOO_MANY_REQUESTS,
+            ErrorCode::Busy,
+            "another picture is being added; send this one when it is",
+        )
+    })?;
     let lineup = shared.lineup.borrow().clone();
     let wanted = Wanted::parse(query, &lineup.config)?;
     let png = axum::body::to_bytes(body, MAX_UPLOAD).await.map_err(|_| {

@@ -657,3 +657,60 @@ async fn a_picture_in_pieces_is_said_to_be_so_and_joins_when_asked() {
     );
     running.shutdown().await;
 }
+
+/// One picture is added at a time (several at the size limits, meshed at
+/// once, summed hundreds of MB each): while one is still arriving, a
+/// second is answered 429 busy; once the first is added, the next is
+/// taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_picture_while_one_is_added_is_busy() {
+    use tokio::io::AsyncWriteExt;
+    let dir = tempfile::tempdir().unwrap();
+    let running = daemon_keeping_pictures_in(dir.path()).await;
+    let picture = disc();
+    // The first upload's body arrives slowly: all but its last bytes.
+    let mut first = tokio::net::TcpStream::connect(running.address)
+        .await
+        .unwrap();
+    let head = format!(
+        "POST /puppets?name=first HTTP/1.1\r\nHost: {}\r\nContent-Type: image/png\r\nContent-Length: {}\r\nConnection: close\r\n{AS_DIRECTOR}\r\n\r\n",
+        running.address,
+        picture.len()
+    );
+    first.write_all(head.as_bytes()).await.unwrap();
+    first
+        .write_all(&picture[..picture.len() - 10])
+        .await
+        .unwrap();
+    first.flush().await.unwrap();
+    // The daemon takes the first request before the second is sent.
+    let mut busy = None;
+    for _ in 0..100 {
+        let (status, answer) = post(&running, "name=second", &[AS_DIRECTOR], &picture).await;
+        if status == 429 {
+            busy = Some(answer);
+            break;
+        }
+        assert_eq!(status, 200, "{answer}");
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    let busy = busy.expect("a second picture while the first arrives is busy");
+    assert_eq!(busy["code"], "busy", "{busy}");
+    // The first finishes and is added; then another is taken.
+    first
+        .write_all(&picture[picture.len() - 10..])
+        .await
+        .unwrap();
+    let mut answer = Vec::new();
+    tokio::io::AsyncReadExt::read_to_end(&mut first, &mut answer)
+        .await
+        .unwrap();
+    assert_eq!(
+        http_status(&answer),
+        200,
+        "{}",
+        String::from_utf8_lossy(&answer)
+    );
+    let (status, answer) = post(&running, "name=third", &[AS_DIRECTOR], &picture).await;
+    assert_eq!(status, 200, "{answer}");
+}
