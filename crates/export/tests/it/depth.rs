@@ -163,25 +163,9 @@ fn an_exported_fold_keeps_a_depth_flip_made_during_the_take() {
     let dir = tempfile::tempdir().unwrap();
     let take = dir.path().join("flip.take");
     let config = config("pieces");
-    let mut stage = Stage::from_config(&config).unwrap();
-    let mut points = fold_points(&mut stage);
-    let at = *points.last().unwrap();
-    // Held still at the fold for a while after the flip.
-    points.extend([at; 6]);
-    let mut flipped_before = None;
-    let record =
-        crate::fixture::record_drag_with(&take, &mut stage, "flip", FPS, &points, |k, stage| {
-            if k != 13 {
-                return Vec::new();
-            }
-            flipped_before = Some(rank_of(&live_order(stage)));
-            vec![puppetry_stage::Change::DepthFlip {
-                at: overlap_point(stage),
-            }]
-        });
-    assert!(!record.is_empty());
+    let (stage, before) = record_fold_and_flip(&take, &config);
     let live = rank_of(&live_order(&stage));
-    let before = flipped_before.unwrap();
+    let before = rank_of(&before);
     assert_ne!(
         live, before,
         "the flip changed nothing live: nothing to check"
@@ -194,6 +178,28 @@ fn an_exported_fold_keeps_a_depth_flip_made_during_the_take() {
     // does not draw that any more.
     let (near, far) = drawn_in_rank(&animation, k, &before);
     assert!(far >= 30 && near * 10 <= far, "near {near}, far {far}");
+}
+
+/// A take of the right hand dragged across the chest and held still, with
+/// an Alt+click on the fold at step 13; the stage after it, and its first
+/// puppet's drawing order just before the flip.
+fn record_fold_and_flip(take: &Path, config: &StageConfig) -> (Stage, Vec<u32>) {
+    let mut stage = Stage::from_config(config).unwrap();
+    let mut points = fold_points(&mut stage);
+    let at = *points.last().unwrap();
+    // Held still at the fold for a while after the flip.
+    points.extend([at; 6]);
+    let mut before = Vec::new();
+    crate::fixture::record_drag_with(take, &mut stage, "flip", FPS, &points, |k, stage| {
+        if k != 13 {
+            return Vec::new();
+        }
+        before = live_order(stage);
+        vec![puppetry_stage::Change::DepthFlip {
+            at: overlap_point(stage),
+        }]
+    });
+    (stage, before)
 }
 
 /// The live stage's drawing order of its first puppet.
@@ -370,19 +376,7 @@ fn spine_shows_a_fold_and_its_flip_as_the_page_did() {
     let dir = tempfile::tempdir().unwrap();
     let take = dir.path().join("flip.take");
     let config = config("pieces");
-    let mut stage = Stage::from_config(&config).unwrap();
-    let mut points = fold_points(&mut stage);
-    let at = *points.last().unwrap();
-    points.extend([at; 6]);
-    crate::fixture::record_drag_with(&take, &mut stage, "flip", FPS, &points, |k, stage| {
-        if k == 13 {
-            vec![puppetry_stage::Change::DepthFlip {
-                at: overlap_point(stage),
-            }]
-        } else {
-            Vec::new()
-        }
-    });
+    record_fold_and_flip(&take, &config);
     let animation = animation_of_take(&take, &config, FPS, None, None).unwrap();
     let p = &animation.puppets[0];
     let json = dir.path().join("flip.json");
