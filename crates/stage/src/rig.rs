@@ -420,6 +420,13 @@ impl Rig {
                         }
                     }
                     r.ffd.compile(&r.vertex_anchors, &r.grid_indices)?;
+                    // The last hand let go: back to rest, as a free puppet
+                    // springs back. The local steps start from the pose,
+                    // so without this the grid kept its last drag's turns
+                    // (48 units off on the demo) until a reset.
+                    if handles.iter().all(|h| h.kind != HandleKind::Contact) {
+                        r.ffd.rest_pose();
+                    }
                 }
                 r.vertex_targets.clear();
                 r.grid_targets.clear();

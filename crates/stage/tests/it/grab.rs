@@ -256,3 +256,54 @@ fn a_puppet_holds_at_most_its_handle_limit() {
     assert_eq!(stage.puppets()[0].handles().len(), pins);
     assert!(stage.puppets()[0].pose().iter().all(|v| v.is_finite()));
 }
+
+/// An lp-FFD grid puppet let go after a direct drag springs back to rest,
+/// as a free puppet does: its local steps started from the last drag's
+/// pose, so it once stayed up to 48 units off (the demo figure, its hand
+/// dragged 200 units) until a reset.
+#[test]
+fn a_grid_puppet_let_go_springs_back_to_rest() {
+    let root = puppetry_testkit::root();
+    let mut config = StageConfig::load(&root.join("config/grid.toml")).unwrap();
+    config.puppets.truncate(1);
+    let mut stage = Stage::from_config(&config).unwrap();
+    stage.solve();
+    let rest = stage.puppets()[0].pose().to_vec();
+    let hand = rest
+        .iter()
+        .copied()
+        .fold(DVec2::splat(f64::NEG_INFINITY), |a, b| {
+            if b.x > a.x { b } else { a }
+        })
+        - DVec2::new(15.0, 0.0);
+    let touch = |phase, at| ContactFrame {
+        source: SourceId::new("hand"),
+        time: 0.0,
+        contacts: vec![Contact::new(1, phase, at)],
+    };
+    stage.apply(&touch(Phase::Down, hand));
+    stage.solve();
+    for i in 1..=25 {
+        stage.apply(&touch(
+            Phase::Move,
+            hand + DVec2::new(120.0, 160.0) * (f64::from(i) / 25.0),
+        ));
+        stage.solve();
+    }
+    let off = |s: &Stage| {
+        s.puppets()[0]
+            .pose()
+            .iter()
+            .zip(&rest)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0, f64::max)
+    };
+    assert!(off(&stage) > 50.0, "the drag moved it {}", off(&stage));
+    stage.apply(&touch(Phase::Up, hand));
+    stage.solve();
+    assert!(
+        off(&stage) < 0.5,
+        "let go, it stays {:.2} off rest",
+        off(&stage)
+    );
+}
