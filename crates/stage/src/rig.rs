@@ -408,37 +408,7 @@ impl Rig {
                 );
                 r.arap.update(&r.targets, Steps::Both)?;
             }
-            Rig::Grid(r) => {
-                if changed {
-                    r.vertex_anchors.clear();
-                    r.grid_indices.clear();
-                    for h in handles {
-                        match h.grip {
-                            Grip::Point(a) => r.vertex_anchors.push(a),
-                            Grip::GridHandle(i) => r.grid_indices.push(i),
-                            Grip::Joint(_) | Grip::Bone { .. } => {}
-                        }
-                    }
-                    r.ffd.compile(&r.vertex_anchors, &r.grid_indices)?;
-                    // The last hand let go: back to rest, as a free puppet
-                    // springs back. The local steps start from the pose,
-                    // so without this the grid kept its last drag's turns
-                    // (48 units off on the demo) until a reset.
-                    if handles.iter().all(|h| h.kind != HandleKind::Contact) {
-                        r.ffd.rest_pose();
-                    }
-                }
-                r.vertex_targets.clear();
-                r.grid_targets.clear();
-                for h in handles {
-                    match h.grip {
-                        Grip::Point(_) => r.vertex_targets.push(h.rig_target()),
-                        Grip::GridHandle(_) => r.grid_targets.push(h.rig_target()),
-                        Grip::Joint(_) | Grip::Bone { .. } => {}
-                    }
-                }
-                r.ffd.update(&r.vertex_targets, &r.grid_targets)?;
-            }
+            Rig::Grid(r) => r.solve(handles, changed)?,
             Rig::Skeleton(r) => {
                 match r.mode {
                     SkeletonMode::Free => {
@@ -549,6 +519,41 @@ impl Rig {
 }
 
 impl GridRig {
+    /// Compiles the handles when they changed and moves them to their
+    /// targets (see [`Rig::solve`]).
+    fn solve(&mut self, handles: &[Handle], changed: bool) -> Result<(), RigError> {
+        if changed {
+            self.vertex_anchors.clear();
+            self.grid_indices.clear();
+            for h in handles {
+                match h.grip {
+                    Grip::Point(a) => self.vertex_anchors.push(a),
+                    Grip::GridHandle(i) => self.grid_indices.push(i),
+                    Grip::Joint(_) | Grip::Bone { .. } => {}
+                }
+            }
+            self.ffd.compile(&self.vertex_anchors, &self.grid_indices)?;
+            // The last hand let go: back to rest, as a free puppet
+            // springs back. The local steps start from the pose,
+            // so without this the grid kept its last drag's turns
+            // (48 units off on the demo) until a reset.
+            if handles.iter().all(|h| h.kind != HandleKind::Contact) {
+                self.ffd.rest_pose();
+            }
+        }
+        self.vertex_targets.clear();
+        self.grid_targets.clear();
+        for h in handles {
+            match h.grip {
+                Grip::Point(_) => self.vertex_targets.push(h.rig_target()),
+                Grip::GridHandle(_) => self.grid_targets.push(h.rig_target()),
+                Grip::Joint(_) | Grip::Bone { .. } => {}
+            }
+        }
+        self.ffd.update(&self.vertex_targets, &self.grid_targets)?;
+        Ok(())
+    }
+
     /// The lp-FFD solver (its grid, spec and pose).
     pub fn ffd(&self) -> &LpFfd {
         &self.ffd
