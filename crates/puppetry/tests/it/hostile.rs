@@ -739,6 +739,67 @@ async fn ten_full_hands(url: &str) -> Row {
     row
 }
 
+/// Row: pictures at the size limit (`MAX_PICTURE_PIXELS`, a figure on a
+/// transparent background) sent by a director three at a time, three
+/// times (issue 45's memory row: several at once summed 994 MB). One is
+/// meshed at a time; the others are answered 429 busy.
+async fn big_pictures(served: &Served) -> Row {
+    let mut row = Row::new("pictures at the limit ×3");
+    let side = (puppetry_limits::files::MAX_PICTURE_PIXELS as f64).sqrt() as u32;
+    let mut body = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut body, side, side);
+        encoder.set_color(png::ColorType::Rgba);
+        encoder.set_depth(png::BitDepth::Eight);
+        let mut writer = encoder.write_header().unwrap();
+        let centre = f64::from(side) / 2.0;
+        let pixels: Vec<u8> = (0..side)
+            .flat_map(|y| (0..side).map(move |x| (x, y)))
+            .flat_map(|(x, y)| {
+                let (dx, dy) = (f64::from(x) - centre, f64::from(y) - centre);
+                // A wavy disc: an outline with some length to it.
+                let r = centre * (0.8 + 0.1 * (8.0 * dy.atan2(dx)).sin());
+                if dx * dx + dy * dy < r * r {
+                    [180, 90, 40, 255]
+                } else {
+                    [0, 0, 0, 0]
+                }
+            })
+            .collect();
+        writer.write_image_data(&pixels).unwrap();
+    }
+    let request = |n: usize| {
+        let mut r = format!(
+            "POST /puppets?name=big{n}&vertices=2000 HTTP/1.1\r\nHost: {}\r\nContent-Type: image/png\r\n\
+             Content-Length: {}\r\nAuthorization: Bearer {DIRECTOR}\r\nConnection: close\r\n\r\n",
+            served.http,
+            body.len()
+        )
+        .into_bytes();
+        r.extend_from_slice(&body);
+        r
+    };
+    for round in 0..3 {
+        let sent = (0..3).map(|k| {
+            let request = request(round * 3 + k);
+            let address = served.http.clone();
+            tokio::spawn(async move {
+                crate::common::daemon::http_raw(address.as_str(), &request).await
+            })
+        });
+        for answer in futures_util::future::join_all(sent).await {
+            let status = http_status(&answer.unwrap());
+            row.tries += 1;
+            match status {
+                200 => {}
+                429 => row.refused += 1,
+                other => row.notes.push(format!("answered {other}")),
+            }
+        }
+    }
+    row
+}
+
 /// Row: random and malformed OSC datagrams at the trigger port.
 async fn osc_packets(served: &Served, rng: &mut Dice) -> Row {
     let mut row = Row::new("OSC datagrams");
@@ -1151,7 +1212,7 @@ async fn the_strangers_table() {
     println!("|{}|", ["---"; 9].join("|"));
     let mut rows = Vec::new();
     watch.take_gap_ms();
-    for k in 0..8 {
+    for k in 0..9 {
         let from = served.log().len();
         let mut row = match k {
             0 => bad_numbers(&url, &mut rng).await,
@@ -1161,6 +1222,7 @@ async fn the_strangers_table() {
             4 => osc_packets(&served, &mut rng).await,
             5 => valid_flood(&url).await,
             6 => ten_full_hands(&url).await,
+            7 => big_pictures(&served).await,
             _ => export_bombs(&served).await,
         };
         // Let the last of it land before reading the daemon.

@@ -21,10 +21,15 @@ pub struct Served {
     stderr: Option<std::thread::JoinHandle<()>>,
 }
 
-/// `puppetry serve --config STAGE`, for a caller to add to.
+/// `puppetry serve --config STAGE`, its added pictures kept in `puppets`
+/// beside the stage file, for a caller to add to. (Left to the default,
+/// `./puppets`, the pictures one test added came back in every later
+/// test's daemon, all started from the crate's folder.)
 pub fn serve_command(stage: &Path) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_puppetry"));
     command.arg("serve").arg("--config").arg(stage);
+    let beside = stage.parent().unwrap_or(Path::new("."));
+    command.arg("--puppets").arg(beside.join("puppets"));
     command
 }
 
